@@ -1,0 +1,17 @@
+"""One exception type per failure kind at the library boundary (mapped to HTTP codes in service/)."""
+
+
+class MagnetError(Exception):
+    """Base class of every error the library raises on purpose."""
+
+
+class MeshError(MagnetError):
+    """The mesh cannot be read or is not a valid mesh (broken file, NaN, degenerate cells, ...)."""
+
+
+class ParameterError(MagnetError):
+    """A parameter is out of range or inconsistent with the mesh (k too large, unknown mode, ...)."""
+
+
+class ModelError(MagnetError):
+    """An agglomeration model cannot be used (weights missing, wrong dimension, ...)."""

@@ -1,0 +1,86 @@
+"""The one interface every partitioner implements (scikit-learn style: hyper-parameters in the
+constructor, work in methods, inputs validated at the boundary).
+
+A partitioner works on a `GraphBatch`: the disjoint union of one or more subgraphs of the dual
+graph, nodes sorted by subgraph (the torch-geometric Batch idea in plain numpy). Recursive
+bisection runs level by level and hands every subgraph of a level to `bisect_batch` at once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class GraphBatch:
+    """Disjoint union of B graphs with N nodes in total (local ids 0..N-1).
+
+    indptr (N+1,), indices (nnz,): symmetric CSR adjacency, no self loops, edges only inside a graph.
+    weights (nnz,) float: shared face measure of each edge (edge length in 2D, face area in 3D).
+    graph_ptr (B+1,): nodes of graph b are graph_ptr[b]:graph_ptr[b+1].
+    centroids (N, dim), measures (N,): cell centroid and area/volume.
+    tags (N,) int or None: physical group of each cell.
+    node_ids (N,): the fine-cell id of each node (for callers; partitioners may ignore it).
+    """
+
+    indptr: np.ndarray
+    indices: np.ndarray
+    weights: np.ndarray
+    graph_ptr: np.ndarray
+    centroids: np.ndarray
+    measures: np.ndarray
+    tags: np.ndarray | None
+    node_ids: np.ndarray
+
+    @property
+    def n_nodes(self) -> int:
+        return int(self.indptr.shape[0] - 1)
+
+    @property
+    def n_graphs(self) -> int:
+        return int(self.graph_ptr.shape[0] - 1)
+
+    @property
+    def dim(self) -> int:
+        return int(self.centroids.shape[1])
+
+    def graph_index(self) -> np.ndarray:
+        """(N,) which graph each node belongs to (torch-geometric's `batch` vector)."""
+        return np.repeat(np.arange(self.n_graphs), np.diff(self.graph_ptr))
+
+    def degrees(self) -> np.ndarray:
+        return np.diff(self.indptr)
+
+    def subgraph(self, b: int) -> GraphBatch:
+        """Graph b alone, as a batch of one (local ids)."""
+        lo, hi = int(self.graph_ptr[b]), int(self.graph_ptr[b + 1])
+        e0, e1 = int(self.indptr[lo]), int(self.indptr[hi])
+        return GraphBatch(
+            indptr=self.indptr[lo : hi + 1] - e0,
+            indices=self.indices[e0:e1] - lo,
+            weights=self.weights[e0:e1],
+            graph_ptr=np.array([0, hi - lo], dtype=np.int64),
+            centroids=self.centroids[lo:hi],
+            measures=self.measures[lo:hi],
+            tags=None if self.tags is None else self.tags[lo:hi],
+            node_ids=self.node_ids[lo:hi],
+        )
+
+
+class Partitioner:
+    """Base class. Subclasses set `name`, `dims` and implement `bisect_batch`, and `kway` if they can."""
+
+    name: str = "base"
+    dims: tuple[int, ...] = (2, 3)
+    supports_kway: bool = False
+    description: str = ""
+
+    def bisect_batch(self, batch: GraphBatch) -> np.ndarray:
+        """Split every graph of the batch in two: returns (N,) int labels in {0, 1}."""
+        raise NotImplementedError
+
+    def kway(self, batch: GraphBatch, k: int) -> np.ndarray:
+        """Split the (single) graph of the batch into k parts: returns (N,) labels in 0..k-1."""
+        raise NotImplementedError(f"{self.name} has no direct k-way mode")
