@@ -1,0 +1,227 @@
+"""Vectorized cell geometry: faces, measures, centroids, diameters (no Python loop over cells).
+
+2D cells are node cycles (triangles, quads and polygons alike); their "faces" are edges.
+3D cells come from per-type face templates (outward faces for a positively oriented VTK cell)
+and, for VTK polyhedra, from their stored faces. Measures use the divergence theorem on the
+fan-triangulated faces, so any star-shaped cell is exact.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .mesh import VTK_HEXAHEDRON, VTK_POLYHEDRON, VTK_PYRAMID, VTK_TETRA, VTK_WEDGE, Mesh
+
+# Outward faces of positively oriented VTK cells.
+FACE_TEMPLATES: dict[int, list[tuple[int, ...]]] = {
+    VTK_TETRA: [(0, 2, 1), (0, 1, 3), (1, 2, 3), (0, 3, 2)],
+    VTK_HEXAHEDRON: [(0, 3, 2, 1), (4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (3, 0, 4, 7)],
+    VTK_WEDGE: [(0, 1, 2), (3, 5, 4), (0, 3, 4, 1), (1, 4, 5, 2), (2, 5, 3, 0)],
+    VTK_PYRAMID: [(0, 3, 2, 1), (0, 1, 4), (1, 2, 4), (2, 3, 4), (3, 0, 4)],
+}
+
+
+@dataclass
+class Faces:
+    """All faces of all cells (each interior face appears twice, once per cell).
+
+    cell (F,): owning cell; offsets (F+1,) / nodes: CSR face -> point ids, ordered so that the
+    normal points out of the owning cell (2D: edges, ordered counter-clockwise around the cell).
+    """
+
+    cell: np.ndarray
+    offsets: np.ndarray
+    nodes: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return int(self.cell.shape[0])
+
+    def sizes(self) -> np.ndarray:
+        return np.diff(self.offsets)
+
+
+def cell_index(offsets: np.ndarray) -> np.ndarray:
+    """(nnz,) the row of every entry of a CSR array."""
+    return np.repeat(np.arange(offsets.size - 1), np.diff(offsets))
+
+
+def next_in_cycle(offsets: np.ndarray) -> np.ndarray:
+    """(nnz,) index of the next entry of the same row, wrapping around (for node cycles)."""
+    nnz = int(offsets[-1])
+    nxt = np.arange(1, nnz + 1)
+    ends = offsets[1:] - 1
+    nxt[ends[np.diff(offsets) > 0]] = offsets[:-1][np.diff(offsets) > 0]
+    return nxt
+
+
+def cell_faces(mesh: Mesh) -> Faces:
+    """Every face (3D) or edge (2D) of every cell, outward oriented."""
+    if mesh.dim == 2:
+        nxt = next_in_cycle(mesh.offsets)
+        nodes = np.column_stack([mesh.connectivity, mesh.connectivity[nxt]]).reshape(-1)
+        cell = cell_index(mesh.offsets)
+        return Faces(cell=cell, offsets=np.arange(0, nodes.size + 1, 2, dtype=np.int64), nodes=nodes)
+    parts_cell, parts_size, parts_nodes = [], [], []
+    for t, faces in FACE_TEMPLATES.items():
+        sel = np.flatnonzero(mesh.cell_types == t)
+        if sel.size == 0:
+            continue
+        n = {VTK_TETRA: 4, VTK_HEXAHEDRON: 8, VTK_WEDGE: 6, VTK_PYRAMID: 5}[t]
+        conn = mesh.connectivity[mesh.offsets[sel][:, None] + np.arange(n)[None, :]]
+        for size in (3, 4):
+            tmpl = [f for f in faces if len(f) == size]
+            if not tmpl:
+                continue
+            fn = conn[:, np.array(tmpl)]  # (ncells, nf, size)
+            parts_cell.append(np.repeat(sel, len(tmpl)))
+            parts_size.append(np.full(sel.size * len(tmpl), size, dtype=np.int64))
+            parts_nodes.append(fn.reshape(-1))
+    if mesh.poly_cells is not None:
+        nf = np.diff(mesh.poly_cell_faces)
+        parts_cell.append(np.repeat(mesh.poly_cells, nf))
+        parts_size.append(np.diff(mesh.poly_face_offsets))
+        parts_nodes.append(mesh.poly_face_nodes)
+    cell = np.concatenate(parts_cell)
+    sizes = np.concatenate(parts_size)
+    nodes = np.concatenate(parts_nodes).astype(np.int64)
+    offsets = np.zeros(sizes.size + 1, dtype=np.int64)
+    np.cumsum(sizes, out=offsets[1:])
+    # order faces by cell (stable), so faces of a cell are contiguous
+    order = np.argsort(cell, kind="stable")
+    if not np.array_equal(order, np.arange(order.size)):
+        cell, offsets, nodes = cell[order], *reorder_csr(offsets, nodes, order)
+    return Faces(cell=cell, offsets=offsets, nodes=nodes)
+
+
+def reorder_csr(offsets: np.ndarray, values: np.ndarray, order: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of a CSR array taken in `order` (vectorized gather)."""
+    sizes = np.diff(offsets)[order]
+    new_offsets = np.zeros(order.size + 1, dtype=np.int64)
+    np.cumsum(sizes, out=new_offsets[1:])
+    src = np.repeat(offsets[:-1][order] - new_offsets[:-1], sizes) + np.arange(new_offsets[-1])
+    return new_offsets, values[src]
+
+
+def fan_triangles(offsets: np.ndarray, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Fan-triangulate polygons given in CSR: returns (owner (T,), tri (T, 3) point ids)."""
+    sizes = np.diff(offsets)
+    ntri = np.maximum(sizes - 2, 0)
+    owner = np.repeat(np.arange(sizes.size), ntri)
+    first = np.zeros(ntri.size + 1, dtype=np.int64)
+    np.cumsum(ntri, out=first[1:])
+    k = np.arange(first[-1]) - first[:-1][owner] + 1  # 1..n-2
+    base = offsets[:-1][owner]
+    tri = np.column_stack([nodes[base], nodes[base + k], nodes[base + k + 1]])
+    return owner, tri
+
+
+def vertex_means(mesh: Mesh) -> np.ndarray:
+    """(C, dim) mean of each cell's nodes."""
+    cell = cell_index(mesh.offsets)
+    counts = np.diff(mesh.offsets).astype(np.float64)
+    return np.column_stack(
+        [np.bincount(cell, weights=mesh.points[mesh.connectivity, d], minlength=mesh.n_cells) / counts for d in range(mesh.dim)]
+    )
+
+
+def _measures_and_centroids(mesh: Mesh, faces: Faces | None = None) -> tuple[np.ndarray, np.ndarray]:
+    n = mesh.n_cells
+    if mesh.dim == 2:
+        p = mesh.points
+        nxt = next_in_cycle(mesh.offsets)
+        a, b = mesh.connectivity, mesh.connectivity[nxt]
+        cell = cell_index(mesh.offsets)
+        # shift by the cell's first vertex for round-off
+        o = p[mesh.connectivity[mesh.offsets[:-1]]][cell]
+        xa, ya = (p[a] - o).T
+        xb, yb = (p[b] - o).T
+        cross = xa * yb - xb * ya
+        area = 0.5 * np.bincount(cell, weights=cross, minlength=n)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cx = np.bincount(cell, weights=(xa + xb) * cross, minlength=n) / (6 * area)
+            cy = np.bincount(cell, weights=(ya + yb) * cross, minlength=n) / (6 * area)
+        o0 = p[mesh.connectivity[mesh.offsets[:-1]]]
+        return area, np.column_stack([cx, cy]) + o0
+    faces = faces or cell_faces(mesh)
+    owner, tri = fan_triangles(faces.offsets, faces.nodes)
+    cell = faces.cell[owner]
+    o = vertex_means(mesh)
+    p = mesh.points
+    a, b, c = p[tri[:, 0]] - o[cell], p[tri[:, 1]] - o[cell], p[tri[:, 2]] - o[cell]
+    v = np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0
+    vol = np.bincount(cell, weights=v, minlength=n)
+    g = (a + b + c) / 4.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cen = np.column_stack([np.bincount(cell, weights=v * g[:, d], minlength=n) for d in range(3)]) / vol[:, None]
+    return vol, cen + o
+
+
+def signed_measures(mesh: Mesh) -> np.ndarray:
+    """(C,) signed area (2D) or volume (3D); positive for positively oriented cells."""
+    return _measures_and_centroids(mesh)[0]
+
+
+def cell_measures(mesh: Mesh) -> np.ndarray:
+    """(C,) area or volume of each cell."""
+    return np.abs(_measures_and_centroids(mesh)[0])
+
+
+def cell_centroids(mesh: Mesh) -> np.ndarray:
+    """(C, dim) barycentre of each cell (area/volume weighted, not the vertex mean)."""
+    return _measures_and_centroids(mesh)[1]
+
+
+def measures_and_centroids(mesh: Mesh, faces: Faces | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Both at once (one pass)."""
+    m, c = _measures_and_centroids(mesh, faces)
+    return np.abs(m), c
+
+
+def cell_diameters(mesh: Mesh) -> np.ndarray:
+    """(C,) largest distance between two nodes of each cell (loop over distinct cell sizes only)."""
+    sizes = np.diff(mesh.offsets)
+    out = np.zeros(mesh.n_cells)
+    for s in np.unique(sizes):
+        sel = np.flatnonzero(sizes == s)
+        x = mesh.points[mesh.connectivity[mesh.offsets[sel][:, None] + np.arange(s)[None, :]]]
+        best = np.zeros(sel.size)
+        for i in range(s - 1):  # s is the number of nodes per cell (small)
+            d = np.linalg.norm(x[:, i + 1 :, :] - x[:, i : i + 1, :], axis=2).max(axis=1)
+            best = np.maximum(best, d)
+        out[sel] = best
+    return out
+
+
+def face_measures(points: np.ndarray, faces: Faces) -> np.ndarray:
+    """(F,) length of each edge (2D) or area of each face (3D)."""
+    if points.shape[1] == 2:
+        a = points[faces.nodes[faces.offsets[:-1]]]
+        b = points[faces.nodes[faces.offsets[:-1] + 1]]
+        return np.linalg.norm(b - a, axis=1)
+    owner, tri = fan_triangles(faces.offsets, faces.nodes)
+    p = points
+    cr = np.cross(p[tri[:, 1]] - p[tri[:, 0]], p[tri[:, 2]] - p[tri[:, 0]])
+    return 0.5 * np.bincount(owner, weights=np.linalg.norm(cr, axis=1), minlength=faces.n)
+
+
+def mesh_diameter(points: np.ndarray) -> float:
+    """Largest distance between two points (exact, via the convex hull)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    pts = np.unique(points, axis=0)
+    if len(pts) <= 1:
+        return 0.0
+    try:
+        hv = pts[ConvexHull(pts).vertices] if len(pts) > points.shape[1] else pts
+    except (QhullError, ValueError):
+        hv = pts
+    if len(hv) > 4000:  # hull of a huge round domain: subsample pairs block by block
+        best = 0.0
+        for i in range(0, len(hv), 2000):
+            d = np.linalg.norm(hv[i : i + 2000, None, :] - hv[None, :, :], axis=2)
+            best = max(best, float(d.max()))
+        return best
+    return float(np.linalg.norm(hv[:, None, :] - hv[None, :, :], axis=2).max())

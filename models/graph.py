@@ -1,0 +1,156 @@
+"""The dual graph of a mesh, built by sorting face keys (no Python loop over cells).
+
+Two cells are neighbours when they share an edge (2D) or a face (3D). A face is keyed by its
+three smallest node ids and its size (a conforming mesh has no two different faces with the same
+key), so a pyramid's quad face meets a hexahedron's and its triangles meet tetrahedra.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from .errors import MeshError
+from .geometry import Faces, cell_faces, face_measures
+from .mesh import Mesh
+
+
+@dataclass
+class DualGraph:
+    """Symmetric CSR adjacency of the cells.
+
+    indptr (C+1,), indices (2E,): neighbours of each cell, sorted; weights (2E,): measure of the
+    shared edge/face. faces: every cell face; partner (F,): the matching face of the neighbour
+    cell, -1 on the domain boundary.
+    """
+
+    indptr: np.ndarray
+    indices: np.ndarray
+    weights: np.ndarray
+    faces: Faces
+    partner: np.ndarray
+    face_measure: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return int(self.indptr.shape[0] - 1)
+
+    @property
+    def n_edges(self) -> int:
+        return int(self.indices.shape[0] // 2)
+
+    def degrees(self) -> np.ndarray:
+        return np.diff(self.indptr)
+
+    def matrix(self) -> sp.csr_matrix:
+        return sp.csr_matrix((self.weights, self.indices, self.indptr), shape=(self.n, self.n))
+
+    def edges(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each undirected edge once: (u, v) with u < v."""
+        rows = np.repeat(np.arange(self.n), np.diff(self.indptr))
+        keep = rows < self.indices
+        return rows[keep], self.indices[keep]
+
+
+def face_keys(faces: Faces, n_points: int) -> np.ndarray:
+    """One sortable int64 key per face, or an (F, 4) key table when the ids do not fit."""
+    sizes = faces.sizes()
+    if np.all(sizes == 2):
+        e = faces.nodes.reshape(-1, 2)
+        lo, hi = e.min(axis=1), e.max(axis=1)
+        return lo * np.int64(n_points) + hi
+    width = int(sizes.max())
+    pad = np.full((faces.n, width), np.iinfo(np.int64).max, dtype=np.int64)
+    col = np.arange(faces.nodes.size) - np.repeat(faces.offsets[:-1], sizes)
+    pad[np.repeat(np.arange(faces.n), sizes), col] = faces.nodes
+    if width > 3:
+        pad.partition(2, axis=1)  # three smallest first
+        three = np.sort(pad[:, :3], axis=1)
+    else:
+        three = np.sort(pad, axis=1)
+    s = np.minimum(sizes, 7).astype(np.int64)
+    bits = max(int(n_points - 1).bit_length(), 1)
+    if 3 * bits + 3 <= 63:
+        return (((three[:, 0] << bits) | three[:, 1]) << bits | three[:, 2]) << 3 | s
+    return np.column_stack([three, s])
+
+
+def dual_graph(mesh: Mesh, faces: Faces | None = None) -> DualGraph:
+    """Build the dual graph (linear after one sort of the face keys)."""
+    faces = faces or cell_faces(mesh)
+    keys = face_keys(faces, mesh.n_points)
+    if keys.ndim == 1:
+        order = np.argsort(keys, kind="stable")
+        sk = keys[order]
+        same = sk[1:] == sk[:-1]
+    else:
+        order = np.lexsort(keys.T[::-1])
+        sk = keys[order]
+        same = np.all(sk[1:] == sk[:-1], axis=1)
+    if same.size > 1 and np.any(same[1:] & same[:-1]):
+        n_bad = int(np.count_nonzero(same[1:] & same[:-1]))
+        raise MeshError(f"the mesh is not a manifold: {n_bad} edges/faces are shared by more than two cells")
+    i = np.flatnonzero(same)
+    fa, fb = order[i], order[i + 1]
+    ca, cb = faces.cell[fa], faces.cell[fb]
+    self_loop = ca == cb
+    if self_loop.any():
+        raise MeshError(f"{int(self_loop.sum())} cells have the same edge/face twice (duplicated nodes in a cell)")
+    partner = np.full(faces.n, -1, dtype=np.int64)
+    partner[fa] = fb
+    partner[fb] = fa
+    fm = face_measures(mesh.points, faces)
+    n = mesh.n_cells
+    rows = np.concatenate([ca, cb])
+    cols = np.concatenate([cb, ca])
+    w = np.concatenate([fm[fa], fm[fa]])
+    a = sp.csr_matrix((w, (rows, cols)), shape=(n, n))
+    a.sum_duplicates()  # two cells sharing two faces (possible for polyhedra): one edge, summed measure
+    a.sort_indices()
+    return DualGraph(
+        indptr=a.indptr.astype(np.int64),
+        indices=a.indices.astype(np.int64),
+        weights=a.data.astype(np.float64),
+        faces=faces,
+        partner=partner,
+        face_measure=fm,
+    )
+
+
+def induced_batch_order(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Nodes sorted by label, and the (K+1,) offsets of each label's block."""
+    order = np.argsort(labels, kind="stable")
+    counts = np.bincount(labels)
+    ptr = np.zeros(counts.size + 1, dtype=np.int64)
+    np.cumsum(counts, out=ptr[1:])
+    return order, ptr
+
+
+def subgraph_by_labels(indptr: np.ndarray, indices: np.ndarray, weights: np.ndarray, labels: np.ndarray, nodes: np.ndarray | None = None):
+    """Disjoint union of the subgraphs induced by each label (vectorized).
+
+    labels (N,) in 0..K-1 for the nodes considered (or -1 to drop a node). Returns
+    (order, ptr, sub_indptr, sub_indices, sub_weights): `order` lists the kept original nodes
+    grouped by label, ptr (K+1,) the block offsets, and a CSR in the new (local) numbering.
+    """
+    n = indptr.size - 1
+    if nodes is None:
+        lab = labels
+    else:
+        lab = np.full(n, -1, dtype=np.int64)
+        lab[nodes] = labels
+    keep = np.flatnonzero(lab >= 0)
+    order = keep[np.argsort(lab[keep], kind="stable")]
+    counts = np.bincount(lab[keep], minlength=int(lab.max()) + 1 if keep.size else 0)
+    ptr = np.zeros(counts.size + 1, dtype=np.int64)
+    np.cumsum(counts, out=ptr[1:])
+    new_id = np.full(n, -1, dtype=np.int64)
+    new_id[order] = np.arange(order.size)
+    rows = np.repeat(np.arange(n), np.diff(indptr))
+    e = (lab[rows] >= 0) & (lab[rows] == lab[indices])
+    r, c, w = new_id[rows[e]], new_id[indices[e]], weights[e]
+    m = sp.csr_matrix((w, (r, c)), shape=(order.size, order.size))
+    m.sort_indices()
+    return order, ptr, m.indptr.astype(np.int64), m.indices.astype(np.int64), m.data.astype(np.float64)

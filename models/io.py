@@ -1,0 +1,319 @@
+"""Mesh input: any format meshio reads, turned into one `Mesh` of numpy arrays.
+
+Format quirks stay here. Everything returned is validated: finite coordinates, cell indices in
+range, no degenerate cells, every cell positively oriented (2D counter-clockwise, 3D outward).
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+
+import numpy as np
+
+from .errors import MeshError, ParameterError
+from .mesh import (
+    CELL_TYPE_NAMES,
+    VTK_HEXAHEDRON,
+    VTK_POLYGON,
+    VTK_POLYHEDRON,
+    VTK_PYRAMID,
+    VTK_QUAD,
+    VTK_TETRA,
+    VTK_TRIANGLE,
+    VTK_WEDGE,
+    Mesh,
+)
+
+# meshio cell type name -> (VTK type, topological dimension, number of corner nodes kept)
+_TYPES: dict[str, tuple[int, int, int]] = {
+    "vertex": (1, 0, 1),
+    "line": (3, 1, 2),
+    "line3": (3, 1, 2),
+    "triangle": (VTK_TRIANGLE, 2, 3),
+    "triangle6": (VTK_TRIANGLE, 2, 3),
+    "triangle7": (VTK_TRIANGLE, 2, 3),
+    "quad": (VTK_QUAD, 2, 4),
+    "quad8": (VTK_QUAD, 2, 4),
+    "quad9": (VTK_QUAD, 2, 4),
+    "polygon": (VTK_POLYGON, 2, 0),
+    "tetra": (VTK_TETRA, 3, 4),
+    "tetra10": (VTK_TETRA, 3, 4),
+    "hexahedron": (VTK_HEXAHEDRON, 3, 8),
+    "hexahedron20": (VTK_HEXAHEDRON, 3, 8),
+    "hexahedron27": (VTK_HEXAHEDRON, 3, 8),
+    "wedge": (VTK_WEDGE, 3, 6),
+    "wedge15": (VTK_WEDGE, 3, 6),
+    "wedge18": (VTK_WEDGE, 3, 6),
+    "pyramid": (VTK_PYRAMID, 3, 5),
+    "pyramid13": (VTK_PYRAMID, 3, 5),
+    "pyramid14": (VTK_PYRAMID, 3, 5),
+}
+# Node permutation that mirrors a cell (turns a negatively oriented cell into a positive one).
+MIRROR = {
+    VTK_TETRA: np.array([0, 2, 1, 3]),
+    VTK_HEXAHEDRON: np.array([0, 3, 2, 1, 4, 7, 6, 5]),
+    VTK_WEDGE: np.array([0, 2, 1, 3, 5, 4]),
+    VTK_PYRAMID: np.array([0, 3, 2, 1, 4]),
+}
+TAG_NAMES = ("gmsh:physical", "CellEntityIds", "cell_tags", "medit:ref", "physical", "material", "tag")
+SUPPORTED_EXTENSIONS = (".vtu", ".vtk", ".msh", ".xdmf", ".xmf", ".mesh", ".med", ".inp", ".obj", ".off", ".ply", ".stl", ".h5m", ".su2", ".nas", ".bdf", ".f3grid", ".avs", ".dat", ".tec", ".ugrid")
+
+
+def read_mesh(path: str | os.PathLike, physical_tag: str | None = None, file_format: str | None = None) -> Mesh:
+    """Read a mesh file and return a validated, positively oriented `Mesh`."""
+    import meshio
+
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise MeshError(f"mesh file not found: {path}")
+    if os.path.getsize(path) == 0:
+        raise MeshError(f"mesh file is empty: {os.path.basename(path)}")
+    ext = os.path.splitext(path)[1].lower()
+    if file_format is None and ext not in meshio.extension_to_filetypes:
+        raise MeshError(
+            f"unknown mesh format {ext or '(no extension)'!r}; use one of: "
+            + ", ".join(sorted(meshio.extension_to_filetypes))
+        )
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            m = meshio.read(path, file_format=file_format)
+    except MeshError:
+        raise
+    except Exception as exc:  # meshio raises many kinds on broken input
+        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise MeshError(f"cannot read {os.path.basename(path)} as a mesh: {msg}") from None
+    return mesh_from_meshio(m, physical_tag=physical_tag)
+
+
+def mesh_from_meshio(m, physical_tag: str | None = None) -> Mesh:
+    """Convert a meshio.Mesh (blocks of cells) into our CSR `Mesh`."""
+    blocks = []
+    for i, block in enumerate(m.cells):
+        name = block.type
+        if name.startswith("polyhedron"):
+            blocks.append((i, name, VTK_POLYHEDRON, 3, block.data))
+            continue
+        if name not in _TYPES:
+            raise MeshError(f"unsupported cell type {name!r} in the mesh")
+        vtk, tdim, _ = _TYPES[name]
+        blocks.append((i, name, vtk, tdim, block.data))
+    tag_key = _find_tag_key(m.cell_data, physical_tag)
+    cells = []
+    for i, name, _vtk, tdim, data in blocks:
+        tags = None
+        if tag_key is not None:
+            tags = np.asarray(m.cell_data[tag_key][i]).reshape(-1)
+        cells.append((name, data, tags, tdim))
+    return mesh_from_blocks(np.asarray(m.points, dtype=np.float64), cells, tag_name=tag_key)
+
+
+def mesh_from_arrays(points, cells, tags=None) -> Mesh:
+    """Build a `Mesh` from points and [(meshio type name, array)] blocks; tags is None or one array per block."""
+    blocks = []
+    for j, (name, data) in enumerate(cells):
+        if name.startswith("polyhedron"):
+            tdim = 3
+        elif name in _TYPES:
+            tdim = _TYPES[name][1]
+        else:
+            raise MeshError(f"unsupported cell type {name!r}")
+        blocks.append((name, data, None if tags is None else np.asarray(tags[j]).reshape(-1), tdim))
+    return mesh_from_blocks(np.asarray(points, dtype=np.float64), blocks, tag_name=None if tags is None else "tags")
+
+
+def _find_tag_key(cell_data: dict, physical_tag: str | None) -> str | None:
+    if physical_tag is not None:
+        if physical_tag not in cell_data:
+            raise ParameterError(
+                f"physical tag {physical_tag!r} not found in the mesh cell data; available: {sorted(cell_data) or 'none'}"
+            )
+        return physical_tag
+    for key in TAG_NAMES:
+        if key in cell_data:
+            return key
+    return None
+
+
+def _csr_from_blocks(blocks):
+    """Concatenate fixed-width blocks (grouped by width, a loop over blocks, not cells) into CSR."""
+    sizes = np.concatenate([np.full(len(d), d.shape[1], dtype=np.int64) for d in blocks]) if blocks else np.zeros(0, np.int64)
+    conn = np.concatenate([np.asarray(d, dtype=np.int64).reshape(-1) for d in blocks]) if blocks else np.zeros(0, np.int64)
+    offsets = np.zeros(len(sizes) + 1, dtype=np.int64)
+    np.cumsum(sizes, out=offsets[1:])
+    return offsets, conn
+
+
+def mesh_from_blocks(points: np.ndarray, blocks, tag_name: str | None = None) -> Mesh:
+    """Core builder: split elements from boundary cells, check, orient, project 2D meshes."""
+    if points.ndim != 2 or len(points) == 0:
+        raise MeshError("the mesh has no points")
+    if points.shape[1] == 1:
+        raise MeshError("1D meshes are not supported: the mesh has 1D coordinates")
+    if points.shape[1] == 2:
+        points = np.column_stack([points, np.zeros(len(points))])
+    bad = ~np.isfinite(points).all(axis=1)
+    if bad.any():
+        raise MeshError(f"the mesh has {int(bad.sum())} points with NaN or infinite coordinates (first: point {int(np.flatnonzero(bad)[0])})")
+    nonempty = [b for b in blocks if len(b[1]) > 0]
+    if not nonempty:
+        raise MeshError("the mesh has no cells")
+    dim = max(b[3] for b in nonempty)
+    if dim < 2:
+        raise MeshError("1D meshes are not supported: the file holds only line/vertex cells, no 2D or 3D elements")
+
+    elem, bnd = [], []
+    for name, data, tags, tdim in nonempty:
+        (elem if tdim == dim else bnd if tdim == dim - 1 else []).append((name, data, tags))
+
+    types_list, data_list, tag_list = [], [], []
+    poly_faces = []  # (cell index in elem order, list of faces)
+    n_so_far = 0
+    for name, data, tags in elem:
+        if name.startswith("polyhedron"):
+            for c in data:
+                poly_faces.append((n_so_far, [np.asarray(f, dtype=np.int64) for f in c]))
+                data_list.append(np.unique(np.concatenate([np.asarray(f).reshape(-1) for f in c]))[None, :])
+                types_list.append(np.array([VTK_POLYHEDRON], np.uint8))
+                n_so_far += 1
+        else:
+            vtk, _, keep = _TYPES[name]
+            arr = np.asarray(data, dtype=np.int64)
+            if arr.ndim != 2:
+                raise MeshError(f"malformed {name} block in the mesh")
+            if keep:
+                arr = arr[:, :keep]
+            if vtk == VTK_POLYGON and arr.shape[1] == 3:
+                vtk = VTK_TRIANGLE
+            elif vtk == VTK_POLYGON and arr.shape[1] == 4:
+                vtk = VTK_QUAD
+            data_list.append(arr)
+            types_list.append(np.full(len(arr), vtk, np.uint8))
+            n_so_far += len(arr)
+        if tags is not None:
+            tag_list.append(tags)
+    offsets, conn = _csr_from_blocks(data_list)
+    cell_types = np.concatenate(types_list)
+    tags = np.concatenate(tag_list).astype(np.int64) if tag_list and len(tag_list) == len(elem) else None
+    if tags is not None and len(tags) != len(cell_types):
+        raise MeshError("physical group data does not match the number of cells")
+
+    if conn.size and (conn.min() < 0 or conn.max() >= len(points)):
+        raise MeshError(
+            f"cells refer to missing points: point ids must be in 0..{len(points) - 1}, found {int(conn.min())}..{int(conn.max())}"
+        )
+
+    mesh = Mesh(points=points, offsets=offsets, connectivity=conn, cell_types=cell_types, tags=tags, tag_name=tag_name if tags is not None else None)
+    if poly_faces:
+        _attach_polyhedra(mesh, poly_faces)
+        pf = mesh.poly_face_nodes
+        if pf.min() < 0 or pf.max() >= len(points):
+            raise MeshError("polyhedron faces refer to missing points")
+
+    if bnd:
+        b_data = [np.asarray(d, dtype=np.int64)[:, : (_TYPES[n][2] or None)] for n, d, _ in bnd if not n.startswith("polyhedron")]
+        mesh.boundary_offsets, mesh.boundary_connectivity = _csr_from_blocks(b_data)
+        mesh.boundary_types = np.concatenate([np.full(len(d), _TYPES[n][0], np.uint8) for n, d, _ in bnd])
+        if all(t is not None for _, _, t in bnd):
+            mesh.boundary_tags = np.concatenate([t for _, _, t in bnd]).astype(np.int64)
+        if mesh.boundary_connectivity.size and mesh.boundary_connectivity.max() >= len(points):
+            raise MeshError("boundary cells refer to missing points")
+
+    if dim == 2:
+        _project_to_plane(mesh)
+    _orient_and_check(mesh)
+    return mesh
+
+
+def _attach_polyhedra(mesh: Mesh, poly_faces) -> None:
+    cells = np.array([c for c, _ in poly_faces], dtype=np.int64)
+    nfaces = np.array([len(f) for _, f in poly_faces], dtype=np.int64)
+    faces = [f for _, fl in poly_faces for f in fl]
+    fsizes = np.array([len(f) for f in faces], dtype=np.int64)
+    mesh.poly_cells = cells
+    mesh.poly_cell_faces = np.concatenate([[0], np.cumsum(nfaces)])
+    mesh.poly_face_offsets = np.concatenate([[0], np.cumsum(fsizes)])
+    mesh.poly_face_nodes = np.concatenate(faces).astype(np.int64)
+
+
+def _project_to_plane(mesh: Mesh) -> None:
+    """A 2D mesh stored with 3D points: find its plane and keep 2D coordinates plus the frame."""
+    pts = mesh.points
+    used = np.unique(mesh.connectivity)
+    p = pts[used]
+    if np.all(p[:, 2] == p[0, 2]):
+        frame = np.array([[0.0, 0.0, p[0, 2]], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+        mesh.points = np.ascontiguousarray(pts[:, :2])
+        mesh.frame = frame
+        return
+    origin = p.mean(axis=0)
+    _, s, vt = np.linalg.svd(p - origin, full_matrices=False)
+    extent = max(float(s[0]), 1e-300)
+    if s[2] > 1e-8 * extent:
+        raise MeshError("2D cells lie on a curved (non-planar) surface; only planar 2D meshes are supported")
+    e1, e2 = vt[0], vt[1]
+    mesh.points = np.column_stack([(pts - origin) @ e1, (pts - origin) @ e2])
+    mesh.frame = np.array([origin, e1, e2])
+
+
+def _orient_and_check(mesh: Mesh) -> None:
+    """Flip negatively oriented cells in place and reject degenerate ones."""
+    from .geometry import signed_measures
+
+    vol = signed_measures(mesh)
+    bbox = mesh.points.max(axis=0) - mesh.points.min(axis=0)
+    scale = float(np.linalg.norm(bbox)) ** mesh.dim
+    if scale == 0:
+        raise MeshError("the mesh is degenerate: all points coincide")
+    degenerate = np.abs(vol) <= 1e-14 * scale
+    if degenerate.any():
+        ids = np.flatnonzero(degenerate)
+        kind = "area" if mesh.dim == 2 else "volume"
+        raise MeshError(
+            f"the mesh has {ids.size} degenerate (zero-{kind}) cells, e.g. cell ids {ids[:5].tolist()}"
+        )
+    neg = vol < 0
+    if not neg.any():
+        return
+    if mesh.dim == 2:
+        # reverse the node cycle of each negative cell (vectorized on the CSR arrays)
+        sizes = np.diff(mesh.offsets)
+        starts = mesh.offsets[:-1]
+        idx = np.arange(mesh.connectivity.size)
+        cell_of = np.repeat(np.arange(len(sizes)), sizes)
+        local = idx - starts[cell_of]
+        flip = neg[cell_of]
+        src = np.where(flip, starts[cell_of] + sizes[cell_of] - 1 - local, idx)
+        mesh.connectivity = mesh.connectivity[src]
+        return
+    for t, perm in MIRROR.items():
+        sel = np.flatnonzero(neg & (mesh.cell_types == t))
+        if sel.size:
+            n = perm.size
+            rows = mesh.offsets[sel][:, None] + np.arange(n)[None, :]
+            mesh.connectivity[rows] = mesh.connectivity[rows[:, perm]]
+    if mesh.poly_cells is not None:
+        negpoly = np.flatnonzero(neg[mesh.poly_cells])
+        if negpoly.size:
+            fo = mesh.poly_face_offsets
+            cf = mesh.poly_cell_faces
+            face_ids = np.concatenate([np.arange(cf[q], cf[q + 1]) for q in negpoly])
+            for f in face_ids:  # loop over faces of inverted polyhedra only (rare)
+                mesh.poly_face_nodes[fo[f] : fo[f + 1]] = mesh.poly_face_nodes[fo[f] : fo[f + 1]][::-1]
+
+
+def describe(mesh: Mesh) -> dict:
+    """Summary used by the CLI and the service: counts, dimension, types, groups, bounding box."""
+    p = mesh.points3d()
+    return {
+        "cells": mesh.n_cells,
+        "points": mesh.n_points,
+        "dim": mesh.dim,
+        "cell_types": mesh.cell_type_counts(),
+        "physical_groups": mesh.physical_groups(),
+        "bbox": [p.min(axis=0).tolist(), p.max(axis=0).tolist()],
+    }
+
+
+__all__ = ["read_mesh", "mesh_from_arrays", "mesh_from_meshio", "mesh_from_blocks", "describe", "CELL_TYPE_NAMES"]

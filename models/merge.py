@@ -1,0 +1,222 @@
+"""Merge each part into one element: 2D boundary loops, 3D boundary faces (vectorized).
+
+2D: the boundary edges of a part keep the counter-clockwise orientation of their cell, so
+chaining them gives counter-clockwise outer loops and clockwise hole loops. At a vertex where
+the part touches itself, the outgoing edge is the first one met turning clockwise from the
+incoming edge (each loop stays simple). Loops are ordered by pointer jumping, no Python loop.
+3D: the boundary faces of a part, outward; shells are found by edge connectivity.
+
+Holes. A VTK_POLYGON (and a lymph element) has one boundary loop, so a 2D element that encloses
+something (another element, or a hole of the domain) cannot be written as it is. A 3D element with
+an inner shell (a cavity) is likewise an object most polyhedral codes reject. `find_holes` reports
+them; the pipeline then splits such an element in two across the hole (see pipeline.py): we never
+write silently wrong geometry.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from .errors import MeshError
+from .graph import DualGraph
+from .mesh import Mesh, PolyMesh
+
+
+@dataclass
+class Holes:
+    """Elements with more than one boundary loop/shell, and a point inside each extra one."""
+
+    elements: np.ndarray  # (H,) element id per hole
+    centers: np.ndarray  # (H, dim) a point of the hole (mean of its boundary vertices)
+
+
+def boundary_faces(graph: DualGraph, labels: np.ndarray) -> np.ndarray:
+    """Ids of the faces on the boundary of their part."""
+    f = graph.faces
+    lab = labels[f.cell]
+    p = graph.partner
+    other = np.where(p >= 0, labels[f.cell[np.maximum(p, 0)]], -1)
+    return np.flatnonzero((p < 0) | (other != lab))
+
+
+def _list_rank(nxt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cycles of the permutation `nxt`: (cycle id, position in the cycle from its smallest edge)."""
+    n = nxt.size
+    g = sp.csr_matrix((np.ones(n), (np.arange(n), nxt)), shape=(n, n))
+    _, cyc = connected_components(g, directed=True, connection="weak")
+    head = np.full(cyc.max() + 1, n, dtype=np.int64)
+    np.minimum.at(head, cyc, np.arange(n))
+    is_head = np.zeros(n, dtype=bool)
+    is_head[head] = True
+    # distance from each edge to the end of its list (the edge before the head), pointer doubling
+    succ = np.where(is_head[nxt], np.arange(n), nxt)
+    dist = np.where(is_head[nxt], 0, 1).astype(np.int64)
+    for _ in range(64):
+        if np.all(succ[succ] == succ):
+            break
+        dist = dist + dist[succ]
+        succ = succ[succ]
+    length = np.bincount(cyc, minlength=cyc.max() + 1)
+    pos = length[cyc] - 1 - dist
+    return cyc, pos
+
+
+def merge_2d(mesh: Mesh, graph: DualGraph, labels: np.ndarray, measures: np.ndarray) -> tuple[PolyMesh, Holes]:
+    """Polygons (outer loop CCW first, then holes CW) for every element."""
+    f = graph.faces
+    bf = boundary_faces(graph, labels)
+    a = f.nodes[2 * bf]
+    b = f.nodes[2 * bf + 1]
+    e = labels[f.cell[bf]]
+    P = np.int64(mesh.n_points)
+    key_start = e * P + a
+    order = np.argsort(key_start, kind="stable")
+    sk = key_start[order]
+    want = e * P + b
+    lo = np.searchsorted(sk, want, "left")
+    hi = np.searchsorted(sk, want, "right")
+    cnt = hi - lo
+    if np.any(cnt == 0):
+        raise MeshError("an element boundary is not closed (the mesh is not a valid 2D manifold)")
+    nxt = order[np.minimum(lo, sk.size - 1)]
+    pinch = np.flatnonzero(cnt > 1)
+    if pinch.size:
+        pts = mesh.points
+        for i in pinch:  # rare: vertices where an element touches itself
+            cands = order[lo[i] : hi[i]]
+            back = pts[a[i]] - pts[b[i]]
+            out = pts[b[cands]] - pts[b[i]]
+            ang_back = np.arctan2(back[1], back[0])
+            ang = np.arctan2(out[:, 1], out[:, 0])
+            cw = np.mod(ang_back - ang, 2 * np.pi)  # clockwise turn from the way back
+            cw[cw == 0] = 2 * np.pi
+            nxt[i] = cands[np.argmin(cw)]
+    if np.bincount(nxt, minlength=nxt.size).max() > 1:
+        raise MeshError("element boundaries could not be ordered (non-manifold vertex)")
+    cyc, pos = _list_rank(nxt)
+    # signed area of each loop
+    p = mesh.points
+    ref = p[a].min(axis=0)
+    xa, ya = (p[a] - ref).T
+    xb, yb = (p[b] - ref).T
+    area = 0.5 * np.bincount(cyc, weights=xa * yb - xb * ya)
+    loop_elem = np.zeros(area.size, dtype=np.int64)
+    loop_elem[cyc] = e
+    n_elem = int(labels.max()) + 1
+    # outer loop = the loop of largest signed area of the element; others are holes
+    order_l = np.lexsort((-area, loop_elem))
+    first = np.r_[True, loop_elem[order_l][1:] != loop_elem[order_l][:-1]]
+    is_outer = np.zeros(area.size, dtype=bool)
+    is_outer[order_l[first]] = True
+    loop_rank = np.empty(area.size, dtype=np.int64)
+    loop_rank[order_l] = np.arange(area.size)
+    eorder = np.lexsort((pos, loop_rank[cyc]))
+    loop_nodes = a[eorder]
+    loop_len = np.bincount(cyc, minlength=area.size)[order_l]
+    loop_offsets = np.zeros(area.size + 1, dtype=np.int64)
+    np.cumsum(loop_len, out=loop_offsets[1:])
+    per_elem = np.bincount(loop_elem, minlength=n_elem)
+    elem_offsets = np.zeros(n_elem + 1, dtype=np.int64)
+    np.cumsum(per_elem, out=elem_offsets[1:])
+    hole_loops = np.flatnonzero(~is_outer)
+    centers = np.column_stack(
+        [np.bincount(cyc, weights=p[a, d], minlength=area.size) / np.bincount(cyc, minlength=area.size) for d in range(2)]
+    )
+    holes = Holes(elements=loop_elem[hole_loops], centers=centers[hole_loops])
+    poly = PolyMesh(
+        points=mesh.points,
+        elem_offsets=elem_offsets,
+        loop_offsets=loop_offsets,
+        loop_nodes=loop_nodes,
+        measure=np.bincount(labels, weights=measures, minlength=n_elem),
+        n_fine=np.bincount(labels, minlength=n_elem),
+        labels=labels,
+        tags=_majority(labels, mesh.tags, n_elem),
+        frame=mesh.frame,
+    )
+    return poly, holes
+
+
+def merge_3d(mesh: Mesh, graph: DualGraph, labels: np.ndarray, measures: np.ndarray) -> tuple[PolyMesh, Holes]:
+    """Polyhedra as their outward boundary faces; inner shells (cavities) reported as holes."""
+    f = graph.faces
+    bf = boundary_faces(graph, labels)
+    e = labels[f.cell[bf]]
+    order = np.argsort(e, kind="stable")
+    bf, e = bf[order], e[order]
+    sizes = np.diff(f.offsets)[bf]
+    fo = np.zeros(bf.size + 1, dtype=np.int64)
+    np.cumsum(sizes, out=fo[1:])
+    src = np.repeat(f.offsets[bf] - fo[:-1], sizes) + np.arange(fo[-1])
+    nodes = f.nodes[src]
+    n_elem = int(labels.max()) + 1
+    per_elem = np.bincount(e, minlength=n_elem)
+    elem_offsets = np.zeros(n_elem + 1, dtype=np.int64)
+    np.cumsum(per_elem, out=elem_offsets[1:])
+    holes = _shells(mesh.points, e, fo, nodes)
+    poly = PolyMesh(
+        points=mesh.points,
+        elem_offsets=elem_offsets,
+        loop_offsets=fo,
+        loop_nodes=nodes,
+        measure=np.bincount(labels, weights=measures, minlength=n_elem),
+        n_fine=np.bincount(labels, minlength=n_elem),
+        labels=labels,
+        tags=_majority(labels, mesh.tags, n_elem),
+    )
+    return poly, holes
+
+
+def _shells(points, face_elem, fo, nodes) -> Holes:
+    """Connected face shells per element; every shell but the largest-volume one is a cavity."""
+    from .geometry import cell_index, fan_triangles, next_in_cycle
+
+    nf = face_elem.size
+    face_of = cell_index(fo)
+    nx = next_in_cycle(fo)
+    u, v = nodes, nodes[nx]
+    lo, hi = np.minimum(u, v), np.maximum(u, v)
+    key_e = face_elem[face_of]
+    # sort edges by (element, lo, hi); equal neighbours link two faces
+    order = np.lexsort((hi, lo, key_e))
+    s = order
+    same = (key_e[s][1:] == key_e[s][:-1]) & (lo[s][1:] == lo[s][:-1]) & (hi[s][1:] == hi[s][:-1])
+    i = np.flatnonzero(same)
+    fa, fb = face_of[s[i]], face_of[s[i + 1]]
+    g = sp.csr_matrix((np.ones(fa.size), (fa, fb)), shape=(nf, nf))
+    nshell, shell = connected_components(g, directed=False)
+    if nf == 0 or nshell == np.unique(face_elem).size:
+        return Holes(elements=np.zeros(0, np.int64), centers=np.zeros((0, points.shape[1])))
+    owner, tri = fan_triangles(fo, nodes)
+    sh = shell[owner]
+    ref = points.min(axis=0)
+    pa, pb, pc = points[tri[:, 0]] - ref, points[tri[:, 1]] - ref, points[tri[:, 2]] - ref
+    vol = np.bincount(sh, weights=np.einsum("ij,ij->i", pa, np.cross(pb, pc)) / 6.0, minlength=nshell)
+    shell_elem = np.zeros(nshell, dtype=np.int64)
+    shell_elem[shell] = face_elem
+    o = np.lexsort((-vol, shell_elem))
+    first = np.r_[True, shell_elem[o][1:] != shell_elem[o][:-1]]
+    inner = o[~first]
+    cnt = np.bincount(shell[face_of], minlength=nshell).astype(np.float64)
+    centers = np.column_stack([np.bincount(shell[face_of], weights=points[nodes, d], minlength=nshell) / cnt for d in range(3)])
+    return Holes(elements=shell_elem[inner], centers=centers[inner])
+
+
+def _majority(labels: np.ndarray, tags: np.ndarray | None, n_elem: int) -> np.ndarray | None:
+    """Physical group of each element: the group of most of its fine cells."""
+    if tags is None:
+        return None
+    groups, t = np.unique(tags, return_inverse=True)
+    counts = sp.csr_matrix((np.ones(labels.size), (labels, t)), shape=(n_elem, groups.size)).toarray()
+    return groups[counts.argmax(axis=1)]
+
+
+def merge(mesh: Mesh, graph: DualGraph, labels: np.ndarray, measures: np.ndarray) -> tuple[PolyMesh, Holes]:
+    """One polygon/polyhedron per element id in `labels` (ids 0..E-1, every part connected)."""
+    if mesh.dim == 2:
+        return merge_2d(mesh, graph, labels, measures)
+    return merge_3d(mesh, graph, labels, measures)
