@@ -3,12 +3,11 @@
 Torch-free at import time: the service imports this module (validation, model cards, mesh
 inspection) and must never import torch. Neural partitioners are loaded lazily by name.
 
-Contract:
 - inspect_mesh(path, physical_tag=None) -> {"cells", "points", "dim", "cell_types": {name: count},
   "physical_groups": [int], "bbox": [[min...], [max...]]}; raises MeshError.
 - validate_params(params, mesh_info=None) -> normalized params dict; raises ParameterError whose
   message names the field. Keys: model, mode, k, nref, target_size, mult_factor, subset (list of
-  cell ids), refiner, options {seed, absorb_fraction, hole_policy, physical_tag}.
+  cell ids), refiner, options {seed, absorb_fraction, hole_policy, physical_tag, method}.
 - run_job(mesh_path, out_dir, params, progress=None, should_cancel=None) -> summary dict
   {"elements", "parts_split", "fragments_absorbed", "timings": {stage: seconds}, "outputs": {kind: filename}}
   writing into out_dir: mesh.vtu, metrics.json, labels.json, preview.png, and for 2D meshes
@@ -19,8 +18,217 @@ Contract:
 
 from __future__ import annotations
 
+import math
+import os
+import time
+from collections.abc import Callable
+
+from .errors import ParameterError
+
 MODEL_VERSION = "0.1.0"
+MODES = ("kway", "nref", "target-size", "mult-factor", "segregated", "coarsen")
+MAX_SUBSET = 50_000_000
+
+MODEL_CARDS = [
+    {
+        "name": "metis",
+        "dimension": [2, 3],
+        "modes": list(MODES),
+        "description": "METIS multilevel graph partitioning (pymetis): k-way or recursive bisection, cell measures as integer node weights, contiguous parts.",
+    },
+    {
+        "name": "kmeans",
+        "dimension": [2, 3],
+        "modes": list(MODES),
+        "description": "k-means (scikit-learn) on cell centroids, seeded and deterministic; parts split into connected components.",
+    },
+    {
+        "name": "sage-base",
+        "dimension": [2, 3],
+        "modes": [m for m in MODES if m != "kway"],
+        "description": "SAGE-Base graph neural network: recursive bisection minimizing the expected normalized cut, batched level by level (2D 64/32 or 3D 128/64 units chosen from the mesh).",
+    },
+    {
+        "name": "sage-hetero",
+        "dimension": [2, 3],
+        "modes": [m for m in MODES if m != "kway"],
+        "description": "SAGE-Heterogeneous graph neural network: like SAGE-Base with the physical group as a feature and a penalty for mixing two groups.",
+    },
+]
 
 
 class JobCancelled(Exception):
     """Raised inside run_job when should_cancel() returned True."""
+
+
+def list_models() -> list[dict]:
+    return [dict(card, version=MODEL_VERSION) for card in MODEL_CARDS]
+
+
+def inspect_mesh(path: str | os.PathLike, physical_tag: str | None = None) -> dict:
+    """Read and validate a mesh; return its summary (MeshError if it is not a valid mesh)."""
+    from .io import describe, read_mesh
+
+    return describe(read_mesh(path, physical_tag=physical_tag))
+
+
+def _int(params: dict, name: str, lo: int | None = None, hi: int | None = None) -> int | None:
+    v = params.get(name)
+    if v is None:
+        return None
+    if isinstance(v, bool) or not (isinstance(v, int) or (isinstance(v, float) and v.is_integer())):
+        raise ParameterError(f"{name} must be an integer, got {v!r}")
+    v = int(v)
+    if lo is not None and v < lo:
+        raise ParameterError(f"{name} must be >= {lo}, got {v}")
+    if hi is not None and v > hi:
+        raise ParameterError(f"{name} must be <= {hi}, got {v}")
+    return v
+
+
+def _float(params: dict, name: str, lo_open: float | None = None, hi: float | None = None) -> float | None:
+    v = params.get(name)
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        raise ParameterError(f"{name} must be a number, got {v!r}")
+    v = float(v)
+    if not math.isfinite(v):
+        raise ParameterError(f"{name} must be finite, got {v}")
+    if lo_open is not None and v <= lo_open:
+        raise ParameterError(f"{name} must be > {lo_open}, got {v}")
+    if hi is not None and v > hi:
+        raise ParameterError(f"{name} must be <= {hi}, got {v}")
+    return v
+
+
+def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
+    """Check and normalize job parameters (before any work is queued)."""
+    if not isinstance(params, dict):
+        raise ParameterError("parameters must be a JSON object")
+    known = {"model", "mode", "k", "nref", "target_size", "mult_factor", "subset", "refiner", "options"}
+    unknown = set(params) - known
+    if unknown:
+        raise ParameterError(f"unknown parameter(s): {sorted(unknown)}")
+    model = params.get("model", "metis")
+    names = [c["name"] for c in MODEL_CARDS]
+    if model not in names:
+        raise ParameterError(f"model must be one of {names}, got {model!r}")
+    mode = params.get("mode", "kway")
+    if mode not in MODES:
+        raise ParameterError(f"mode must be one of {list(MODES)}, got {mode!r}")
+    k = _int(params, "k", lo=1)
+    nref = _int(params, "nref", lo=0, hi=30)
+    target_size = _float(params, "target_size", lo_open=0.0)
+    mult_factor = _float(params, "mult_factor", lo_open=0.0, hi=1.0)
+    subset = params.get("subset")
+    if subset is not None:
+        if not isinstance(subset, list) or not subset:
+            raise ParameterError("subset must be a non-empty list of cell ids")
+        if len(subset) > MAX_SUBSET or not all(isinstance(i, int) and not isinstance(i, bool) for i in subset):
+            raise ParameterError("subset must be a list of integer cell ids")
+        if min(subset) < 0:
+            raise ParameterError(f"subset has negative cell ids, e.g. {min(subset)}")
+    if params.get("refiner") not in (None, "none"):
+        raise ParameterError(f"refiner {params.get('refiner')!r} is not available; use null")
+    opts = params.get("options") or {}
+    if not isinstance(opts, dict):
+        raise ParameterError("options must be an object")
+    known_opts = {"seed", "absorb_fraction", "hole_policy", "physical_tag", "method"}
+    if set(opts) - known_opts:
+        raise ParameterError(f"unknown option(s): {sorted(set(opts) - known_opts)}")
+    seed = _int(opts, "seed", lo=0, hi=2**31 - 1) or 0
+    absorb = opts.get("absorb_fraction", 0.0)
+    if isinstance(absorb, bool) or not isinstance(absorb, int | float) or not (0 <= absorb < 1):
+        raise ParameterError(f"options.absorb_fraction must be a number in [0, 1), got {absorb!r}")
+    hole_policy = opts.get("hole_policy", "split")
+    if hole_policy not in ("split", "error"):
+        raise ParameterError(f"options.hole_policy must be 'split' or 'error', got {hole_policy!r}")
+    physical_tag = opts.get("physical_tag")
+    if physical_tag is not None and (not isinstance(physical_tag, str) or not physical_tag or len(physical_tag) > 200):
+        raise ParameterError("options.physical_tag must be a non-empty string")
+    method = opts.get("method", "kway")
+    if method not in ("kway", "recursive"):
+        raise ParameterError(f"options.method must be 'kway' or 'recursive', got {method!r}")
+
+    need = {"kway": ("k", k), "nref": ("nref", nref), "target-size": ("target_size", target_size),
+            "mult-factor": ("mult_factor", mult_factor), "segregated": ("mult_factor", mult_factor)}
+    if mode in need and need[mode][1] is None:
+        raise ParameterError(f"{need[mode][0]} is required for mode {mode!r}")
+    if mode == "coarsen":
+        if subset is None:
+            raise ParameterError("subset is required for mode 'coarsen'")
+        if all(v is None for v in (k, nref, target_size, mult_factor)):
+            raise ParameterError("mode 'coarsen' needs one of k, nref, target_size, mult_factor")
+    if model in ("sage-base", "sage-hetero") and (mode == "kway" or (mode == "coarsen" and k is not None)):
+        raise ParameterError(f"model {model!r} has no direct k-way mode; use nref, target-size or mult-factor")
+
+    if mesh_info is not None:
+        n = int(mesh_info["cells"])
+        n_work = n if subset is None else len(set(subset))
+        if subset is not None and max(subset) >= n:
+            raise ParameterError(f"subset has unknown cell ids (the mesh has cells 0..{n - 1}), e.g. {max(subset)}")
+        if k is not None and k > n_work:
+            raise ParameterError(f"k = {k} is larger than the number of cells to agglomerate ({n_work})")
+        if nref is not None and 2**nref > n_work:
+            raise ParameterError(f"nref = {nref} asks for 2^{nref} elements, more than the {n_work} cells")
+        if mode == "segregated" and not mesh_info.get("physical_groups"):
+            raise ParameterError("mode 'segregated' needs a mesh with physical groups")
+
+    return {
+        "model": model, "mode": mode, "k": k, "nref": nref, "target_size": target_size,
+        "mult_factor": mult_factor, "subset": subset, "refiner": None,
+        "options": {"seed": seed, "absorb_fraction": float(absorb), "hole_policy": hole_policy,
+                    "physical_tag": physical_tag, "method": method},
+    }
+
+
+def run_job(
+    mesh_path: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    params: dict,
+    progress: Callable[[float, str], None] | None = None,
+    should_cancel: Callable[[], bool] | None = None,
+) -> dict:
+    """Run one agglomeration job from a mesh file to the output files in out_dir."""
+    from . import pipeline
+    from .io import read_mesh
+
+    p = validate_params(params)
+    out_dir = os.fspath(out_dir)
+    os.makedirs(out_dir, exist_ok=True)
+
+    def tick(frac: float, stage: str) -> None:
+        if should_cancel is not None and should_cancel():
+            raise JobCancelled("the job was cancelled")
+        if progress is not None:
+            progress(frac, stage)
+
+    t0 = time.perf_counter()
+    tick(0.0, "read")
+    mesh = read_mesh(mesh_path, physical_tag=p["options"]["physical_tag"])
+    t_read = time.perf_counter() - t0
+    validate_params(params, {"cells": mesh.n_cells, "physical_groups": mesh.physical_groups()})
+    o = p["options"]
+    model_options = {"method": o["method"]} if p["model"] == "metis" else None
+    res = pipeline.run(
+        mesh, model=p["model"], mode=p["mode"], k=p["k"], nref=p["nref"], target_size=p["target_size"],
+        mult_factor=p["mult_factor"], subset=p["subset"], absorb_fraction=o["absorb_fraction"],
+        hole_policy=o["hole_policy"], seed=o["seed"], model_options=model_options, progress=tick,
+    )
+    res.timings = {"read": t_read, **res.timings}
+    files = {"mesh": "mesh.vtu", "metrics": "metrics.json", "labels": "labels.json", "preview": "preview.png"}
+    if mesh.dim == 2:
+        files["lymph"] = "lymph.json"
+        files["lymph_mat"] = "lymph.mat"
+    join = lambda name: os.path.join(out_dir, name)  # noqa: E731
+    pipeline.write_outputs(
+        res, vtu=join(files["mesh"]), labels=join(files["labels"]), plot=join(files["preview"]),
+        lymph=[join("lymph.json"), join("lymph.mat")] if mesh.dim == 2 else None,
+        metrics=join(files["metrics"]), extra={"params": p, "model_version": MODEL_VERSION},
+    )
+    tick(1.0, "done")
+    s = res.summary()
+    s["timings"]["total"] = round(time.perf_counter() - t0, 4)
+    s["outputs"] = files
+    return s

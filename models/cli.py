@@ -1,0 +1,264 @@
+"""The `magnet` command line. Runs in-process; the server side adds `serve` and `worker` through
+the `magnet.commands` entry points (so this package never imports HTTP or Celery code).
+
+Errors the user can fix (bad mesh, bad parameter) print one line and exit with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+
+from .errors import MagnetError, ParameterError
+
+EXIT_USER_ERROR = 2
+
+
+def _add_job_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--model", default="metis", help="metis | kmeans | sage-base | sage-hetero (default metis)")
+    p.add_argument("--mode", default="kway", help="kway | nref | target-size | mult-factor | segregated | coarsen")
+    p.add_argument("--k", type=int, help="number of elements (kway)")
+    p.add_argument("--nref", type=int, help="number of refinements: 2^nref elements")
+    p.add_argument("--target-size", type=float, help="bisect until every element's diameter is below this")
+    p.add_argument("--mult-factor", type=float, help="target size = factor x mesh diameter (0 < f <= 1)")
+    p.add_argument("--subset", help="file with the cell ids to agglomerate (JSON list or whitespace separated); the rest stays")
+    p.add_argument("--physical-tag", help="cell-data name holding the physical groups (default: gmsh:physical, CellEntityIds, ...)")
+    p.add_argument("--absorb", type=float, default=0.0, metavar="FRACTION",
+                   help="absorb parts smaller than FRACTION x mean part size into their longest-interface neighbour")
+    p.add_argument("--method", default="kway", choices=["kway", "recursive"], help="METIS k-way or recursive (kway mode)")
+    p.add_argument("--hole-policy", default="split", choices=["split", "error"], help="what to do with elements that enclose a hole")
+    p.add_argument("--seed", type=int, default=0)
+
+
+def _read_subset(path: str | None):
+    if path is None:
+        return None
+    import numpy as np
+
+    try:
+        text = open(path, encoding="utf-8").read()
+    except OSError as exc:
+        raise ParameterError(f"cannot read subset file {path}: {exc.strerror}") from None
+    try:
+        data = json.loads(text)
+        if isinstance(data, dict):
+            data = data.get("subset", data.get("cells"))
+        arr = np.asarray(data)
+    except json.JSONDecodeError:
+        try:
+            arr = np.asarray([int(t) for t in text.replace(",", " ").split()])
+        except ValueError:
+            raise ParameterError(f"subset file {path} must hold integer cell ids") from None
+    if arr.ndim != 1 or arr.size == 0 or not np.issubdtype(arr.dtype, np.integer):
+        raise ParameterError(f"subset file {path} must hold a non-empty list of integer cell ids")
+    return arr.astype(np.int64)
+
+
+class _Progress:
+    """A tqdm bar on stderr for long runs (only when stderr is a terminal, or forced)."""
+
+    def __init__(self, enabled: bool):
+        self.bar = None
+        self.enabled = enabled
+
+    def __call__(self, frac: float, stage: str) -> None:
+        if not self.enabled:
+            return
+        if self.bar is None:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=100, file=sys.stderr, bar_format="{l_bar}{bar}| {elapsed}", leave=False)
+        self.bar.set_description(stage)
+        self.bar.n = int(100 * frac)
+        self.bar.refresh()
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def cmd_agglomerate(args) -> int:
+    from . import pipeline
+    from .io import read_mesh
+
+    t0 = time.perf_counter()
+    subset = _read_subset(args.subset)
+    mesh = read_mesh(args.mesh, physical_tag=args.physical_tag)
+    t_read = time.perf_counter() - t0
+    prog = _Progress(args.progress or (sys.stderr.isatty() and mesh.n_cells > 200_000))
+    try:
+        res = pipeline.run(
+            mesh, model=args.model, mode=args.mode, k=args.k, nref=args.nref, target_size=args.target_size,
+            mult_factor=args.mult_factor, subset=subset, absorb_fraction=args.absorb, hole_policy=args.hole_policy,
+            seed=args.seed, model_options={"method": args.method} if args.model == "metis" else None,
+            compute_metrics=bool(args.metrics) or args.model_metrics, progress=prog,
+        )
+        res.timings = {"read": t_read, **res.timings}
+        if args.lymph and mesh.dim != 2:
+            raise ParameterError("--lymph is for 2D meshes only")
+        pipeline.write_outputs(res, vtu=args.output, metrics=args.metrics, labels=args.labels, lymph=args.lymph, plot=args.plot)
+    finally:
+        prog.close()
+    total = time.perf_counter() - t0
+    s = res.summary()
+    stages = " ".join(f"{k} {v:.2f}s" for k, v in res.timings.items())
+    extra = []
+    if s["parts_split"]:
+        extra.append(f"{s['parts_split']} parts split")
+    if s["fragments_absorbed"]:
+        extra.append(f"{s['fragments_absorbed']} fragments absorbed")
+    if s["holes_split"]:
+        extra.append(f"{s['holes_split']} holed elements split")
+    note = f" ({', '.join(extra)})" if extra else ""
+    print(f"{s['elements']} elements from {mesh.n_cells} cells{note} | {stages} | total {total:.2f}s")
+    return 0
+
+
+def cmd_info(args) -> int:
+    from .api import inspect_mesh
+
+    print(json.dumps(inspect_mesh(args.mesh, physical_tag=args.physical_tag), indent=1))
+    return 0
+
+
+def cmd_plot(args) -> int:
+    import numpy as np
+
+    from . import pipeline
+    from .io import read_mesh
+    from .plot import plot_agglomeration
+
+    mesh = read_mesh(args.mesh, physical_tag=args.physical_tag)
+    try:
+        labels = np.asarray(json.load(open(args.labels, encoding="utf-8")), dtype=np.int64)
+    except (OSError, ValueError, TypeError) as exc:
+        raise ParameterError(f"cannot read labels file {args.labels}: {exc}") from None
+    if labels.ndim != 1 or labels.size != mesh.n_cells or labels.min() < 0:
+        raise ParameterError(f"labels must be a list of {mesh.n_cells} non-negative element ids (one per cell)")
+    graph, data = pipeline.prepare(mesh)
+    _, labels = np.unique(labels, return_inverse=True)
+    poly, _, _ = pipeline.split_holes(mesh, graph, data, labels, "split")
+    plot_agglomeration(poly, args.output, fine_mesh=mesh if mesh.n_cells <= 200_000 else None, title=args.title)
+    print(f"wrote {args.output} ({poly.n_elements} elements)")
+    return 0
+
+
+def cmd_compare(args) -> int:
+    from . import pipeline
+    from .io import read_mesh
+    from .plot import metrics_table, plot_metric_boxplots
+
+    mesh = read_mesh(args.mesh, physical_tag=args.physical_tag)
+    results = {}
+    for spec in args.methods.split(","):
+        model, _, mode = spec.strip().partition(":")
+        mode = mode or args.mode
+        t = time.perf_counter()
+        res = pipeline.run(
+            mesh, model=model, mode=mode, k=args.k, nref=args.nref, target_size=args.target_size,
+            mult_factor=args.mult_factor, absorb_fraction=args.absorb, seed=args.seed,
+        )
+        rep = dict(res.metrics)
+        rep["time"] = time.perf_counter() - t
+        results[f"{model}:{mode}"] = rep
+    plot_metric_boxplots(results, args.output)
+    table = metrics_table(results)
+    print(table)
+    if args.table:
+        with open(args.table, "w", encoding="utf-8") as fh:
+            fh.write(table + "\n")
+    if args.json:
+        with open(args.json, "w", encoding="utf-8") as fh:
+            json.dump({k: {"summary": v["summary"], "partition": v["partition"], "time": v["time"]} for k, v in results.items()}, fh, indent=1)
+    return 0
+
+
+def build_parser(argv: list[str]) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="magnet", description="Mesh agglomeration (MAGNET service library)")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("agglomerate", help="agglomerate a mesh in-process")
+    p.add_argument("mesh")
+    p.add_argument("-o", "--output", required=True, help="agglomerated mesh (.vtu)")
+    _add_job_args(p)
+    p.add_argument("--metrics", help="write the metrics JSON here")
+    p.add_argument("--labels", help="write the fine-cell -> element labels (JSON list) here")
+    p.add_argument("--lymph", help="write the lymph structs here (.mat or .json; 2D only)")
+    p.add_argument("--plot", help="write a PNG picture of the agglomerated mesh here")
+    p.add_argument("--progress", action="store_true", help="always show the progress bar")
+    p.set_defaults(func=cmd_agglomerate, model_metrics=False)
+
+    p = sub.add_parser("info", help="read a mesh and print its summary")
+    p.add_argument("mesh")
+    p.add_argument("--physical-tag")
+    p.set_defaults(func=cmd_info)
+
+    p = sub.add_parser("plot", help="draw an agglomeration (fine mesh + labels) to PNG; 3D as an exploded view")
+    p.add_argument("mesh")
+    p.add_argument("--labels", required=True, help="labels JSON written by `magnet agglomerate --labels`")
+    p.add_argument("-o", "--output", required=True)
+    p.add_argument("--title")
+    p.add_argument("--physical-tag")
+    p.set_defaults(func=cmd_plot)
+
+    p = sub.add_parser("compare", help="run several methods on one mesh; box plots of the metrics + a table")
+    p.add_argument("mesh")
+    p.add_argument("--methods", default="metis,kmeans", help="comma list of MODEL[:MODE], e.g. metis:kway,kmeans:kway,metis:nref")
+    p.add_argument("-o", "--output", required=True, help="PNG with the box plots")
+    p.add_argument("--table", help="also write the table here")
+    p.add_argument("--json", help="also write the summaries here")
+    _add_job_args(p)
+    p.set_defaults(func=cmd_compare)
+
+    # generate / train live in modules that import gmsh / torch: load them only when asked for
+    for name, module, adder, runner, help_ in (
+        ("generate", "models.generate", "add_generate_args", "generate_main", "generate meshes / data sets (gmsh)"),
+        ("train", "models.train", "add_train_args", "train_main", "train a SAGE model"),
+    ):
+        p = sub.add_parser(name, help=help_)
+        if len(argv) > 0 and argv[0] == name:
+            import importlib
+
+            mod = importlib.import_module(module)
+            getattr(mod, adder)(p)
+            p.set_defaults(func=getattr(mod, runner))
+
+    from importlib.metadata import entry_points
+
+    for ep in entry_points(group="magnet.commands"):
+        try:
+            ep.load()(sub)
+        except Exception as exc:  # the server extras may not be installed
+            q = sub.add_parser(ep.name, help=f"(unavailable: {exc})")
+            q.set_defaults(func=lambda a, e=exc: _unavailable(e))
+    return parser
+
+
+def _unavailable(exc) -> int:
+    print(f"magnet: this command needs the service extras: {exc}", file=sys.stderr)
+    return EXIT_USER_ERROR
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    parser = build_parser(argv)
+    args = parser.parse_args(argv)
+    if not hasattr(args, "func"):
+        parser.error(f"{args.command}: not available")
+    try:
+        rc = args.func(args)
+    except MagnetError as exc:
+        print(f"magnet: error: {exc}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except KeyboardInterrupt:
+        print("magnet: interrupted", file=sys.stderr)
+        return 130
+    return int(rc or 0)
+
+
+if __name__ == "__main__":
+    os.environ.setdefault("MPLBACKEND", "Agg")
+    sys.exit(main())

@@ -1,0 +1,216 @@
+"""One agglomeration run from a Mesh to files: graph -> partition -> connected parts -> merge ->
+hole handling -> metrics -> outputs, with a timing per stage.
+
+Hole policy (see merge.py): "split" (default) cuts an element that encloses a hole or a cavity in
+two, along the line/plane through the hole's centre perpendicular to the element's widest
+direction; each half is then split into connected components. This repeats (at most 8 rounds)
+until no element has a hole, so every written polygon has exactly one boundary loop. "error"
+refuses the job instead, naming the elements.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .agglomerate import Agglomeration, CellData, agglomerate, connected_parts
+from .errors import MeshError, ParameterError
+from .geometry import cell_faces, measures_and_centroids
+from .graph import DualGraph, dual_graph
+from .merge import merge
+from .mesh import Mesh, PolyMesh
+
+HOLE_POLICIES = ("split", "error")
+
+
+@dataclass
+class Result:
+    mesh: Mesh
+    graph: DualGraph
+    data: CellData
+    agglomeration: Agglomeration
+    poly: PolyMesh
+    holes_split: int
+    timings: dict = field(default_factory=dict)
+    metrics: dict | None = None
+
+    def summary(self) -> dict:
+        s = self.agglomeration.summary()
+        s["elements"] = int(self.poly.n_elements)
+        s["holes_split"] = int(self.holes_split)
+        s["cells"] = int(self.mesh.n_cells)
+        s["dim"] = int(self.mesh.dim)
+        s["timings"] = {k: round(float(v), 4) for k, v in self.timings.items()}
+        return s
+
+
+def prepare(mesh: Mesh) -> tuple[DualGraph, CellData]:
+    """Dual graph and cell geometry (the features every partitioner uses)."""
+    faces = cell_faces(mesh)
+    graph = dual_graph(mesh, faces)
+    measures, centroids = measures_and_centroids(mesh, faces if mesh.dim == 3 else None)
+    data = CellData(graph, measures, centroids, mesh.points, mesh.offsets, mesh.connectivity, mesh.tags)
+    return graph, data
+
+
+def split_holes(mesh: Mesh, graph: DualGraph, data: CellData, labels: np.ndarray, policy: str = "split", max_rounds: int = 8):
+    """Merge, and split elements that enclose holes until none does. Returns (poly, labels, n_split)."""
+    if policy not in HOLE_POLICIES:
+        raise ParameterError(f"hole_policy must be one of {list(HOLE_POLICIES)}, got {policy!r}")
+    n_split = 0
+    all_nodes = np.arange(mesh.n_cells)
+    for _ in range(max_rounds + 1):
+        poly, holes = merge(mesh, graph, labels, data.measures)
+        if holes.elements.size == 0:
+            return poly, labels, n_split
+        elems, first = np.unique(holes.elements, return_index=True)
+        if policy == "error":
+            raise MeshError(
+                f"{elems.size} agglomerated elements enclose a hole (element ids {elems[:10].tolist()}); "
+                "use hole_policy='split' to cut them"
+            )
+        if _ == max_rounds:
+            break
+        centers = holes.centers[first]
+        new_label = labels.copy()
+        nxt = int(labels.max()) + 1
+        for e, c in zip(elems, centers):  # a loop over the (few) elements with holes
+            cells = np.flatnonzero(labels == e)
+            x = data.centroids[cells]
+            xc = x - x.mean(axis=0)
+            _, _, vt = np.linalg.svd(xc, full_matrices=False)
+            side = (x - c) @ vt[0] > 0
+            if side.all() or not side.any():
+                side = (x - c) @ vt[1] > 0
+            new_label[cells[side]] = nxt
+            nxt += 1
+        labels, _s = connected_parts(data, new_label, all_nodes)
+        _, labels = np.unique(labels, return_inverse=True)
+        n_split += elems.size
+    raise MeshError(f"could not remove the holes of {elems.size} elements after {max_rounds} rounds of splitting")
+
+
+def run(
+    mesh: Mesh,
+    model: str = "metis",
+    mode: str = "kway",
+    k: int | None = None,
+    nref: int | None = None,
+    target_size: float | None = None,
+    mult_factor: float | None = None,
+    subset=None,
+    absorb_fraction: float = 0.0,
+    hole_policy: str = "split",
+    seed: int = 0,
+    model_options: dict | None = None,
+    compute_metrics: bool = True,
+    progress: Callable[[float, str], None] | None = None,
+) -> Result:
+    """Agglomerate `mesh`; progress(fraction, stage) is called between stages."""
+
+    def report(frac: float, stage: str) -> None:
+        if progress is not None:
+            progress(frac, stage)
+
+    timings: dict[str, float] = {}
+    t = time.perf_counter()
+    report(0.02, "graph")
+    graph, data = prepare(mesh)
+    timings["graph"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    report(0.1, "partition")
+
+    def part_progress(frac: float, stage: str) -> None:
+        report(0.1 + 0.6 * frac, stage)
+
+    agg = agglomerate(
+        mesh, data, model=model, mode=mode, k=k, nref=nref, target_size=target_size, mult_factor=mult_factor,
+        subset=subset, absorb_fraction=absorb_fraction, seed=seed, progress=part_progress, model_options=model_options,
+    )
+    timings["partition"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    report(0.72, "merge")
+    poly, labels, n_split = split_holes(mesh, graph, data, agg.labels, hole_policy)
+    agg.labels = labels
+    agg.n_elements = poly.n_elements
+    timings["merge"] = time.perf_counter() - t
+
+    res = Result(mesh=mesh, graph=graph, data=data, agglomeration=agg, poly=poly, holes_split=n_split, timings=timings)
+    if compute_metrics:
+        t = time.perf_counter()
+        report(0.8, "metrics")
+        res.metrics = element_metrics(res)
+        timings["metrics"] = time.perf_counter() - t
+    report(0.9, "write")
+    return res
+
+
+def element_metrics(res: Result) -> dict:
+    """The metrics report (models.metrics) for a result."""
+    from .metrics import metrics_report
+
+    g = res.graph
+    return metrics_report(res.poly, g.indptr, g.indices, fine_tags=res.mesh.tags)
+
+
+def write_outputs(
+    res: Result,
+    vtu: str | None = None,
+    metrics: str | None = None,
+    labels: str | None = None,
+    lymph: str | list[str] | None = None,
+    plot: str | None = None,
+    extra: dict | None = None,
+) -> dict:
+    """Write the requested outputs; returns {kind: path}. lymph: path(s), '.mat' or '.json' by extension."""
+    out: dict[str, str] = {}
+    t = time.perf_counter()
+    if vtu:
+        from .vtu import write_vtu
+
+        cell_data = {}
+        if res.metrics is not None:
+            for name, vals in res.metrics["per_element"].items():
+                cell_data[name] = np.asarray(vals, dtype=np.float64)
+        write_vtu(vtu, res.poly, cell_data)
+        out["mesh"] = vtu
+    if labels:
+        _atomic_write(labels, json.dumps(res.agglomeration.labels.tolist()))
+        out["labels"] = labels
+    if lymph:
+        if res.mesh.dim != 2:
+            raise ParameterError("lymph output exists for 2D meshes only")
+        from .lymph import lymph_structs, write_lymph_json, write_lymph_mat
+
+        region, neighbor = lymph_structs(res.poly)
+        for i, path in enumerate([lymph] if isinstance(lymph, str) else lymph):
+            (write_lymph_json if path.endswith(".json") else write_lymph_mat)(path, region, neighbor)
+            out["lymph" if i == 0 else f"lymph{i}"] = path
+    if plot:
+        from .plot import plot_agglomeration
+
+        plot_agglomeration(res.poly, plot, fine_mesh=res.mesh if res.mesh.n_cells <= 200_000 else None)
+        out["preview"] = plot
+    res.timings["write"] = time.perf_counter() - t
+    if metrics:
+        if res.metrics is None:
+            res.metrics = element_metrics(res)
+        report = dict(res.metrics)
+        report["run"] = {**res.summary(), **(extra or {})}
+        _atomic_write(metrics, json.dumps(report, indent=1))
+        out["metrics"] = metrics
+    return out
+
+
+def _atomic_write(path: str, text: str) -> None:
+    tmp = f"{path}.tmp"
+    with open(tmp, "w", encoding="utf-8") as fh:
+        fh.write(text)
+    os.replace(tmp, path)
