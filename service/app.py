@@ -1,0 +1,75 @@
+"""The FastAPI application factory: `uvicorn --factory service.app:create_app` or `magnet serve`."""
+
+from __future__ import annotations
+
+from fastapi import FastAPI, Request
+from fastapi.responses import JSONResponse
+
+from models.errors import MagnetError
+from service.auth import load_keys
+from service.context import Context
+from service.db import Database
+from service.jobs import BrokerUnavailable, NotFinished, NotFound, QueueFull
+from service.limits import BodySizeLimit
+from service.mesh_check import UploadRejected
+from service.routers import health, jobs, meshes, models
+from service.settings import Settings
+from service.storage import Storage
+from worker.celery_app import make_celery
+
+DESCRIPTION = """Mesh agglomeration as a service: upload a mesh, queue an agglomeration job (METIS,
+k-means, graph neural networks), poll it, download the agglomerated mesh, its quality metrics,
+labels and lymph structs. Authenticate with `Authorization: Bearer <API key>`."""
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """A configured app; settings default to the MAGNET_* environment."""
+    settings = settings or Settings()
+    storage = Storage(settings.data_dir)
+    db = Database(settings.resolved_database_url)
+    db.create_schema()
+    from models import api
+
+    app = FastAPI(title="MAGNET Service", version=api.MODEL_VERSION, description=DESCRIPTION)
+    app.state.ctx = Context(settings=settings, db=db, storage=storage, celery=make_celery(settings))
+    app.state.api_keys = load_keys(settings)
+    app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes + (1 << 20),
+                       form_max_bytes=settings.max_upload_bytes * 4 // 3 + (1 << 20))
+    for router in (health.router, meshes.router, jobs.router, models.router):
+        app.include_router(router)
+    _error_handlers(app)
+    return app
+
+
+def _error(status: int, detail: str, field: str | None = None, headers: dict | None = None) -> JSONResponse:
+    body = {"detail": detail} | ({"field": field} if field else {})
+    return JSONResponse(body, status_code=status, headers=headers)
+
+
+def _error_handlers(app: FastAPI) -> None:
+    """Each failure kind mapped once to its HTTP status."""
+
+    @app.exception_handler(MagnetError)
+    async def library_error(_: Request, exc: MagnetError):  # MeshError, ParameterError, ModelError
+        return _error(422, str(exc) or type(exc).__name__, getattr(exc, "field", None))
+
+    @app.exception_handler(UploadRejected)
+    async def upload_rejected(_: Request, exc: UploadRejected):
+        return _error(exc.status, exc.message)
+
+    @app.exception_handler(NotFound)
+    async def not_found(_: Request, exc: NotFound):
+        return _error(404, str(exc))
+
+    @app.exception_handler(NotFinished)
+    async def not_finished(_: Request, exc: NotFinished):
+        return _error(409, str(exc))
+
+    @app.exception_handler(QueueFull)
+    async def queue_full(_: Request, exc: QueueFull):
+        return _error(429, str(exc), headers={"Retry-After": "30"})
+
+    @app.exception_handler(BrokerUnavailable)
+    async def broker_down(_: Request, exc: BrokerUnavailable):
+        return _error(503, "the job queue is unavailable (cannot reach the broker); the job was not queued: "
+                      "try again later", headers={"Retry-After": "10"})

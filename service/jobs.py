@@ -1,0 +1,203 @@
+"""Job life cycle shared by the API and the workers: submit (with dedup), enqueue, cancel, follow.
+
+Dedup: a request gets its own job id, always. If an identical job (same mesh, same normalized
+parameters, same MODEL_VERSION: same result_key) already succeeded, the new job is born succeeded
+and points at that result; if one is in flight, the new job follows it (leader_id) and finishes
+with it. Nothing is computed twice.
+
+No FastAPI here: failures are the exceptions below, mapped to HTTP codes in service.app.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+
+from celery import Celery
+from sqlalchemy import func, select, update
+from sqlalchemy.orm import Session
+
+from service.db import (
+    ACTIVE,
+    CANCELLED,
+    FAILED,
+    FINAL,
+    QUEUED,
+    SUCCEEDED,
+    Database,
+    JobRecord,
+    MeshOwner,
+    MeshRecord,
+    new_id,
+    update_job_and_followers,
+    utcnow,
+)
+from service.settings import Settings
+from service.storage import Storage
+
+log = logging.getLogger("magnet.jobs")
+NEURAL_MODEL_PREFIX = "sage"
+
+
+class NotFound(Exception):
+    """Unknown id, or an id of another user."""
+
+
+class QueueFull(Exception):
+    """The user has too many queued/running jobs."""
+
+
+class BrokerUnavailable(Exception):
+    """The broker cannot be reached; nothing was queued."""
+
+
+class NotFinished(Exception):
+    """The job has no results (yet)."""
+
+
+def result_key(mesh_id: str, params: dict, model_version: str) -> str:
+    blob = json.dumps({"mesh": mesh_id, "params": params, "version": model_version}, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()
+
+
+def queue_for(params: dict, settings: Settings) -> str:
+    """Neural models go to the 'gpu' queue when a GPU worker is configured; all else to 'cpu'."""
+    neural = str(params.get("model", "")).startswith(NEURAL_MODEL_PREFIX)
+    return "gpu" if neural and settings.gpu_queue else "cpu"
+
+
+def visible_mesh(session: Session, user: str, mesh_id: str) -> tuple[MeshRecord, MeshOwner]:
+    owner = session.get(MeshOwner, (mesh_id, user))
+    mesh = session.get(MeshRecord, mesh_id) if owner else None
+    if mesh is None:
+        raise NotFound(f"no mesh {mesh_id!r}")
+    return mesh, owner
+
+
+def visible_job(session: Session, user: str, job_id: str) -> JobRecord:
+    job = session.get(JobRecord, job_id)
+    if job is None or job.user != user:
+        raise NotFound(f"no job {job_id!r}")
+    return job
+
+
+def enqueue(celery: Celery, job_id: str, queue: str) -> None:
+    """Send the job id to the broker; BrokerUnavailable when it cannot be reached."""
+    from worker.celery_app import TASK_NAME
+
+    try:
+        celery.send_task(TASK_NAME, args=[job_id], queue=queue)
+    except Exception as exc:  # kombu/redis/sqlalchemy connection errors all mean the same here
+        log.warning("broker unreachable while enqueuing job %s: %s", job_id, exc)
+        raise BrokerUnavailable(str(exc)) from exc
+
+
+def submit_job(db: Database, storage: Storage, celery: Celery, settings: Settings, user: str,
+               mesh_id: str, params_in: dict) -> JobRecord:
+    """Validate, dedup and queue one job of `user`. Raises NotFound, ParameterError, QueueFull,
+    BrokerUnavailable (the job record then ends 'failed' saying so: nothing is left dangling)."""
+    from models import api
+
+    with db.session() as s:
+        mesh, _ = visible_mesh(s, user, mesh_id)
+    params = api.validate_params(params_in, mesh.info)
+    key = result_key(mesh.id, params, api.MODEL_VERSION)
+    now = utcnow()
+    with db.session() as s:
+        active = s.scalar(select(func.count()).select_from(JobRecord)
+                          .where(JobRecord.user == user, JobRecord.status.in_(ACTIVE)))
+        if active >= settings.max_queued_jobs_per_user:
+            raise QueueFull(f"you have {active} queued or running jobs; the limit is "
+                            f"{settings.max_queued_jobs_per_user}: wait for some to finish")
+        job = JobRecord(id=new_id(), user=user, mesh_id=mesh.id, params=params, result_key=key,
+                        model_version=api.MODEL_VERSION, queue=queue_for(params, settings),
+                        status=QUEUED, progress=0.0, attempts=0, created_at=now)
+        done = s.scalars(select(JobRecord).where(JobRecord.result_key == key, JobRecord.status == SUCCEEDED)
+                         .order_by(JobRecord.finished_at.desc()).limit(1)).first()
+        if done is not None and storage.has_result(key):
+            job.status, job.progress, job.stage, job.result = SUCCEEDED, 1.0, "done", done.result
+            job.cached_from = done.cached_from or done.id
+            job.started_at = job.finished_at = now
+            s.add(job)
+            s.commit()
+            return job
+        leader = s.scalars(select(JobRecord).where(JobRecord.result_key == key, JobRecord.status.in_(ACTIVE),
+                                                   JobRecord.leader_id.is_(None))
+                           .order_by(JobRecord.created_at).limit(1)).first()
+        if leader is not None:
+            job.leader_id, job.cached_from = leader.id, leader.id
+            job.status, job.progress, job.stage, job.started_at = (leader.status, leader.progress, leader.stage,
+                                                                   leader.started_at)
+            s.add(job)
+            s.commit()
+        else:
+            job.enqueued_at = now
+            s.add(job)
+            s.commit()
+    if job.leader_id:
+        settle_follower(db, celery, job.id)
+    else:
+        try:
+            enqueue(celery, job.id, job.queue)
+        except BrokerUnavailable:
+            with db.session() as s:
+                update_job_and_followers(s, job.id, {
+                    "status": FAILED, "finished_at": utcnow(),
+                    "error": "the job queue (broker) was unreachable at submission: nothing was queued; submit again"})
+                s.commit()
+            raise
+    with db.session() as s:
+        return s.get(JobRecord, job.id)
+
+
+def settle_follower(db: Database, celery: Celery, job_id: str) -> None:
+    """Bring a follower in line with its leader once the leader is final (the leader's worker may
+    have finished before the follower was committed). A cancelled leader hands over: the follower
+    becomes a leader and is queued."""
+    with db.session() as s:
+        job = s.get(JobRecord, job_id)
+        if job is None or job.leader_id is None or job.status in FINAL:
+            return
+        leader = s.get(JobRecord, job.leader_id)
+        if leader is not None and leader.status in ACTIVE:
+            return
+        if leader is None or leader.status == CANCELLED:
+            promoted = s.execute(update(JobRecord).where(JobRecord.id == job_id, JobRecord.status.in_(ACTIVE))
+                                 .values(leader_id=None, status=QUEUED, progress=0.0, stage=None,
+                                         enqueued_at=utcnow())).rowcount
+            s.commit()
+            if promoted:
+                try:
+                    enqueue(celery, job_id, job.queue)
+                except BrokerUnavailable:
+                    pass  # stays queued; a worker's reaper re-sends old queued jobs
+            return
+        s.execute(update(JobRecord).where(JobRecord.id == job_id, JobRecord.status.in_(ACTIVE)).values(
+            status=leader.status, progress=leader.progress, stage=leader.stage, error=leader.error,
+            result=leader.result, started_at=leader.started_at, finished_at=leader.finished_at))
+        s.commit()
+
+
+def cancel_job(db: Database, celery: Celery, user: str, job_id: str) -> JobRecord:
+    """Mark a queued/running job cancelled (its worker notices and stops); its followers, if any,
+    carry on under a new leader. NotFinished is not raised: cancelling a final job is a no-op."""
+    with db.session() as s:
+        job = visible_job(s, user, job_id)
+        if job.status in FINAL:
+            return job
+        s.execute(update(JobRecord).where(JobRecord.id == job_id, JobRecord.status.in_(ACTIVE))
+                  .values(status=CANCELLED, finished_at=utcnow(), stage="cancelled"))
+        s.commit()
+        followers = s.scalars(select(JobRecord.id).where(JobRecord.leader_id == job_id,
+                                                         JobRecord.status.in_(ACTIVE))
+                              .order_by(JobRecord.created_at)).all()
+    if followers:
+        new_leader = followers[0]
+        with db.session() as s:
+            s.execute(update(JobRecord).where(JobRecord.leader_id == job_id, JobRecord.id != new_leader,
+                                              JobRecord.status.in_(ACTIVE)).values(leader_id=new_leader))
+            s.commit()
+        settle_follower(db, celery, new_leader)
+    with db.session() as s:
+        return s.get(JobRecord, job_id)

@@ -1,0 +1,138 @@
+"""Reading an untrusted mesh upload safely: in a child process with memory and time limits.
+
+A compressed VTU "bomb" or a huge cell count kills or stops the child, never the API process.
+XML uploads with a DOCTYPE (entity tricks) are refused before any XML library expands them, and a
+VTU that declares more cells than allowed is refused before meshio reads it.
+
+Run as `python -m service.mesh_check PATH EXT MAX_CELLS`: prints one JSON line
+{"info": {...}} or {"status": int, "error": str}.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+ALLOWED_EXTENSIONS = ("vtu", "vtk", "msh", "mesh", "off", "obj", "inp", "ply", "stl")
+XML_EXTENSIONS = ("vtu",)
+PACKAGE_ROOT = Path(__file__).resolve().parents[1]
+_slots = threading.BoundedSemaphore(max(2, os.cpu_count() or 2))
+
+
+class UploadRejected(Exception):
+    """The upload is refused; `status` is the HTTP status to answer with."""
+
+    def __init__(self, status: int, message: str):
+        super().__init__(message)
+        self.status = status
+        self.message = message
+
+
+def extension_of(filename: str | None) -> str:
+    """The lower-case mesh format extension of `filename`; 422 if missing or unsupported."""
+    ext = Path(filename or "").suffix.lower().lstrip(".")
+    if ext not in ALLOWED_EXTENSIONS:
+        raise UploadRejected(
+            422, f"unsupported or missing mesh file extension in filename {filename!r}; "
+            f"use one of: {', '.join('.' + e for e in ALLOWED_EXTENSIONS)}")
+    return ext
+
+
+def child_env() -> dict[str, str]:
+    """Environment for service child processes: our packages importable, one BLAS thread."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(PACKAGE_ROOT), env.get("PYTHONPATH")) if p)
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        env.setdefault(var, "1")
+    return env
+
+
+def inspect_upload(path: Path, ext: str, max_cells: int, memory_bytes: int, timeout_s: float) -> dict:
+    """models.api.inspect_mesh of an uploaded file, run in a limited child process."""
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (memory_bytes, memory_bytes))
+        cpu = int(timeout_s) + 1
+        resource.setrlimit(resource.RLIMIT_CPU, (cpu, cpu))
+
+    cmd = [sys.executable, "-m", "service.mesh_check", str(path), ext, str(max_cells)]
+    with _slots:
+        try:
+            proc = subprocess.run(cmd, capture_output=True, timeout=timeout_s, preexec_fn=limit,
+                                  env=child_env(), cwd=str(PACKAGE_ROOT))
+        except subprocess.TimeoutExpired:
+            raise UploadRejected(422, f"reading the mesh took longer than {timeout_s:g} s; rejected") from None
+    lines = proc.stdout.decode(errors="replace").strip().splitlines()
+    try:
+        answer = json.loads(lines[-1])
+    except (IndexError, ValueError):
+        answer = None
+    if proc.returncode != 0 or not isinstance(answer, dict):
+        raise UploadRejected(
+            422, f"the mesh could not be read within the limits ({memory_bytes / 2**30:.1f} GiB memory, "
+            f"{timeout_s:g} s); rejected")
+    if "error" in answer:
+        raise UploadRejected(int(answer.get("status", 422)), answer["error"])
+    return answer["info"]
+
+
+def check_xml(path: Path, max_cells: int) -> None:
+    """Refuse DTDs/entities, and VTU pieces declaring more than max_cells cells, before meshio runs."""
+    from xml.etree.ElementTree import ParseError
+
+    import defusedxml.ElementTree as safe_et
+    from defusedxml import DefusedXmlException
+
+    cells = 0
+    try:
+        for _event, elem in safe_et.iterparse(str(path), events=("start",), forbid_dtd=True,
+                                              forbid_entities=True, forbid_external=True):
+            tag = elem.tag.rsplit("}", 1)[-1]
+            if tag == "Piece":
+                try:
+                    cells += int(elem.attrib.get("NumberOfCells", 0))
+                except ValueError:
+                    raise UploadRejected(422, "invalid NumberOfCells in VTU piece") from None
+                if cells > max_cells:
+                    raise UploadRejected(413, f"the mesh declares {cells} cells or more; the limit is {max_cells}")
+            elif tag == "AppendedData":
+                break  # raw binary follows: not XML, and no DTD can come after the root element
+    except DefusedXmlException:
+        raise UploadRejected(422, "XML with a DOCTYPE or entity declarations is not accepted") from None
+    except ParseError as exc:
+        raise UploadRejected(422, f"malformed XML: {exc}") from None
+
+
+def _child_main(argv: list[str]) -> int:
+    path, ext, max_cells = Path(argv[0]), argv[1], int(argv[2])
+    try:
+        if ext in XML_EXTENSIONS:
+            check_xml(path, max_cells)
+        from models import api
+
+        info = api.inspect_mesh(str(path))
+        if int(info["cells"]) > max_cells:
+            raise UploadRejected(413, f"the mesh has {info['cells']} cells; the limit is {max_cells}")
+        out = {"info": info}
+    except UploadRejected as exc:
+        out = {"status": exc.status, "error": exc.message}
+    except MemoryError:
+        out = {"status": 422, "error": "the mesh could not be read within the memory limit; rejected"}
+    except Exception as exc:  # any failure to read an untrusted file is the file's fault
+        from models.errors import MeshError
+
+        message = str(exc) if isinstance(exc, MeshError) else f"cannot read mesh: {type(exc).__name__}: {exc}"
+        out = {"status": 422, "error": message[:2000]}
+    from service.storage import _plain
+
+    print(json.dumps(out, default=_plain))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_child_main(sys.argv[1:]))

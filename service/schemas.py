@@ -1,0 +1,113 @@
+"""Wire formats (pydantic), separate from the database records."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, PlainSerializer
+
+UTCDateTime = Annotated[
+    datetime, PlainSerializer(lambda d: d.replace(tzinfo=UTC).isoformat().replace("+00:00", "Z"), return_type=str)
+]
+JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
+Finite = dict(allow_inf_nan=False)
+
+
+class ErrorOut(BaseModel):
+    detail: str = Field(description="What went wrong, in words.")
+    field: str | None = Field(None, description="The offending parameter, when one is to blame.")
+
+
+class MeshOut(BaseModel):
+    id: str = Field(description="sha256 of the uploaded bytes")
+    filename: str | None = None
+    size: int
+    cells: int
+    points: int
+    dim: int
+    cell_types: dict[str, int]
+    physical_groups: list[int]
+    bbox: list[list[float]]
+    created_at: UTCDateTime
+
+
+class JobOptions(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    seed: int | None = Field(None, ge=0, le=2**31 - 1)
+    absorb_fraction: float | None = Field(None, ge=0, lt=1, **Finite,
+                                          description="absorb parts smaller than this x mean part size")
+    hole_policy: str | None = Field(None, max_length=40, description="split | error")
+    physical_tag: str | None = Field(None, max_length=200, description="cell-data name of the physical groups")
+    method: str | None = Field(None, max_length=40, description="METIS kway | recursive")
+
+
+class JobParams(BaseModel):
+    """Agglomeration parameters, as for `magnet agglomerate`; the library validates their meaning."""
+
+    model_config = ConfigDict(extra="forbid")
+    model: str | None = Field(None, max_length=40, description="metis | kmeans | sage-base | sage-hetero")
+    mode: str | None = Field(None, max_length=40,
+                             description="kway | nref | target-size | mult-factor | segregated | coarsen")
+    k: int | None = Field(None, ge=1, le=10**8, description="number of elements (kway)")
+    nref: int | None = Field(None, ge=0, le=64, description="number of refinements: 2^nref elements")
+    target_size: float | None = Field(None, gt=0, **Finite, description="largest element diameter")
+    mult_factor: float | None = Field(None, gt=0, le=1, **Finite, description="element diameter / mesh diameter")
+    subset: list[Annotated[int, Field(ge=0, le=2**62)]] | None = Field(
+        None, description="cell ids to agglomerate (coarsen mode)")
+    refiner: str | None = Field(None, max_length=40)
+    options: JobOptions | None = None
+
+    def library_params(self) -> dict:
+        """The dict models.api.validate_params takes (unset fields left out)."""
+        return self.model_dump(exclude_none=True)
+
+
+class JobCreate(JobParams):
+    mesh_id: str = Field(min_length=1, max_length=64)
+
+
+class JobResult(BaseModel):
+    elements: int | None = None
+    parts_split: int | None = None
+    fragments_absorbed: int | None = None
+    timings: dict[str, float] = {}
+
+
+class JobOut(BaseModel):
+    id: str
+    status: JobStatus
+    progress: float = Field(ge=0, le=1)
+    stage: str | None = None
+    created_at: UTCDateTime
+    started_at: UTCDateTime | None = None
+    finished_at: UTCDateTime | None = None
+    error: str | None = None
+    result: JobResult | None = None
+    mesh_id: str
+    params: dict
+    model_version: str
+    queue: str
+    attempts: int
+    cached: bool = Field(description="served from an identical earlier or in-flight job, not recomputed")
+
+
+class JobList(BaseModel):
+    items: list[JobOut]
+    total: int
+    limit: int
+    offset: int
+
+
+class ModelCard(BaseModel):
+    model_config = ConfigDict(extra="allow")
+    name: str
+    dimension: int | str | list[int] | None = None
+    modes: list[str] = []
+    description: str = ""
+    version: str | None = None
+
+
+class Health(BaseModel):
+    status: str
+    checks: dict[str, str] = {}

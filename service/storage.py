@@ -1,0 +1,86 @@
+"""Blobs under the data directory: meshes content-addressed by sha256, results by result key.
+
+Layout: meshes/ab/<sha256>.<ext>, results/<result_key>/{mesh.vtu, metrics.json, ..., summary.json},
+tmp/ for uploads and running jobs. A result directory appears atomically (rename) and only complete.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+import uuid
+from pathlib import Path
+
+SUMMARY = "summary.json"
+
+
+class Storage:
+    """The data directory (a shared volume when API and workers run on different hosts)."""
+
+    def __init__(self, root: Path | str):
+        self.root = Path(root).resolve()
+        for sub in ("meshes", "results", "tmp"):
+            (self.root / sub).mkdir(parents=True, exist_ok=True)
+
+    def mesh_path(self, mesh_id: str, ext: str) -> Path:
+        return self.root / "meshes" / mesh_id[:2] / f"{mesh_id}.{ext}"
+
+    def temp_file(self, suffix: str = "") -> Path:
+        fd, name = tempfile.mkstemp(dir=self.root / "tmp", suffix=suffix)
+        os.close(fd)
+        return Path(name)
+
+    def put_mesh(self, temp: Path, mesh_id: str, ext: str) -> Path:
+        """Move an uploaded temp file into its content-addressed place (a no-op when present)."""
+        dest = self.mesh_path(mesh_id, ext)
+        if dest.exists():
+            temp.unlink(missing_ok=True)
+        else:
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(temp, dest)
+        return dest
+
+    def result_dir(self, result_key: str) -> Path:
+        return self.root / "results" / result_key
+
+    def has_result(self, result_key: str) -> bool:
+        return (self.result_dir(result_key) / SUMMARY).exists()
+
+    def read_summary(self, result_key: str) -> dict:
+        return json.loads((self.result_dir(result_key) / SUMMARY).read_text())
+
+    def work_dir(self, job_id: str) -> Path:
+        """A fresh private directory for one attempt at a job."""
+        path = self.root / "tmp" / f"job-{job_id}-{uuid.uuid4().hex[:8]}"
+        path.mkdir(parents=True)
+        return path
+
+    def publish_result(self, work_dir: Path, result_key: str, summary: dict) -> None:
+        """Make a finished work directory the result for result_key; the first publisher wins."""
+        (work_dir / SUMMARY).write_text(json.dumps(summary, default=_plain))
+        dest = self.result_dir(result_key)
+        try:
+            os.rename(work_dir, dest)
+        except OSError:
+            if not self.has_result(result_key):
+                # a stale incomplete directory (never published): replace it
+                shutil.rmtree(dest, ignore_errors=True)
+                os.rename(work_dir, dest)
+            else:
+                shutil.rmtree(work_dir, ignore_errors=True)
+
+    def check_writable(self) -> None:
+        probe = self.root / "tmp" / f".probe-{uuid.uuid4().hex}"
+        probe.write_bytes(b"ok")
+        probe.unlink()
+
+
+def _plain(value):
+    """json default for numpy scalars and arrays."""
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    if hasattr(value, "item"):
+        return value.item()
+    raise TypeError(f"not JSON serializable: {type(value).__name__}")

@@ -1,0 +1,82 @@
+"""Receiving a mesh upload: stream to a temp file (size-capped, hashed), inspect it safely in a
+child process, file it content-addressed, and record who uploaded it."""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import AsyncIterator
+
+from sqlalchemy.exc import IntegrityError
+from starlette.concurrency import run_in_threadpool
+
+from service.context import Context
+from service.db import MeshOwner, MeshRecord, utcnow
+from service.mesh_check import UploadRejected, extension_of, inspect_upload
+from service.schemas import MeshOut
+
+CHUNK = 1 << 20
+
+
+async def receive_mesh(ctx: Context, user: str, chunks: AsyncIterator[bytes], filename: str | None) -> MeshOut:
+    """Store one uploaded mesh for `user`; the same bytes always give the same id."""
+    ext = extension_of(filename)
+    limit = ctx.settings.max_upload_bytes
+    tmp = ctx.storage.temp_file(suffix="." + ext)
+    digest, size = hashlib.sha256(), 0
+    try:
+        with open(tmp, "wb") as out:
+            async for chunk in chunks:
+                size += len(chunk)
+                if size > limit:
+                    raise UploadRejected(413, f"mesh file too large: the limit is {limit} bytes")
+                digest.update(chunk)
+                out.write(chunk)
+        if size == 0:
+            raise UploadRejected(422, "empty upload: send the mesh file as the request body or multipart field 'file'")
+        mesh_id = digest.hexdigest()
+        return await run_in_threadpool(_file_mesh, ctx, user, tmp, mesh_id, ext, size, filename)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def _file_mesh(ctx: Context, user: str, tmp, mesh_id: str, ext: str, size: int, filename: str | None) -> MeshOut:
+    with ctx.db.session() as s:
+        mesh = s.get(MeshRecord, mesh_id)
+    if mesh is None:
+        s_ = ctx.settings
+        info = inspect_upload(tmp, ext, s_.max_cells, s_.parse_memory_bytes, s_.parse_timeout_s)
+        ctx.storage.put_mesh(tmp, mesh_id, ext)
+        mesh = MeshRecord(id=mesh_id, ext=ext, size=size, info=info, created_at=utcnow())
+        with ctx.db.session() as s:
+            try:
+                s.add(mesh)
+                s.commit()
+            except IntegrityError:  # the same bytes uploaded concurrently
+                s.rollback()
+                mesh = s.get(MeshRecord, mesh_id)
+    name = (filename or f"mesh.{ext}").replace("\\", "/").rsplit("/", 1)[-1][:300]
+    with ctx.db.session() as s:
+        owner = s.get(MeshOwner, (mesh_id, user))
+        if owner is None:
+            owner = MeshOwner(mesh_id=mesh_id, user=user, filename=name, created_at=utcnow())
+            try:
+                s.add(owner)
+                s.commit()
+            except IntegrityError:
+                s.rollback()
+                owner = s.get(MeshOwner, (mesh_id, user))
+    return mesh_out(mesh, owner)
+
+
+def mesh_out(mesh: MeshRecord, owner: MeshOwner) -> MeshOut:
+    info = mesh.info
+    return MeshOut(id=mesh.id, filename=owner.filename, size=mesh.size, cells=info["cells"], points=info["points"],
+                   dim=info["dim"], cell_types=info.get("cell_types", {}),
+                   physical_groups=info.get("physical_groups", []), bbox=info.get("bbox", []),
+                   created_at=owner.created_at)
+
+
+async def stream_of(upload) -> AsyncIterator[bytes]:
+    """Chunks of a starlette UploadFile."""
+    while chunk := await upload.read(CHUNK):
+        yield chunk

@@ -1,0 +1,1 @@
+"""Celery workers that run agglomeration jobs: tasks take a job id, the job record holds the state."""

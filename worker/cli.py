@@ -1,0 +1,61 @@
+"""`magnet worker`: a Celery worker for the MAGNET queues (registered through the magnet.commands
+entry point, so models/cli.py never imports Celery)."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import socket
+
+from service.settings import Settings
+
+
+def register_worker(subparsers) -> argparse.ArgumentParser:
+    """Add the `worker` sub-command to the `magnet` CLI."""
+    p = subparsers.add_parser(
+        "worker", help="run a job worker (MAGNET_BROKER_URL=redis://... for a Redis deployment)",
+        description="Run a Celery worker for MAGNET jobs. Configuration from MAGNET_* variables: "
+        "MAGNET_BROKER_URL (default: embedded SQLite broker in MAGNET_DATA_DIR), MAGNET_DATABASE_URL, "
+        "MAGNET_DATA_DIR (shared with the API).")
+    p.add_argument("--queues", "-Q", default="cpu",
+                   help="comma-separated queues to consume: cpu, gpu (default: cpu). A GPU worker: -Q gpu,cpu -c 1")
+    p.add_argument("--concurrency", "-c", type=int, default=1,
+                   help="jobs run at the same time (default 1; one per GPU on a GPU worker)")
+    p.add_argument("--name", "-n", default=None, help="worker node name (default magnet-<pid>@<host>)")
+    p.add_argument("--data-dir", default=None, help="overrides MAGNET_DATA_DIR")
+    p.add_argument("--broker-url", default=None, help="overrides MAGNET_BROKER_URL")
+    p.add_argument("--database-url", default=None, help="overrides MAGNET_DATABASE_URL")
+    p.add_argument("--loglevel", "-l", default="INFO")
+    p.set_defaults(func=run_worker)
+    return p
+
+
+def apply_overrides(args: argparse.Namespace) -> None:
+    """Command-line overrides become MAGNET_* variables, so child processes see them too."""
+    for attr, var in (("data_dir", "MAGNET_DATA_DIR"), ("broker_url", "MAGNET_BROKER_URL"),
+                      ("database_url", "MAGNET_DATABASE_URL")):
+        value = getattr(args, attr, None)
+        if value:
+            os.environ[var] = str(value)
+
+
+def run_worker(args: argparse.Namespace) -> int:
+    apply_overrides(args)
+    from worker.celery_app import make_celery
+
+    settings = Settings()
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    app = make_celery(settings)
+    name = args.name or f"magnet-{os.getpid()}@{socket.gethostname()}"
+    argv = ["worker", "--queues", args.queues, "--concurrency", str(args.concurrency), "--pool", "prefork",
+            "--hostname", name, "--loglevel", args.loglevel, "--without-mingle", "--without-gossip",
+            "--without-heartbeat"]
+    app.worker_main(argv)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="magnet")
+    register_worker(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    return args.func(args)

@@ -1,0 +1,183 @@
+"""The one Celery task: run an agglomeration job given its id.
+
+Idempotent: a job that is final, or running under a live worker, is left alone; a finished result
+for the same result key is reused instead of recomputed. Progress, stage and a heartbeat go to the
+job record; cancellation is read back from it.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import socket
+import threading
+import time
+
+from celery import shared_task
+from celery.exceptions import SoftTimeLimitExceeded
+from sqlalchemy import update
+
+from service import db as jobdb
+from service.db import CANCELLED, FAILED, FINAL, QUEUED, RUNNING, SUCCEEDED, JobRecord, MeshRecord, utcnow
+from service.settings import Settings
+from service.storage import Storage
+from worker.celery_app import TASK_NAME
+
+log = logging.getLogger("magnet.worker")
+
+
+def worker_identity() -> str:
+    return f"{socket.gethostname()}:{os.getpid()}"
+
+
+def _local_process_dead(worker: str | None) -> bool:
+    """True when `worker` (host:pid) ran on this host and that process no longer exists."""
+    if not worker:
+        return True
+    host, _, pid = worker.rpartition(":")
+    if host != socket.gethostname() or not pid.isdigit():
+        return False
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:
+        return False
+    return False
+
+
+def claim(db: jobdb.Database, job_id: str, me: str, settings: Settings) -> JobRecord | None:
+    """Take the job for this process (status running, attempts + 1), or None when it is not ours
+    to run: unknown, final, a follower, or running under a worker that is still alive."""
+    with db.session() as s:
+        job = s.get(JobRecord, job_id)
+        if job is None or job.status in FINAL or job.leader_id is not None:
+            return None
+        if job.status == RUNNING:
+            age = (utcnow() - job.heartbeat_at).total_seconds() if job.heartbeat_at else 1e9
+            if age < settings.heartbeat_timeout_s and not _local_process_dead(job.worker):
+                log.info("job %s is running under %s (heartbeat %.1fs ago): not taking it", job_id, job.worker, age)
+                return None
+        if job.attempts >= settings.max_attempts:
+            jobdb.update_job_and_followers(s, job_id, {
+                "status": FAILED, "finished_at": utcnow(), "stage": "failed",
+                "error": f"worker died {job.attempts} times while running this job"},
+                only_if={"status": job.status, "attempts": job.attempts})
+            s.commit()
+            return None
+        now = utcnow()
+        changed = jobdb.update_job_and_followers(s, job_id, {
+            "status": RUNNING, "attempts": job.attempts + 1, "worker": me, "heartbeat_at": now,
+            "started_at": job.started_at or now, "stage": "starting", "progress": 0.0},
+            only_if={"status": job.status, "attempts": job.attempts})
+        s.commit()
+        if not changed:
+            return None
+        return s.get(JobRecord, job_id)
+
+
+class Heartbeat(threading.Thread):
+    """Refreshes heartbeat_at while the job runs, so reapers know this worker is alive."""
+
+    def __init__(self, db: jobdb.Database, job_id: str, me: str, interval: float):
+        super().__init__(daemon=True, name=f"heartbeat-{job_id}")
+        self.db, self.job_id, self.me, self.interval = db, job_id, me, interval
+        self.stopped = threading.Event()
+
+    def run(self) -> None:
+        while not self.stopped.wait(self.interval):
+            try:
+                with self.db.session() as s:
+                    s.execute(update(JobRecord).where(JobRecord.id == self.job_id, JobRecord.worker == self.me,
+                                                      JobRecord.status == RUNNING).values(heartbeat_at=utcnow()))
+                    s.commit()
+            except Exception as exc:  # a busy database must not kill the job; retry next beat
+                log.warning("heartbeat of job %s failed: %s", self.job_id, exc)
+
+
+def execute_job(job_id: str, settings: Settings) -> str:
+    """Run one job to its end; returns what happened (for logs and tests)."""
+    from models import api
+    from models.errors import MagnetError
+
+    db = jobdb.for_process(settings.resolved_database_url)
+    storage = Storage(settings.data_dir)
+    me = worker_identity()
+    job = claim(db, job_id, me, settings)
+    if job is None:
+        return "skipped"
+    mine = {"status": RUNNING, "worker": me}
+
+    def finish(values: dict) -> None:
+        with db.session() as s:
+            jobdb.update_job_and_followers(s, job_id, {"finished_at": utcnow(), **values}, only_if=mine)
+            s.commit()
+
+    if storage.has_result(job.result_key):
+        finish({"status": SUCCEEDED, "progress": 1.0, "stage": "done",
+                "result": storage.read_summary(job.result_key)})
+        return "reused"
+
+    with db.session() as s:
+        mesh = s.get(MeshRecord, job.mesh_id)
+    mesh_path = storage.mesh_path(mesh.id, mesh.ext)
+    last = {"progress": 0.0, "cancel_check": 0.0, "cancelled": False}
+
+    def progress(fraction: float, stage: str) -> None:
+        now = time.monotonic()
+        if now - last["progress"] < 0.25 and fraction < 1.0 and stage == last.get("stage"):
+            return
+        last["progress"], last["stage"] = now, stage
+        with db.session() as s:
+            jobdb.update_job_and_followers(
+                s, job_id, {"progress": max(0.0, min(1.0, float(fraction))), "stage": str(stage)[:64]},
+                only_if=mine)
+            s.commit()
+
+    def should_cancel() -> bool:
+        now = time.monotonic()
+        if not last["cancelled"] and now - last["cancel_check"] >= 0.5:
+            last["cancel_check"] = now
+            with db.session() as s:
+                current = s.get(JobRecord, job_id)
+                last["cancelled"] = current is None or current.status != RUNNING or current.worker != me
+        return last["cancelled"]
+
+    work = storage.work_dir(job_id)
+    beat = Heartbeat(db, job_id, me, settings.heartbeat_interval_s)
+    beat.start()
+    try:
+        log.info("job %s: running %s on %s (attempt %d)", job_id, job.params, mesh.id[:12], job.attempts)
+        summary = api.run_job(str(mesh_path), str(work), job.params, progress=progress, should_cancel=should_cancel)
+        storage.publish_result(work, job.result_key, summary)
+        finish({"status": SUCCEEDED, "progress": 1.0, "stage": "done",
+                "result": storage.read_summary(job.result_key)})
+        return "succeeded"
+    except api.JobCancelled:
+        log.info("job %s: cancelled", job_id)
+        return "cancelled"
+    except SoftTimeLimitExceeded:
+        finish({"status": FAILED, "stage": "failed",
+                "error": f"the job exceeded the time limit of {settings.task_time_limit_s} s"})
+        return "failed"
+    except MagnetError as exc:
+        finish({"status": FAILED, "stage": "failed", "error": str(exc) or type(exc).__name__})
+        return "failed"
+    except Exception as exc:
+        log.exception("job %s: internal error", job_id)
+        finish({"status": FAILED, "stage": "failed", "error": f"internal error: {type(exc).__name__}: {exc}"})
+        return "failed"
+    finally:
+        beat.stopped.set()
+        shutil.rmtree(work, ignore_errors=True)
+
+
+@shared_task(name=TASK_NAME, bind=True)
+def run_agglomeration(self, job_id: str) -> str:
+    """Celery entry point: the message carries only the job id."""
+    settings = getattr(self.app, "magnet_settings", None) or Settings()
+    return execute_job(job_id, settings)
+
+
+__all__ = ["run_agglomeration", "execute_job", "claim", "CANCELLED", "QUEUED"]
