@@ -6,6 +6,8 @@ range, no degenerate cells, every cell positively oriented (2D counter-clockwise
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 import warnings
 
@@ -76,12 +78,12 @@ def read_mesh(path: str | os.PathLike, physical_tag: str | None = None, file_for
             + ", ".join(sorted(meshio.extension_to_filetypes))
         )
     try:
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
             warnings.simplefilter("ignore")
             m = meshio.read(path, file_format=file_format)
     except MeshError:
         raise
-    except Exception as exc:  # meshio raises many kinds on broken input
+    except (Exception, SystemExit) as exc:  # meshio raises many kinds (even SystemExit) on broken input
         msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise MeshError(f"cannot read {os.path.basename(path)} as a mesh: {msg}") from None
     return mesh_from_meshio(m, physical_tag=physical_tag)

@@ -1,0 +1,259 @@
+"""Reading: every format, every cell type, physical groups, and every kind of bad input."""
+
+import os
+
+import meshio
+import numpy as np
+import pytest
+from conftest import BRAIN, EMILIA
+from meshes import hexes, mixed_2d, mixed_3d, quads, tets, triangles, wedges
+
+from models.errors import MeshError, ParameterError
+from models.geometry import cell_measures
+from models.io import mesh_from_arrays, read_mesh
+from models.mesh import VTK_POLYGON
+
+
+def write(tmp_path, name, points, cells, **kw):
+    path = str(tmp_path / name)
+    fmt = {".msh2": {"file_format": "gmsh22", "binary": False}, ".msh": {"file_format": "gmsh"}}
+    meshio.write(path, meshio.Mesh(points, cells, **kw), **fmt.get(os.path.splitext(name)[1], {}))
+    return path
+
+
+def test_brain_vtu_is_2d_with_z0():
+    m = read_mesh(BRAIN)
+    assert m.dim == 2 and m.n_cells == 14372
+    assert m.cell_type_counts() == {"triangle": 14372}
+    assert np.all(cell_measures(m) > 0)
+
+
+def test_emilia_legacy_vtk_many_blocks_and_groups():
+    m = read_mesh(EMILIA)
+    assert m.n_cells == 4870 and m.dim == 2
+    assert m.physical_groups() == [1, 2, 3, 4, 5, 6, 7]
+    assert m.tag_name == "CellEntityIds"
+    lo, hi = m.points.min(axis=0), m.points.max(axis=0)
+    assert np.isclose(cell_measures(m).sum(), np.prod(hi - lo), rtol=1e-5)  # a rectangle
+    assert np.any(m.cell_types == VTK_POLYGON)
+
+
+@pytest.mark.parametrize("ext", ["vtu", "vtk", "msh2", "xdmf"])
+def test_formats_roundtrip_with_groups(tmp_path, ext):
+    p, t = triangles(6)
+    tags = (p[t].mean(axis=1)[:, 0] > 0.5).astype(int) + 1
+    if ext.startswith("msh"):
+        kw = {"cell_data": {"gmsh:physical": [tags], "gmsh:geometrical": [tags]}}
+    else:
+        kw = {"cell_data": {"CellEntityIds": [tags]}}
+    path = write(tmp_path, f"m.{ext}", np.column_stack([p, np.zeros(len(p))]), [("triangle", t)], **kw)
+    if ext == "msh2":  # Gmsh 2.2 ASCII under the usual extension
+        os.rename(path, path[:-1])
+        path = path[:-1]
+    m = read_mesh(path)
+    assert m.n_cells == len(t) and m.dim == 2
+    assert sorted(m.physical_groups()) == [1, 2]
+    assert np.isclose(cell_measures(m).sum(), 1.0)
+
+
+CELLS = {
+    "triangle": lambda: (triangles(5)[0], [("triangle", triangles(5)[1])]),
+    "quad": lambda: (quads(5)[0], [("quad", quads(5)[1])]),
+    "mixed2d": lambda: mixed_2d(6),
+    "tetra": lambda: (tets(3)[0], [("tetra", tets(3)[1])]),
+    "hexahedron": lambda: (hexes(3)[0], [("hexahedron", hexes(3)[1])]),
+    "wedge": lambda: (wedges(3)[0], [("wedge", wedges(3)[1])]),
+    "mixed3d": lambda: mixed_3d(4),
+}
+
+
+@pytest.mark.parametrize("kind", sorted(CELLS))
+def test_every_cell_type_measures_sum_to_unit(kind, tmp_path):
+    p, cells = CELLS[kind]()
+    pts = p if p.shape[1] == 3 else np.column_stack([p, np.zeros(len(p))])
+    path = write(tmp_path, "m.vtu", pts, cells)
+    m = read_mesh(path)
+    assert m.n_cells == sum(len(c) for _, c in cells)
+    assert np.isclose(cell_measures(m).sum(), 1.0)
+
+
+def test_polygons_and_polyhedra(tmp_path):
+    # general polygons: a hexagon + surrounding triangles
+    ang = np.linspace(0, 2 * np.pi, 7)[:-1]
+    p = np.vstack([[0, 0], np.column_stack([np.cos(ang), np.sin(ang)])])
+    m = mesh_from_arrays(p, [("polygon", np.array([[1, 2, 3, 4, 5, 6]]))])
+    assert np.isclose(cell_measures(m)[0], 3 * np.sqrt(3) / 2)
+    # VTK polyhedra, written by our own writer, read back
+    from models.merge import merge
+    from models.pipeline import prepare
+    from models.vtu import write_vtu
+
+    hp, h = hexes(3)
+    fine = mesh_from_arrays(hp, [("hexahedron", h)])
+    g, d = prepare(fine)
+    poly, _ = merge(fine, g, np.arange(fine.n_cells), d.measures)
+    write_vtu(tmp_path / "poly.vtu", poly)
+    m2 = read_mesh(tmp_path / "poly.vtu")
+    assert m2.cell_type_counts() == {"polyhedron": 27}
+    assert np.isclose(cell_measures(m2).sum(), 1.0)
+
+
+def test_2d_mesh_in_a_tilted_plane_is_2d():
+    p, t = triangles(4)
+    n = np.array([1.0, 2.0, 2.0]) / 3
+    e1 = np.cross(n, [0, 0, 1.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(n, e1)
+    pts = np.array([5, -1, 2]) + p[:, :1] * e1 + p[:, 1:2] * e2
+    m = mesh_from_arrays(pts, [("triangle", t)])
+    assert m.dim == 2
+    assert np.isclose(cell_measures(m).sum(), 1.0)
+    assert np.allclose(m.points3d(), pts)
+
+
+def test_boundary_cells_kept_apart():
+    p, t = triangles(4)
+    lines = np.array([[0, 5], [5, 10]])
+    m = mesh_from_arrays(p, [("triangle", t), ("line", lines)], tags=[np.ones(len(t)), np.full(2, 7)])
+    assert m.n_cells == len(t)
+    assert len(m.boundary_types) == 2 and m.boundary_tags.tolist() == [7, 7]
+    hp, h = tets(2)
+    faces = np.array([[0, 1, 2]])
+    m3 = mesh_from_arrays(hp, [("tetra", h), ("triangle", faces)])
+    assert m3.dim == 3 and m3.n_cells == len(h) and len(m3.boundary_types) == 1
+
+
+def test_clockwise_and_inverted_cells_are_reoriented():
+    p, t = triangles(3)
+    t = t.copy()
+    t[::2] = t[::2, ::-1]
+    m = mesh_from_arrays(p, [("triangle", t)])
+    assert np.all(np.diff(m.offsets) == 3)
+    from models.geometry import signed_measures
+
+    assert np.all(signed_measures(m) > 0)
+    hp, h = tets(2)
+    h = h.copy()
+    h[::3] = h[::3][:, [0, 2, 1, 3]]
+    m3 = mesh_from_arrays(hp, [("tetra", h)])
+    assert np.all(signed_measures(m3) > 0)
+
+
+def test_named_physical_tag(tmp_path):
+    p, t = triangles(3)
+    path = write(tmp_path, "m.vtu", np.column_stack([p, np.zeros(len(p))]), [("triangle", t)],
+                 cell_data={"material": [np.arange(len(t)) % 3]})
+    assert read_mesh(path).physical_groups() == [0, 1, 2]  # found by its common name
+    path2 = write(tmp_path, "n.vtu", np.column_stack([p, np.zeros(len(p))]), [("triangle", t)],
+                  cell_data={"zone_id": [np.arange(len(t)) % 2]})
+    assert read_mesh(path2).tags is None
+    assert read_mesh(path2, physical_tag="zone_id").physical_groups() == [0, 1]
+    with pytest.raises(ParameterError, match="nope"):
+        read_mesh(path2, physical_tag="nope")
+
+
+# ---- bad input: one clear MeshError each ----------------------------------------------------
+
+def test_missing_file(tmp_path):
+    with pytest.raises(MeshError, match="not found"):
+        read_mesh(tmp_path / "none.vtu")
+
+
+def test_empty_file(tmp_path):
+    (tmp_path / "e.vtu").write_bytes(b"")
+    with pytest.raises(MeshError, match="empty"):
+        read_mesh(tmp_path / "e.vtu")
+
+
+def test_unknown_format(tmp_path):
+    (tmp_path / "m.xyz").write_text("1 2 3\n")
+    with pytest.raises(MeshError, match="unknown mesh format"):
+        read_mesh(tmp_path / "m.xyz")
+
+
+def test_truncated_file(tmp_path):
+    data = open(BRAIN, "rb").read()
+    (tmp_path / "t.vtu").write_bytes(data[: len(data) // 2])
+    with pytest.raises(MeshError, match="cannot read"):
+        read_mesh(tmp_path / "t.vtu")
+
+
+def test_garbage_file(tmp_path):
+    (tmp_path / "g.msh").write_bytes(b"\x00\x01garbage" * 100)
+    with pytest.raises(MeshError):
+        read_mesh(tmp_path / "g.msh")
+
+
+def test_mesh_without_cells(tmp_path):
+    with pytest.raises(MeshError, match="no cells"):
+        mesh_from_arrays(np.random.rand(5, 3), [])
+    path = tmp_path / "n.vtk"
+    path.write_text("# vtk DataFile Version 4.2\nno cells\nASCII\nDATASET UNSTRUCTURED_GRID\n"
+                    "POINTS 3 double\n0 0 0\n1 0 0\n0 1 0\nCELLS 0 0\nCELL_TYPES 0\n")
+    with pytest.raises(MeshError, match="no cells|cannot read"):
+        read_mesh(path)
+
+
+def test_gmsh4_physical_groups(tmp_path):
+    gmsh = pytest.importorskip("gmsh")
+    gmsh.initialize(readConfigFiles=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add("two")
+        a = gmsh.model.occ.addRectangle(0, 0, 0, 0.5, 1)
+        b = gmsh.model.occ.addRectangle(0.5, 0, 0, 0.5, 1)
+        gmsh.model.occ.fragment([(2, a)], [(2, b)])
+        gmsh.model.occ.synchronize()
+        gmsh.model.addPhysicalGroup(2, [a], 11)
+        gmsh.model.addPhysicalGroup(2, [b], 22)
+        gmsh.model.addPhysicalGroup(1, [1, 2, 3], 5)
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.2)
+        gmsh.model.mesh.generate(2)
+        path = str(tmp_path / "g.msh")
+        gmsh.write(path)
+    finally:
+        gmsh.finalize()
+    m = read_mesh(path)
+    assert m.dim == 2 and m.physical_groups() == [11, 22]
+    assert m.tag_name == "gmsh:physical"
+    assert m.boundary_types is not None and set(m.boundary_tags.tolist()) == {5}
+    assert np.isclose(cell_measures(m).sum(), 1.0)
+
+
+def test_nan_coordinates():
+    p, t = triangles(3)
+    p[4] = np.nan
+    with pytest.raises(MeshError, match="NaN or infinite"):
+        mesh_from_arrays(p, [("triangle", t)])
+    p[4] = [np.inf, 0]
+    with pytest.raises(MeshError, match="NaN or infinite"):
+        mesh_from_arrays(p, [("triangle", t)])
+
+
+def test_missing_points():
+    p, t = triangles(3)
+    t = t.copy()
+    t[0, 0] = len(p) + 10
+    with pytest.raises(MeshError, match="missing points"):
+        mesh_from_arrays(p, [("triangle", t)])
+
+
+def test_degenerate_cells():
+    p, t = triangles(3)
+    t = t.copy()
+    t[5] = [t[5, 0], t[5, 0], t[5, 1]]
+    with pytest.raises(MeshError, match="degenerate"):
+        mesh_from_arrays(p, [("triangle", t)])
+
+
+def test_1d_mesh():
+    p = np.column_stack([np.linspace(0, 1, 5), np.zeros(5)])
+    with pytest.raises(MeshError, match="1D"):
+        mesh_from_arrays(p, [("line", np.column_stack([np.arange(4), np.arange(1, 5)]))])
+
+
+def test_non_planar_surface_mesh():
+    p, t = triangles(3)
+    pts = np.column_stack([p, (p[:, 0] - 0.5) ** 2])
+    with pytest.raises(MeshError, match="non-planar"):
+        mesh_from_arrays(pts, [("triangle", t)])
