@@ -1,0 +1,185 @@
+"""Neural agglomeration benchmark (issue 4): SAGE-Base / SAGE-Heterogeneous vs METIS and k-means
+recursive bisection, in one run on one machine.
+
+1. Brain coronal slice, nref 7: normalized cut (ratio to METIS), extra elements from disconnected
+   fragments before any absorption, connectivity after the split, CPU time per 10k cells.
+2. The same SAGE-Base run batched level by level vs one forward pass per subgraph: speed-up, same labels.
+3. Unit cube with ~100k tetrahedra, nref 8: same table as 1.
+4. Unit square with 16 circular inclusions (regular grid), nref 6: heterogeneity preservation.
+
+Run: python bench/bench_neural.py [--quick] [--weights-dir DIR] [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from models.agglomerate import CellData, connected_parts, recursive_bisection  # noqa: E402
+from models.geometry import measures_and_centroids  # noqa: E402
+from models.graph import dual_graph  # noqa: E402
+from models.partitioners import get_partitioner  # noqa: E402
+from models.partitioners.base import GraphBatch, Partitioner  # noqa: E402
+
+
+def cell_data(mesh) -> CellData:
+    measures, centroids = measures_and_centroids(mesh)
+    return CellData(graph=dual_graph(mesh), measures=measures, centroids=centroids, points=mesh.points,
+                    offsets=mesh.offsets, connectivity=mesh.connectivity, tags=mesh.tags)
+
+
+def normalized_cut(indptr: np.ndarray, indices: np.ndarray, labels: np.ndarray) -> float:
+    """sum over parts of cut(S) / vol(S), vol = sum of degrees (MISSION.md section 1)."""
+    rows = np.repeat(np.arange(len(indptr) - 1), np.diff(indptr))
+    k = int(labels.max()) + 1
+    cut = np.bincount(labels[rows], weights=(labels[rows] != labels[indices]).astype(float), minlength=k)
+    vol = np.bincount(labels, weights=np.diff(indptr).astype(float), minlength=k)
+    return float(np.sum(cut[vol > 0] / vol[vol > 0]))
+
+
+def heterogeneity_preservation(labels: np.ndarray, tags: np.ndarray) -> np.ndarray:
+    """HP per element = max(p_mean, 1 - p_mean), p = 1 for the larger tag (MISSION.md section 6)."""
+    p = (tags != tags.min()).astype(float)
+    k = int(labels.max()) + 1
+    mean = np.bincount(labels, weights=p, minlength=k) / np.maximum(np.bincount(labels, minlength=k), 1)
+    return np.maximum(mean, 1 - mean)
+
+
+def all_connected(data: CellData, labels: np.ndarray) -> bool:
+    g = data.graph
+    rows = np.repeat(np.arange(g.n), np.diff(g.indptr))
+    keep = labels[rows] == labels[g.indices]
+    m = sp.csr_matrix((np.ones(int(keep.sum())), (rows[keep], g.indices[keep])), shape=(g.n, g.n))
+    return connected_components(m, directed=False)[0] == int(labels.max()) + 1
+
+
+class PerGraph(Partitioner):
+    """Wraps a partitioner so that every subgraph gets its own bisect_batch call (the unbatched way)."""
+
+    def __init__(self, inner: Partitioner):
+        self.inner, self.name, self.dims = inner, inner.name + "-per-graph", inner.dims
+
+    def bisect_batch(self, batch: GraphBatch) -> np.ndarray:
+        return np.concatenate([self.inner.bisect_batch(batch.subgraph(b)) for b in range(batch.n_graphs)])
+
+
+def run(data: CellData, part: Partitioner, nref: int) -> dict:
+    nodes = np.arange(data.graph.n)
+    t0 = time.process_time()
+    w0 = time.perf_counter()
+    raw = recursive_bisection(data, part, nodes, np.zeros(data.graph.n, dtype=np.int64), levels=nref)
+    cpu, wall = time.process_time() - t0, time.perf_counter() - w0
+    split, _ = connected_parts(data, raw, nodes)
+    n_parts = int(np.unique(raw).size)
+    n_split = int(split.max()) + 1
+    return {
+        "labels": raw, "split": split, "ncut": normalized_cut(data.graph.indptr, data.graph.indices, raw),
+        "parts": n_parts, "elements_after_split": n_split, "extra_fragments_pct": 100.0 * (n_split - n_parts) / n_parts,
+        "connected_after": bool(all_connected(data, split)), "cpu_s": cpu, "wall_s": wall,
+        "cpu_per_10k_s": cpu / data.graph.n * 1e4,
+    }
+
+
+def table(title: str, rows: dict, ref: str = "metis") -> None:
+    print(f"\n## {title}")
+    print("| method | parts | normalized cut | ratio to METIS | extra fragments % | connected after split | "
+          "CPU s | CPU s / 10k cells |")
+    print("|---|---|---|---|---|---|---|---|")
+    for name, r in rows.items():
+        print(f"| {name} | {r['parts']} | {r['ncut']:.4f} | {r['ncut'] / rows[ref]['ncut']:.3f} | "
+              f"{r['extra_fragments_pct']:.2f} | {r['connected_after']} | {r['cpu_s']:.2f} | {r['cpu_per_10k_s']:.3f} |")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--brain", default=str(ROOT / "tests/data/BrainCoronalNoHoles.vtu"))
+    ap.add_argument("--weights-dir", default=None, help="use weights from this folder instead of models/weights")
+    ap.add_argument("--cube-size", type=float, default=0.0305, help="gmsh size h of the cube (0.0305: ~100k tets)")
+    ap.add_argument("--quick", action="store_true", help="skip the 100k cube")
+    ap.add_argument("--skip", default="", help="comma list of sections to skip: brain,batch,cube,hetero")
+    ap.add_argument("--json", default=None, help="also write the numbers as JSON")
+    args = ap.parse_args(argv)
+    skip = set(filter(None, args.skip.split(",")))
+
+    import torch
+
+    from models.generate import generate
+    from models.io import read_mesh
+
+    torch.set_num_threads(1)
+    opts = {} if args.weights_dir is None else {"weights_dir": args.weights_dir}
+    methods = {"metis": get_partitioner("metis"), "kmeans": get_partitioner("kmeans"),
+               "sage-base": get_partitioner("sage-base", **opts),
+               "sage-base (raw argmax)": get_partitioner("sage-base", contiguous=False, **opts)}
+    out: dict = {"machine": f"{torch.get_num_threads()} torch thread(s), CPU", "torch": torch.__version__}
+    print(f"# bench_neural ({out['machine']}, torch {torch.__version__})")
+
+    if "brain" not in skip or "batch" not in skip:
+        brain = read_mesh(args.brain)
+        data = cell_data(brain)
+        print(f"brain: {brain.n_cells} cells")
+        methods["sage-base"].bisect_batch(make_warmup(data))  # load weights / warm up once
+    if "brain" not in skip:
+        rows = {name: run(data, p, 7) for name, p in methods.items()}
+        table(f"Brain coronal slice ({brain.n_cells} triangles), nref 7", rows)
+        out["brain"] = {k: {kk: vv for kk, vv in v.items() if kk not in ("labels", "split")} for k, v in rows.items()}
+    if "batch" not in skip:
+        batched = run(data, methods["sage-base"], 7)
+        single = run(data, PerGraph(methods["sage-base"]), 7)
+        same = bool(np.array_equal(batched["labels"], single["labels"]))
+        speed = single["wall_s"] / batched["wall_s"]
+        print("\n## Batched level-by-level inference vs one forward pass per subgraph (brain, nref 7)")
+        print("| inference | wall s | CPU s |\n|---|---|---|")
+        print(f"| batched (one pass per level) | {batched['wall_s']:.3f} | {batched['cpu_s']:.3f} |")
+        print(f"| one pass per subgraph | {single['wall_s']:.3f} | {single['cpu_s']:.3f} |")
+        print(f"speed-up {speed:.1f}x, identical labels: {same}")
+        out["batching"] = {"batched_wall_s": batched["wall_s"], "per_graph_wall_s": single["wall_s"],
+                           "speedup": speed, "identical": same}
+    if not args.quick and "cube" not in skip:
+        t = time.perf_counter()
+        cube = generate("cube", seed=0, size=args.cube_size).to_mesh()
+        data3 = cell_data(cube)
+        print(f"\ncube: {cube.n_cells} tetrahedra (generated + graph in {time.perf_counter() - t:.1f} s)")
+        methods["sage-base"].bisect_batch(make_warmup(data3))
+        rows = {name: run(data3, p, 8) for name, p in methods.items()}
+        table(f"Unit cube ({cube.n_cells} tetrahedra), nref 8", rows)
+        out["cube"] = {k: {kk: vv for kk, vv in v.items() if kk not in ("labels", "split")} for k, v in rows.items()}
+    if "hetero" not in skip:
+        sq = generate("inclusions", seed=0, n=16, regular=True, size=0.01).to_mesh()
+        datah = cell_data(sq)
+        hm = dict(methods)
+        hm["sage-hetero"] = get_partitioner("sage-hetero", **opts)
+        print(f"\n## Unit square with 16 inclusions ({sq.n_cells} triangles), nref 6: heterogeneity preservation")
+        print("| method | elements | HP mean | HP min | normalized cut | CPU s |\n|---|---|---|---|---|---|")
+        out["hetero"] = {}
+        for name, p in hm.items():
+            r = run(datah, p, 6)
+            hp = heterogeneity_preservation(r["split"], sq.tags)
+            print(f"| {name} | {r['elements_after_split']} | {hp.mean():.4f} | {hp.min():.3f} | {r['ncut']:.4f} | "
+                  f"{r['cpu_s']:.2f} |")
+            out["hetero"][name] = {"hp_mean": float(hp.mean()), "hp_min": float(hp.min()), "ncut": r["ncut"],
+                                   "elements": r["elements_after_split"], "cpu_s": r["cpu_s"]}
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=1))
+    return 0
+
+
+def make_warmup(data: CellData) -> GraphBatch:
+    """A one-graph batch of the whole mesh (first call loads the weights, outside the timings)."""
+    from models.agglomerate import make_batch
+
+    return make_batch(data, np.zeros(data.graph.n, dtype=np.int64))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,175 @@
+"""SAGE-Base and SAGE-Heterogeneous: bisection by a trained graph neural network.
+
+`bisect_batch` runs ONE forward pass over every graph of the batch (the disjoint union of all the
+subgraphs of a recursion level), under torch.inference_mode(), on the GPU when there is one. The
+2D or 3D network is chosen from the batch's dimension; weights ship in models/weights/.
+"""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ModelError
+from .base import GraphBatch, Partitioner
+
+WEIGHTS_DIR = Path(__file__).resolve().parent.parent / "weights"
+_CACHE: dict[tuple[str, str], object] = {}
+_LOCK = threading.Lock()
+
+
+def _load(path: Path, device: str):
+    """The network stored at `path`, loaded once per process and device."""
+    key = (str(path), device)
+    with _LOCK:
+        if key not in _CACHE:
+            if not path.is_file():
+                raise ModelError(
+                    f"weights file {path} is missing: reinstall the package or train it with "
+                    f"`magnet train {path.stem} -o {path}`"
+                )
+            from ..gnn import load_model
+
+            try:
+                _CACHE[key] = load_model(path, device=device)[0]
+            except Exception as exc:  # a corrupt or foreign file
+                raise ModelError(f"cannot load weights {path}: {exc}") from exc
+        return _CACHE[key]
+
+
+def batch_features(batch: GraphBatch, hetero: bool) -> np.ndarray:
+    """Raw node features: centroid, cell measure and, for the heterogeneous model, the group p
+    (0 for the smallest tag of the node's graph, 1 for the other one)."""
+    cols = [batch.centroids, batch.measures[:, None]]
+    if hetero:
+        cols.append(group_of_batch(batch)[:, None])
+    return np.column_stack(cols).astype(np.float32)
+
+
+def group_of_batch(batch: GraphBatch) -> np.ndarray:
+    """p per node, per graph; a graph holding more than two groups is refused (use segregated mode)."""
+    if batch.tags is None or batch.n_nodes == 0:
+        return np.zeros(batch.n_nodes)
+    tags = np.asarray(batch.tags)
+    starts = batch.graph_ptr[:-1]
+    nonempty = np.diff(batch.graph_ptr) > 0
+    gmin = np.zeros(batch.n_graphs, dtype=tags.dtype)
+    gmax = np.zeros(batch.n_graphs, dtype=tags.dtype)
+    gmin[nonempty] = np.minimum.reduceat(tags, starts[nonempty])
+    gmax[nonempty] = np.maximum.reduceat(tags, starts[nonempty])
+    gi = batch.graph_index()
+    if np.any((tags != gmin[gi]) & (tags != gmax[gi])):
+        raise ModelError("sage-hetero handles at most two physical groups per subgraph; use segregated mode")
+    return (tags != gmin[gi]).astype(np.float64)
+
+
+class _SagePartitioner(Partitioner):
+    dims = (2, 3)
+    supports_kway = False
+    hetero = False
+    stem = "sage-base"
+
+    def __init__(
+        self, device: str | None = None, weights_dir: str | Path | None = None, contiguous: bool = True,
+        seed: int | None = None, model=None,
+    ):
+        self.model = model  # an in-memory BisectionGNN instead of the weights files (training checks)
+        self.device = device
+        self.weights_dir = weights_dir
+        self.contiguous = contiguous
+        self.seed = seed  # inference is deterministic; accepted for a uniform interface
+
+    def weights_path(self, dim: int) -> Path:
+        return Path(self.weights_dir or WEIGHTS_DIR) / f"{self.stem}-{dim}d.pt"
+
+    def _device(self) -> str:
+        if self.device:
+            return self.device
+        import torch
+
+        return "cuda" if torch.cuda.is_available() else "cpu"
+
+    def probabilities(self, batch: GraphBatch) -> np.ndarray:
+        """(N, 2) soft bisection of every graph of the batch, in one forward pass."""
+        import torch
+
+        from ..gnn import csr_adjacency, normalize_features
+
+        if batch.dim not in self.dims:
+            raise ModelError(f"{self.name} works on 2D and 3D meshes, not {batch.dim}D")
+        device = self._device()
+        model = self.model if self.model is not None else _load(self.weights_path(batch.dim), device)
+        with torch.inference_mode():
+            x = torch.from_numpy(batch_features(batch, self.hetero)).to(device)
+            adj = csr_adjacency(batch.indptr, batch.indices, batch.n_nodes, device=device)
+            gi = torch.from_numpy(batch.graph_index()).to(device)
+            x = normalize_features(x, gi, batch.n_graphs, batch.dim)
+            return model(x, adj).float().cpu().numpy()
+
+    def bisect_batch(self, batch: GraphBatch) -> np.ndarray:
+        """(N,) labels in {0, 1}: each node takes its most probable side. A graph the network leaves
+        whole (rare, tiny graphs) is split at the median of its side-1 probability instead. With
+        `contiguous` (default, the analogue of METIS's contig option) stray islands are then handed
+        to the side around them, so that both sides of every connected graph are connected."""
+        if batch.n_nodes == 0:
+            return np.zeros(0, dtype=np.int64)
+        y = self.probabilities(batch)
+        labels = (y[:, 1] > y[:, 0]).astype(np.int64)
+        sizes = np.diff(batch.graph_ptr)
+        ones = np.add.reduceat(labels, batch.graph_ptr[:-1][sizes > 0]) if np.any(sizes > 0) else labels[:0]
+        full = np.zeros(batch.n_graphs, dtype=np.int64)
+        full[sizes > 0] = ones
+        for b in np.flatnonzero((sizes >= 2) & ((full == 0) | (full == sizes))):
+            lo, hi = batch.graph_ptr[b], batch.graph_ptr[b + 1]
+            order = np.argsort(-y[lo:hi, 1], kind="stable")
+            labels[lo:hi] = 0
+            labels[lo + order[: (hi - lo) // 2]] = 1
+        return contiguous_sides(batch, labels) if self.contiguous else labels
+
+
+def contiguous_sides(batch: GraphBatch, labels: np.ndarray, max_rounds: int = 10) -> np.ndarray:
+    """Give every connected component of a side, except the largest one of its side within its
+    connected piece of the graph, to the other side; repeat until both sides are connected."""
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = batch.n_nodes
+    rows = np.repeat(np.arange(n), np.diff(batch.indptr))
+    cols = batch.indices
+    ones = np.ones(len(cols), dtype=np.int8)
+    _, piece = connected_components(csr_matrix((ones, cols, batch.indptr), shape=(n, n)), directed=False)
+    labels = labels.copy()
+    for _ in range(max_rounds):
+        same = labels[rows] == labels[cols]
+        m = csr_matrix((ones[same], (rows[same], cols[same])), shape=(n, n))
+        n_comp, comp = connected_components(m, directed=False)
+        size = np.bincount(comp, minlength=n_comp)
+        first = np.full(n_comp, n, dtype=np.int64)
+        np.minimum.at(first, comp, np.arange(n))
+        key = piece[first] * 2 + labels[first]  # (connected piece, side) of each component
+        order = np.lexsort((first, -size, key))  # per key: largest first (ties: lowest node id)
+        keep = np.zeros(n_comp, dtype=bool)
+        keep[order[np.r_[True, key[order][1:] != key[order][:-1]]]] = True
+        flip = ~keep[comp]
+        if not flip.any():
+            break
+        labels[flip] ^= 1
+    return labels
+
+
+class SageBasePartitioner(_SagePartitioner):
+    name = "sage-base"
+    stem = "sage-base"
+    hetero = False
+    description = ("SAGE-Base: graph neural network bisection (4 SAGEConv + 4 dense), trained to minimize "
+                   "the expected normalized cut; recursive bisection, batched level by level")
+
+
+class SageHeteroPartitioner(_SagePartitioner):
+    name = "sage-hetero"
+    stem = "sage-hetero"
+    hetero = True
+    description = ("SAGE-Heterogeneous: SAGE-Base with the physical group as a feature and a penalty for "
+                   "mixing two groups in one part; at most two groups per subgraph")
