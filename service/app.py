@@ -9,6 +9,7 @@ from models.errors import MagnetError
 from service.auth import load_keys
 from service.context import Context
 from service.db import Database
+from service.error_envelope import ErrorsInBody
 from service.jobs import BrokerUnavailable, NotFinished, NotFound, QueueFull
 from service.limits import BodySizeLimit
 from service.mesh_check import UploadRejected
@@ -35,6 +36,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.api_keys = load_keys(settings)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes + (1 << 20),
                        form_max_bytes=settings.max_upload_bytes * 4 // 3 + (1 << 20))
+    app.add_middleware(ErrorsInBody)
     for router in (health.router, meshes.router, jobs.router, models.router):
         app.include_router(router)
     _error_handlers(app)

@@ -68,7 +68,7 @@ class EmbeddedWorker:
         backoff = 1.0
         while not self.stopping.is_set():
             started = time.monotonic()
-            self.proc = subprocess.Popen(self.cmd, env=child_env())
+            self.proc = subprocess.Popen(self.cmd, env=child_env(), preexec_fn=_die_with_parent)
             self.proc.wait()
             if self.stopping.is_set():
                 break
@@ -86,6 +86,16 @@ class EmbeddedWorker:
                 self.proc.kill()
 
 
+def _die_with_parent() -> None:
+    """Linux: the worker gets SIGTERM if `magnet serve` dies without cleaning up (kill -9)."""
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except OSError:
+        pass
+
+
 def run_serve(args: argparse.Namespace) -> int:
     for attr, var in (("data_dir", "MAGNET_DATA_DIR"), ("broker_url", "MAGNET_BROKER_URL"),
                       ("database_url", "MAGNET_DATABASE_URL"), ("api_keys_file", "MAGNET_API_KEYS_FILE")):
@@ -101,6 +111,13 @@ def run_serve(args: argparse.Namespace) -> int:
     if not args.no_worker and args.workers > 0:
         worker = EmbeddedWorker(args.workers, args.log_level)
         worker.start()
+
+        def stop(signum, _frame):  # uvicorn re-raises the signal after its graceful shutdown
+            worker.stop()
+            raise SystemExit(128 + signum)
+
+        signal.signal(signal.SIGTERM, stop)
+        signal.signal(signal.SIGINT, stop)
     try:
         uvicorn.run("service.app:create_app", factory=True, host=args.host, port=args.port,
                     log_level=args.log_level.lower(), timeout_keep_alive=30)

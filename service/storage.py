@@ -27,10 +27,16 @@ class Storage:
     def mesh_path(self, mesh_id: str, ext: str) -> Path:
         return self.root / "meshes" / mesh_id[:2] / f"{mesh_id}.{ext}"
 
-    def temp_file(self, suffix: str = "") -> Path:
-        fd, name = tempfile.mkstemp(dir=self.root / "tmp", suffix=suffix)
-        os.close(fd)
-        return Path(name)
+    def temp_file(self, name: str) -> Path:
+        """A new empty file called `name` in a private temp directory (remove with discard_temp)."""
+        folder = Path(tempfile.mkdtemp(dir=self.root / "tmp", prefix="upload-"))
+        path = folder / name
+        path.touch()
+        return path
+
+    @staticmethod
+    def discard_temp(path: Path) -> None:
+        shutil.rmtree(path.parent, ignore_errors=True)
 
     def put_mesh(self, temp: Path, mesh_id: str, ext: str) -> Path:
         """Move an uploaded temp file into its content-addressed place (a no-op when present)."""

@@ -4,7 +4,9 @@ child process, file it content-addressed, and record who uploaded it."""
 from __future__ import annotations
 
 import hashlib
+import re
 from collections.abc import AsyncIterator
+from pathlib import Path
 
 from sqlalchemy.exc import IntegrityError
 from starlette.concurrency import run_in_threadpool
@@ -21,7 +23,8 @@ async def receive_mesh(ctx: Context, user: str, chunks: AsyncIterator[bytes], fi
     """Store one uploaded mesh for `user`; the same bytes always give the same id."""
     ext = extension_of(filename)
     limit = ctx.settings.max_upload_bytes
-    tmp = ctx.storage.temp_file(suffix="." + ext)
+    safe = re.sub(r"[^A-Za-z0-9._-]", "_", Path(filename or "").stem)[:100] or "mesh"
+    tmp = ctx.storage.temp_file(f"{safe}.{ext}")
     digest, size = hashlib.sha256(), 0
     try:
         with open(tmp, "wb") as out:
@@ -36,7 +39,7 @@ async def receive_mesh(ctx: Context, user: str, chunks: AsyncIterator[bytes], fi
         mesh_id = digest.hexdigest()
         return await run_in_threadpool(_file_mesh, ctx, user, tmp, mesh_id, ext, size, filename)
     finally:
-        tmp.unlink(missing_ok=True)
+        ctx.storage.discard_temp(tmp)
 
 
 def _file_mesh(ctx: Context, user: str, tmp, mesh_id: str, ext: str, size: int, filename: str | None) -> MeshOut:

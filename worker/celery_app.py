@@ -32,6 +32,8 @@ def make_celery(settings: Settings | None = None) -> Celery:
             "socket_connect_timeout": 3,
             "socket_timeout": 10,
         }
+        if settings.broker_key_prefix:
+            transport_options["global_keyprefix"] = settings.broker_key_prefix
     app = Celery("magnet", broker=broker, include=["worker.tasks", "worker.reaper"])
     app.conf.update(
         broker_transport_options=transport_options,

@@ -1,0 +1,99 @@
+"""`magnet-client agglomerate MESH --server URL`: the flags of `magnet agglomerate`, run remotely."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+from magnet_client.client import Client, JobFailed, MagnetHTTPError
+
+
+def read_subset(path: str) -> list[int]:
+    """Cell ids from a file: a JSON list (or {"subset": [...]}) or whitespace/comma separated ints."""
+    text = open(path, encoding="utf-8").read()
+    try:
+        data = json.loads(text)
+        if isinstance(data, dict):
+            data = data.get("subset", data.get("cells"))
+    except json.JSONDecodeError:
+        data = text.replace(",", " ").split()
+    try:
+        ids = [int(i) for i in data]
+    except (TypeError, ValueError):
+        raise SystemExit(f"magnet-client: error: subset file {path} must hold integer cell ids") from None
+    if not ids:
+        raise SystemExit(f"magnet-client: error: subset file {path} is empty")
+    return ids
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="magnet-client", description="Client of a MAGNET agglomeration server")
+    parser.add_argument("--server", default=os.environ.get("MAGNET_SERVER", "http://127.0.0.1:8000"),
+                        help="server URL (env MAGNET_SERVER; default http://127.0.0.1:8000)")
+    parser.add_argument("--token", default=os.environ.get("MAGNET_TOKEN"), help="API key (env MAGNET_TOKEN)")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("agglomerate", help="agglomerate a mesh on the server (same flags as `magnet agglomerate`)")
+    p.add_argument("mesh")
+    p.add_argument("-o", "--output", required=True, help="agglomerated mesh (.vtu)")
+    p.add_argument("--model", default="metis", help="metis | kmeans | sage-base | sage-hetero (default metis)")
+    p.add_argument("--mode", default="kway", help="kway | nref | target-size | mult-factor | segregated | coarsen")
+    p.add_argument("--k", type=int, help="number of elements (kway)")
+    p.add_argument("--nref", type=int, help="number of refinements: 2^nref elements")
+    p.add_argument("--target-size", type=float, help="bisect until every element's diameter is below this")
+    p.add_argument("--mult-factor", type=float, help="target size = factor x mesh diameter (0 < f <= 1)")
+    p.add_argument("--subset", help="file with the cell ids to agglomerate (JSON list or whitespace separated)")
+    p.add_argument("--physical-tag", help="cell-data name holding the physical groups")
+    p.add_argument("--absorb", type=float, default=0.0, metavar="FRACTION",
+                   help="absorb parts smaller than FRACTION x mean part size into a neighbour")
+    p.add_argument("--method", default="kway", choices=["kway", "recursive"], help="METIS k-way or recursive")
+    p.add_argument("--hole-policy", default="split", choices=["split", "error"])
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--metrics", help="write the metrics JSON here")
+    p.add_argument("--labels", help="write the fine-cell -> element labels (JSON list) here")
+    p.add_argument("--lymph", help="write the lymph structs here (.mat or .json; 2D only)")
+    p.add_argument("--plot", help="write a PNG picture of the agglomerated mesh here")
+    p.add_argument("--progress", action="store_true", help="always show the progress bar")
+    p.set_defaults(func=cmd_agglomerate)
+
+    p = sub.add_parser("models", help="list the server's agglomeration models")
+    p.set_defaults(func=lambda client, args: print(json.dumps(client.models(), indent=1)) or 0)
+    p = sub.add_parser("status", help="print a job")
+    p.add_argument("job_id")
+    p.set_defaults(func=lambda client, args: print(json.dumps(client.job(args.job_id), indent=1)) or 0)
+    p = sub.add_parser("cancel", help="cancel a job")
+    p.add_argument("job_id")
+    p.set_defaults(func=lambda client, args: print(json.dumps(client.cancel(args.job_id), indent=1)) or 0)
+    return parser
+
+
+def cmd_agglomerate(client: Client, args: argparse.Namespace) -> int:
+    job = client.agglomerate(
+        args.mesh, args.output, metrics=args.metrics, labels=args.labels, lymph=args.lymph, plot=args.plot,
+        progress=args.progress or sys.stderr.isatty(), model=args.model, mode=args.mode, k=args.k,
+        nref=args.nref, target_size=args.target_size, mult_factor=args.mult_factor,
+        subset=read_subset(args.subset) if args.subset else None, physical_tag=args.physical_tag,
+        absorb_fraction=args.absorb, method=args.method, hole_policy=args.hole_policy, seed=args.seed)
+    result = job.get("result") or {}
+    stages = " ".join(f"{k} {v:.2f}s" for k, v in (result.get("timings") or {}).items())
+    cached = " (cached result)" if job.get("cached") else ""
+    print(f"{result.get('elements')} elements from {job['mesh']['cells']} cells{cached} | {stages} | job {job['id']}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    client = Client(args.server, args.token)
+    try:
+        return args.func(client, args)
+    except (MagnetHTTPError, JobFailed, ConnectionError, TimeoutError, OSError) as exc:
+        print(f"magnet-client: error: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        client.close()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

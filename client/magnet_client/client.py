@@ -1,0 +1,199 @@
+"""HTTP client of the MAGNET service. Depends on httpx and tqdm only (no torch, no server code)."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import httpx
+
+OPTION_NAMES = ("seed", "absorb_fraction", "hole_policy", "physical_tag", "method")
+PARAM_NAMES = ("model", "mode", "k", "nref", "target_size", "mult_factor", "subset", "refiner")
+
+
+class MagnetHTTPError(Exception):
+    """The server answered with an error status; `status` and `detail` say which and why."""
+
+    def __init__(self, status: int, detail: str, method: str, path: str):
+        super().__init__(f"HTTP {status} from {method} {path}: {detail}")
+        self.status, self.detail, self.method, self.path = status, detail, method, path
+
+
+class JobFailed(Exception):
+    """The job ended failed or cancelled; `job` is its last record."""
+
+    def __init__(self, job: dict):
+        super().__init__(f"job {job['id']} {job['status']}: {job.get('error') or 'no error message'}")
+        self.job = job
+
+
+def job_params(params: dict) -> dict:
+    """Split flat keyword arguments into the job's fields and its `options` object."""
+    body = {k: params[k] for k in PARAM_NAMES if params.get(k) is not None}
+    options = dict(params.get("options") or {})
+    options.update({k: params[k] for k in OPTION_NAMES if params.get(k) is not None})
+    if options:
+        body["options"] = options
+    unknown = set(params) - set(PARAM_NAMES) - set(OPTION_NAMES) - {"options"}
+    if unknown:
+        raise TypeError(f"unknown job parameter(s): {sorted(unknown)}")
+    if "subset" in body:
+        body["subset"] = [int(i) for i in body["subset"]]
+    return body
+
+
+class Client:
+    """A MAGNET server at `url`, used with API key `token` (None for a keyless local server).
+
+    Waits and retries when the server says so (429 too many queued jobs, 503 broker down):
+    a refused submission was not queued, so sending it again is safe.
+    """
+
+    def __init__(self, url: str = "http://127.0.0.1:8000", token: str | None = None, timeout: float = 120.0,
+                 retries: int = 5):
+        self.url = url.rstrip("/")
+        token = token if token is not None else os.environ.get("MAGNET_TOKEN")
+        headers = {"Authorization": f"Bearer {token}"} if token else {}
+        self.http = httpx.Client(base_url=self.url, headers=headers, timeout=timeout)
+        self.retries = retries
+
+    def close(self) -> None:
+        self.http.close()
+
+    def __enter__(self) -> Client:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # --- plumbing ---------------------------------------------------------------------------------
+
+    def _request(self, method: str, path: str, **kwargs) -> httpx.Response:
+        for attempt in range(self.retries + 1):
+            try:
+                response = self.http.request(method, path, **kwargs)
+            except httpx.TransportError as exc:
+                if method != "GET" or attempt == self.retries:
+                    raise ConnectionError(f"cannot reach the MAGNET server at {self.url}: {exc}") from exc
+                time.sleep(min(2**attempt, 10))
+                continue
+            if response.status_code in (429, 503) and attempt < self.retries:
+                time.sleep(min(float(response.headers.get("Retry-After", 2**attempt)), 30))
+                continue
+            if response.status_code >= 400:
+                try:
+                    detail = response.json().get("detail", response.text)
+                except ValueError:
+                    detail = response.text
+                raise MagnetHTTPError(response.status_code, detail if isinstance(detail, str) else str(detail),
+                                      method, path)
+            return response
+        raise AssertionError("unreachable")
+
+    def _save(self, path: str, target: str | os.PathLike, **kwargs) -> Path:
+        target = Path(target)
+        target.write_bytes(self._request("GET", path, **kwargs).content)
+        return target
+
+    # --- the API ----------------------------------------------------------------------------------
+
+    def models(self) -> list[dict]:
+        return self._request("GET", "/v1/models").json()
+
+    def upload(self, mesh_path: str | os.PathLike) -> dict:
+        """Upload a mesh file; returns {id, cells, dim, ...}. The same bytes give the same id."""
+        mesh_path = Path(mesh_path)
+        with open(mesh_path, "rb") as fh:
+            return self._request("POST", "/v1/meshes", params={"filename": mesh_path.name}, content=fh.read(),
+                                 headers={"Content-Type": "application/octet-stream"}).json()
+
+    def submit(self, mesh_id: str, **params) -> dict:
+        """Queue a job: model, mode, k, nref, target_size, mult_factor, subset, refiner, options, or
+        the options flat (seed, absorb_fraction, hole_policy, physical_tag, method)."""
+        return self._request("POST", "/v1/jobs", json={"mesh_id": mesh_id, **job_params(params)}).json()
+
+    def job(self, job_id: str) -> dict:
+        return self._request("GET", f"/v1/jobs/{job_id}").json()
+
+    def jobs(self, limit: int = 50, offset: int = 0, status: str | None = None) -> dict:
+        params = {"limit": limit, "offset": offset} | ({"status": status} if status else {})
+        return self._request("GET", "/v1/jobs", params=params).json()
+
+    def cancel(self, job_id: str) -> dict:
+        return self._request("DELETE", f"/v1/jobs/{job_id}").json()
+
+    def wait(self, job_id: str, progress: bool = True, poll: float = 0.5, timeout: float | None = None) -> dict:
+        """Poll until the job ends; a progress bar on stderr when `progress`. JobFailed unless it succeeded."""
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=100, desc="queued", bar_format="{desc:>12} {bar} {percentage:3.0f}% {elapsed}",
+                       leave=False)
+        deadline = None if timeout is None else time.monotonic() + timeout
+        delay = min(poll, 0.1)
+        try:
+            while True:
+                job = self.job(job_id)
+                if bar is not None:
+                    bar.set_description_str(job.get("stage") or job["status"], refresh=False)
+                    bar.n = int(round(100 * job.get("progress", 0.0)))
+                    bar.refresh()
+                if job["status"] in ("succeeded", "failed", "cancelled"):
+                    break
+                if deadline is not None and time.monotonic() > deadline:
+                    raise TimeoutError(f"job {job_id} still {job['status']} after {timeout} s")
+                time.sleep(delay)
+                delay = min(delay * 1.5, poll)
+        finally:
+            if bar is not None:
+                bar.close()
+        if job["status"] != "succeeded":
+            raise JobFailed(job)
+        return job
+
+    def download_mesh(self, job_id: str, path: str | os.PathLike) -> Path:
+        return self._save(f"/v1/jobs/{job_id}/mesh", path)
+
+    def download_metrics(self, job_id: str, path: str | os.PathLike | None = None) -> dict | Path:
+        """The metrics JSON (dict), or saved to `path`."""
+        if path is not None:
+            return self._save(f"/v1/jobs/{job_id}/metrics", path)
+        return self._request("GET", f"/v1/jobs/{job_id}/metrics").json()
+
+    def download_labels(self, job_id: str, path: str | os.PathLike | None = None) -> list | Path:
+        if path is not None:
+            return self._save(f"/v1/jobs/{job_id}/labels", path)
+        return self._request("GET", f"/v1/jobs/{job_id}/labels").json()
+
+    def download_lymph(self, job_id: str, path: str | os.PathLike | None = None) -> dict | Path:
+        """lymph structs: a .mat file when `path` ends in .mat, else JSON (dict, or saved to `path`)."""
+        if path is not None:
+            fmt = "mat" if str(path).lower().endswith(".mat") else "json"
+            return self._save(f"/v1/jobs/{job_id}/lymph", path, params={"format": fmt})
+        return self._request("GET", f"/v1/jobs/{job_id}/lymph").json()
+
+    def download_preview(self, job_id: str, path: str | os.PathLike) -> Path:
+        return self._save(f"/v1/jobs/{job_id}/preview.png", path)
+
+    def agglomerate(self, mesh_path: str | os.PathLike, output: str | os.PathLike | None = None, *,
+                    metrics: str | None = None, labels: str | None = None, lymph: str | None = None,
+                    plot: str | None = None, progress: bool = True, timeout: float | None = None,
+                    **params) -> dict:
+        """Upload, submit, wait, download: the remote `magnet agglomerate`. Returns the finished job."""
+        mesh = self.upload(mesh_path)
+        job = self.submit(mesh["id"], **params)
+        job = self.wait(job["id"], progress=progress, timeout=timeout)
+        if output is not None:
+            self.download_mesh(job["id"], output)
+        if metrics is not None:
+            self.download_metrics(job["id"], metrics)
+        if labels is not None:
+            self.download_labels(job["id"], labels)
+        if lymph is not None:
+            self.download_lymph(job["id"], lymph)
+        if plot is not None:
+            self.download_preview(job["id"], plot)
+        job["mesh"] = mesh
+        return job

@@ -1,0 +1,126 @@
+function [region, neighbor, job] = magnet_agglomerate(mesh_file, varargin)
+%MAGNET_AGGLOMERATE Agglomerate a mesh on a MAGNET server; return the lymph region/neighbor structs.
+%
+%   [region, neighbor] = magnet_agglomerate('mesh.vtu', 'K', 64)
+%   [region, neighbor, job] = magnet_agglomerate('mesh.vtu', 'Server', 'http://gpu-box:8000', ...
+%       'Token', 'my-api-key', 'Model', 'metis', 'Mode', 'kway', 'K', 128, 'SaveAs', 'brain128.mat')
+%
+%   Uploads the mesh, submits a job, polls it and downloads the lymph structs of the agglomerated
+%   (2D) mesh, ready for a PolyDG solve: region (coord, connectivity, ne, nedges, coords_element,
+%   id, tag, connectivity_bc, bc_tag, BBox, area, max_kb) and neighbor (nedges, neigh,
+%   neighedges), all 1-based. Runs in MATLAB and in GNU Octave 7 (webwrite/webread/weboptions).
+%
+%   Name-value options (all optional):
+%     Server      server URL (default: env MAGNET_SERVER, else http://127.0.0.1:8000)
+%     Token       API key (default: env MAGNET_TOKEN; none for a keyless local server)
+%     Model       'metis' (default) | 'kmeans' | 'sage-base' | 'sage-hetero'
+%     Mode        'kway' (default) | 'nref' | 'target-size' | 'mult-factor' | 'segregated' | 'coarsen'
+%     K, Nref, TargetSize, MultFactor   the size parameter of the mode
+%     Subset      cell ids (0-based, as in the mesh file) to agglomerate, mode 'coarsen'
+%     Seed, PhysicalTag, Absorb, Method, HolePolicy   as in `magnet agglomerate`
+%     SaveAs      also save region and neighbor to this .mat file
+%     Timeout     seconds to wait for the job (default 3600)
+%     Poll        seconds between status checks (default 1)
+%     Verbose     print progress (default true)
+%
+%   Errors of the server (bad mesh, bad parameter, full queue, failed job) are raised as
+%   MATLAB/Octave errors with the server's message.
+
+  p = struct('Server', getenv('MAGNET_SERVER'), 'Token', getenv('MAGNET_TOKEN'), 'Model', 'metis', ...
+             'Mode', 'kway', 'K', [], 'Nref', [], 'TargetSize', [], 'MultFactor', [], 'Subset', [], ...
+             'Seed', [], 'PhysicalTag', '', 'Absorb', [], 'Method', '', 'HolePolicy', '', ...
+             'SaveAs', '', 'Timeout', 3600, 'Poll', 1, 'Verbose', true);
+  if mod(numel(varargin), 2) ~= 0
+    error('magnet:args', 'options must be name-value pairs');
+  end
+  names = fieldnames(p);
+  for i = 1:2:numel(varargin)
+    hit = find(strcmpi(names, varargin{i}));
+    if isempty(hit)
+      error('magnet:args', 'unknown option ''%s''', varargin{i});
+    end
+    p.(names{hit}) = varargin{i + 1};
+  end
+  if isempty(p.Server)
+    p.Server = 'http://127.0.0.1:8000';
+  end
+  server = regexprep(p.Server, '/+$', '');
+
+  % upload + submit in one form-urlencoded request (all Octave's webwrite can send)
+  fid = fopen(mesh_file, 'r');
+  if fid < 0
+    error('magnet:file', 'cannot open mesh file %s', mesh_file);
+  end
+  bytes = fread(fid, Inf, '*uint8');
+  fclose(fid);
+  [~, base, ext] = fileparts(mesh_file);
+  fields = {'file_b64', matlab.net.base64encode(bytes(:)'), 'filename', [base ext], ...
+            'model', p.Model, 'mode', p.Mode};
+  fields = add_field(fields, 'k', p.K);
+  fields = add_field(fields, 'nref', p.Nref);
+  fields = add_field(fields, 'target_size', p.TargetSize);
+  fields = add_field(fields, 'mult_factor', p.MultFactor);
+  fields = add_field(fields, 'seed', p.Seed);
+  fields = add_field(fields, 'physical_tag', p.PhysicalTag);
+  fields = add_field(fields, 'absorb_fraction', p.Absorb);
+  fields = add_field(fields, 'method', p.Method);
+  fields = add_field(fields, 'hole_policy', p.HolePolicy);
+  if ~isempty(p.Subset)
+    fields = [fields, {'subset', sprintf('%d,', p.Subset(:))}];
+  end
+  job = magnet_request('post', [server '/v1/agglomerate/form'], p.Token, 120, fields{:});
+  if p.Verbose
+    fprintf('magnet: job %s %s\n', job.id, job.status);
+  end
+
+  % poll until the job ends
+  t0 = tic;
+  last = '';
+  while ~any(strcmp(job.status, {'succeeded', 'failed', 'cancelled'}))
+    if toc(t0) > p.Timeout
+      error('magnet:timeout', 'job %s still %s after %g s', job.id, job.status, p.Timeout);
+    end
+    pause(p.Poll);
+    job = magnet_request('get', [server '/v1/jobs/' job.id], p.Token, 60);
+    stage = job.status;
+    if isfield(job, 'stage') && ischar(job.stage)
+      stage = job.stage;
+    end
+    line = sprintf('magnet: %-10s %3.0f%%', stage, 100 * job.progress);
+    if p.Verbose && ~strcmp(line, last)
+      fprintf('%s\n', line);
+      last = line;
+    end
+  end
+  if ~strcmp(job.status, 'succeeded')
+    msg = '';
+    if isfield(job, 'error') && ischar(job.error)
+      msg = job.error;
+    end
+    error('magnet:job', 'job %s %s: %s', job.id, job.status, msg);
+  end
+
+  % the lymph structs, as the .mat file the server wrote
+  matfile = [tempname() '.mat'];
+  magnet_download([server '/v1/jobs/' job.id '/lymph?format=mat'], matfile, p.Token, 120);
+  s = load(matfile);
+  region = s.region;
+  neighbor = s.neighbor;
+  if ~isempty(p.SaveAs)
+    copyfile(matfile, p.SaveAs);
+  end
+  delete(matfile);
+  if p.Verbose
+    fprintf('magnet: %d elements\n', region.ne);
+  end
+end
+
+function fields = add_field(fields, name, value)
+  if isempty(value)
+    return
+  end
+  if isnumeric(value)
+    value = sprintf('%.17g', value);
+  end
+  fields = [fields, {name, value}];
+end

@@ -1,0 +1,32 @@
+function magnet_download(url, file, token, timeout)
+%MAGNET_DOWNLOAD Save the body of GET url to file (binary-safe in MATLAB and Octave).
+  headers = {'X-Magnet-Errors', 'body'};
+  if ~isempty(token)
+    headers = [headers; {'Authorization', ['Bearer ' token]}];
+  end
+  if exist('OCTAVE_VERSION', 'builtin')
+    % Octave has no websave; webread with ContentType 'text' hands back the raw bytes as char
+    opts = weboptions('HeaderFields', headers, 'Timeout', timeout, 'ContentType', 'text');
+    data = webread(url, opts);
+    if numel(data) > 0 && data(1) == '{'
+      magnet_raise(data);
+    end
+    fid = fopen(file, 'w');
+    fwrite(fid, uint8(data), 'uint8');
+    fclose(fid);
+  else
+    opts = weboptions('HeaderFields', headers, 'Timeout', timeout);
+    websave(file, url, opts);
+    fid = fopen(file, 'r');
+    first = fread(fid, 1, '*char');
+    fclose(fid);
+    if ~isempty(first) && first == '{'
+      magnet_raise(fileread(file));
+    end
+  end
+end
+
+function magnet_raise(text)
+  out = jsondecode(text);
+  error('magnet:http', 'MAGNET server (HTTP %d): %s', out.status, out.detail);
+end

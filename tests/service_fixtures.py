@@ -1,0 +1,222 @@
+"""Helpers for the service tests: tiny meshes, real server/worker/Redis processes, polling.
+
+No mocks: every process here is the real thing (uvicorn via `python -m service serve`, Celery
+workers via `python -m worker worker`, redis-server). Each test gets its own data directory and
+Redis key prefix, so nothing collides with other users of the machine's Redis.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+import httpx
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT / "tests" / "data"
+BRAIN = DATA / "BrainCoronalNoHoles.vtu"
+PY = sys.executable
+SHARED_REDIS = "redis://127.0.0.1:6379/0"
+
+
+def square_mesh(path: Path, n: int = 20) -> Path:
+    """A triangulated n x n unit square (2 n^2 triangles) written with meshio."""
+    import meshio
+
+    xs = np.linspace(0.0, 1.0, n + 1)
+    x, y = np.meshgrid(xs, xs)
+    points = np.c_[x.ravel(), y.ravel(), np.zeros(x.size)]
+    a = (np.arange(n)[None, :] + (n + 1) * np.arange(n)[:, None]).ravel()
+    tri = np.r_[np.c_[a, a + 1, a + n + 2], np.c_[a, a + n + 2, a + n + 1]]
+    meshio.write(str(path), meshio.Mesh(points, [("triangle", tri)]))
+    return Path(path)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_until(fn, timeout: float, interval: float = 0.1, what: str = "condition"):
+    """Poll fn() until it returns something truthy; AssertionError after `timeout` seconds."""
+    deadline = time.monotonic() + timeout
+    last_exc = None
+    while time.monotonic() < deadline:
+        try:
+            value = fn()
+            if value:
+                return value
+        except Exception as exc:  # the process may not be up yet
+            last_exc = exc
+        time.sleep(interval)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}" + (f" (last error: {last_exc})" if last_exc else ""))
+
+
+def service_env(data_dir: Path, broker_url: str | None = None, database_url: str | None = None, **extra) -> dict:
+    """Environment of a test deployment: fast heartbeats so dead workers are noticed in seconds."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MAGNET_")}
+    env.update({
+        "MAGNET_DATA_DIR": str(data_dir),
+        "MAGNET_HEARTBEAT_INTERVAL_S": "0.5",
+        "MAGNET_HEARTBEAT_TIMEOUT_S": "4",
+        "MAGNET_REQUEUE_AFTER_S": "10",
+        "MAGNET_BROKER_KEY_PREFIX": f"magnet-test-{uuid.uuid4().hex[:10]}:",
+        "PYTHONPATH": os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH")) if p),
+        "OMP_NUM_THREADS": "1",
+        "OPENBLAS_NUM_THREADS": "1",
+    })
+    if broker_url:
+        env["MAGNET_BROKER_URL"] = broker_url
+    if database_url:
+        env["MAGNET_DATABASE_URL"] = database_url
+    env.update({f"MAGNET_{k.upper()}": str(v) for k, v in extra.items()})
+    return env
+
+
+class Proc:
+    """A child process in its own session (so a SIGKILL takes its children too), logging to a file."""
+
+    def __init__(self, cmd: list[str], env: dict, log: Path, cwd: Path | None = None):
+        self.cmd, self.log = cmd, log
+        self.logfile = open(log, "ab")
+        self.popen = subprocess.Popen(cmd, env=env, cwd=str(cwd or ROOT), stdout=self.logfile,
+                                      stderr=subprocess.STDOUT, start_new_session=True)
+
+    @property
+    def pid(self) -> int:
+        return self.popen.pid
+
+    def alive(self) -> bool:
+        return self.popen.poll() is None
+
+    def kill(self, sig: int = signal.SIGKILL) -> None:
+        """Signal the whole process group (the worker and its pool children)."""
+        try:
+            os.killpg(self.popen.pid, sig)
+        except ProcessLookupError:
+            pass
+        if sig == signal.SIGKILL:
+            self.popen.wait(timeout=10)
+
+    def stop(self, timeout: float = 15) -> None:
+        if self.alive():
+            self.kill(signal.SIGTERM)
+            try:
+                self.popen.wait(timeout=timeout)
+            except subprocess.TimeoutExpired:
+                self.kill(signal.SIGKILL)
+        else:  # the leader is gone; make sure its group is too
+            try:
+                os.killpg(self.popen.pid, signal.SIGKILL)
+            except (ProcessLookupError, PermissionError):
+                pass
+        self.logfile.close()
+
+    def tail(self, n: int = 60) -> str:
+        try:
+            return "\n".join(self.log.read_text(errors="replace").splitlines()[-n:])
+        except OSError:
+            return ""
+
+
+def start_api(env: dict, tmp: Path, port: int | None = None, embedded_worker: bool = False,
+              name: str = "api") -> tuple[Proc, str]:
+    """`python -m service serve` on a free port (API only unless embedded_worker); waits for /healthz."""
+    port = port or free_port()
+    cmd = [PY, "-m", "service", "serve", "--port", str(port), "--log-level", "warning"]
+    if not embedded_worker:
+        cmd.append("--no-worker")
+    proc = Proc(cmd, env, tmp / f"{name}-{port}.log")
+    url = f"http://127.0.0.1:{port}"
+    try:
+        wait_until(lambda: httpx.get(url + "/healthz", timeout=2).status_code == 200, 60, 0.2, "the API")
+    except AssertionError:
+        proc.stop()
+        raise AssertionError(f"API did not start:\n{proc.tail()}") from None
+    return proc, url
+
+
+def start_worker(env: dict, tmp: Path, name: str, queues: str = "cpu", concurrency: int = 1) -> Proc:
+    cmd = [PY, "-m", "worker", "worker", "--queues", queues, "--concurrency", str(concurrency),
+           "--name", f"{name}-{uuid.uuid4().hex[:6]}@test", "--loglevel", "INFO"]
+    return Proc(cmd, env, tmp / f"worker-{name}.log")
+
+
+def workers_online(url: str, token: str | None = None) -> int:
+    headers = {"Authorization": f"Bearer {token}"} if token else {}
+    checks = httpx.get(url + "/readyz", headers=headers, timeout=5).json()["checks"]
+    return int(checks["workers"].split()[0]) if checks["workers"][0].isdigit() else 0
+
+
+class RedisServer:
+    """A private redis-server (no persistence) that tests may stop and restart: never the shared one."""
+
+    def __init__(self, tmp: Path):
+        self.port = free_port()
+        self.tmp = tmp
+        self.proc: Proc | None = None
+
+    @property
+    def url(self) -> str:
+        return f"redis://127.0.0.1:{self.port}/0"
+
+    def start(self) -> None:
+        cmd = ["redis-server", "--port", str(self.port), "--bind", "127.0.0.1", "--save", "",
+               "--appendonly", "no", "--dir", str(self.tmp)]
+        self.proc = Proc(cmd, dict(os.environ), self.tmp / f"redis-{self.port}.log")
+        import redis
+
+        wait_until(lambda: redis.Redis(port=self.port, socket_timeout=1).ping(), 20, 0.1, "redis-server")
+
+    def stop(self) -> None:
+        if self.proc:
+            self.proc.kill(signal.SIGKILL)
+            self.proc.stop()
+            self.proc = None
+
+
+class Api:
+    """A small synchronous helper over httpx for one user of a test server."""
+
+    def __init__(self, url: str, token: str | None = None):
+        headers = {"Authorization": f"Bearer {token}"} if token else {}
+        self.http = httpx.Client(base_url=url, headers=headers, timeout=60)
+
+    def upload(self, path: Path) -> dict:
+        r = self.http.post("/v1/meshes", params={"filename": Path(path).name}, content=Path(path).read_bytes(),
+                           headers={"Content-Type": "application/octet-stream"})
+        assert r.status_code == 201, r.text
+        return r.json()
+
+    def submit(self, mesh_id: str, **params) -> dict:
+        r = self.http.post("/v1/jobs", json={"mesh_id": mesh_id, **params})
+        assert r.status_code == 202, r.text
+        return r.json()
+
+    def job(self, job_id: str) -> dict:
+        r = self.http.get(f"/v1/jobs/{job_id}")
+        assert r.status_code == 200, r.text
+        return r.json()
+
+    def wait(self, job_id: str, timeout: float = 120, statuses=("succeeded", "failed", "cancelled")) -> dict:
+        return wait_until(lambda: (j := self.job(job_id))["status"] in statuses and j, timeout, 0.2,
+                          f"job {job_id} to reach {statuses}")
+
+    def wait_running(self, job_id: str, timeout: float = 60, min_progress: float = 0.0) -> dict:
+        def running():
+            j = self.job(job_id)
+            assert j["status"] not in ("failed", "cancelled"), j
+            return j["status"] == "running" and j["progress"] >= min_progress and j
+
+        return wait_until(running, timeout, 0.05, f"job {job_id} to run")
+
+    def close(self) -> None:
+        self.http.close()
