@@ -26,16 +26,14 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from models.agglomerate import CellData, connected_parts, recursive_bisection  # noqa: E402
-from models.geometry import measures_and_centroids  # noqa: E402
-from models.graph import dual_graph  # noqa: E402
 from models.partitioners import get_partitioner  # noqa: E402
 from models.partitioners.base import GraphBatch, Partitioner  # noqa: E402
 
 
 def cell_data(mesh) -> CellData:
-    measures, centroids = measures_and_centroids(mesh)
-    return CellData(graph=dual_graph(mesh), measures=measures, centroids=centroids, points=mesh.points,
-                    offsets=mesh.offsets, connectivity=mesh.connectivity, tags=mesh.tags)
+    from models.pipeline import prepare
+
+    return prepare(mesh)[1]
 
 
 def normalized_cut(indptr: np.ndarray, indices: np.ndarray, labels: np.ndarray) -> float:

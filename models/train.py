@@ -125,18 +125,12 @@ class BisectionCheck:
     tracks what the model is for better than the loss on single bisections of training shapes."""
 
     def __init__(self, dim: int, nref: int):
-        from .agglomerate import CellData, recursive_bisection
-        from .geometry import measures_and_centroids
-        from .graph import dual_graph
+        from .agglomerate import recursive_bisection
         from .partitioners import get_partitioner
+        from .pipeline import prepare
 
         self.nref, self._rb = nref, recursive_bisection
-        self.data = []
-        for mesh in bisection_check_meshes(dim):
-            measures, centroids = measures_and_centroids(mesh)
-            self.data.append(CellData(graph=dual_graph(mesh), measures=measures, centroids=centroids,
-                                      points=mesh.points, offsets=mesh.offsets, connectivity=mesh.connectivity,
-                                      tags=None))
+        self.data = [prepare(mesh)[1] for mesh in bisection_check_meshes(dim)]
         metis = get_partitioner("metis")
         self.ref = [self._ncut(d, self._labels(d, metis)) for d in self.data]
 

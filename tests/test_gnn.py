@@ -243,3 +243,27 @@ def test_shipped_weights(stem):
     assert (cfg.sage_units, cfg.dense_units) == ((64, 32) if cfg.dim == 2 else (128, 64))
     assert "summary" in meta
     assert (WEIGHTS_DIR / f"{stem}.md").exists()  # model card
+
+
+@pytest.mark.parametrize("model", ["sage-base", "sage-hetero"])
+@pytest.mark.parametrize(
+    "mode,kw",
+    [("nref", dict(nref=4)), ("target-size", dict(target_size=0.3)), ("mult-factor", dict(mult_factor=0.25)),
+     ("segregated", dict(mult_factor=0.3)), ("coarsen", dict(nref=3, subset=np.arange(0, 300)))],
+)
+def test_every_mode_runs_with_sage(weights_dir, model, mode, kw):
+    from models.agglomerate import agglomerate
+    from models.generate import generate
+    from models.pipeline import prepare
+
+    mesh = generate("split", seed=1, size=0.06).to_mesh()
+    _, data = prepare(mesh)
+    res = agglomerate(mesh, data, model=model, mode=mode, model_options={"weights_dir": weights_dir}, **kw)
+    assert res.labels.shape == (mesh.n_cells,) and res.n_elements > 1
+    if mode == "nref":
+        assert res.requested == 16 and 1 < res.parts_before_split <= 16
+    if mode == "segregated":  # no element mixes the two groups
+        mixed = [np.unique(mesh.tags[res.labels == e]).size for e in range(res.n_elements)]
+        assert max(mixed) == 1
+    with pytest.raises(Exception, match="k-way"):
+        agglomerate(mesh, data, model=model, mode="kway", k=4, model_options={"weights_dir": weights_dir})

@@ -70,6 +70,7 @@ class _SagePartitioner(Partitioner):
     supports_kway = False
     hetero = False
     stem = "sage-base"
+    min_side = 0.05  # fraction of a graph's nodes below which a side counts as a failed bisection
 
     def __init__(
         self, device: str | None = None, weights_dir: str | Path | None = None, contiguous: bool = True,
@@ -110,7 +111,8 @@ class _SagePartitioner(Partitioner):
 
     def bisect_batch(self, batch: GraphBatch) -> np.ndarray:
         """(N,) labels in {0, 1}: each node takes its most probable side. A graph the network leaves
-        whole (rare, tiny graphs) is split at the median of its side-1 probability instead. With
+        whole, or (SAGE-Base) with a side under 5% of its nodes, is split at the median of its side-1
+        probability instead (rare: tiny or odd graphs). With
         `contiguous` (default, the analogue of METIS's contig option) stray islands are then handed
         to the side around them, so that both sides of every connected graph are connected."""
         if batch.n_nodes == 0:
@@ -121,7 +123,8 @@ class _SagePartitioner(Partitioner):
         ones = np.add.reduceat(labels, batch.graph_ptr[:-1][sizes > 0]) if np.any(sizes > 0) else labels[:0]
         full = np.zeros(batch.n_graphs, dtype=np.int64)
         full[sizes > 0] = ones
-        for b in np.flatnonzero((sizes >= 2) & ((full == 0) | (full == sizes))):
+        small = np.minimum(full, sizes - full) < np.maximum(self.min_side * sizes, 1)
+        for b in np.flatnonzero((sizes >= 2) & small):
             lo, hi = batch.graph_ptr[b], batch.graph_ptr[b + 1]
             order = np.argsort(-y[lo:hi, 1], kind="stable")
             labels[lo:hi] = 0
@@ -171,5 +174,6 @@ class SageHeteroPartitioner(_SagePartitioner):
     name = "sage-hetero"
     stem = "sage-hetero"
     hetero = True
+    min_side = 0.0  # a small inclusion may rightly be cut off alone
     description = ("SAGE-Heterogeneous: SAGE-Base with the physical group as a feature and a penalty for "
                    "mixing two groups in one part; at most two groups per subgraph")
