@@ -267,3 +267,18 @@ def test_every_mode_runs_with_sage(weights_dir, model, mode, kw):
         assert max(mixed) == 1
     with pytest.raises(Exception, match="k-way"):
         agglomerate(mesh, data, model=model, mode="kway", k=4, model_options={"weights_dir": weights_dir})
+
+
+def test_contiguous_sides_keeps_disconnected_inclusions_with_their_group():
+    from models.partitioners.sage import contiguous_sides
+
+    cen, m, ip, ix = grid_graph(9, 9)
+    batch = make_batch([(cen, m, ip, ix)])
+    p = np.zeros(len(cen))
+    incl = [10, 16, 64, 70]  # four one-cell inclusions, apart from each other
+    p[incl] = 1
+    labels = p.astype(np.int64).copy()
+    labels[40] = 1  # a matrix cell wrongly on the inclusions' side
+    fixed = contiguous_sides(batch, labels, p)
+    assert np.array_equal(fixed, p.astype(np.int64))
+    assert contiguous_sides(batch, labels).sum() == 1  # without groups: one side-1 island is kept

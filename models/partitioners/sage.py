@@ -129,12 +129,20 @@ class _SagePartitioner(Partitioner):
             order = np.argsort(-y[lo:hi, 1], kind="stable")
             labels[lo:hi] = 0
             labels[lo + order[: (hi - lo) // 2]] = 1
-        return contiguous_sides(batch, labels) if self.contiguous else labels
+        if not self.contiguous:
+            return labels
+        return contiguous_sides(batch, labels, group_of_batch(batch) if self.hetero else None)
 
 
-def contiguous_sides(batch: GraphBatch, labels: np.ndarray, max_rounds: int = 10) -> np.ndarray:
+def contiguous_sides(
+    batch: GraphBatch, labels: np.ndarray, p: np.ndarray | None = None, max_rounds: int = 10
+) -> np.ndarray:
     """Give every connected component of a side, except the largest one of its side within its
-    connected piece of the graph, to the other side; repeat until both sides are connected."""
+    connected piece of the graph, to the other side; repeat until both sides are connected.
+
+    With the physical group p (SAGE-Heterogeneous), in graphs that hold both groups only the
+    components whose majority group belongs to the other side move (side 1 is group 1's side), so
+    that disconnected inclusions stay on their own side."""
     from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -144,6 +152,12 @@ def contiguous_sides(batch: GraphBatch, labels: np.ndarray, max_rounds: int = 10
     ones = np.ones(len(cols), dtype=np.int8)
     _, piece = connected_components(csr_matrix((ones, cols, batch.indptr), shape=(n, n)), directed=False)
     labels = labels.copy()
+    mixed_node = None
+    if p is not None:
+        gi = batch.graph_index()
+        counts = np.maximum(np.bincount(gi, minlength=batch.n_graphs), 1)
+        pm = np.bincount(gi, weights=p, minlength=batch.n_graphs) / counts
+        mixed_node = ((pm > 0) & (pm < 1))[gi]
     for _ in range(max_rounds):
         same = labels[rows] == labels[cols]
         m = csr_matrix((ones[same], (rows[same], cols[same])), shape=(n, n))
@@ -155,7 +169,12 @@ def contiguous_sides(batch: GraphBatch, labels: np.ndarray, max_rounds: int = 10
         order = np.lexsort((first, -size, key))  # per key: largest first (ties: lowest node id)
         keep = np.zeros(n_comp, dtype=bool)
         keep[order[np.r_[True, key[order][1:] != key[order][:-1]]]] = True
-        flip = ~keep[comp]
+        move = ~keep
+        if mixed_node is not None:
+            comp_p = np.bincount(comp, weights=p, minlength=n_comp) / size
+            wrong = np.where(labels[first] == 1, comp_p < 0.5, comp_p > 0.5)
+            move &= ~mixed_node[first] | wrong
+        flip = move[comp]
         if not flip.any():
             break
         labels[flip] ^= 1
