@@ -48,6 +48,7 @@ class TrainConfig:
     resume: bool = False
     select: str = "val"  # best model by validation loss, or "rb": by the recursive-bisection check
     kinds: str | None = None  # "kind:weight,..." replaces the recipe's mix of mesh kinds
+    init: str | None = None  # start from these weights (fine-tuning) instead of a seeded random init
 
     def resolved(self) -> TrainConfig:
         """Fill the unset hyper-parameters from the paper's recipe."""
@@ -227,6 +228,12 @@ def train(cfg: TrainConfig, log=print) -> dict:
 
     torch.manual_seed(cfg.seed)
     model = BisectionGNN(GNNConfig.paper(ds.dim, ds.hetero)).to(device)
+    if cfg.init:
+        start_model, _ = load_model(cfg.init)
+        if start_model.config != model.config:
+            raise ParameterError(f"--init {cfg.init}: network {start_model.config} does not match {model.config}")
+        model.load_state_dict(start_model.state_dict())
+        say(f"starting from the weights in {cfg.init}")
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     gen = torch.Generator().manual_seed(cfg.seed)
     history: list[dict] = []
@@ -331,6 +338,7 @@ def add_train_args(parser: argparse.ArgumentParser) -> None:
                         help="keep the epoch with the best validation loss, or the best recursive-bisection "
                              "check on held-out meshes (normalized cut / METIS + raw fragment rate)")
     parser.add_argument("--kinds", default=None, help="mesh kinds and weights, e.g. 'delaunay:1,holes:1'")
+    parser.add_argument("--init", default=None, help="start from these weights (fine-tuning stage)")
 
 
 def train_main(args: argparse.Namespace) -> int:
@@ -342,7 +350,7 @@ def train_main(args: argparse.Namespace) -> int:
         weight_decay=args.weight_decay, batch_size=args.batch_size, lr_schedule=args.lr_schedule,
         hetero_weight=args.hetero_weight, val_fraction=args.val_fraction, seed=args.seed,
         threads=args.threads, device=args.device, max_minutes=args.max_minutes, resume=args.resume,
-        select=args.select, kinds=args.kinds,
+        select=args.select, kinds=args.kinds, init=args.init,
     )
     train(cfg)
     return 0

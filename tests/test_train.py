@@ -94,3 +94,13 @@ def test_cli_hooks_and_bad_parameters(tmp_path, tiny):
         train(_cfg(tmp_path, tiny / "base.npz", recipe="sage-giant"), log=None)
     with pytest.raises(ParameterError):
         train(_cfg(tmp_path, tiny / "base.npz", lr_schedule="wavy"), log=None)
+
+
+def test_fine_tuning_from_weights(tmp_path, tiny):
+    train(_cfg(tmp_path, tiny / "base.npz", name="first", epochs=1), log=None)
+    summary = train(_cfg(tmp_path, tiny / "base.npz", name="second", epochs=1, lr=1e-4,
+                         init=str(tmp_path / "first.pt")), log=None)
+    assert summary["epochs_run"] == 1
+    with pytest.raises(ParameterError, match="does not match"):
+        train(_cfg(tmp_path, tiny / "hetero.npz", name="third", recipe="sage-hetero-2d", epochs=1,
+                   init=str(tmp_path / "first.pt")), log=None)
