@@ -296,7 +296,8 @@ def train(cfg: TrainConfig, log=print) -> dict:
     best_model, best_meta = load_model(work / "best.pt", device="cpu")
     final = evaluate(best_model.to(device), val, cfg, device)
     summary = {
-        "recipe": cfg.recipe, "data_recipe": recipe.to_dict(), "n_train": len(tr), "n_val": len(val),
+        "recipe": cfg.recipe, "data_recipe": ds.meta.get("recipe", recipe.to_dict()),
+        "data_seed": ds.meta.get("seed"), "n_train": len(tr), "n_val": len(val),
         "train_nodes": int(tr.n_nodes), "epochs_run": len(history), "best_epoch": best_meta.get("epoch"),
         "final_train_loss": history[-1]["train_loss"] if history else None,
         "best_val_loss": final["loss"], "best_val_hard_ncut": final["hard_ncut"],
