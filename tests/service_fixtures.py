@@ -210,13 +210,29 @@ class Api:
         return wait_until(lambda: (j := self.job(job_id))["status"] in statuses and j, timeout, 0.2,
                           f"job {job_id} to reach {statuses}")
 
-    def wait_running(self, job_id: str, timeout: float = 60, min_progress: float = 0.0) -> dict:
+    def wait_running(self, job_id: str, timeout: float = 60, attempt: int = 1) -> dict:
+        """Wait until the job runs its `attempt`-th attempt (the first by default)."""
+
         def running():
             j = self.job(job_id)
-            assert j["status"] not in ("failed", "cancelled"), j
-            return j["status"] == "running" and j["progress"] >= min_progress and j
+            assert j["status"] not in ("failed", "cancelled", "succeeded"), j
+            return j["status"] == "running" and j["attempts"] >= attempt and j
 
         return wait_until(running, timeout, 0.05, f"job {job_id} to run")
 
     def close(self) -> None:
         self.http.close()
+
+
+def child_pids(pid: int) -> list[int]:
+    """Direct children of a process (from /proc; Linux)."""
+    kids = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / "stat").read_text()
+            except OSError:
+                continue
+            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+                kids.append(int(entry.name))
+    return kids

@@ -7,9 +7,11 @@ job record; cancellation is read back from it.
 
 from __future__ import annotations
 
+import _thread
 import logging
 import os
 import shutil
+import signal
 import socket
 import threading
 import time
@@ -77,23 +79,37 @@ def claim(db: jobdb.Database, job_id: str, me: str, settings: Settings) -> JobRe
         return s.get(JobRecord, job_id)
 
 
-class Heartbeat(threading.Thread):
-    """Refreshes heartbeat_at while the job runs, so reapers know this worker is alive."""
+# Prompt cancellation: the heartbeat thread, on finding the job no longer running under this
+# process (cancelled, or taken over), runs this signal's Python handler in the main thread through
+# _thread.interrupt_main (no OS signal is sent), which raises JobCancelled inside the library even
+# between its own should_cancel() checks. Celery only uses SIGUSR2 for its remote debugger.
+CANCEL_SIGNAL = signal.SIGUSR2
 
-    def __init__(self, db: jobdb.Database, job_id: str, me: str, interval: float):
+
+class Heartbeat(threading.Thread):
+    """Refreshes heartbeat_at while the job runs, so reapers know this worker is alive; calls
+    on_lost() once if the job stops being this worker's running job."""
+
+    def __init__(self, db: jobdb.Database, job_id: str, me: str, interval: float, on_lost=None):
         super().__init__(daemon=True, name=f"heartbeat-{job_id}")
-        self.db, self.job_id, self.me, self.interval = db, job_id, me, interval
+        self.db, self.job_id, self.me, self.interval, self.on_lost = db, job_id, me, interval, on_lost
         self.stopped = threading.Event()
 
     def run(self) -> None:
         while not self.stopped.wait(self.interval):
             try:
                 with self.db.session() as s:
-                    s.execute(update(JobRecord).where(JobRecord.id == self.job_id, JobRecord.worker == self.me,
-                                                      JobRecord.status == RUNNING).values(heartbeat_at=utcnow()))
+                    mine = s.execute(update(JobRecord).where(JobRecord.id == self.job_id, JobRecord.worker == self.me,
+                                                             JobRecord.status == RUNNING)
+                                     .values(heartbeat_at=utcnow())).rowcount
                     s.commit()
             except Exception as exc:  # a busy database must not kill the job; retry next beat
                 log.warning("heartbeat of job %s failed: %s", self.job_id, exc)
+                continue
+            if not mine:
+                if self.on_lost is not None and not self.stopped.is_set():
+                    self.on_lost()
+                return
 
 
 def execute_job(job_id: str, settings: Settings) -> str:
@@ -144,12 +160,27 @@ def execute_job(job_id: str, settings: Settings) -> str:
                 last["cancelled"] = current is None or current.status != RUNNING or current.worker != me
         return last["cancelled"]
 
+    in_library = threading.Event()
+
+    def interrupt(_signum=None, _frame=None):
+        if in_library.is_set():
+            in_library.clear()
+            raise api.JobCancelled("the job was cancelled or taken over")
+
+    prompt = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(CANCEL_SIGNAL, interrupt) if prompt else None
     work = storage.work_dir(job_id)
-    beat = Heartbeat(db, job_id, me, settings.heartbeat_interval_s)
+    beat = Heartbeat(db, job_id, me, settings.heartbeat_interval_s,
+                     on_lost=(lambda: _thread.interrupt_main(CANCEL_SIGNAL)) if prompt else None)
     beat.start()
     try:
         log.info("job %s: running %s on %s (attempt %d)", job_id, job.params, mesh.id[:12], job.attempts)
-        summary = api.run_job(str(mesh_path), str(work), job.params, progress=progress, should_cancel=should_cancel)
+        in_library.set()
+        try:
+            summary = api.run_job(str(mesh_path), str(work), job.params, progress=progress,
+                                  should_cancel=should_cancel)
+        finally:
+            in_library.clear()
         storage.publish_result(work, job.result_key, summary)
         finish({"status": SUCCEEDED, "progress": 1.0, "stage": "done",
                 "result": storage.read_summary(job.result_key)})
@@ -170,6 +201,8 @@ def execute_job(job_id: str, settings: Settings) -> str:
         return "failed"
     finally:
         beat.stopped.set()
+        if prompt:
+            signal.signal(CANCEL_SIGNAL, previous)
         shutil.rmtree(work, ignore_errors=True)
 
 
