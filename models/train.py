@@ -49,6 +49,7 @@ class TrainConfig:
     select: str = "val"  # best model by validation loss, or "rb": by the recursive-bisection check
     kinds: str | None = None  # "kind:weight,..." replaces the recipe's mix of mesh kinds
     init: str | None = None  # start from these weights (fine-tuning) instead of a seeded random init
+    stop_epoch: int | None = None  # stop after this epoch (the lr schedule still spans `epochs`)
 
     def resolved(self) -> TrainConfig:
         """Fill the unset hyper-parameters from the paper's recipe."""
@@ -289,6 +290,9 @@ def train(cfg: TrainConfig, log=print) -> dict:
         torch.save({"model": model.state_dict(), "optimizer": opt.state_dict(), "generator": gen.get_state(),
                     "history": json.dumps(history), "epoch": epoch + 1, "best": best, "seconds": seconds}, ckpt)
         plot_history(history, work / "loss_history.png", cfg.recipe)
+        if cfg.stop_epoch and epoch + 1 >= cfg.stop_epoch:
+            say(f"stopping after epoch {epoch + 1} as asked")
+            break
         if cfg.max_minutes and seconds > 60 * cfg.max_minutes:
             say(f"time budget of {cfg.max_minutes} min reached after epoch {epoch + 1}")
             break
@@ -340,6 +344,9 @@ def add_train_args(parser: argparse.ArgumentParser) -> None:
                              "check on held-out meshes (normalized cut / METIS + raw fragment rate)")
     parser.add_argument("--kinds", default=None, help="mesh kinds and weights, e.g. 'delaunay:1,holes:1'")
     parser.add_argument("--init", default=None, help="start from these weights (fine-tuning stage)")
+    parser.add_argument("--stop-epoch", type=int, default=None,
+                        help="stop after this epoch; the lr schedule still spans --epochs (replays a run "
+                             "that --max-minutes cut short, exactly)")
 
 
 def train_main(args: argparse.Namespace) -> int:
@@ -351,7 +358,7 @@ def train_main(args: argparse.Namespace) -> int:
         weight_decay=args.weight_decay, batch_size=args.batch_size, lr_schedule=args.lr_schedule,
         hetero_weight=args.hetero_weight, val_fraction=args.val_fraction, seed=args.seed,
         threads=args.threads, device=args.device, max_minutes=args.max_minutes, resume=args.resume,
-        select=args.select, kinds=args.kinds, init=args.init,
+        select=args.select, kinds=args.kinds, init=args.init, stop_epoch=args.stop_epoch,
     )
     train(cfg)
     return 0
