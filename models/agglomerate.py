@@ -18,7 +18,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from .errors import ParameterError
-from .graph import DualGraph, subgraph_by_labels
+from .graph import DualGraph, kept_edges, subgraph_by_labels
 from .mesh import Mesh
 from .partitioners import Partitioner, get_partitioner
 from .partitioners.base import GraphBatch
@@ -64,6 +64,15 @@ class CellData:
     tags: np.ndarray | None
 
 
+def compact_labels(labels: np.ndarray) -> np.ndarray:
+    """Renumber labels to 0..K-1 keeping their order (linear, no sort)."""
+    if labels.size == 0:
+        return labels
+    present = np.zeros(int(labels.max()) + 1, dtype=bool)
+    present[labels] = True
+    return (np.cumsum(present) - 1)[labels]
+
+
 def make_batch(data: CellData, labels: np.ndarray, nodes: np.ndarray | None = None) -> GraphBatch:
     """The disjoint union of the subgraphs induced by `labels` (over `nodes`, or all cells)."""
     g = data.graph
@@ -81,26 +90,26 @@ def make_batch(data: CellData, labels: np.ndarray, nodes: np.ndarray | None = No
 
 
 def connected_parts(data: CellData, labels: np.ndarray, nodes: np.ndarray) -> tuple[np.ndarray, int]:
-    """Split every part into its connected components. Returns (new labels over nodes, parts split)."""
+    """Split every part into its connected components. Returns (new labels over nodes, parts split).
+
+    Linear: the edges inside parts are kept in the original CSR numbering, no sort."""
     if nodes.size == 0:
         return labels, 0
     g = data.graph
-    order, ptr, ip, ix, _ = subgraph_by_labels(g.indptr, g.indices, g.weights, labels, nodes)
-    m = sp.csr_matrix((np.ones(ix.size), ix, ip), shape=(order.size, order.size))
-    ncomp, comp = connected_components(m, directed=False)
-    # renumber components in order of their first node so ids are stable
-    first = np.full(ncomp, order.size, dtype=np.int64)
-    np.minimum.at(first, comp, np.arange(order.size))
-    rank = np.empty(ncomp, dtype=np.int64)
-    rank[np.argsort(first, kind="stable")] = np.arange(ncomp)
-    comp = rank[comp]
-    pos = np.empty(data.graph.n, dtype=np.int64)
-    pos[order] = np.arange(order.size)
-    new = comp[pos[nodes]]
-    per_part = np.zeros(int(labels.max()) + 1, dtype=np.int64)
-    pairs = np.unique(np.column_stack([labels, new]), axis=0)
-    np.add.at(per_part, pairs[:, 0], 1)
-    split = int(np.count_nonzero(per_part > 1))
+    n = g.n
+    lab = np.full(n, -1, dtype=np.int64)
+    lab[nodes] = labels
+    kp, e = kept_edges(g.indptr, g.indices, lab)
+    m = sp.csr_matrix((np.ones(int(kp[-1]), dtype=np.int8), g.indices[e], kp), shape=(n, n))
+    _, comp = connected_components(m, directed=False)
+    comp = comp[nodes]
+    present = np.zeros(int(comp.max()) + 1, dtype=bool)
+    present[comp] = True
+    remap = np.cumsum(present) - 1
+    new = remap[comp]
+    part_of = np.empty(int(new.max()) + 1, dtype=np.int64)
+    part_of[new] = labels
+    split = int(np.count_nonzero(np.bincount(part_of) > 1))
     return new, split
 
 
@@ -158,8 +167,7 @@ def absorb_fragments(
             mapping = nxt
         labels = mapping[labels]
         absorbed += int(frag.size)
-    _, labels = np.unique(labels, return_inverse=True)
-    return labels.astype(np.int64), absorbed
+    return compact_labels(labels).astype(np.int64), absorbed
 
 
 def _part_extent(data: CellData, labels: np.ndarray, nodes: np.ndarray, parts: np.ndarray, h: float) -> np.ndarray:
@@ -346,7 +354,7 @@ def agglomerate(
         pos = np.empty(n, dtype=np.int64)
         pos[nodes] = np.arange(nodes.size)
         labels[pos[batch.node_ids]] = raw
-        _, labels = np.unique(labels, return_inverse=True)
+        labels = compact_labels(labels)
     elif sub_mode == "nref":
         if nref is None:
             raise ParameterError("nref is required for mode 'nref' (number of refinements)")
@@ -376,21 +384,21 @@ def agglomerate(
             # the factor applies to each group's own diameter
             from .geometry import mesh_diameter
 
-            gdiam = np.array([mesh_diameter(data.points[np.unique(data.connectivity[_cells_nodes(data, nodes[data.tags[nodes] == gv])])]) for gv in groups])
+            gdiam = np.array([mesh_diameter(data.points[_used_points(data, nodes[data.tags[nodes] == gv])]) for gv in groups])
             comp_group = np.zeros(int(labels.max()) + 1, dtype=np.int64)
             comp_group[labels] = np.searchsorted(groups, data.tags[nodes])
             h = f * gdiam[comp_group]
         elif sub_mode == "mult-factor":
             from .geometry import mesh_diameter
 
-            h = f * mesh_diameter(data.points[np.unique(data.connectivity[_cells_nodes(data, nodes)])])
+            h = f * mesh_diameter(data.points[_used_points(data, nodes)])
         labels = recursive_bisection(data, part, nodes, labels, h=h, progress=progress)
     t_part = time.perf_counter() - t0
 
-    parts_before = int(np.unique(labels).size)
+    parts_before = int(np.count_nonzero(np.bincount(labels)))
     labels, parts_split = connected_parts(data, labels, nodes)
     labels, absorbed = absorb_fragments(data, labels, nodes, absorb_fraction, parts_before)
-    _, labels = np.unique(labels, return_inverse=True)
+    labels = compact_labels(labels)
     n_agg = int(labels.max()) + 1 if labels.size else 0
     full = np.empty(n, dtype=np.int64)
     full[nodes] = labels
@@ -415,6 +423,13 @@ def _cells_nodes(data: CellData, cells: np.ndarray) -> np.ndarray:
     first = np.zeros(cells.size + 1, dtype=np.int64)
     np.cumsum(sizes, out=first[1:])
     return np.repeat(starts - first[:-1], sizes) + np.arange(first[-1])
+
+
+def _used_points(data: CellData, cells: np.ndarray) -> np.ndarray:
+    """Boolean mask of the points used by `cells`."""
+    used = np.zeros(data.points.shape[0], dtype=bool)
+    used[data.connectivity[_cells_nodes(data, cells)]] = True
+    return used
 
 
 def _positive(v, name):

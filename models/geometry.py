@@ -127,24 +127,46 @@ def vertex_means(mesh: Mesh) -> np.ndarray:
     )
 
 
+def _polygon_measures(points: np.ndarray, offsets: np.ndarray, conn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Signed area and centroid of node cycles, one reshape per distinct cycle length."""
+    n = offsets.size - 1
+    sizes = np.diff(offsets)
+    area = np.empty(n)
+    cen = np.empty((n, 2))
+    for s in np.unique(sizes):  # a loop over the few distinct polygon sizes
+        sel = None if sizes[0] == s and sizes[-1] == s and np.all(sizes == s) else np.flatnonzero(sizes == s)
+        idx = conn.reshape(-1, s) if sel is None else conn[offsets[sel][:, None] + np.arange(s)[None, :]]
+        if s == 3:  # triangles: closed form, no roll
+            p0, p1, p2 = points[idx[:, 0]], points[idx[:, 1]], points[idx[:, 2]]
+            u, v = p1 - p0, p2 - p0
+            a = 0.5 * (u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
+            c = (p0 + p1 + p2) / 3.0
+            if sel is None:
+                return a, c
+            area[sel] = a
+            cen[sel] = c
+            continue
+        x = points[idx]  # (m, s, 2)
+        o = x[:, :1, :]
+        x = x - o
+        xa, ya = x[:, :, 0], x[:, :, 1]
+        xb, yb = np.roll(xa, -1, axis=1), np.roll(ya, -1, axis=1)
+        cross = xa * yb - xb * ya
+        a = 0.5 * cross.sum(axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            c = np.column_stack([((xa + xb) * cross).sum(axis=1), ((ya + yb) * cross).sum(axis=1)]) / (6 * a[:, None])
+        c += o[:, 0, :]
+        if sel is None:
+            return a, c
+        area[sel] = a
+        cen[sel] = c
+    return area, cen
+
+
 def _measures_and_centroids(mesh: Mesh, faces: Faces | None = None) -> tuple[np.ndarray, np.ndarray]:
     n = mesh.n_cells
     if mesh.dim == 2:
-        p = mesh.points
-        nxt = next_in_cycle(mesh.offsets)
-        a, b = mesh.connectivity, mesh.connectivity[nxt]
-        cell = cell_index(mesh.offsets)
-        # shift by the cell's first vertex for round-off
-        o = p[mesh.connectivity[mesh.offsets[:-1]]][cell]
-        xa, ya = (p[a] - o).T
-        xb, yb = (p[b] - o).T
-        cross = xa * yb - xb * ya
-        area = 0.5 * np.bincount(cell, weights=cross, minlength=n)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            cx = np.bincount(cell, weights=(xa + xb) * cross, minlength=n) / (6 * area)
-            cy = np.bincount(cell, weights=(ya + yb) * cross, minlength=n) / (6 * area)
-        o0 = p[mesh.connectivity[mesh.offsets[:-1]]]
-        return area, np.column_stack([cx, cy]) + o0
+        return _polygon_measures(mesh.points, mesh.offsets, mesh.connectivity)
     faces = faces or cell_faces(mesh)
     owner, tri = fan_triangles(faces.offsets, faces.nodes)
     cell = faces.cell[owner]
@@ -175,7 +197,9 @@ def cell_centroids(mesh: Mesh) -> np.ndarray:
 
 
 def measures_and_centroids(mesh: Mesh, faces: Faces | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Both at once (one pass)."""
+    """Both at once (one pass; reuses what reading the mesh already computed)."""
+    if "measures" in mesh.meta and "centroids" in mesh.meta:
+        return mesh.meta["measures"], mesh.meta["centroids"]
     m, c = _measures_and_centroids(mesh, faces)
     return np.abs(m), c
 
@@ -195,16 +219,19 @@ def cell_diameters(mesh: Mesh) -> np.ndarray:
     return out
 
 
-def face_measures(points: np.ndarray, faces: Faces) -> np.ndarray:
-    """(F,) length of each edge (2D) or area of each face (3D)."""
+def face_measures(points: np.ndarray, faces: Faces, which: np.ndarray | None = None) -> np.ndarray:
+    """Length of each edge (2D) or area of each face (3D); only faces `which` when given."""
     if points.shape[1] == 2:
-        a = points[faces.nodes[faces.offsets[:-1]]]
-        b = points[faces.nodes[faces.offsets[:-1] + 1]]
-        return np.linalg.norm(b - a, axis=1)
-    owner, tri = fan_triangles(faces.offsets, faces.nodes)
+        e = faces.nodes.reshape(-1, 2)
+        if which is not None:
+            e = e[which]
+        d = points[e[:, 1]] - points[e[:, 0]]
+        return np.hypot(d[:, 0], d[:, 1])
+    offsets, nodes = (faces.offsets, faces.nodes) if which is None else reorder_csr(faces.offsets, faces.nodes, which)
+    owner, tri = fan_triangles(offsets, nodes)
     p = points
     cr = np.cross(p[tri[:, 1]] - p[tri[:, 0]], p[tri[:, 2]] - p[tri[:, 0]])
-    return 0.5 * np.bincount(owner, weights=np.linalg.norm(cr, axis=1), minlength=faces.n)
+    return 0.5 * np.bincount(owner, weights=np.sqrt(np.einsum("ij,ij->i", cr, cr)), minlength=offsets.size - 1)
 
 
 def mesh_diameter(points: np.ndarray) -> float:

@@ -31,7 +31,6 @@ class DualGraph:
     weights: np.ndarray
     faces: Faces
     partner: np.ndarray
-    face_measure: np.ndarray
 
     @property
     def n(self) -> int:
@@ -101,11 +100,11 @@ def dual_graph(mesh: Mesh, faces: Faces | None = None) -> DualGraph:
     partner = np.full(faces.n, -1, dtype=np.int64)
     partner[fa] = fb
     partner[fb] = fa
-    fm = face_measures(mesh.points, faces)
+    fm = face_measures(mesh.points, faces, fa)  # only the shared faces
     n = mesh.n_cells
     rows = np.concatenate([ca, cb])
     cols = np.concatenate([cb, ca])
-    w = np.concatenate([fm[fa], fm[fa]])
+    w = np.concatenate([fm, fm])
     a = sp.csr_matrix((w, (rows, cols)), shape=(n, n))
     a.sum_duplicates()  # two cells sharing two faces (possible for polyhedra): one edge, summed measure
     a.sort_indices()
@@ -115,42 +114,51 @@ def dual_graph(mesh: Mesh, faces: Faces | None = None) -> DualGraph:
         weights=a.data.astype(np.float64),
         faces=faces,
         partner=partner,
-        face_measure=fm,
     )
 
 
-def induced_batch_order(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Nodes sorted by label, and the (K+1,) offsets of each label's block."""
-    order = np.argsort(labels, kind="stable")
-    counts = np.bincount(labels)
-    ptr = np.zeros(counts.size + 1, dtype=np.int64)
-    np.cumsum(counts, out=ptr[1:])
-    return order, ptr
+def stable_order(labels: np.ndarray) -> np.ndarray:
+    """argsort(labels, stable), using numpy's radix sort when the labels fit in 16 bits."""
+    if labels.size and labels.min() >= 0 and labels.max() < 65536:
+        return np.argsort(labels.astype(np.uint16), kind="stable")
+    return np.argsort(labels, kind="stable")
+
+
+def kept_edges(indptr: np.ndarray, indices: np.ndarray, lab: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The CSR (same numbering) keeping only edges between nodes of equal label >= 0. No sort."""
+    n = indptr.size - 1
+    rows = np.repeat(np.arange(n), np.diff(indptr))
+    lr = lab[rows]
+    e = (lr >= 0) & (lr == lab[indices])
+    new_indptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(rows[e], minlength=n), out=new_indptr[1:])
+    return new_indptr, e
 
 
 def subgraph_by_labels(indptr: np.ndarray, indices: np.ndarray, weights: np.ndarray, labels: np.ndarray, nodes: np.ndarray | None = None):
-    """Disjoint union of the subgraphs induced by each label (vectorized).
+    """Disjoint union of the subgraphs induced by each label (vectorized, no sort of the edges).
 
-    labels (N,) in 0..K-1 for the nodes considered (or -1 to drop a node). Returns
+    labels (N,) in 0..K-1 for the nodes considered (all nodes, or `nodes`). Returns
     (order, ptr, sub_indptr, sub_indices, sub_weights): `order` lists the kept original nodes
     grouped by label, ptr (K+1,) the block offsets, and a CSR in the new (local) numbering.
     """
+    from .geometry import reorder_csr
+
     n = indptr.size - 1
     if nodes is None:
-        lab = labels
+        lab = np.asarray(labels, dtype=np.int64)
+        order = stable_order(lab)
     else:
         lab = np.full(n, -1, dtype=np.int64)
         lab[nodes] = labels
-    keep = np.flatnonzero(lab >= 0)
-    order = keep[np.argsort(lab[keep], kind="stable")]
-    counts = np.bincount(lab[keep], minlength=int(lab.max()) + 1 if keep.size else 0)
+        order = nodes[stable_order(np.asarray(labels))]
+    counts = np.bincount(lab[order], minlength=int(lab.max()) + 1 if order.size else 0)
     ptr = np.zeros(counts.size + 1, dtype=np.int64)
     np.cumsum(counts, out=ptr[1:])
+    kp, e = kept_edges(indptr, indices, lab)
     new_id = np.full(n, -1, dtype=np.int64)
     new_id[order] = np.arange(order.size)
-    rows = np.repeat(np.arange(n), np.diff(indptr))
-    e = (lab[rows] >= 0) & (lab[rows] == lab[indices])
-    r, c, w = new_id[rows[e]], new_id[indices[e]], weights[e]
-    m = sp.csr_matrix((w, (r, c)), shape=(order.size, order.size))
-    m.sort_indices()
-    return order, ptr, m.indptr.astype(np.int64), m.indices.astype(np.int64), m.data.astype(np.float64)
+    if order.size == n and np.array_equal(order, np.arange(n)):
+        return order, ptr, kp, indices[e], weights[e]
+    sub_indptr, pos = reorder_csr(kp, np.arange(int(kp[-1])), order)
+    return order, ptr, sub_indptr, new_id[indices[e][pos]], weights[e][pos]

@@ -242,7 +242,8 @@ def _attach_polyhedra(mesh: Mesh, poly_faces) -> None:
 def _project_to_plane(mesh: Mesh) -> None:
     """A 2D mesh stored with 3D points: find its plane and keep 2D coordinates plus the frame."""
     pts = mesh.points
-    used = np.unique(mesh.connectivity)
+    used = np.zeros(len(pts), dtype=bool)
+    used[mesh.connectivity] = True
     p = pts[used]
     if np.all(p[:, 2] == p[0, 2]):
         frame = np.array([[0.0, 0.0, p[0, 2]], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
@@ -261,9 +262,11 @@ def _project_to_plane(mesh: Mesh) -> None:
 
 def _orient_and_check(mesh: Mesh) -> None:
     """Flip negatively oriented cells in place and reject degenerate ones."""
-    from .geometry import signed_measures
+    from .geometry import _measures_and_centroids
 
-    vol = signed_measures(mesh)
+    vol, cen = _measures_and_centroids(mesh)
+    mesh.meta["measures"] = np.abs(vol)  # orientation does not change measure or centroid
+    mesh.meta["centroids"] = cen
     bbox = mesh.points.max(axis=0) - mesh.points.min(axis=0)
     scale = float(np.linalg.norm(bbox)) ** mesh.dim
     if scale == 0:
