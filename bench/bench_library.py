@@ -45,7 +45,7 @@ def make_cube(path: str, target: int = 100_000) -> None:
         gmsh.model.add("cube")
         gmsh.model.occ.addBox(0, 0, 0, 1, 1, 1)
         gmsh.model.occ.synchronize()
-        h = (6 * np.sqrt(2) / target) ** (1 / 3) * 1.1
+        h = 0.0362 * (100_000 / target) ** (1 / 3)  # measured: about `target` tetrahedra
         gmsh.option.setNumber("Mesh.MeshSizeMax", h)
         gmsh.option.setNumber("Mesh.MeshSizeMin", h)
         gmsh.model.mesh.generate(3)
