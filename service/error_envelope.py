@@ -1,13 +1,22 @@
 """Errors readable by GNU Octave: its webread/webwrite drop the body of any 4xx/5xx answer
-("HTTP response code said error"). A request with header `X-Magnet-Errors: body` gets error answers
-as 200 with the JSON body {"detail": ..., "status": <real status>}; the Matlab wrapper checks for
-`detail`. Every other client sees ordinary status codes."""
+("HTTP response code said error"). A request with header `X-Magnet-Errors: body` or query parameter
+`errors=body` gets error answers as 200 with the JSON body {"detail": ..., "status": <real status>};
+the Matlab wrapper checks for `detail`. (Octave 7 can send only one header, which the wrapper spends
+on the API key, hence the query parameter.) Every other client sees ordinary status codes."""
 
 from __future__ import annotations
 
 import json
+from urllib.parse import parse_qsl
 
 HEADER = b"x-magnet-errors"
+
+
+def wants_errors_in_body(scope) -> bool:
+    if dict(scope.get("headers", [])).get(HEADER) == b"body":
+        return True
+    query = scope.get("query_string", b"")
+    return b"errors=body" in query and ("errors", "body") in parse_qsl(query.decode("latin-1"))
 
 
 class ErrorsInBody:
@@ -15,7 +24,7 @@ class ErrorsInBody:
         self.app = app
 
     async def __call__(self, scope, receive, send):
-        if scope["type"] != "http" or dict(scope.get("headers", [])).get(HEADER) != b"body":
+        if scope["type"] != "http" or not wants_errors_in_body(scope):
             return await self.app(scope, receive, send)
         held: dict = {}
 

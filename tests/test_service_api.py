@@ -266,6 +266,8 @@ def test_one_call_multipart_and_octave_form(app, square):
     # errors in the body, for Octave
     r = client.post("/v1/agglomerate/form", data={**form, "k": "100000"}, headers={"X-Magnet-Errors": "body"})
     assert r.status_code == 200 and r.json()["status"] == 422 and "k" in r.json()["detail"]
+    r = client.get("/v1/jobs/unknown?errors=body", headers=auth("bob"))
+    assert r.status_code == 200 and r.json()["status"] == 404
     r = client.post("/v1/agglomerate/form", data={**form, "token": "wrong"})
     assert r.status_code == 401
     r = client.post("/v1/agglomerate/form", data={**form, "file_b64": "%%%"})

@@ -74,9 +74,9 @@ class Client:
             try:
                 response = self.http.request(method, path, **kwargs)
             except httpx.TransportError as exc:
-                if method != "GET" or attempt == self.retries:
+                if method != "GET" or attempt >= min(self.retries, 2):  # a blip, not an outage
                     raise ConnectionError(f"cannot reach the MAGNET server at {self.url}: {exc}") from exc
-                time.sleep(min(2**attempt, 10))
+                time.sleep(2**attempt)
                 continue
             if response.status_code in (429, 503) and attempt < self.retries:
                 time.sleep(min(float(response.headers.get("Retry-After", 2**attempt)), 30))

@@ -1,8 +1,13 @@
 function magnet_download(url, file, token, timeout)
 %MAGNET_DOWNLOAD Save the body of GET url to file (binary-safe in MATLAB and Octave).
-  headers = {'X-Magnet-Errors', 'body'};
+  if any(url == '?')
+    url = [url '&errors=body'];
+  else
+    url = [url '?errors=body'];
+  end
+  headers = {};
   if ~isempty(token)
-    headers = [headers; {'Authorization', ['Bearer ' token]}];
+    headers = {'Authorization', ['Bearer ' token]};  % Octave 7 sends one header at most
   end
   if exist('OCTAVE_VERSION', 'builtin')
     % Octave has no websave; webread with ContentType 'text' hands back the raw bytes as char

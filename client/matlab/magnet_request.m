@@ -2,16 +2,15 @@ function out = magnet_request(method, url, token, timeout, varargin)
 %MAGNET_REQUEST One call to the MAGNET HTTP API; returns the decoded JSON answer.
 %   out = magnet_request('get', url, token, timeout)
 %   out = magnet_request('post', url, token, timeout, 'name1', 'value1', ...)  (form-urlencoded)
-%   The server is asked to put errors in the body (header X-Magnet-Errors: body) because Octave's
-%   webread/webwrite drop the body of 4xx/5xx answers; an answer with a `detail` field is raised.
+%   The server is asked to put errors in the body (?errors=body) because Octave's webread/webwrite
+%   drop the body of 4xx/5xx answers; an answer with a `detail` field is raised as an error.
 
-  headers = {'X-Magnet-Errors', 'body'};
+  url = magnet_errors_in_body(url);
+  % Octave 7 sends at most one header (it flattens HeaderFields): the API key
+  opts = weboptions('Timeout', timeout, 'ContentType', 'text', 'RequestMethod', method);
   if ~isempty(token)
-    headers = [headers; {'Authorization', ['Bearer ' token]}];
+    opts.HeaderFields = {'Authorization', ['Bearer ' token]};
   end
-  % RequestMethod must be explicit: Octave 7's webwrite sends a GET when HeaderFields are set
-  opts = weboptions('HeaderFields', headers, 'Timeout', timeout, 'ContentType', 'text', ...
-                    'RequestMethod', method);
   if strcmpi(method, 'post')
     text = webwrite(url, varargin{:}, opts);
   else
@@ -31,5 +30,13 @@ function out = magnet_request(method, url, token, timeout, varargin)
       detail = jsonencode(detail);
     end
     error('magnet:http', 'MAGNET server (HTTP %d): %s', status, detail);
+  end
+end
+
+function url = magnet_errors_in_body(url)
+  if any(url == '?')
+    url = [url '&errors=body'];
+  else
+    url = [url '?errors=body'];
   end
 end

@@ -1,0 +1,71 @@
+"""The Matlab/Octave wrapper, run in GNU Octave (octave-cli) against a live embedded server on the
+brain mesh: the lymph structs come back with the right element count, 1-based connectivity and
+areas summing to the domain's area; server errors arrive as Octave errors with the server's words."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+
+import meshio
+import numpy as np
+import pytest
+from scipy.io import loadmat
+from service_fixtures import BRAIN, ROOT, service_env, start_api, wait_until, workers_online
+
+pytestmark = [pytest.mark.octave, pytest.mark.slow]
+TOKEN = "octave-key"
+
+SCRIPT = r"""
+addpath('{matlab}');
+[region, neighbor, job] = magnet_agglomerate('{mesh}', 'Server', '{url}', 'Token', '{token}', ...
+    'Model', 'metis', 'K', 64, 'SaveAs', '{saved}', 'Verbose', false, 'Poll', 0.3);
+conn = [region.connectivity{{:}}];
+nb = [neighbor.neigh{{:}}];
+try
+  magnet_agglomerate('{mesh}', 'Server', '{url}', 'Token', '{token}', 'K', 100000, 'Verbose', false);
+  err = '';
+catch e
+  err = e.message;
+end
+out = struct('ne', region.ne, 'ncells', numel(region.connectivity), 'nv', size(region.coord, 1), ...
+  'cmin', min(conn), 'cmax', max(conn), 'area', sum(region.area), 'elements', job.result.elements, ...
+  'nbmin', min(nb), 'nbmax', max(nb), 'nedges', numel(neighbor.nedges), 'tag', region.tag, 'err', err);
+fid = fopen('{result}', 'w'); fprintf(fid, '%s', jsonencode(out)); fclose(fid);
+"""
+
+
+def domain_area(path) -> float:
+    m = meshio.read(path)
+    tri = m.cells_dict["triangle"]
+    p = m.points[:, :2]
+    u, v = p[tri[:, 1]] - p[tri[:, 0]], p[tri[:, 2]] - p[tri[:, 0]]
+    return float(np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]).sum() / 2)
+
+
+def test_octave_wrapper_returns_lymph_structs(tmp_path):
+    octave = shutil.which("octave-cli")
+    if octave is None:
+        pytest.skip("octave-cli not found: install GNU Octave (apt-get install -y --no-install-recommends octave)")
+    env = service_env(tmp_path / "data", api_keys=f"matlab-user:{TOKEN}")
+    proc, url = start_api(env, tmp_path, embedded_worker=True)
+    try:
+        wait_until(lambda: workers_online(url, TOKEN) >= 1, 60, 0.2, "the embedded worker")
+        script = tmp_path / "run_magnet.m"
+        result, saved = tmp_path / "result.json", tmp_path / "brain64.mat"
+        script.write_text(SCRIPT.format(matlab=ROOT / "client" / "matlab", mesh=BRAIN, url=url, token=TOKEN,
+                                        saved=saved, result=result))
+        out = subprocess.run([octave, "--no-gui", "--quiet", "--no-window-system", str(script)], cwd=tmp_path,
+                             capture_output=True, text=True, timeout=300)
+        assert result.exists(), f"octave failed:\n{out.stdout}\n{out.stderr}"
+        r = json.loads(result.read_text())
+    finally:
+        proc.stop()
+    assert r["ne"] == r["ncells"] == r["elements"] == r["nedges"] and r["ne"] >= 64
+    assert r["cmin"] == 1 and r["cmax"] == r["nv"]  # 1-based, every vertex used
+    assert r["area"] == pytest.approx(domain_area(BRAIN), rel=1e-9)
+    assert r["nbmin"] == -1 and r["nbmax"] == r["ne"]  # -1 on the boundary, 1-based neighbours
+    assert r["tag"] == "P"
+    assert "HTTP 422" in r["err"] and "k = 100000" in r["err"]
+    assert int(loadmat(saved)["region"]["ne"][0, 0].squeeze()) == r["ne"]
