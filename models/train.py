@@ -157,7 +157,7 @@ class BisectionCheck:
         ratios, frags = [], []
         for d, ref in zip(self.data, self.ref, strict=False):
             clean = self._labels(d, SageBasePartitioner(model=model, device="cpu"))
-            raw = self._labels(d, SageBasePartitioner(model=model, device="cpu", contiguous=False))
+            raw = self._labels(d, SageBasePartitioner(model=model, device="cpu", contiguous=False, smooth=0))
             split, _ = connected_parts(d, raw, np.arange(d.graph.n))
             ratios.append(self._ncut(d, clean) / ref)
             frags.append((int(split.max()) + 1) / (int(raw.max()) + 1) - 1)

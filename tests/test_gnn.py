@@ -282,3 +282,17 @@ def test_contiguous_sides_keeps_disconnected_inclusions_with_their_group():
     fixed = contiguous_sides(batch, labels, p)
     assert np.array_equal(fixed, p.astype(np.int64))
     assert contiguous_sides(batch, labels).sum() == 1  # without groups: one side-1 island is kept
+
+
+def test_smooth_cut_straightens_a_jagged_boundary_but_not_group_interfaces():
+    from models.partitioners.sage import smooth_cut
+
+    cen, m, ip, ix = grid_graph(8, 8)
+    batch = make_batch([(cen, m, ip, ix)])
+    straight = (cen[:, 0] > 4).astype(np.int64)
+    jagged = straight.copy()
+    jagged[[3 + 8 * 2, 3 + 8 * 5]] = 1  # two bumps across the cut
+    assert np.array_equal(smooth_cut(batch, jagged, 2), straight)
+    p = np.zeros(len(cen))
+    p[[3 + 8 * 2]] = 1  # a one-cell inclusion: its own side, it must not move
+    assert smooth_cut(batch, jagged, 2, p)[3 + 8 * 2] == 1
