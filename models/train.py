@@ -17,6 +17,11 @@ import numpy as np
 
 from .errors import ParameterError
 
+try:  # torch is only needed to train; the argument parser must import without it
+    import torch
+except ImportError:  # pragma: no cover
+    torch = None
+
 # The paper's recipes (MISSION.md sections 2-3): epochs, learning rate, weight decay, batch size.
 PAPER = {
     "sage-base-2d": dict(epochs=300, lr=1e-5, weight_decay=1e-5, batch_size=4),
@@ -74,6 +79,28 @@ def _hardware(device) -> str:
     if str(device).startswith("cuda"):
         return torch.cuda.get_device_name(0)
     return f"CPU {platform.processor() or platform.machine()}, {torch.get_num_threads()} thread(s)"
+
+
+def initial_state(path: str, model) -> dict:
+    """Weights to start from: the same network, or the SAGE-Base network of the same dimension for a
+    SAGE-Heterogeneous one (the extra input p gets zero weights, so training starts from a network
+    that already bisects; a random start under the heterogeneity penalty tends to collapse onto
+    "side = group", which leaves single-group graphs unsplit)."""
+    from dataclasses import replace
+
+    from .gnn import load_model
+
+    start, _ = load_model(path)
+    state = start.state_dict()
+    if start.config == model.config:
+        return state
+    if replace(start.config, hetero=True) != model.config:
+        raise ParameterError(f"--init {path}: network {start.config} does not match {model.config}")
+    state = {k: v.clone() for k, v in state.items()}
+    for name in ("convs.0.lin_l.weight", "convs.0.lin_r.weight"):
+        w = state[name]
+        state[name] = torch.cat([w, torch.zeros(w.shape[0], 1, dtype=w.dtype)], dim=1)
+    return state
 
 
 def batch_losses(model, batch, dim: int, hetero: bool, hetero_weight: float, hard: bool = False):
@@ -230,10 +257,7 @@ def train(cfg: TrainConfig, log=print) -> dict:
     torch.manual_seed(cfg.seed)
     model = BisectionGNN(GNNConfig.paper(ds.dim, ds.hetero)).to(device)
     if cfg.init:
-        start_model, _ = load_model(cfg.init)
-        if start_model.config != model.config:
-            raise ParameterError(f"--init {cfg.init}: network {start_model.config} does not match {model.config}")
-        model.load_state_dict(start_model.state_dict())
+        model.load_state_dict(initial_state(cfg.init, model))
         say(f"starting from the weights in {cfg.init}")
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     gen = torch.Generator().manual_seed(cfg.seed)

@@ -101,6 +101,13 @@ def test_fine_tuning_from_weights(tmp_path, tiny):
     summary = train(_cfg(tmp_path, tiny / "base.npz", name="second", epochs=1, lr=1e-4,
                          init=str(tmp_path / "first.pt")), log=None)
     assert summary["epochs_run"] == 1
-    with pytest.raises(ParameterError, match="does not match"):
-        train(_cfg(tmp_path, tiny / "hetero.npz", name="third", recipe="sage-hetero-2d", epochs=1,
-                   init=str(tmp_path / "first.pt")), log=None)
+    # SAGE-Heterogeneous may start from SAGE-Base: same network, zero weights for the group input p
+    train(_cfg(tmp_path, tiny / "hetero.npz", name="third", recipe="sage-hetero-2d", epochs=1, lr=1e-12,
+               init=str(tmp_path / "first.pt")), log=None)
+    base, _ = load_model(tmp_path / "first.pt")
+    het, _ = load_model(tmp_path / "third.pt")
+    w = het.convs[0].lin_l.weight.detach()
+    assert torch.allclose(w[:, :3], base.convs[0].lin_l.weight.detach(), atol=1e-6)
+    assert torch.all(w[:, 3].abs() < 1e-6)
+    with pytest.raises(ParameterError, match="does not match"):  # but not the other way round
+        train(_cfg(tmp_path, tiny / "base.npz", name="fourth", epochs=1, init=str(tmp_path / "third.pt")), log=None)
