@@ -106,18 +106,20 @@ class Proc:
         if sig == signal.SIGKILL:
             self.popen.wait(timeout=10)
 
-    def stop(self, timeout: float = 15) -> None:
+    def stop(self, timeout: float = 20) -> None:
+        """SIGTERM to the process itself (as `docker stop` does), then SIGKILL to what is left."""
         if self.alive():
-            self.kill(signal.SIGTERM)
+            self.popen.send_signal(signal.SIGTERM)
             try:
                 self.popen.wait(timeout=timeout)
             except subprocess.TimeoutExpired:
-                self.kill(signal.SIGKILL)
-        else:  # the leader is gone; make sure its group is too
-            try:
-                os.killpg(self.popen.pid, signal.SIGKILL)
-            except (ProcessLookupError, PermissionError):
                 pass
+        try:
+            os.killpg(self.popen.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
+        if self.alive():
+            self.popen.wait(timeout=10)
         self.logfile.close()
 
     def tail(self, n: int = 60) -> str:
