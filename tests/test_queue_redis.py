@@ -160,3 +160,19 @@ def test_redis_down_gives_503_and_work_resumes(tmp_path, meshes):
         for p in procs:
             p.stop()
         server.stop()
+
+
+def test_neural_jobs_go_to_the_gpu_queue_when_configured(deployment, meshes):
+    deployment.env["MAGNET_GPU_QUEUE"] = "true"
+    _, url = deployment.api()
+    deployment.worker("gpu", queues="gpu")  # a "GPU worker" (this machine runs it on the CPU)
+    api = Api(url)
+    mesh = api.upload(meshes["tiny"])
+    neural = api.submit(mesh["id"], model="sage-base", mode="nref", nref=2)
+    classic = api.submit(mesh["id"], model="metis", k=4)
+    assert (neural["queue"], classic["queue"]) == ("gpu", "cpu")
+    done = api.wait(neural["id"], 120)
+    assert done["status"] == "succeeded" and done["result"]["elements"] >= 4, done
+    assert api.job(classic["id"])["status"] == "queued"  # nobody consumes 'cpu' yet
+    deployment.worker("cpu", queues="cpu")
+    assert api.wait(classic["id"], 60)["status"] == "succeeded"

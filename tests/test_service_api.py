@@ -48,10 +48,22 @@ def app(tmp_path):
         yield client, settings
 
 
-def test_service_never_imports_torch():
-    code = "import sys, service.app, service.cli, worker.cli, worker.celery_app; print('torch' in sys.modules)"
+def test_service_never_imports_torch(tmp_path, square):
+    code = f"""
+import sys
+from fastapi.testclient import TestClient
+from service.app import create_app
+from service.settings import Settings
+import service.cli, worker.cli, worker.celery_app
+c = TestClient(create_app(Settings(data_dir={str(tmp_path)!r})))
+assert c.get('/v1/models').status_code == 200
+mesh = c.post('/v1/meshes', params={{'filename': 'sq.vtu'}}, content=open({str(square)!r}, 'rb').read()).json()
+job = c.post('/v1/jobs', json={{'mesh_id': mesh['id'], 'model': 'sage-base', 'mode': 'nref', 'nref': 2}})
+assert job.status_code == 202, job.text
+print('torch' in sys.modules)
+"""
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "False"
+    assert out.stdout.strip().splitlines()[-1] == "False"
 
 
 def test_keys_required_and_users_isolated(app, square):
@@ -224,6 +236,19 @@ def test_cancelled_leader_hands_over_to_its_follower(app, square):
     assert client.get(f"/v1/jobs/{follower['id']}", headers=h).json()["status"] == "queued"
     assert execute_job(follower["id"], settings) == "succeeded"
     assert client.get(f"/v1/jobs/{leader['id']}", headers=h).json()["status"] == "cancelled"
+
+
+@pytest.mark.parametrize("gpu_queue,expected", [(False, "cpu"), (True, "gpu")])
+def test_neural_models_routed_to_gpu_queue_only_when_configured(tmp_path, square, gpu_queue, expected):
+    client, _ = make(tmp_path, gpu_queue=gpu_queue)
+    with client:
+        mesh = upload(client, square)
+        job = client.post("/v1/jobs", json={"mesh_id": mesh["id"], "model": "sage-base", "mode": "nref", "nref": 2},
+                          headers=auth("alice")).json()
+        assert job["queue"] == expected
+        job = client.post("/v1/jobs", json={"mesh_id": mesh["id"], "model": "kmeans", "k": 3},
+                          headers=auth("alice")).json()
+        assert job["queue"] == "cpu"
 
 
 def test_queue_limit_429(tmp_path, square):
