@@ -6,6 +6,7 @@ recursive bisection, in one run on one machine.
 2. The same SAGE-Base run batched level by level vs one forward pass per subgraph: speed-up, same labels.
 3. Unit cube with ~100k tetrahedra, nref 8: same table as 1.
 4. Unit square with 16 circular inclusions (regular grid), nref 6: heterogeneity preservation.
+5. Unit cube cut into 4 heterogeneous parts (~25k tetrahedra), nref 5: heterogeneity preservation.
 
 Run: python bench/bench_neural.py [--quick] [--weights-dir DIR] [--json out.json]
 """
@@ -116,7 +117,7 @@ def main(argv=None) -> int:
     ap.add_argument("--weights-dir", default=None, help="use weights from this folder instead of models/weights")
     ap.add_argument("--cube-size", type=float, default=0.036, help="gmsh size h of the cube (0.036: ~100k tets)")
     ap.add_argument("--quick", action="store_true", help="skip the 100k cube")
-    ap.add_argument("--skip", default="", help="comma list of sections to skip: brain,batch,cube,hetero")
+    ap.add_argument("--skip", default="", help="comma list of sections to skip: brain,batch,cube,hetero,hetero3d")
     ap.add_argument("--json", default=None, help="also write the numbers as JSON")
     args = ap.parse_args(argv)
     skip = set(filter(None, args.skip.split(",")))
@@ -182,6 +183,22 @@ def main(argv=None) -> int:
                   f"{r['cpu_s']:.2f} |")
             out["hetero"][name] = {"hp_mean": float(hp.mean()), "hp_min": float(hp.min()), "ncut": r["ncut"],
                                    "elements": r["elements_after_split"], "cpu_s": r["cpu_s"]}
+    if "hetero3d" not in skip:
+        cube_h = generate("cube-hetero", seed=1, parts=4, size=0.06).to_mesh()
+        datah3 = cell_data(cube_h)
+        hm = dict(methods)
+        hm["sage-hetero"] = get_partitioner("sage-hetero", **opts)
+        print(f"\n## Unit cube in 4 heterogeneous parts ({cube_h.n_cells} tetrahedra), nref 5: heterogeneity "
+              "preservation")
+        print("| method | elements | HP mean | HP min | normalized cut | CPU s |\n|---|---|---|---|---|---|")
+        out["hetero3d"] = {}
+        for name, p in hm.items():
+            r = run(datah3, p, 5)
+            hp = heterogeneity_preservation(r["split"], cube_h.tags)
+            print(f"| {name} | {r['elements_after_split']} | {hp.mean():.4f} | {hp.min():.3f} | {r['ncut']:.4f} | "
+                  f"{r['cpu_s']:.2f} |")
+            out["hetero3d"][name] = {"hp_mean": float(hp.mean()), "hp_min": float(hp.min()), "ncut": r["ncut"],
+                                     "elements": r["elements_after_split"], "cpu_s": r["cpu_s"]}
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1))
     return 0
