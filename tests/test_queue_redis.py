@@ -4,6 +4,7 @@ worker, cancellation of a running job, Redis going away, the API restarting."""
 
 from __future__ import annotations
 
+import os
 import signal
 import time
 
@@ -14,6 +15,7 @@ from service_fixtures import (
     SHARED_REDIS,
     Api,
     RedisServer,
+    child_pids,
     service_env,
     square_mesh,
     start_api,
@@ -81,10 +83,19 @@ def test_workers_run_jobs_and_a_killed_worker_loses_nothing(deployment, meshes):
     first.kill(signal.SIGKILL)  # the worker and its pool child, mid-job
     time.sleep(1)
     assert api.job(job["id"])["status"] == "running"  # nobody knows yet
-    deployment.worker("w2")
+    second = deployment.worker("w2")
     done = api.wait(job["id"], 120)
     assert done["status"] == "succeeded" and done["attempts"] == 2, done
     assert done["result"]["elements"] >= 64
+    # only the pool process dies (OOM killer, segfault): Celery re-delivers the message at once
+    # (reject_on_worker_lost) and the same worker takes the job over from its dead child
+    job = api.submit(slow["id"], model="metis", k=32)
+    api.wait_running(job["id"])
+    (child,) = child_pids(second.pid)
+    os.kill(child, signal.SIGKILL)
+    done = api.wait(job["id"], 120)
+    assert done["status"] == "succeeded" and done["attempts"] == 2, done
+    assert f"job {job['id']}: worker" not in second.tail(400)  # not the reaper: the redelivery did it
 
 
 def test_a_job_that_keeps_killing_its_worker_ends_failed(deployment, meshes):
