@@ -102,7 +102,9 @@ def throughput(workers: int, mesh: Path, batch: int, tmp: Path) -> float:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--jobs", type=int, default=30, help="sequential jobs per latency measurement")
     parser.add_argument("--batch", type=int, default=40, help="jobs submitted at once for throughput")
     args = parser.parse_args()
@@ -117,7 +119,9 @@ def main() -> None:
     print(f"\nsubmit-to-result of a tiny job ({args.jobs} sequential jobs, 128 triangles, METIS k=4)")
     print(f"{'path':34} {'p50 s':>8} {'p95 s':>8} {'overhead p50 s':>15}")
     for name, t in rows:
-        print(f"{name:34} {statistics.median(t):8.3f} {pct(t, 0.95):8.3f} {statistics.median(t) - base:15.3f}")
+        print(
+            f"{name:34} {statistics.median(t):8.3f} {pct(t, 0.95):8.3f} {statistics.median(t) - base:15.3f}"
+        )
     one = throughput(1, mesh, args.batch, tmp)
     two = throughput(2, mesh, args.batch, tmp)
     print(f"\nthroughput, {args.batch} tiny jobs submitted at once (Redis)")

@@ -34,8 +34,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app = FastAPI(title="MAGNET Service", version=api.MODEL_VERSION, description=DESCRIPTION)
     app.state.ctx = Context(settings=settings, db=db, storage=storage, celery=make_celery(settings))
     app.state.api_keys = load_keys(settings)
-    app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes + (1 << 20),
-                       form_max_bytes=settings.max_upload_bytes * 4 // 3 + (1 << 20))
+    app.add_middleware(
+        BodySizeLimit,
+        max_bytes=settings.max_upload_bytes + (1 << 20),
+        form_max_bytes=settings.max_upload_bytes * 4 // 3 + (1 << 20),
+    )
     app.add_middleware(ErrorsInBody)
     for router in (health.router, meshes.router, jobs.router, models.router):
         app.include_router(router)
@@ -73,5 +76,8 @@ def _error_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(BrokerUnavailable)
     async def broker_down(_: Request, exc: BrokerUnavailable):
-        return _error(503, "the job queue is unavailable (cannot reach the broker); the job was not queued: "
-                      "try again later", headers={"Retry-After": "10"})
+        return _error(
+            503,
+            "the job queue is unavailable (cannot reach the broker); the job was not queued: try again later",
+            headers={"Retry-After": "10"},
+        )

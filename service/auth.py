@@ -62,8 +62,11 @@ def authenticate(request: Request, token: str | None = None) -> str:
         return ANONYMOUS
     user = user_for_token(keys, bearer_token(request) or token)
     if user is None:
-        raise HTTPException(401, "missing or invalid API key (send 'Authorization: Bearer <key>')",
-                            headers={"WWW-Authenticate": "Bearer"})
+        raise HTTPException(
+            401,
+            "missing or invalid API key (send 'Authorization: Bearer <key>')",
+            headers={"WWW-Authenticate": "Bearer"},
+        )
     return user
 
 

@@ -23,20 +23,30 @@ log = logging.getLogger("magnet.serve")
 def register_serve(subparsers) -> argparse.ArgumentParser:
     """Add the `serve` sub-command to the `magnet` CLI."""
     p = subparsers.add_parser(
-        "serve", help="run the HTTP API (and an embedded job worker)",
+        "serve",
+        help="run the HTTP API (and an embedded job worker)",
         description="Serve the MAGNET HTTP API (OpenAPI at /docs). By default also starts a job worker "
         "on the embedded SQLite broker: no external server needed. Configuration from MAGNET_* "
         "variables (MAGNET_DATA_DIR, MAGNET_BROKER_URL, MAGNET_DATABASE_URL, MAGNET_API_KEYS, "
-        "MAGNET_API_KEYS_FILE, ...). Bound to a non-loopback address it refuses to start without API keys.")
+        "MAGNET_API_KEYS_FILE, ...). Bound to a non-loopback address it refuses to start without API keys.",
+    )
     p.add_argument("--host", default="127.0.0.1")
     p.add_argument("--port", type=int, default=8000)
     p.add_argument("--data-dir", default=None, help="overrides MAGNET_DATA_DIR (default ./var)")
     p.add_argument("--broker-url", default=None, help="overrides MAGNET_BROKER_URL")
     p.add_argument("--database-url", default=None, help="overrides MAGNET_DATABASE_URL")
-    p.add_argument("--api-keys-file", default=None, help="overrides MAGNET_API_KEYS_FILE ('user:token' lines)")
-    p.add_argument("--workers", type=int, default=1,
-                   help="jobs the embedded worker runs at the same time (default 1); 0 = no embedded worker")
-    p.add_argument("--no-worker", action="store_true", help="API only (workers run elsewhere: `magnet worker`)")
+    p.add_argument(
+        "--api-keys-file", default=None, help="overrides MAGNET_API_KEYS_FILE ('user:token' lines)"
+    )
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        help="jobs the embedded worker runs at the same time (default 1); 0 = no embedded worker",
+    )
+    p.add_argument(
+        "--no-worker", action="store_true", help="API only (workers run elsewhere: `magnet worker`)"
+    )
     p.add_argument("--log-level", default="info")
     p.set_defaults(func=run_serve)
     return p
@@ -45,16 +55,28 @@ def register_serve(subparsers) -> argparse.ArgumentParser:
 def check_bind(host: str, settings: Settings) -> None:
     """Refuse to serve on a non-loopback address without API keys."""
     if host not in LOOPBACK_HOSTS and not load_keys(settings):
-        raise SystemExit(f"magnet serve: refusing to listen on {host} without API keys; set MAGNET_API_KEYS "
-                         "('user:token,...') or MAGNET_API_KEYS_FILE, or bind to 127.0.0.1")
+        raise SystemExit(
+            f"magnet serve: refusing to listen on {host} without API keys; set MAGNET_API_KEYS "
+            "('user:token,...') or MAGNET_API_KEYS_FILE, or bind to 127.0.0.1"
+        )
 
 
 class EmbeddedWorker:
     """A `magnet worker` child process, restarted if it dies, stopped with the server."""
 
     def __init__(self, concurrency: int, log_level: str):
-        self.cmd = [sys.executable, "-m", "worker", "worker", "--queues", "cpu,gpu",
-                    "--concurrency", str(concurrency), "--loglevel", log_level.upper()]
+        self.cmd = [
+            sys.executable,
+            "-m",
+            "worker",
+            "worker",
+            "--queues",
+            "cpu,gpu",
+            "--concurrency",
+            str(concurrency),
+            "--loglevel",
+            log_level.upper(),
+        ]
         self.proc: subprocess.Popen | None = None
         self.stopping = threading.Event()
         self.thread = threading.Thread(target=self._supervise, daemon=True, name="embedded-worker")
@@ -97,8 +119,12 @@ def _die_with_parent() -> None:
 
 
 def run_serve(args: argparse.Namespace) -> int:
-    for attr, var in (("data_dir", "MAGNET_DATA_DIR"), ("broker_url", "MAGNET_BROKER_URL"),
-                      ("database_url", "MAGNET_DATABASE_URL"), ("api_keys_file", "MAGNET_API_KEYS_FILE")):
+    for attr, var in (
+        ("data_dir", "MAGNET_DATA_DIR"),
+        ("broker_url", "MAGNET_BROKER_URL"),
+        ("database_url", "MAGNET_DATABASE_URL"),
+        ("api_keys_file", "MAGNET_API_KEYS_FILE"),
+    ):
         if getattr(args, attr, None):
             os.environ[var] = str(getattr(args, attr))
     logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(name)s %(levelname)s %(message)s")
@@ -119,8 +145,14 @@ def run_serve(args: argparse.Namespace) -> int:
         signal.signal(signal.SIGTERM, stop)
         signal.signal(signal.SIGINT, stop)
     try:
-        uvicorn.run("service.app:create_app", factory=True, host=args.host, port=args.port,
-                    log_level=args.log_level.lower(), timeout_keep_alive=30)
+        uvicorn.run(
+            "service.app:create_app",
+            factory=True,
+            host=args.host,
+            port=args.port,
+            log_level=args.log_level.lower(),
+            timeout_keep_alive=30,
+        )
     finally:
         if worker:
             worker.stop()

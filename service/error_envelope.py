@@ -45,7 +45,11 @@ class ErrorsInBody:
                 payload = {"detail": payload}
             payload["status"] = held["start"]["status"]
             body = json.dumps(payload).encode()
-            headers = [(k, v) for k, v in held["start"].get("headers", []) if k not in (b"content-length", b"content-type")]
+            headers = [
+                (k, v)
+                for k, v in held["start"].get("headers", [])
+                if k not in (b"content-length", b"content-type")
+            ]
             headers += [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode())]
             await send({"type": "http.response.start", "status": 200, "headers": headers})
             await send({"type": "http.response.body", "body": body})

@@ -93,8 +93,15 @@ def enqueue(celery: Celery, job_id: str, queue: str) -> None:
         raise BrokerUnavailable(str(exc)) from exc
 
 
-def submit_job(db: Database, storage: Storage, celery: Celery, settings: Settings, user: str,
-               mesh_id: str, params_in: dict) -> JobRecord:
+def submit_job(
+    db: Database,
+    storage: Storage,
+    celery: Celery,
+    settings: Settings,
+    user: str,
+    mesh_id: str,
+    params_in: dict,
+) -> JobRecord:
     """Validate, dedup and queue one job of `user`. Raises NotFound, ParameterError, QueueFull,
     BrokerUnavailable (the job record then ends 'failed' saying so: nothing is left dangling)."""
     from models import api
@@ -105,16 +112,35 @@ def submit_job(db: Database, storage: Storage, celery: Celery, settings: Setting
     key = result_key(mesh.id, params, api.MODEL_VERSION)
     now = utcnow()
     with db.session() as s:
-        active = s.scalar(select(func.count()).select_from(JobRecord)
-                          .where(JobRecord.user == user, JobRecord.status.in_(ACTIVE)))
+        active = s.scalar(
+            select(func.count())
+            .select_from(JobRecord)
+            .where(JobRecord.user == user, JobRecord.status.in_(ACTIVE))
+        )
         if active >= settings.max_queued_jobs_per_user:
-            raise QueueFull(f"you have {active} queued or running jobs; the limit is "
-                            f"{settings.max_queued_jobs_per_user}: wait for some to finish")
-        job = JobRecord(id=new_id(), user=user, mesh_id=mesh.id, params=params, result_key=key,
-                        model_version=api.MODEL_VERSION, queue=queue_for(params, settings),
-                        status=QUEUED, progress=0.0, attempts=0, created_at=now)
-        done = s.scalars(select(JobRecord).where(JobRecord.result_key == key, JobRecord.status == SUCCEEDED)
-                         .order_by(JobRecord.finished_at.desc()).limit(1)).first()
+            raise QueueFull(
+                f"you have {active} queued or running jobs; the limit is "
+                f"{settings.max_queued_jobs_per_user}: wait for some to finish"
+            )
+        job = JobRecord(
+            id=new_id(),
+            user=user,
+            mesh_id=mesh.id,
+            params=params,
+            result_key=key,
+            model_version=api.MODEL_VERSION,
+            queue=queue_for(params, settings),
+            status=QUEUED,
+            progress=0.0,
+            attempts=0,
+            created_at=now,
+        )
+        done = s.scalars(
+            select(JobRecord)
+            .where(JobRecord.result_key == key, JobRecord.status == SUCCEEDED)
+            .order_by(JobRecord.finished_at.desc())
+            .limit(1)
+        ).first()
         if done is not None and storage.has_result(key):
             job.status, job.progress, job.stage, job.result = SUCCEEDED, 1.0, "done", done.result
             job.cached_from = done.cached_from or done.id
@@ -122,13 +148,20 @@ def submit_job(db: Database, storage: Storage, celery: Celery, settings: Setting
             s.add(job)
             s.commit()
             return job
-        leader = s.scalars(select(JobRecord).where(JobRecord.result_key == key, JobRecord.status.in_(ACTIVE),
-                                                   JobRecord.leader_id.is_(None))
-                           .order_by(JobRecord.created_at).limit(1)).first()
+        leader = s.scalars(
+            select(JobRecord)
+            .where(JobRecord.result_key == key, JobRecord.status.in_(ACTIVE), JobRecord.leader_id.is_(None))
+            .order_by(JobRecord.created_at)
+            .limit(1)
+        ).first()
         if leader is not None:
             job.leader_id, job.cached_from = leader.id, leader.id
-            job.status, job.progress, job.stage, job.started_at = (leader.status, leader.progress, leader.stage,
-                                                                   leader.started_at)
+            job.status, job.progress, job.stage, job.started_at = (
+                leader.status,
+                leader.progress,
+                leader.stage,
+                leader.started_at,
+            )
             s.add(job)
             s.commit()
         else:
@@ -142,9 +175,15 @@ def submit_job(db: Database, storage: Storage, celery: Celery, settings: Setting
             enqueue(celery, job.id, job.queue)
         except BrokerUnavailable:
             with db.session() as s:
-                update_job_and_followers(s, job.id, {
-                    "status": FAILED, "finished_at": utcnow(),
-                    "error": "the job queue (broker) was unreachable at submission: nothing was queued; submit again"})
+                update_job_and_followers(
+                    s,
+                    job.id,
+                    {
+                        "status": FAILED,
+                        "finished_at": utcnow(),
+                        "error": "the job queue (broker) was unreachable at submission: nothing was queued; submit again",
+                    },
+                )
                 s.commit()
             raise
     with db.session() as s:
@@ -163,9 +202,11 @@ def settle_follower(db: Database, celery: Celery, job_id: str) -> None:
         if leader is not None and leader.status in ACTIVE:
             return
         if leader is None or leader.status == CANCELLED:
-            promoted = s.execute(update(JobRecord).where(JobRecord.id == job_id, JobRecord.status.in_(ACTIVE))
-                                 .values(leader_id=None, status=QUEUED, progress=0.0, stage=None,
-                                         enqueued_at=utcnow())).rowcount
+            promoted = s.execute(
+                update(JobRecord)
+                .where(JobRecord.id == job_id, JobRecord.status.in_(ACTIVE))
+                .values(leader_id=None, status=QUEUED, progress=0.0, stage=None, enqueued_at=utcnow())
+            ).rowcount
             s.commit()
             if promoted:
                 try:
@@ -173,9 +214,19 @@ def settle_follower(db: Database, celery: Celery, job_id: str) -> None:
                 except BrokerUnavailable:
                     pass  # stays queued; a worker's reaper re-sends old queued jobs
             return
-        s.execute(update(JobRecord).where(JobRecord.id == job_id, JobRecord.status.in_(ACTIVE)).values(
-            status=leader.status, progress=leader.progress, stage=leader.stage, error=leader.error,
-            result=leader.result, started_at=leader.started_at, finished_at=leader.finished_at))
+        s.execute(
+            update(JobRecord)
+            .where(JobRecord.id == job_id, JobRecord.status.in_(ACTIVE))
+            .values(
+                status=leader.status,
+                progress=leader.progress,
+                stage=leader.stage,
+                error=leader.error,
+                result=leader.result,
+                started_at=leader.started_at,
+                finished_at=leader.finished_at,
+            )
+        )
         s.commit()
 
 
@@ -186,17 +237,27 @@ def cancel_job(db: Database, celery: Celery, user: str, job_id: str) -> JobRecor
         job = visible_job(s, user, job_id)
         if job.status in FINAL:
             return job
-        s.execute(update(JobRecord).where(JobRecord.id == job_id, JobRecord.status.in_(ACTIVE))
-                  .values(status=CANCELLED, finished_at=utcnow(), stage="cancelled"))
+        s.execute(
+            update(JobRecord)
+            .where(JobRecord.id == job_id, JobRecord.status.in_(ACTIVE))
+            .values(status=CANCELLED, finished_at=utcnow(), stage="cancelled")
+        )
         s.commit()
-        followers = s.scalars(select(JobRecord.id).where(JobRecord.leader_id == job_id,
-                                                         JobRecord.status.in_(ACTIVE))
-                              .order_by(JobRecord.created_at)).all()
+        followers = s.scalars(
+            select(JobRecord.id)
+            .where(JobRecord.leader_id == job_id, JobRecord.status.in_(ACTIVE))
+            .order_by(JobRecord.created_at)
+        ).all()
     if followers:
         new_leader = followers[0]
         with db.session() as s:
-            s.execute(update(JobRecord).where(JobRecord.leader_id == job_id, JobRecord.id != new_leader,
-                                              JobRecord.status.in_(ACTIVE)).values(leader_id=new_leader))
+            s.execute(
+                update(JobRecord)
+                .where(
+                    JobRecord.leader_id == job_id, JobRecord.id != new_leader, JobRecord.status.in_(ACTIVE)
+                )
+                .values(leader_id=new_leader)
+            )
             s.commit()
         settle_follower(db, celery, new_leader)
     with db.session() as s:

@@ -38,8 +38,10 @@ def extension_of(filename: str | None) -> str:
     ext = Path(filename or "").suffix.lower().lstrip(".")
     if ext not in ALLOWED_EXTENSIONS:
         raise UploadRejected(
-            422, f"unsupported or missing mesh file extension in filename {filename!r}; "
-            f"use one of: {', '.join('.' + e for e in ALLOWED_EXTENSIONS)}")
+            422,
+            f"unsupported or missing mesh file extension in filename {filename!r}; "
+            f"use one of: {', '.join('.' + e for e in ALLOWED_EXTENSIONS)}",
+        )
     return ext
 
 
@@ -63,10 +65,18 @@ def inspect_upload(path: Path, ext: str, max_cells: int, memory_bytes: int, time
     cmd = [sys.executable, "-m", "service.mesh_check", str(path), ext, str(max_cells)]
     with _slots:
         try:
-            proc = subprocess.run(cmd, capture_output=True, timeout=timeout_s, preexec_fn=limit,
-                                  env=child_env(), cwd=str(PACKAGE_ROOT))
+            proc = subprocess.run(
+                cmd,
+                capture_output=True,
+                timeout=timeout_s,
+                preexec_fn=limit,
+                env=child_env(),
+                cwd=str(PACKAGE_ROOT),
+            )
         except subprocess.TimeoutExpired:
-            raise UploadRejected(422, f"reading the mesh took longer than {timeout_s:g} s; rejected") from None
+            raise UploadRejected(
+                422, f"reading the mesh took longer than {timeout_s:g} s; rejected"
+            ) from None
     lines = proc.stdout.decode(errors="replace").strip().splitlines()
     try:
         answer = json.loads(lines[-1])
@@ -74,8 +84,10 @@ def inspect_upload(path: Path, ext: str, max_cells: int, memory_bytes: int, time
         answer = None
     if proc.returncode != 0 or not isinstance(answer, dict):
         raise UploadRejected(
-            422, f"the mesh could not be read within the limits ({memory_bytes / 2**30:.1f} GiB memory, "
-            f"{timeout_s:g} s); rejected")
+            422,
+            f"the mesh could not be read within the limits ({memory_bytes / 2**30:.1f} GiB memory, "
+            f"{timeout_s:g} s); rejected",
+        )
     if "error" in answer:
         raise UploadRejected(int(answer.get("status", 422)), answer["error"])
     return answer["info"]
@@ -90,8 +102,9 @@ def check_xml(path: Path, max_cells: int) -> None:
 
     cells = 0
     try:
-        for _event, elem in safe_et.iterparse(str(path), events=("start",), forbid_dtd=True,
-                                              forbid_entities=True, forbid_external=True):
+        for _event, elem in safe_et.iterparse(
+            str(path), events=("start",), forbid_dtd=True, forbid_entities=True, forbid_external=True
+        ):
             tag = elem.tag.rsplit("}", 1)[-1]
             if tag == "Piece":
                 try:
@@ -99,7 +112,9 @@ def check_xml(path: Path, max_cells: int) -> None:
                 except ValueError:
                     raise UploadRejected(422, "invalid NumberOfCells in VTU piece") from None
                 if cells > max_cells:
-                    raise UploadRejected(413, f"the mesh declares {cells} cells or more; the limit is {max_cells}")
+                    raise UploadRejected(
+                        413, f"the mesh declares {cells} cells or more; the limit is {max_cells}"
+                    )
             elif tag == "AppendedData":
                 break  # raw binary follows: not XML, and no DTD can come after the root element
     except DefusedXmlException:

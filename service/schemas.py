@@ -8,7 +8,8 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, PlainSerializer
 
 UTCDateTime = Annotated[
-    datetime, PlainSerializer(lambda d: d.replace(tzinfo=UTC).isoformat().replace("+00:00", "Z"), return_type=str)
+    datetime,
+    PlainSerializer(lambda d: d.replace(tzinfo=UTC).isoformat().replace("+00:00", "Z"), return_type=str),
 ]
 JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 Finite = dict(allow_inf_nan=False)
@@ -35,10 +36,13 @@ class MeshOut(BaseModel):
 class JobOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
     seed: int | None = Field(None, ge=0, le=2**31 - 1)
-    absorb_fraction: float | None = Field(None, ge=0, lt=1, **Finite,
-                                          description="absorb parts smaller than this x mean part size")
+    absorb_fraction: float | None = Field(
+        None, ge=0, lt=1, **Finite, description="absorb parts smaller than this x mean part size"
+    )
     hole_policy: str | None = Field(None, max_length=40, description="split | error")
-    physical_tag: str | None = Field(None, max_length=200, description="cell-data name of the physical groups")
+    physical_tag: str | None = Field(
+        None, max_length=200, description="cell-data name of the physical groups"
+    )
     method: str | None = Field(None, max_length=40, description="METIS kway | recursive")
 
 
@@ -47,14 +51,18 @@ class JobParams(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     model: str | None = Field(None, max_length=40, description="metis | kmeans | sage-base | sage-hetero")
-    mode: str | None = Field(None, max_length=40,
-                             description="kway | nref | target-size | mult-factor | segregated | coarsen")
+    mode: str | None = Field(
+        None, max_length=40, description="kway | nref | target-size | mult-factor | segregated | coarsen"
+    )
     k: int | None = Field(None, ge=1, le=10**8, description="number of elements (kway)")
     nref: int | None = Field(None, ge=0, le=64, description="number of refinements: 2^nref elements")
     target_size: float | None = Field(None, gt=0, **Finite, description="largest element diameter")
-    mult_factor: float | None = Field(None, gt=0, le=1, **Finite, description="element diameter / mesh diameter")
+    mult_factor: float | None = Field(
+        None, gt=0, le=1, **Finite, description="element diameter / mesh diameter"
+    )
     subset: list[Annotated[int, Field(ge=0, le=2**62)]] | None = Field(
-        None, description="cell ids to agglomerate (coarsen mode)")
+        None, description="cell ids to agglomerate (coarsen mode)"
+    )
     refiner: str | None = Field(None, max_length=40)
     options: JobOptions | None = None
 

@@ -18,9 +18,15 @@ class Settings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="MAGNET_", extra="ignore")
 
     data_dir: Path = Field(Path("var"), description="Blobs (meshes, results) and the embedded databases.")
-    database_url: str | None = Field(None, description="SQLAlchemy URL of the job store; default SQLite in data_dir.")
-    broker_url: str | None = Field(None, description="Celery broker; default: SQLite in data_dir (no server).")
-    broker_key_prefix: str = Field("", description="Prefix of every Redis key (several deployments, one Redis).")
+    database_url: str | None = Field(
+        None, description="SQLAlchemy URL of the job store; default SQLite in data_dir."
+    )
+    broker_url: str | None = Field(
+        None, description="Celery broker; default: SQLite in data_dir (no server)."
+    )
+    broker_key_prefix: str = Field(
+        "", description="Prefix of every Redis key (several deployments, one Redis)."
+    )
 
     api_keys: str | None = Field(None, description="'user:token,user2:token2'; each token is a user.")
     api_keys_file: Path | None = Field(None, description="File with one 'user:token' per line (# comments).")

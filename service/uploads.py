@@ -19,7 +19,9 @@ from service.schemas import MeshOut
 CHUNK = 1 << 20
 
 
-async def receive_mesh(ctx: Context, user: str, chunks: AsyncIterator[bytes], filename: str | None) -> MeshOut:
+async def receive_mesh(
+    ctx: Context, user: str, chunks: AsyncIterator[bytes], filename: str | None
+) -> MeshOut:
     """Store one uploaded mesh for `user`; the same bytes always give the same id."""
     ext = extension_of(filename)
     limit = ctx.settings.max_upload_bytes
@@ -35,14 +37,18 @@ async def receive_mesh(ctx: Context, user: str, chunks: AsyncIterator[bytes], fi
                 digest.update(chunk)
                 out.write(chunk)
         if size == 0:
-            raise UploadRejected(422, "empty upload: send the mesh file as the request body or multipart field 'file'")
+            raise UploadRejected(
+                422, "empty upload: send the mesh file as the request body or multipart field 'file'"
+            )
         mesh_id = digest.hexdigest()
         return await run_in_threadpool(_file_mesh, ctx, user, tmp, mesh_id, ext, size, filename)
     finally:
         ctx.storage.discard_temp(tmp)
 
 
-def _file_mesh(ctx: Context, user: str, tmp, mesh_id: str, ext: str, size: int, filename: str | None) -> MeshOut:
+def _file_mesh(
+    ctx: Context, user: str, tmp, mesh_id: str, ext: str, size: int, filename: str | None
+) -> MeshOut:
     with ctx.db.session() as s:
         mesh = s.get(MeshRecord, mesh_id)
     if mesh is None:
@@ -73,10 +79,18 @@ def _file_mesh(ctx: Context, user: str, tmp, mesh_id: str, ext: str, size: int, 
 
 def mesh_out(mesh: MeshRecord, owner: MeshOwner) -> MeshOut:
     info = mesh.info
-    return MeshOut(id=mesh.id, filename=owner.filename, size=mesh.size, cells=info["cells"], points=info["points"],
-                   dim=info["dim"], cell_types=info.get("cell_types", {}),
-                   physical_groups=info.get("physical_groups", []), bbox=info.get("bbox", []),
-                   created_at=owner.created_at)
+    return MeshOut(
+        id=mesh.id,
+        filename=owner.filename,
+        size=mesh.size,
+        cells=info["cells"],
+        points=info["points"],
+        dim=info["dim"],
+        cell_types=info.get("cell_types", {}),
+        physical_groups=info.get("physical_groups", []),
+        bbox=info.get("bbox", []),
+        created_at=owner.created_at,
+    )
 
 
 async def stream_of(upload) -> AsyncIterator[bytes]:

@@ -57,22 +57,28 @@ def wait_until(fn, timeout: float, interval: float = 0.1, what: str = "condition
         except Exception as exc:  # the process may not be up yet
             last_exc = exc
         time.sleep(interval)
-    raise AssertionError(f"timed out after {timeout} s waiting for {what}" + (f" (last error: {last_exc})" if last_exc else ""))
+    raise AssertionError(
+        f"timed out after {timeout} s waiting for {what}" + (f" (last error: {last_exc})" if last_exc else "")
+    )
 
 
-def service_env(data_dir: Path, broker_url: str | None = None, database_url: str | None = None, **extra) -> dict:
+def service_env(
+    data_dir: Path, broker_url: str | None = None, database_url: str | None = None, **extra
+) -> dict:
     """Environment of a test deployment: fast heartbeats so dead workers are noticed in seconds."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("MAGNET_")}
-    env.update({
-        "MAGNET_DATA_DIR": str(data_dir),
-        "MAGNET_HEARTBEAT_INTERVAL_S": "0.5",
-        "MAGNET_HEARTBEAT_TIMEOUT_S": "4",
-        "MAGNET_REQUEUE_AFTER_S": "10",
-        "MAGNET_BROKER_KEY_PREFIX": f"magnet-test-{uuid.uuid4().hex[:10]}:",
-        "PYTHONPATH": os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH")) if p),
-        "OMP_NUM_THREADS": "1",
-        "OPENBLAS_NUM_THREADS": "1",
-    })
+    env.update(
+        {
+            "MAGNET_DATA_DIR": str(data_dir),
+            "MAGNET_HEARTBEAT_INTERVAL_S": "0.5",
+            "MAGNET_HEARTBEAT_TIMEOUT_S": "4",
+            "MAGNET_REQUEUE_AFTER_S": "10",
+            "MAGNET_BROKER_KEY_PREFIX": f"magnet-test-{uuid.uuid4().hex[:10]}:",
+            "PYTHONPATH": os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH")) if p),
+            "OMP_NUM_THREADS": "1",
+            "OPENBLAS_NUM_THREADS": "1",
+        }
+    )
     if broker_url:
         env["MAGNET_BROKER_URL"] = broker_url
     if database_url:
@@ -87,8 +93,14 @@ class Proc:
     def __init__(self, cmd: list[str], env: dict, log: Path, cwd: Path | None = None):
         self.cmd, self.log = cmd, log
         self.logfile = open(log, "ab")
-        self.popen = subprocess.Popen(cmd, env=env, cwd=str(cwd or ROOT), stdout=self.logfile,
-                                      stderr=subprocess.STDOUT, start_new_session=True)
+        self.popen = subprocess.Popen(
+            cmd,
+            env=env,
+            cwd=str(cwd or ROOT),
+            stdout=self.logfile,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
 
     @property
     def pid(self) -> int:
@@ -129,8 +141,9 @@ class Proc:
             return ""
 
 
-def start_api(env: dict, tmp: Path, port: int | None = None, embedded_worker: bool = False,
-              name: str = "api") -> tuple[Proc, str]:
+def start_api(
+    env: dict, tmp: Path, port: int | None = None, embedded_worker: bool = False, name: str = "api"
+) -> tuple[Proc, str]:
     """`python -m service serve` on a free port (API only unless embedded_worker); waits for /healthz."""
     port = port or free_port()
     cmd = [PY, "-m", "service", "serve", "--port", str(port), "--log-level", "warning"]
@@ -147,8 +160,20 @@ def start_api(env: dict, tmp: Path, port: int | None = None, embedded_worker: bo
 
 
 def start_worker(env: dict, tmp: Path, name: str, queues: str = "cpu", concurrency: int = 1) -> Proc:
-    cmd = [PY, "-m", "worker", "worker", "--queues", queues, "--concurrency", str(concurrency),
-           "--name", f"{name}-{uuid.uuid4().hex[:6]}@test", "--loglevel", "INFO"]
+    cmd = [
+        PY,
+        "-m",
+        "worker",
+        "worker",
+        "--queues",
+        queues,
+        "--concurrency",
+        str(concurrency),
+        "--name",
+        f"{name}-{uuid.uuid4().hex[:6]}@test",
+        "--loglevel",
+        "INFO",
+    ]
     return Proc(cmd, env, tmp / f"worker-{name}.log")
 
 
@@ -171,8 +196,19 @@ class RedisServer:
         return f"redis://127.0.0.1:{self.port}/0"
 
     def start(self) -> None:
-        cmd = ["redis-server", "--port", str(self.port), "--bind", "127.0.0.1", "--save", "",
-               "--appendonly", "no", "--dir", str(self.tmp)]
+        cmd = [
+            "redis-server",
+            "--port",
+            str(self.port),
+            "--bind",
+            "127.0.0.1",
+            "--save",
+            "",
+            "--appendonly",
+            "no",
+            "--dir",
+            str(self.tmp),
+        ]
         self.proc = Proc(cmd, dict(os.environ), self.tmp / f"redis-{self.port}.log")
         import redis
 
@@ -193,8 +229,12 @@ class Api:
         self.http = httpx.Client(base_url=url, headers=headers, timeout=60)
 
     def upload(self, path: Path) -> dict:
-        r = self.http.post("/v1/meshes", params={"filename": Path(path).name}, content=Path(path).read_bytes(),
-                           headers={"Content-Type": "application/octet-stream"})
+        r = self.http.post(
+            "/v1/meshes",
+            params={"filename": Path(path).name},
+            content=Path(path).read_bytes(),
+            headers={"Content-Type": "application/octet-stream"},
+        )
         assert r.status_code == 201, r.text
         return r.json()
 
@@ -209,8 +249,12 @@ class Api:
         return r.json()
 
     def wait(self, job_id: str, timeout: float = 120, statuses=("succeeded", "failed", "cancelled")) -> dict:
-        return wait_until(lambda: (j := self.job(job_id))["status"] in statuses and j, timeout, 0.2,
-                          f"job {job_id} to reach {statuses}")
+        return wait_until(
+            lambda: (j := self.job(job_id))["status"] in statuses and j,
+            timeout,
+            0.2,
+            f"job {job_id} to reach {statuses}",
+        )
 
     def wait_running(self, job_id: str, timeout: float = 60, attempt: int = 1) -> dict:
         """Wait until the job runs its `attempt`-th attempt (the first by default)."""

@@ -39,23 +39,44 @@ def server(tmp_path_factory):
 
 
 def test_client_imports_no_torch_and_no_server_code():
-    code = ("import sys, magnet_client, magnet_client.cli; "
-            "bad = [m for m in ('torch', 'service', 'worker', 'models', 'fastapi', 'celery', 'sqlalchemy') "
-            "if m in sys.modules]; print(bad)")
-    out = subprocess.run([sys.executable, "-c", code], cwd=CLIENT, env=client_env(), capture_output=True,
-                         text=True, check=True)
+    code = (
+        "import sys, magnet_client, magnet_client.cli; "
+        "bad = [m for m in ('torch', 'service', 'worker', 'models', 'fastapi', 'celery', 'sqlalchemy') "
+        "if m in sys.modules]; print(bad)"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], cwd=CLIENT, env=client_env(), capture_output=True, text=True, check=True
+    )
     assert out.stdout.strip() == "[]"
 
 
 def test_client_wheel_holds_only_the_client(tmp_path):
-    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q",
-                    "-w", str(tmp_path), str(CLIENT)], check=True, capture_output=True, timeout=300)
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "wheel",
+            "--no-deps",
+            "--no-build-isolation",
+            "-q",
+            "-w",
+            str(tmp_path),
+            str(CLIENT),
+        ],
+        check=True,
+        capture_output=True,
+        timeout=300,
+    )
     (wheel,) = tmp_path.glob("magnet_client-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
     assert all(n.startswith(("magnet_client/", "magnet_client-")) for n in names), names
     meta = next(n for n in names if n.endswith("METADATA"))
-    requires = [line for line in zipfile.ZipFile(wheel).read(meta).decode().splitlines()
-                if line.startswith("Requires-Dist")]
+    requires = [
+        line
+        for line in zipfile.ZipFile(wheel).read(meta).decode().splitlines()
+        if line.startswith("Requires-Dist")
+    ]
     assert sorted(r.split()[1].split(">")[0] for r in requires) == ["httpx", "tqdm"]
 
 
@@ -67,16 +88,49 @@ def test_cli_same_flags_same_result_as_local(server, tmp_path):
     remote, local = tmp_path / "remote", tmp_path / "local"
     remote.mkdir()
     local.mkdir()
-    outputs = lambda d: ["-o", str(d / "out.vtu"), "--metrics", str(d / "m.json"), "--labels",  # noqa: E731
-                         str(d / "l.json"), "--lymph", str(d / "lymph.mat"), "--plot", str(d / "p.png")]
-    out = subprocess.run([sys.executable, "-m", "magnet_client.cli", "--server", server, "--token", TOKEN,
-                          "agglomerate", str(mesh), *outputs(remote), *flags],
-                         cwd=CLIENT, env=client_env(), capture_output=True, text=True, timeout=300)
+
+    def outputs(d):
+        return [
+            "-o",
+            str(d / "out.vtu"),
+            "--metrics",
+            str(d / "m.json"),
+            "--labels",
+            str(d / "l.json"),
+            "--lymph",
+            str(d / "lymph.mat"),
+            "--plot",
+            str(d / "p.png"),
+        ]
+
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "magnet_client.cli",
+            "--server",
+            server,
+            "--token",
+            TOKEN,
+            "agglomerate",
+            str(mesh),
+            *outputs(remote),
+            *flags,
+        ],
+        cwd=CLIENT,
+        env=client_env(),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert out.returncode == 0, out.stderr
     assert "elements from 288 cells" in out.stdout
     assert magnet(["agglomerate", str(mesh), *outputs(local), *flags]) == 0
     assert json.loads((remote / "l.json").read_text()) == json.loads((local / "l.json").read_text())
-    assert json.loads((remote / "m.json").read_text())["summary"] == json.loads((local / "m.json").read_text())["summary"]
+    assert (
+        json.loads((remote / "m.json").read_text())["summary"]
+        == json.loads((local / "m.json").read_text())["summary"]
+    )
     assert (remote / "lymph.mat").read_bytes()[:6] == b"MATLAB"
     assert (remote / "p.png").read_bytes()[:4] == b"\x89PNG"
     assert (remote / "out.vtu").stat().st_size > 0
@@ -84,14 +138,29 @@ def test_cli_same_flags_same_result_as_local(server, tmp_path):
 
 def test_cli_clear_errors(server, tmp_path):
     mesh = square_mesh(tmp_path / "square.vtu", 4)
-    run = lambda *args: subprocess.run([sys.executable, "-m", "magnet_client.cli", "--server", server, *args],  # noqa: E731
-                                       cwd=CLIENT, env=client_env(), capture_output=True, text=True, timeout=120)
+
+    def run(*args):
+        return subprocess.run(
+            [sys.executable, "-m", "magnet_client.cli", "--server", server, *args],
+            cwd=CLIENT,
+            env=client_env(),
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+
     out = run("--token", TOKEN, "agglomerate", str(mesh), "-o", str(tmp_path / "o.vtu"), "--k", "1000")
     assert out.returncode == 2 and "HTTP 422" in out.stderr and "k = 1000" in out.stderr
     out = run("--token", "wrong", "agglomerate", str(mesh), "-o", str(tmp_path / "o.vtu"), "--k", "3")
     assert out.returncode == 2 and "HTTP 401" in out.stderr
-    out = subprocess.run([sys.executable, "-m", "magnet_client.cli", "--server", "http://127.0.0.1:9", "models"],
-                         cwd=CLIENT, env=client_env(), capture_output=True, text=True, timeout=120)
+    out = subprocess.run(
+        [sys.executable, "-m", "magnet_client.cli", "--server", "http://127.0.0.1:9", "models"],
+        cwd=CLIENT,
+        env=client_env(),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert out.returncode == 2 and "cannot reach" in out.stderr
 
 
@@ -104,8 +173,15 @@ def test_python_api(server, tmp_path):
     mesh = square_mesh(tmp_path / "square.vtu", 6)
     with Client(server, TOKEN) as client:
         assert {"metis", "kmeans"} <= {m["name"] for m in client.models()}
-        job = client.agglomerate(mesh, tmp_path / "out.vtu", model="kmeans", k=5, seed=1, progress=False,
-                                 labels=str(tmp_path / "labels.json"))
+        job = client.agglomerate(
+            mesh,
+            tmp_path / "out.vtu",
+            model="kmeans",
+            k=5,
+            seed=1,
+            progress=False,
+            labels=str(tmp_path / "labels.json"),
+        )
         assert job["status"] == "succeeded" and job["params"]["options"]["seed"] == 1
         assert len(client.download_labels(job["id"])) == 72
         assert client.download_metrics(job["id"])["elements"] == job["result"]["elements"]

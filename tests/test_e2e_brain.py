@@ -17,7 +17,10 @@ from test_queue_redis import redis_up
 from models.cli import main as magnet
 
 pytestmark = [pytest.mark.redis, pytest.mark.slow]
-JOBS = [("metis", ["--k", "128"], {"k": 128}), ("kmeans", ["--k", "64", "--seed", "7"], {"k": 64, "options": {"seed": 7}})]
+JOBS = [
+    ("metis", ["--k", "128"], {"k": 128}),
+    ("kmeans", ["--k", "64", "--seed", "7"], {"k": 64, "options": {"seed": 7}}),
+]
 
 
 def test_brain_end_to_end_matches_in_process_cli(tmp_path):
@@ -30,17 +33,36 @@ def test_brain_end_to_end_matches_in_process_cli(tmp_path):
         api = Api(url)
         mesh = api.upload(BRAIN)
         assert mesh["cells"] == 14372 and mesh["dim"] == 2
-        submitted = [(model, flags, api.submit(mesh["id"], model=model, **params)) for model, flags, params in JOBS]
+        submitted = [
+            (model, flags, api.submit(mesh["id"], model=model, **params)) for model, flags, params in JOBS
+        ]
         for model, flags, job in submitted:
             done = api.wait(job["id"], 180)
             assert done["status"] == "succeeded", done
             local = tmp_path / f"local-{model}"
             local.mkdir()
-            rc = magnet(["agglomerate", str(BRAIN), "-o", str(local / "mesh.vtu"), "--model", model, *flags,
-                         "--metrics", str(local / "metrics.json"), "--labels", str(local / "labels.json"),
-                         "--lymph", str(local / "lymph.json")])
+            rc = magnet(
+                [
+                    "agglomerate",
+                    str(BRAIN),
+                    "-o",
+                    str(local / "mesh.vtu"),
+                    "--model",
+                    model,
+                    *flags,
+                    "--metrics",
+                    str(local / "metrics.json"),
+                    "--labels",
+                    str(local / "labels.json"),
+                    "--lymph",
+                    str(local / "lymph.json"),
+                ]
+            )
             assert rc == 0
-            get = lambda part, jid=job["id"], **kw: api.http.get(f"/v1/jobs/{jid}/{part}", **kw)  # noqa: E731
+
+            def get(part, jid=job["id"], **kw):
+                return api.http.get(f"/v1/jobs/{jid}/{part}", **kw)
+
             labels = get("labels").json()
             assert labels == json.loads((local / "labels.json").read_text())
             assert done["result"]["elements"] == len(set(labels))
@@ -53,7 +75,9 @@ def test_brain_end_to_end_matches_in_process_cli(tmp_path):
             remote_vtu.write_bytes(get("mesh").content)
             a, b = meshio.read(remote_vtu), meshio.read(local / "mesh.vtu")
             assert np.allclose(a.points, b.points)
-            assert sum(len(c.data) for c in a.cells) == sum(len(c.data) for c in b.cells) == metrics["elements"]
+            assert (
+                sum(len(c.data) for c in a.cells) == sum(len(c.data) for c in b.cells) == metrics["elements"]
+            )
             lymph = get("lymph").json()
             assert lymph == json.loads((local / "lymph.json").read_text())
             mat = loadmat(io.BytesIO(get("lymph", params={"format": "mat"}).content))

@@ -47,17 +47,32 @@ def domain_area(path) -> float:
 def test_octave_wrapper_returns_lymph_structs(tmp_path):
     octave = shutil.which("octave-cli")
     if octave is None:
-        pytest.skip("octave-cli not found: install GNU Octave (apt-get install -y --no-install-recommends octave)")
+        pytest.skip(
+            "octave-cli not found: install GNU Octave (apt-get install -y --no-install-recommends octave)"
+        )
     env = service_env(tmp_path / "data", api_keys=f"matlab-user:{TOKEN}")
     proc, url = start_api(env, tmp_path, embedded_worker=True)
     try:
         wait_until(lambda: workers_online(url, TOKEN) >= 1, 60, 0.2, "the embedded worker")
         script = tmp_path / "run_magnet.m"
         result, saved = tmp_path / "result.json", tmp_path / "brain64.mat"
-        script.write_text(SCRIPT.format(matlab=ROOT / "client" / "matlab", mesh=BRAIN, url=url, token=TOKEN,
-                                        saved=saved, result=result))
-        out = subprocess.run([octave, "--no-gui", "--quiet", "--no-window-system", str(script)], cwd=tmp_path,
-                             capture_output=True, text=True, timeout=300)
+        script.write_text(
+            SCRIPT.format(
+                matlab=ROOT / "client" / "matlab",
+                mesh=BRAIN,
+                url=url,
+                token=TOKEN,
+                saved=saved,
+                result=result,
+            )
+        )
+        out = subprocess.run(
+            [octave, "--no-gui", "--quiet", "--no-window-system", str(script)],
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
         assert result.exists(), f"octave failed:\n{out.stdout}\n{out.stderr}"
         r = json.loads(result.read_text())
     finally:

@@ -39,8 +39,9 @@ def test_embedded_serve_runs_jobs_survives_worker_death_and_restart(tmp_path):
         # stop the whole service with jobs still queued; start it again: they finish
         queued = [api.submit(mesh["id"], k=k) for k in (3, 4, 6)]
         serve.stop()
-        serve, url = start_api(env, tmp_path, port=int(url.rsplit(":", 1)[1]), embedded_worker=True,
-                               name="serve2")
+        serve, url = start_api(
+            env, tmp_path, port=int(url.rsplit(":", 1)[1]), embedded_worker=True, name="serve2"
+        )
         api = Api(url)
         for j in queued:
             assert api.wait(j["id"], 90)["status"] == "succeeded"

@@ -35,8 +35,12 @@ def auth(user: str) -> dict:
 
 
 def upload(client, path, user="alice"):
-    r = client.post("/v1/meshes", params={"filename": path.name}, content=path.read_bytes(),
-                    headers={"Content-Type": "application/octet-stream", **auth(user)})
+    r = client.post(
+        "/v1/meshes",
+        params={"filename": path.name},
+        content=path.read_bytes(),
+        headers={"Content-Type": "application/octet-stream", **auth(user)},
+    )
     assert r.status_code == 201, r.text
     return r.json()
 
@@ -93,22 +97,38 @@ def test_upload_raw_and_multipart_same_id(app, square):
     assert r.status_code == 201 and r.json()["id"] == mesh["id"]
 
 
-@pytest.mark.parametrize("name,content,status,words", [
-    ("mesh.exe", b"whatever", 422, "extension"),
-    ("mesh.vtu", b"", 422, "empty"),
-    ("mesh.vtu", b"<VTKFile><garbage", 422, "XML"),
-    ("mesh.msh", b"\x00\x01 not a gmsh file", 422, ""),
-    ("mesh.vtu", b'<?xml version="1.0"?><!DOCTYPE lol [<!ENTITY a "aaaaaaaaaa"><!ENTITY b "&a;&a;&a;&a;">]>'
-                 b'<VTKFile type="UnstructuredGrid"><UnstructuredGrid><Piece NumberOfPoints="1" NumberOfCells="1">'
-                 b"&b;</Piece></UnstructuredGrid></VTKFile>", 422, "DOCTYPE"),
-    ("mesh.vtu", b'<?xml version="1.0"?><VTKFile type="UnstructuredGrid"><UnstructuredGrid>'
-                 b'<Piece NumberOfPoints="3" NumberOfCells="999999999"></Piece></UnstructuredGrid></VTKFile>',
-     413, "limit"),
-])
+@pytest.mark.parametrize(
+    "name,content,status,words",
+    [
+        ("mesh.exe", b"whatever", 422, "extension"),
+        ("mesh.vtu", b"", 422, "empty"),
+        ("mesh.vtu", b"<VTKFile><garbage", 422, "XML"),
+        ("mesh.msh", b"\x00\x01 not a gmsh file", 422, ""),
+        (
+            "mesh.vtu",
+            b'<?xml version="1.0"?><!DOCTYPE lol [<!ENTITY a "aaaaaaaaaa"><!ENTITY b "&a;&a;&a;&a;">]>'
+            b'<VTKFile type="UnstructuredGrid"><UnstructuredGrid><Piece NumberOfPoints="1" NumberOfCells="1">'
+            b"&b;</Piece></UnstructuredGrid></VTKFile>",
+            422,
+            "DOCTYPE",
+        ),
+        (
+            "mesh.vtu",
+            b'<?xml version="1.0"?><VTKFile type="UnstructuredGrid"><UnstructuredGrid>'
+            b'<Piece NumberOfPoints="3" NumberOfCells="999999999"></Piece></UnstructuredGrid></VTKFile>',
+            413,
+            "limit",
+        ),
+    ],
+)
 def test_bad_uploads_rejected(app, name, content, status, words):
     client, _ = app
-    r = client.post("/v1/meshes", params={"filename": name}, content=content,
-                    headers={"Content-Type": "application/octet-stream", **auth("alice")})
+    r = client.post(
+        "/v1/meshes",
+        params={"filename": name},
+        content=content,
+        headers={"Content-Type": "application/octet-stream", **auth("alice")},
+    )
     assert r.status_code == status, r.text
     assert words.lower() in r.json()["detail"].lower()
 
@@ -116,20 +136,32 @@ def test_bad_uploads_rejected(app, name, content, status, words):
 def test_upload_size_limit(tmp_path, square):
     client, _ = make(tmp_path, max_upload_bytes=1000)
     with client:
-        r = client.post("/v1/meshes", params={"filename": "s.vtu"}, content=square.read_bytes(),
-                        headers={"Content-Type": "application/octet-stream", **auth("alice")})
+        r = client.post(
+            "/v1/meshes",
+            params={"filename": "s.vtu"},
+            content=square.read_bytes(),
+            headers={"Content-Type": "application/octet-stream", **auth("alice")},
+        )
         assert r.status_code == 413
         # chunked (no Content-Length): counted as it streams
-        r = client.post("/v1/meshes", params={"filename": "s.vtu"}, content=iter([square.read_bytes()] * 2),
-                        headers={"Content-Type": "application/octet-stream", **auth("alice")})
+        r = client.post(
+            "/v1/meshes",
+            params={"filename": "s.vtu"},
+            content=iter([square.read_bytes()] * 2),
+            headers={"Content-Type": "application/octet-stream", **auth("alice")},
+        )
         assert r.status_code == 413
 
 
 def test_cell_limit(tmp_path, square):
     client, _ = make(tmp_path, max_cells=100)
     with client:
-        r = client.post("/v1/meshes", params={"filename": "s.vtu"}, content=square.read_bytes(),
-                        headers={"Content-Type": "application/octet-stream", **auth("alice")})
+        r = client.post(
+            "/v1/meshes",
+            params={"filename": "s.vtu"},
+            content=square.read_bytes(),
+            headers={"Content-Type": "application/octet-stream", **auth("alice")},
+        )
         assert r.status_code == 413 and "200" in r.json()["detail"]
 
 
@@ -145,8 +177,12 @@ def zlib_bomb_vtu(path, inflated: int) -> None:
     middle = comp.compress(chunk) + comp.flush(zlib.Z_FULL_FLUSH)
     adler = ((inflated % 65521) << 16) | 1  # adler32 of `inflated` zero bytes
     data = first + middle * (inflated // size - 1) + b"\x03\x00" + adler.to_bytes(4, "big")
-    header = (1).to_bytes(8, "little") + inflated.to_bytes(8, "little") + inflated.to_bytes(8, "little") \
+    header = (
+        (1).to_bytes(8, "little")
+        + inflated.to_bytes(8, "little")
+        + inflated.to_bytes(8, "little")
         + len(data).to_bytes(8, "little")
+    )
     payload = base64.b64encode(header).decode() + base64.b64encode(data).decode()
     path.write_text(
         '<?xml version="1.0"?>\n<VTKFile type="UnstructuredGrid" version="1.0" byte_order="LittleEndian" '
@@ -156,7 +192,8 @@ def zlib_bomb_vtu(path, inflated: int) -> None:
         '<Cells><DataArray type="Int64" Name="connectivity" format="ascii">0 1 2</DataArray>'
         '<DataArray type="Int64" Name="offsets" format="ascii">3</DataArray>'
         '<DataArray type="UInt8" Name="types" format="ascii">5</DataArray></Cells>'
-        '</Piece></UnstructuredGrid></VTKFile>\n')
+        "</Piece></UnstructuredGrid></VTKFile>\n"
+    )
 
 
 def test_compressed_bomb_does_not_take_the_server_down(tmp_path, square):
@@ -164,8 +201,12 @@ def test_compressed_bomb_does_not_take_the_server_down(tmp_path, square):
     zlib_bomb_vtu(bomb, inflated=3 * 2**29)  # 1.5 GiB of zeros in 7 MB
     client, _ = make(tmp_path, parse_memory_bytes=2**30, parse_timeout_s=60)
     with client:
-        r = client.post("/v1/meshes", params={"filename": "bomb.vtu"}, content=bomb.read_bytes(),
-                        headers={"Content-Type": "application/octet-stream", **auth("alice")})
+        r = client.post(
+            "/v1/meshes",
+            params={"filename": "bomb.vtu"},
+            content=bomb.read_bytes(),
+            headers={"Content-Type": "application/octet-stream", **auth("alice")},
+        )
         assert r.status_code == 422, r.text
         assert upload(client, square)["cells"] == 200  # still serving
 
@@ -173,14 +214,22 @@ def test_compressed_bomb_does_not_take_the_server_down(tmp_path, square):
 def test_job_parameters_validated_at_submission(app, square):
     client, _ = app
     mesh = upload(client, square)
-    cases = [({"k": 10_000}, "k"), ({"model": "nope", "k": 2}, "model"), ({"mode": "kway"}, "k"),
-             ({"k": "many"}, "k"), ({"k": 2, "options": {"seed": -1}}, "seed"),
-             ({"k": 2, "subset": [0, 99999], "mode": "coarsen"}, "subset"), ({"k": 2, "colour": 1}, "colour")]
+    cases = [
+        ({"k": 10_000}, "k"),
+        ({"model": "nope", "k": 2}, "model"),
+        ({"mode": "kway"}, "k"),
+        ({"k": "many"}, "k"),
+        ({"k": 2, "options": {"seed": -1}}, "seed"),
+        ({"k": 2, "subset": [0, 99999], "mode": "coarsen"}, "subset"),
+        ({"k": 2, "colour": 1}, "colour"),
+    ]
     for params, field in cases:
         r = client.post("/v1/jobs", json={"mesh_id": mesh["id"], **params}, headers=auth("alice"))
         assert r.status_code == 422, (params, r.text)
         assert field in json.dumps(r.json()["detail"]) + str(r.json().get("field")), (params, r.text)
-    assert client.post("/v1/jobs", json={"mesh_id": "0" * 64, "k": 2}, headers=auth("alice")).status_code == 404
+    assert (
+        client.post("/v1/jobs", json={"mesh_id": "0" * 64, "k": 2}, headers=auth("alice")).status_code == 404
+    )
     assert client.get("/v1/jobs", headers=auth("alice")).json()["total"] == 0
 
 
@@ -193,8 +242,9 @@ def test_job_lifecycle_results_dedup_and_cancel(app, square):
     assert job["status"] == "queued" and job["params"]["k"] == 6
     assert client.get(f"/v1/jobs/{job['id']}/mesh", headers=auth("alice")).status_code == 409
     # an identical request while the first is in flight follows it
-    follower = client.post("/v1/jobs", json={"mesh_id": mesh["id"], "model": "metis", "k": 6},
-                           headers=auth("alice")).json()
+    follower = client.post(
+        "/v1/jobs", json={"mesh_id": mesh["id"], "model": "metis", "k": 6}, headers=auth("alice")
+    ).json()
     assert follower["id"] != job["id"] and follower["cached"]
     assert execute_job(job["id"], settings) == "succeeded"
     done = client.get(f"/v1/jobs/{job['id']}", headers=auth("alice")).json()
@@ -204,8 +254,10 @@ def test_job_lifecycle_results_dedup_and_cancel(app, square):
     # results
     h = auth("alice")
     assert client.get(f"/v1/jobs/{job['id']}/mesh", headers=h).content.startswith(b"<")
-    assert "summary" in json.dumps(client.get(f"/v1/jobs/{job['id']}/metrics", headers=h).json()) or \
-        client.get(f"/v1/jobs/{job['id']}/metrics", headers=h).status_code == 200
+    assert (
+        "summary" in json.dumps(client.get(f"/v1/jobs/{job['id']}/metrics", headers=h).json())
+        or client.get(f"/v1/jobs/{job['id']}/metrics", headers=h).status_code == 200
+    )
     labels = client.get(f"/v1/jobs/{job['id']}/labels", headers=h).json()
     assert len(labels) == 200
     assert "region" in client.get(f"/v1/jobs/{job['id']}/lymph", headers=h).json()
@@ -243,11 +295,15 @@ def test_neural_models_routed_to_gpu_queue_only_when_configured(tmp_path, square
     client, _ = make(tmp_path, gpu_queue=gpu_queue)
     with client:
         mesh = upload(client, square)
-        job = client.post("/v1/jobs", json={"mesh_id": mesh["id"], "model": "sage-base", "mode": "nref", "nref": 2},
-                          headers=auth("alice")).json()
+        job = client.post(
+            "/v1/jobs",
+            json={"mesh_id": mesh["id"], "model": "sage-base", "mode": "nref", "nref": 2},
+            headers=auth("alice"),
+        ).json()
         assert job["queue"] == expected
-        job = client.post("/v1/jobs", json={"mesh_id": mesh["id"], "model": "kmeans", "k": 3},
-                          headers=auth("alice")).json()
+        job = client.post(
+            "/v1/jobs", json={"mesh_id": mesh["id"], "model": "kmeans", "k": 3}, headers=auth("alice")
+        ).json()
         assert job["queue"] == "cpu"
 
 
@@ -256,11 +312,19 @@ def test_queue_limit_429(tmp_path, square):
     with client:
         mesh = upload(client, square)
         for k in (2, 3):
-            assert client.post("/v1/jobs", json={"mesh_id": mesh["id"], "k": k}, headers=auth("alice")).status_code == 202
+            assert (
+                client.post(
+                    "/v1/jobs", json={"mesh_id": mesh["id"], "k": k}, headers=auth("alice")
+                ).status_code
+                == 202
+            )
         r = client.post("/v1/jobs", json={"mesh_id": mesh["id"], "k": 4}, headers=auth("alice"))
         assert r.status_code == 429 and "limit" in r.json()["detail"]
         upload(client, square, "bob")
-        assert client.post("/v1/jobs", json={"mesh_id": mesh["id"], "k": 4}, headers=auth("bob")).status_code == 202
+        assert (
+            client.post("/v1/jobs", json={"mesh_id": mesh["id"], "k": 4}, headers=auth("bob")).status_code
+            == 202
+        )
 
 
 def test_broker_down_is_503_and_nothing_dangles(tmp_path, square):
@@ -279,12 +343,20 @@ def test_broker_down_is_503_and_nothing_dangles(tmp_path, square):
 
 def test_one_call_multipart_and_octave_form(app, square):
     client, settings = app
-    r = client.post("/v1/agglomerate", files={"file": ("square.vtu", square.read_bytes())},
-                    data={"model": "kmeans", "k": "4", "seed": "3"}, headers=auth("alice"))
+    r = client.post(
+        "/v1/agglomerate",
+        files={"file": ("square.vtu", square.read_bytes())},
+        data={"model": "kmeans", "k": "4", "seed": "3"},
+        headers=auth("alice"),
+    )
     assert r.status_code == 202, r.text
     assert r.json()["params"]["model"] == "kmeans" and r.json()["params"]["options"]["seed"] == 3
-    form = {"file_b64": base64.b64encode(square.read_bytes()).decode(), "filename": "square.vtu",
-            "k": "5", "token": "bob-token"}
+    form = {
+        "file_b64": base64.b64encode(square.read_bytes()).decode(),
+        "filename": "square.vtu",
+        "k": "5",
+        "token": "bob-token",
+    }
     r = client.post("/v1/agglomerate/form", data=form)
     assert r.status_code == 202, r.text
     assert client.get(f"/v1/jobs/{r.json()['id']}", headers=auth("bob")).status_code == 200
@@ -311,8 +383,14 @@ def test_models_and_health(app):
 
 def test_serve_refuses_public_bind_without_keys(tmp_path):
     env = {"PATH": "/usr/bin:/bin", "MAGNET_DATA_DIR": str(tmp_path)}
-    out = subprocess.run([sys.executable, "-m", "service", "serve", "--host", "0.0.0.0", "--port", "1"],
-                         cwd=ROOT, env=env, capture_output=True, text=True, timeout=60)
+    out = subprocess.run(
+        [sys.executable, "-m", "service", "serve", "--host", "0.0.0.0", "--port", "1"],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert out.returncode != 0 and "without API keys" in out.stderr
 
 

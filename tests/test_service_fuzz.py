@@ -17,14 +17,14 @@ from service.settings import Settings  # noqa: E402
 
 TOKEN = "fuzz-key"
 _data = Path(tempfile.mkdtemp(prefix="magnet-fuzz-"))
-app = create_app(Settings(data_dir=_data, api_keys=f"fuzzer:{TOKEN}", max_upload_bytes=200_000,
-                          parse_timeout_s=20))
+app = create_app(
+    Settings(data_dir=_data, api_keys=f"fuzzer:{TOKEN}", max_upload_bytes=200_000, parse_timeout_s=20)
+)
 schema = schemathesis.openapi.from_asgi("/openapi.json", app)
 
 
 @schema.parametrize()
-@settings(max_examples=25, deadline=None, derandomize=True,
-          suppress_health_check=list(HealthCheck))
+@settings(max_examples=25, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
 def test_no_server_errors(case):
     headers = {"Authorization": f"Bearer {TOKEN}"}
     if case.path == "/readyz":  # 503 "not ready" is its documented answer when no worker runs

@@ -13,14 +13,25 @@ from service.settings import Settings
 def register_worker(subparsers) -> argparse.ArgumentParser:
     """Add the `worker` sub-command to the `magnet` CLI."""
     p = subparsers.add_parser(
-        "worker", help="run a job worker (MAGNET_BROKER_URL=redis://... for a Redis deployment)",
+        "worker",
+        help="run a job worker (MAGNET_BROKER_URL=redis://... for a Redis deployment)",
         description="Run a Celery worker for MAGNET jobs. Configuration from MAGNET_* variables: "
         "MAGNET_BROKER_URL (default: embedded SQLite broker in MAGNET_DATA_DIR), MAGNET_DATABASE_URL, "
-        "MAGNET_DATA_DIR (shared with the API).")
-    p.add_argument("--queues", "-Q", default="cpu",
-                   help="comma-separated queues to consume: cpu, gpu (default: cpu). A GPU worker: -Q gpu,cpu -c 1")
-    p.add_argument("--concurrency", "-c", type=int, default=1,
-                   help="jobs run at the same time (default 1; one per GPU on a GPU worker)")
+        "MAGNET_DATA_DIR (shared with the API).",
+    )
+    p.add_argument(
+        "--queues",
+        "-Q",
+        default="cpu",
+        help="comma-separated queues to consume: cpu, gpu (default: cpu). A GPU worker: -Q gpu,cpu -c 1",
+    )
+    p.add_argument(
+        "--concurrency",
+        "-c",
+        type=int,
+        default=1,
+        help="jobs run at the same time (default 1; one per GPU on a GPU worker)",
+    )
     p.add_argument("--name", "-n", default=None, help="worker node name (default magnet-<pid>@<host>)")
     p.add_argument("--data-dir", default=None, help="overrides MAGNET_DATA_DIR")
     p.add_argument("--broker-url", default=None, help="overrides MAGNET_BROKER_URL")
@@ -32,8 +43,11 @@ def register_worker(subparsers) -> argparse.ArgumentParser:
 
 def apply_overrides(args: argparse.Namespace) -> None:
     """Command-line overrides become MAGNET_* variables, so child processes see them too."""
-    for attr, var in (("data_dir", "MAGNET_DATA_DIR"), ("broker_url", "MAGNET_BROKER_URL"),
-                      ("database_url", "MAGNET_DATABASE_URL")):
+    for attr, var in (
+        ("data_dir", "MAGNET_DATA_DIR"),
+        ("broker_url", "MAGNET_BROKER_URL"),
+        ("database_url", "MAGNET_DATABASE_URL"),
+    ):
         value = getattr(args, attr, None)
         if value:
             os.environ[var] = str(value)
@@ -47,9 +61,22 @@ def run_worker(args: argparse.Namespace) -> int:
     settings.data_dir.mkdir(parents=True, exist_ok=True)
     app = make_celery(settings)
     name = args.name or f"magnet-{os.getpid()}@{socket.gethostname()}"
-    argv = ["worker", "--queues", args.queues, "--concurrency", str(args.concurrency), "--pool", "prefork",
-            "--hostname", name, "--loglevel", args.loglevel, "--without-mingle", "--without-gossip",
-            "--without-heartbeat"]
+    argv = [
+        "worker",
+        "--queues",
+        args.queues,
+        "--concurrency",
+        str(args.concurrency),
+        "--pool",
+        "prefork",
+        "--hostname",
+        name,
+        "--loglevel",
+        args.loglevel,
+        "--without-mingle",
+        "--without-gossip",
+        "--without-heartbeat",
+    ]
     app.worker_main(argv)
     return 0
 

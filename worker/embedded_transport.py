@@ -31,9 +31,13 @@ class Channel(sqla.Channel):
         if self.session.bind.name == "sqlite":
             self.session.execute(text("BEGIN IMMEDIATE TRANSACTION"))
         try:
-            msg = (self.session.query(self.message_cls)
-                   .filter(self.message_cls.queue_id == obj.id, self.message_cls.visible != False)  # noqa: E712
-                   .order_by(self.message_cls.sent_at, self.message_cls.id).limit(1).first())
+            msg = (
+                self.session.query(self.message_cls)
+                .filter(self.message_cls.queue_id == obj.id, self.message_cls.visible != False)  # noqa: E712
+                .order_by(self.message_cls.sent_at, self.message_cls.id)
+                .limit(1)
+                .first()
+            )
             if msg is None:
                 raise Empty()
             payload = loads(bytes_to_str(msg.payload))

@@ -34,39 +34,66 @@ def reap_once(db: jobdb.Database, celery, settings: Settings) -> dict[str, int]:
     done = {"requeued": 0, "failed": 0, "resent": 0, "settled": 0}
     stale_cut = now - timedelta(seconds=settings.heartbeat_timeout_s)
     with db.session() as s:
-        stale = s.scalars(select(JobRecord).where(JobRecord.status == RUNNING, JobRecord.leader_id.is_(None),
-                                                  JobRecord.heartbeat_at < stale_cut)).all()
+        stale = s.scalars(
+            select(JobRecord).where(
+                JobRecord.status == RUNNING, JobRecord.leader_id.is_(None), JobRecord.heartbeat_at < stale_cut
+            )
+        ).all()
     for job in stale:
         same = {"status": RUNNING, "worker": job.worker, "attempts": job.attempts}
         with db.session() as s:
             if job.attempts >= settings.max_attempts:
-                n = jobdb.update_job_and_followers(s, job.id, {
-                    "status": FAILED, "finished_at": now, "stage": "failed",
-                    "error": f"worker died {job.attempts} times while running this job"}, only_if=same)
+                n = jobdb.update_job_and_followers(
+                    s,
+                    job.id,
+                    {
+                        "status": FAILED,
+                        "finished_at": now,
+                        "stage": "failed",
+                        "error": f"worker died {job.attempts} times while running this job",
+                    },
+                    only_if=same,
+                )
                 s.commit()
                 done["failed"] += n
                 continue
-            n = jobdb.update_job_and_followers(s, job.id, {"status": QUEUED, "worker": None, "stage": "requeued",
-                                                           "progress": 0.0, "enqueued_at": now}, only_if=same)
+            n = jobdb.update_job_and_followers(
+                s,
+                job.id,
+                {"status": QUEUED, "worker": None, "stage": "requeued", "progress": 0.0, "enqueued_at": now},
+                only_if=same,
+            )
             s.commit()
         if n:
-            log.warning("job %s: worker %s went silent; re-queued (attempt %d done)", job.id, job.worker, job.attempts)
+            log.warning(
+                "job %s: worker %s went silent; re-queued (attempt %d done)", job.id, job.worker, job.attempts
+            )
             done["requeued"] += 1
             _send(celery, job)
     resend_cut = now - timedelta(seconds=settings.requeue_after_s)
     with db.session() as s:
-        waiting = s.scalars(select(JobRecord).where(JobRecord.status == QUEUED, JobRecord.leader_id.is_(None),
-                                                    JobRecord.enqueued_at < resend_cut)).all()
+        waiting = s.scalars(
+            select(JobRecord).where(
+                JobRecord.status == QUEUED, JobRecord.leader_id.is_(None), JobRecord.enqueued_at < resend_cut
+            )
+        ).all()
         for job in waiting:
-            n = s.execute(update(JobRecord).where(JobRecord.id == job.id, JobRecord.status == QUEUED,
-                                                  JobRecord.enqueued_at == job.enqueued_at)
-                          .values(enqueued_at=now)).rowcount
+            n = s.execute(
+                update(JobRecord)
+                .where(
+                    JobRecord.id == job.id,
+                    JobRecord.status == QUEUED,
+                    JobRecord.enqueued_at == job.enqueued_at,
+                )
+                .values(enqueued_at=now)
+            ).rowcount
             s.commit()
             if n:
                 done["resent"] += 1
                 _send(celery, job)
-        orphans = s.scalars(select(JobRecord.id).where(JobRecord.leader_id.is_not(None),
-                                                       JobRecord.status.in_(ACTIVE))).all()
+        orphans = s.scalars(
+            select(JobRecord.id).where(JobRecord.leader_id.is_not(None), JobRecord.status.in_(ACTIVE))
+        ).all()
     for job_id in orphans:
         with db.session() as s:
             job = s.get(JobRecord, job_id)

@@ -59,20 +59,39 @@ def claim(db: jobdb.Database, job_id: str, me: str, settings: Settings) -> JobRe
         if job.status == RUNNING:
             age = (utcnow() - job.heartbeat_at).total_seconds() if job.heartbeat_at else 1e9
             if age < settings.heartbeat_timeout_s and not _local_process_dead(job.worker):
-                log.info("job %s is running under %s (heartbeat %.1fs ago): not taking it", job_id, job.worker, age)
+                log.info(
+                    "job %s is running under %s (heartbeat %.1fs ago): not taking it", job_id, job.worker, age
+                )
                 return None
         if job.attempts >= settings.max_attempts:
-            jobdb.update_job_and_followers(s, job_id, {
-                "status": FAILED, "finished_at": utcnow(), "stage": "failed",
-                "error": f"worker died {job.attempts} times while running this job"},
-                only_if={"status": job.status, "attempts": job.attempts})
+            jobdb.update_job_and_followers(
+                s,
+                job_id,
+                {
+                    "status": FAILED,
+                    "finished_at": utcnow(),
+                    "stage": "failed",
+                    "error": f"worker died {job.attempts} times while running this job",
+                },
+                only_if={"status": job.status, "attempts": job.attempts},
+            )
             s.commit()
             return None
         now = utcnow()
-        changed = jobdb.update_job_and_followers(s, job_id, {
-            "status": RUNNING, "attempts": job.attempts + 1, "worker": me, "heartbeat_at": now,
-            "started_at": job.started_at or now, "stage": "starting", "progress": 0.0},
-            only_if={"status": job.status, "attempts": job.attempts})
+        changed = jobdb.update_job_and_followers(
+            s,
+            job_id,
+            {
+                "status": RUNNING,
+                "attempts": job.attempts + 1,
+                "worker": me,
+                "heartbeat_at": now,
+                "started_at": job.started_at or now,
+                "stage": "starting",
+                "progress": 0.0,
+            },
+            only_if={"status": job.status, "attempts": job.attempts},
+        )
         s.commit()
         if not changed:
             return None
@@ -99,9 +118,15 @@ class Heartbeat(threading.Thread):
         while not self.stopped.wait(self.interval):
             try:
                 with self.db.session() as s:
-                    mine = s.execute(update(JobRecord).where(JobRecord.id == self.job_id, JobRecord.worker == self.me,
-                                                             JobRecord.status == RUNNING)
-                                     .values(heartbeat_at=utcnow())).rowcount
+                    mine = s.execute(
+                        update(JobRecord)
+                        .where(
+                            JobRecord.id == self.job_id,
+                            JobRecord.worker == self.me,
+                            JobRecord.status == RUNNING,
+                        )
+                        .values(heartbeat_at=utcnow())
+                    ).rowcount
                     s.commit()
             except Exception as exc:  # a busy database must not kill the job; retry next beat
                 log.warning("heartbeat of job %s failed: %s", self.job_id, exc)
@@ -131,8 +156,14 @@ def execute_job(job_id: str, settings: Settings) -> str:
             s.commit()
 
     if storage.has_result(job.result_key):
-        finish({"status": SUCCEEDED, "progress": 1.0, "stage": "done",
-                "result": storage.read_summary(job.result_key)})
+        finish(
+            {
+                "status": SUCCEEDED,
+                "progress": 1.0,
+                "stage": "done",
+                "result": storage.read_summary(job.result_key),
+            }
+        )
         return "reused"
 
     with db.session() as s:
@@ -147,8 +178,11 @@ def execute_job(job_id: str, settings: Settings) -> str:
         last["progress"], last["stage"] = now, stage
         with db.session() as s:
             jobdb.update_job_and_followers(
-                s, job_id, {"progress": max(0.0, min(1.0, float(fraction))), "stage": str(stage)[:64]},
-                only_if=mine)
+                s,
+                job_id,
+                {"progress": max(0.0, min(1.0, float(fraction))), "stage": str(stage)[:64]},
+                only_if=mine,
+            )
             s.commit()
 
     def should_cancel() -> bool:
@@ -170,27 +204,44 @@ def execute_job(job_id: str, settings: Settings) -> str:
     prompt = threading.current_thread() is threading.main_thread()
     previous = signal.signal(CANCEL_SIGNAL, interrupt) if prompt else None
     work = storage.work_dir(job_id)
-    beat = Heartbeat(db, job_id, me, settings.heartbeat_interval_s,
-                     on_lost=(lambda: _thread.interrupt_main(CANCEL_SIGNAL)) if prompt else None)
+    beat = Heartbeat(
+        db,
+        job_id,
+        me,
+        settings.heartbeat_interval_s,
+        on_lost=(lambda: _thread.interrupt_main(CANCEL_SIGNAL)) if prompt else None,
+    )
     beat.start()
     try:
         log.info("job %s: running %s on %s (attempt %d)", job_id, job.params, mesh.id[:12], job.attempts)
         in_library.set()
         try:
-            summary = api.run_job(str(mesh_path), str(work), job.params, progress=progress,
-                                  should_cancel=should_cancel)
+            summary = api.run_job(
+                str(mesh_path), str(work), job.params, progress=progress, should_cancel=should_cancel
+            )
         finally:
             in_library.clear()
         storage.publish_result(work, job.result_key, summary)
-        finish({"status": SUCCEEDED, "progress": 1.0, "stage": "done",
-                "result": storage.read_summary(job.result_key)})
+        finish(
+            {
+                "status": SUCCEEDED,
+                "progress": 1.0,
+                "stage": "done",
+                "result": storage.read_summary(job.result_key),
+            }
+        )
         return "succeeded"
     except api.JobCancelled:
         log.info("job %s: cancelled", job_id)
         return "cancelled"
     except SoftTimeLimitExceeded:
-        finish({"status": FAILED, "stage": "failed",
-                "error": f"the job exceeded the time limit of {settings.task_time_limit_s} s"})
+        finish(
+            {
+                "status": FAILED,
+                "stage": "failed",
+                "error": f"the job exceeded the time limit of {settings.task_time_limit_s} s",
+            }
+        )
         return "failed"
     except MagnetError as exc:
         finish({"status": FAILED, "stage": "failed", "error": str(exc) or type(exc).__name__})

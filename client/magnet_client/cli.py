@@ -29,25 +29,43 @@ def read_subset(path: str) -> list[int]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="magnet-client", description="Client of a MAGNET agglomeration server")
-    parser.add_argument("--server", default=os.environ.get("MAGNET_SERVER", "http://127.0.0.1:8000"),
-                        help="server URL (env MAGNET_SERVER; default http://127.0.0.1:8000)")
+    parser = argparse.ArgumentParser(
+        prog="magnet-client", description="Client of a MAGNET agglomeration server"
+    )
+    parser.add_argument(
+        "--server",
+        default=os.environ.get("MAGNET_SERVER", "http://127.0.0.1:8000"),
+        help="server URL (env MAGNET_SERVER; default http://127.0.0.1:8000)",
+    )
     parser.add_argument("--token", default=os.environ.get("MAGNET_TOKEN"), help="API key (env MAGNET_TOKEN)")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("agglomerate", help="agglomerate a mesh on the server (same flags as `magnet agglomerate`)")
+    p = sub.add_parser(
+        "agglomerate", help="agglomerate a mesh on the server (same flags as `magnet agglomerate`)"
+    )
     p.add_argument("mesh")
     p.add_argument("-o", "--output", required=True, help="agglomerated mesh (.vtu)")
-    p.add_argument("--model", default="metis", help="metis | kmeans | sage-base | sage-hetero (default metis)")
-    p.add_argument("--mode", default="kway", help="kway | nref | target-size | mult-factor | segregated | coarsen")
+    p.add_argument(
+        "--model", default="metis", help="metis | kmeans | sage-base | sage-hetero (default metis)"
+    )
+    p.add_argument(
+        "--mode", default="kway", help="kway | nref | target-size | mult-factor | segregated | coarsen"
+    )
     p.add_argument("--k", type=int, help="number of elements (kway)")
     p.add_argument("--nref", type=int, help="number of refinements: 2^nref elements")
     p.add_argument("--target-size", type=float, help="bisect until every element's diameter is below this")
     p.add_argument("--mult-factor", type=float, help="target size = factor x mesh diameter (0 < f <= 1)")
-    p.add_argument("--subset", help="file with the cell ids to agglomerate (JSON list or whitespace separated)")
+    p.add_argument(
+        "--subset", help="file with the cell ids to agglomerate (JSON list or whitespace separated)"
+    )
     p.add_argument("--physical-tag", help="cell-data name holding the physical groups")
-    p.add_argument("--absorb", type=float, default=0.0, metavar="FRACTION",
-                   help="absorb parts smaller than FRACTION x mean part size into a neighbour")
+    p.add_argument(
+        "--absorb",
+        type=float,
+        default=0.0,
+        metavar="FRACTION",
+        help="absorb parts smaller than FRACTION x mean part size into a neighbour",
+    )
     p.add_argument("--method", default="kway", choices=["kway", "recursive"], help="METIS k-way or recursive")
     p.add_argument("--hole-policy", default="split", choices=["split", "error"])
     p.add_argument("--seed", type=int, default=0)
@@ -71,15 +89,32 @@ def build_parser() -> argparse.ArgumentParser:
 
 def cmd_agglomerate(client: Client, args: argparse.Namespace) -> int:
     job = client.agglomerate(
-        args.mesh, args.output, metrics=args.metrics, labels=args.labels, lymph=args.lymph, plot=args.plot,
-        progress=args.progress or sys.stderr.isatty(), model=args.model, mode=args.mode, k=args.k,
-        nref=args.nref, target_size=args.target_size, mult_factor=args.mult_factor,
-        subset=read_subset(args.subset) if args.subset else None, physical_tag=args.physical_tag,
-        absorb_fraction=args.absorb, method=args.method, hole_policy=args.hole_policy, seed=args.seed)
+        args.mesh,
+        args.output,
+        metrics=args.metrics,
+        labels=args.labels,
+        lymph=args.lymph,
+        plot=args.plot,
+        progress=args.progress or sys.stderr.isatty(),
+        model=args.model,
+        mode=args.mode,
+        k=args.k,
+        nref=args.nref,
+        target_size=args.target_size,
+        mult_factor=args.mult_factor,
+        subset=read_subset(args.subset) if args.subset else None,
+        physical_tag=args.physical_tag,
+        absorb_fraction=args.absorb,
+        method=args.method,
+        hole_policy=args.hole_policy,
+        seed=args.seed,
+    )
     result = job.get("result") or {}
     stages = " ".join(f"{k} {v:.2f}s" for k, v in (result.get("timings") or {}).items())
     cached = " (cached result)" if job.get("cached") else ""
-    print(f"{result.get('elements')} elements from {job['mesh']['cells']} cells{cached} | {stages} | job {job['id']}")
+    print(
+        f"{result.get('elements')} elements from {job['mesh']['cells']} cells{cached} | {stages} | job {job['id']}"
+    )
     return 0
 
 

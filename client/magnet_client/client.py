@@ -50,8 +50,13 @@ class Client:
     a refused submission was not queued, so sending it again is safe.
     """
 
-    def __init__(self, url: str = "http://127.0.0.1:8000", token: str | None = None, timeout: float = 120.0,
-                 retries: int = 5):
+    def __init__(
+        self,
+        url: str = "http://127.0.0.1:8000",
+        token: str | None = None,
+        timeout: float = 120.0,
+        retries: int = 5,
+    ):
         self.url = url.rstrip("/")
         token = token if token is not None else os.environ.get("MAGNET_TOKEN")
         headers = {"Authorization": f"Bearer {token}"} if token else {}
@@ -86,8 +91,9 @@ class Client:
                     detail = response.json().get("detail", response.text)
                 except ValueError:
                     detail = response.text
-                raise MagnetHTTPError(response.status_code, detail if isinstance(detail, str) else str(detail),
-                                      method, path)
+                raise MagnetHTTPError(
+                    response.status_code, detail if isinstance(detail, str) else str(detail), method, path
+                )
             return response
         raise AssertionError("unreachable")
 
@@ -105,8 +111,13 @@ class Client:
         """Upload a mesh file; returns {id, cells, dim, ...}. The same bytes give the same id."""
         mesh_path = Path(mesh_path)
         with open(mesh_path, "rb") as fh:
-            return self._request("POST", "/v1/meshes", params={"filename": mesh_path.name}, content=fh.read(),
-                                 headers={"Content-Type": "application/octet-stream"}).json()
+            return self._request(
+                "POST",
+                "/v1/meshes",
+                params={"filename": mesh_path.name},
+                content=fh.read(),
+                headers={"Content-Type": "application/octet-stream"},
+            ).json()
 
     def submit(self, mesh_id: str, **params) -> dict:
         """Queue a job: model, mode, k, nref, target_size, mult_factor, subset, refiner, options, or
@@ -123,14 +134,20 @@ class Client:
     def cancel(self, job_id: str) -> dict:
         return self._request("DELETE", f"/v1/jobs/{job_id}").json()
 
-    def wait(self, job_id: str, progress: bool = True, poll: float = 0.5, timeout: float | None = None) -> dict:
+    def wait(
+        self, job_id: str, progress: bool = True, poll: float = 0.5, timeout: float | None = None
+    ) -> dict:
         """Poll until the job ends; a progress bar on stderr when `progress`. JobFailed unless it succeeded."""
         bar = None
         if progress:
             from tqdm import tqdm
 
-            bar = tqdm(total=100, desc="queued", bar_format="{desc:>12} {bar} {percentage:3.0f}% {elapsed}",
-                       leave=False)
+            bar = tqdm(
+                total=100,
+                desc="queued",
+                bar_format="{desc:>12} {bar} {percentage:3.0f}% {elapsed}",
+                leave=False,
+            )
         deadline = None if timeout is None else time.monotonic() + timeout
         delay = min(poll, 0.1)
         try:
@@ -177,10 +194,19 @@ class Client:
     def download_preview(self, job_id: str, path: str | os.PathLike) -> Path:
         return self._save(f"/v1/jobs/{job_id}/preview.png", path)
 
-    def agglomerate(self, mesh_path: str | os.PathLike, output: str | os.PathLike | None = None, *,
-                    metrics: str | None = None, labels: str | None = None, lymph: str | None = None,
-                    plot: str | None = None, progress: bool = True, timeout: float | None = None,
-                    **params) -> dict:
+    def agglomerate(
+        self,
+        mesh_path: str | os.PathLike,
+        output: str | os.PathLike | None = None,
+        *,
+        metrics: str | None = None,
+        labels: str | None = None,
+        lymph: str | None = None,
+        plot: str | None = None,
+        progress: bool = True,
+        timeout: float | None = None,
+        **params,
+    ) -> dict:
         """Upload, submit, wait, download: the remote `magnet agglomerate`. Returns the finished job."""
         mesh = self.upload(mesh_path)
         job = self.submit(mesh["id"], **params)

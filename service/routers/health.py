@@ -44,11 +44,16 @@ def readyz(ctx: Context = Depends(get_context)):
     if checks["database"] == "ok":
         cutoff = utcnow() - timedelta(seconds=max(3 * ctx.settings.reaper_interval_s, 15))
         with ctx.db.session() as s:
-            alive = s.scalar(select(func.count()).select_from(WorkerRecord).where(WorkerRecord.last_seen >= cutoff))
+            alive = s.scalar(
+                select(func.count()).select_from(WorkerRecord).where(WorkerRecord.last_seen >= cutoff)
+            )
         checks["workers"] = f"{alive} online" if alive else "none online"
     else:
         checks["workers"] = "unknown"
-    ready = all(v == "ok" for k, v in checks.items() if k != "workers") and checks["workers"].endswith(" online") \
+    ready = (
+        all(v == "ok" for k, v in checks.items() if k != "workers")
+        and checks["workers"].endswith(" online")
         and not checks["workers"].startswith("none")
+    )
     body = Health(status="ready" if ready else "not ready", checks=checks)
     return body if ready else JSONResponse(body.model_dump(), status_code=503)

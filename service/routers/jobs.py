@@ -32,13 +32,27 @@ JOB_ERRORS = {**ERRORS, 409: {"model": ErrorOut}, 429: {"model": ErrorOut}, 503:
 def job_out(job: JobRecord) -> JobOut:
     result = None
     if job.result:
-        result = JobResult(**{k: job.result.get(k) for k in ("elements", "parts_split", "fragments_absorbed")},
-                           timings=job.result.get("timings") or {})
-    return JobOut(id=job.id, status=job.status, progress=job.progress or 0.0, stage=job.stage,
-                  created_at=job.created_at, started_at=job.started_at, finished_at=job.finished_at,
-                  error=job.error, result=result, mesh_id=job.mesh_id, params=job.params,
-                  model_version=job.model_version, queue=job.queue, attempts=job.attempts,
-                  cached=job.cached_from is not None)
+        result = JobResult(
+            **{k: job.result.get(k) for k in ("elements", "parts_split", "fragments_absorbed")},
+            timings=job.result.get("timings") or {},
+        )
+    return JobOut(
+        id=job.id,
+        status=job.status,
+        progress=job.progress or 0.0,
+        stage=job.stage,
+        created_at=job.created_at,
+        started_at=job.started_at,
+        finished_at=job.finished_at,
+        error=job.error,
+        result=result,
+        mesh_id=job.mesh_id,
+        params=job.params,
+        model_version=job.model_version,
+        queue=job.queue,
+        attempts=job.attempts,
+        cached=job.cached_from is not None,
+    )
 
 
 def accepted(job: JobRecord, response: Response) -> JobOut:
@@ -47,8 +61,12 @@ def accepted(job: JobRecord, response: Response) -> JobOut:
 
 
 @router.post("/jobs", status_code=202, response_model=JobOut, responses=JOB_ERRORS)
-def create_job(body: JobCreate, response: Response, user: str = Depends(current_user),
-               ctx: Context = Depends(get_context)) -> JobOut:
+def create_job(
+    body: JobCreate,
+    response: Response,
+    user: str = Depends(current_user),
+    ctx: Context = Depends(get_context),
+) -> JobOut:
     """Queue an agglomeration of an uploaded mesh; parameters are validated now (422 names the field)."""
     params = body.model_dump(exclude_none=True, exclude={"mesh_id"})
     job = submit_job(ctx.db, ctx.storage, ctx.celery, ctx.settings, user, body.mesh_id, params)
@@ -58,14 +76,23 @@ def create_job(body: JobCreate, response: Response, user: str = Depends(current_
 # --- one-call submission: mesh + job fields in one request --------------------------------------
 
 FORM_FIELDS = {
-    "model": {"type": "string"}, "mode": {"type": "string"}, "k": {"type": "integer"},
-    "nref": {"type": "integer"}, "target_size": {"type": "number"}, "mult_factor": {"type": "number"},
+    "model": {"type": "string"},
+    "mode": {"type": "string"},
+    "k": {"type": "integer"},
+    "nref": {"type": "integer"},
+    "target_size": {"type": "number"},
+    "mult_factor": {"type": "number"},
     "subset": {"type": "string", "description": "cell ids: JSON list or comma/space separated"},
     "refiner": {"type": "string"},
-    "options": {"type": "string",
-                "description": "JSON object: seed, absorb_fraction, hole_policy, physical_tag, method"},
-    "seed": {"type": "integer"}, "absorb_fraction": {"type": "number"}, "hole_policy": {"type": "string"},
-    "physical_tag": {"type": "string"}, "method": {"type": "string"},
+    "options": {
+        "type": "string",
+        "description": "JSON object: seed, absorb_fraction, hole_policy, physical_tag, method",
+    },
+    "seed": {"type": "integer"},
+    "absorb_fraction": {"type": "number"},
+    "hole_policy": {"type": "string"},
+    "physical_tag": {"type": "string"},
+    "method": {"type": "string"},
 }
 OPTION_FIELDS = ("seed", "absorb_fraction", "hole_policy", "physical_tag", "method")
 
@@ -81,7 +108,9 @@ def params_from_form(form) -> dict:
     if isinstance(subset, str) and subset.strip():
         text = subset.strip()
         try:
-            raw["subset"] = json.loads(text) if text.startswith("[") else [int(t) for t in re.split(r"[,\s]+", text) if t]
+            raw["subset"] = (
+                json.loads(text) if text.startswith("[") else [int(t) for t in re.split(r"[,\s]+", text) if t]
+            )
         except ValueError:
             raise UploadRejected(422, "subset: expected a JSON list or comma-separated cell ids") from None
     options: dict = {}
@@ -107,35 +136,66 @@ def params_from_form(form) -> dict:
 
 def form_body(file_field: dict, media: str, extra: dict | None = None) -> dict:
     props = {**file_field, **FORM_FIELDS, **(extra or {})}
-    return {"requestBody": {"required": True, "content": {media: {"schema": {
-        "type": "object", "required": list(file_field), "properties": props}}}}}
+    return {
+        "requestBody": {
+            "required": True,
+            "content": {
+                media: {"schema": {"type": "object", "required": list(file_field), "properties": props}}
+            },
+        }
+    }
 
 
-@router.post("/agglomerate", status_code=202, response_model=JobOut, responses=JOB_ERRORS,
-             openapi_extra=form_body({"file": {"type": "string", "format": "binary"}}, "multipart/form-data"))
-async def agglomerate(request: Request, response: Response, user: str = Depends(current_user),
-                      ctx: Context = Depends(get_context)) -> JobOut:
+@router.post(
+    "/agglomerate",
+    status_code=202,
+    response_model=JobOut,
+    responses=JOB_ERRORS,
+    openapi_extra=form_body({"file": {"type": "string", "format": "binary"}}, "multipart/form-data"),
+)
+async def agglomerate(
+    request: Request,
+    response: Response,
+    user: str = Depends(current_user),
+    ctx: Context = Depends(get_context),
+) -> JobOut:
     """One call: multipart mesh file (field `file`) + job fields; answers 202 with the job."""
     if not request.headers.get("content-type", "").startswith("multipart/form-data"):
         raise UploadRejected(422, "send multipart/form-data with the mesh in field 'file' and the job fields")
     form, upload = await multipart_file(request)
     params = params_from_form(form)
     mesh = await receive_mesh(ctx, user, stream_of(upload), upload.filename)
-    job = await run_in_threadpool(submit_job, ctx.db, ctx.storage, ctx.celery, ctx.settings, user, mesh.id, params)
+    job = await run_in_threadpool(
+        submit_job, ctx.db, ctx.storage, ctx.celery, ctx.settings, user, mesh.id, params
+    )
     return accepted(job, response)
 
 
-@router.post("/agglomerate/form", status_code=202, response_model=JobOut, responses=JOB_ERRORS,
-             openapi_extra=form_body({"file_b64": {"type": "string", "description": "the mesh file, base64"},
-                                      "filename": {"type": "string"}},
-                                     "application/x-www-form-urlencoded",
-                                     {"token": {"type": "string", "description": "API key (or the header)"}}))
-async def agglomerate_form(request: Request, response: Response,
-                           ctx: Context = Depends(get_context)) -> JobOut:
+@router.post(
+    "/agglomerate/form",
+    status_code=202,
+    response_model=JobOut,
+    responses=JOB_ERRORS,
+    openapi_extra=form_body(
+        {
+            "file_b64": {"type": "string", "description": "the mesh file, base64"},
+            "filename": {"type": "string"},
+        },
+        "application/x-www-form-urlencoded",
+        {"token": {"type": "string", "description": "API key (or the header)"}},
+    ),
+)
+async def agglomerate_form(
+    request: Request, response: Response, ctx: Context = Depends(get_context)
+) -> JobOut:
     """For Matlab/Octave webwrite: form-urlencoded fields, the mesh base64-encoded in `file_b64`."""
     if not request.headers.get("content-type", "").startswith("application/x-www-form-urlencoded"):
-        raise UploadRejected(422, "send application/x-www-form-urlencoded fields file_b64, filename and job fields")
-    form = await request.form(max_files=0, max_fields=100, max_part_size=ctx.settings.max_upload_bytes * 4 // 3 + 16)
+        raise UploadRejected(
+            422, "send application/x-www-form-urlencoded fields file_b64, filename and job fields"
+        )
+    form = await request.form(
+        max_files=0, max_fields=100, max_part_size=ctx.settings.max_upload_bytes * 4 // 3 + 16
+    )
     token = form.get("token")
     user = authenticate(request, token if isinstance(token, str) else None)
     data = form.get("file_b64")
@@ -152,22 +212,34 @@ async def agglomerate_form(request: Request, response: Response,
         yield content
 
     mesh = await receive_mesh(ctx, user, one_chunk(), filename if isinstance(filename, str) else None)
-    job = await run_in_threadpool(submit_job, ctx.db, ctx.storage, ctx.celery, ctx.settings, user, mesh.id, params)
+    job = await run_in_threadpool(
+        submit_job, ctx.db, ctx.storage, ctx.celery, ctx.settings, user, mesh.id, params
+    )
     return accepted(job, response)
 
 
 # --- polling, listing, cancelling ----------------------------------------------------------------
 
+
 @router.get("/jobs", response_model=JobList, responses=ERRORS)
-def list_jobs(limit: int = Query(50, ge=1, le=500), offset: int = Query(0, ge=0, le=10**9),
-              status: JobStatus | None = None, user: str = Depends(current_user),
-              ctx: Context = Depends(get_context)) -> JobList:
+def list_jobs(
+    limit: int = Query(50, ge=1, le=500),
+    offset: int = Query(0, ge=0, le=10**9),
+    status: JobStatus | None = None,
+    user: str = Depends(current_user),
+    ctx: Context = Depends(get_context),
+) -> JobList:
     """Your jobs, newest first."""
     where = [JobRecord.user == user] + ([JobRecord.status == status] if status else [])
     with ctx.db.session() as s:
         total = s.scalar(select(func.count()).select_from(JobRecord).where(*where))
-        rows = s.scalars(select(JobRecord).where(*where).order_by(JobRecord.created_at.desc(), JobRecord.id)
-                         .limit(limit).offset(offset)).all()
+        rows = s.scalars(
+            select(JobRecord)
+            .where(*where)
+            .order_by(JobRecord.created_at.desc(), JobRecord.id)
+            .limit(limit)
+            .offset(offset)
+        ).all()
     return JobList(items=[job_out(j) for j in rows], total=total, limit=limit, offset=offset)
 
 
@@ -190,6 +262,7 @@ def delete_job(job_id: str, user: str = Depends(current_user), ctx: Context = De
 
 # --- results --------------------------------------------------------------------------------------
 
+
 def result_file(ctx: Context, user: str, job_id: str, filename: str) -> Path:
     with ctx.db.session() as s:
         job = visible_job(s, user, job_id)
@@ -198,43 +271,79 @@ def result_file(ctx: Context, user: str, job_id: str, filename: str) -> Path:
         raise NotFinished(f"job is {job.status}{why}; results exist once it succeeded")
     path = ctx.storage.result_dir(job.result_key) / filename
     if not path.exists():
-        raise NotFound(f"job {job_id} has no {filename}" + (" (lymph output is for 2D meshes only)"
-                                                             if filename.startswith("lymph") else ""))
+        raise NotFound(
+            f"job {job_id} has no {filename}"
+            + (" (lymph output is for 2D meshes only)" if filename.startswith("lymph") else "")
+        )
     return path
 
 
 def _download(name: str, media: str, doc: str):
     def endpoint(job_id: str, user: str = Depends(current_user), ctx: Context = Depends(get_context)):
-        return FileResponse(result_file(ctx, user, job_id, name), media_type=media,
-                            filename=f"{job_id}-{name}")
+        return FileResponse(
+            result_file(ctx, user, job_id, name), media_type=media, filename=f"{job_id}-{name}"
+        )
 
     endpoint.__doc__ = doc
     return endpoint
 
 
 RESULT_ERRORS = {**ERRORS, 409: {"model": ErrorOut}}
-router.add_api_route("/jobs/{job_id}/mesh", _download("mesh.vtu", "application/octet-stream",
-                                                      "The agglomerated mesh (VTU)."),
-                     methods=["GET"], responses=RESULT_ERRORS, response_class=FileResponse, name="job_mesh")
-router.add_api_route("/jobs/{job_id}/metrics", _download("metrics.json", "application/json",
-                                                         "Quality metrics of the agglomerated mesh (JSON)."),
-                     methods=["GET"], responses=RESULT_ERRORS, response_class=FileResponse, name="job_metrics")
-router.add_api_route("/jobs/{job_id}/labels", _download("labels.json", "application/json",
-                                                        "Element label of every fine cell (JSON list)."),
-                     methods=["GET"], responses=RESULT_ERRORS, response_class=FileResponse, name="job_labels")
-router.add_api_route("/jobs/{job_id}/preview.png", _download("preview.png", "image/png",
-                                                             "A picture of the agglomerated mesh."),
-                     methods=["GET"], responses=RESULT_ERRORS, response_class=FileResponse, name="job_preview")
+router.add_api_route(
+    "/jobs/{job_id}/mesh",
+    _download("mesh.vtu", "application/octet-stream", "The agglomerated mesh (VTU)."),
+    methods=["GET"],
+    responses=RESULT_ERRORS,
+    response_class=FileResponse,
+    name="job_mesh",
+)
+router.add_api_route(
+    "/jobs/{job_id}/metrics",
+    _download("metrics.json", "application/json", "Quality metrics of the agglomerated mesh (JSON)."),
+    methods=["GET"],
+    responses=RESULT_ERRORS,
+    response_class=FileResponse,
+    name="job_metrics",
+)
+router.add_api_route(
+    "/jobs/{job_id}/labels",
+    _download("labels.json", "application/json", "Element label of every fine cell (JSON list)."),
+    methods=["GET"],
+    responses=RESULT_ERRORS,
+    response_class=FileResponse,
+    name="job_labels",
+)
+router.add_api_route(
+    "/jobs/{job_id}/preview.png",
+    _download("preview.png", "image/png", "A picture of the agglomerated mesh."),
+    methods=["GET"],
+    responses=RESULT_ERRORS,
+    response_class=FileResponse,
+    name="job_preview",
+)
 
 
 @router.get("/jobs/{job_id}/lymph", responses=RESULT_ERRORS, response_class=FileResponse)
-def job_lymph(request: Request, job_id: str, format: str | None = Query(None, pattern="^(json|mat)$"),
-              user: str = Depends(current_user), ctx: Context = Depends(get_context)):
+def job_lymph(
+    request: Request,
+    job_id: str,
+    format: str | None = Query(None, pattern="^(json|mat)$"),
+    user: str = Depends(current_user),
+    ctx: Context = Depends(get_context),
+):
     """lymph `region`/`neighbor` structs (2D): JSON, or a .mat file with `?format=mat` or
     `Accept: application/x-matlab-data`."""
-    mat = format == "mat" or (format is None and "application/x-matlab-data" in request.headers.get("accept", ""))
+    mat = format == "mat" or (
+        format is None and "application/x-matlab-data" in request.headers.get("accept", "")
+    )
     if mat:
-        return FileResponse(result_file(ctx, user, job_id, "lymph.mat"), media_type="application/x-matlab-data",
-                            filename=f"{job_id}-lymph.mat")
-    return FileResponse(result_file(ctx, user, job_id, "lymph.json"), media_type="application/json",
-                        filename=f"{job_id}-lymph.json")
+        return FileResponse(
+            result_file(ctx, user, job_id, "lymph.mat"),
+            media_type="application/x-matlab-data",
+            filename=f"{job_id}-lymph.mat",
+        )
+    return FileResponse(
+        result_file(ctx, user, job_id, "lymph.json"),
+        media_type="application/json",
+        filename=f"{job_id}-lymph.json",
+    )

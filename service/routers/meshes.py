@@ -19,12 +19,21 @@ UPLOAD_BODY = {
         "content": {
             "application/octet-stream": {"schema": {"type": "string", "format": "binary"}},
             "multipart/form-data": {
-                "schema": {"type": "object", "required": ["file"],
-                           "properties": {"file": {"type": "string", "format": "binary"}}}},
+                "schema": {
+                    "type": "object",
+                    "required": ["file"],
+                    "properties": {"file": {"type": "string", "format": "binary"}},
+                }
+            },
         },
     }
 }
-ERRORS = {401: {"model": ErrorOut}, 404: {"model": ErrorOut}, 413: {"model": ErrorOut}, 422: {"model": ErrorOut}}
+ERRORS = {
+    401: {"model": ErrorOut},
+    404: {"model": ErrorOut},
+    413: {"model": ErrorOut},
+    422: {"model": ErrorOut},
+}
 
 
 async def multipart_file(request: Request):
@@ -39,9 +48,12 @@ async def multipart_file(request: Request):
 @router.post("/meshes", status_code=201, response_model=MeshOut, responses=ERRORS, openapi_extra=UPLOAD_BODY)
 async def upload_mesh(
     request: Request,
-    filename: str | None = Query(None, max_length=300,
-                                 description=f"name with the format extension ({', '.join(ALLOWED_EXTENSIONS)}); "
-                                 "required for a raw body"),
+    filename: str | None = Query(
+        None,
+        max_length=300,
+        description=f"name with the format extension ({', '.join(ALLOWED_EXTENSIONS)}); "
+        "required for a raw body",
+    ),
     user: str = Depends(current_user),
     ctx: Context = Depends(get_context),
 ) -> MeshOut:
