@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .mesh import VTK_HEXAHEDRON, VTK_POLYHEDRON, VTK_PYRAMID, VTK_TETRA, VTK_WEDGE, Mesh
+from .mesh import VTK_HEXAHEDRON, VTK_PYRAMID, VTK_TETRA, VTK_WEDGE, Mesh
 
 # Outward faces of positively oriented VTK cells.
 FACE_TEMPLATES: dict[int, list[tuple[int, ...]]] = {

@@ -95,7 +95,7 @@ class Mesh:
 
     def cell_type_counts(self) -> dict[str, int]:
         types, counts = np.unique(self.cell_types, return_counts=True)
-        return {CELL_TYPE_NAMES.get(int(t), str(int(t))): int(c) for t, c in zip(types, counts)}
+        return {CELL_TYPE_NAMES.get(int(t), str(int(t))): int(c) for t, c in zip(types, counts, strict=True)}
 
     def physical_groups(self) -> list[int]:
         return [] if self.tags is None else [int(t) for t in np.unique(self.tags)]

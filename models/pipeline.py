@@ -79,7 +79,7 @@ def split_holes(mesh: Mesh, graph: DualGraph, data: CellData, labels: np.ndarray
         centers = holes.centers[first]
         new_label = labels.copy()
         nxt = int(labels.max()) + 1
-        for e, c in zip(elems, centers):  # a loop over the (few) elements with holes
+        for e, c in zip(elems, centers, strict=True):  # a loop over the (few) elements with holes
             cells = np.flatnonzero(labels == e)
             x = data.centroids[cells]
             xc = x - x.mean(axis=0)

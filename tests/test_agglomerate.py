@@ -206,7 +206,7 @@ def test_mixed_3d_graph_links_across_types():
     g = dual_graph(m)
     types = m.cell_types
     rows = np.repeat(np.arange(g.n), np.diff(g.indptr))
-    pairs = set(zip(types[rows].tolist(), types[g.indices].tolist()))
+    pairs = set(zip(types[rows].tolist(), types[g.indices].tolist(), strict=True))
     assert (12, 14) in pairs and (14, 10) in pairs  # hex-pyramid (quad face), pyramid-tet (triangle)
     n_cc, _ = connected_components(g.matrix(), directed=False)
     assert n_cc == 1
