@@ -95,6 +95,7 @@ def claim(db: jobdb.Database, job_id: str, me: str, settings: Settings) -> JobRe
         s.commit()
         if not changed:
             return None
+        s.expire_all()  # the identity map still holds the row as read before the update
         return s.get(JobRecord, job_id)
 
 
