@@ -88,8 +88,11 @@ def normalize_features(
     x: torch.Tensor, batch: torch.Tensor, n_graphs: int, dim: int, eps: float = 1e-12
 ) -> torch.Tensor:
     """Per graph: coordinates centred, rotated onto their principal axes (widest first) and scaled to
-    unit variance per axis; the cell measure scaled to zero mean and unit variance. Other columns
-    (the physical group p) pass through. One vectorized pass over all graphs of the batch."""
+    unit variance per axis; the cell measure scaled to zero mean and unit variance; the physical
+    group p (heterogeneous model, next column) becomes 2p - 1 in a graph that holds both groups and
+    0 in a graph that holds one (a cell cannot see from its neighbourhood whether the other group is
+    present, and the two cases ask for opposite answers: follow the groups, or cut geometrically).
+    One vectorized pass over all graphs of the batch."""
     coords, measure, rest = x[:, :dim], x[:, dim : dim + 1], x[:, dim + 1 :]
     counts = _per_graph_sum(torch.ones_like(measure), batch, n_graphs).clamp_min(1.0)  # (B, 1)
 
@@ -112,6 +115,11 @@ def normalize_features(
     # Relative spread: a uniform mesh gives 0 whatever its absolute cell size.
     m_scale = torch.where(m_std > 1e-6 * m_mean.abs(), m_std, torch.ones_like(m_std))
     m_norm = m_centred / m_scale[batch]
+    if rest.shape[1]:
+        p = rest[:, :1]
+        p_mean = _per_graph_sum(p, batch, n_graphs) / counts
+        mixed = ((p_mean > 0) & (p_mean < 1)).to(p.dtype)
+        rest = torch.cat([(2 * p - 1) * mixed[batch], rest[:, 1:]], dim=1)
     return torch.cat([proj, m_norm, rest], dim=1)
 
 

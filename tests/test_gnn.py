@@ -296,3 +296,13 @@ def test_smooth_cut_straightens_a_jagged_boundary_but_not_group_interfaces():
     p = np.zeros(len(cen))
     p[[3 + 8 * 2]] = 1  # a one-cell inclusion: its own side, it must not move
     assert smooth_cut(batch, jagged, 2, p)[3 + 8 * 2] == 1
+
+
+def test_group_feature_is_signed_in_mixed_graphs_and_zero_in_single_group_graphs():
+    x, batch, sizes = _features(2, 2)
+    p = torch.zeros(len(x), 1, dtype=x.dtype)
+    first = batch == 0
+    p[first.nonzero()[:5, 0]] = 1.0  # graph 0 holds both groups, graph 1 only group 0
+    z = normalize_features(torch.cat([x, p], 1), batch, 2, 2)
+    assert torch.equal(z[first, 3], 2 * p[first, 0] - 1)
+    assert torch.all(z[~first, 3] == 0)
