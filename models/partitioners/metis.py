@@ -19,6 +19,17 @@ def integer_weights(measures: np.ndarray, resolution: int = 1000) -> np.ndarray:
     return np.clip(np.rint(m * (resolution / mean)), 1, 2**30 // max(m.size, 1)).astype(np.int64)
 
 
+def _connected(indptr: np.ndarray, indices: np.ndarray) -> bool:
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    n = indptr.size - 1
+    if n <= 1:
+        return True
+    m = sp.csr_matrix((np.ones(indices.size, dtype=np.int8), indices, indptr), shape=(n, n))
+    return connected_components(m, directed=False)[0] == 1
+
+
 class MetisPartitioner(Partitioner):
     """METIS (Karypis & Kumar) with cell measures as node weights and contiguous parts."""
 
@@ -40,10 +51,11 @@ class MetisPartitioner(Partitioner):
         dt = pymetis.zero_copy_dtype()
         adj = pymetis.CSRAdjacency(np.ascontiguousarray(indptr, dtype=dt), np.ascontiguousarray(indices, dtype=dt))
         vw = integer_weights(measures).astype(dt) if self.use_weights else None
-        attempts = [(vw, self.contiguous)]
+        contiguous = self.contiguous and _connected(indptr, indices)  # METIS rejects contig on a disconnected graph
+        attempts = [(vw, contiguous)]
         if vw is not None:
             attempts.append((None, self.contiguous))
-        if self.contiguous:
+        if contiguous:
             attempts.append((None, False))
         last = None
         for i, (w, contig) in enumerate(attempts):
