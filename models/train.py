@@ -51,7 +51,7 @@ class TrainConfig:
     device: str | None = None
     max_minutes: float | None = None
     resume: bool = False
-    select: str = "val"  # best model by validation loss, or "rb": by the recursive-bisection check
+    select: str = "val"  # best model by validation loss, "rb": by the recursive-bisection check, or "last"
     kinds: str | None = None  # "kind:weight,..." replaces the recipe's mix of mesh kinds
     init: str | None = None  # start from these weights (fine-tuning) instead of a seeded random init
     stop_epoch: int | None = None  # stop after this epoch (the lr schedule still spans `epochs`)
@@ -64,8 +64,8 @@ class TrainConfig:
         for k, v in PAPER[self.recipe].items():
             if getattr(cfg, k) is None:
                 setattr(cfg, k, v)
-        if cfg.select not in ("val", "rb"):
-            raise ParameterError("select must be 'val' or 'rb'")
+        if cfg.select not in ("val", "rb", "last"):
+            raise ParameterError("select must be 'val', 'rb' or 'last'")
         if cfg.lr_schedule not in ("constant", "cosine"):
             raise ParameterError("lr_schedule must be 'constant' or 'cosine'")
         if not 0 < cfg.val_fraction < 1:
@@ -308,6 +308,8 @@ def train(cfg: TrainConfig, log=print) -> dict:
         say(f"epoch {epoch + 1}/{cfg.epochs}: train {total / count:.5f}  val {ev['loss']:.5f}  "
             f"val ncut(argmax) {ev['hard_ncut']:.5f}  penalty {ev['hard_penalty']:.5f}{rb_txt}  {seconds:.0f} s")
         score = rb["rb_ncut_ratio"] + rb["rb_raw_fragments"] if rb else ev["loss"]
+        if cfg.select == "last":
+            score = -float(epoch)
         if score < best:
             best = score
             save_model(model, work / "best.pt", meta={"epoch": epoch + 1})
@@ -363,9 +365,9 @@ def add_train_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
     parser.add_argument("--max-minutes", type=float, default=None, help="stop after the epoch that passes this")
     parser.add_argument("--resume", action="store_true", help="continue from the workdir's checkpoint")
-    parser.add_argument("--select", choices=("val", "rb"), default="val",
+    parser.add_argument("--select", choices=("val", "rb", "last"), default="val",
                         help="keep the epoch with the best validation loss, or the best recursive-bisection "
-                             "check on held-out meshes (normalized cut / METIS + raw fragment rate)")
+                             "check on held-out meshes (normalized cut / METIS + raw fragment rate), or the last")
     parser.add_argument("--kinds", default=None, help="mesh kinds and weights, e.g. 'delaunay:1,holes:1'")
     parser.add_argument("--init", default=None, help="start from these weights (fine-tuning stage)")
     parser.add_argument("--stop-epoch", type=int, default=None,
