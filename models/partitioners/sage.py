@@ -105,7 +105,11 @@ class _SagePartitioner(Partitioner):
         model = self.model if self.model is not None else _load(self.weights_path(batch.dim), device)
         with torch.inference_mode():
             x = torch.from_numpy(batch_features(batch, self.hetero)).to(device)
-            adj = csr_adjacency(batch.indptr, batch.indices, batch.n_nodes, device=device)
+            if str(device).startswith("cuda"):  # gather/scatter messages: the well-trodden GPU path
+                rows = np.repeat(np.arange(batch.n_nodes), np.diff(batch.indptr))
+                adj = torch.from_numpy(np.stack([batch.indices, rows]).astype(np.int64)).to(device)
+            else:  # CPU: one sparse-matrix product per layer is ~2x faster than gather/scatter
+                adj = csr_adjacency(batch.indptr, batch.indices, batch.n_nodes)
             gi = torch.from_numpy(batch.graph_index()).to(device)
             x = normalize_features(x, gi, batch.n_graphs, batch.dim)
             return model(x, adj).float().cpu().numpy()
