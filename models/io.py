@@ -11,6 +11,7 @@ import io
 import os
 import warnings
 
+import meshio
 import numpy as np
 
 from .errors import MeshError, ParameterError
@@ -64,8 +65,6 @@ SUPPORTED_EXTENSIONS = (".vtu", ".vtk", ".msh", ".xdmf", ".xmf", ".mesh", ".med"
 
 def read_mesh(path: str | os.PathLike, physical_tag: str | None = None, file_format: str | None = None) -> Mesh:
     """Read a mesh file and return a validated, positively oriented `Mesh`."""
-    import meshio
-
     path = os.fspath(path)
     if not os.path.exists(path):
         raise MeshError(f"mesh file not found: {path}")
