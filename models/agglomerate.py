@@ -18,7 +18,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from .errors import ParameterError
-from .graph import DualGraph, kept_edges, subgraph_by_labels
+from .graph import DualGraph, kept_edges, sorted_unique, subgraph_by_labels
 from .mesh import Mesh
 from .partitioners import Partitioner, get_partitioner
 from .partitioners.base import GraphBatch
@@ -201,7 +201,7 @@ def _part_extent(data: CellData, labels: np.ndarray, nodes: np.ndarray, parts: n
         ptr = np.searchsorted(vlab[order], np.arange(k + 1))
         for i in unsure:
             p = parts[i]
-            q = np.unique(pts[order[ptr[p] : ptr[p + 1]]], axis=0)
+            q = pts[order[ptr[p] : ptr[p + 1]]]
             try:
                 q = q[ConvexHull(q).vertices]
             except (QhullError, ValueError):
@@ -329,7 +329,7 @@ def agglomerate(
         bad = subset[(subset < 0) | (subset >= n)]
         if bad.size:
             raise ParameterError(f"subset has {bad.size} unknown cell ids (valid: 0..{n - 1}), e.g. {bad[:5].tolist()}")
-        nodes = np.unique(subset).astype(np.int64)
+        nodes = sorted_unique(subset).astype(np.int64)
     elif mode == "coarsen":
         raise ParameterError("mode 'coarsen' needs a subset of cell ids")
     else:
@@ -378,7 +378,7 @@ def agglomerate(
         if sub_mode == "segregated":
             if data.tags is None:
                 raise ParameterError("mode 'segregated' needs physical groups (cell data such as gmsh:physical or CellEntityIds)")
-            groups, labels = np.unique(data.tags[nodes], return_inverse=True)
+            groups, labels = sorted_unique(data.tags[nodes], return_inverse=True)
             labels = labels.astype(np.int64)
             labels, _ = connected_parts(data, labels, nodes)
             # the factor applies to each group's own diameter

@@ -139,7 +139,9 @@ def cmd_plot(args) -> int:
     if labels.ndim != 1 or labels.size != mesh.n_cells or labels.min() < 0:
         raise ParameterError(f"labels must be a list of {mesh.n_cells} non-negative element ids (one per cell)")
     graph, data = pipeline.prepare(mesh)
-    _, labels = np.unique(labels, return_inverse=True)
+    from .agglomerate import compact_labels
+
+    labels = compact_labels(labels)
     poly, _, _ = pipeline.split_holes(mesh, graph, data, labels, "split")
     plot_agglomeration(poly, args.output, fine_mesh=mesh if mesh.n_cells <= 200_000 else None, title=args.title)
     print(f"wrote {args.output} ({poly.n_elements} elements)")

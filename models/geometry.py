@@ -238,7 +238,7 @@ def mesh_diameter(points: np.ndarray) -> float:
     """Largest distance between two points (exact, via the convex hull)."""
     from scipy.spatial import ConvexHull, QhullError
 
-    pts = np.unique(points, axis=0)
+    pts = np.asarray(points)
     if len(pts) <= 1:
         return 0.0
     try:

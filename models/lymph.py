@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from models.errors import MeshError, ParameterError
+from models.graph import sorted_unique
 from models.mesh import PolyMesh
 
 # Work budget of the max_kb kernel: entries of the (elements x edges x vertices) blocks.
@@ -126,7 +127,7 @@ def lymph_structs(poly: PolyMesh, boundary_tag: int = 1) -> tuple[dict, dict]:
     n_elem = counts.shape[0]
     n_nodes = nodes.shape[0]
 
-    used, compact = np.unique(nodes, return_inverse=True)
+    used, compact = sorted_unique(nodes, return_inverse=True)
     compact = compact.astype(np.int64).reshape(-1)
     coord = np.asarray(poly.points, dtype=np.float64)[used]
     n_vert = coord.shape[0]
@@ -141,7 +142,10 @@ def lymph_structs(poly: PolyMesh, boundary_tag: int = 1) -> tuple[dict, dict]:
     # Pair up edges by their unordered vertex pair.
     key = np.minimum(v0, v1) * n_vert + np.maximum(v0, v1)
     order = np.argsort(key, kind="stable")
-    _, first, mult = np.unique(key[order], return_index=True, return_counts=True)
+    ks = key[order]
+    head = np.r_[True, ks[1:] != ks[:-1]]
+    first = np.flatnonzero(head)
+    mult = np.diff(np.append(first, ks.size))
     if np.any(mult > 2):
         raise MeshError("an edge is shared by more than two elements (non-manifold agglomeration)")
     ea = order[first[mult == 2]]

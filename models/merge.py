@@ -22,7 +22,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from .errors import MeshError
-from .graph import DualGraph
+from .graph import DualGraph, sorted_unique
 from .mesh import Mesh, PolyMesh
 
 
@@ -189,7 +189,7 @@ def _shells(points, face_elem, fo, nodes) -> Holes:
     fa, fb = face_of[s[i]], face_of[s[i + 1]]
     g = sp.csr_matrix((np.ones(fa.size), (fa, fb)), shape=(nf, nf))
     nshell, shell = connected_components(g, directed=False)
-    if nf == 0 or nshell == np.unique(face_elem).size:
+    if nf == 0 or nshell == np.count_nonzero(np.bincount(face_elem)):
         return Holes(elements=np.zeros(0, np.int64), centers=np.zeros((0, points.shape[1])))
     owner, tri = fan_triangles(fo, nodes)
     sh = shell[owner]
@@ -210,7 +210,7 @@ def _majority(labels: np.ndarray, tags: np.ndarray | None, n_elem: int) -> np.nd
     """Physical group of each element: the group of most of its fine cells."""
     if tags is None:
         return None
-    groups, t = np.unique(tags, return_inverse=True)
+    groups, t = sorted_unique(tags, return_inverse=True)
     counts = sp.csr_matrix((np.ones(labels.size), (labels, t)), shape=(n_elem, groups.size)).toarray()
     return groups[counts.argmax(axis=1)]
 

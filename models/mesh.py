@@ -94,11 +94,14 @@ class Mesh:
         return o[None, :] + self.points[:, :1] * e1[None, :] + self.points[:, 1:2] * e2[None, :]
 
     def cell_type_counts(self) -> dict[str, int]:
-        types, counts = np.unique(self.cell_types, return_counts=True)
-        return {CELL_TYPE_NAMES.get(int(t), str(int(t))): int(c) for t, c in zip(types, counts, strict=True)}
+        counts = np.bincount(self.cell_types)
+        return {CELL_TYPE_NAMES.get(int(t), str(int(t))): int(counts[t]) for t in np.flatnonzero(counts)}
 
     def physical_groups(self) -> list[int]:
-        return [] if self.tags is None else [int(t) for t in np.unique(self.tags)]
+        if self.tags is None:
+            return []
+        s = np.sort(self.tags)
+        return [int(t) for t in s[np.r_[True, s[1:] != s[:-1]]]]
 
 
 @dataclass

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .agglomerate import Agglomeration, CellData, agglomerate, connected_parts
+from .agglomerate import Agglomeration, CellData, agglomerate, compact_labels, connected_parts
 from .errors import MeshError, ParameterError
 from .geometry import cell_faces, measures_and_centroids
 from .graph import DualGraph, dual_graph
@@ -90,7 +90,7 @@ def split_holes(mesh: Mesh, graph: DualGraph, data: CellData, labels: np.ndarray
             new_label[cells[side]] = nxt
             nxt += 1
         labels, _s = connected_parts(data, new_label, all_nodes)
-        _, labels = np.unique(labels, return_inverse=True)
+        labels = compact_labels(labels)
         n_split += elems.size
     raise MeshError(f"could not remove the holes of {elems.size} elements after {max_rounds} rounds of splitting")
 

@@ -23,6 +23,7 @@ from matplotlib.figure import Figure
 from matplotlib.path import Path as MplPath
 
 from models.errors import ParameterError
+from models.graph import sorted_unique
 from models.mesh import Mesh, PolyMesh
 
 # Qualitative palette (matplotlib tab20, light and dark tones interleaved) used by the colouring.
@@ -151,7 +152,7 @@ def _fine_edges_2d(mesh: Mesh) -> np.ndarray:
     nxt = np.arange(conn.shape[0], dtype=np.int64) + 1
     nxt[offs[1:] - 1] = offs[:-1]
     a, b = conn, conn[nxt]
-    key = np.unique(np.minimum(a, b) * np.int64(mesh.n_points) + np.maximum(a, b))
+    key = sorted_unique(np.minimum(a, b) * np.int64(mesh.n_points) + np.maximum(a, b))
     a, b = np.divmod(key, np.int64(mesh.n_points))
     pts = np.asarray(mesh.points, dtype=np.float64)[:, :2]
     return np.stack([pts[a], pts[b]], axis=1)

@@ -13,6 +13,7 @@ import os
 import numpy as np
 
 from .errors import MeshError
+from .graph import sorted_unique
 from .mesh import VTK_POLYGON, VTK_POLYHEDRON, PolyMesh
 
 _VTK_TYPES = {
@@ -52,7 +53,7 @@ def write_vtu(path: str | os.PathLike, poly: PolyMesh, cell_data: dict[str, np.n
         face_elem = np.repeat(np.arange(e), nface)
         # connectivity: the distinct points of each element
         node_elem = np.repeat(face_elem, fsz)
-        pairs = np.unique(node_elem * np.int64(poly.points.shape[0]) + poly.loop_nodes)
+        pairs = sorted_unique(node_elem * np.int64(poly.points.shape[0]) + poly.loop_nodes)
         conn = pairs % poly.points.shape[0]
         pe = pairs // poly.points.shape[0]
         offsets = np.cumsum(np.bincount(pe, minlength=e)).astype(np.int64)
