@@ -84,6 +84,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("cancel", help="cancel a job")
     p.add_argument("job_id")
     p.set_defaults(func=lambda client, args: print(json.dumps(client.cancel(args.job_id), indent=1)) or 0)
+    # --server / --token also after the sub-command: `magnet-client agglomerate MESH --server URL`
+    for action in sub.choices.values():
+        action.add_argument("--server", default=argparse.SUPPRESS, help="server URL (also accepted before the sub-command)")
+        action.add_argument("--token", default=argparse.SUPPRESS, help="API key (also accepted before the sub-command)")
     return parser
 
 
