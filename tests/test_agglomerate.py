@@ -210,3 +210,12 @@ def test_mixed_3d_graph_links_across_types():
     assert (12, 14) in pairs and (14, 10) in pairs  # hex-pyramid (quad face), pyramid-tet (triangle)
     n_cc, _ = connected_components(g.matrix(), directed=False)
     assert n_cc == 1
+
+
+def test_absorb_gives_the_user_the_count_they_asked_for(brain):
+    m, g, d = brain
+    raw = agglomerate(m, d, model="kmeans", mode="nref", nref=7)
+    assert raw.parts_split > 0 and raw.n_elements > 128  # k-means leaves fragments on the brain
+    fixed = agglomerate(m, d, model="kmeans", mode="nref", nref=7, absorb_fraction=0.3)
+    assert fixed.n_elements == 128 and fixed.fragments_absorbed == raw.n_elements - 128
+    assert all_connected(g, fixed.labels)
