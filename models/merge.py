@@ -127,18 +127,7 @@ def merge_2d(mesh: Mesh, graph: DualGraph, labels: np.ndarray, measures: np.ndar
         [np.bincount(cyc, weights=p[a, d], minlength=area.size) / np.bincount(cyc, minlength=area.size) for d in range(2)]
     )
     holes = Holes(elements=loop_elem[hole_loops], centers=centers[hole_loops])
-    poly = PolyMesh(
-        points=mesh.points,
-        elem_offsets=elem_offsets,
-        loop_offsets=loop_offsets,
-        loop_nodes=loop_nodes,
-        measure=np.bincount(labels, weights=measures, minlength=n_elem),
-        n_fine=np.bincount(labels, minlength=n_elem),
-        labels=labels,
-        tags=_majority(labels, mesh.tags, n_elem),
-        frame=mesh.frame,
-    )
-    return poly, holes
+    return _polymesh(mesh, elem_offsets, loop_offsets, loop_nodes, labels, measures), holes
 
 
 def merge_3d(mesh: Mesh, graph: DualGraph, labels: np.ndarray, measures: np.ndarray) -> tuple[PolyMesh, Holes]:
@@ -158,17 +147,7 @@ def merge_3d(mesh: Mesh, graph: DualGraph, labels: np.ndarray, measures: np.ndar
     elem_offsets = np.zeros(n_elem + 1, dtype=np.int64)
     np.cumsum(per_elem, out=elem_offsets[1:])
     holes = _shells(mesh.points, e, fo, nodes)
-    poly = PolyMesh(
-        points=mesh.points,
-        elem_offsets=elem_offsets,
-        loop_offsets=fo,
-        loop_nodes=nodes,
-        measure=np.bincount(labels, weights=measures, minlength=n_elem),
-        n_fine=np.bincount(labels, minlength=n_elem),
-        labels=labels,
-        tags=_majority(labels, mesh.tags, n_elem),
-    )
-    return poly, holes
+    return _polymesh(mesh, elem_offsets, fo, nodes, labels, measures), holes
 
 
 def _shells(points, face_elem, fo, nodes) -> Holes:
@@ -204,6 +183,22 @@ def _shells(points, face_elem, fo, nodes) -> Holes:
     cnt = np.bincount(shell[face_of], minlength=nshell).astype(np.float64)
     centers = np.column_stack([np.bincount(shell[face_of], weights=points[nodes, d], minlength=nshell) / cnt for d in range(3)])
     return Holes(elements=shell_elem[inner], centers=centers[inner])
+
+
+def _polymesh(mesh: Mesh, elem_offsets, loop_offsets, loop_nodes, labels, measures) -> PolyMesh:
+    """The PolyMesh of merged elements, with per-element measure, fine-cell count and group."""
+    n_elem = elem_offsets.size - 1
+    return PolyMesh(
+        points=mesh.points,
+        elem_offsets=elem_offsets,
+        loop_offsets=loop_offsets,
+        loop_nodes=loop_nodes,
+        measure=np.bincount(labels, weights=measures, minlength=n_elem),
+        n_fine=np.bincount(labels, minlength=n_elem),
+        labels=labels,
+        tags=_majority(labels, mesh.tags, n_elem),
+        frame=mesh.frame,
+    )
 
 
 def _majority(labels: np.ndarray, tags: np.ndarray | None, n_elem: int) -> np.ndarray | None:
