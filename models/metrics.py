@@ -675,7 +675,11 @@ _FW_STEPS = {2: 0, 3: 4}  # Frank-Wolfe steps for the balanced combination in _c
 _LIST_WHOLE = 1.5  # a straddling node goes to the children's list whole when radius <= this * rho
 _BOUND_POINTS = 6  # nearby boundary points combined pairwise in the second-order cell bound
 _BOUND_POINTS_FW = {2: 6, 3: 8}  # ... and all together (Frank-Wolfe), per dimension
-_BOUND_RHO = {2: 0.25, 3: 1.0}  # ... tried (per dimension) on cells with rho < _BOUND_RHO * distance
+_BOUND_RHO = {2: 0.25, 3: 1.0}
+_CHILD_EXACT = True
+_CHILD_PRUNE = {2: False, 3: True}  # bound children before evaluating them (pays off in 3D)
+_DENSE_COMBOS = False
+_CHILD_POINTS = 8  # parent's nearest primitives used to bound its children before evaluating them  # ... tried (per dimension) on cells with rho < _BOUND_RHO * distance
 
 
 @dataclass
@@ -874,6 +878,132 @@ def _evaluate(g: _Geometry, bt: _BallTree, fc: np.ndarray, rho: np.ndarray, rows
     return dist, near, loc, side, kr[order], kn[order], leaves
 
 
+def _dense_bound(V: np.ndarray, valid: np.ndarray, h: np.ndarray, floor: np.ndarray, dim: int) -> np.ndarray:
+    """Upper bound of max over each cell of the distance to the boundary, from fixed boundary points.
+
+    V (n, k, d): c - y_i for boundary points y_i (valid where `valid`), cell centre c, half side
+    h. Same bounds as _cell_bounds (exact farthest corner for single points; for x = c + delta,
+    |x - y_i| <= D_i + u_i.delta + |delta|^2 / (2 D_i) combined convexly over pairs / all points),
+    cheapest first: the dearer ones only run on cells the cheaper ones could not bring to `floor`.
+    """
+    n, k, _ = V.shape
+    out = np.sqrt(((np.abs(V) + h[:, None, None]) ** 2).sum(2))
+    out[~valid] = np.inf
+    out = out.min(1)
+    D = np.sqrt(np.einsum("nkd,nkd->nk", V, V))
+    ok = valid & (D > 0)
+    todo = np.flatnonzero((out > floor) & (ok.sum(1) >= 2))
+    if not _DENSE_COMBOS:
+        return out
+    if todo.size == 0:
+        return out
+    V, D, ok, hb = V[todo], D[todo], ok[todo], h[todo]
+    Dd = np.where(ok, D, 1.0)
+    U = V / Dd[:, :, None]
+    rho2 = (hb**2) * dim
+    kp = min(k, _BOUND_POINTS)
+    ia, ja = np.triu_indices(kp, 1)
+    best = np.full(todo.size, np.inf)
+    for i, j in zip(ia, ja, strict=True):  # pairs: best l on the segment (breakpoints of the 1-norm)
+        good = ok[:, i] & ok[:, j]
+        ua, ub_ = U[:, i], U[:, j]
+        den = ub_ - ua
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lam = np.where(den != 0, ub_ / den, 0.0)
+        lam = np.clip(np.concatenate([np.zeros((todo.size, 1)), np.ones((todo.size, 1)), lam], axis=1), 0.0, 1.0)
+        w = lam[:, :, None] * ua[:, None, :] + (1 - lam[:, :, None]) * ub_[:, None, :]
+        val = (lam * D[:, i, None] + (1 - lam) * D[:, j, None] + hb[:, None] * np.abs(w).sum(2)
+               + rho2[:, None] * (lam / (2 * Dd[:, i, None]) + (1 - lam) / (2 * Dd[:, j, None])))
+        np.minimum(best, np.where(good, val.min(1), np.inf), out=best)
+    steps = _FW_STEPS[dim]
+    more = np.flatnonzero((best > floor[todo]) & (ok.sum(1) >= 3) & ok[:, 0])
+    if steps and more.size:  # all points: Frank-Wolfe as in _cell_bounds (invalid points never chosen)
+        Um, Dm, okm, hm = U[more], D[more], ok[more], hb[more]
+        w_ = hm * math.sqrt(dim)
+        lam = np.zeros(Dm.shape)
+        lam[:, 0] = 1.0
+        x = Um[:, 0].copy()
+        ld = Dm[:, 0].copy()
+        ar = np.arange(more.size)
+        gam = np.linspace(0.0, 1.0, 17)
+        for _ in range(steps):
+            nx = np.linalg.norm(x, axis=1)
+            grad = Dm + (w_ / np.where(nx > 0, nx, 1.0))[:, None] * np.einsum("rmd,rd->rm", Um, x)
+            grad[~okm] = np.inf
+            j = grad.argmin(1)
+            step = Um[ar, j] - x
+            dd = Dm[ar, j] - ld
+            trial = ld[:, None] + gam[None, :] * dd[:, None] + w_[:, None] * np.linalg.norm(
+                x[:, None, :] + gam[None, :, None] * step[:, None, :], axis=2)
+            gb = gam[trial.argmin(1)]
+            x += gb[:, None] * step
+            ld += gb * dd
+            lam *= (1.0 - gb)[:, None]
+            lam[ar, j] += gb
+        val = ((lam * Dm).sum(1) + hm * np.abs(x).sum(1)
+               + (hm**2) * dim * (lam / (2.0 * np.where(okm, Dm, 1.0))).sum(1))
+        best[more] = np.minimum(best[more], val)
+    out[todo] = np.minimum(out[todo], best)
+    return out
+
+
+def _child_prune(g: _Geometry, leaves, keep: np.ndarray, n_cells: int, pfc: np.ndarray, cfc: np.ndarray,
+                 cside: np.ndarray, nc: int, floor: np.ndarray) -> np.ndarray:
+    """Children (indices into cfc, child i of kept cell keep[i // nc]) whose upper bound from their
+    parent's nearest boundary points (closest points of its nearest exactly evaluated primitives,
+    see _dense_bound) exceeds `floor`."""
+    lr, ln, dl = leaves
+    kpos = np.full(n_cells, -1, dtype=np.int64)
+    kpos[keep] = np.arange(keep.size)
+    m = np.flatnonzero(kpos[lr] >= 0)
+    if m.size == 0 or keep.size == 0:
+        return np.arange(cfc.shape[0])
+    pr, pn, pd = kpos[lr[m]], ln[m], dl[m]
+    order = np.lexsort((pd, pr))
+    pr, pn = pr[order], pn[order]
+    st = _row_starts(pr)
+    rank = np.arange(pr.size) - np.repeat(st, np.diff(np.r_[st, pr.size]))
+    m = rank < 3 * _CHILD_POINTS
+    pr, pn = pr[m], pn[m]
+    pr_all, pn_all = pr, pn
+    v = _offset_to_closest(g, np.take(pfc, pr, axis=0), pn)
+    y = np.take(pfc, pr, axis=0) - v
+    # distinct points (a vertex / edge shared by several triangles shows up next to itself)
+    dup = np.zeros(pr.size, dtype=bool)
+    dup[1:] = (pr[1:] == pr[:-1]) & (np.abs(y[1:] - y[:-1]).max(1) <= 1e-12 * (np.abs(v[1:]).max(1) + 1e-300))
+    k = np.flatnonzero(~dup)
+    pr, pn, y = pr[k], pn[k], y[k]
+    st = _row_starts(pr)
+    rank = np.arange(pr.size) - np.repeat(st, np.diff(np.r_[st, pr.size]))
+    k = rank < _CHILD_POINTS
+    pr, pn, y, rank = pr[k], pn[k], y[k], rank[k]
+    pr_all, pn_all = pr, pn
+    d = cfc.shape[1]
+    Y = np.zeros((keep.size, _CHILD_POINTS, d))
+    valid = np.zeros((keep.size, _CHILD_POINTS), dtype=bool)
+    Y[pr, rank] = y
+    valid[pr, rank] = True
+    out = np.empty(cfc.shape[0], dtype=bool)
+    step = max(1, _PAIR_CHUNK // (64 * _CHILD_POINTS))
+    for i0 in range(0, cfc.shape[0], step):
+        i1 = min(i0 + step, cfc.shape[0])
+        par = np.arange(i0, i1) // nc
+        V = cfc[i0:i1, None, :] - Y[par]
+        out[i0:i1] = _dense_bound(V, valid[par], 0.5 * cside[i0:i1], floor[i0:i1], d) > floor[i0:i1]
+    ch = np.flatnonzero(out)
+    if ch.size and _CHILD_EXACT:
+        # survivors: the same bounds from the closest points of those primitives to the child's
+        # own centre (sharper: the contact points slide with the centre)
+        pcount = np.bincount(pr_all, minlength=keep.size)
+        pstart = np.cumsum(pcount) - pcount
+        par = ch // nc
+        rows, pos = _ragged_arange(pcount[par])
+        prims = pn_all[pstart[par][rows] + pos]
+        b2 = _cell_bounds(g, cfc[ch], 0.5 * cside[ch], rows, prims)
+        ch = ch[b2 > floor[ch]]
+    return ch
+
+
 def _inscribed_bnb(g: _Geometry, elems: np.ndarray, rel_tol: float):
     """Branch and bound over a quadtree/octree for the largest inscribed balls of `elems`.
 
@@ -940,16 +1070,24 @@ def _inscribed_bnb(g: _Geometry, elems: np.ndarray, rel_tol: float):
             nc = corners.shape[0]
             child_side = 0.5 * side_len[keep]
             inherit = np.where(dist[keep] > 0.5 * rho[keep], status[keep], 0).astype(np.int8)
-            fc = (fc[keep][:, None, :] + 0.5 * child_side[:, None, None] * corners[None]).reshape(-1, d)
-            fe = np.repeat(fe[keep], nc)
-            side_len = np.repeat(child_side, nc)
-            status = np.repeat(inherit, nc)
+            cfc = (fc[keep][:, None, :] + 0.5 * child_side[:, None, None] * corners[None]).reshape(-1, d)
+            cfe = np.repeat(fe[keep], nc)
+            cside = np.repeat(child_side, nc)
+            # cheap bound first: the parent's nearest boundary primitives bound the distance over
+            # each child (any boundary point does), so most children are dropped before their
+            # (dear) exact evaluation
+            if _CHILD_PRUNE[d]:
+                ch = _child_prune(g, leaves, keep, dist.size, fc, cfc, cside, nc, best[cfe] + eps[cfe])
+            else:
+                ch = np.arange(cfc.shape[0])
+            par = keep[ch // nc]
+            fc, fe, side_len = cfc[ch], cfe[ch], cside[ch]
+            status = inherit[ch // nc]
             # children share their parent's candidate list
             lcount = np.bincount(lrows, minlength=dist.size)
             lstart = np.cumsum(lcount) - lcount
-            cnt = np.repeat(lcount[keep], nc)
-            rows, pos = _ragged_arange(cnt)
-            nodes = lnodes[np.repeat(lstart[keep], nc)[rows] + pos]
+            rows, pos = _ragged_arange(lcount[par])
+            nodes = lnodes[lstart[par][rows] + pos]
         else:  # pragma: no cover - the cell size halves every level, so this cannot happen
             raise RuntimeError("inscribed-ball branch and bound did not converge")
 
