@@ -677,6 +677,7 @@ _BOUND_POINTS = 6  # nearby boundary points combined pairwise in the second-orde
 _BOUND_POINTS_FW = {2: 6, 3: 8}  # ... and all together (Frank-Wolfe), per dimension
 _BOUND_RHO = {2: 0.25, 3: 1.0}
 _CHILD_EXACT = True
+_CHILD_EXACT_SINGLE = True
 _CHILD_PRUNE = {2: False, 3: True}  # bound children before evaluating them (pays off in 3D)
 _DENSE_COMBOS = False
 _CHILD_POINTS = 8  # parent's nearest primitives used to bound its children before evaluating them  # ... tried (per dimension) on cells with rho < _BOUND_RHO * distance
@@ -999,7 +1000,14 @@ def _child_prune(g: _Geometry, leaves, keep: np.ndarray, n_cells: int, pfc: np.n
         par = ch // nc
         rows, pos = _ragged_arange(pcount[par])
         prims = pn_all[pstart[par][rows] + pos]
-        b2 = _cell_bounds(g, cfc[ch], 0.5 * cside[ch], rows, prims)
+        if _CHILD_EXACT_SINGLE:
+            V = np.zeros((ch.size, _CHILD_POINTS, d))
+            valid = np.zeros((ch.size, _CHILD_POINTS), dtype=bool)
+            V[rows, pos] = _offset_to_closest(g, np.take(cfc[ch], rows, axis=0), prims)
+            valid[rows, pos] = True
+            b2 = _dense_bound(V, valid, 0.5 * cside[ch], floor[ch], d)
+        else:
+            b2 = _cell_bounds(g, cfc[ch], 0.5 * cside[ch], rows, prims)
         ch = ch[b2 > floor[ch]]
     return ch
 
