@@ -643,3 +643,54 @@ def test_bad_parameters():
         largest_inscribed_ball(pm, method="grid")
     with pytest.raises(ParameterError):
         sphericity(pm)
+
+
+def test_agglomerated_tets_bnb_within_eps_of_reference():
+    """Non-convex, jagged elements of a real agglomerated tetrahedral mesh (Kuhn-subdivided cube
+    grid, wavy slabs): the default rel_tol result stays within eps of a near-exact reference
+    (rel_tol = 1e-4: r_ref >= r_true - 1e-4 diam) and of an independent grid search (lower bound of the true radius)."""
+    from meshes import tets
+
+    from models.io import mesh_from_arrays
+    from models.merge import merge
+    from models.pipeline import prepare
+
+    p, t = tets(10)
+    m = mesh_from_arrays(p, [("tetra", t)])
+    g, d = prepare(m)
+    c = p[t].mean(axis=1)
+    labels = (np.floor(3 * (c[:, 0] + 0.12 * np.sin(7 * c[:, 1]) + 0.1 * np.cos(5 * c[:, 2])) + 0.5)
+              + 4 * (c[:, 2] > 0.5 + 0.15 * np.sin(6 * c[:, 0]))).astype(np.int64)
+    labels = np.unique(labels, return_inverse=True)[1]
+    poly, _ = merge(m, g, labels, d.measures)
+    diam = element_diameters(poly)
+    _, r = largest_inscribed_ball(poly, rel_tol=1e-3, method="bnb")
+    _, r_ref = largest_inscribed_ball(poly, rel_tol=1e-4, method="bnb")
+    eps = 1e-3 * diam
+    assert np.all(r <= r_ref + 1e-4 * diam + 1e-12)
+    assert np.all(r >= r_ref - eps)
+    # independent check on a few elements: grid points inside the element (fine cells' labels),
+    # exact distances to the element's boundary triangles
+    lo, nodes = poly.loop_offsets, poly.loop_nodes
+    eo = poly.elem_offsets
+    h = 0.04
+    ax = np.arange(h / 2, 1, h)
+    x = np.column_stack([v.ravel() for v in np.meshgrid(ax, ax, ax, indexing="ij")])
+    for e in range(min(poly.n_elements, 2)):
+        tri = []
+        for f in range(eo[e], eo[e + 1]):
+            ring = nodes[lo[f] : lo[f + 1]]
+            tri += [[ring[0], ring[j], ring[j + 1]] for j in range(1, ring.size - 1)]
+        tri = poly.points[np.array(tri)]
+        xe = x[np.all((x >= tri.min((0, 1))) & (x <= tri.max((0, 1))), axis=1)]
+        best = 0.0
+        for xc in np.array_split(xe, max(1, xe.shape[0] // 500)):  # winding-number inside test
+            A, B, C = (tri[None, :, k] - xc[:, None] for k in range(3))
+            la, lb, lc = (np.linalg.norm(M, axis=-1) for M in (A, B, C))
+            num = (A * np.cross(B, C)).sum(-1)
+            den = la * lb * lc + (A * B).sum(-1) * lc + (A * C).sum(-1) * lb + (B * C).sum(-1) * la
+            inside = np.abs(2 * np.arctan2(num, den).sum(1)) > 2 * np.pi
+            if inside.any():
+                best = max(best, point_tri_dist(xc[inside], tri).min(1).max())
+        assert best > 0
+        assert best - eps[e] <= r[e] <= best + h * math.sqrt(3) / 2 + 1e-12
