@@ -677,10 +677,8 @@ _BOUND_POINTS = 6  # nearby boundary points combined pairwise in the second-orde
 _BOUND_POINTS_FW = {2: 6, 3: 8}  # ... and all together (Frank-Wolfe), per dimension
 _BOUND_RHO = {2: 0.25, 3: 1.0}
 _CHILD_EXACT = True
-_CHILD_EXACT_SINGLE = True
 _CHILD_PRUNE = {2: False, 3: True}  # bound children before evaluating them (pays off in 3D)
-_DENSE_COMBOS = False
-_CHILD_POINTS = 8  # parent's nearest primitives used to bound its children before evaluating them  # ... tried (per dimension) on cells with rho < _BOUND_RHO * distance
+_CHILD_POINTS = 8  # parent's nearest primitives used to bound its children before evaluating them
 
 
 @dataclass
@@ -879,73 +877,16 @@ def _evaluate(g: _Geometry, bt: _BallTree, fc: np.ndarray, rho: np.ndarray, rows
     return dist, near, loc, side, kr[order], kn[order], leaves
 
 
-def _dense_bound(V: np.ndarray, valid: np.ndarray, h: np.ndarray, floor: np.ndarray, dim: int) -> np.ndarray:
+def _dense_bound(V: np.ndarray, valid: np.ndarray, h: np.ndarray) -> np.ndarray:
     """Upper bound of max over each cell of the distance to the boundary, from fixed boundary points.
 
     V (n, k, d): c - y_i for boundary points y_i (valid where `valid`), cell centre c, half side
-    h. Same bounds as _cell_bounds (exact farthest corner for single points; for x = c + delta,
-    |x - y_i| <= D_i + u_i.delta + |delta|^2 / (2 D_i) combined convexly over pairs / all points),
-    cheapest first: the dearer ones only run on cells the cheaper ones could not bring to `floor`.
+    h: the exact distance from the cell's farthest corner to the nearest y_i (any boundary point's
+    distance bounds the distance to the boundary from above).
     """
-    n, k, _ = V.shape
     out = np.sqrt(((np.abs(V) + h[:, None, None]) ** 2).sum(2))
     out[~valid] = np.inf
-    out = out.min(1)
-    D = np.sqrt(np.einsum("nkd,nkd->nk", V, V))
-    ok = valid & (D > 0)
-    todo = np.flatnonzero((out > floor) & (ok.sum(1) >= 2))
-    if not _DENSE_COMBOS:
-        return out
-    if todo.size == 0:
-        return out
-    V, D, ok, hb = V[todo], D[todo], ok[todo], h[todo]
-    Dd = np.where(ok, D, 1.0)
-    U = V / Dd[:, :, None]
-    rho2 = (hb**2) * dim
-    kp = min(k, _BOUND_POINTS)
-    ia, ja = np.triu_indices(kp, 1)
-    best = np.full(todo.size, np.inf)
-    for i, j in zip(ia, ja, strict=True):  # pairs: best l on the segment (breakpoints of the 1-norm)
-        good = ok[:, i] & ok[:, j]
-        ua, ub_ = U[:, i], U[:, j]
-        den = ub_ - ua
-        with np.errstate(divide="ignore", invalid="ignore"):
-            lam = np.where(den != 0, ub_ / den, 0.0)
-        lam = np.clip(np.concatenate([np.zeros((todo.size, 1)), np.ones((todo.size, 1)), lam], axis=1), 0.0, 1.0)
-        w = lam[:, :, None] * ua[:, None, :] + (1 - lam[:, :, None]) * ub_[:, None, :]
-        val = (lam * D[:, i, None] + (1 - lam) * D[:, j, None] + hb[:, None] * np.abs(w).sum(2)
-               + rho2[:, None] * (lam / (2 * Dd[:, i, None]) + (1 - lam) / (2 * Dd[:, j, None])))
-        np.minimum(best, np.where(good, val.min(1), np.inf), out=best)
-    steps = _FW_STEPS[dim]
-    more = np.flatnonzero((best > floor[todo]) & (ok.sum(1) >= 3) & ok[:, 0])
-    if steps and more.size:  # all points: Frank-Wolfe as in _cell_bounds (invalid points never chosen)
-        Um, Dm, okm, hm = U[more], D[more], ok[more], hb[more]
-        w_ = hm * math.sqrt(dim)
-        lam = np.zeros(Dm.shape)
-        lam[:, 0] = 1.0
-        x = Um[:, 0].copy()
-        ld = Dm[:, 0].copy()
-        ar = np.arange(more.size)
-        gam = np.linspace(0.0, 1.0, 17)
-        for _ in range(steps):
-            nx = np.linalg.norm(x, axis=1)
-            grad = Dm + (w_ / np.where(nx > 0, nx, 1.0))[:, None] * np.einsum("rmd,rd->rm", Um, x)
-            grad[~okm] = np.inf
-            j = grad.argmin(1)
-            step = Um[ar, j] - x
-            dd = Dm[ar, j] - ld
-            trial = ld[:, None] + gam[None, :] * dd[:, None] + w_[:, None] * np.linalg.norm(
-                x[:, None, :] + gam[None, :, None] * step[:, None, :], axis=2)
-            gb = gam[trial.argmin(1)]
-            x += gb[:, None] * step
-            ld += gb * dd
-            lam *= (1.0 - gb)[:, None]
-            lam[ar, j] += gb
-        val = ((lam * Dm).sum(1) + hm * np.abs(x).sum(1)
-               + (hm**2) * dim * (lam / (2.0 * np.where(okm, Dm, 1.0))).sum(1))
-        best[more] = np.minimum(best[more], val)
-    out[todo] = np.minimum(out[todo], best)
-    return out
+    return out.min(1)
 
 
 def _child_prune(g: _Geometry, leaves, keep: np.ndarray, n_cells: int, pfc: np.ndarray, cfc: np.ndarray,
@@ -990,7 +931,7 @@ def _child_prune(g: _Geometry, leaves, keep: np.ndarray, n_cells: int, pfc: np.n
         i1 = min(i0 + step, cfc.shape[0])
         par = np.arange(i0, i1) // nc
         V = cfc[i0:i1, None, :] - Y[par]
-        out[i0:i1] = _dense_bound(V, valid[par], 0.5 * cside[i0:i1], floor[i0:i1], d) > floor[i0:i1]
+        out[i0:i1] = _dense_bound(V, valid[par], 0.5 * cside[i0:i1]) > floor[i0:i1]
     ch = np.flatnonzero(out)
     if ch.size and _CHILD_EXACT:
         # survivors: the same bounds from the closest points of those primitives to the child's
@@ -1000,14 +941,11 @@ def _child_prune(g: _Geometry, leaves, keep: np.ndarray, n_cells: int, pfc: np.n
         par = ch // nc
         rows, pos = _ragged_arange(pcount[par])
         prims = pn_all[pstart[par][rows] + pos]
-        if _CHILD_EXACT_SINGLE:
-            V = np.zeros((ch.size, _CHILD_POINTS, d))
-            valid = np.zeros((ch.size, _CHILD_POINTS), dtype=bool)
-            V[rows, pos] = _offset_to_closest(g, np.take(cfc[ch], rows, axis=0), prims)
-            valid[rows, pos] = True
-            b2 = _dense_bound(V, valid, 0.5 * cside[ch], floor[ch], d)
-        else:
-            b2 = _cell_bounds(g, cfc[ch], 0.5 * cside[ch], rows, prims)
+        V = np.zeros((ch.size, _CHILD_POINTS, d))
+        valid = np.zeros((ch.size, _CHILD_POINTS), dtype=bool)
+        V[rows, pos] = _offset_to_closest(g, np.take(cfc[ch], rows, axis=0), prims)
+        valid[rows, pos] = True
+        b2 = _dense_bound(V, valid, 0.5 * cside[ch])
         ch = ch[b2 > floor[ch]]
     return ch
 
