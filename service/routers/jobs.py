@@ -289,38 +289,21 @@ def _download(name: str, media: str, doc: str):
 
 
 RESULT_ERRORS = {**ERRORS, 409: {"model": ErrorOut}}
-router.add_api_route(
-    "/jobs/{job_id}/mesh",
-    _download("mesh.vtu", "application/octet-stream", "The agglomerated mesh (VTU)."),
-    methods=["GET"],
-    responses=RESULT_ERRORS,
-    response_class=FileResponse,
-    name="job_mesh",
-)
-router.add_api_route(
-    "/jobs/{job_id}/metrics",
-    _download("metrics.json", "application/json", "Quality metrics of the agglomerated mesh (JSON)."),
-    methods=["GET"],
-    responses=RESULT_ERRORS,
-    response_class=FileResponse,
-    name="job_metrics",
-)
-router.add_api_route(
-    "/jobs/{job_id}/labels",
-    _download("labels.json", "application/json", "Element label of every fine cell (JSON list)."),
-    methods=["GET"],
-    responses=RESULT_ERRORS,
-    response_class=FileResponse,
-    name="job_labels",
-)
-router.add_api_route(
-    "/jobs/{job_id}/preview.png",
-    _download("preview.png", "image/png", "A picture of the agglomerated mesh."),
-    methods=["GET"],
-    responses=RESULT_ERRORS,
-    response_class=FileResponse,
-    name="job_preview",
-)
+# the result files of a finished job: (path, stored file, media type, description, route name)
+for _path, _file, _media, _doc, _name in (
+    ("mesh", "mesh.vtu", "application/octet-stream", "The agglomerated mesh (VTU).", "job_mesh"),
+    ("metrics", "metrics.json", "application/json", "Quality metrics of the agglomerated mesh (JSON).", "job_metrics"),
+    ("labels", "labels.json", "application/json", "Element label of every fine cell (JSON list).", "job_labels"),
+    ("preview.png", "preview.png", "image/png", "A picture of the agglomerated mesh.", "job_preview"),
+):
+    router.add_api_route(
+        f"/jobs/{{job_id}}/{_path}",
+        _download(_file, _media, _doc),
+        methods=["GET"],
+        responses=RESULT_ERRORS,
+        response_class=FileResponse,
+        name=_name,
+    )
 
 
 @router.get("/jobs/{job_id}/lymph", responses=RESULT_ERRORS, response_class=FileResponse)
