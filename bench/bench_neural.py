@@ -119,6 +119,7 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="skip the 100k cube")
     ap.add_argument("--skip", default="", help="comma list of sections to skip: brain,batch,cube,hetero,hetero3d")
     ap.add_argument("--json", default=None, help="also write the numbers as JSON")
+    ap.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1: CPU time is what is compared)")
     args = ap.parse_args(argv)
     skip = set(filter(None, args.skip.split(",")))
 
@@ -127,12 +128,13 @@ def main(argv=None) -> int:
     from models.generate import generate
     from models.io import read_mesh
 
-    torch.set_num_threads(1)
+    torch.set_num_threads(args.threads)
     opts = {} if args.weights_dir is None else {"weights_dir": args.weights_dir}
     methods = {"metis": get_partitioner("metis"), "kmeans": get_partitioner("kmeans"),
                "sage-base": get_partitioner("sage-base", **opts),
                "sage-base (raw argmax)": get_partitioner("sage-base", contiguous=False, smooth=0, **opts)}
-    out: dict = {"machine": f"{torch.get_num_threads()} torch thread(s), CPU", "torch": torch.__version__}
+    device = f"GPU {torch.cuda.get_device_name(0)}" if torch.cuda.is_available() else "CPU"
+    out: dict = {"machine": f"{torch.get_num_threads()} torch thread(s), {device}", "torch": torch.__version__}
     print(f"# bench_neural ({out['machine']}, torch {torch.__version__})")
 
     if "brain" not in skip or "batch" not in skip:

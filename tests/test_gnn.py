@@ -166,6 +166,28 @@ def test_sparse_adjacency_matches_edge_index():
     assert torch.allclose(a, b, atol=1e-5)
 
 
+def test_fused_inference_matches_forward():
+    """BisectionGNN.infer (the CPU inference path) is the same function as forward(), 2D and 3D,
+    isolated nodes included."""
+    from models.gnn import mean_adjacency
+
+    for dim, shape in ((2, (7, 5)), (3, (4, 3, 3))):
+        cen, m, ip, ix = grid_graph(*shape)
+        # an isolated extra node (no neighbours: its mean aggregation is 0 in both paths)
+        cen = np.vstack([cen, cen[:1] + 5.0])
+        m = np.r_[m, m[0]]
+        ip = np.r_[ip, ip[-1]]
+        torch.manual_seed(dim)
+        model = BisectionGNN(GNNConfig.paper(dim)).eval()
+        x = torch.tensor(np.column_stack([cen, m]), dtype=torch.float32)
+        rows = np.repeat(np.arange(len(cen)), np.diff(ip))
+        with torch.inference_mode():
+            a = model(x, torch.tensor(np.stack([ix, rows])))
+            b = model.infer(x, mean_adjacency(ip, ix, len(cen)))
+        assert b.shape == (len(cen), 2)
+        assert torch.allclose(a, b, atol=1e-5), float((a - b).abs().max())
+
+
 @pytest.mark.parametrize("cls", [SageBasePartitioner, SageHeteroPartitioner])
 @pytest.mark.parametrize("dim", [2, 3])
 def test_bisect_batch_contract(weights_dir, cls, dim):
