@@ -165,7 +165,10 @@ def _chains_2d(pts: np.ndarray, grp: np.ndarray) -> np.ndarray:
     then lexicographically (x, y). A point on or above the segment joining its two current chain
     neighbours (within rounding) is no hull vertex, so all such points go at once, pass after pass (Andrew's monotone
     chain without its stack)."""
-    idx = np.arange(pts.shape[0])
+    # coincident points once only (two copies of a hull vertex would each look removable)
+    dup = np.zeros(pts.shape[0], dtype=bool)
+    dup[1:] = (grp[1:] == grp[:-1]) & np.all(pts[1:] == pts[:-1], axis=1)
+    idx = np.flatnonzero(~dup)
     while idx.size > 2:
         q, gr = pts[idx], grp[idx]
         mid = np.flatnonzero((gr[1:-1] == gr[:-2]) & (gr[1:-1] == gr[2:])) + 1
@@ -219,24 +222,17 @@ def _hulls_2d(vpts: np.ndarray, v_ptr: np.ndarray):
     best = _group_argmax(he[i], dd)
     diameter = np.zeros(n)
     diameter[he[i[best]]] = np.sqrt(dd[best])
-    fi, fj = np.full(n, -1), np.full(n, -1)
-    fi[he[i[best]]], fj[he[i[best]]] = i[best], j[best]
-    hull_pts, hull_eq = [], []
+    # farthest pair first in each element's vertex list (see _farthest_first): one permutation
+    rank = np.arange(hv.size, dtype=np.float64)
+    rank[i[best]], rank[j[best]] = -2.0, -1.0
+    perm = np.lexsort((rank, he))
+    pts_split = np.split(hp[perm], hptr[1:-1])
+    eq_split = np.split(eq, hptr[1:-1])
     hull_measure = np.where(cnt >= 3, area, 0.0)
-    for e in range(n):  # slicing only
-        lo_, hi_ = hptr[e], hptr[e + 1]
-        if cnt[e] < 3:  # collinear / single point: no hull, all its points (as qhull's failure)
-            p, diameter[e] = _farthest_first(vpts[v_ptr[e] : v_ptr[e + 1]])
-            hull_pts.append(p)
-            hull_eq.append(None)
-            continue
-        p = hp[lo_:hi_]
-        if fi[e] >= 0:  # farthest pair first (see _farthest_first)
-            rest = np.ones(hi_ - lo_, dtype=bool)
-            rest[[fi[e] - lo_, fj[e] - lo_]] = False
-            p = np.concatenate([hp[[fi[e], fj[e]]], p[rest]])
-        hull_pts.append(p)
-        hull_eq.append(eq[lo_:hi_])
+    hull_pts = [p if c >= 3 else None for p, c in zip(pts_split, cnt, strict=True)]
+    hull_eq = [q if c >= 3 else None for q, c in zip(eq_split, cnt, strict=True)]
+    for e in np.flatnonzero(cnt < 3):  # collinear / single point: no hull, all its points (as qhull's failure)
+        hull_pts[e], diameter[e] = _farthest_first(vpts[v_ptr[e] : v_ptr[e + 1]])
     return hull_pts, hull_eq, hull_measure, diameter
 
 
@@ -787,7 +783,17 @@ def _classify(g: _Geometry, q: np.ndarray, elem: np.ndarray, near: np.ndarray, l
 
 
 def _group_argmax(groups: np.ndarray, vals: np.ndarray) -> np.ndarray:
-    """Index of the largest value in each group (one index per distinct group)."""
+    """Index of the largest value in each group (one index per distinct group; the first one on
+    ties), in group order."""
+    if groups.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    if np.all(groups[1:] >= groups[:-1]):  # sorted groups (the usual case): no sort needed
+        st = _row_starts(groups)
+        mx = np.fmax.reduceat(vals, st)
+        hit = np.flatnonzero(vals == np.repeat(mx, np.diff(np.r_[st, groups.size])))
+        hit = hit[_row_starts(groups[hit])]
+        if hit.size == st.size:  # else a group of NaNs only: the sort below handles it
+            return hit
     order = np.lexsort((-vals, groups))
     g = groups[order]
     first = np.ones(g.size, dtype=bool)

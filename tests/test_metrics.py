@@ -694,3 +694,35 @@ def test_agglomerated_tets_bnb_within_eps_of_reference():
                 best = max(best, point_tri_dist(xc[inside], tri).min(1).max())
         assert best > 0
         assert best - eps[e] <= r[e] <= best + h * math.sqrt(3) / 2 + 1e-12
+
+
+def test_vectorized_2d_hulls_match_qhull():
+    """_hulls_2d (all elements at once) against one qhull call per point set: same vertices, same
+    area, edge equations that hold every point, diameter equal to the largest pairwise distance,
+    farthest pair first; collinear runs, duplicates and degenerate sets included."""
+    from scipy.spatial.distance import pdist
+
+    from models.metrics import _hulls_2d
+
+    rng = np.random.default_rng(3)
+    sets = [rng.random((int(rng.integers(3, 60)), 2)) for _ in range(40)]
+    sets.append(np.array([[0, 0], [1, 0], [2, 0], [2, 1], [1, 1], [0, 1], [1, 0.5]], float))  # collinear runs
+    sq = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
+    sets.append(np.vstack([sq, sq]))  # every point twice
+    sets.append(np.array([[0, 0], [1, 1], [2, 2]], float))  # collinear: no hull
+    sets.append(np.array([[5.0, 5.0]]))  # one point
+    ptr = np.r_[0, np.cumsum([len(s) for s in sets])]
+    hull_pts, hull_eq, measure, diameter = _hulls_2d(np.vstack(sets), ptr)
+    for e, p in enumerate(sets):
+        assert diameter[e] == pytest.approx(np.sqrt(pdist(p, "sqeuclidean").max()) if len(p) > 1 else 0.0)
+        if len(p) >= 2:
+            assert np.linalg.norm(hull_pts[e][0] - hull_pts[e][1]) == pytest.approx(diameter[e])
+        if e >= len(sets) - 2:
+            assert hull_eq[e] is None and measure[e] == 0.0
+            continue
+        ref = ConvexHull(p)
+        assert measure[e] == pytest.approx(ref.volume, rel=1e-12)
+        got = {tuple(x) for x in hull_pts[e]}
+        assert got == {tuple(x) for x in p[ref.vertices]}
+        assert np.all(p @ hull_eq[e][:, :2].T + hull_eq[e][:, 2] <= 1e-12)
+        assert np.allclose(np.linalg.norm(hull_eq[e][:, :2], axis=1), 1.0)
