@@ -58,8 +58,9 @@ def face_keys(faces: Faces, n_points: int) -> np.ndarray:
     sizes = faces.sizes()
     if np.all(sizes == 2):
         e = faces.nodes.reshape(-1, 2)
-        lo, hi = e.min(axis=1), e.max(axis=1)
-        return lo * np.int64(n_points) + hi
+        a, b = e[:, 0], e[:, 1]
+        # elementwise, not e.min(axis=1): a reduction over rows of length 2 is ~10x slower
+        return np.minimum(a, b) * np.int64(n_points) + np.maximum(a, b)
     width = int(sizes.max())
     pad = np.full((faces.n, width), np.iinfo(np.int64).max, dtype=np.int64)
     col = np.arange(faces.nodes.size) - np.repeat(faces.offsets[:-1], sizes)
