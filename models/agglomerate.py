@@ -2,7 +2,7 @@
 
 Modes: direct k-way, number of refinements (2^n parts), target size (bisect until every part's
 diameter < h), multiplicative factor (h = f x mesh diameter), segregated (physical groups first,
-then the factor inside each group), coarsen (only a subset of cells; the rest stays).
+then the same h = f x mesh diameter inside each group), coarsen (only a subset of cells; the rest stays).
 Recursive bisection runs level by level: all parts of a level go to the partitioner as one
 `GraphBatch` (one forward pass for the neural models).
 """
@@ -381,14 +381,11 @@ def agglomerate(
             groups, labels = sorted_unique(data.tags[nodes], return_inverse=True)
             labels = labels.astype(np.int64)
             labels, _ = connected_parts(data, labels, nodes)
-            # the factor applies to each group's own diameter
-            from .geometry import mesh_diameter
-
-            gdiam = np.array([mesh_diameter(data.points[_used_points(data, nodes[data.tags[nodes] == gv])]) for gv in groups])
-            comp_group = np.zeros(int(labels.max()) + 1, dtype=np.int64)
-            comp_group[labels] = np.searchsorted(groups, data.tags[nodes])
-            h = f * gdiam[comp_group]
-        elif sub_mode == "mult-factor":
+        if sub_mode in ("mult-factor", "segregated"):
+            # h = f x the diameter of the whole mesh (or subset), in every group alike: elements of
+            # one size across materials. (With each group's own diameter, a small inclusion gets
+            # an h below its cells' size and stays unagglomerated: MeshEmilia at f = 0.04 gave
+            # 1068 elements, 433 of them single cells of the three small layers; now 693.)
             from .geometry import mesh_diameter
 
             h = f * mesh_diameter(data.points[_used_points(data, nodes)])

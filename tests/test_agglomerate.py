@@ -136,6 +136,24 @@ def test_segregated_respects_groups():
     assert r.n_elements >= 7
 
 
+def test_segregated_uses_the_mesh_diameter_in_every_group():
+    """h = f x the whole mesh's diameter in each group: the small layers of MeshEmilia (cells far
+    smaller than h) are agglomerated too, and no element reaches h."""
+    m = read_mesh(EMILIA)
+    g, d = prepare(m)
+    f = 0.04
+    r = agglomerate(m, d, mode="segregated", mult_factor=f)
+    h = f * mesh_diameter(m.points)
+    for t in np.unique(m.tags):
+        cells = np.flatnonzero(m.tags == t)
+        assert np.unique(r.labels[cells]).size < cells.size  # every layer is agglomerated
+    for e in np.unique(r.labels):
+        cells = np.flatnonzero(r.labels == e)
+        pts = np.unique(np.concatenate([m.connectivity[m.offsets[c] : m.offsets[c + 1]] for c in cells]))
+        assert mesh_diameter(m.points[pts]) < h
+    assert r.n_elements < 800  # 1068 when each group used its own diameter
+
+
 def test_coarsen_keeps_the_rest(square):
     m, g, d = square
     subset = np.flatnonzero(d.centroids[:, 0] < 0.5)
