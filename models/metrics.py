@@ -20,7 +20,6 @@ from scipy import sparse
 from scipy.optimize import linprog
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull
-from scipy.spatial.distance import pdist
 
 from models.errors import ParameterError
 from models.mesh import PolyMesh
@@ -124,14 +123,14 @@ def _farthest_first(p: np.ndarray) -> tuple[np.ndarray, float]:
     h = p.shape[0]
     if h < 2:
         return p, 0.0
-    if h > 256:
-        dd = pdist(p, "sqeuclidean")
-        k = int(dd.argmax())  # condensed index -> pair (i, j), i < j
-        i = int(np.searchsorted(np.cumsum(np.arange(h - 1, 0, -1)), k, side="right"))
-        j = k - (i * (2 * h - i - 1)) // 2 + i + 1
-    else:  # small hulls: plain numpy (pdist's array-API wrapper costs ~40 us a call)
-        dp = p[:, None, :] - p[None, :, :]
-        i, j = divmod(int(np.einsum("ijk,ijk->ij", dp, dp).argmax()), h)
+    best, i, j = -1.0, 0, 0
+    for r0 in range(0, h, 256):  # blocks of rows: memory stays O(256 h) for a huge hull
+        dp = p[r0 : r0 + 256, None, :] - p[None, :, :]
+        d2 = np.einsum("ijk,ijk->ij", dp, dp)
+        k = int(d2.argmax())
+        if d2.flat[k] > best:
+            best = float(d2.flat[k])
+            i, j = r0 + k // h, k % h
     rest = np.ones(h, dtype=bool)
     rest[[i, j]] = False
     return np.concatenate([p[[i, j]], p[rest]]), float(np.linalg.norm(p[i] - p[j]))
@@ -161,10 +160,10 @@ def _hulls_qhull(vpts: np.ndarray, v_ptr: np.ndarray, dim: int):
 
 
 def _chains_2d(pts: np.ndarray, grp: np.ndarray) -> np.ndarray:
-    """Indices (into pts) of the lower convex chain of every group, in order. pts are sorted by group,
-    then lexicographically (x, y). A point on or above the segment joining its two current chain
-    neighbours (within rounding) is no hull vertex, so all such points go at once, pass after pass (Andrew's monotone
-    chain without its stack)."""
+    """Indices (into pts) of the lower convex chain of every group, in order. pts are sorted by
+    group, then lexicographically (x, y). A point on or above the segment joining its two current
+    chain neighbours (within rounding) is no hull vertex, so all such points go at once, pass after
+    pass (Andrew's monotone chain without its stack)."""
     # coincident points once only (two copies of a hull vertex would each look removable)
     dup = np.zeros(pts.shape[0], dtype=bool)
     dup[1:] = (grp[1:] == grp[:-1]) & np.all(pts[1:] == pts[:-1], axis=1)
@@ -215,9 +214,12 @@ def _hulls_2d(vpts: np.ndarray, v_ptr: np.ndarray):
     ln = np.linalg.norm(d, axis=1)
     nrm = np.column_stack([d[:, 1], -d[:, 0]]) / np.where(ln > 0, ln, 1.0)[:, None]
     eq = np.column_stack([nrm, -np.einsum("ij,ij->i", nrm, a)])
-    # diameter: farthest pair among each element's hull vertices (all pairs, in one ragged batch)
-    pr, pos = _ragged_arange(cnt[he])
-    i, j = np.repeat(np.arange(hv.size), cnt[he]), hptr[he][pr] + pos
+    # diameter: farthest pair among each element's hull vertices (all pairs, in one ragged batch;
+    # hulls of more than 256 vertices go block by block in _farthest_first below)
+    small = cnt[he] <= 256
+    pr, pos = _ragged_arange(np.where(small, cnt[he], 0))
+    i = np.repeat(np.arange(hv.size), np.where(small, cnt[he], 0))
+    j = hptr[he][pr] + pos
     dd = ((hp[i] - hp[j]) ** 2).sum(1)
     best = _group_argmax(he[i], dd)
     diameter = np.zeros(n)
@@ -233,6 +235,8 @@ def _hulls_2d(vpts: np.ndarray, v_ptr: np.ndarray):
     hull_eq = [q if c >= 3 else None for q, c in zip(eq_split, cnt, strict=True)]
     for e in np.flatnonzero(cnt < 3):  # collinear / single point: no hull, all its points (as qhull's failure)
         hull_pts[e], diameter[e] = _farthest_first(vpts[v_ptr[e] : v_ptr[e + 1]])
+    for e in np.flatnonzero(cnt > 256):
+        hull_pts[e], diameter[e] = _farthest_first(hull_pts[e])
     return hull_pts, hull_eq, hull_measure, diameter
 
 

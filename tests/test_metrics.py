@@ -709,6 +709,8 @@ def test_vectorized_2d_hulls_match_qhull():
     sets.append(np.array([[0, 0], [1, 0], [2, 0], [2, 1], [1, 1], [0, 1], [1, 0.5]], float))  # collinear runs
     sq = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
     sets.append(np.vstack([sq, sq]))  # every point twice
+    ang = np.linspace(0, 2 * np.pi, 700, endpoint=False)
+    sets.append(np.column_stack([np.cos(ang), np.sin(ang)]) * 3.0 + rng.random((1, 2)))  # 700-vertex hull
     sets.append(np.array([[0, 0], [1, 1], [2, 2]], float))  # collinear: no hull
     sets.append(np.array([[5.0, 5.0]]))  # one point
     ptr = np.r_[0, np.cumsum([len(s) for s in sets])]
