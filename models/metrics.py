@@ -485,6 +485,55 @@ def _prim_table(prim: np.ndarray) -> np.ndarray:
     return np.column_stack([a, e0, e1, nrm, d00, d01, d11, inv])
 
 
+def _segment_offset(T: np.ndarray, q: np.ndarray):
+    """2D, rows T of _prim_table: unclipped parameter t of the projection of q on each segment, and
+    (dx, dy) = q - its closest point on the segment."""
+    abx, aby = T[:, 2], T[:, 3]
+    dx = q[:, 0] - T[:, 0]
+    dy = q[:, 1] - T[:, 1]
+    t = (dx * abx + dy * aby) * T[:, 4]
+    tc = np.clip(t, 0.0, 1.0)
+    dx -= tc * abx
+    dy -= tc * aby
+    return t, dx, dy
+
+
+def _triangle_projection(T: np.ndarray, q: np.ndarray):
+    """3D, rows T of _prim_table: v = q - a, barycentric coordinates (bv, bw) of q's projection on
+    the triangle's plane, its signed height h along the unit normal, and whether the projection
+    falls inside the (non-degenerate) triangle."""
+    v = q - T[:, 0:3]
+    d00, d01, d11, inv = T[:, 12], T[:, 13], T[:, 14], T[:, 15]
+    d20 = np.einsum("ij,ij->i", v, T[:, 3:6])
+    d21 = np.einsum("ij,ij->i", v, T[:, 6:9])
+    bv = (d11 * d20 - d01 * d21) * inv
+    bw = (d00 * d21 - d01 * d20) * inv
+    h = np.einsum("ij,ij->i", v, T[:, 9:12])
+    inside = (inv > 0) & (bv >= 0) & (bw >= 0) & (bv + bw <= 1)
+    return bv, bw, h, inside
+
+
+def _rim_closest(T: np.ndarray, q: np.ndarray):
+    """3D: closest point of each triangle's rim (its three edges) to q. Returns the squared
+    distance, q minus that point, and the edge (0: corners 0-1, 1: 0-2, 2: 1-2) when the point
+    lies strictly inside it (-1 at a corner)."""
+    a, e0, e1 = T[:, 0:3], T[:, 3:6], T[:, 6:9]
+    best = np.full(q.shape[0], np.inf)
+    vec = np.zeros((q.shape[0], 3))
+    edge = np.full(q.shape[0], -1)
+    m = _INTERIOR_MARGIN
+    for k, (s0, t) in enumerate(((a, e0), (a, e1), (a + e0, e1 - e0))):
+        w = q - s0
+        tt = np.einsum("ij,ij->i", w, t) / np.maximum(np.einsum("ij,ij->i", t, t), 1e-300)
+        diff = w - np.clip(tt, 0, 1)[:, None] * t
+        dd = np.einsum("ij,ij->i", diff, diff)
+        better = dd < best
+        best[better] = dd[better]
+        vec[better] = diff[better]
+        edge[better] = np.where((tt[better] > m) & (tt[better] < 1 - m), k, -1)
+    return best, vec, edge
+
+
 def _prim_distance(g: _Geometry, q: np.ndarray, p: np.ndarray, T: np.ndarray | None = None):
     """Squared distance from points q (n, d) to primitives p (n,), where the closest point lies, side.
 
@@ -496,39 +545,17 @@ def _prim_distance(g: _Geometry, q: np.ndarray, p: np.ndarray, T: np.ndarray | N
     if T is None:
         T = np.take(g.table, p, axis=0)
     if g.dim == 2:
-        abx, aby, inv = T[:, 2], T[:, 3], T[:, 4]
-        apx = q[:, 0] - T[:, 0]
-        apy = q[:, 1] - T[:, 1]
-        t = (apx * abx + apy * aby) * inv
-        tc = np.clip(t, 0.0, 1.0)
-        dx = apx - tc * abx
-        dy = apy - tc * aby
-        d2 = dx * dx + dy * dy
+        t, dx, dy = _segment_offset(T, q)
         loc = (t <= m).astype(np.int8)  # _LOC_START (also for a degenerate segment: t = 0)
         loc[t >= 1 - m] = _LOC_END
-        side = abx * apy - aby * apx > 0
-        return d2, loc, side
-    a, e0, e1, nrm = T[:, 0:3], T[:, 3:6], T[:, 6:9], T[:, 9:12]
-    d00, d01, d11, inv = T[:, 12], T[:, 13], T[:, 14], T[:, 15]
-    v = q - a
-    d20 = np.einsum("ij,ij->i", v, e0)
-    d21 = np.einsum("ij,ij->i", v, e1)
-    bv = (d11 * d20 - d01 * d21) * inv
-    bw = (d00 * d21 - d01 * d20) * inv
-    bu = 1.0 - bv - bw
-    h = np.einsum("ij,ij->i", v, nrm)
-    proj_in = (inv > 0) & (bu >= 0) & (bv >= 0) & (bw >= 0)
+        side = T[:, 2] * (q[:, 1] - T[:, 1]) - T[:, 3] * (q[:, 0] - T[:, 0]) > 0
+        return dx * dx + dy * dy, loc, side
+    bv, bw, h, proj_in = _triangle_projection(T, q)
     d2 = h * h
     rim = np.flatnonzero(~proj_in)
     if rim.size:
-        best = np.full(rim.size, np.inf)
-        ar, e0r, e1r, qr = a[rim], e0[rim], e1[rim], q[rim]
-        for s, t in ((ar, e0r), (ar, e1r), (ar + e0r, e1r - e0r)):
-            w = qr - s
-            tt = np.clip(np.einsum("ij,ij->i", w, t) / np.maximum(np.einsum("ij,ij->i", t, t), 1e-300), 0, 1)
-            diff = w - tt[:, None] * t
-            np.minimum(best, np.einsum("ij,ij->i", diff, diff), out=best)
-        d2[rim] = best
+        d2[rim] = _rim_closest(T[rim], q[rim])[0]
+    bu = 1.0 - bv - bw
     interior = proj_in & (bu > m) & (bv > m) & (bw > m)
     loc = np.where(interior, _LOC_INTERIOR, _LOC_RIM).astype(np.int8)
     return d2, loc, h < 0
@@ -536,47 +563,21 @@ def _prim_distance(g: _Geometry, q: np.ndarray, p: np.ndarray, T: np.ndarray | N
 
 def _segment_distance2(g: _Geometry, q: np.ndarray, p: np.ndarray) -> np.ndarray:
     """2D: squared distance from points q (n, 2) to segments p (n,) (_prim_distance without flags)."""
-    T = np.take(g.table, p, axis=0)
-    abx, aby = T[:, 2], T[:, 3]
-    apx = q[:, 0] - T[:, 0]
-    apy = q[:, 1] - T[:, 1]
-    t = (apx * abx + apy * aby) * T[:, 4]
-    np.clip(t, 0.0, 1.0, out=t)
-    apx -= t * abx
-    apy -= t * aby
-    return apx * apx + apy * apy
+    _, dx, dy = _segment_offset(np.take(g.table, p, axis=0), q)
+    return dx * dx + dy * dy
 
 
 def _offset_to_closest(g: _Geometry, q: np.ndarray, p: np.ndarray) -> np.ndarray:
     """q - y, y the point of primitive p closest to q (rows of q (n, d), p (n,))."""
     T = np.take(g.table, p, axis=0)
     if g.dim == 2:
-        ab = T[:, 2:4]
-        ap = q - T[:, 0:2]
-        t = np.clip(np.einsum("ij,ij->i", ap, ab) * T[:, 4], 0.0, 1.0)
-        return ap - t[:, None] * ab
-    a, e0, e1, nrm = T[:, 0:3], T[:, 3:6], T[:, 6:9], T[:, 9:12]
-    d00, d01, d11, inv = T[:, 12], T[:, 13], T[:, 14], T[:, 15]
-    v = q - a
-    d20 = np.einsum("ij,ij->i", v, e0)
-    d21 = np.einsum("ij,ij->i", v, e1)
-    bv = (d11 * d20 - d01 * d21) * inv
-    bw = (d00 * d21 - d01 * d20) * inv
-    out = np.einsum("ij,i->ij", nrm, np.einsum("ij,ij->i", v, nrm))
-    rim = np.flatnonzero(~((inv > 0) & (bv >= 0) & (bw >= 0) & (bv + bw <= 1)))
+        _, dx, dy = _segment_offset(T, q)
+        return np.column_stack([dx, dy])
+    _, _, h, inside = _triangle_projection(T, q)
+    out = T[:, 9:12] * h[:, None]
+    rim = np.flatnonzero(~inside)
     if rim.size:
-        best = np.full(rim.size, np.inf)
-        vec = np.zeros((rim.size, 3))
-        ar, e0r, e1r, qr = a[rim], e0[rim], e1[rim], q[rim]
-        for s, t in ((ar, e0r), (ar, e1r), (ar + e0r, e1r - e0r)):
-            w = qr - s
-            tt = np.clip(np.einsum("ij,ij->i", w, t) / np.maximum(np.einsum("ij,ij->i", t, t), 1e-300), 0, 1)
-            diff = w - tt[:, None] * t
-            dd = np.einsum("ij,ij->i", diff, diff)
-            better = dd < best
-            best[better] = dd[better]
-            vec[better] = diff[better]
-        out[rim] = vec
+        out[rim] = _rim_closest(T[rim], q[rim])[1]
     return out
 
 
@@ -585,21 +586,7 @@ def _edge_inside(g: _Geometry, q: np.ndarray, p: np.ndarray) -> np.ndarray:
     edge shared with one other triangle (side of the edge pseudo-normal n1 + n2, exact for a
     closed surface), 0 when undecided (a corner, a non-manifold edge)."""
     T = np.take(g.table, p, axis=0)
-    a, e0, e1 = T[:, 0:3], T[:, 3:6], T[:, 6:9]
-    best = np.full(p.size, np.inf)
-    vec = np.zeros((p.size, 3))
-    edge = np.full(p.size, -1)
-    m = _INTERIOR_MARGIN
-    for k, (s0, t) in enumerate(((a, e0), (a, e1), (a + e0, e1 - e0))):
-        w = q - s0
-        tt = np.einsum("ij,ij->i", w, t) / np.maximum(np.einsum("ij,ij->i", t, t), 1e-300)
-        tc = np.clip(tt, 0, 1)
-        diff = w - tc[:, None] * t
-        dd = np.einsum("ij,ij->i", diff, diff)
-        better = dd < best
-        best[better] = dd[better]
-        vec[better] = diff[better]
-        edge[better] = np.where((tt[better] > m) & (tt[better] < 1 - m), k, -1)
+    best, vec, edge = _rim_closest(T, q)
     out = np.zeros(p.size, dtype=np.int8)
     on = np.flatnonzero(edge >= 0)
     other = g.tri_adj[p[on], edge[on]]
