@@ -474,15 +474,7 @@ def test_star_polyhedron_against_grid_search():
     ax = np.arange(-1.2, 1.2 + h, h)
     x = np.column_stack([c.ravel() for c in np.meshgrid(ax, ax, ax)])
     x = x[np.linalg.norm(x, axis=1) < 1.2]
-    best = 0.0
-    for xc in np.array_split(x, 40):
-        A, B, C = (tri[None, :, k] - xc[:, None] for k in range(3))
-        la, lb, lc = (np.linalg.norm(M, axis=-1) for M in (A, B, C))
-        num = (A * np.cross(B, C)).sum(-1)
-        den = la * lb * lc + (A * B).sum(-1) * lc + (A * C).sum(-1) * lb + (B * C).sum(-1) * la
-        inside = np.abs(2 * np.arctan2(num, den).sum(1)) > 2 * np.pi
-        if inside.any():
-            best = max(best, point_tri_dist(xc[inside], tri).min(1).max())
+    best = grid_inscribed_radius(x, tri, 40)
     diam = element_diameters(pm)[0]
     assert best - 1e-3 * diam <= r[0] <= best + h * math.sqrt(3) / 2 + 1e-12
     assert pm.measure[0] < 0.97 * ConvexHull(v).volume  # really non-convex
@@ -503,6 +495,21 @@ def point_tri_dist(p, tri):
     edges = np.minimum.reduce([seg_dist1(p, a, b), seg_dist1(p, b, c), seg_dist1(p, c, a)])
     return np.where(inside, np.abs(h), edges)
 
+
+
+def grid_inscribed_radius(x: np.ndarray, tri: np.ndarray, chunks: int) -> float:
+    """Reference for the 3D inscribed radius: the largest distance to the surface `tri` (T, 3, 3)
+    over the grid points x inside it (winding number), in `chunks` batches."""
+    best = 0.0
+    for xc in np.array_split(x, chunks):
+        A, B, C = (tri[None, :, k] - xc[:, None] for k in range(3))
+        la, lb, lc = (np.linalg.norm(M, axis=-1) for M in (A, B, C))
+        num = (A * np.cross(B, C)).sum(-1)
+        den = la * lb * lc + (A * B).sum(-1) * lc + (A * C).sum(-1) * lb + (B * C).sum(-1) * la
+        inside = np.abs(2 * np.arctan2(num, den).sum(1)) > 2 * np.pi
+        if inside.any():
+            best = max(best, point_tri_dist(xc[inside], tri).min(1).max())
+    return best
 
 def seg_dist1(p, a, b):
     ab = b - a
@@ -683,15 +690,7 @@ def test_agglomerated_tets_bnb_within_eps_of_reference():
             tri += [[ring[0], ring[j], ring[j + 1]] for j in range(1, ring.size - 1)]
         tri = poly.points[np.array(tri)]
         xe = x[np.all((x >= tri.min((0, 1))) & (x <= tri.max((0, 1))), axis=1)]
-        best = 0.0
-        for xc in np.array_split(xe, max(1, xe.shape[0] // 500)):  # winding-number inside test
-            A, B, C = (tri[None, :, k] - xc[:, None] for k in range(3))
-            la, lb, lc = (np.linalg.norm(M, axis=-1) for M in (A, B, C))
-            num = (A * np.cross(B, C)).sum(-1)
-            den = la * lb * lc + (A * B).sum(-1) * lc + (A * C).sum(-1) * lb + (B * C).sum(-1) * la
-            inside = np.abs(2 * np.arctan2(num, den).sum(1)) > 2 * np.pi
-            if inside.any():
-                best = max(best, point_tri_dist(xc[inside], tri).min(1).max())
+        best = grid_inscribed_radius(xe, tri, max(1, xe.shape[0] // 500))
         assert best > 0
         assert best - eps[e] <= r[e] <= best + h * math.sqrt(3) / 2 + 1e-12
 
