@@ -13,7 +13,7 @@ from service.error_envelope import ErrorsInBody
 from service.jobs import BrokerUnavailable, NotFinished, NotFound, QueueFull
 from service.limits import BodySizeLimit
 from service.mesh_check import UploadRejected
-from service.routers import health, jobs, meshes, models
+from service.routers import events, health, jobs, meshes, models
 from service.settings import Settings
 from service.storage import Storage
 from worker.celery_app import make_celery
@@ -40,7 +40,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         form_max_bytes=settings.max_upload_bytes * 4 // 3 + (1 << 20),
     )
     app.add_middleware(ErrorsInBody)
-    for router in (health.router, meshes.router, jobs.router, models.router):
+    for router in (health.router, meshes.router, jobs.router, events.router, models.router):
         app.include_router(router)
     _error_handlers(app)
     return app

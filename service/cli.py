@@ -152,6 +152,7 @@ def run_serve(args: argparse.Namespace) -> int:
             port=args.port,
             log_level=args.log_level.lower(),
             timeout_keep_alive=30,
+            timeout_graceful_shutdown=10,  # open event streams (GET /v1/jobs/{id}/events) end here
         )
     finally:
         if worker:
