@@ -189,3 +189,30 @@ def test_python_api(server, tmp_path):
         with pytest.raises(MagnetHTTPError) as err:
             client.job("0" * 32)
         assert err.value.status == 404
+
+
+def test_progress_bar_and_event_stream(server, tmp_path):
+    """`magnet-client --progress` draws the job's stages and percentage (from the event stream) as a
+    tqdm bar; Client.events yields the records the page shows, the last one final."""
+    mesh = square_mesh(tmp_path / "square.vtu", 60)
+    out = subprocess.run(
+        [sys.executable, "-m", "magnet_client.cli", "--server", server, "--token", TOKEN, "agglomerate",
+         str(mesh), "-o", str(tmp_path / "out.vtu"), "--k", "150", "--seed", "7", "--progress"],
+        cwd=CLIENT, env=client_env(), capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    frames = [f.strip() for f in out.stderr.replace("\r", "\n").split("\n") if "%" in f]
+    assert any(" 100% " in f for f in frames), frames
+    assert len({f.split()[0] for f in frames}) >= 2, frames  # several stages shown, not just the end
+    sys.path.insert(0, str(CLIENT))
+    try:
+        from magnet_client import Client
+    finally:
+        sys.path.remove(str(CLIENT))
+    with Client(server, TOKEN) as client:
+        job = client.submit(client.upload(mesh)["id"], k=150, seed=8)
+        records = list(client.events(job["id"]))
+        assert records[-1]["status"] == "succeeded" and records[-1]["progress"] == 1.0
+        assert [r["progress"] for r in records] == sorted(r["progress"] for r in records)
+        assert list(client.events(job["id"])) == [records[-1]]  # a finished job: its final record at once
+        assert client.wait(job["id"], progress=False) == records[-1]

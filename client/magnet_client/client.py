@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import json
 import os
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import httpx
 
 OPTION_NAMES = ("seed", "absorb_fraction", "hole_policy", "physical_tag", "method")
 PARAM_NAMES = ("model", "mode", "k", "nref", "target_size", "mult_factor", "subset", "refiner")
+FINAL = ("succeeded", "failed", "cancelled")
 
 
 class MagnetHTTPError(Exception):
@@ -41,6 +44,16 @@ def job_params(params: dict) -> dict:
     if "subset" in body:
         body["subset"] = [int(i) for i in body["subset"]]
     return body
+
+
+def http_error(response: httpx.Response, method: str, path: str) -> MagnetHTTPError:
+    try:
+        detail = response.json().get("detail", response.text)
+    except ValueError:
+        detail = response.text
+    return MagnetHTTPError(
+        response.status_code, detail if isinstance(detail, str) else str(detail), method, path
+    )
 
 
 class Client:
@@ -87,13 +100,7 @@ class Client:
                 time.sleep(min(float(response.headers.get("Retry-After", 2**attempt)), 30))
                 continue
             if response.status_code >= 400:
-                try:
-                    detail = response.json().get("detail", response.text)
-                except ValueError:
-                    detail = response.text
-                raise MagnetHTTPError(
-                    response.status_code, detail if isinstance(detail, str) else str(detail), method, path
-                )
+                raise http_error(response, method, path)
             return response
         raise AssertionError("unreachable")
 
@@ -134,10 +141,56 @@ class Client:
     def cancel(self, job_id: str) -> dict:
         return self._request("DELETE", f"/v1/jobs/{job_id}").json()
 
+    def events(self, job_id: str, read_timeout: float = 60.0) -> Iterator[dict]:
+        """The job's record each time its status, stage or progress changes (the server-sent events
+        of GET /v1/jobs/{id}/events), the last one final. The server may close a long stream early
+        (restart, 10-minute cap): then the iteration just ends before a final record."""
+        path = f"/v1/jobs/{job_id}/events"
+        timeout = httpx.Timeout(self.http.timeout.connect, read=read_timeout)
+        with self.http.stream("GET", path, timeout=timeout) as response:
+            if response.status_code >= 400:
+                response.read()
+                raise http_error(response, "GET", path)
+            data: list[str] = []
+            for line in response.iter_lines():
+                if line.startswith("data:"):
+                    data.append(line[5:].removeprefix(" "))
+                elif line == "" and data:
+                    record = json.loads("\n".join(data))
+                    data = []
+                    if "status" in record:
+                        yield record
+
+    def follow(self, job_id: str, poll: float = 0.5, read_timeout: float = 60.0) -> Iterator[dict]:
+        """The job's record as it changes until it ends: from the event stream (reconnecting when it
+        closes early), or by polling every `poll` s from a server without one."""
+        streaming, delay = True, min(poll, 0.1)
+        while True:
+            if streaming:
+                try:
+                    for job in self.events(job_id, read_timeout):
+                        yield job
+                        if job["status"] in FINAL:
+                            return
+                except MagnetHTTPError as exc:
+                    if exc.status not in (404, 405):
+                        raise
+                    streaming = False  # an older server (or an unknown id: self.job says which)
+                except httpx.TransportError:
+                    streaming = False
+            job = self.job(job_id)
+            yield job
+            if job["status"] in FINAL:
+                return
+            if not streaming:
+                time.sleep(delay)
+                delay = min(delay * 1.5, poll)
+
     def wait(
         self, job_id: str, progress: bool = True, poll: float = 0.5, timeout: float | None = None
     ) -> dict:
-        """Poll until the job ends; a progress bar on stderr when `progress`. JobFailed unless it succeeded."""
+        """Follow the job until it ends; a tqdm progress bar on stderr (stage and percentage, as the
+        web page shows them) when `progress`. JobFailed unless it succeeded."""
         bar = None
         if progress:
             from tqdm import tqdm
@@ -149,20 +202,15 @@ class Client:
                 leave=False,
             )
         deadline = None if timeout is None else time.monotonic() + timeout
-        delay = min(poll, 0.1)
+        read_timeout = 60.0 if timeout is None else max(1.0, min(60.0, timeout))
         try:
-            while True:
-                job = self.job(job_id)
+            for job in self.follow(job_id, poll, read_timeout):
                 if bar is not None:
                     bar.set_description_str(job.get("stage") or job["status"], refresh=False)
                     bar.n = int(round(100 * job.get("progress", 0.0)))
                     bar.refresh()
-                if job["status"] in ("succeeded", "failed", "cancelled"):
-                    break
-                if deadline is not None and time.monotonic() > deadline:
+                if job["status"] not in FINAL and deadline is not None and time.monotonic() > deadline:
                     raise TimeoutError(f"job {job_id} still {job['status']} after {timeout} s")
-                time.sleep(delay)
-                delay = min(delay * 1.5, poll)
         finally:
             if bar is not None:
                 bar.close()
