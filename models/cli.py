@@ -29,6 +29,8 @@ def _add_job_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--absorb", type=float, default=0.0, metavar="FRACTION",
                    help="absorb parts smaller than FRACTION x mean part size into their longest-interface neighbour")
     p.add_argument("--method", default="kway", choices=["kway", "recursive"], help="METIS k-way or recursive (kway mode)")
+    p.add_argument("--boundary-tag", type=int, default=1, metavar="N",
+                   help="lymph bc_tag of boundary edges without a boundary group (default 1)")
     p.add_argument("--hole-policy", default="split", choices=["split", "error"], help="what to do with elements that enclose a hole")
     p.add_argument("--seed", type=int, default=0)
 
@@ -99,7 +101,8 @@ def cmd_agglomerate(args) -> int:
         res.timings = {"read": t_read, **res.timings}
         if args.lymph and mesh.dim != 2:
             raise ParameterError("--lymph is for 2D meshes only")
-        pipeline.write_outputs(res, vtu=args.output, metrics=args.metrics, labels=args.labels, lymph=args.lymph, plot=args.plot)
+        pipeline.write_outputs(res, vtu=args.output, metrics=args.metrics, labels=args.labels, lymph=args.lymph, plot=args.plot,
+                               boundary_tag=args.boundary_tag)
     finally:
         prog.close()
     total = time.perf_counter() - t0

@@ -59,7 +59,8 @@ MIRROR = {
     VTK_WEDGE: np.array([0, 2, 1, 3, 5, 4]),
     VTK_PYRAMID: np.array([0, 3, 2, 1, 4]),
 }
-TAG_NAMES = ("gmsh:physical", "CellEntityIds", "cell_tags", "medit:ref", "physical", "material", "tag")
+TAG_NAMES = ("gmsh:physical", "CellEntityIds", "cell_tags", "medit:ref", "physical", "material", "tag", "physical_group")
+BOUNDARY_TAG_NAME = "boundary_tag"  # boundary groups of lower-dimensional cells, as models.vtu writes them
 SUPPORTED_EXTENSIONS = (".vtu", ".vtk", ".msh", ".xdmf", ".xmf", ".mesh", ".med", ".inp", ".obj", ".off", ".ply", ".stl", ".h5m", ".su2", ".nas", ".bdf", ".f3grid", ".avs", ".dat", ".tec", ".ugrid")
 
 
@@ -83,6 +84,10 @@ def read_mesh(path: str | os.PathLike, physical_tag: str | None = None, file_for
     except MeshError:
         raise
     except (Exception, SystemExit) as exc:  # meshio raises many kinds (even SystemExit) on broken input
+        if "polyhedra with other cells" in str(exc) and (file_format or ext).lstrip(".") == "vtu":
+            from .vtu import read_vtu_mixed  # e.g. our own 3D output with its boundary faces
+
+            return mesh_from_meshio(read_vtu_mixed(path), physical_tag=physical_tag)
         msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise MeshError(f"cannot read {os.path.basename(path)} as a mesh: {msg}") from None
     return mesh_from_meshio(m, physical_tag=physical_tag)
@@ -101,13 +106,18 @@ def mesh_from_meshio(m, physical_tag: str | None = None) -> Mesh:
         vtk, tdim, _ = _TYPES[name]
         blocks.append((i, name, vtk, tdim, block.data))
     tag_key = _find_tag_key(m.cell_data, physical_tag)
+    top = max((b[3] for b in blocks if len(b[4])), default=0)
+    bnd_key = BOUNDARY_TAG_NAME if BOUNDARY_TAG_NAME in m.cell_data else tag_key
     cells = []
     for i, name, _vtk, tdim, data in blocks:
-        tags = None
-        if tag_key is not None:
-            tags = np.asarray(m.cell_data[tag_key][i]).reshape(-1)
+        key = tag_key if tdim == top else bnd_key
+        tags = None if key is None else np.asarray(m.cell_data[key][i]).reshape(-1)
         cells.append((name, data, tags, tdim))
-    return mesh_from_blocks(np.asarray(m.points, dtype=np.float64), cells, tag_name=tag_key)
+    mesh = mesh_from_blocks(np.asarray(m.points, dtype=np.float64), cells, tag_name=tag_key)
+    from .boundary import group_names
+
+    mesh.meta["group_names"], mesh.meta["boundary_names"] = group_names(getattr(m, "field_data", None), mesh.dim)
+    return mesh
 
 
 def mesh_from_arrays(points, cells, tags=None) -> Mesh:
@@ -317,7 +327,15 @@ def describe(mesh: Mesh) -> dict:
         "cell_types": mesh.cell_type_counts(),
         "physical_groups": mesh.physical_groups(),
         "bbox": [p.min(axis=0).tolist(), p.max(axis=0).tolist()],
+        **_boundary_summary(mesh),
     }
+
+
+def _boundary_summary(mesh: Mesh) -> dict:
+    from .boundary import summary
+
+    s = summary(mesh)
+    return {"boundary_groups": [g["tag"] for g in s["groups"]], "boundary": s}
 
 
 __all__ = ["read_mesh", "mesh_from_arrays", "mesh_from_meshio", "mesh_from_blocks", "describe", "CELL_TYPE_NAMES"]

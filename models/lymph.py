@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from models.boundary import edge_tags
 from models.errors import MeshError, ParameterError
 from models.graph import sorted_unique
 from models.mesh import PolyMesh
@@ -119,7 +120,8 @@ def _shoelace(xy: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> np.ndar
 def lymph_structs(poly: PolyMesh, boundary_tag: int = 1) -> tuple[dict, dict]:
     """Build lymph's `region` and `neighbor` structs (as dicts, 1-based ids) of a 2D PolyMesh.
 
-    Every element must have exactly one (outer) loop. Boundary edges all get `boundary_tag`.
+    Every element must have exactly one (outer) loop. `bc_tag` of a boundary edge is its boundary
+    group (poly.facet_tags, see models.boundary), `boundary_tag` where it has none.
     Two elements are neighbours across an edge when both loops contain the same vertex pair
     (loops are made of fine-mesh vertices, so shared interfaces consist of whole fine edges).
     """
@@ -156,7 +158,7 @@ def lymph_structs(poly: PolyMesh, boundary_tag: int = 1) -> tuple[dict, dict]:
     neighedges[ea], neighedges[eb] = local[eb] + 1, local[ea] + 1
     bnd = np.sort(order[first[mult == 1]])
     connectivity_bc = np.column_stack([v0[bnd], v1[bnd]]) + 1
-    bc_tag = np.full(bnd.shape[0], int(boundary_tag), dtype=np.int64)
+    bc_tag = edge_tags(poly, used[v0[bnd]], used[v1[bnd]], default=boundary_tag)
 
     area = _shoelace(xy, starts, counts)
     bbox = np.column_stack([

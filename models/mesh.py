@@ -116,6 +116,8 @@ class PolyMesh:
         faces, each ordered so that its normal (right-hand rule) points out of the element.
     measure (E,): area / volume; n_fine (E,): number of fine cells; tags (E,) or None: physical
         group (majority of its fine cells); labels (C,): fine cell -> element id.
+    facet_tags / facet_on_boundary: boundary group (models.boundary.NO_TAG if none) and "on the
+        domain boundary" of every loop edge (2D) / face (3D), when the mesh has boundary groups.
     """
 
     points: np.ndarray
@@ -127,6 +129,8 @@ class PolyMesh:
     labels: np.ndarray
     tags: np.ndarray | None = None
     frame: np.ndarray | None = None
+    facet_tags: np.ndarray | None = None
+    facet_on_boundary: np.ndarray | None = None
 
     @property
     def dim(self) -> int:

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .agglomerate import Agglomeration, CellData, agglomerate, compact_labels, connected_parts
+from .boundary import FineBoundary, annotate, fine_boundary, has_groups
 from .errors import MeshError, ParameterError
 from .geometry import cell_faces, measures_and_centroids
 from .graph import DualGraph, dual_graph
@@ -38,6 +39,7 @@ class Result:
     holes_split: int
     timings: dict = field(default_factory=dict)
     metrics: dict | None = None
+    boundary: FineBoundary | None = None  # the fine mesh's boundary groups, when it has any
 
     def summary(self) -> dict:
         s = self.agglomeration.summary()
@@ -140,9 +142,13 @@ def run(
     poly, labels, n_split = split_holes(mesh, graph, data, agg.labels, hole_policy)
     agg.labels = labels
     agg.n_elements = poly.n_elements
+
+    fb = fine_boundary(mesh, graph.faces, graph.partner) if has_groups(mesh) else None
+    if fb is not None:
+        annotate(poly, fb)  # every element facet keeps the group of its fine facet
     timings["merge"] = time.perf_counter() - t
 
-    res = Result(mesh=mesh, graph=graph, data=data, agglomeration=agg, poly=poly, holes_split=n_split, timings=timings)
+    res = Result(mesh=mesh, graph=graph, data=data, agglomeration=agg, poly=poly, holes_split=n_split, timings=timings, boundary=fb)
     if compute_metrics:
         t = time.perf_counter()
         report(0.8, "metrics")
@@ -168,8 +174,10 @@ def write_outputs(
     lymph: str | list[str] | None = None,
     plot: str | None = None,
     extra: dict | None = None,
+    boundary_tag: int = 1,
 ) -> dict:
-    """Write the requested outputs; returns {kind: path}. lymph: path(s), '.mat' or '.json' by extension."""
+    """Write the requested outputs; returns {kind: path}. lymph: path(s), '.mat' or '.json' by extension.
+    boundary_tag: lymph bc_tag of boundary edges without a boundary group."""
     out: dict[str, str] = {}
     t = time.perf_counter()
     if vtu:
@@ -179,7 +187,9 @@ def write_outputs(
         if res.metrics is not None:
             for name, vals in res.metrics["per_element"].items():
                 cell_data[name] = np.asarray(vals, dtype=np.float64)
-        write_vtu(vtu, res.poly, cell_data)
+        from .boundary import output_cells
+
+        write_vtu(vtu, res.poly, cell_data, boundary=output_cells(res.poly))
         out["mesh"] = vtu
     if labels:
         _atomic_write(labels, json.dumps(res.agglomeration.labels.tolist()))
@@ -189,7 +199,7 @@ def write_outputs(
             raise ParameterError("lymph output exists for 2D meshes only")
         from .lymph import lymph_structs, write_lymph_json, write_lymph_mat
 
-        region, neighbor = lymph_structs(res.poly)
+        region, neighbor = lymph_structs(res.poly, boundary_tag=boundary_tag)
         for i, path in enumerate([lymph] if isinstance(lymph, str) else lymph):
             (write_lymph_json if path.endswith(".json") else write_lymph_mat)(path, region, neighbor)
             out["lymph" if i == 0 else f"lymph{i}"] = path
@@ -203,6 +213,10 @@ def write_outputs(
         if res.metrics is None:
             res.metrics = element_metrics(res)
         report = dict(res.metrics)
+        if res.boundary is not None:
+            from .boundary import measure_report
+
+            report["boundary"] = measure_report(res.boundary, res.poly)
         report["run"] = {**res.summary(), **(extra or {})}
         _atomic_write(metrics, json.dumps(report, indent=1))
         out["metrics"] = metrics
