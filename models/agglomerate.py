@@ -23,7 +23,7 @@ from .mesh import Mesh
 from .partitioners import Partitioner, get_partitioner
 from .partitioners.base import GraphBatch
 
-MODES = ("kway", "nref", "target-size", "mult-factor", "segregated", "coarsen")
+MODES = ("kway", "nref", "target-size", "mult-factor", "segregated", "coarsen", "multilevel")
 MAX_NREF = 30
 MAX_LEVELS = 64
 
@@ -40,6 +40,8 @@ class Agglomeration:
     fragments_absorbed: int
     timings: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
+    levels: list | None = None  # labels over `nodes` after each recursion level (record_levels)
+    nodes: np.ndarray | None = None
 
     def summary(self) -> dict:
         return {
@@ -228,22 +230,71 @@ def _force_split(batch: GraphBatch, split: np.ndarray) -> np.ndarray:
     return split
 
 
+def make_bisector(
+    partitioner: Partitioner,
+    refiner=None,
+    multilevel: bool = False,
+    threshold: int = 200,
+    seed: int = 0,
+    timings: dict | None = None,
+) -> Callable[[GraphBatch], np.ndarray]:
+    """batch -> (N,) sides: the partitioner's bisection, optionally multilevel (coarsen every graph
+    to `threshold` nodes by heavy-edge matching, bisect the coarsest graphs, project back level by
+    level) and refined (at every level when multilevel, else once on the batch). Stage times add
+    up in `timings` (coarsen, bisect, refine)."""
+    from .coarsen import coarsen
+
+    tm = timings if timings is not None else {}
+
+    def clock(stage: str, t: float) -> None:
+        tm[stage] = tm.get(stage, 0.0) + time.perf_counter() - t
+
+    def refine(b: GraphBatch, split: np.ndarray) -> np.ndarray:
+        if refiner is None:
+            return split
+        t = time.perf_counter()
+        out = _force_split(b, np.asarray(refiner.refine(b, split), dtype=np.int64))
+        clock("refine", t)
+        return out
+
+    def bisect(batch: GraphBatch) -> np.ndarray:
+        levels = []
+        if multilevel:
+            t = time.perf_counter()
+            levels = coarsen(batch, threshold=threshold, seed=seed)
+            clock("coarsen", t)
+        coarse = levels[-1].batch if levels else batch
+        t = time.perf_counter()
+        split = _force_split(coarse, np.asarray(partitioner.bisect_batch(coarse), dtype=np.int64))
+        clock("bisect", t)
+        for lv in reversed(levels):
+            split = refine(lv.batch, split)[lv.cmap]
+        return refine(batch, split)
+
+    return bisect
+
+
 def recursive_bisection(
     data: CellData,
-    partitioner: Partitioner,
+    partitioner: Partitioner | Callable[[GraphBatch], np.ndarray],
     nodes: np.ndarray,
     labels: np.ndarray,
     levels: int | None = None,
     h: float | np.ndarray | None = None,
     progress: Callable[[float, str], None] | None = None,
+    record: list | None = None,
 ) -> np.ndarray:
     """Bisect parts level by level: `levels` times (nref), or while a part's diameter >= h.
 
     h may be one value or one value per initial part (segregated mode: per physical group).
+    `partitioner` is a Partitioner or a bisect(batch) -> sides function (make_bisector).
     """
+    bisect = partitioner.bisect_batch if isinstance(partitioner, Partitioner) else partitioner
     labels = labels.copy()
     h_part = None if h is None else np.broadcast_to(np.asarray(h, dtype=np.float64), (int(labels.max()) + 1,)).copy()
     n_levels = levels if levels is not None else MAX_LEVELS
+    if record is not None:
+        record.append(labels.copy())
     for level in range(n_levels):
         k = int(labels.max()) + 1
         sizes = np.bincount(labels, minlength=k)
@@ -258,7 +309,7 @@ def recursive_bisection(
         remap[cand] = np.arange(cand.size)
         sub_lab[sel] = remap[labels[sel]]
         batch = make_batch(data, sub_lab[sel], nodes[sel])
-        split = np.asarray(partitioner.bisect_batch(batch), dtype=np.int64)
+        split = np.asarray(bisect(batch), dtype=np.int64)
         split = _force_split(batch, split)
         # nodes whose side is 1 get a new part id: k + index of their part among the candidates
         pos = np.empty(data.graph.n, dtype=np.int64)
@@ -268,6 +319,8 @@ def recursive_bisection(
         labels[pos[moved]] = k + remap[old]
         if h_part is not None:
             h_part = np.concatenate([h_part, h_part[cand]])
+        if record is not None:
+            record.append(labels.copy())
         if progress is not None:
             frac = (level + 1) / n_levels if levels is not None else min(0.95, 1 - 0.5 ** (level + 1))
             progress(frac, f"bisection level {level + 1}")
@@ -308,13 +361,33 @@ def agglomerate(
     seed: int = 0,
     progress: Callable[[float, str], None] | None = None,
     model_options: dict | None = None,
+    refiner=None,
+    threshold: int = 200,
+    record_levels: bool = False,
 ) -> Agglomeration:
-    """Partition the cells and return connected parts (see the module docstring for the modes)."""
+    """Partition the cells and return connected parts (see the module docstring for the modes).
+
+    refiner: None, a name (models.refine.REFINERS) or a Refiner: refines every bisection (every
+    level of the coarsening in mode 'multilevel') or, in mode 'kway', the k-way partition.
+    Mode 'multilevel' stops like nref, target-size or mult-factor, whichever value is given;
+    `threshold` is the coarsest graph size. record_levels: keep the labels after each recursion
+    level in `Agglomeration.levels` (the nested hierarchy, models.hierarchy)."""
     t0 = time.perf_counter()
     n = mesh.n_cells
     if mode not in MODES:
         raise ParameterError(f"unknown mode {mode!r}; choose one of {list(MODES)}")
     part = model if isinstance(model, Partitioner) else get_partitioner(model, seed=seed, **(model_options or {}))
+    if isinstance(refiner, str):
+        from .refine import get_refiner
+
+        refiner = None if refiner == "none" else get_refiner(refiner, seed=seed)
+    if isinstance(threshold, bool) or not isinstance(threshold, int | np.integer) or threshold < 2:
+        raise ParameterError(f"threshold must be an integer >= 2, got {threshold!r}")
+    stage_times: dict[str, float] = {}
+    bisector = make_bisector(part, refiner, mode == "multilevel", int(threshold), seed, stage_times)
+    if refiner is None and mode != "multilevel":
+        bisector = part
+    level_labels: list[np.ndarray] | None = [] if record_levels else None
     if mesh.dim not in part.dims:
         raise ParameterError(f"model {part.name!r} does not handle {mesh.dim}D meshes")
     if absorb_fraction is None or not (0 <= absorb_fraction < 1):
@@ -336,6 +409,10 @@ def agglomerate(
         nodes = np.arange(n, dtype=np.int64)
 
     sub_mode = mode
+    if mode == "multilevel":
+        sub_mode = "nref" if nref is not None else "target-size" if target_size is not None else "mult-factor" if mult_factor is not None else None
+        if sub_mode is None:
+            raise ParameterError("mode 'multilevel' needs one of nref, target_size or mult_factor")
     if mode == "coarsen":
         sub_mode = "kway" if k is not None else "nref" if nref is not None else "target-size" if target_size is not None else "mult-factor" if mult_factor is not None else None
         if sub_mode is None:
@@ -355,6 +432,12 @@ def agglomerate(
         pos[nodes] = np.arange(nodes.size)
         labels[pos[batch.node_ids]] = raw
         labels = compact_labels(labels)
+        if refiner is not None:
+            t = time.perf_counter()
+            refined = np.asarray(refiner.refine_kway(batch, labels[pos[batch.node_ids]]), dtype=np.int64)
+            labels[pos[batch.node_ids]] = refined
+            labels = compact_labels(labels)
+            stage_times["refine"] = time.perf_counter() - t
     elif sub_mode == "nref":
         if nref is None:
             raise ParameterError("nref is required for mode 'nref' (number of refinements)")
@@ -363,7 +446,7 @@ def agglomerate(
         if nref > MAX_NREF or 2**nref > nodes.size:
             raise ParameterError(f"nref = {nref} asks for 2^{nref} elements, more than the {nodes.size} cells to agglomerate")
         requested = 2**int(nref)
-        labels = recursive_bisection(data, part, nodes, labels, levels=int(nref), progress=progress)
+        labels = recursive_bisection(data, bisector, nodes, labels, levels=int(nref), progress=progress, record=level_labels)
     elif sub_mode in ("target-size", "mult-factor", "segregated"):
         if sub_mode == "target-size":
             if target_size is None:
@@ -389,7 +472,7 @@ def agglomerate(
             from .geometry import mesh_diameter
 
             h = f * mesh_diameter(data.points[_used_points(data, nodes)])
-        labels = recursive_bisection(data, part, nodes, labels, h=h, progress=progress)
+        labels = recursive_bisection(data, bisector, nodes, labels, h=h, progress=progress, record=level_labels)
     t_part = time.perf_counter() - t0
 
     parts_before = int(np.count_nonzero(np.bincount(labels)))
@@ -409,7 +492,9 @@ def agglomerate(
         parts_before_split=parts_before,
         parts_split=parts_split,
         fragments_absorbed=absorbed,
-        timings={"partition": t_part, "connect": t_conn},
+        timings={"partition": t_part, "connect": t_conn, **stage_times},
+        levels=level_labels,
+        nodes=nodes if record_levels else None,
     )
 
 

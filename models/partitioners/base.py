@@ -23,6 +23,9 @@ class GraphBatch:
     centroids (N, dim), measures (N,): cell centroid and area/volume.
     tags (N,) int or None: physical group of each cell.
     node_ids (N,): the fine-cell id of each node (for callers; partitioners may ignore it).
+    edge_count (nnz,) or None: how many fine dual-graph edges each edge stands for (a coarsened
+    graph, models.coarsen); None = 1 each. volume (N,) or None: sum of fine degrees of each node;
+    None = degrees(). The normalized cut of a coarse graph uses these, so it equals the fine one.
     """
 
     indptr: np.ndarray
@@ -33,6 +36,8 @@ class GraphBatch:
     measures: np.ndarray
     tags: np.ndarray | None
     node_ids: np.ndarray
+    edge_count: np.ndarray | None = None
+    volume: np.ndarray | None = None
 
     @property
     def n_nodes(self) -> int:
@@ -53,6 +58,14 @@ class GraphBatch:
     def degrees(self) -> np.ndarray:
         return np.diff(self.indptr)
 
+    def edge_counts(self) -> np.ndarray:
+        """(nnz,) fine edges per edge (ones on a fine graph)."""
+        return np.ones(self.indices.size) if self.edge_count is None else np.asarray(self.edge_count, dtype=np.float64)
+
+    def volumes(self) -> np.ndarray:
+        """(N,) degree volume of each node (its degree on a fine graph)."""
+        return self.degrees().astype(np.float64) if self.volume is None else np.asarray(self.volume, dtype=np.float64)
+
     def subgraph(self, b: int) -> GraphBatch:
         """Graph b alone, as a batch of one (local ids)."""
         lo, hi = int(self.graph_ptr[b]), int(self.graph_ptr[b + 1])
@@ -66,6 +79,8 @@ class GraphBatch:
             measures=self.measures[lo:hi],
             tags=None if self.tags is None else self.tags[lo:hi],
             node_ids=self.node_ids[lo:hi],
+            edge_count=None if self.edge_count is None else self.edge_count[e0:e1],
+            volume=None if self.volume is None else self.volume[lo:hi],
         )
 
 

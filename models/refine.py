@@ -1,0 +1,333 @@
+"""Refiners: improve a partition given on a `GraphBatch` (scikit-learn style like partitioners).
+
+`refine(batch, labels)` takes a bisection of every graph of the batch (labels in {0, 1}) and
+returns a better one; `refine_kway(batch, labels)` takes any partition of the batch and moves
+boundary nodes between parts. The cut and the volumes use the batch's edge counts and degree
+volumes, so on a coarsened graph they are the fine graph's.
+
+`fm` (Fiduccia-Mattheyses style, vectorized over the batch):
+- bisection: on the band of nodes within `hops` of the cut, each step moves, in every graph at
+  once, the unlocked node whose move lowers the normalized cut most (possibly a negative gain, to
+  climb out of local minima) within the balance tolerance; a moved node is locked. After at most
+  cut + 1 steps each graph rolls back to the best prefix of its moves. Passes repeat while they
+  gain. Then stray islands go to the other side (both sides connected) and a graph keeps its old
+  bisection unless the refined one has a strictly lower normalized cut.
+- k-way: rounds of simultaneous positive-gain moves of boundary nodes to the neighbouring part
+  they share most edges with, on an independent set (no two moved nodes adjacent, so every gain
+  is exact), within the balance tolerance; a move that would disconnect its part is undone.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from .errors import ParameterError
+from .partitioners.base import GraphBatch
+
+REFINERS: dict[str, str] = {
+    "fm": "models.refine:FMRefiner",
+}
+
+
+class Refiner:
+    """Base class: subclasses set `name` and implement `refine` (and `refine_kway` if they can)."""
+
+    name: str = "base"
+    description: str = ""
+    supports_kway: bool = False
+
+    def refine(self, batch: GraphBatch, labels: np.ndarray) -> np.ndarray:
+        """Better bisection of every graph of the batch: (N,) labels in {0, 1}."""
+        raise NotImplementedError
+
+    def refine_kway(self, batch: GraphBatch, labels: np.ndarray) -> np.ndarray:
+        raise ParameterError(f"refiner {self.name!r} has no k-way mode")
+
+
+def get_refiner(name: str, **options) -> Refiner:
+    """Instantiate the refiner called `name` (ParameterError if unknown)."""
+    if name not in REFINERS:
+        raise ParameterError(f"unknown refiner {name!r}; choose one of {sorted(REFINERS)}")
+    module, factory = REFINERS[name].split(":")
+    return getattr(importlib.import_module(module), factory)(**options)
+
+
+def bisection_state(batch: GraphBatch, side: np.ndarray):
+    """Per-node external/internal edge counts and per-graph cut, degree volumes and measures."""
+    n = batch.n_nodes
+    rows = np.repeat(np.arange(n), np.diff(batch.indptr))
+    ec = batch.edge_counts()
+    diff = side[rows] != side[batch.indices]
+    ext = np.bincount(rows, weights=ec * diff, minlength=n)
+    tot = np.bincount(rows, weights=ec, minlength=n)
+    gi = batch.graph_index()
+    B = batch.n_graphs
+    cut = np.bincount(gi, weights=ext, minlength=B) / 2
+    vol = np.bincount(gi * 2 + side, weights=batch.volumes(), minlength=2 * B).reshape(B, 2)
+    meas = np.bincount(gi * 2 + side, weights=batch.measures, minlength=2 * B).reshape(B, 2)
+    return rows, ec, ext, tot - ext, gi, cut, vol, meas
+
+
+def _ncut(cut: np.ndarray, vol: np.ndarray) -> np.ndarray:
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v0 = np.where(vol[:, 0] > 0, 1 / vol[:, 0], np.inf)
+        v1 = np.where(vol[:, 1] > 0, 1 / vol[:, 1], np.inf)
+        return np.where(cut > 0, cut * (v0 + v1), 0.0)
+
+
+def bisection_ncut(batch: GraphBatch, side: np.ndarray) -> np.ndarray:
+    """(B,) normalized cut of each graph's bisection (inf when a side is empty and the cut is not)."""
+    _, _, _, _, _, cut, vol, _ = bisection_state(batch, side)
+    nc = _ncut(cut, vol)
+    empty = (vol[:, 0] == 0) | (vol[:, 1] == 0)
+    return np.where(empty & (np.diff(batch.graph_ptr) >= 2), np.inf, nc)
+
+
+def cut_band(batch: GraphBatch, side: np.ndarray, hops: int) -> np.ndarray:
+    """(N,) bool: nodes at most `hops`-1 edges away from a node on the cut (hops >= 1)."""
+    n = batch.n_nodes
+    rows = np.repeat(np.arange(n), np.diff(batch.indptr))
+    band = np.bincount(rows, weights=side[rows] != side[batch.indices], minlength=n) > 0
+    for _ in range(max(hops, 1) - 1):
+        band = band | (np.bincount(rows, weights=band[batch.indices], minlength=n) > 0)
+    return band
+
+
+def _segment_first_argmax(score: np.ndarray, seg: np.ndarray, n_seg: int) -> np.ndarray:
+    """Index (into score) of the first maximum of each segment (segments contiguous, sorted);
+    -1 where a segment is empty or all -inf."""
+    out = np.full(n_seg, -1, dtype=np.int64)
+    if score.size == 0:
+        return out
+    starts = np.flatnonzero(np.r_[True, seg[1:] != seg[:-1]])
+    mx = np.maximum.reduceat(score, starts)
+    gmx = np.full(n_seg, -np.inf)
+    gmx[seg[starts]] = mx
+    hit = np.flatnonzero((score == gmx[seg]) & np.isfinite(score))
+    if hit.size:
+        s = seg[hit]
+        first = hit[np.r_[True, s[1:] != s[:-1]]]
+        out[seg[first]] = first
+    return out
+
+
+def fm_pass(batch: GraphBatch, side: np.ndarray, tolerance: float, hops: int, budget: np.ndarray | None = None,
+            score_fn=None):
+    """One FM pass over every graph of the batch with rollback to the best prefix.
+
+    Returns (new side, per-graph normalized cut before, after). `score_fn(state) -> (n_cand,)`
+    may replace the gain as the move priority (the RL refiner's policy); the rollback always
+    uses the true normalized cut."""
+    side = side.astype(np.int64).copy()
+    rows, ec, ext, inn, gi, cut, vol, meas = bisection_state(batch, side)
+    B = batch.n_graphs
+    d = batch.volumes()
+    m = batch.measures
+    total_m = meas.sum(axis=1)
+    band = cut_band(batch, side, hops)
+    cand = np.flatnonzero(band)
+    cg = gi[cand]
+    if budget is None:
+        budget = np.minimum(cut + 1, np.bincount(cg, minlength=B)).astype(np.int64)
+    nc0 = _ncut(cut, vol)
+    nc_cur = nc0.copy()
+    locked = np.zeros(cand.size, dtype=bool)
+    n_steps = int(budget.max()) if budget.size else 0
+    moves = np.full((n_steps, B), -1, dtype=np.int64)
+    hist = np.full((n_steps, B), np.inf)
+    indptr, indices = batch.indptr, batch.indices
+    tol = float(tolerance)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for s in range(n_steps):
+            live = budget > s
+            v_side = side[cand]
+            cut_new = cut[cg] - ext[cand] + inn[cand]
+            vs = vol[cg, v_side] - d[cand]
+            vt = vol[cg, 1 - v_side] + d[cand]
+            nc_new = cut_new * (1 / vs + 1 / vt)
+            ms = meas[cg, v_side] - m[cand]
+            mt = meas[cg, 1 - v_side] + m[cand]
+            tm = np.where(total_m[cg] > 0, total_m[cg], 1.0)
+            imb_new = np.abs(ms - mt) / tm
+            imb_cur = np.abs(meas[cg, 0] - meas[cg, 1]) / tm
+            ok = (~locked) & live[cg] & (vs > 0) & ((imb_new <= tol) | (imb_new < imb_cur))
+            if not ok.any():
+                break
+            gain = nc_cur[cg] - nc_new
+            score = gain if score_fn is None else score_fn(cand, side, gain)
+            score = np.where(ok, score, -np.inf)
+            pick = _segment_first_argmax(score, cg, B)
+            got = pick >= 0
+            if not got.any():
+                break
+            p = pick[got]
+            g = np.flatnonzero(got)
+            v = cand[p]
+            locked[p] = True
+            old = side[v]
+            new = 1 - old
+            # update the state
+            cut[g] = cut_new[p]
+            vol[g, old] -= d[v]
+            vol[g, new] += d[v]
+            meas[g, old] -= m[v]
+            meas[g, new] += m[v]
+            nc_cur[g] = nc_new[p]
+            side[v] = new
+            # neighbours: an edge to a node now on the neighbour's side becomes internal, and vice versa
+            cnt = indptr[v + 1] - indptr[v]
+            src = np.repeat(np.arange(v.size), cnt)
+            eidx = np.repeat(indptr[v] - np.r_[0, np.cumsum(cnt)[:-1]], cnt) + np.arange(int(cnt.sum()))
+            u = indices[eidx]
+            w = ec[eidx]
+            same_now = side[u] == new[src]
+            np.add.at(ext, u, np.where(same_now, -w, w))
+            np.add.at(inn, u, np.where(same_now, w, -w))
+            ext[v], inn[v] = inn[v], ext[v]
+            moves[s, g] = v
+            hist[s, g] = nc_cur[g]
+    # rollback to the best prefix (strictly better than the start, else no move)
+    if n_steps:
+        best_step = np.argmin(hist, axis=0)
+        best_val = hist[best_step, np.arange(B)]
+        keep_upto = np.where(best_val < nc0 - 1e-12, best_step, -1)
+        undo = (np.arange(n_steps)[:, None] > keep_upto[None, :]) & (moves >= 0)
+        side[moves[undo]] ^= 1
+        nc_after = np.where(keep_upto >= 0, best_val, nc0)
+    else:
+        nc_after = nc0
+    return side, nc0, nc_after
+
+
+class FMRefiner(Refiner):
+    """Fiduccia-Mattheyses-style boundary refinement (see the module docstring)."""
+
+    name = "fm"
+    supports_kway = True
+    description = ("FM: boundary gain moves (normalized cut for bisections, edge cut k-way) within a balance "
+                   "tolerance, rollback to the best prefix, parts kept connected; vectorized over the batch")
+
+    def __init__(self, tolerance: float = 0.05, hops: int = 4, passes: int = 8, kway_rounds: int = 30,
+                 kway_tolerance: float = 0.03, seed: int | None = 0):
+        if not 0 <= tolerance < 1:
+            raise ParameterError(f"fm tolerance must be in [0, 1), got {tolerance}")
+        self.tolerance = float(tolerance)
+        self.hops = int(hops)
+        self.passes = int(passes)
+        self.kway_rounds = int(kway_rounds)
+        self.kway_tolerance = float(kway_tolerance)
+        self.seed = seed
+
+    def refine(self, batch: GraphBatch, labels: np.ndarray) -> np.ndarray:
+        labels = np.asarray(labels, dtype=np.int64)
+        if batch.n_nodes == 0:
+            return labels.copy()
+        side = labels.copy()
+        for _ in range(self.passes):
+            side, before, after = fm_pass(batch, side, self.tolerance, self.hops)
+            if not np.any(after < before - 1e-12):
+                break
+        return keep_better(batch, labels, connected_sides(batch, side))
+
+    def refine_kway(self, batch: GraphBatch, labels: np.ndarray) -> np.ndarray:
+        return kway_refine(batch, labels, self.kway_tolerance, self.kway_rounds)
+
+
+def connected_sides(batch: GraphBatch, side: np.ndarray) -> np.ndarray:
+    """Stray islands of a side go to the other side (both sides of each connected graph connected)."""
+    from .partitioners.sage import contiguous_sides
+
+    return contiguous_sides(batch, side, None)
+
+
+def keep_better(batch: GraphBatch, before: np.ndarray, after: np.ndarray) -> np.ndarray:
+    """`after` in the graphs where its normalized cut is strictly lower, else `before`."""
+    nb = bisection_ncut(batch, before)
+    na = bisection_ncut(batch, after)
+    better = na < nb - 1e-12
+    return np.where(better[batch.graph_index()], after, before)
+
+
+def _components_per_part(indptr, indices, rows, labels, k):
+    n = labels.size
+    same = labels[rows] == labels[indices]
+    m = sp.csr_matrix((np.ones(int(same.sum()), dtype=np.int8), (rows[same], indices[same])), shape=(n, n))
+    nc, comp = connected_components(m, directed=False)
+    first = np.full(nc, -1, dtype=np.int64)
+    first[comp] = labels  # any node of the component gives its part
+    return np.bincount(first, minlength=k)
+
+
+def kway_refine(batch: GraphBatch, labels: np.ndarray, tolerance: float = 0.03, rounds: int = 30) -> np.ndarray:
+    """Greedy k-way boundary refinement of the edge cut (see the module docstring)."""
+    labels = np.asarray(labels, dtype=np.int64).copy()
+    n = batch.n_nodes
+    if n == 0:
+        return labels
+    k = int(labels.max()) + 1
+    rows = np.repeat(np.arange(n), np.diff(batch.indptr))
+    cols = batch.indices
+    ec = batch.edge_counts()
+    m = batch.measures
+    w_part = np.bincount(labels, weights=m, minlength=k)
+    cap = (1 + tolerance) * w_part.sum() / k
+    comps0 = _components_per_part(batch.indptr, cols, rows, labels, k)
+    prio_jitter = np.random.default_rng(0).random(n) * 1e-3
+    for _ in range(rounds):
+        lr, lc = labels[rows], labels[cols]
+        ext = lr != lc
+        inn = np.bincount(rows, weights=ec * ~ext, minlength=n)
+        if not ext.any():
+            break
+        # connection of each boundary node to each neighbouring part
+        key = rows[ext] * k + lc[ext]
+        uk, inv = np.unique(key, return_inverse=True)
+        conn = np.bincount(inv, weights=ec[ext])
+        node = uk // k
+        part = uk % k
+        # best target part per node: max conn (uk sorted by node)
+        order = np.lexsort((-conn, node))
+        firsts = order[np.r_[True, node[order][1:] != node[order][:-1]]]
+        v, q, c = node[firsts], part[firsts], conn[firsts]
+        gain = c - inn[v]
+        fits = w_part[q] + m[v] <= cap
+        ok = (gain > 0) & fits & (w_part[labels[v]] - m[v] > 0)
+        v, q, gain = v[ok], q[ok], gain[ok]
+        if v.size == 0:
+            break
+        # independent set: a candidate moves only if no adjacent candidate has a higher priority
+        prio = np.full(n, -np.inf)
+        prio[v] = gain + prio_jitter[v]
+        nb_max = np.full(n, -np.inf)
+        np.maximum.at(nb_max, rows, prio[cols])
+        win = prio[v] > nb_max[v]
+        v, q, gain = v[win], q[win], gain[win]
+        # capacity per target part: best gains first
+        o = np.lexsort((-gain, q))
+        v, q = v[o], q[o]
+        cum = np.cumsum(m[v])
+        start = np.r_[True, q[1:] != q[:-1]]
+        base = np.maximum.accumulate(np.where(start, cum - m[v], 0))
+        fit = w_part[q] + (cum - base) <= cap
+        v, q = v[fit], q[fit]
+        if v.size == 0:
+            break
+        src = labels[v]
+        labels[v] = q
+        # undo the moves out of parts that lost their connectivity
+        for _ in range(5):
+            comps = _components_per_part(batch.indptr, cols, rows, labels, k)
+            broken = comps > comps0
+            bad = broken[src]
+            if not bad.any():
+                break
+            labels[v[bad]] = src[bad]
+            v, q, src = v[~bad], q[~bad], src[~bad]
+        if v.size == 0:
+            break
+        w_part = np.bincount(labels, weights=m, minlength=k)
+    return labels
