@@ -27,6 +27,7 @@ RUN if ! command -v python3 >/dev/null 2>&1 || ! python3 -c "import venv, ensure
 WORKDIR /src
 COPY pyproject.toml ./
 COPY models ./models
+COPY jobqueue ./jobqueue
 COPY service ./service
 COPY worker ./worker
 RUN pip install ".[neural,service]" \

@@ -220,7 +220,7 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
 
     # generate / train live in modules that import gmsh / torch: load them only when asked for
     for name, module, adder, runner, help_ in (
-        ("generate", "models.generate", "add_generate_args", "generate_main", "generate meshes / data sets (gmsh)"),
+        ("generate", "models.generate_cli", "add_generate_args", "generate_main", "generate meshes / data sets (gmsh)"),
         ("train", "models.train", "add_train_args", "train_main", "train a SAGE model"),
     ):
         p = sub.add_parser(name, help=help_)

@@ -12,7 +12,6 @@ Python API, with no configuration files read, no terminal output and one thread.
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 from dataclasses import dataclass
 from pathlib import Path
@@ -428,44 +427,3 @@ def generate(
     if stl is None:
         raise ParameterError("kind 'stl' needs --stl FILE")
     return from_stl(stl, seed, size if size else 0.1)
-
-
-def add_generate_args(parser: argparse.ArgumentParser) -> None:
-    """Arguments of `magnet generate`."""
-    parser.add_argument("kind", choices=KINDS + ("dataset",), help="mesh kind, or 'dataset' (see --recipe)")
-    parser.add_argument("-o", "--out", required=True, help="output file (.vtu, .vtk, .msh, ...), or a folder "
-                        "when --count > 1, or the .npz file of a dataset")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (same seed, same mesh)")
-    parser.add_argument("--count", type=int, default=1, help="number of meshes (seeds seed, seed+1, ...)")
-    parser.add_argument("--size", type=float, default=None, help="mesh size h (default: random per mesh)")
-    parser.add_argument("--n", type=int, default=None, help="points (delaunay/voronoi) or holes/inclusions")
-    parser.add_argument("--parts", type=int, default=None, help="cube-hetero: number of parts, 1-4")
-    parser.add_argument("--regular", action="store_true", help="holes/inclusions on a regular grid")
-    parser.add_argument("--stl", default=None, help="kind stl: the closed surface to fill")
-    parser.add_argument("--format", default="vtu", help="file suffix when writing a folder (default vtu)")
-    parser.add_argument("--recipe", default=None, help="dataset: a recipe name (see models.dataset.RECIPES)")
-    parser.add_argument("--meshes", type=int, default=None, help="dataset: override the recipe's mesh count")
-
-
-def generate_main(args: argparse.Namespace) -> int:
-    """Run `magnet generate`; returns the process exit code."""
-    if args.kind == "dataset":
-        from .dataset import build_dataset
-
-        if not args.recipe:
-            raise ParameterError("generate dataset needs --recipe")
-        ds = build_dataset(args.recipe, args.out, seed=args.seed, n_meshes=args.meshes)
-        print(f"wrote {args.out}: {len(ds)} graphs, {ds.n_nodes} nodes")
-        return 0
-    if args.count < 1:
-        raise ParameterError("--count must be >= 1")
-    out = Path(args.out)
-    if args.count > 1:
-        out.mkdir(parents=True, exist_ok=True)
-    for i in range(args.count):
-        seed = args.seed + i
-        mesh = generate(args.kind, seed, args.size, args.n, args.parts, args.regular, args.stl)
-        path = out / f"{args.kind}_{seed:05d}.{args.format}" if args.count > 1 else out
-        mesh.write(path)
-        print(f"{path}: {mesh.n_cells} cells, {len(mesh.points)} points")
-    return 0

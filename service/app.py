@@ -5,18 +5,19 @@ from __future__ import annotations
 from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
 
+from jobqueue.celery_app import make_celery
+from jobqueue.db import Database
+from jobqueue.dispatch import BrokerUnavailable
+from jobqueue.settings import Settings
+from jobqueue.storage import Storage
 from models.errors import MagnetError
 from service.auth import load_keys
 from service.context import Context
-from service.db import Database
 from service.error_envelope import ErrorsInBody
-from service.jobs import BrokerUnavailable, NotFinished, NotFound, QueueFull
+from service.jobs import NotFinished, NotFound, QueueFull
 from service.limits import BodySizeLimit
 from service.mesh_check import UploadRejected
 from service.routers import events, health, jobs, meshes, models
-from service.settings import Settings
-from service.storage import Storage
-from worker.celery_app import make_celery
 
 DESCRIPTION = """Mesh agglomeration as a service: upload a mesh, queue an agglomeration job (METIS,
 k-means, graph neural networks), poll it, download the agglomerated mesh, its quality metrics,

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from fastapi import HTTPException, Request
 
-from service.settings import Settings
+from jobqueue.settings import Settings
 
 ANONYMOUS = "anonymous"
 LOOPBACK_HOSTS = {"127.0.0.1", "::1", "localhost"}

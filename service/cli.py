@@ -14,8 +14,8 @@ import sys
 import threading
 import time
 
+from jobqueue.settings import Settings
 from service.auth import LOOPBACK_HOSTS, load_keys
-from service.settings import Settings
 
 log = logging.getLogger("magnet.serve")
 

@@ -7,9 +7,9 @@ from dataclasses import dataclass
 from celery import Celery
 from fastapi import Request
 
-from service.db import Database
-from service.settings import Settings
-from service.storage import Storage
+from jobqueue.db import Database
+from jobqueue.settings import Settings
+from jobqueue.storage import Storage
 
 
 @dataclass

@@ -1,4 +1,5 @@
-"""Job life cycle shared by the API and the workers: submit (with dedup), enqueue, cancel, follow.
+"""Job life cycle as the API sees it: submit (with dedup), cancel, look up (enqueueing and
+followers: jobqueue.dispatch, shared with the workers).
 
 Dedup: a request gets its own job id, always. If an identical job (same mesh, same normalized
 parameters, same MODEL_VERSION: same result_key) already succeeded, the new job is born succeeded
@@ -18,7 +19,7 @@ from celery import Celery
 from sqlalchemy import func, select, update
 from sqlalchemy.orm import Session
 
-from service.db import (
+from jobqueue.db import (
     ACTIVE,
     CANCELLED,
     FAILED,
@@ -33,8 +34,9 @@ from service.db import (
     update_job_and_followers,
     utcnow,
 )
-from service.settings import Settings
-from service.storage import Storage
+from jobqueue.dispatch import BrokerUnavailable, enqueue, settle_follower
+from jobqueue.settings import Settings
+from jobqueue.storage import Storage
 
 log = logging.getLogger("magnet.jobs")
 NEURAL_MODEL_PREFIX = "sage"
@@ -46,10 +48,6 @@ class NotFound(Exception):
 
 class QueueFull(Exception):
     """The user has too many queued/running jobs."""
-
-
-class BrokerUnavailable(Exception):
-    """The broker cannot be reached; nothing was queued."""
 
 
 class NotFinished(Exception):
@@ -80,17 +78,6 @@ def visible_job(session: Session, user: str, job_id: str) -> JobRecord:
     if job is None or job.user != user:
         raise NotFound(f"no job {job_id!r}")
     return job
-
-
-def enqueue(celery: Celery, job_id: str, queue: str) -> None:
-    """Send the job id to the broker; BrokerUnavailable when it cannot be reached."""
-    from worker.celery_app import TASK_NAME
-
-    try:
-        celery.send_task(TASK_NAME, args=[job_id], queue=queue)
-    except Exception as exc:  # kombu/redis/sqlalchemy connection errors all mean the same here
-        log.warning("broker unreachable while enqueuing job %s: %s", job_id, exc)
-        raise BrokerUnavailable(str(exc)) from exc
 
 
 def submit_job(
@@ -188,46 +175,6 @@ def submit_job(
             raise
     with db.session() as s:
         return s.get(JobRecord, job.id)
-
-
-def settle_follower(db: Database, celery: Celery, job_id: str) -> None:
-    """Bring a follower in line with its leader once the leader is final (the leader's worker may
-    have finished before the follower was committed). A cancelled leader hands over: the follower
-    becomes a leader and is queued."""
-    with db.session() as s:
-        job = s.get(JobRecord, job_id)
-        if job is None or job.leader_id is None or job.status in FINAL:
-            return
-        leader = s.get(JobRecord, job.leader_id)
-        if leader is not None and leader.status in ACTIVE:
-            return
-        if leader is None or leader.status == CANCELLED:
-            promoted = s.execute(
-                update(JobRecord)
-                .where(JobRecord.id == job_id, JobRecord.status.in_(ACTIVE))
-                .values(leader_id=None, status=QUEUED, progress=0.0, stage=None, enqueued_at=utcnow())
-            ).rowcount
-            s.commit()
-            if promoted:
-                try:
-                    enqueue(celery, job_id, job.queue)
-                except BrokerUnavailable:
-                    pass  # stays queued; a worker's reaper re-sends old queued jobs
-            return
-        s.execute(
-            update(JobRecord)
-            .where(JobRecord.id == job_id, JobRecord.status.in_(ACTIVE))
-            .values(
-                status=leader.status,
-                progress=leader.progress,
-                stage=leader.stage,
-                error=leader.error,
-                result=leader.result,
-                started_at=leader.started_at,
-                finished_at=leader.finished_at,
-            )
-        )
-        s.commit()
 
 
 def cancel_job(db: Database, celery: Celery, user: str, job_id: str) -> JobRecord:

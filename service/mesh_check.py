@@ -143,7 +143,7 @@ def _child_main(argv: list[str]) -> int:
 
         message = str(exc) if isinstance(exc, MeshError) else f"cannot read mesh: {type(exc).__name__}: {exc}"
         out = {"status": 422, "error": message[:2000]}
-    from service.storage import _plain
+    from jobqueue.storage import _plain
 
     print(json.dumps(out, default=_plain))
     return 0

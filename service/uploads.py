@@ -11,8 +11,8 @@ from pathlib import Path
 from sqlalchemy.exc import IntegrityError
 from starlette.concurrency import run_in_threadpool
 
+from jobqueue.db import MeshOwner, MeshRecord, utcnow
 from service.context import Context
-from service.db import MeshOwner, MeshRecord, utcnow
 from service.mesh_check import UploadRejected, extension_of, inspect_upload
 from service.schemas import MeshOut
 

@@ -13,8 +13,8 @@ import pytest
 from fastapi.testclient import TestClient
 from service_fixtures import ROOT, square_mesh
 
+from jobqueue.settings import Settings
 from service.app import create_app
-from service.settings import Settings
 from worker.tasks import execute_job
 
 KEYS = "alice:alice-token,bob:bob-token"
@@ -57,8 +57,8 @@ def test_service_never_imports_torch(tmp_path, square):
 import sys
 from fastapi.testclient import TestClient
 from service.app import create_app
-from service.settings import Settings
-import service.cli, worker.cli, worker.celery_app
+from jobqueue.settings import Settings
+import service.cli, worker.cli, worker.app
 c = TestClient(create_app(Settings(data_dir={str(tmp_path)!r})))
 assert c.get('/v1/models').status_code == 200
 mesh = c.post('/v1/meshes', params={{'filename': 'sq.vtu'}}, content=open({str(square)!r}, 'rb').read()).json()

@@ -12,8 +12,8 @@ schemathesis = pytest.importorskip("schemathesis")
 
 from schemathesis.checks import not_a_server_error  # noqa: E402
 
+from jobqueue.settings import Settings  # noqa: E402
 from service.app import create_app  # noqa: E402
-from service.settings import Settings  # noqa: E402
 
 TOKEN = "fuzz-key"
 _data = Path(tempfile.mkdtemp(prefix="magnet-fuzz-"))

@@ -7,7 +7,7 @@ import argparse
 import os
 import socket
 
-from service.settings import Settings
+from jobqueue.settings import Settings
 
 
 def register_worker(subparsers) -> argparse.ArgumentParser:
@@ -55,11 +55,11 @@ def apply_overrides(args: argparse.Namespace) -> None:
 
 def run_worker(args: argparse.Namespace) -> int:
     apply_overrides(args)
-    from worker.celery_app import make_celery
+    from worker.app import make_worker_app
 
     settings = Settings()
     settings.data_dir.mkdir(parents=True, exist_ok=True)
-    app = make_celery(settings)
+    app = make_worker_app(settings)
     name = args.name or f"magnet-{os.getpid()}@{socket.gethostname()}"
     argv = [
         "worker",

@@ -20,10 +20,10 @@ from datetime import timedelta
 from celery import signals
 from sqlalchemy import delete, select, update
 
-from service import db as jobdb
-from service.db import ACTIVE, FAILED, FINAL, QUEUED, RUNNING, JobRecord, WorkerRecord, utcnow
-from service.jobs import BrokerUnavailable, enqueue, settle_follower
-from service.settings import Settings
+from jobqueue import db as jobdb
+from jobqueue.db import ACTIVE, FAILED, FINAL, QUEUED, RUNNING, JobRecord, WorkerRecord, utcnow
+from jobqueue.dispatch import BrokerUnavailable, enqueue, settle_follower
+from jobqueue.settings import Settings
 
 log = logging.getLogger("magnet.reaper")
 

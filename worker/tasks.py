@@ -20,11 +20,11 @@ from celery import shared_task
 from celery.exceptions import SoftTimeLimitExceeded
 from sqlalchemy import update
 
-from service import db as jobdb
-from service.db import CANCELLED, FAILED, FINAL, QUEUED, RUNNING, SUCCEEDED, JobRecord, MeshRecord, utcnow
-from service.settings import Settings
-from service.storage import Storage
-from worker.celery_app import TASK_NAME
+from jobqueue import db as jobdb
+from jobqueue.celery_app import TASK_NAME
+from jobqueue.db import CANCELLED, FAILED, FINAL, QUEUED, RUNNING, SUCCEEDED, JobRecord, MeshRecord, utcnow
+from jobqueue.settings import Settings
+from jobqueue.storage import Storage
 
 log = logging.getLogger("magnet.worker")
 

@@ -22,9 +22,9 @@ from fastapi import APIRouter, Depends, Request
 from fastapi.responses import StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
+from jobqueue.db import FINAL
 from service.auth import current_user
 from service.context import Context, get_context
-from service.db import FINAL
 from service.jobs import NotFound, visible_job
 from service.routers.jobs import job_out
 from service.routers.meshes import ERRORS

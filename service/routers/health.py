@@ -8,8 +8,8 @@ from fastapi import APIRouter, Depends
 from fastapi.responses import JSONResponse
 from sqlalchemy import func, select
 
+from jobqueue.db import WorkerRecord, utcnow
 from service.context import Context, get_context
-from service.db import WorkerRecord, utcnow
 from service.schemas import Health
 
 router = APIRouter(tags=["health"])

@@ -16,9 +16,9 @@ from pydantic import ValidationError
 from sqlalchemy import func, select
 from starlette.concurrency import run_in_threadpool
 
+from jobqueue.db import SUCCEEDED, JobRecord
 from service.auth import authenticate, current_user
 from service.context import Context, get_context
-from service.db import SUCCEEDED, JobRecord
 from service.jobs import NotFinished, NotFound, cancel_job, submit_job, visible_job
 from service.mesh_check import UploadRejected
 from service.routers.meshes import ERRORS, multipart_file

@@ -1,11 +1,12 @@
 """The Celery application, configured from MAGNET_* settings.
 
 Embedded default (no MAGNET_BROKER_URL): kombu's SQLAlchemy transport on a SQLite file in the data
-directory (worker/embedded_transport.py), so `magnet serve` needs no server. Production: MAGNET_BROKER_URL=redis://host:6379/0.
+directory (jobqueue/embedded_transport.py), so `magnet serve` needs no server. Production: MAGNET_BROKER_URL=redis://host:6379/0.
 No result backend: the job record in the database is the source of truth. Messages are JSON only
 (nothing a client sends is ever unpickled).
 
-`celery -A worker.celery_app worker -Q cpu` works too; `magnet worker` adds the right flags.
+The worker's app (with its task modules) is worker.app: `celery -A worker.app worker -Q cpu` works
+too; `magnet worker` adds the right flags.
 """
 
 from __future__ import annotations
@@ -13,15 +14,16 @@ from __future__ import annotations
 from celery import Celery
 from kombu import Queue
 
-from service.settings import Settings
-from worker import embedded_transport  # noqa: F401  (registers the embedded broker's URL scheme)
+from jobqueue import embedded_transport  # noqa: F401  (registers the embedded broker's URL scheme)
+from jobqueue.settings import Settings
 
 TASK_NAME = "magnet.run_agglomeration"
 QUEUES = ("cpu", "gpu")
 
 
-def make_celery(settings: Settings | None = None) -> Celery:
-    """A Celery app for `settings` (same tasks, only the configuration differs per deployment)."""
+def make_celery(settings: Settings | None = None, include: tuple[str, ...] = ()) -> Celery:
+    """A Celery app for `settings` (same tasks, only the configuration differs per deployment).
+    The API's app sends tasks by name (TASK_NAME); a worker's app `include`s its task modules."""
     settings = settings or Settings()
     broker = settings.resolved_broker_url
     if settings.embedded_broker:
@@ -34,7 +36,7 @@ def make_celery(settings: Settings | None = None) -> Celery:
         }
         if settings.broker_key_prefix:
             transport_options["global_keyprefix"] = settings.broker_key_prefix
-    app = Celery("magnet", broker=broker, include=["worker.tasks", "worker.reaper"])
+    app = Celery("magnet", broker=broker, include=list(include))
     app.conf.update(
         broker_transport_options=transport_options,
         broker_connection_timeout=3,
@@ -67,6 +69,3 @@ def make_celery(settings: Settings | None = None) -> Celery:
     )
     app.magnet_settings = settings
     return app
-
-
-app = make_celery()
