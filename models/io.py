@@ -1,7 +1,9 @@
 """Mesh input: any format meshio reads, turned into one `Mesh` of numpy arrays.
 
 Format quirks stay here. Everything returned is validated: finite coordinates, cell indices in
-range, no degenerate cells, every cell positively oriented (2D counter-clockwise, 3D outward).
+range, no degenerate cells, cells oriented consistently with their neighbours and each connected
+piece positively (2D counter-clockwise, 3D outward): see orientation.py. A folded cell (negative
+signed measure once its neighbours agree) is kept and reported in mesh.meta["orientation"].
 """
 
 from __future__ import annotations
@@ -270,10 +272,12 @@ def _project_to_plane(mesh: Mesh) -> None:
 
 
 def _orient_and_check(mesh: Mesh) -> None:
-    """Flip negatively oriented cells in place and reject degenerate ones."""
-    from .geometry import _measures_and_centroids
+    """Reject degenerate cells, orient cells by topology (see orientation.py), record what was fixed."""
+    from .geometry import _measures_and_centroids, cell_faces
+    from .orientation import orientation_flips
 
-    vol, cen = _measures_and_centroids(mesh)
+    faces = cell_faces(mesh) if mesh.dim == 3 else None
+    vol, cen = _measures_and_centroids(mesh, faces)
     mesh.meta["measures"] = np.abs(vol)  # orientation does not change measure or centroid
     mesh.meta["centroids"] = cen
     bbox = mesh.points.max(axis=0) - mesh.points.min(axis=0)
@@ -285,36 +289,47 @@ def _orient_and_check(mesh: Mesh) -> None:
         ids = np.flatnonzero(degenerate)
         kind = "area" if mesh.dim == 2 else "volume"
         raise MeshError(
-            f"the mesh has {ids.size} degenerate (zero-{kind}) cells, e.g. cell ids {ids[:5].tolist()}"
+            f"the mesh has {ids.size} degenerate (zero-{kind}) cells, e.g. cell ids {ids[:5].tolist()}; "
+            "remove them (or merge their coincident points with --weld) and retry"
         )
-    neg = vol < 0
-    if not neg.any():
-        return
+    flip = orientation_flips(mesh, vol, faces)
+    signed = np.where(flip, -vol, vol)
+    if flip.any():
+        _flip_cells(mesh, flip)
+    folded = np.flatnonzero(signed < 0)
+    mesh.meta["signed_measures"] = signed
+    mesh.meta["orientation"] = {
+        "flipped": int(np.count_nonzero(flip)),
+        "folded": int(folded.size),
+        "folded_cells": folded[:20].tolist(),
+    }
+
+
+def _flip_cells(mesh: Mesh, flip: np.ndarray) -> None:
+    """Reverse the orientation of the cells where `flip` is True (in place, vectorized)."""
     if mesh.dim == 2:
-        # reverse the node cycle of each negative cell (vectorized on the CSR arrays)
-        sizes = np.diff(mesh.offsets)
-        starts = mesh.offsets[:-1]
-        idx = np.arange(mesh.connectivity.size)
-        cell_of = np.repeat(np.arange(len(sizes)), sizes)
-        local = idx - starts[cell_of]
-        flip = neg[cell_of]
-        src = np.where(flip, starts[cell_of] + sizes[cell_of] - 1 - local, idx)
-        mesh.connectivity = mesh.connectivity[src]
+        mesh.connectivity = _reverse_rows(mesh.offsets, mesh.connectivity, flip)
         return
     for t, perm in MIRROR.items():
-        sel = np.flatnonzero(neg & (mesh.cell_types == t))
+        sel = np.flatnonzero(flip & (mesh.cell_types == t))
         if sel.size:
             n = perm.size
             rows = mesh.offsets[sel][:, None] + np.arange(n)[None, :]
             mesh.connectivity[rows] = mesh.connectivity[rows[:, perm]]
-    if mesh.poly_cells is not None:
-        negpoly = np.flatnonzero(neg[mesh.poly_cells])
-        if negpoly.size:
-            fo = mesh.poly_face_offsets
-            cf = mesh.poly_cell_faces
-            face_ids = np.concatenate([np.arange(cf[q], cf[q + 1]) for q in negpoly])
-            for f in face_ids:  # loop over faces of inverted polyhedra only (rare)
-                mesh.poly_face_nodes[fo[f] : fo[f + 1]] = mesh.poly_face_nodes[fo[f] : fo[f + 1]][::-1]
+    if mesh.poly_cells is not None and flip[mesh.poly_cells].any():
+        # reverse every face of the flipped polyhedra
+        face_flip = np.repeat(flip[mesh.poly_cells], np.diff(mesh.poly_cell_faces))
+        mesh.poly_face_nodes = _reverse_rows(mesh.poly_face_offsets, mesh.poly_face_nodes, face_flip)
+
+
+def _reverse_rows(offsets: np.ndarray, values: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """CSR `values` with the rows where `mask` is True reversed (vectorized)."""
+    sizes = np.diff(offsets)
+    starts = offsets[:-1]
+    idx = np.arange(values.size)
+    row = np.repeat(np.arange(sizes.size), sizes)
+    src = np.where(mask[row], 2 * starts[row] + sizes[row] - 1 - idx, idx)
+    return values[src]
 
 
 def describe(mesh: Mesh) -> dict:

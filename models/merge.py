@@ -188,6 +188,11 @@ def _shells(points, face_elem, fo, nodes) -> Holes:
 def _polymesh(mesh: Mesh, elem_offsets, loop_offsets, loop_nodes, labels, measures) -> PolyMesh:
     """The PolyMesh of merged elements, with per-element measure, fine-cell count and group."""
     n_elem = elem_offsets.size - 1
+    # signed measures when the reader recorded them: a folded cell counts negatively, so that an
+    # element's measure is the area/volume its boundary encloses
+    signed = mesh.meta.get("signed_measures")
+    if signed is not None and signed.shape == measures.shape:
+        measures = signed
     return PolyMesh(
         points=mesh.points,
         elem_offsets=elem_offsets,

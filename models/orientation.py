@@ -1,0 +1,135 @@
+"""Orientation by topology: make every cell agree with its neighbours, then fix each piece's sign.
+
+Orienting each cell by the sign of its own measure breaks a mesh with one folded cell (a sliver
+whose vertex lies across its opposite edge): the folded cell gets flipped against its neighbours
+and no element boundary containing it closes. Instead:
+
+1. two cells sharing an edge (2D) or a face (3D) are consistent when they run through it in
+   opposite directions; a parity bit per shared face says whether one of them must be flipped;
+2. a spanning forest of the dual graph (scipy breadth-first search from a virtual root joined to
+   one cell per connected piece) carries the parities to every cell (pointer doubling, no Python
+   loop over cells);
+3. every non-tree pair is checked: a contradiction means the mesh cannot be oriented (a Moebius
+   strip, an inconsistent 3D mesh) and is reported with the cells involved;
+4. each connected piece is flipped as a whole when its total signed measure is negative.
+
+Cells whose signed measure is still negative afterwards are *folded*: they are kept as they are
+(their faces match their neighbours', so merged elements come out closed) and reported.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import breadth_first_order, connected_components
+
+from .errors import MeshError
+from .geometry import Faces, cell_faces
+
+
+def _face_direction(faces: Faces) -> np.ndarray:
+    """(F,) one bit per face: the direction in which it runs around its smallest node.
+
+    Two copies of the same face have opposite bits exactly when they run in opposite directions.
+    """
+    sizes = faces.sizes()
+    if np.all(sizes == 2):
+        e = faces.nodes.reshape(-1, 2)
+        return e[:, 0] < e[:, 1]
+    width = int(sizes.max())
+    big = np.iinfo(np.int64).max
+    pad = np.full((faces.n, width), big, dtype=np.int64)
+    col = np.arange(faces.nodes.size) - np.repeat(faces.offsets[:-1], sizes)
+    row = np.repeat(np.arange(faces.n), sizes)
+    pad[row, col] = faces.nodes
+    j = pad.argmin(axis=1)
+    r = np.arange(faces.n)
+    nxt = pad[r, (j + 1) % sizes]
+    prv = pad[r, (j - 1) % sizes]
+    return nxt < prv
+
+
+def _face_pairs(faces: Faces, n_points: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs (fa, fb) of faces with the same nodes, only where exactly two cells share the face."""
+    from .graph import face_keys
+
+    keys = face_keys(faces, n_points)
+    if keys.ndim == 1:
+        order = np.argsort(keys, kind="stable")
+        sk = keys[order]
+        same = sk[1:] == sk[:-1]
+    else:
+        order = np.lexsort(keys.T[::-1])
+        sk = keys[order]
+        same = np.all(sk[1:] == sk[:-1], axis=1)
+    # keep runs of exactly two (a face shared by 3+ cells is a non-manifold seam: left to the graph check)
+    before = np.r_[False, same[:-1]] if same.size else same
+    after = np.r_[same[1:], False] if same.size else same
+    i = np.flatnonzero(same & ~before & ~after)
+    return order[i], order[i + 1]
+
+
+def orientation_flips(mesh, measures: np.ndarray, faces: Faces | None = None) -> np.ndarray:
+    """(C,) bool: the cells to flip so that neighbours agree and every piece is positive overall.
+
+    `measures` are the signed measures in the cells' current node order. Raises MeshError when no
+    consistent orientation exists.
+    """
+    faces = faces or cell_faces(mesh)
+    n = mesh.n_cells
+    fa, fb = _face_pairs(faces, mesh.n_points)
+    ca, cb = faces.cell[fa], faces.cell[fb]
+    keep = ca != cb
+    fa, fb, ca, cb = fa[keep], fb[keep], ca[keep], cb[keep]
+    bit = _face_direction(faces)
+    parity = bit[fa] == bit[fb]  # True: same direction, one of the two must flip
+    # fast path: flipping each cell by its own sign already makes every pair agree (no folded cell)
+    own = measures < 0
+    if not np.any(parity ^ own[ca] ^ own[cb]):
+        return own
+    flip, piece, n_pieces = _propagate(n, ca, cb, parity, mesh.dim)
+    signed = np.where(flip, -measures, measures)
+    total = np.bincount(piece, weights=signed, minlength=n_pieces)
+    return flip ^ (total[piece] < 0)
+
+
+def _propagate(n: int, ca: np.ndarray, cb: np.ndarray, parity: np.ndarray, dim: int):
+    """Flips from the parities of the pairs: spanning forest + xor along the tree paths."""
+    sym_r, sym_c = np.concatenate([ca, cb]), np.concatenate([cb, ca])
+    g = sp.csr_matrix((np.ones(sym_r.size, dtype=np.int8), (sym_r, sym_c)), shape=(n, n))
+    n_pieces, piece = connected_components(g, directed=True, connection="weak")
+    # virtual root n joined to the first cell of every piece; one BFS gives a spanning forest
+    first = np.full(n_pieces, n, dtype=np.int64)
+    np.minimum.at(first, piece, np.arange(n))
+    rows = np.concatenate([sym_r, np.full(n_pieces, n), first])
+    cols = np.concatenate([sym_c, first, np.full(n_pieces, n)])
+    big = sp.csr_matrix((np.ones(rows.size, dtype=np.int8), (rows, cols)), shape=(n + 1, n + 1))
+    _, pred = breadth_first_order(big, n, directed=True, return_predecessors=True)
+    pred = pred[:n].astype(np.int64)
+    # parity of every tree edge (v, pred[v]): look the pair up among the shared faces
+    pair_key = np.minimum(ca, cb) * np.int64(n) + np.maximum(ca, cb)
+    korder = np.argsort(pair_key, kind="stable")
+    skeys = pair_key[korder]
+    v = np.arange(n, dtype=np.int64)
+    is_root = pred == n
+    par = np.where(is_root, v, pred)
+    want = np.minimum(v, par) * np.int64(n) + np.maximum(v, par)
+    pos = np.minimum(np.searchsorted(skeys, want), max(skeys.size - 1, 0))
+    acc = np.zeros(n, dtype=bool)
+    if skeys.size:
+        acc = ~is_root & parity[korder[pos]]
+    # flip[v] = xor of the parities on the path to the root: pointer doubling
+    anc = par
+    while not np.array_equal(anc[anc], anc):
+        acc = acc ^ acc[anc]
+        anc = anc[anc]
+    bad = (acc[ca] ^ acc[cb]) != parity
+    if bad.any():
+        i = np.flatnonzero(bad)
+        cells = np.unique(np.concatenate([ca[i], cb[i]]))
+        what = "surface is not orientable (a Moebius-like strip)" if dim == 2 else "3D cells cannot be oriented consistently (inconsistent faces)"
+        raise MeshError(
+            f"the mesh {what}: {i.size} shared {'edges' if dim == 2 else 'faces'} contradict the others, "
+            f"e.g. between cells {cells[:6].tolist()}; check the connectivity of these cells"
+        )
+    return acc, piece, n_pieces

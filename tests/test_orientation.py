@@ -1,0 +1,122 @@
+"""Orientation by topology: folded cells are kept and reported, impossible orientations refused."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from defects import folded_tet, write_folded_brain
+from meshes import hexes
+
+from models import pipeline
+from models.errors import MeshError
+from models.geometry import FACE_TEMPLATES
+from models.io import mesh_from_arrays, read_mesh
+from models.mesh import VTK_HEXAHEDRON
+
+
+def _vtk_polygon_areas(path):
+    """Total area of the polygons of a VTU, as loaded by VTK's own reader (shoelace in 3D)."""
+    import vtk
+    from vtk.util.numpy_support import vtk_to_numpy
+
+    r = vtk.vtkXMLUnstructuredGridReader()
+    r.SetFileName(str(path))
+    r.Update()
+    g = r.GetOutput()
+    pts = vtk_to_numpy(g.GetPoints().GetData())
+    offsets = vtk_to_numpy(g.GetCells().GetOffsetsArray())
+    conn = vtk_to_numpy(g.GetCells().GetConnectivityArray())
+    nxt = np.arange(1, conn.size + 1)
+    nxt[offsets[1:] - 1] = offsets[:-1]
+    cross = np.cross(pts[conn], pts[conn[nxt]])
+    cell = np.repeat(np.arange(offsets.size - 1), np.diff(offsets))
+    return g.GetNumberOfCells(), 0.5 * np.bincount(cell, weights=cross[:, 2])
+
+
+@pytest.fixture(scope="module")
+def folded_brain(tmp_path_factory):
+    path = tmp_path_factory.mktemp("fb") / "folded_brain.vtu"
+    cell = write_folded_brain(str(path))
+    return path, cell
+
+
+def test_folded_sliver_is_kept_and_reported(folded_brain):
+    path, cell = folded_brain
+    m = read_mesh(path)
+    o = m.meta["orientation"]
+    assert o["folded"] == 1 and o["folded_cells"] == [cell]
+    assert o["flipped"] > 1000  # the file mixes clockwise and counter-clockwise triangles
+    assert m.meta["signed_measures"][cell] < 0
+    assert np.count_nonzero(m.meta["signed_measures"] < 0) == 1
+
+
+@pytest.mark.parametrize(
+    "mode,kw",
+    [
+        ("kway", {"k": 40}),
+        ("nref", {"nref": 5}),
+        ("target-size", {"target_size": 40.0}),
+        ("mult-factor", {"mult_factor": 0.1}),
+        ("segregated", {"mult_factor": 0.1}),
+        ("coarsen", {"k": 10}),
+    ],
+)
+@pytest.mark.parametrize("model", ["metis", "kmeans"])
+def test_folded_brain_agglomerates_in_every_mode(folded_brain, tmp_path, mode, kw, model):
+    path, cell = folded_brain
+    m = read_mesh(path)
+    total = m.meta["signed_measures"].sum()
+    if mode == "segregated":  # two physical groups: left and right half
+        m.tags = (m.meta["centroids"][:, 0] > np.median(m.meta["centroids"][:, 0])).astype(np.int64) + 1
+    if mode == "coarsen":
+        kw = dict(kw, subset=np.flatnonzero(m.meta["centroids"][:, 1] > np.median(m.meta["centroids"][:, 1])))
+    res = pipeline.run(m, model=model, mode=mode, compute_metrics=False, **kw)
+    assert np.isclose(res.poly.measure.sum(), total, rtol=1e-9, atol=0)
+    out = tmp_path / "out.vtu"
+    pipeline.write_outputs(res, vtu=str(out))
+    n, areas = _vtk_polygon_areas(out)
+    assert n == res.poly.n_elements
+    assert np.isclose(abs(areas.sum()), total, rtol=1e-9, atol=0)
+    # the element holding the folded cell is a closed polygon of the right area
+    e = res.agglomeration.labels[cell]
+    assert np.isclose(abs(areas[e]), res.poly.measure[e], rtol=1e-9)
+
+
+def test_folded_tetrahedron_agglomerates():
+    p, t, cell = folded_tet()
+    t = t.copy()
+    t[::3] = t[::3][:, [0, 2, 1, 3]]  # mixed orientation in the input
+    m = mesh_from_arrays(p, [("tetra", t)])
+    assert m.meta["orientation"]["folded_cells"] == [cell]
+    total = m.meta["signed_measures"].sum()
+    assert np.isclose(total, 1.0, rtol=1e-12)
+    for k in (2, 7, 30):
+        res = pipeline.run(m, model="metis", mode="kway", k=k, compute_metrics=False)
+        assert np.isclose(res.poly.measure.sum(), 1.0, rtol=1e-9)
+        assert res.poly.n_elements >= k
+
+
+def test_moebius_strip_is_refused_with_the_cells():
+    n = 12
+    ang = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    inner = np.column_stack([np.cos(ang), np.sin(ang)])
+    outer = 2.3 * np.column_stack([np.cos(ang + 0.1), np.sin(ang + 0.1)])
+    pts = np.vstack([inner, outer])
+    i, o = np.arange(n), n + np.arange(n)
+    q = np.column_stack([i[:-1], i[1:], o[1:], o[:-1]])
+    twisted = np.array([[i[-1], o[0], i[0], o[-1]]])  # glued back with a half twist
+    with pytest.raises(MeshError, match=r"not orientable.*cells \["):
+        mesh_from_arrays(pts, [("quad", np.vstack([q, twisted]))])
+
+
+def test_inconsistent_polyhedra_are_refused_with_the_cells():
+    p, h = hexes(2)
+    cells = [[h[c, list(f)] for f in FACE_TEMPLATES[VTK_HEXAHEDRON]] for c in range(len(h))]
+    ok = mesh_from_arrays(p, [("polyhedron", cells)])
+    assert ok.meta["orientation"]["folded"] == 0 and ok.meta["orientation"]["flipped"] == 0
+    inside_out = mesh_from_arrays(p, [("polyhedron", [[f[::-1] for f in c] for c in cells])])
+    assert inside_out.meta["orientation"]["flipped"] == len(h)
+    assert np.allclose(inside_out.meta["signed_measures"], 1 / 8)
+    cells[3][2] = cells[3][2][::-1]  # one face of one cell turned inside out
+    with pytest.raises(MeshError, match=r"cannot be oriented consistently.*cells \["):
+        mesh_from_arrays(p, [("polyhedron", cells)])
