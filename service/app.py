@@ -17,7 +17,7 @@ from service.error_envelope import ErrorsInBody
 from service.jobs import NotFinished, NotFound, QueueFull
 from service.limits import BodySizeLimit
 from service.mesh_check import UploadRejected
-from service.routers import events, health, jobs, meshes, models
+from service.routers import events, health, jobs, meshes, models, web
 
 DESCRIPTION = """Mesh agglomeration as a service: upload a mesh, queue an agglomeration job (METIS,
 k-means, graph neural networks), poll it, download the agglomerated mesh, its quality metrics,
@@ -43,6 +43,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(ErrorsInBody)
     for router in (health.router, meshes.router, jobs.router, events.router, models.router):
         app.include_router(router)
+    web.mount_page(app)
     _error_handlers(app)
     return app
 

@@ -13,7 +13,7 @@ from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse
 from pydantic import ValidationError
-from sqlalchemy import func, select
+from sqlalchemy import delete, func, select
 from starlette.concurrency import run_in_threadpool
 
 from jobqueue.db import SUCCEEDED, JobRecord
@@ -250,13 +250,33 @@ def get_job(job_id: str, user: str = Depends(current_user), ctx: Context = Depen
         return job_out(visible_job(s, user, job_id))
 
 
-@router.delete("/jobs/{job_id}", response_model=JobOut, responses=JOB_ERRORS)
-def delete_job(job_id: str, user: str = Depends(current_user), ctx: Context = Depends(get_context)) -> JobOut:
-    """Cancel a queued or running job (its worker stops it); 409 if it already ended."""
+@router.delete(
+    "/jobs/{job_id}",
+    response_model=JobOut,
+    responses={**JOB_ERRORS, 204: {"description": "purged: the job is gone from your list"}},
+)
+def delete_job(
+    job_id: str,
+    purge: bool = Query(
+        False,
+        description="also remove the job from your list, finished or not (a running one is cancelled "
+        "first); its result files stay while another job refers to them",
+    ),
+    user: str = Depends(current_user),
+    ctx: Context = Depends(get_context),
+):
+    """Cancel a queued or running job (its worker stops it); 409 if it already ended, unless `purge`."""
     with ctx.db.session() as s:
         job = visible_job(s, user, job_id)
+    if purge:
+        if job.status in ("queued", "running"):
+            cancel_job(ctx.db, ctx.celery, user, job_id)
+        with ctx.db.session() as s:
+            s.execute(delete(JobRecord).where(JobRecord.id == job_id, JobRecord.user == user))
+            s.commit()
+        return Response(status_code=204)
     if job.status not in ("queued", "running"):
-        raise NotFinished(f"job already ended: {job.status}")
+        raise NotFinished(f"job already ended: {job.status} (DELETE with ?purge=true removes it)")
     return job_out(cancel_job(ctx.db, ctx.celery, user, job_id))
 
 

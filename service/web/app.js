@@ -1,0 +1,591 @@
+// MAGNET web page: upload a mesh, run a job, follow it live (server-sent events), look at the
+// result (2D SVG, picture, box plots, files), list, cancel, delete and compare jobs.
+// Plain JavaScript, no library: everything goes through the same HTTP API as the other clients.
+"use strict";
+
+const $ = (sel, root = document) => root.querySelector(sel);
+const FINAL = ["succeeded", "failed", "cancelled"];
+const NUMBER_FIELDS = ["k", "nref", "target_size", "mult_factor"];
+const OPTION_FIELDS = ["seed", "absorb_fraction", "hole_policy", "method", "physical_tag"];
+const FIELDS = ["model", "mode", ...NUMBER_FIELDS, "subset", "refiner", ...OPTION_FIELDS];
+const MODE_FIELDS = {
+  kway: ["k"], nref: ["nref"], "target-size": ["target_size"], "mult-factor": ["mult_factor"],
+  segregated: ["mult_factor"], coarsen: ["subset", "k", "nref", "target_size", "mult_factor"],
+};
+const state = { mesh: null, models: [], jobs: [], meshes: new Map(), selected: new Set(), follow: null, timer: null };
+
+// --- HTTP --------------------------------------------------------------------------------------
+
+class ApiError extends Error {
+  constructor(status, body) {
+    super(errorText(body));
+    this.status = status;
+    this.body = body;
+  }
+}
+
+function errorText(body) {
+  const d = body && body.detail;
+  if (typeof d === "string") return d;
+  if (Array.isArray(d)) return d.map((e) => `${fieldOf(e.loc) || "request"}: ${e.msg}`).join("; ");
+  return JSON.stringify(body);
+}
+
+const token = () => localStorage.getItem("magnet.token") || "";
+
+async function api(path, options = {}) {
+  const headers = { ...(options.headers || {}) };
+  if (token()) headers.Authorization = `Bearer ${token()}`;
+  const response = await fetch(path, { ...options, headers });
+  if (response.status === 401) notice("This server needs an API key: enter yours in the API key field above.");
+  if (!response.ok) {
+    const body = await response.json().catch(() => ({ detail: response.statusText }));
+    throw new ApiError(response.status, body);
+  }
+  return response;
+}
+
+const getJSON = async (path) => (await api(path)).json();
+const blobURL = async (path) => URL.createObjectURL(await (await api(path)).blob());
+const sleep = (ms) => new Promise((resolve) => setTimeout(resolve, ms));
+
+function notice(text) {
+  const p = $("#notice");
+  p.textContent = text || "";
+  p.hidden = !text;
+}
+
+function esc(value) {
+  return String(value).replace(/[&<>"']/g, (c) => `&#${c.charCodeAt(0)};`);
+}
+
+const fmt = (v) => (typeof v === "number" && !Number.isInteger(v) ? v.toPrecision(4) : String(v));
+
+// --- upload and mesh summary -------------------------------------------------------------------
+
+async function upload(file) {
+  const box = $("#mesh");
+  box.hidden = false;
+  box.innerHTML = `<p>uploading ${esc(file.name)} (${(file.size / 1e6).toFixed(2)} MB)…</p>`;
+  $("#form").hidden = true;
+  try {
+    const response = await api(`v1/meshes?filename=${encodeURIComponent(file.name)}`, {
+      method: "POST", headers: { "Content-Type": "application/octet-stream" }, body: file,
+    });
+    state.mesh = await response.json();
+    state.meshes.set(state.mesh.id, state.mesh);
+  } catch (e) {
+    box.innerHTML = `<p class="error">${esc(file.name)}: ${esc(e.message)}</p>`;
+    return;
+  }
+  showMesh(state.mesh);
+  buildForm();
+}
+
+function showMesh(mesh) {
+  const types = Object.entries(mesh.cell_types).map(([t, n]) => `${n} ${t}`).join(", ");
+  const bbox = mesh.bbox[0].slice(0, mesh.dim).map((lo, i) => `[${fmt(lo)}, ${fmt(mesh.bbox[1][i])}]`).join(" × ");
+  const rows = [
+    ["file", mesh.filename], ["cells", mesh.cells], ["points", mesh.points], ["dimension", mesh.dim],
+    ["cell types", types], ["physical groups", mesh.physical_groups.join(", ") || "none"], ["bounding box", bbox],
+  ];
+  let html = `<h3>Mesh</h3><table class="kv" id="mesh-summary">${rows.map(([k, v]) => `<tr><th>${k}</th><td>${esc(v)}</td></tr>`).join("")}</table>`;
+  if (mesh.check !== undefined && mesh.check !== null) html += `<h3>Check</h3><div id="mesh-check">${report(mesh.check)}</div>`;
+  $("#mesh").innerHTML = html;
+}
+
+function report(value) {
+  // the upload's check report, whatever its shape: nested objects as tables, lists as lists
+  if (Array.isArray(value)) return value.length ? `<ul>${value.map((v) => `<li>${report(v)}</li>`).join("")}</ul>` : "none";
+  if (value && typeof value === "object") {
+    return `<table class="kv">${Object.entries(value).map(([k, v]) => `<tr><th>${esc(k)}</th><td>${report(v)}</td></tr>`).join("")}</table>`;
+  }
+  return esc(fmt(value));
+}
+
+// --- the job form, built from GET /v1/models ----------------------------------------------------
+
+const form = () => $("#form");
+const field = (name) => form().querySelector(`.field[data-field="${name}"]`);
+const input = (name) => form().elements[name];
+
+function fillSelect(select, values, keep) {
+  const old = keep ? select.value : null;
+  select.innerHTML = values.map((v) => `<option>${esc(v)}</option>`).join("");
+  if (old && values.includes(old)) select.value = old;
+}
+
+function buildForm() {
+  const dim = state.mesh.dim;
+  const usable = state.models.filter((m) => m.dimension == null || [].concat(m.dimension).map(Number).includes(dim));
+  fillSelect(input("model"), usable.map((m) => m.name), true);
+  const cells = state.mesh.cells;
+  const extent = Math.max(...state.mesh.bbox[1].map((hi, i) => hi - state.mesh.bbox[0][i]));
+  if (!input("k").value) input("k").value = Math.min(64, cells);
+  if (!input("nref").value) input("nref").value = Math.min(6, Math.floor(Math.log2(cells)));
+  if (!input("mult_factor").value) input("mult_factor").value = 0.1;
+  input("target_size").value = +(extent / 10).toPrecision(3);
+  onModel();
+  form().hidden = false;
+}
+
+function onModel() {
+  const model = state.models.find((m) => m.name === input("model").value) || { modes: [] };
+  $("#model-description").textContent = model.description || "";
+  fillSelect(input("mode"), model.modes, true);
+  const refiners = model.refiners || [];
+  field("refiner").hidden = refiners.length === 0;
+  fillSelect(input("refiner"), ["none", ...refiners], true);
+  field("method").hidden = model.name !== "metis";
+  onMode();
+}
+
+function onMode() {
+  const wanted = MODE_FIELDS[input("mode").value] || [];
+  for (const name of [...NUMBER_FIELDS, "subset"]) field(name).hidden = !wanted.includes(name);
+  clearErrors();
+}
+
+function clearErrors() {
+  form().querySelectorAll(".error").forEach((e) => { e.textContent = ""; });
+  form().querySelectorAll(".invalid").forEach((e) => e.classList.remove("invalid"));
+}
+
+function fieldOf(loc) {
+  // pydantic's loc: ["body", "k"] or ["body", "options", "seed"]
+  const names = (loc || []).filter((p) => typeof p === "string" && p !== "body" && p !== "options");
+  return names.length ? names[names.length - 1] : null;
+}
+
+function guessField(message) {
+  // the library's messages start with the parameter: "k = 9000 is larger ...", "options.seed must ..."
+  const m = /^(?:options\.)?([a-z_]+)/.exec(message || "");
+  return m && FIELDS.includes(m[1]) ? m[1] : null;
+}
+
+function showErrors(error) {
+  const items = [];
+  const detail = error.body && error.body.detail;
+  if (error.status === 422 && Array.isArray(detail)) {
+    for (const e of detail) items.push([fieldOf(e.loc), e.msg]);
+  } else if (error.status === 422) {
+    items.push([(error.body && error.body.field) || guessField(detail), error.message]);
+  } else {
+    items.push([null, error.message]);
+  }
+  for (const [name, text] of items) {
+    const box = name && field(name);
+    if (box && !box.hidden) {
+      box.querySelector(".error").textContent = text;
+      box.classList.add("invalid");
+      if (box.closest("details")) box.closest("details").open = true;
+    } else {
+      $("#form-error").textContent = (name ? `${name}: ` : "") + text;
+    }
+  }
+}
+
+function jobBody() {
+  const body = { mesh_id: state.mesh.id, model: input("model").value, mode: input("mode").value };
+  for (const name of NUMBER_FIELDS) {
+    const raw = input(name).value.trim();
+    if (!field(name).hidden && raw !== "") body[name] = Number(raw);
+  }
+  const subset = input("subset").value.trim();
+  if (!field("subset").hidden && subset) {
+    body.subset = subset.startsWith("[") ? JSON.parse(subset) : subset.split(/[\s,]+/).filter(Boolean).map(Number);
+  }
+  if (!field("refiner").hidden && input("refiner").value !== "none") body.refiner = input("refiner").value;
+  const options = {};
+  for (const name of OPTION_FIELDS) {
+    const raw = input(name).value.trim();
+    if (raw === "" || field(name).hidden) continue;
+    options[name] = ["seed", "absorb_fraction"].includes(name) ? Number(raw) : raw;
+  }
+  body.options = options;
+  return body;
+}
+
+async function submit(event) {
+  event.preventDefault();
+  clearErrors();
+  let body;
+  try {
+    body = jobBody();
+  } catch (e) {
+    showErrors({ status: 422, body: { detail: "subset: not a JSON list", field: "subset" }, message: "not a JSON list" });
+    return;
+  }
+  try {
+    const job = await (await api("v1/jobs", {
+      method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body),
+    })).json();
+    refreshJobs();
+    follow(job);
+  } catch (e) {
+    showErrors(e);
+  }
+}
+
+// --- live progress: GET /v1/jobs/{id}/events read with fetch (EventSource cannot send the key) ----
+
+function showProgress(job) {
+  const pct = Math.round(100 * (job.progress || 0));
+  $("#progress").hidden = false;
+  $("#progress-job").textContent = job.id.slice(0, 8);
+  $("#bar-fill").style.width = `${pct}%`;
+  $("#bar-fill").className = job.status;
+  $("#progress-pct").textContent = `${pct}%`;
+  $("#progress-stage").textContent = job.stage || job.status;
+  $("#progress-status").textContent = job.status + (job.error ? `: ${job.error}` : "");
+}
+
+async function* jobEvents(id, signal) {
+  const response = await api(`v1/jobs/${id}/events`, { signal });
+  const reader = response.body.pipeThrough(new TextDecoderStream()).getReader();
+  let buffer = "";
+  for (;;) {
+    const { value, done } = await reader.read();
+    if (done) return;
+    buffer += value;
+    let cut;
+    while ((cut = buffer.indexOf("\n\n")) >= 0) {
+      const block = buffer.slice(0, cut);
+      buffer = buffer.slice(cut + 2);
+      const data = block.split("\n").filter((l) => l.startsWith("data:")).map((l) => l.slice(5).trim()).join("\n");
+      if (data) yield JSON.parse(data);
+    }
+  }
+}
+
+async function follow(job) {
+  if (state.follow) state.follow.abort();
+  const control = new AbortController();
+  state.follow = control;
+  showProgress(job);
+  while (!FINAL.includes(job.status) && !control.signal.aborted) {
+    try {
+      for await (const record of jobEvents(job.id, control.signal)) {
+        if (!record.status) return; // the job was deleted
+        job = record;
+        showProgress(job);
+      }
+    } catch (e) {
+      if (control.signal.aborted || (e instanceof ApiError && e.status < 500)) return;
+    }
+    if (!FINAL.includes(job.status)) await sleep(1000); // the stream closed early: reconnect
+  }
+  if (control.signal.aborted) return;
+  refreshJobs();
+  if (job.status === "succeeded") showResult(job.id);
+}
+
+// --- result view -------------------------------------------------------------------------------
+
+const RESULT_FILES = [
+  ["mesh", "mesh.vtu"], ["metrics", "metrics.json"], ["labels", "labels.json"], ["preview.png", "preview.png"],
+  ["lymph?format=json", "lymph.json", 2], ["lymph?format=mat", "lymph.mat", 2],
+];
+
+function paramText(params) {
+  const p = params || {};
+  const value = { kway: `k=${p.k}`, nref: `nref=${p.nref}`, "target-size": `size=${p.target_size}`,
+    "mult-factor": `f=${p.mult_factor}`, segregated: `f=${p.mult_factor}`, coarsen: "subset" }[p.mode];
+  return `${p.mode || ""} ${value || ""}`.trim();
+}
+
+const jobLabel = (job) => `${job.params.model} ${paramText(job.params)} · ${job.id.slice(0, 6)}`;
+
+async function showResult(id) {
+  $("#compare").hidden = true;
+  const [job, metrics] = await Promise.all([getJSON(`v1/jobs/${id}`), getJSON(`v1/jobs/${id}/metrics`)]);
+  const section = $("#result");
+  section.hidden = false;
+  section.dataset.job = id;
+  $("#result-title").textContent = jobLabel(job);
+  const run = metrics.run || {};
+  const part = metrics.partition || {};
+  const rows = [
+    ["elements", metrics.elements], ["requested", run.requested], ["from cells", run.cells],
+    ["parts split", run.parts_split], ["fragments absorbed", run.fragments_absorbed], ["holed elements split", run.holes_split],
+    ["edge cut", part.cut], ["normalized cut", part.normalized_cut], ["volume imbalance", part.volume_imbalance],
+    ["connected", part.connected], ["compute time", job.result && job.result.timings.total != null ? `${fmt(job.result.timings.total)} s` : ""],
+  ].filter(([, v]) => v !== undefined && v !== null && v !== "");
+  $("#partition").innerHTML = rows.map(([k, v]) => `<tr><th>${k}</th><td>${esc(fmt(v))}</td></tr>`).join("");
+  $("#downloads").innerHTML = RESULT_FILES.filter(([, , dim]) => !dim || dim === metrics.dim)
+    .map(([path, name]) => `<li><a href="v1/jobs/${id}/${path}" data-download="${id}-${name}">${name}</a></li>`).join("");
+  $("#boxplots").innerHTML = boxPlot(Object.entries(metrics.summary).map(([name, stats]) => ({ label: name, stats })));
+  $("#preview").src = await blobURL(`v1/jobs/${id}/preview.png`);
+  $("#drawing").hidden = metrics.dim !== 2;
+  if (metrics.dim === 2) drawMesh(await getJSON(`v1/jobs/${id}/polygons`));
+}
+
+async function download(event) {
+  const link = event.target.closest("a[data-download]");
+  if (!link) return;
+  event.preventDefault(); // a plain link cannot send the API key: fetch, then save the blob
+  try {
+    const url = await blobURL(link.getAttribute("href"));
+    const a = Object.assign(document.createElement("a"), { href: url, download: link.dataset.download });
+    document.body.append(a);
+    a.click();
+    a.remove();
+    setTimeout(() => URL.revokeObjectURL(url), 60000);
+  } catch (e) {
+    notice(`download failed: ${e.message}`);
+  }
+}
+
+// --- 2D drawing: one SVG path per element, zoom, pan, hover, colour by any metric ---------------
+
+const VIRIDIS = [[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]];
+
+function viridis(t) {
+  const x = Math.min(Math.max(t, 0), 1) * (VIRIDIS.length - 1);
+  const i = Math.min(Math.floor(x), VIRIDIS.length - 2);
+  const c = VIRIDIS[i].map((a, j) => Math.round(a + (VIRIDIS[i + 1][j] - a) * (x - i)));
+  return `rgb(${c.join(",")})`;
+}
+
+function drawMesh(poly) {
+  const { points, connectivity, offsets, cell_data: data } = poly;
+  const xs = points.map((p) => p[0]);
+  const ys = points.map((p) => p[1]);
+  const [x0, x1, y0, y1] = [Math.min(...xs), Math.max(...xs), Math.min(...ys), Math.max(...ys)];
+  const pad = 0.02 * Math.max(x1 - x0, y1 - y0);
+  const home = [x0 - pad, -y1 - pad, x1 - x0 + 2 * pad, y1 - y0 + 2 * pad];
+  const paths = [];
+  for (let e = 0; e + 1 < offsets.length; e++) {
+    const loop = connectivity.slice(offsets[e], offsets[e + 1]).map((j) => `${points[j][0]},${-points[j][1]}`);
+    paths.push(`<path data-e="${e}" d="M${loop.join("L")}Z"/>`);
+  }
+  const host = $("#svg-host");
+  host.innerHTML = `<svg id="mesh-svg" viewBox="${home.join(" ")}" preserveAspectRatio="xMidYMid meet">${paths.join("")}</svg>`;
+  const svg = $("#mesh-svg");
+  svg.dataset.elements = offsets.length - 1;
+  const names = Object.keys(data).filter((n) => n !== "element_id");
+  const select = $("#color-by");
+  fillSelect(select, ["element", ...names], true);
+  const paint = () => {
+    const by = select.value;
+    const values = data[by];
+    let legend = "";
+    if (!values) {
+      svg.querySelectorAll("path").forEach((p, e) => { p.style.fill = `hsl(${(e * 137.508) % 360}, 55%, 68%)`; });
+    } else {
+      const lo = Math.min(...values);
+      const hi = Math.max(...values);
+      svg.querySelectorAll("path").forEach((p, e) => { p.style.fill = viridis(hi > lo ? (values[e] - lo) / (hi - lo) : 0.5); });
+      legend = `${fmt(lo)} <span class="ramp"></span> ${fmt(hi)}`;
+    }
+    $("#legend").innerHTML = legend;
+  };
+  select.onchange = paint;
+  paint();
+
+  const tip = $("#tip");
+  svg.onmousemove = (event) => {
+    const path = event.target.closest("path");
+    if (!path) { tip.hidden = true; return; }
+    const e = +path.dataset.e;
+    svg.querySelectorAll("path.hover").forEach((p) => p.classList.remove("hover"));
+    path.classList.add("hover");
+    tip.innerHTML = `<b>element ${e}</b><table>${names.map((n) => `<tr><th>${esc(n)}</th><td>${fmt(data[n][e])}</td></tr>`).join("")}</table>`;
+    tip.style.left = `${event.clientX + 14}px`;
+    tip.style.top = `${event.clientY + 14}px`;
+    tip.hidden = false;
+  };
+  svg.onmouseleave = () => { tip.hidden = true; };
+
+  let view = [...home];
+  const setView = (v) => { view = v; svg.setAttribute("viewBox", v.join(" ")); };
+  const toWorld = (event) => {
+    const r = svg.getBoundingClientRect();
+    const s = Math.max(view[2] / r.width, view[3] / r.height); // meet: the larger scale applies
+    return [view[0] + view[2] / 2 + (event.clientX - r.left - r.width / 2) * s,
+      view[1] + view[3] / 2 + (event.clientY - r.top - r.height / 2) * s, s];
+  };
+  svg.onwheel = (event) => {
+    event.preventDefault();
+    const [wx, wy] = toWorld(event);
+    const f = Math.exp(event.deltaY * 0.0015);
+    setView([wx - (wx - view[0]) * f, wy - (wy - view[1]) * f, view[2] * f, view[3] * f]);
+  };
+  let drag = null;
+  svg.onpointerdown = (event) => { drag = [event.clientX, event.clientY, toWorld(event)[2], [...view]]; svg.setPointerCapture(event.pointerId); };
+  svg.onpointermove = (event) => {
+    if (!drag) return;
+    const [cx, cy, s, v] = drag;
+    setView([v[0] - (event.clientX - cx) * s, v[1] - (event.clientY - cy) * s, v[2], v[3]]);
+  };
+  svg.onpointerup = () => { drag = null; };
+  $("#reset-view").onclick = () => setView([...home]);
+}
+
+// --- box plots in SVG, from the metrics summary (min, q1, median, q3, max, mean) ----------------
+
+function boxPlot(groups, title = "") {
+  const W = Math.max(320, 120 * groups.length + 60);
+  const H = 230;
+  const [left, top, bottom] = [48, title ? 26 : 10, 44];
+  let lo = Math.min(...groups.map((g) => g.stats.min));
+  let hi = Math.max(...groups.map((g) => g.stats.max));
+  if (lo >= 0 && hi <= 1) [lo, hi] = [0, 1];
+  if (hi === lo) hi = lo + 1;
+  const y = (v) => top + (H - top - bottom) * (1 - (v - lo) / (hi - lo));
+  const col = (W - left - 10) / groups.length;
+  let svg = `<svg class="boxplot" viewBox="0 0 ${W} ${H}" width="${W}" height="${H}">`;
+  if (title) svg += `<text x="${W / 2}" y="16" class="title">${esc(title)}</text>`;
+  for (let i = 0; i <= 4; i++) {
+    const v = lo + ((hi - lo) * i) / 4;
+    svg += `<line x1="${left}" x2="${W - 10}" y1="${y(v)}" y2="${y(v)}" class="grid"/><text x="${left - 6}" y="${y(v) + 4}" class="tick">${+v.toPrecision(3)}</text>`;
+  }
+  groups.forEach((g, i) => {
+    const s = g.stats;
+    const cx = left + col * (i + 0.5);
+    const w = Math.min(50, col * 0.5);
+    svg += `<g class="box" data-label="${esc(g.label)}">`
+      + `<line x1="${cx}" x2="${cx}" y1="${y(s.max)}" y2="${y(s.q3)}"/><line x1="${cx}" x2="${cx}" y1="${y(s.q1)}" y2="${y(s.min)}"/>`
+      + `<line x1="${cx - w / 4}" x2="${cx + w / 4}" y1="${y(s.max)}" y2="${y(s.max)}"/><line x1="${cx - w / 4}" x2="${cx + w / 4}" y1="${y(s.min)}" y2="${y(s.min)}"/>`
+      + `<rect x="${cx - w / 2}" y="${y(s.q3)}" width="${w}" height="${Math.max(1, y(s.q1) - y(s.q3))}"/>`
+      + `<line x1="${cx - w / 2}" x2="${cx + w / 2}" y1="${y(s.median)}" y2="${y(s.median)}" class="median"/>`
+      + (s.mean != null ? `<circle cx="${cx}" cy="${y(s.mean)}" r="2.5"/>` : "")
+      + `<title>${esc(g.label)}: min ${fmt(s.min)}, q1 ${fmt(s.q1)}, median ${fmt(s.median)}, q3 ${fmt(s.q3)}, max ${fmt(s.max)}</title></g>`
+      + `<text x="${cx}" y="${H - bottom + 16}" class="label">${esc(g.label)}</text>`;
+  });
+  return `${svg}</svg>`;
+}
+
+// --- jobs list, cancel, delete, compare ---------------------------------------------------------
+
+async function meshOf(id) {
+  if (!state.meshes.has(id)) state.meshes.set(id, await getJSON(`v1/meshes/${id}`).catch(() => ({ filename: id.slice(0, 8) })));
+  return state.meshes.get(id);
+}
+
+function seconds(job) {
+  if (!job.started_at) return "";
+  const end = job.finished_at ? Date.parse(job.finished_at) : Date.now();
+  return `${((end - Date.parse(job.started_at)) / 1000).toFixed(1)} s`;
+}
+
+async function refreshJobs() {
+  let list;
+  try {
+    list = await getJSON("v1/jobs?limit=100");
+  } catch (e) {
+    $("#job-rows").innerHTML = `<tr><td colspan="9" class="error">${esc(e.message)}</td></tr>`;
+    return;
+  }
+  if (token() || list) notice("");
+  state.jobs = list.items;
+  const meshes = await Promise.all(state.jobs.map((j) => meshOf(j.mesh_id)));
+  $("#job-rows").innerHTML = state.jobs.map((job, i) => {
+    const active = !FINAL.includes(job.status);
+    const mesh = meshes[i];
+    const actions = [
+      job.status === "succeeded" ? `<button data-act="view">view</button>` : "",
+      active ? `<button data-act="cancel">cancel</button>` : "",
+      `<button data-act="delete">delete</button>`,
+    ].join("");
+    return `<tr data-job="${job.id}" class="${job.status}">`
+      + `<td><input type="checkbox" ${state.selected.has(job.id) ? "checked" : ""} ${job.status === "succeeded" ? "" : "disabled"}></td>`
+      + `<td>${esc(new Date(job.created_at).toLocaleString())}</td><td class="status">${job.status}${active ? ` ${Math.round(100 * job.progress)}%` : ""}</td>`
+      + `<td>${esc(job.params.model)}</td><td>${esc(paramText(job.params))}</td>`
+      + `<td>${esc(mesh.filename || "")}${mesh.cells ? ` <small>(${mesh.cells} cells)</small>` : ""}</td>`
+      + `<td>${job.result && job.result.elements != null ? job.result.elements : ""}</td><td>${seconds(job)}</td><td>${actions}</td></tr>`;
+  }).join("") || `<tr><td colspan="9" class="hint">no jobs yet</td></tr>`;
+  for (const id of [...state.selected]) if (!state.jobs.some((j) => j.id === id)) state.selected.delete(id);
+  $("#compare-button").disabled = state.selected.size < 2;
+  clearTimeout(state.timer);
+  if (state.jobs.some((j) => !FINAL.includes(j.status))) state.timer = setTimeout(refreshJobs, 3000);
+}
+
+async function onJobRow(event) {
+  const row = event.target.closest("tr[data-job]");
+  if (!row) return;
+  const id = row.dataset.job;
+  if (event.target.type === "checkbox") {
+    if (event.target.checked) state.selected.add(id); else state.selected.delete(id);
+    $("#compare-button").disabled = state.selected.size < 2;
+    return;
+  }
+  const act = event.target.dataset.act;
+  try {
+    if (act === "view") await showResult(id);
+    if (act === "cancel") await api(`v1/jobs/${id}`, { method: "DELETE" });
+    if (act === "delete") {
+      await api(`v1/jobs/${id}?purge=true`, { method: "DELETE" });
+      state.selected.delete(id);
+      if ($("#result").dataset.job === id) $("#result").hidden = true;
+    }
+  } catch (e) {
+    notice(e.message);
+  }
+  if (act === "cancel" || act === "delete") refreshJobs();
+}
+
+async function compare() {
+  const jobs = state.jobs.filter((j) => state.selected.has(j.id));
+  if (jobs.some((j) => j.status !== "succeeded")) return notice("compare finished jobs only");
+  if (new Set(jobs.map((j) => j.mesh_id)).size > 1) return notice("compare jobs of the same mesh only");
+  notice("");
+  const metrics = await Promise.all(jobs.map((j) => getJSON(`v1/jobs/${j.id}/metrics`)));
+  const pictures = await Promise.all(jobs.map((j) => blobURL(`v1/jobs/${j.id}/preview.png`)));
+  $("#result").hidden = true;
+  $("#compare").hidden = false;
+  const mesh = await meshOf(jobs[0].mesh_id);
+  $("#compare-title").textContent = `${jobs.length} jobs of ${mesh.filename || jobs[0].mesh_id.slice(0, 8)}`;
+  $("#compare-pictures").innerHTML = jobs.map((j, i) => `<figure><img src="${pictures[i]}" alt="job ${j.id}">`
+    + `<figcaption>${esc(jobLabel(j))} · ${metrics[i].elements} elements</figcaption></figure>`).join("");
+  const names = [...new Set(metrics.flatMap((m) => Object.keys(m.summary)))];
+  $("#compare-plots").innerHTML = names.map((name) => boxPlot(
+    jobs.map((j, i) => ({ label: `${j.params.model} ${paramText(j.params)}`, stats: metrics[i].summary[name] })).filter((g) => g.stats),
+    name,
+  )).join("");
+}
+
+// --- start ---------------------------------------------------------------------------------------
+
+async function loadModels() {
+  try {
+    state.models = await getJSON("v1/models");
+  } catch (e) {
+    notice(`cannot load the models: ${e.message}`);
+  }
+}
+
+function init() {
+  const tokenInput = $("#token");
+  tokenInput.value = token();
+  tokenInput.addEventListener("change", () => {
+    localStorage.setItem("magnet.token", tokenInput.value.trim());
+    notice("");
+    state.meshes.clear();
+    refreshJobs();
+  });
+  const drop = $("#drop");
+  drop.addEventListener("dragover", (e) => { e.preventDefault(); drop.classList.add("over"); });
+  drop.addEventListener("dragleave", () => drop.classList.remove("over"));
+  drop.addEventListener("drop", (e) => {
+    e.preventDefault();
+    drop.classList.remove("over");
+    if (e.dataTransfer.files.length) upload(e.dataTransfer.files[0]);
+  });
+  $("#file").addEventListener("change", (e) => { if (e.target.files.length) upload(e.target.files[0]); });
+  input("model").addEventListener("change", onModel);
+  input("mode").addEventListener("change", onMode);
+  form().addEventListener("submit", submit);
+  form().addEventListener("input", (e) => {
+    const box = e.target.closest(".field");
+    if (box) { box.classList.remove("invalid"); box.querySelector(".error").textContent = ""; }
+  });
+  $("#downloads").addEventListener("click", download);
+  $("#job-rows").addEventListener("click", onJobRow);
+  $("#compare-button").addEventListener("click", compare);
+  $("#refresh").addEventListener("click", refreshJobs);
+  loadModels();
+  refreshJobs();
+}
+
+init();

@@ -1,0 +1,172 @@
+"""The web page at `/` in a real browser: Debian's chromium driven by Playwright for Python, against
+a real server with its embedded worker. Uploads the brain through the page, runs METIS jobs, follows
+the progress to 100% (server-sent events), looks at the result (SVG, picture, box plots), downloads
+the VTU, compares two jobs, deletes one; and the same with API keys on.
+
+scripts/test.sh installs chromium (`apt-get install chromium chromium-driver`); without it, or
+without the playwright package, the tests are skipped with the reason."""
+
+from __future__ import annotations
+
+import os
+import shutil
+
+import pytest
+from service_fixtures import BRAIN, service_env, start_api, wait_until, workers_online
+
+pytestmark = pytest.mark.slow
+sync_api = pytest.importorskip(
+    "playwright.sync_api", reason="playwright is not installed (pip install playwright)"
+)
+CHROMIUM = os.environ.get("MAGNET_TEST_CHROMIUM", "/usr/bin/chromium")
+ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+]
+KEYS = "alice:alice-token,bob:bob-token"
+
+
+@pytest.fixture(scope="module")
+def browser():
+    if not (os.path.exists(CHROMIUM) or shutil.which(CHROMIUM)):
+        pytest.skip(
+            f"no chromium at {CHROMIUM} (apt-get install chromium chromium-driver; scripts/test.sh does)"
+        )
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        yield b
+        b.close()
+
+
+def serve(tmp_path, **env):
+    proc, url = start_api(service_env(tmp_path / "data", **env), tmp_path, embedded_worker=True)
+    token = (env.get("api_keys") or ":").split(",")[0].split(":")[1] or None
+    wait_until(lambda: workers_online(url, token) >= 1, 60, 0.2, "the embedded worker")
+    return proc, url
+
+
+def new_page(browser, url):
+    context = browser.new_context(viewport={"width": 1280, "height": 900}, accept_downloads=True)
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    page.goto(url + "/")
+    return page, errors
+
+
+def upload_brain(page):
+    page.set_input_files("#file", str(BRAIN))
+    page.wait_for_selector("#mesh-summary")
+    assert "14372" in page.inner_text("#mesh-summary")
+
+
+def run_job(page, timeout_ms: int = 120_000) -> list[str]:
+    """Submit the form; returns every percentage the progress line showed, up to 100%."""
+    page.evaluate(
+        """() => { window.seenProgress = [];
+        new MutationObserver(() => window.seenProgress.push(document.querySelector('#progress-pct').textContent))
+          .observe(document.querySelector('#progress-pct'), {childList: true, characterData: true, subtree: true}); }"""
+    )
+    page.click("button[type=submit]")
+    page.wait_for_function(
+        "document.querySelector('#progress-pct').textContent === '100%'", timeout=timeout_ms
+    )
+    page.wait_for_function("document.querySelector('#progress-status').textContent === 'succeeded'")
+    return page.evaluate("window.seenProgress")
+
+
+def test_page_uploads_runs_metis_shows_and_downloads(browser, tmp_path):
+    import meshio
+
+    proc, url = serve(tmp_path)
+    try:
+        page, errors = new_page(browser, url)
+        upload_brain(page)
+        page.select_option("select[name=model]", "metis")
+        page.select_option("select[name=mode]", "kway")
+        # the API's validation errors appear next to the field: the library's, then pydantic's
+        page.fill("input[name=k]", "99999")
+        page.click("button[type=submit]")
+        page.wait_for_selector(".field[data-field=k].invalid")
+        assert "larger than the number of cells" in page.inner_text(".field[data-field=k] .error")
+        page.fill("input[name=k]", "0")
+        page.click("button[type=submit]")
+        page.wait_for_function(
+            "document.querySelector('.field[data-field=k] .error').textContent.includes('1')"
+        )
+        page.fill("input[name=k]", "64")
+        seen = run_job(page)
+        assert seen[-1] == "100%" and any(0 < int(v[:-1]) < 100 for v in seen), seen  # live, not only the end
+        # the result: picture, SVG with one path per element, hover metrics, colour by a metric, box plots
+        page.wait_for_function("document.querySelector('#preview').naturalWidth > 0")
+        page.wait_for_function("document.querySelectorAll('#mesh-svg path').length === 64")
+        page.hover("#mesh-svg path[data-e='5']")
+        tip = page.inner_text("#tip")
+        assert "element 5" in tip and "circle_ratio" in tip
+        page.select_option("#color-by", "circle_ratio")
+        assert page.locator("#legend .ramp").count() == 1
+        assert page.locator("#boxplots svg.boxplot g.box").count() == 4
+        assert "64" in page.inner_text("#partition")
+        with page.expect_download() as info:
+            page.click("#downloads a:text-is('mesh.vtu')")
+        target = tmp_path / "downloaded.vtu"
+        info.value.save_as(target)
+        assert info.value.suggested_filename.endswith("mesh.vtu")
+        assert sum(len(block.data) for block in meshio.read(target).cells) == 64
+        # a second job of the same mesh, then compare the two side by side
+        page.fill("input[name=k]", "32")
+        run_job(page)
+        rows = page.locator("#job-rows tr[data-job]")
+        wait_until(lambda: rows.count() == 2 and "64" in page.inner_text("#job-rows"), 20, 0.2, "two rows")
+        for i in range(2):
+            rows.nth(i).locator("input[type=checkbox]").check()
+        page.click("#compare-button")
+        page.wait_for_function(
+            "[...document.querySelectorAll('#compare-pictures img')].filter(i => i.naturalWidth > 0).length === 2"
+        )
+        plots = page.locator("#compare-plots svg.boxplot")
+        assert plots.count() == 4 and plots.first.locator("g.box").count() == 2
+        # delete one: gone from the list and from the API
+        job_id = rows.nth(1).get_attribute("data-job")
+        rows.nth(1).locator("button[data-act=delete]").click()
+        wait_until(lambda: page.locator("#job-rows tr[data-job]").count() == 1, 20, 0.2, "the row to go")
+        assert page.request.get(f"{url}/v1/jobs/{job_id}").status == 404
+        assert errors == []
+    finally:
+        proc.stop()
+
+
+def test_page_with_api_keys(browser, tmp_path):
+    proc, url = serve(tmp_path, api_keys=KEYS)
+    try:
+        page, errors = new_page(browser, url)
+        page.wait_for_selector("#notice:not([hidden])")
+        assert "API key" in page.inner_text("#notice")
+        page.fill("#token", "alice-token")
+        page.press("#token", "Enter")
+        page.locator("#token").blur()
+        page.wait_for_selector("#notice", state="hidden")
+        upload_brain(page)
+        page.fill("input[name=k]", "16")
+        run_job(page)
+        page.wait_for_function("document.querySelector('#preview').naturalWidth > 0")
+        with page.expect_download() as info:
+            page.click("#downloads a:text-is('labels.json')")
+        assert len(open(info.value.path()).read()) > 14372  # one label per fine cell
+        # the key is kept in the browser: a reload shows alice's job again
+        page.reload()
+        assert page.input_value("#token") == "alice-token"
+        page.wait_for_selector("#job-rows tr[data-job]")
+        assert page.locator("#job-rows tr[data-job]").count() == 1
+        # bob sees none of it
+        page.fill("#token", "bob-token")
+        page.locator("#token").blur()
+        page.wait_for_selector("#job-rows td.hint")
+        assert errors == []
+    finally:
+        proc.stop()
