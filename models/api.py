@@ -7,7 +7,8 @@ inspection) and must never import torch. Neural partitioners are loaded lazily b
   "physical_groups": [int], "bbox": [[min...], [max...]]}; raises MeshError.
 - validate_params(params, mesh_info=None) -> normalized params dict; raises ParameterError whose
   message names the field. Keys: model, mode, k, nref, target_size, mult_factor, subset (list of
-  cell ids), refiner, options {seed, absorb_fraction, hole_policy, physical_tag, method}.
+  cell ids), refiner, options {seed, absorb_fraction, hole_policy, physical_tag, method,
+  boundary_tag (lymph bc_tag of boundary edges without a boundary group, default 1)}.
 - run_job(mesh_path, out_dir, params, progress=None, should_cancel=None) -> summary dict
   {"elements", "parts_split", "fragments_absorbed", "timings": {stage: seconds}, "outputs": {kind: filename}}
   writing into out_dir: mesh.vtu, metrics.json, labels.json, preview.png, and for 2D meshes
@@ -134,7 +135,7 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
     opts = params.get("options") or {}
     if not isinstance(opts, dict):
         raise ParameterError("options must be an object")
-    known_opts = {"seed", "absorb_fraction", "hole_policy", "physical_tag", "method"}
+    known_opts = {"seed", "absorb_fraction", "hole_policy", "physical_tag", "method", "boundary_tag"}
     if set(opts) - known_opts:
         raise ParameterError(f"unknown option(s): {sorted(set(opts) - known_opts)}")
     seed = _int(opts, "seed", lo=0, hi=2**31 - 1) or 0
@@ -147,6 +148,8 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
     physical_tag = opts.get("physical_tag")
     if physical_tag is not None and (not isinstance(physical_tag, str) or not physical_tag or len(physical_tag) > 200):
         raise ParameterError("options.physical_tag must be a non-empty string")
+    boundary_tag = _int(opts, "boundary_tag", lo=0, hi=2**31 - 1)
+    boundary_tag = 1 if boundary_tag is None else boundary_tag
     method = opts.get("method", "kway")
     if method not in ("kway", "recursive"):
         raise ParameterError(f"options.method must be 'kway' or 'recursive', got {method!r}")
@@ -179,7 +182,7 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
         "model": model, "mode": mode, "k": k, "nref": nref, "target_size": target_size,
         "mult_factor": mult_factor, "subset": subset, "refiner": None,
         "options": {"seed": seed, "absorb_fraction": float(absorb), "hole_policy": hole_policy,
-                    "physical_tag": physical_tag, "method": method},
+                    "physical_tag": physical_tag, "method": method, "boundary_tag": boundary_tag},
     }
 
 
@@ -226,6 +229,7 @@ def run_job(
         res, vtu=join(files["mesh"]), labels=join(files["labels"]), plot=join(files["preview"]),
         lymph=[join("lymph.json"), join("lymph.mat")] if mesh.dim == 2 else None,
         metrics=join(files["metrics"]), extra={"params": p, "model_version": MODEL_VERSION},
+        boundary_tag=o["boundary_tag"],
     )
     tick(1.0, "done")
     s = res.summary()

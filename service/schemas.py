@@ -29,6 +29,12 @@ class MeshOut(BaseModel):
     dim: int
     cell_types: dict[str, int]
     physical_groups: list[int]
+    boundary_groups: list[int] = Field(
+        default_factory=list, description="tags of the boundary groups (tagged edges in 2D, faces in 3D)"
+    )
+    boundary: dict | None = Field(
+        None, description="boundary groups: tag, name, facets on the boundary / inside; untagged boundary facets"
+    )
     bbox: list[list[float]]
     created_at: UTCDateTime
 
@@ -44,6 +50,9 @@ class JobOptions(BaseModel):
         None, max_length=200, description="cell-data name of the physical groups"
     )
     method: str | None = Field(None, max_length=40, description="METIS kway | recursive")
+    boundary_tag: int | None = Field(
+        None, ge=0, le=2**31 - 1, description="lymph bc_tag of boundary edges without a boundary group (default 1)"
+    )
 
 
 class JobParams(BaseModel):

@@ -88,6 +88,8 @@ def mesh_out(mesh: MeshRecord, owner: MeshOwner) -> MeshOut:
         dim=info["dim"],
         cell_types=info.get("cell_types", {}),
         physical_groups=info.get("physical_groups", []),
+        boundary_groups=info.get("boundary_groups", []),
+        boundary=info.get("boundary"),
         bbox=info.get("bbox", []),
         created_at=owner.created_at,
     )

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from models import pipeline
-from models.boundary import NO_TAG, fine_boundary, summary
+from models.boundary import NO_TAG, check_lines, fine_boundary, summary
 from models.io import describe, mesh_from_arrays, read_mesh
 from models.lymph import lymph_from_mat, lymph_structs
 
@@ -196,6 +196,10 @@ def test_untagged_boundary_gets_the_default(tmp_path):
     s = summary(mesh)
     assert [g["tag"] for g in s["groups"]] == [2, 4, 5]
     assert s["untagged_boundary_facets"] == 13 and s["boundary_facets"] == 52 and s["unmatched_cells"] == 1
+    lines = check_lines(mesh)  # what `magnet check` prints about the boundary
+    assert lines[0].startswith("boundary groups: 2 (13 boundary edges), 4 (13 boundary edges)")
+    assert any("13 of 52 boundary edges have no group" in x for x in lines)
+    assert any("1 group cells are no edge of any cell" in x for x in lines)
     res = pipeline.run(mesh, model="metis", mode="kway", k=6)
     region, _ = lymph_structs(res.poly, boundary_tag=3)
     check_lymph(region)  # the right side (tag 3) has no group: it gets --boundary-tag 3
@@ -249,3 +253,16 @@ def test_cli_boundary_tag_and_summary(tmp_path):
     assert out.returncode == 0, out.stderr
     region, _ = lymph_from_mat(tmp_path / "o.mat")
     check_lymph(region)  # every edge is tagged: the default is not used
+
+
+def test_match_with_wide_keys():
+    """Meshes too big for one int64 face key use (F, 4) key rows; matching gives the same answer."""
+    from models.boundary import _match
+
+    rng = np.random.default_rng(0)
+    ref = rng.permutation(np.arange(50)) * 7
+    query = np.r_[ref[[3, 10, 0]], 1, 8 * 7 + 3]
+    want = _match(query, ref)
+    assert want.tolist()[:3] == [3, 10, 0] and want.tolist()[3:] == [-1, -1]
+    wide = lambda k: np.column_stack([k // 100, (k // 10) % 10, k % 10, np.full(k.size, 3)])  # noqa: E731
+    np.testing.assert_array_equal(_match(wide(query), wide(ref)), want)

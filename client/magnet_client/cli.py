@@ -68,6 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--method", default="kway", choices=["kway", "recursive"], help="METIS k-way or recursive")
     p.add_argument("--hole-policy", default="split", choices=["split", "error"])
+    p.add_argument("--boundary-tag", type=int, help="lymph bc_tag of boundary edges without a boundary group (default 1)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--metrics", help="write the metrics JSON here")
     p.add_argument("--labels", help="write the fine-cell -> element labels (JSON list) here")
@@ -111,6 +112,7 @@ def cmd_agglomerate(client: Client, args: argparse.Namespace) -> int:
         absorb_fraction=args.absorb,
         method=args.method,
         hole_policy=args.hole_policy,
+        boundary_tag=args.boundary_tag,
         seed=args.seed,
     )
     result = job.get("result") or {}

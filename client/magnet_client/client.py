@@ -10,7 +10,7 @@ from pathlib import Path
 
 import httpx
 
-OPTION_NAMES = ("seed", "absorb_fraction", "hole_policy", "physical_tag", "method")
+OPTION_NAMES = ("seed", "absorb_fraction", "hole_policy", "physical_tag", "method", "boundary_tag")
 PARAM_NAMES = ("model", "mode", "k", "nref", "target_size", "mult_factor", "subset", "refiner")
 FINAL = ("succeeded", "failed", "cancelled")
 
@@ -128,7 +128,7 @@ class Client:
 
     def submit(self, mesh_id: str, **params) -> dict:
         """Queue a job: model, mode, k, nref, target_size, mult_factor, subset, refiner, options, or
-        the options flat (seed, absorb_fraction, hole_policy, physical_tag, method)."""
+        the options flat (seed, absorb_fraction, hole_policy, physical_tag, method, boundary_tag)."""
         return self._request("POST", "/v1/jobs", json={"mesh_id": mesh_id, **job_params(params)}).json()
 
     def job(self, job_id: str) -> dict:

@@ -17,18 +17,23 @@ function [region, neighbor, job] = magnet_agglomerate(mesh_file, varargin)
 %     Mode        'kway' (default) | 'nref' | 'target-size' | 'mult-factor' | 'segregated' | 'coarsen'
 %     K, Nref, TargetSize, MultFactor   the size parameter of the mode
 %     Subset      cell ids (0-based, as in the mesh file) to agglomerate, mode 'coarsen'
-%     Seed, PhysicalTag, Absorb, Method, HolePolicy   as in `magnet agglomerate`
+%     Seed, PhysicalTag, Absorb, Method, HolePolicy, BoundaryTag   as in `magnet agglomerate`
+%                 (BoundaryTag: bc_tag of boundary edges that have no boundary group, default 1)
 %     SaveAs      also save region and neighbor to this .mat file
 %     Timeout     seconds to wait for the job (default 3600)
 %     Poll        seconds between status checks (default 1)
 %     Verbose     print progress (default true)
+%
+%   region.bc_tag holds the boundary group (gmsh physical curve) of each boundary edge, in the
+%   order of region.connectivity_bc; region.id the element's physical group. The job output
+%   carries the mesh summary: job.mesh.boundary.groups lists each group's tag and name.
 %
 %   Errors of the server (bad mesh, bad parameter, full queue, failed job) are raised as
 %   MATLAB/Octave errors with the server's message.
 
   p = struct('Server', getenv('MAGNET_SERVER'), 'Token', getenv('MAGNET_TOKEN'), 'Model', 'metis', ...
              'Mode', 'kway', 'K', [], 'Nref', [], 'TargetSize', [], 'MultFactor', [], 'Subset', [], ...
-             'Seed', [], 'PhysicalTag', '', 'Absorb', [], 'Method', '', 'HolePolicy', '', ...
+             'Seed', [], 'PhysicalTag', '', 'Absorb', [], 'Method', '', 'HolePolicy', '', 'BoundaryTag', [], ...
              'SaveAs', '', 'Timeout', 3600, 'Poll', 1, 'Verbose', true);
   if mod(numel(varargin), 2) ~= 0
     error('magnet:args', 'options must be name-value pairs');
@@ -65,6 +70,7 @@ function [region, neighbor, job] = magnet_agglomerate(mesh_file, varargin)
   fields = add_field(fields, 'absorb_fraction', p.Absorb);
   fields = add_field(fields, 'method', p.Method);
   fields = add_field(fields, 'hole_policy', p.HolePolicy);
+  fields = add_field(fields, 'boundary_tag', p.BoundaryTag);
   if ~isempty(p.Subset)
     fields = [fields, {'subset', sprintf('%d,', p.Subset(:))}];
   end
@@ -99,6 +105,9 @@ function [region, neighbor, job] = magnet_agglomerate(mesh_file, varargin)
     end
     error('magnet:job', 'job %s %s: %s', job.id, job.status, msg);
   end
+
+  % the uploaded mesh's summary (cells, physical groups, boundary groups with their names)
+  job.mesh = magnet_request('get', [server '/v1/meshes/' job.mesh_id], p.Token, 60);
 
   % the lymph structs, as the .mat file the server wrote
   matfile = [tempname() '.mat'];

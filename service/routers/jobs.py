@@ -86,15 +86,16 @@ FORM_FIELDS = {
     "refiner": {"type": "string"},
     "options": {
         "type": "string",
-        "description": "JSON object: seed, absorb_fraction, hole_policy, physical_tag, method",
+        "description": "JSON object: seed, absorb_fraction, hole_policy, physical_tag, method, boundary_tag",
     },
     "seed": {"type": "integer"},
     "absorb_fraction": {"type": "number"},
     "hole_policy": {"type": "string"},
     "physical_tag": {"type": "string"},
     "method": {"type": "string"},
+    "boundary_tag": {"type": "integer"},
 }
-OPTION_FIELDS = ("seed", "absorb_fraction", "hole_policy", "physical_tag", "method")
+OPTION_FIELDS = ("seed", "absorb_fraction", "hole_policy", "physical_tag", "method", "boundary_tag")
 
 
 def params_from_form(form) -> dict:
