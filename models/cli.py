@@ -234,6 +234,9 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
     from importlib.metadata import entry_points
 
     for ep in entry_points(group="magnet.commands"):
+        if not argv or argv[0] != ep.name:  # load the server side (FastAPI, Celery) only when asked for
+            sub.add_parser(ep.name, help=f"{ep.name} (server side: `magnet {ep.name} -h`)")
+            continue
         try:
             ep.load()(sub)
         except Exception as exc:  # the server extras may not be installed

@@ -12,7 +12,6 @@ from dataclasses import asdict, dataclass
 
 import torch
 from torch import nn
-from torch_geometric.nn import SAGEConv
 
 # The paper's widths: 2D 64 SAGE / 32 dense units, 3D 128 / 64.
 WIDTHS = {2: (64, 32), 3: (128, 64)}
@@ -42,6 +41,35 @@ class GNNConfig:
         return asdict(self)
 
 
+class SageConv(nn.Module):
+    """GraphSAGE layer with mean aggregation, lin_l(mean of the neighbours' x) + lin_r(x): the function
+    and parameter names of torch-geometric's SAGEConv(aggr="mean"), in plain torch, so that loading and
+    running a network does not import torch-geometric (about 2 s of start-up: it loads torch._dynamo)."""
+
+    def __init__(self, in_channels: int, out_channels: int):
+        super().__init__()
+        self.lin_l = nn.Linear(in_channels, out_channels, bias=True)
+        self.lin_r = nn.Linear(in_channels, out_channels, bias=False)
+        # torch-geometric draws the initial weights twice (at construction and in reset_parameters):
+        # do the same, so that a seeded network starts from the same weights as before
+        self.lin_l.reset_parameters()
+        self.lin_r.reset_parameters()
+
+    def forward(self, x: torch.Tensor, edge_index: torch.Tensor) -> torch.Tensor:
+        """edge_index (2, E): messages flow from edge_index[0] to edge_index[1]; or a sparse CSR
+        adjacency (N, N) whose row i lists node i's neighbours."""
+        if edge_index.layout == torch.sparse_csr:
+            deg = edge_index.crow_indices().diff().clamp_min(1).to(x.dtype).unsqueeze(1)
+            agg = torch.sparse.mm(edge_index, x) / deg
+        else:
+            src, dst = edge_index[0], edge_index[1]
+            agg = torch.zeros_like(x).index_add_(0, dst, x[src])
+            deg = torch.zeros(x.shape[0], dtype=x.dtype, device=x.device).index_add_(
+                0, dst, torch.ones_like(dst, dtype=x.dtype))
+            agg = agg / deg.clamp_min(1).unsqueeze(1)
+        return self.lin_l(agg) + self.lin_r(x)
+
+
 class BisectionGNN(nn.Module):
     """n_sage SAGEConv (mean) layers then n_dense linear layers, tanh between, softmax at the end."""
 
@@ -49,7 +77,7 @@ class BisectionGNN(nn.Module):
         super().__init__()
         self.config = config
         widths = [config.in_features] + [config.sage_units] * config.n_sage
-        self.convs = nn.ModuleList(SAGEConv(a, b, aggr="mean") for a, b in zip(widths[:-1], widths[1:], strict=False))
+        self.convs = nn.ModuleList(SageConv(a, b) for a, b in zip(widths[:-1], widths[1:], strict=False))
         dense = [config.sage_units] + [config.dense_units] * (config.n_dense - 1) + [2]
         self.dense = nn.ModuleList(nn.Linear(a, b) for a, b in zip(dense[:-1], dense[1:], strict=False))
 

@@ -328,3 +328,104 @@ def test_group_feature_is_signed_in_mixed_graphs_and_zero_in_single_group_graphs
     z = normalize_features(torch.cat([x, p], 1), batch, 2, 2)
     assert torch.equal(z[first, 3], 2 * p[first, 0] - 1)
     assert torch.all(z[~first, 3] == 0)
+
+
+def test_sage_layer_matches_torch_geometric():
+    """Our plain-torch SageConv is torch-geometric's SAGEConv(aggr="mean"): same parameter names, same
+    outputs (edge list and sparse CSR adjacency, isolated node included), same gradients."""
+    from torch_geometric.nn import SAGEConv
+
+    from models.gnn import SageConv, csr_adjacency
+
+    cen, m, ip, ix = grid_graph(5, 4)
+    ip = np.r_[ip, ip[-1]]  # an isolated extra node
+    x = torch.tensor(np.column_stack([np.vstack([cen, cen[:1] + 3.0]), np.r_[m, m[0]]]), dtype=torch.float32)
+    rows = np.repeat(np.arange(len(x)), np.diff(ip))
+    ei = torch.tensor(np.stack([ix, rows]))
+    torch.manual_seed(3)
+    ours = SageConv(3, 8)
+    torch.manual_seed(3)
+    ref = SAGEConv(3, 8, aggr="mean")
+    assert sorted(ours.state_dict()) == sorted(ref.state_dict())
+    for name, value in ref.state_dict().items():  # seeded initialization: the same weights
+        assert torch.allclose(ours.state_dict()[name], value, atol=1e-7), name
+    ref.load_state_dict(ours.state_dict())
+    xa, xb = x.clone().requires_grad_(), x.clone().requires_grad_()
+    a, b = ours(xa, ei), ref(xb, ei)
+    assert torch.allclose(a, b, atol=1e-6)
+    a.square().sum().backward()
+    b.square().sum().backward()
+    assert torch.allclose(xa.grad, xb.grad, atol=1e-5)
+    with torch.inference_mode():
+        assert torch.allclose(ours(x, csr_adjacency(ip, ix, len(x))), b.detach(), atol=1e-5)
+
+
+def test_inference_does_not_import_torch_geometric(weights_dir):
+    """Loading weights and bisecting on the CPU leaves torch-geometric (and torch._dynamo, which it
+    loads) unimported: together they cost about 2 s of a command's start-up."""
+    import os
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    code = (
+        "import sys\n"
+        "from models.io import read_mesh\n"
+        "from models import pipeline\n"
+        f"opts = dict(device='cpu', weights_dir={str(weights_dir)!r})\n"
+        "res = pipeline.run(read_mesh('tests/data/BrainCoronalNoHoles.vtu'), model='sage-base', mode='nref', nref=2,\n"
+        "                   model_options=opts, compute_metrics=False)\n"
+        "assert res.summary()['elements'] == 4, res.summary()\n"
+        "print(sorted(m for m in sys.modules if m.startswith(('torch_geometric', 'torch._dynamo'))))\n"
+    )
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=root, env=env)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]", out.stdout
+
+
+@pytest.mark.parametrize("dim,hetero", [(2, False), (3, False), (2, True), (3, True)])
+def test_numpy_inference_matches_torch(weights_dir, dim, hetero):
+    """gnn_numpy (the CPU path, no torch) reads the weight files and computes the same probabilities as
+    the torch network, normalization included, on a batch of graphs with an isolated node; with the
+    shipped weights as well."""
+    from models import gnn_numpy
+    from models.gnn import neighbour_lists
+    from models.partitioners.sage import batch_features
+
+    shape = (6, 5) if dim == 2 else (4, 3, 3)
+    graphs = [grid_graph(*shape, x0=(10.0 * i, 0, 0)) for i in range(2)] + [grid_graph(*(s * 2 for s in shape))]
+    cen, m, ip, ix = graphs[-1]
+    graphs[-1] = (np.vstack([cen, cen[:1] + 0.3]), np.r_[m, m[0] * 1.5], np.r_[ip, ip[-1]], ix)
+    # distinct principal axes (a square grid's are not unique: any two solvers may pick different ones)
+    rng = np.random.default_rng(dim)
+    graphs = [(c * [1.0, 1.37, 0.71][:dim] + rng.normal(0, 0.05, c.shape), mm * rng.uniform(0.5, 1.5, len(mm)), p, q)
+              for c, mm, p, q in graphs]
+    tags = np.concatenate([(g[0][:, 0] % 10 > 3).astype(int) for g in graphs]) if hetero else None
+    batch = make_batch(graphs, tags)
+    stem = "sage-hetero" if hetero else "sage-base"
+    for path in (weights_dir / f"{stem}-{dim}d.pt", WEIGHTS_DIR / f"{stem}-{dim}d.pt"):
+        model, _ = load_model(path)
+        weights = gnn_numpy.read_weights(path)
+        assert weights["config"] == model.config.to_dict()
+        for name, value in model.state_dict().items():
+            assert np.array_equal(weights["state_dict"][name], value.numpy()), name
+        raw = batch_features(batch, hetero)
+        gi = batch.graph_index()
+        x_np = gnn_numpy.normalize_features(raw, gi, batch.n_graphs, dim)
+        x_t = normalize_features(torch.from_numpy(raw), torch.from_numpy(gi), batch.n_graphs, dim)
+        assert np.allclose(x_np, x_t.numpy(), atol=1e-4), np.abs(x_np - x_t.numpy()).max()
+        a = model.infer(x_t, neighbour_lists(batch.indptr, batch.indices)).numpy()
+        b = gnn_numpy.probabilities(weights, x_np, batch.indptr, batch.indices)
+        assert b.shape == (batch.n_nodes, 2) and b.dtype == np.float32
+        assert np.allclose(a, b, atol=1e-4), np.abs(a - b).max()
+
+
+def test_numpy_weights_reader_refuses_foreign_pickles(tmp_path):
+    """A weight file that pickles anything but tensors and plain types is refused, not run."""
+    from models import gnn_numpy
+
+    path = tmp_path / "evil.pt"
+    torch.save({"config": {}, "state_dict": {}, "meta": {"x": Path("x")}}, path)
+    with pytest.raises(Exception, match="unexpected object"):
+        gnn_numpy.read_weights(path)

@@ -1,12 +1,14 @@
 """SAGE-Base and SAGE-Heterogeneous: bisection by a trained graph neural network.
 
 `bisect_batch` runs ONE forward pass over every graph of the batch (the disjoint union of all the
-subgraphs of a recursion level), under torch.inference_mode(), on the GPU when there is one. The
-2D or 3D network is chosen from the batch's dimension; weights ship in models/weights/.
+subgraphs of a recursion level): with torch on the GPU when there is one, otherwise in numpy
+(gnn_numpy: the same function, without torch's ~1 s import). The 2D or 3D network is chosen from
+the batch's dimension; weights ship in models/weights/.
 """
 
 from __future__ import annotations
 
+import sys
 import threading
 from pathlib import Path
 
@@ -18,6 +20,8 @@ from .base import GraphBatch, Partitioner
 WEIGHTS_DIR = Path(__file__).resolve().parent.parent / "weights"
 _CACHE: dict[tuple[str, str], object] = {}
 _LOCK = threading.Lock()
+# present where a CUDA (NVIDIA) or ROCm (AMD) GPU can be used; without them torch sees no GPU either
+_GPU_DRIVER_FILES = ("/proc/driver/nvidia/version", "/dev/kfd")
 
 
 def _load(path: Path, device: str):
@@ -34,6 +38,25 @@ def _load(path: Path, device: str):
 
             try:
                 _CACHE[key] = load_model(path, device=device)[0]
+            except Exception as exc:  # a corrupt or foreign file
+                raise ModelError(f"cannot load weights {path}: {exc}") from exc
+        return _CACHE[key]
+
+
+def _load_numpy(path: Path) -> dict:
+    """The weights stored at `path` as numpy arrays (gnn_numpy), read once per process."""
+    key = (str(path), "numpy")
+    with _LOCK:
+        if key not in _CACHE:
+            if not path.is_file():
+                raise ModelError(
+                    f"weights file {path} is missing: reinstall the package or train it with "
+                    f"`magnet train {path.stem} -o {path}`"
+                )
+            from ..gnn_numpy import read_weights
+
+            try:
+                _CACHE[key] = read_weights(path)
             except Exception as exc:  # a corrupt or foreign file
                 raise ModelError(f"cannot load weights {path}: {exc}") from exc
         return _CACHE[key]
@@ -89,19 +112,28 @@ class _SagePartitioner(Partitioner):
     def _device(self) -> str:
         if self.device:
             return self.device
+        if "torch" not in sys.modules and not any(Path(p).exists() for p in _GPU_DRIVER_FILES):
+            return "cpu"  # no GPU driver: no need to import torch (about 1 s) to ask
         import torch
 
         return "cuda" if torch.cuda.is_available() else "cpu"
 
     def probabilities(self, batch: GraphBatch) -> np.ndarray:
         """(N, 2) soft bisection of every graph of the batch, in one forward pass."""
+        if batch.dim not in self.dims:
+            raise ModelError(f"{self.name} works on 2D and 3D meshes, not {batch.dim}D")
+        device = self._device()
+        if self.model is None and device == "cpu":  # numpy: the same function, without importing torch
+            from .. import gnn_numpy
+
+            weights = _load_numpy(self.weights_path(batch.dim))
+            gi = batch.graph_index()
+            x = gnn_numpy.normalize_features(batch_features(batch, self.hetero), gi, batch.n_graphs, batch.dim)
+            return gnn_numpy.probabilities(weights, x, batch.indptr, batch.indices)
         import torch
 
         from ..gnn import neighbour_lists, normalize_features
 
-        if batch.dim not in self.dims:
-            raise ModelError(f"{self.name} works on 2D and 3D meshes, not {batch.dim}D")
-        device = self._device()
         model = self.model if self.model is not None else _load(self.weights_path(batch.dim), device)
         with torch.inference_mode():
             x = torch.from_numpy(batch_features(batch, self.hetero)).to(device)
