@@ -6,7 +6,8 @@
 const $ = (sel, root = document) => root.querySelector(sel);
 const FINAL = ["succeeded", "failed", "cancelled"];
 const NUMBER_FIELDS = ["k", "nref", "target_size", "mult_factor"];
-const OPTION_FIELDS = ["seed", "absorb_fraction", "hole_policy", "method", "physical_tag"];
+const OPTION_FIELDS = ["seed", "absorb_fraction", "hole_policy", "method", "physical_tag", "boundary_tag"];
+const NUMBER_OPTIONS = ["seed", "absorb_fraction", "boundary_tag"];
 const FIELDS = ["model", "mode", ...NUMBER_FIELDS, "subset", "refiner", ...OPTION_FIELDS];
 const MODE_FIELDS = {
   kway: ["k"], nref: ["nref"], "target-size": ["target_size"], "mult-factor": ["mult_factor"],
@@ -89,8 +90,10 @@ function showMesh(mesh) {
     ["file", mesh.filename], ["cells", mesh.cells], ["points", mesh.points], ["dimension", mesh.dim],
     ["cell types", types], ["physical groups", mesh.physical_groups.join(", ") || "none"], ["bounding box", bbox],
   ];
+  if (mesh.boundary_groups && mesh.boundary_groups.length) rows.push(["boundary groups", mesh.boundary_groups.join(", ")]);
   let html = `<h3>Mesh</h3><table class="kv" id="mesh-summary">${rows.map(([k, v]) => `<tr><th>${k}</th><td>${esc(v)}</td></tr>`).join("")}</table>`;
-  if (mesh.check !== undefined && mesh.check !== null) html += `<h3>Check</h3><div id="mesh-check">${report(mesh.check)}</div>`;
+  if (mesh.check != null) html += `<h3>Check</h3><div id="mesh-check">${report(mesh.check)}</div>`;
+  if (mesh.boundary != null) html += `<details><summary>Boundary</summary>${report(mesh.boundary)}</details>`;
   $("#mesh").innerHTML = html;
 }
 
@@ -200,7 +203,7 @@ function jobBody() {
   for (const name of OPTION_FIELDS) {
     const raw = input(name).value.trim();
     if (raw === "" || field(name).hidden) continue;
-    options[name] = ["seed", "absorb_fraction"].includes(name) ? Number(raw) : raw;
+    options[name] = NUMBER_OPTIONS.includes(name) ? Number(raw) : raw;
   }
   body.options = options;
   return body;
@@ -289,9 +292,9 @@ const RESULT_FILES = [
 
 function paramText(params) {
   const p = params || {};
-  const value = { kway: `k=${p.k}`, nref: `nref=${p.nref}`, "target-size": `size=${p.target_size}`,
-    "mult-factor": `f=${p.mult_factor}`, segregated: `f=${p.mult_factor}`, coarsen: "subset" }[p.mode];
-  return `${p.mode || ""} ${value || ""}`.trim();
+  const value = { kway: `k=${p.k}`, nref: p.nref, "target-size": p.target_size, "mult-factor": p.mult_factor,
+    segregated: `f=${p.mult_factor}`, coarsen: `of ${(p.subset || []).length} cells` }[p.mode];
+  return `${p.mode || ""} ${value ?? ""}`.trim();
 }
 
 const jobLabel = (job) => `${job.params.model} ${paramText(job.params)} · ${job.id.slice(0, 6)}`;
