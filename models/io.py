@@ -86,8 +86,10 @@ def read_mesh(path: str | os.PathLike, physical_tag: str | None = None, file_for
     except MeshError:
         raise
     except (Exception, SystemExit) as exc:  # meshio raises many kinds (even SystemExit) on broken input
-        if "polyhedra with other cells" in str(exc) and (file_format or ext).lstrip(".") == "vtu":
-            from .vtu import read_vtu_mixed  # e.g. our own 3D output with its boundary faces
+        meshio_polyhedra_bug = "polyhedra with other cells" in str(exc) or "Incompatible cell data" in str(exc)
+        if meshio_polyhedra_bug and (file_format or ext).lstrip(".") == "vtu":
+            # e.g. our own 3D output with its boundary faces, or polyhedra not sorted by vertex count
+            from .vtu import read_vtu_mixed
 
             return mesh_from_meshio(read_vtu_mixed(path), physical_tag=physical_tag)
         msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__

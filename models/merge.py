@@ -15,6 +15,7 @@ write silently wrong geometry.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -213,6 +214,37 @@ def _majority(labels: np.ndarray, tags: np.ndarray | None, n_elem: int) -> np.nd
     groups, t = sorted_unique(tags, return_inverse=True)
     counts = sp.csr_matrix((np.ones(labels.size), (labels, t)), shape=(n_elem, groups.size)).toarray()
     return groups[counts.argmax(axis=1)]
+
+
+def sort_by_vertex_count(poly: PolyMesh) -> PolyMesh:
+    """3D: renumber the elements by their number of distinct vertices (stable).
+
+    meshio reads VTU polyhedra into blocks keyed by vertex count in order of first appearance, but
+    splits the cell data by sorted vertex count: the two agree only when the file lists the
+    elements sorted that way. Writing them so keeps every 3D result readable by meshio (and so by
+    our own reader)."""
+    if poly.dim != 3 or poly.n_elements < 2:
+        return poly
+    from .geometry import cell_index, reorder_csr
+
+    e = poly.n_elements
+    face_elem = cell_index(poly.elem_offsets)
+    node_elem = face_elem[cell_index(poly.loop_offsets)]
+    pairs = sorted_unique(node_elem * np.int64(poly.points.shape[0]) + poly.loop_nodes)
+    nverts = np.bincount(pairs // poly.points.shape[0], minlength=e)
+    perm = np.argsort(nverts, kind="stable")
+    if np.array_equal(perm, np.arange(e)):
+        return poly
+    inv = np.empty(e, dtype=np.int64)
+    inv[perm] = np.arange(e)
+    elem_offsets, face_ids = reorder_csr(poly.elem_offsets, np.arange(face_elem.size), perm)
+    loop_offsets, loop_nodes = reorder_csr(poly.loop_offsets, poly.loop_nodes, face_ids)
+    per_face = {k: None if getattr(poly, k) is None else getattr(poly, k)[face_ids] for k in ("facet_tags", "facet_on_boundary")}
+    return dataclasses.replace(
+        poly, elem_offsets=elem_offsets, loop_offsets=loop_offsets, loop_nodes=loop_nodes,
+        measure=poly.measure[perm], n_fine=poly.n_fine[perm], labels=inv[poly.labels],
+        tags=None if poly.tags is None else poly.tags[perm], **per_face,
+    )
 
 
 def merge(mesh: Mesh, graph: DualGraph, labels: np.ndarray, measures: np.ndarray) -> tuple[PolyMesh, Holes]:

@@ -23,7 +23,7 @@ from .boundary import FineBoundary, annotate, fine_boundary, has_groups
 from .errors import MeshError, ParameterError
 from .geometry import cell_faces, measures_and_centroids
 from .graph import DualGraph, dual_graph
-from .merge import merge
+from .merge import merge, sort_by_vertex_count
 from .mesh import Mesh, PolyMesh
 
 HOLE_POLICIES = ("split", "error")
@@ -140,6 +140,8 @@ def run(
     t = time.perf_counter()
     report(0.72, "merge")
     poly, labels, n_split = split_holes(mesh, graph, data, agg.labels, hole_policy)
+    poly = sort_by_vertex_count(poly)  # 3D: the element order meshio can read back
+    labels = poly.labels
     agg.labels = labels
     agg.n_elements = poly.n_elements
 
