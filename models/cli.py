@@ -82,10 +82,28 @@ class _Progress:
             self.bar.close()
 
 
+def check_output_path(path: str | None, what: str, suffixes: tuple[str, ...] = ()) -> None:
+    """Fail early, in one line, on an output path that cannot be written (before any work is done)."""
+    if path is None:
+        return
+    if suffixes and not path.lower().endswith(suffixes):
+        raise ParameterError(f"{what} {path!r} must end with {' or '.join(suffixes)}")
+    if os.path.isdir(path):
+        raise ParameterError(f"{what} {path!r} is a folder; give a file name")
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise ParameterError(f"cannot write {what} {path!r}: folder {folder!r} does not exist")
+    if not os.access(folder, os.W_OK | os.X_OK) or (os.path.exists(path) and not os.access(path, os.W_OK)):
+        raise ParameterError(f"cannot write {what} {path!r}: permission denied")
+
+
 def cmd_agglomerate(args) -> int:
     from . import pipeline
     from .io import read_mesh
 
+    check_output_path(args.output, "output mesh", (".vtu",))
+    for what in ("metrics", "labels", "lymph", "plot"):
+        check_output_path(getattr(args, what), f"--{what} file")
     t0 = time.perf_counter()
     subset = _read_subset(args.subset)
     mesh = read_mesh(args.mesh, physical_tag=args.physical_tag)
@@ -260,6 +278,10 @@ def main(argv: list[str] | None = None) -> int:
         rc = args.func(args)
     except MagnetError as exc:
         print(f"magnet: error: {exc}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except OSError as exc:  # an output that cannot be written (disk full, permissions changed, ...)
+        where = f": {exc.filename}" if exc.filename else ""
+        print(f"magnet: error: {exc.strerror or exc}{where}", file=sys.stderr)
         return EXIT_USER_ERROR
     except KeyboardInterrupt:
         print("magnet: interrupted", file=sys.stderr)
