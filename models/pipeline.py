@@ -191,7 +191,7 @@ def write_outputs(
                 cell_data[name] = np.asarray(vals, dtype=np.float64)
         from .boundary import output_cells
 
-        write_vtu(vtu, res.poly, cell_data, boundary=output_cells(res.poly))
+        write_vtu(vtu, res.poly, cell_data, boundary=output_cells(res.poly), group_names=_group_names(res.mesh))
         out["mesh"] = vtu
     if labels:
         _atomic_write(labels, json.dumps(res.agglomeration.labels.tolist()))
@@ -222,6 +222,15 @@ def write_outputs(
         report["run"] = {**res.summary(), **(extra or {})}
         _atomic_write(metrics, json.dumps(report, indent=1))
         out["metrics"] = metrics
+    return out
+
+
+def _group_names(mesh: Mesh) -> dict[str, tuple[int, int]]:
+    """{name: (tag, dim)} of the element and boundary groups that have names (gmsh physical names)."""
+    out: dict[str, tuple[int, int]] = {}
+    for key, dim in (("group_names", mesh.dim), ("boundary_names", mesh.dim - 1)):
+        for tag, name in mesh.meta.get(key, {}).items():
+            out.setdefault(name, (int(tag), dim))
     return out
 
 

@@ -33,12 +33,14 @@ def _data_array(name: str, arr: np.ndarray, ncomp: int = 1) -> str:
     return f'<DataArray type="{_VTK_TYPES[arr.dtype]}" Name="{name}"{comps} format="binary">{payload}</DataArray>\n'
 
 
-def write_vtu(path: str | os.PathLike, poly: PolyMesh, cell_data: dict[str, np.ndarray] | None = None, boundary=None) -> None:
+def write_vtu(path: str | os.PathLike, poly: PolyMesh, cell_data: dict[str, np.ndarray] | None = None, boundary=None,
+              group_names: dict[str, tuple[int, int]] | None = None) -> None:
     """Write the agglomerated mesh; `cell_data` adds per-element arrays (e.g. metrics).
 
     boundary: None or (offsets, nodes, VTK types, tags) of tagged edges/faces (models.boundary.
     output_cells), written after the elements as their own cells with a `boundary_tag` array
     (-1 on elements; element arrays are -1 / NaN on them), which models.io reads back as groups.
+    group_names: {name: (tag, dim)} written as FieldData the way meshio keeps gmsh's physical names.
     """
     e = poly.n_elements
     if poly.dim == 2:
@@ -92,6 +94,7 @@ def write_vtu(path: str | os.PathLike, poly: PolyMesh, cell_data: dict[str, np.n
         '<?xml version="1.0"?>\n',
         '<VTKFile type="UnstructuredGrid" version="1.0" byte_order="LittleEndian" header_type="UInt64">\n',
         "<UnstructuredGrid>\n",
+        _field_data(group_names),
         f'<Piece NumberOfPoints="{pts.shape[0]}" NumberOfCells="{e + nb}">\n',
         "<Points>\n",
         _data_array("Points", np.asarray(pts, dtype=np.float64), 3),
@@ -122,6 +125,18 @@ def write_vtu(path: str | os.PathLike, poly: PolyMesh, cell_data: dict[str, np.n
     with open(tmp, "w", encoding="ascii") as fh:
         fh.writelines(parts)
     os.replace(tmp, path)
+
+
+def _field_data(names: dict[str, tuple[int, int]] | None) -> str:
+    if not names:
+        return ""
+    from xml.sax.saxutils import quoteattr
+
+    rows = [
+        f'<DataArray type="Int64" Name={quoteattr(str(n))} NumberOfTuples="2" format="ascii">{int(t)} {int(d)}</DataArray>\n'
+        for n, (t, d) in names.items()
+    ]
+    return "<FieldData>\n" + "".join(rows) + "</FieldData>\n"
 
 
 def _points3d(poly: PolyMesh) -> np.ndarray:
@@ -214,5 +229,7 @@ def read_vtu_mixed(path: str | os.PathLike):
             sel.append(ids)
     cell_data = {name: [a.reshape(-1, nc)[ids].reshape(-1) if nc == 1 else a.reshape(-1, nc)[ids] for ids in sel]
                  for name, (a, nc) in arrays("CellData").items()}
-    return SimpleNamespace(points=pts.reshape(-1, ncomp).astype(np.float64), cells=blocks, cell_data=cell_data, field_data={})
+    fd = root.find("UnstructuredGrid/FieldData")
+    field_data = {} if fd is None else {el.get("Name"): _decode(el, header) for el in fd.findall("DataArray")}
+    return SimpleNamespace(points=pts.reshape(-1, ncomp).astype(np.float64), cells=blocks, cell_data=cell_data, field_data=field_data)
 

@@ -129,6 +129,7 @@ def test_cube_faces_keep_their_tags(tmp_path, model, mode, kw):
     back = read_mesh(out["mesh"])  # polyhedra plus the tagged faces: groups read back
     assert back.n_cells == poly.n_elements
     assert describe(back)["boundary_groups"] == sorted(CUBE_TAGS)
+    assert back.meta["boundary_names"] == {11: "x0", 12: "x1", 13: "y0", 14: "y1", 15: "z0", 16: "z1"}
     fb = pipeline.run(back, model="metis", mode="kway", k=3).boundary
     for t in CUBE_TAGS:
         assert abs(fb.measure[fb.tags == t].sum() - 1.0) < 1e-12
@@ -145,6 +146,8 @@ def test_vtu_round_trip_2d_keeps_groups(tmp_path):
     s = describe(back)
     assert s["boundary_groups"] == [2, 3, 4, 5, 6]
     assert s["boundary"]["untagged_boundary_facets"] == 0 and s["boundary"]["interior_tagged_facets"] == 23
+    assert [g["name"] for g in s["boundary"]["groups"]] == ["bottom", "right", "top", "left", "interface"]
+    assert back.meta["group_names"] == {1: "matrix", 2: "inclusion"}
     # agglomerating the result again keeps its boundary
     res2 = pipeline.run(back, model="metis", mode="kway", k=3)
     region, _ = lymph_structs(res2.poly)
