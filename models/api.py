@@ -4,7 +4,8 @@ Torch-free at import time: the service imports this module (validation, model ca
 inspection) and must never import torch. Neural partitioners are loaded lazily by name.
 
 - inspect_mesh(path, physical_tag=None) -> {"cells", "points", "dim", "cell_types": {name: count},
-  "physical_groups": [int], "bbox": [[min...], [max...]]}; raises MeshError.
+  "physical_groups": [int], "bbox": [[min...], [max...]], "boundary_groups": [int], "boundary":
+  models.boundary.summary}; raises MeshError.
 - validate_params(params, mesh_info=None) -> normalized params dict; raises ParameterError whose
   message names the field. Keys: model, mode, k, nref, target_size, mult_factor, subset (list of
   cell ids), refiner, options {seed, absorb_fraction, hole_policy, physical_tag, method,
