@@ -61,7 +61,7 @@ MIRROR = {
     VTK_WEDGE: np.array([0, 2, 1, 3, 5, 4]),
     VTK_PYRAMID: np.array([0, 3, 2, 1, 4]),
 }
-TAG_NAMES = ("gmsh:physical", "CellEntityIds", "cell_tags", "medit:ref", "physical", "material", "tag", "physical_group")
+TAG_NAMES = ("gmsh:physical", "CellEntityIds", "cell_tags", "medit:ref", "physical", "material", "tag", "physical_group", "avsucd:material")
 BOUNDARY_TAG_NAME = "boundary_tag"  # boundary groups of lower-dimensional cells, as models.vtu writes them
 SUPPORTED_EXTENSIONS = (".vtu", ".vtk", ".msh", ".xdmf", ".xmf", ".mesh", ".med", ".inp", ".obj", ".off", ".ply", ".stl", ".h5m", ".su2", ".nas", ".bdf", ".f3grid", ".avs", ".dat", ".tec", ".ugrid")
 

@@ -171,14 +171,14 @@ def test_vtk_reads_the_3d_output(tmp_path):
     assert (vals[:6] == -1).all() and set(vals[6:].tolist()) == set(CUBE_TAGS)
 
 
-@pytest.mark.parametrize("ext", [".vtu", ".vtk"])
-def test_vtu_vtk_input_with_tagged_lines(tmp_path, ext):
+@pytest.mark.parametrize(("ext", "key"), [(".vtu", "CellEntityIds"), (".vtk", "CellEntityIds"), (".avs", "avsucd:material")])
+def test_vtu_vtk_ucd_input_with_tagged_lines(tmp_path, ext, key):
     m = meshio.read(SQUARE)
     tri, lines = m.cells_dict["triangle"], np.vstack([c.data for c in m.cells if c.type == "line"])
     ltags = np.concatenate([d for c, d in zip(m.cells, m.cell_data["gmsh:physical"], strict=True) if c.type == "line"])
     path = tmp_path / f"sq{ext}"
     meshio.write(path, meshio.Mesh(m.points, [("line", lines[:, ::-1]), ("triangle", tri)],
-                                   cell_data={"CellEntityIds": [ltags, np.full(len(tri), 7)]}), binary=False)
+                                   cell_data={key: [ltags, np.full(len(tri), 7)]}), **({} if ext == ".avs" else {"binary": False}))
     mesh = read_mesh(path)
     assert mesh.physical_groups() == [7]
     assert describe(mesh)["boundary_groups"] == [2, 3, 4, 5]
