@@ -8,6 +8,7 @@ without the playwright package, the tests are skipped with the reason."""
 
 from __future__ import annotations
 
+import base64
 import os
 import shutil
 
@@ -61,6 +62,23 @@ def new_page(browser, url):
 
 def upload_brain(page):
     page.set_input_files("#file", str(BRAIN))
+    page.wait_for_selector("#mesh-summary")
+    assert "14372" in page.inner_text("#mesh-summary")
+
+
+def drop_brain(page):
+    """Drag and drop: a `drop` event carrying the file, as a browser fires it."""
+    page.evaluate(
+        """([name, b64]) => {
+        const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+        const transfer = new DataTransfer();
+        transfer.items.add(new File([bytes], name));
+        const zone = document.querySelector('#drop');
+        for (const type of ['dragover', 'drop'])
+          zone.dispatchEvent(new DragEvent(type, {dataTransfer: transfer, bubbles: true, cancelable: true}));
+        }""",
+        [BRAIN.name, base64.b64encode(BRAIN.read_bytes()).decode()],
+    )
     page.wait_for_selector("#mesh-summary")
     assert "14372" in page.inner_text("#mesh-summary")
 
@@ -147,11 +165,13 @@ def test_page_with_api_keys(browser, tmp_path):
         page, errors = new_page(browser, url)
         page.wait_for_selector("#notice:not([hidden])")
         assert "API key" in page.inner_text("#notice")
+        page.fill("#token", "wrong-token")
+        page.locator("#token").blur()
+        page.wait_for_function("document.querySelector('#job-rows').textContent.includes('invalid API key')")
         page.fill("#token", "alice-token")
-        page.press("#token", "Enter")
         page.locator("#token").blur()
         page.wait_for_selector("#notice", state="hidden")
-        upload_brain(page)
+        drop_brain(page)
         page.fill("input[name=k]", "16")
         run_job(page)
         page.wait_for_function("document.querySelector('#preview').naturalWidth > 0")

@@ -565,6 +565,7 @@ function init() {
     localStorage.setItem("magnet.token", tokenInput.value.trim());
     notice("");
     state.meshes.clear();
+    loadModels();
     refreshJobs();
   });
   const drop = $("#drop");
