@@ -4,6 +4,7 @@ read with httpx as a stream (keys on: the same bearer auth as the other job rout
 from __future__ import annotations
 
 import json
+import threading
 import time
 
 import httpx
@@ -92,3 +93,25 @@ def test_events_auth_and_unknown_jobs(server):
     r = httpx.get(f"{url}/v1/jobs/nope/events", headers={"Authorization": "Bearer alice-token"}, timeout=10)
     assert r.status_code == 404
     assert read_events(url, job["id"], "alice-token")[-1][1]["status"] == "succeeded"
+
+
+def test_events_end_when_the_job_is_purged(server):
+    """A job removed (DELETE ?purge=true) while followed: the stream ends at once, never hangs."""
+    url, tmp = server
+    api = Api(url, "alice-token")
+    mesh = api.upload(square_mesh(tmp / "square150.vtu", 150))
+    busy = api.submit(mesh["id"], model="metis", k=700)
+    api.wait_running(busy["id"])
+    waiting = api.submit(mesh["id"], model="metis", k=701)  # queued behind it: one embedded worker
+    found: list = []
+    reader = threading.Thread(target=lambda: found.extend(read_events(url, waiting["id"], "alice-token", 30)))
+    reader.start()
+    wait_until(lambda: api.job(waiting["id"])["status"] == "queued" and time.sleep(0.5) is None, 10)
+    assert api.http.delete(f"/v1/jobs/{waiting['id']}", params={"purge": "true"}).status_code == 204
+    reader.join(20)
+    assert not reader.is_alive() and found, found
+    assert found[0][0] == "progress"
+    last_event, last = found[-1]
+    assert last_event == "gone" or (last_event == "end" and last["status"] == "cancelled"), found
+    assert api.http.get(f"/v1/jobs/{waiting['id']}").status_code == 404
+    api.http.delete(f"/v1/jobs/{busy['id']}")
