@@ -27,7 +27,7 @@ from service.auth import current_user
 from service.context import Context, get_context
 from service.jobs import NotFound, visible_job
 from service.routers.jobs import job_out
-from service.routers.meshes import ERRORS
+from service.schemas import ErrorOut
 
 router = APIRouter(prefix="/v1", tags=["jobs"])
 
@@ -76,7 +76,8 @@ async def job_stream(request: Request, ctx: Context, user: str, job_id: str, fir
     "/jobs/{job_id}/events",
     response_class=StreamingResponse,
     responses={
-        **ERRORS,
+        401: {"model": ErrorOut, "description": "missing or invalid API key"},
+        404: {"model": ErrorOut, "description": "no such job (or another user's)"},
         200: {
             "description": "An event stream: `progress` events (the job record) while it runs, one `end` "
             "event with the final record, then the stream closes.",

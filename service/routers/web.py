@@ -15,7 +15,8 @@ from fastapi.staticfiles import StaticFiles
 from service.auth import current_user
 from service.context import Context, get_context
 from service.jobs import NotFound
-from service.routers.jobs import RESULT_ERRORS, result_file
+from service.routers.jobs import result_file
+from service.schemas import ErrorOut
 
 WEB_DIR = Path(__file__).resolve().parents[1] / "web"
 router = APIRouter()
@@ -71,7 +72,14 @@ def element_polygons(vtu: Path) -> dict:
     }
 
 
-@router.get("/v1/jobs/{job_id}/polygons", tags=["jobs"], responses=RESULT_ERRORS)
+POLYGON_ERRORS = {
+    401: {"model": ErrorOut, "description": "missing or invalid API key"},
+    404: {"model": ErrorOut, "description": "no such job (or another user's), or a 3D job"},
+    409: {"model": ErrorOut, "description": "the job has not succeeded (yet)"},
+}
+
+
+@router.get("/v1/jobs/{job_id}/polygons", tags=["jobs"], responses=POLYGON_ERRORS)
 def job_polygons(job_id: str, user: str = Depends(current_user), ctx: Context = Depends(get_context)) -> dict:
     """The elements of a finished 2D job as polygons (what the web page draws): `points`,
     `connectivity` cut by `offsets`, and per-element `cell_data` (metrics, measure, ...).
