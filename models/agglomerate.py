@@ -172,8 +172,26 @@ def absorb_fragments(
     return compact_labels(labels).astype(np.int64), absorbed
 
 
-def _part_extent(data: CellData, labels: np.ndarray, nodes: np.ndarray, parts: np.ndarray, h: float) -> np.ndarray:
-    """For each part in `parts`, True when its diameter (largest vertex distance) is >= h.
+SIZE_MEASURES = ("centroids", "vertices")
+
+
+def _size_points(data: CellData, labels: np.ndarray, nodes: np.ndarray, size_measure: str) -> tuple[np.ndarray, np.ndarray]:
+    """The points whose spread is a part's size, and the part of each: the centroids of its cells
+    (the paper's measure, the default) or the vertices of its cells (every element below h)."""
+    if size_measure == "centroids":
+        return data.centroids[nodes], labels
+    cell_of = np.repeat(np.arange(data.offsets.size - 1), np.diff(data.offsets))
+    lab_full = np.full(data.offsets.size - 1, -1, dtype=np.int64)
+    lab_full[nodes] = labels
+    vlab = lab_full[cell_of]
+    keep = vlab >= 0
+    return data.points[data.connectivity[keep]], vlab[keep]
+
+
+def _part_extent(data: CellData, labels: np.ndarray, nodes: np.ndarray, parts: np.ndarray, h: float,
+                 size_measure: str = "centroids") -> np.ndarray:
+    """For each part in `parts`, True when its size (largest distance between its cell centroids,
+    or between its vertices: `size_measure`) is >= h.
 
     Bounding boxes decide most parts at once: diagonal < h -> smaller; longest side >= h ->
     larger. Only the ambiguous ones get an exact convex-hull diameter (a loop over those parts).
@@ -181,13 +199,7 @@ def _part_extent(data: CellData, labels: np.ndarray, nodes: np.ndarray, parts: n
     from scipy.spatial import ConvexHull, QhullError
 
     k = int(labels.max()) + 1
-    cell_of = np.repeat(np.arange(data.offsets.size - 1), np.diff(data.offsets))
-    lab_full = np.full(data.offsets.size - 1, -1, dtype=np.int64)
-    lab_full[nodes] = labels
-    vlab = lab_full[cell_of]
-    keep = vlab >= 0
-    vlab = vlab[keep]
-    pts = data.points[data.connectivity[keep]]
+    pts, vlab = _size_points(data, labels, nodes, size_measure)
     dim = pts.shape[1]
     lo = np.full((k, dim), np.inf)
     hi = np.full((k, dim), -np.inf)
@@ -283,8 +295,10 @@ def recursive_bisection(
     h: float | np.ndarray | None = None,
     progress: Callable[[float, str], None] | None = None,
     record: list | None = None,
+    size_measure: str = "centroids",
 ) -> np.ndarray:
-    """Bisect parts level by level: `levels` times (nref), or while a part's diameter >= h.
+    """Bisect parts level by level: `levels` times (nref), or while a part's size >= h
+    (size: see _part_extent).
 
     h may be one value or one value per initial part (segregated mode: per physical group).
     `partitioner` is a Partitioner or a bisect(batch) -> sides function (make_bisector).
@@ -300,7 +314,7 @@ def recursive_bisection(
         sizes = np.bincount(labels, minlength=k)
         cand = np.flatnonzero(sizes >= 2)
         if h_part is not None and cand.size:
-            cand = cand[_needs_split(data, labels, nodes, cand, h_part)]
+            cand = cand[_needs_split(data, labels, nodes, cand, h_part, size_measure)]
         if cand.size == 0:
             break
         sel = np.isin(labels, cand)
@@ -327,12 +341,12 @@ def recursive_bisection(
     return labels
 
 
-def _needs_split(data, labels, nodes, cand, h_part):
+def _needs_split(data, labels, nodes, cand, h_part, size_measure="centroids"):
     hp = h_part[cand]
     out = np.zeros(cand.size, dtype=bool)
     for hv in np.unique(hp):  # a few distinct h values at most (one per physical group)
         m = hp == hv
-        out[m] = _part_extent(data, labels, nodes, cand[m], float(hv))
+        out[m] = _part_extent(data, labels, nodes, cand[m], float(hv), size_measure)
     return out
 
 
@@ -364,6 +378,7 @@ def agglomerate(
     refiner=None,
     threshold: int = 200,
     record_levels: bool = False,
+    size_measure: str = "centroids",
 ) -> Agglomeration:
     """Partition the cells and return connected parts (see the module docstring for the modes).
 
@@ -371,11 +386,16 @@ def agglomerate(
     level of the coarsening in mode 'multilevel') or, in mode 'kway', the k-way partition.
     Mode 'multilevel' stops like nref, target-size or mult-factor, whichever value is given;
     `threshold` is the coarsest graph size. record_levels: keep the labels after each recursion
-    level in `Agglomeration.levels` (the nested hierarchy, models.hierarchy)."""
+    level in `Agglomeration.levels` (the nested hierarchy, models.hierarchy). size_measure: what
+    target-size / mult-factor / segregated compare with h: "centroids" (largest distance between
+    the centroids of a part's cells, and the mesh diameter the same way: the paper's measure) or
+    "vertices" (largest distance between its vertices: every element is then below h)."""
     t0 = time.perf_counter()
     n = mesh.n_cells
     if mode not in MODES:
         raise ParameterError(f"unknown mode {mode!r}; choose one of {list(MODES)}")
+    if size_measure not in SIZE_MEASURES:
+        raise ParameterError(f"size_measure must be one of {list(SIZE_MEASURES)}, got {size_measure!r}")
     part = model if isinstance(model, Partitioner) else get_partitioner(model, seed=seed, **(model_options or {}))
     if isinstance(refiner, str):
         from .refine import get_refiner
@@ -471,8 +491,12 @@ def agglomerate(
             # 1068 elements, 433 of them single cells of the three small layers; now 693.)
             from .geometry import mesh_diameter
 
-            h = f * mesh_diameter(data.points[_used_points(data, nodes)])
-        labels = recursive_bisection(data, bisector, nodes, labels, h=h, progress=progress, record=level_labels)
+            if size_measure == "centroids":
+                h = f * mesh_diameter(data.centroids[nodes])
+            else:
+                h = f * mesh_diameter(data.points[_used_points(data, nodes)])
+        labels = recursive_bisection(data, bisector, nodes, labels, h=h, progress=progress, record=level_labels,
+                                     size_measure=size_measure)
     t_part = time.perf_counter() - t0
 
     parts_before = int(np.count_nonzero(np.bincount(labels)))

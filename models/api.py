@@ -9,7 +9,9 @@ inspection) and must never import torch. Neural partitioners are loaded lazily b
 - validate_params(params, mesh_info=None) -> normalized params dict; raises ParameterError whose
   message names the field. Keys: model, mode, k, nref, target_size, mult_factor, subset (list of
   cell ids), refiner, options {seed, absorb_fraction, hole_policy, physical_tag, method,
-  boundary_tag (lymph bc_tag of boundary edges without a boundary group, default 1)}.
+  boundary_tag (lymph bc_tag of boundary edges without a boundary group, default 1), size_measure
+  ("centroids": a part's size is the largest distance between its cell centroids, the paper's
+  measure, default; "vertices": between its vertices)}.
 - run_job(mesh_path, out_dir, params, progress=None, should_cancel=None) -> summary dict
   {"elements", "parts_split", "fragments_absorbed", "timings": {stage: seconds}, "outputs": {kind: filename}}
   writing into out_dir: mesh.vtu, metrics.json, labels.json, preview.png, and for 2D meshes
@@ -136,7 +138,7 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
     opts = params.get("options") or {}
     if not isinstance(opts, dict):
         raise ParameterError("options must be an object")
-    known_opts = {"seed", "absorb_fraction", "hole_policy", "physical_tag", "method", "boundary_tag"}
+    known_opts = {"seed", "absorb_fraction", "hole_policy", "physical_tag", "method", "boundary_tag", "size_measure"}
     if set(opts) - known_opts:
         raise ParameterError(f"unknown option(s): {sorted(set(opts) - known_opts)}")
     seed = _int(opts, "seed", lo=0, hi=2**31 - 1) or 0
@@ -154,6 +156,9 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
     method = opts.get("method", "kway")
     if method not in ("kway", "recursive"):
         raise ParameterError(f"options.method must be 'kway' or 'recursive', got {method!r}")
+    size_measure = opts.get("size_measure", "centroids")
+    if size_measure not in ("centroids", "vertices"):
+        raise ParameterError(f"options.size_measure must be 'centroids' or 'vertices', got {size_measure!r}")
 
     need = {"kway": ("k", k), "nref": ("nref", nref), "target-size": ("target_size", target_size),
             "mult-factor": ("mult_factor", mult_factor), "segregated": ("mult_factor", mult_factor)}
@@ -183,7 +188,8 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
         "model": model, "mode": mode, "k": k, "nref": nref, "target_size": target_size,
         "mult_factor": mult_factor, "subset": subset, "refiner": None,
         "options": {"seed": seed, "absorb_fraction": float(absorb), "hole_policy": hole_policy,
-                    "physical_tag": physical_tag, "method": method, "boundary_tag": boundary_tag},
+                    "physical_tag": physical_tag, "method": method, "boundary_tag": boundary_tag,
+                    "size_measure": size_measure},
     }
 
 
@@ -219,6 +225,7 @@ def run_job(
         mesh, model=p["model"], mode=p["mode"], k=p["k"], nref=p["nref"], target_size=p["target_size"],
         mult_factor=p["mult_factor"], subset=p["subset"], absorb_fraction=o["absorb_fraction"],
         hole_policy=o["hole_policy"], seed=o["seed"], model_options=model_options, progress=tick,
+        size_measure=o["size_measure"],
     )
     res.timings = {"read": t_read, **res.timings}
     files = {"mesh": "mesh.vtu", "metrics": "metrics.json", "labels": "labels.json", "preview": "preview.png"}

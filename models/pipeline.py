@@ -112,6 +112,7 @@ def run(
     model_options: dict | None = None,
     compute_metrics: bool = True,
     progress: Callable[[float, str], None] | None = None,
+    size_measure: str = "centroids",
 ) -> Result:
     """Agglomerate `mesh`; progress(fraction, stage) is called between stages."""
 
@@ -134,6 +135,7 @@ def run(
     agg = agglomerate(
         mesh, data, model=model, mode=mode, k=k, nref=nref, target_size=target_size, mult_factor=mult_factor,
         subset=subset, absorb_fraction=absorb_fraction, seed=seed, progress=part_progress, model_options=model_options,
+        size_measure=size_measure,
     )
     timings["partition"] = time.perf_counter() - t
 

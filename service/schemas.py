@@ -53,6 +53,9 @@ class JobOptions(BaseModel):
     boundary_tag: int | None = Field(
         None, ge=0, le=2**31 - 1, description="lymph bc_tag of boundary edges without a boundary group (default 1)"
     )
+    size_measure: str | None = Field(
+        None, max_length=40, description="part size for target-size / mult-factor: centroids (default) | vertices"
+    )
 
 
 class JobParams(BaseModel):

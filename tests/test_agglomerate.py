@@ -109,7 +109,7 @@ def test_brain_metis_128(brain):
 def test_target_size_every_part_smaller(model, square):
     m, g, d = square
     h = 0.3
-    r = agglomerate(m, d, model=model, mode="target-size", target_size=h)
+    r = agglomerate(m, d, model=model, mode="target-size", target_size=h, size_measure="vertices")
     for e in np.unique(r.labels):
         cells = np.flatnonzero(r.labels == e)
         pts = m.points[np.unique(m.connectivity[(m.offsets[cells][:, None] + np.arange(3)).ravel()])]
@@ -121,8 +121,8 @@ def test_target_size_every_part_smaller(model, square):
 def test_mult_factor_equals_target_size(square):
     m, g, d = square
     f = 0.25
-    a = agglomerate(m, d, mode="mult-factor", mult_factor=f).labels
-    b = agglomerate(m, d, mode="target-size", target_size=f * np.sqrt(2)).labels
+    a = agglomerate(m, d, mode="mult-factor", mult_factor=f, size_measure="vertices").labels
+    b = agglomerate(m, d, mode="target-size", target_size=f * np.sqrt(2), size_measure="vertices").labels
     assert np.array_equal(a, b)
 
 
@@ -142,7 +142,7 @@ def test_segregated_uses_the_mesh_diameter_in_every_group():
     m = read_mesh(EMILIA)
     g, d = prepare(m)
     f = 0.04
-    r = agglomerate(m, d, mode="segregated", mult_factor=f)
+    r = agglomerate(m, d, mode="segregated", mult_factor=f, size_measure="vertices")
     h = f * mesh_diameter(m.points)
     for t in np.unique(m.tags):
         cells = np.flatnonzero(m.tags == t)
