@@ -26,6 +26,7 @@ def _add_job_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mult-factor", type=float, help="target size = factor x mesh diameter (0 < f <= 1)")
     p.add_argument("--subset", help="file with the cell ids to agglomerate (JSON list or whitespace separated); the rest stays")
     p.add_argument("--physical-tag", help="cell-data name holding the physical groups (default: gmsh:physical, CellEntityIds, ...)")
+    p.add_argument("--weld", type=float, metavar="TOL", help="merge points closer than TOL first (duplicate points that split the mesh)")
     p.add_argument("--absorb", type=float, default=0.0, metavar="FRACTION",
                    help="absorb parts smaller than FRACTION x mean part size into their longest-interface neighbour")
     p.add_argument("--method", default="kway", choices=["kway", "recursive"], help="METIS k-way or recursive (kway mode)")
@@ -109,7 +110,7 @@ def cmd_agglomerate(args) -> int:
         check_output_path(getattr(args, what), f"--{what} file")
     t0 = time.perf_counter()
     subset = _read_subset(args.subset)
-    mesh = read_mesh(args.mesh, physical_tag=args.physical_tag)
+    mesh = read_mesh(args.mesh, physical_tag=args.physical_tag, weld=args.weld)
     t_read = time.perf_counter() - t0
     prog = _Progress(args.progress or (sys.stderr.isatty() and mesh.n_cells > 200_000))
     try:
@@ -140,6 +141,14 @@ def cmd_agglomerate(args) -> int:
     note = f" ({', '.join(extra)})" if extra else ""
     print(f"{s['elements']} elements from {mesh.n_cells} cells{note} | {stages} | total {total:.2f}s")
     return 0
+
+
+def cmd_check(args) -> int:
+    from .check import check_file, format_report
+
+    rep = check_file(args.mesh, physical_tag=args.physical_tag, weld=args.weld)
+    print(json.dumps(rep, indent=1) if args.json else format_report(rep))
+    return EXIT_USER_ERROR if rep["verdict"] == "error" else 0
 
 
 def cmd_info(args) -> int:
@@ -217,6 +226,13 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
     p.add_argument("--plot", help="write a PNG picture of the agglomerated mesh here")
     p.add_argument("--progress", action="store_true", help="always show the progress bar")
     p.set_defaults(func=cmd_agglomerate, model_metrics=False)
+
+    p = sub.add_parser("check", help="report on a mesh (pieces, holes, folded/duplicate/unused/hanging points, ...) with a verdict")
+    p.add_argument("mesh")
+    p.add_argument("--json", action="store_true", help="print the report as JSON")
+    p.add_argument("--physical-tag")
+    p.add_argument("--weld", type=float, metavar="TOL", help="merge points closer than TOL first")
+    p.set_defaults(func=cmd_check)
 
     p = sub.add_parser("info", help="read a mesh and print its summary")
     p.add_argument("mesh")

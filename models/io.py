@@ -66,8 +66,11 @@ BOUNDARY_TAG_NAME = "boundary_tag"  # boundary groups of lower-dimensional cells
 SUPPORTED_EXTENSIONS = (".vtu", ".vtk", ".msh", ".xdmf", ".xmf", ".mesh", ".med", ".inp", ".obj", ".off", ".ply", ".stl", ".h5m", ".su2", ".nas", ".bdf", ".f3grid", ".avs", ".dat", ".tec", ".ugrid")
 
 
-def read_mesh(path: str | os.PathLike, physical_tag: str | None = None, file_format: str | None = None) -> Mesh:
-    """Read a mesh file and return a validated, positively oriented `Mesh`."""
+def read_mesh(path: str | os.PathLike, physical_tag: str | None = None, file_format: str | None = None,
+              weld: float | None = None) -> Mesh:
+    """Read a mesh file and return a validated, positively oriented `Mesh`.
+
+    weld: merge points closer than this distance first (coincident duplicates that split a mesh)."""
     path = os.fspath(path)
     if not os.path.exists(path):
         raise MeshError(f"mesh file not found: {path}")
@@ -91,13 +94,13 @@ def read_mesh(path: str | os.PathLike, physical_tag: str | None = None, file_for
             # e.g. our own 3D output with its boundary faces, or polyhedra not sorted by vertex count
             from .vtu import read_vtu_mixed
 
-            return mesh_from_meshio(read_vtu_mixed(path), physical_tag=physical_tag)
+            return mesh_from_meshio(read_vtu_mixed(path), physical_tag=physical_tag, weld=weld)
         msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise MeshError(f"cannot read {os.path.basename(path)} as a mesh: {msg}") from None
-    return mesh_from_meshio(m, physical_tag=physical_tag)
+    return mesh_from_meshio(m, physical_tag=physical_tag, weld=weld)
 
 
-def mesh_from_meshio(m, physical_tag: str | None = None) -> Mesh:
+def mesh_from_meshio(m, physical_tag: str | None = None, weld: float | None = None) -> Mesh:
     """Convert a meshio.Mesh (blocks of cells) into our CSR `Mesh`."""
     blocks = []
     for i, block in enumerate(m.cells):
@@ -117,7 +120,7 @@ def mesh_from_meshio(m, physical_tag: str | None = None) -> Mesh:
         key = tag_key if tdim == top else bnd_key
         tags = None if key is None else np.asarray(m.cell_data[key][i]).reshape(-1)
         cells.append((name, data, tags, tdim))
-    mesh = mesh_from_blocks(np.asarray(m.points, dtype=np.float64), cells, tag_name=tag_key)
+    mesh = mesh_from_blocks(np.asarray(m.points, dtype=np.float64), cells, tag_name=tag_key, weld=weld)
     from .boundary import group_names
 
     mesh.meta["group_names"], mesh.meta["boundary_names"] = group_names(getattr(m, "field_data", None), mesh.dim)
@@ -160,8 +163,10 @@ def _csr_from_blocks(blocks):
     return offsets, conn
 
 
-def mesh_from_blocks(points: np.ndarray, blocks, tag_name: str | None = None) -> Mesh:
-    """Core builder: split elements from boundary cells, check, orient, project 2D meshes."""
+def mesh_from_blocks(points: np.ndarray, blocks, tag_name: str | None = None, weld: float | None = None) -> Mesh:
+    """Core builder: split elements from boundary cells, check, orient, project 2D meshes.
+
+    weld: merge points closer than this (see weld_points) before anything else is checked."""
     if points.ndim != 2 or len(points) == 0:
         raise MeshError("the mesh has no points")
     if points.shape[1] == 1:
@@ -220,11 +225,20 @@ def mesh_from_blocks(points: np.ndarray, blocks, tag_name: str | None = None) ->
         )
 
     mesh = Mesh(points=points, offsets=offsets, connectivity=conn, cell_types=cell_types, tags=tags, tag_name=tag_name if tags is not None else None)
+    welded = None
+    if weld is not None:
+        welded = weld_points(points, weld)
+        mesh.connectivity = welded[conn]
+        mesh.meta["welded"] = int(np.count_nonzero(welded != np.arange(len(points))))
+    if dim == 2:
+        _collapse_repeated_nodes(mesh)
     if poly_faces:
         _attach_polyhedra(mesh, poly_faces)
         pf = mesh.poly_face_nodes
         if pf.min() < 0 or pf.max() >= len(points):
             raise MeshError("polyhedron faces refer to missing points")
+        if welded is not None:
+            mesh.poly_face_nodes = welded[pf]
 
     if bnd:
         b_data = [np.asarray(d, dtype=np.int64)[:, : (_TYPES[n][2] or None)] for n, d, _ in bnd if not n.startswith("polyhedron")]
@@ -234,11 +248,54 @@ def mesh_from_blocks(points: np.ndarray, blocks, tag_name: str | None = None) ->
             mesh.boundary_tags = np.concatenate([t for _, _, t in bnd]).astype(np.int64)
         if mesh.boundary_connectivity.size and mesh.boundary_connectivity.max() >= len(points):
             raise MeshError("boundary cells refer to missing points")
+        if welded is not None:
+            mesh.boundary_connectivity = welded[mesh.boundary_connectivity]
 
     if dim == 2:
         _project_to_plane(mesh)
     _orient_and_check(mesh)
     return mesh
+
+
+def weld_points(points: np.ndarray, tol: float) -> np.ndarray:
+    """(P,) the point each point is merged into: the smallest id of its group of points closer
+    than `tol` (transitively). A k-d tree finds the pairs; groups are connected components."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    if not (isinstance(tol, int | float) and np.isfinite(tol) and tol >= 0):
+        raise ParameterError(f"weld tolerance must be a finite number >= 0, got {tol!r}")
+    n = len(points)
+    pairs = cKDTree(points).query_pairs(float(tol), output_type="ndarray") if tol > 0 else np.zeros((0, 2), np.int64)
+    if pairs.size == 0:
+        return np.arange(n)
+    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, comp = connected_components(g, directed=False)
+    first = np.full(comp.max() + 1, n, dtype=np.int64)
+    np.minimum.at(first, comp, np.arange(n))
+    return first[comp]
+
+
+def _collapse_repeated_nodes(mesh: Mesh) -> None:
+    """2D: drop a node equal to the next one in its cell's cycle (a quad with a repeated corner
+    is a triangle). Cells left with fewer than 3 nodes stay, and are refused as degenerate."""
+    from .geometry import cell_index, next_in_cycle
+
+    conn = mesh.connectivity
+    rep = conn == conn[next_in_cycle(mesh.offsets)]
+    sizes = np.diff(mesh.offsets)
+    # keep at least one node per cell (a cell whose nodes are all equal keeps one)
+    cell = cell_index(mesh.offsets)
+    all_rep = np.bincount(cell, weights=rep, minlength=sizes.size) == sizes
+    rep &= ~(all_rep[cell] & (np.arange(conn.size) == mesh.offsets[:-1][cell]))
+    if not rep.any():
+        return
+    mesh.meta["collapsed"] = int(rep.sum())
+    new_sizes = sizes - np.bincount(cell, weights=rep, minlength=sizes.size).astype(np.int64)
+    mesh.connectivity = conn[~rep]
+    mesh.offsets = np.concatenate([[0], np.cumsum(new_sizes)]).astype(np.int64)
+    mesh.cell_types = np.where(new_sizes == 3, VTK_TRIANGLE, np.where(new_sizes == 4, VTK_QUAD, VTK_POLYGON)).astype(np.uint8)
 
 
 def _attach_polyhedra(mesh: Mesh, poly_faces) -> None:

@@ -222,6 +222,9 @@ def write_outputs(
 
             report["boundary"] = measure_report(res.boundary, res.poly)
         report["run"] = {**res.summary(), **(extra or {})}
+        from .check import mesh_report
+
+        report["mesh_report"] = mesh_report(res.mesh, res.graph)  # what `magnet check` says of the input
         _atomic_write(metrics, json.dumps(report, indent=1))
         out["metrics"] = metrics
     return out
