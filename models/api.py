@@ -69,11 +69,18 @@ def list_models() -> list[dict]:
     return [dict(card, version=MODEL_VERSION) for card in MODEL_CARDS]
 
 
-def inspect_mesh(path: str | os.PathLike, physical_tag: str | None = None) -> dict:
-    """Read and validate a mesh; return its summary (MeshError if it is not a valid mesh)."""
+def inspect_mesh(path: str | os.PathLike, physical_tag: str | None = None, check: bool = False) -> dict:
+    """Read and validate a mesh; return its summary (MeshError if it is not a valid mesh).
+    check: add the `magnet check` report (models.check.mesh_report) under "check"."""
     from .io import describe, read_mesh
 
-    return describe(read_mesh(path, physical_tag=physical_tag))
+    mesh = read_mesh(path, physical_tag=physical_tag)
+    info = describe(mesh)
+    if check:
+        from .check import mesh_report
+
+        info["check"] = mesh_report(mesh)
+    return info
 
 
 def _int(params: dict, name: str, lo: int | None = None, hi: int | None = None) -> int | None:

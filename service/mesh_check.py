@@ -130,7 +130,7 @@ def _child_main(argv: list[str]) -> int:
             check_xml(path, max_cells)
         from models import api
 
-        info = api.inspect_mesh(str(path))
+        info = api.inspect_mesh(str(path), check=True)
         if int(info["cells"]) > max_cells:
             raise UploadRejected(413, f"the mesh has {info['cells']} cells; the limit is {max_cells}")
         out = {"info": info}

@@ -36,6 +36,11 @@ class MeshOut(BaseModel):
         None, description="boundary groups: tag, name, facets on the boundary / inside; untagged boundary facets"
     )
     bbox: list[list[float]]
+    check: dict | None = Field(
+        None,
+        description="the `magnet check` report: pieces, boundary loops/shells, holes, orientation fixes, folded, "
+        "duplicate/unused points, hanging nodes, issues [{kind, severity, count, ids, message}] and a verdict",
+    )
     created_at: UTCDateTime
 
 

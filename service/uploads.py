@@ -91,6 +91,7 @@ def mesh_out(mesh: MeshRecord, owner: MeshOwner) -> MeshOut:
         boundary_groups=info.get("boundary_groups", []),
         boundary=info.get("boundary"),
         bbox=info.get("bbox", []),
+        check=info.get("check"),
         created_at=owner.created_at,
     )
 
