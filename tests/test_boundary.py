@@ -269,3 +269,34 @@ def test_match_with_wide_keys():
     assert want.tolist()[:3] == [3, 10, 0] and want.tolist()[3:] == [-1, -1]
     wide = lambda k: np.column_stack([k // 100, (k // 10) % 10, k % 10, np.full(k.size, 3)])  # noqa: E731
     np.testing.assert_array_equal(_match(wide(query), wide(ref)), want)
+
+
+@pytest.mark.parametrize(("model", "mode", "kw"), [("metis", "segregated", {"mult_factor": 0.6}),
+                                                   ("kmeans", "segregated", {"mult_factor": 0.6}),
+                                                   ("metis", "kway", {"k": 8})])
+def test_cube_inclusion_interface_surface(tmp_path, model, mode, kw):
+    """3D: the interface surface between two materials stays a face of both neighbours (segregated),
+    its area is kept, the outer faces keep their tags; kway may cut through it (reported)."""
+    mesh = read_mesh(DATA / "cube_inclusion.msh")
+    assert mesh.physical_groups() == [1, 2] and describe(mesh)["boundary_groups"] == [*sorted(CUBE_TAGS), 20]
+    res = pipeline.run(mesh, model=model, mode=mode, **kw)
+    poly = res.poly
+    on = poly.facet_on_boundary
+    sizes = np.diff(poly.loop_offsets)
+    owner = np.repeat(np.arange(sizes.size), sizes)
+    cen = np.column_stack([np.bincount(owner, poly.points[poly.loop_nodes, d]) / sizes for d in range(3)])
+    np.testing.assert_array_equal(poly.facet_tags[on], side_of(cen[on], CUBE_TAGS))
+    out = pipeline.write_outputs(res, metrics=str(tmp_path / "m.json"))
+    rep = json.loads(Path(out["metrics"]).read_text())["boundary"]
+    assert_boundary_report(rep, "area")
+    iface = rep["interfaces"]["20"]
+    assert abs(iface["measure_before"] - 6 * 0.16) < 1e-12
+    if mode == "segregated":
+        assert iface["facets_after"] == iface["facets_before"]
+        assert abs(iface["measure_after"] - iface["measure_before"]) <= 1e-12 * iface["measure_before"]
+        face_elem = np.repeat(np.arange(poly.n_elements), np.diff(poly.elem_offsets))
+        t20 = np.flatnonzero(poly.facet_tags == 20)
+        assert t20.size == 2 * iface["facets_before"]
+        # the two copies of every interface face belong to elements of different materials
+        assert set(np.unique(poly.tags[face_elem[t20]]).tolist()) == {1, 2}
+        assert (np.bincount(poly.tags[face_elem[t20]])[1:] == iface["facets_before"]).all()

@@ -9,6 +9,8 @@
   physical curve 6 "interface".
 - cube_faces.msh: unit cube, volume group 1 "domain", faces 11 "x0", 12 "x1", 13 "y0", 14 "y1",
   15 "z0", 16 "z1".
+- cube_inclusion.msh: the cube with a box inclusion [0.3, 0.7]^3: materials 1 "matrix" and
+  2 "inclusion", faces 11..16 as above, the inclusion's six faces as surface 20 "interface".
 Deterministic (gmsh's default algorithms, fixed sizes); ASCII MSH 4.1.
 """
 
@@ -95,12 +97,39 @@ def cube_faces() -> None:
     _write("cube_faces.msh")
 
 
+def cube_inclusion() -> None:
+    gmsh.model.add("cube_inclusion")
+    box = gmsh.model.occ.addBox(0, 0, 0, 1, 1, 1)
+    inner = gmsh.model.occ.addBox(0.3, 0.3, 0.3, 0.4, 0.4, 0.4)
+    out, _ = gmsh.model.occ.fragment([(3, box)], [(3, inner)])
+    gmsh.model.occ.synchronize()
+    vols = [v for _, v in out]
+    small = min(vols, key=lambda v: gmsh.model.occ.getMass(3, v))
+    gmsh.model.addPhysicalGroup(3, [v for v in vols if v != small], 1, name="matrix")
+    gmsh.model.addPhysicalGroup(3, [small], 2, name="inclusion")
+    names = {(0, 0): "x0", (0, 1): "x1", (1, 0): "y0", (1, 1): "y1", (2, 0): "z0", (2, 1): "z1"}
+    rest = []
+    for _, f in gmsh.model.getEntities(2):
+        c = gmsh.model.occ.getCenterOfMass(2, f)
+        hit = [(a, s) for a in range(3) for s in (0, 1) if abs(c[a] - s) < 1e-9]
+        if hit:
+            a, s = hit[0]
+            gmsh.model.addPhysicalGroup(2, [f], 11 + 2 * a + s, name=names[a, s])
+        else:
+            rest.append(f)
+    gmsh.model.addPhysicalGroup(2, rest, 20, name="interface")
+    gmsh.option.setNumber("Mesh.MeshSizeMax", 0.3)
+    gmsh.model.mesh.generate(3)
+    _write("cube_inclusion.msh")
+
+
 def main() -> int:
     gmsh.initialize(["gmsh", "-v", "0"] if "-v" not in sys.argv else [])
     try:
         square_sides()
         square_inclusion()
         cube_faces()
+        cube_inclusion()
     finally:
         gmsh.finalize()
     return 0
