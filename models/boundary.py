@@ -245,25 +245,42 @@ def summary(mesh: Mesh) -> dict:
     }
 
 
-def check_lines(mesh: Mesh) -> list[str]:
-    """Human-readable findings about the boundary groups (for `magnet check`)."""
-    s = summary(mesh)
+def check_lines(s: dict | Mesh) -> list[str]:
+    """The boundary groups in words, one line (for `magnet check`); `s`: a `summary` or the mesh."""
+    s = summary(s) if isinstance(s, Mesh) else s
     if not s["groups"]:
         return ["boundary groups: none (every boundary facet gets the --boundary-tag default)"]
     f = s["facet"]
-    lines = ["boundary groups: " + ", ".join(
+    return ["boundary groups: " + ", ".join(
         f"{g['tag']}{' ' + repr(g['name']) if g['name'] else ''} ({g['on_boundary']} boundary {f}s"
         + (f", {g['interior']} interior" if g["interior"] else "") + ")" for g in s["groups"])]
+
+
+def check_issues(s: dict) -> list[dict]:
+    """Findings about the boundary groups as `magnet check` issues {kind, severity, count, ids,
+    message}: boundary left untagged and tagged interfaces (info), facets in two groups (warning).
+    Group cells that are no facet of any cell are reported by the check itself (mixed-dimension)."""
+    if not s["groups"]:
+        return []
+    f = s["facet"]
+    out = []
+
+    def issue(kind: str, severity: str, count: int, message: str) -> None:
+        out.append({"kind": kind, "severity": severity, "count": int(count), "ids": [], "message": message})
+
     if s["untagged_boundary_facets"]:
-        lines.append(f"warning: {s['untagged_boundary_facets']} of {s['boundary_facets']} boundary {f}s have no group "
-                     "(they get the --boundary-tag default)")
+        issue("untagged-boundary", "info", s["untagged_boundary_facets"],
+              f"{s['untagged_boundary_facets']} of {s['boundary_facets']} boundary {f}s are in no boundary group "
+              "(they get the --boundary-tag default, 1)")
     if s["interior_tagged_facets"]:
-        lines.append(f"note: {s['interior_tagged_facets']} tagged {f}s lie inside the domain (interfaces)")
-    if s["unmatched_cells"]:
-        lines.append(f"warning: {s['unmatched_cells']} group cells are no {f} of any cell (ignored)")
+        tags = [g["tag"] for g in s["groups"] if g["interior"]]
+        issue("interface-groups", "info", s["interior_tagged_facets"],
+              f"{s['interior_tagged_facets']} tagged {f}s lie inside the domain (interfaces, groups {tags}); "
+              "--mode segregated keeps them as element boundaries where they separate materials")
     if s["conflicting_facets"]:
-        lines.append(f"warning: {s['conflicting_facets']} {f}s are in two groups (the first one in the file is kept)")
-    return lines
+        issue("group-conflict", "warning", s["conflicting_facets"],
+              f"{s['conflicting_facets']} {f}s are in two boundary groups; the first one in the file is kept")
+    return out
 
 
 def group_names(field_data: dict | None, dim: int) -> tuple[dict[int, str], dict[int, str]]:

@@ -126,10 +126,11 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
                              f"{stray.size} {mesh.dim - 1}D cells are no {'edge' if mesh.dim == 2 else 'face'} of any "
                              f"{mesh.dim}D cell (ignored: only the {mesh.dim}D cells are agglomerated)"))
     try:
-        from .boundary import check_lines, summary
+        from .boundary import check_issues, check_lines, summary
 
         rep["boundary"] = summary(mesh)
-        rep["boundary_notes"] = check_lines(mesh)
+        rep["boundary_notes"] = check_lines(rep["boundary"])
+        issues.extend(check_issues(rep["boundary"]))
     except Exception:  # noqa: BLE001 - the boundary summary is an extra, never a reason to fail the check
         pass
     return _finish(rep, issues)
