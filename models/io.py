@@ -80,7 +80,7 @@ def read_mesh(path: str | os.PathLike, physical_tag: str | None = None, file_for
     if file_format is None and ext not in meshio.extension_to_filetypes:
         raise MeshError(
             f"unknown mesh format {ext or '(no extension)'!r}; use one of: "
-            + ", ".join(sorted(meshio.extension_to_filetypes))
+            + ", ".join(SUPPORTED_EXTENSIONS)
         )
     try:
         with warnings.catch_warnings(), contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
@@ -186,6 +186,10 @@ def mesh_from_blocks(points: np.ndarray, blocks, tag_name: str | None = None, we
     elem, bnd = [], []
     for name, data, tags, tdim in nonempty:
         (elem if tdim == dim else bnd if tdim == dim - 1 else []).append((name, data, tags))
+    lower: dict[str, int] = {}  # not agglomerated: reported by describe(), never silently dropped
+    for name, data, _tags, tdim in nonempty:
+        if tdim < dim:
+            lower[name] = lower.get(name, 0) + len(data)
 
     types_list, data_list, tag_list = [], [], []
     poly_faces = []  # (cell index in elem order, list of faces)
@@ -232,6 +236,7 @@ def mesh_from_blocks(points: np.ndarray, blocks, tag_name: str | None = None, we
         mesh.meta["welded"] = int(np.count_nonzero(welded != np.arange(len(points))))
     if dim == 2:
         _collapse_repeated_nodes(mesh)
+    mesh.meta["lower_dim_cells"] = lower
     if poly_faces:
         _attach_polyhedra(mesh, poly_faces)
         pf = mesh.poly_face_nodes
@@ -399,6 +404,7 @@ def describe(mesh: Mesh) -> dict:
         "points": mesh.n_points,
         "dim": mesh.dim,
         "cell_types": mesh.cell_type_counts(),
+        "lower_dim_cells": dict(mesh.meta.get("lower_dim_cells", {})),
         "physical_groups": mesh.physical_groups(),
         "bbox": [p.min(axis=0).tolist(), p.max(axis=0).tolist()],
         **_boundary_summary(mesh),

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
 from jobqueue.celery_app import make_celery
@@ -17,6 +18,7 @@ from service.error_envelope import ErrorsInBody
 from service.jobs import NotFinished, NotFound, QueueFull
 from service.limits import BodySizeLimit
 from service.mesh_check import UploadRejected
+from service.openapi import install as install_openapi
 from service.routers import events, health, jobs, meshes, models, web
 
 DESCRIPTION = """Mesh agglomeration as a service: upload a mesh, queue an agglomeration job (METIS,
@@ -45,6 +47,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.include_router(router)
     web.mount_page(app)
     _error_handlers(app)
+    install_openapi(app)
     return app
 
 
@@ -59,6 +62,26 @@ def _error_handlers(app: FastAPI) -> None:
     @app.exception_handler(MagnetError)
     async def library_error(_: Request, exc: MagnetError):  # MeshError, ParameterError, ModelError
         return _error(422, str(exc) or type(exc).__name__, getattr(exc, "field", None))
+
+    @app.exception_handler(RequestValidationError)
+    async def invalid_request(_: Request, exc: RequestValidationError):
+        # FastAPI's own handler echoes the input, which fails on NaN/Infinity (a 500): say where instead
+        errors = [
+            {
+                "loc": [p if isinstance(p, int) else str(p) for p in e.get("loc", ())],
+                "msg": str(e.get("msg", "")),
+                "type": str(e.get("type", "")),
+            }
+            for e in exc.errors()
+        ]
+        names = [
+            ".".join(p for p in e["loc"][1:] if isinstance(p, str)) or (e["loc"] or ["request"])[0]
+            for e in errors
+        ]
+        detail = (
+            "; ".join(f"{n}: {e['msg']}" for n, e in zip(names, errors, strict=True)) or "invalid request"
+        )
+        return JSONResponse({"detail": detail, "field": names[0] if names else None, "errors": errors}, 422)
 
     @app.exception_handler(UploadRejected)
     async def upload_rejected(_: Request, exc: UploadRejected):

@@ -6,7 +6,8 @@ from __future__ import annotations
 import hmac
 from pathlib import Path
 
-from fastapi import HTTPException, Request
+from fastapi import HTTPException, Request, Security
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from jobqueue.settings import Settings
 
@@ -70,6 +71,16 @@ def authenticate(request: Request, token: str | None = None) -> str:
     return user
 
 
-def current_user(request: Request) -> str:
+# documents the scheme (the Authorize button in /docs); authenticate() reads the header itself
+bearer_scheme = HTTPBearer(
+    auto_error=False,
+    scheme_name="APIKey",
+    description="`Authorization: Bearer <API key>`; not needed when the server runs without keys.",
+)
+
+
+def current_user(
+    request: Request, _credentials: HTTPAuthorizationCredentials | None = Security(bearer_scheme)
+) -> str:
     """FastAPI dependency: the authenticated user of this request."""
     return authenticate(request)

@@ -14,15 +14,15 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import re
 
 from celery import Celery
-from sqlalchemy import func, select, update
+from sqlalchemy import delete, func, select, update
 from sqlalchemy.orm import Session
 
 from jobqueue.db import (
     ACTIVE,
     CANCELLED,
-    FAILED,
     FINAL,
     QUEUED,
     SUCCEEDED,
@@ -31,7 +31,6 @@ from jobqueue.db import (
     MeshOwner,
     MeshRecord,
     new_id,
-    update_job_and_followers,
     utcnow,
 )
 from jobqueue.dispatch import BrokerUnavailable, enqueue, settle_follower
@@ -39,6 +38,7 @@ from jobqueue.settings import Settings
 from jobqueue.storage import Storage
 
 log = logging.getLogger("magnet.jobs")
+ID = re.compile(r"[0-9a-f]{1,64}")  # mesh ids are sha256 hex, job ids uuid4 hex
 NEURAL_MODEL_PREFIX = "sage"
 
 
@@ -66,6 +66,8 @@ def queue_for(params: dict, settings: Settings) -> str:
 
 
 def visible_mesh(session: Session, user: str, mesh_id: str) -> tuple[MeshRecord, MeshOwner]:
+    if not ID.fullmatch(mesh_id):  # e.g. a NUL byte, which PostgreSQL text cannot even compare
+        raise NotFound(f"no mesh {mesh_id!r}")
     owner = session.get(MeshOwner, (mesh_id, user))
     mesh = session.get(MeshRecord, mesh_id) if owner else None
     if mesh is None:
@@ -74,10 +76,43 @@ def visible_mesh(session: Session, user: str, mesh_id: str) -> tuple[MeshRecord,
 
 
 def visible_job(session: Session, user: str, job_id: str) -> JobRecord:
-    job = session.get(JobRecord, job_id)
+    job = session.get(JobRecord, job_id) if ID.fullmatch(job_id) else None
     if job is None or job.user != user:
         raise NotFound(f"no job {job_id!r}")
     return job
+
+
+def groups_under_tag(db: Database, storage: Storage, settings: Settings, mesh: MeshRecord, tag: str) -> dict:
+    """The mesh summary with the physical groups of cell-data array `tag` (read once in the limited
+    child process, then kept in the mesh record); ParameterError naming options.physical_tag when the
+    mesh has no such array."""
+    from models.errors import ParameterError
+    from service.mesh_check import UploadRejected, inspect_upload
+
+    known = (mesh.info.get("groups_by_tag") or {}).get(tag)
+    if known is None:
+        try:
+            found = inspect_upload(
+                storage.mesh_path(mesh.id, mesh.ext),
+                mesh.ext,
+                settings.max_cells,
+                settings.parse_memory_bytes,
+                settings.parse_timeout_s,
+                physical_tag=tag,
+            )
+        except UploadRejected as exc:
+            error = ParameterError(f"options.physical_tag: {exc.message}")
+            error.field = "options.physical_tag"
+            raise error from None
+        known = found.get("physical_groups", [])
+        with db.session() as s:
+            record = s.get(MeshRecord, mesh.id)
+            if record is not None:
+                by_tag = dict(record.info.get("groups_by_tag") or {})
+                by_tag[tag] = known
+                record.info = {**record.info, "groups_by_tag": by_tag}
+                s.commit()
+    return {**mesh.info, "physical_groups": known}
 
 
 def submit_job(
@@ -90,12 +125,22 @@ def submit_job(
     params_in: dict,
 ) -> JobRecord:
     """Validate, dedup and queue one job of `user`. Raises NotFound, ParameterError, QueueFull,
-    BrokerUnavailable (the job record then ends 'failed' saying so: nothing is left dangling)."""
+    BrokerUnavailable (the job record is then removed: the caller never got its id).
+
+    Dedup never tells one user about another's work: only the user's own earlier job makes a new
+    one `cached`; another user's finished result is reused by the worker (the job goes through the
+    queue like any other), another user's job in flight is followed without saying so."""
     from models import api
 
     with db.session() as s:
         mesh, _ = visible_mesh(s, user, mesh_id)
-    params = api.validate_params(params_in, mesh.info)
+    tag = (params_in.get("options") or {}).get("physical_tag") if isinstance(params_in, dict) else None
+    info = (
+        mesh.info
+        if not isinstance(tag, str) or not tag
+        else groups_under_tag(db, storage, settings, mesh, tag)
+    )
+    params = api.validate_params(params_in, info)
     key = result_key(mesh.id, params, api.MODEL_VERSION)
     now = utcnow()
     with db.session() as s:
@@ -124,7 +169,7 @@ def submit_job(
         )
         done = s.scalars(
             select(JobRecord)
-            .where(JobRecord.result_key == key, JobRecord.status == SUCCEEDED)
+            .where(JobRecord.result_key == key, JobRecord.status == SUCCEEDED, JobRecord.user == user)
             .order_by(JobRecord.finished_at.desc())
             .limit(1)
         ).first()
@@ -142,12 +187,13 @@ def submit_job(
             .limit(1)
         ).first()
         if leader is not None:
-            job.leader_id, job.cached_from = leader.id, leader.id
+            own = leader.user == user
+            job.leader_id, job.cached_from = leader.id, leader.id if own else None
             job.status, job.progress, job.stage, job.started_at = (
                 leader.status,
                 leader.progress,
                 leader.stage,
-                leader.started_at,
+                leader.started_at if own or leader.started_at is None else now,
             )
             s.add(job)
             s.commit()
@@ -161,17 +207,13 @@ def submit_job(
         try:
             enqueue(celery, job.id, job.queue)
         except BrokerUnavailable:
+            # the caller gets a 503 and no id: leave no trace of the job in their list
             with db.session() as s:
-                update_job_and_followers(
-                    s,
-                    job.id,
-                    {
-                        "status": FAILED,
-                        "finished_at": utcnow(),
-                        "error": "the job queue (broker) was unreachable at submission: nothing was queued; submit again",
-                    },
-                )
+                s.execute(delete(JobRecord).where(JobRecord.id == job.id))
                 s.commit()
+                followers = s.scalars(select(JobRecord.id).where(JobRecord.leader_id == job.id)).all()
+            for follower in followers:  # submitted meanwhile: they take over (queued, re-sent later)
+                settle_follower(db, celery, follower)
             raise
     with db.session() as s:
         return s.get(JobRecord, job.id)

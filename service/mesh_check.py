@@ -4,7 +4,7 @@ A compressed VTU "bomb" or a huge cell count kills or stops the child, never the
 XML uploads with a DOCTYPE (entity tricks) are refused before any XML library expands them, and a
 VTU that declares more cells than allowed is refused before meshio reads it.
 
-Run as `python -m service.mesh_check PATH EXT MAX_CELLS`: prints one JSON line
+Run as `python -m service.mesh_check PATH EXT MAX_CELLS [PHYSICAL_TAG]`: prints one JSON line
 {"info": {...}} or {"status": int, "error": str}.
 """
 
@@ -35,6 +35,8 @@ class UploadRejected(Exception):
 
 def extension_of(filename: str | None) -> str:
     """The lower-case mesh format extension of `filename`; 422 if missing or unsupported."""
+    if filename and any(ord(ch) < 32 or ord(ch) == 127 for ch in filename):
+        raise UploadRejected(422, "filename: control characters (e.g. NUL) are not allowed")
     ext = Path(filename or "").suffix.lower().lstrip(".")
     if ext not in ALLOWED_EXTENSIONS:
         raise UploadRejected(
@@ -54,7 +56,9 @@ def child_env() -> dict[str, str]:
     return env
 
 
-def inspect_upload(path: Path, ext: str, max_cells: int, memory_bytes: int, timeout_s: float) -> dict:
+def inspect_upload(
+    path: Path, ext: str, max_cells: int, memory_bytes: int, timeout_s: float, physical_tag: str | None = None
+) -> dict:
     """models.api.inspect_mesh of an uploaded file, run in a limited child process."""
 
     def limit() -> None:
@@ -63,6 +67,7 @@ def inspect_upload(path: Path, ext: str, max_cells: int, memory_bytes: int, time
         resource.setrlimit(resource.RLIMIT_CPU, (cpu, cpu))
 
     cmd = [sys.executable, "-m", "service.mesh_check", str(path), ext, str(max_cells)]
+    cmd += [physical_tag] if physical_tag is not None else []
     with _slots:
         try:
             proc = subprocess.run(
@@ -100,23 +105,28 @@ def check_xml(path: Path, max_cells: int) -> None:
     import defusedxml.ElementTree as safe_et
     from defusedxml import DefusedXmlException
 
-    cells = 0
+    cells, pieces = 0, 0
     try:
         for _event, elem in safe_et.iterparse(
             str(path), events=("start",), forbid_dtd=True, forbid_entities=True, forbid_external=True
         ):
             tag = elem.tag.rsplit("}", 1)[-1]
             if tag == "Piece":
-                try:
-                    cells += int(elem.attrib.get("NumberOfCells", 0))
-                except ValueError:
-                    raise UploadRejected(422, "invalid NumberOfCells in VTU piece") from None
+                declared = elem.attrib.get("NumberOfCells", "0")
+                if not declared.strip().isdigit():
+                    raise UploadRejected(
+                        422, f"invalid NumberOfCells={declared[:40]!r} in a VTU piece: expected a count >= 0"
+                    )
+                cells += int(declared)
+                pieces += 1
                 if cells > max_cells:
                     raise UploadRejected(
                         413, f"the mesh declares {cells} cells or more; the limit is {max_cells}"
                     )
             elif tag == "AppendedData":
                 break  # raw binary follows: not XML, and no DTD can come after the root element
+        if pieces and cells == 0:
+            raise UploadRejected(422, "the mesh has no cells (every VTU piece declares NumberOfCells=0)")
     except DefusedXmlException:
         raise UploadRejected(422, "XML with a DOCTYPE or entity declarations is not accepted") from None
     except ParseError as exc:
@@ -125,12 +135,13 @@ def check_xml(path: Path, max_cells: int) -> None:
 
 def _child_main(argv: list[str]) -> int:
     path, ext, max_cells = Path(argv[0]), argv[1], int(argv[2])
+    physical_tag = argv[3] if len(argv) > 3 else None
     try:
         if ext in XML_EXTENSIONS:
             check_xml(path, max_cells)
         from models import api
 
-        info = api.inspect_mesh(str(path), check=True)
+        info = api.inspect_mesh(str(path), physical_tag=physical_tag, check=physical_tag is None)
         if int(info["cells"]) > max_cells:
             raise UploadRejected(413, f"the mesh has {info['cells']} cells; the limit is {max_cells}")
         out = {"info": info}
@@ -139,9 +150,11 @@ def _child_main(argv: list[str]) -> int:
     except MemoryError:
         out = {"status": 422, "error": "the mesh could not be read within the memory limit; rejected"}
     except Exception as exc:  # any failure to read an untrusted file is the file's fault
-        from models.errors import MeshError
+        from models.errors import MagnetError
 
-        message = str(exc) if isinstance(exc, MeshError) else f"cannot read mesh: {type(exc).__name__}: {exc}"
+        message = (
+            str(exc) if isinstance(exc, MagnetError) else f"cannot read mesh: {type(exc).__name__}: {exc}"
+        )
         out = {"status": 422, "error": message[:2000]}
     from jobqueue.storage import _plain
 

@@ -20,6 +20,19 @@ class ErrorOut(BaseModel):
     field: str | None = Field(None, description="The offending parameter, when one is to blame.")
 
 
+class FieldError(BaseModel):
+    loc: list[str | int] = Field(description="Where: 'body', 'query' or 'path', then the field's path.")
+    msg: str
+    type: str
+
+
+class ValidationErrorOut(ErrorOut):
+    """Every 422 answer: `detail` in words, `field` the (first) offending parameter (e.g.
+    `target_size`, `options.seed`), and for malformed requests each problem in `errors`."""
+
+    errors: list[FieldError] | None = Field(None, description="Each problem, when the request was malformed.")
+
+
 class MeshOut(BaseModel):
     id: str = Field(description="sha256 of the uploaded bytes")
     filename: str | None = None
@@ -28,6 +41,11 @@ class MeshOut(BaseModel):
     points: int
     dim: int
     cell_types: dict[str, int]
+    lower_dim_cells: dict[str, int] = Field(
+        default_factory=dict,
+        description="Cells of a lower dimension than the elements (e.g. boundary triangles in a "
+        "tetrahedral file), by type: not agglomerated; tagged boundary faces/edges keep their groups.",
+    )
     physical_groups: list[int]
     boundary_groups: list[int] = Field(
         default_factory=list, description="tags of the boundary groups (tagged edges in 2D, faces in 3D)"
@@ -52,7 +70,11 @@ class JobOptions(BaseModel):
     )
     hole_policy: str | None = Field(None, max_length=40, description="split | error")
     physical_tag: str | None = Field(
-        None, max_length=200, description="cell-data name of the physical groups"
+        None,
+        max_length=200,
+        pattern=r"^[^\x00-\x1f\x7f]*$",
+        description="cell-data name of the physical groups (default: the first of gmsh:physical, "
+        "CellEntityIds, cell_tags, medit:ref, physical, material, tag, physical_group)",
     )
     method: str | None = Field(None, max_length=40, description="METIS kway | recursive")
     boundary_tag: int | None = Field(
@@ -96,6 +118,7 @@ class JobResult(BaseModel):
     elements: int | None = None
     parts_split: int | None = None
     fragments_absorbed: int | None = None
+    holes_split: int | None = None
     timings: dict[str, float] = {}
 
 

@@ -87,6 +87,7 @@ def mesh_out(mesh: MeshRecord, owner: MeshOwner) -> MeshOut:
         points=info["points"],
         dim=info["dim"],
         cell_types=info.get("cell_types", {}),
+        lower_dim_cells=info.get("lower_dim_cells", {}),
         physical_groups=info.get("physical_groups", []),
         boundary_groups=info.get("boundary_groups", []),
         boundary=info.get("boundary"),

@@ -80,7 +80,7 @@ def test_client_wheel_holds_only_the_client(tmp_path):
     assert sorted(r.split()[1].split(">")[0] for r in requires) == ["httpx", "tqdm"]
 
 
-def test_cli_same_flags_same_result_as_local(server, tmp_path):
+def test_cli_same_flags_same_result_as_local(server, tmp_path, capsys):
     mesh = square_mesh(tmp_path / "square.vtu", 12)
     subset = tmp_path / "subset.txt"
     subset.write_text(" ".join(str(i) for i in range(0, 288, 2)))
@@ -125,7 +125,13 @@ def test_cli_same_flags_same_result_as_local(server, tmp_path):
     )
     assert out.returncode == 0, out.stderr
     assert "elements from 288 cells" in out.stdout
+    capsys.readouterr()
     assert magnet(["agglomerate", str(mesh), *outputs(local), *flags]) == 0
+    # the same one-line summary (elements, parts split, fragments absorbed; then timings and total)
+    local_line = capsys.readouterr().out.strip().splitlines()[-1]
+    remote_line = out.stdout.strip().splitlines()[-1]
+    assert remote_line.split(" | ")[0] == local_line.split(" | ")[0], (remote_line, local_line)
+    assert " | total " in remote_line and remote_line.endswith(f"| job {remote_line.rsplit(' ', 1)[-1]}")
     assert json.loads((remote / "l.json").read_text()) == json.loads((local / "l.json").read_text())
     assert (
         json.loads((remote / "m.json").read_text())["summary"]

@@ -5,7 +5,9 @@ Every worker's main process runs a Reaper thread that, each few seconds:
 - re-queues running jobs whose heartbeat went silent (their worker died), or fails them with
   "worker died N times while running this job" after MAGNET_MAX_ATTEMPTS attempts;
 - re-sends queued jobs that waited longer than MAGNET_REQUEUE_AFTER_S (their message may have been
-  lost, e.g. a Redis restart without persistence); duplicates are harmless, the task is idempotent;
+  lost); duplicates are harmless, the task is idempotent;
+- re-sends every queued job at once when the broker restarted (Redis: its run_id changed), since a
+  Redis without persistence comes back empty;
 - settles followers whose leader finished.
 Several workers may reap at once: every change is a conditional UPDATE, only one wins.
 """
@@ -28,8 +30,9 @@ from jobqueue.settings import Settings
 log = logging.getLogger("magnet.reaper")
 
 
-def reap_once(db: jobdb.Database, celery, settings: Settings) -> dict[str, int]:
-    """One pass over the job table; returns counts of what it did."""
+def reap_once(db: jobdb.Database, celery, settings: Settings, resend_all: bool = False) -> dict[str, int]:
+    """One pass over the job table; returns counts of what it did. resend_all: re-send every queued
+    job now, not only those older than MAGNET_REQUEUE_AFTER_S (the broker lost its messages)."""
     now = utcnow()
     done = {"requeued": 0, "failed": 0, "resent": 0, "settled": 0}
     stale_cut = now - timedelta(seconds=settings.heartbeat_timeout_s)
@@ -70,7 +73,9 @@ def reap_once(db: jobdb.Database, celery, settings: Settings) -> dict[str, int]:
             )
             done["requeued"] += 1
             _send(celery, job)
-    resend_cut = now - timedelta(seconds=settings.requeue_after_s)
+    resend_cut = (
+        now + timedelta(seconds=1) if resend_all else now - timedelta(seconds=settings.requeue_after_s)
+    )
     with db.session() as s:
         waiting = s.scalars(
             select(JobRecord).where(
@@ -111,6 +116,21 @@ def _send(celery, job: JobRecord) -> None:
         pass  # still queued in the database; the next pass re-sends it
 
 
+def broker_epoch(celery, settings: Settings) -> str | None:
+    """An id that changes whenever the broker restarts (Redis run_id); None for the embedded broker
+    or while the broker is unreachable."""
+    if settings.embedded_broker:
+        return None
+    try:
+        with celery.connection_for_write() as conn:
+            conn.ensure_connection(max_retries=1, interval_start=0, timeout=3)
+            client = getattr(conn.default_channel, "client", None)
+            run_id = client.info("server").get("run_id") if client is not None else None
+        return str(run_id) if run_id else None
+    except Exception:
+        return None
+
+
 def heartbeat_worker(db: jobdb.Database, name: str, queues: str) -> None:
     now = utcnow()
     with db.session() as s:
@@ -131,10 +151,18 @@ class Reaper(threading.Thread):
 
     def run(self) -> None:
         db = jobdb.for_process(self.settings.resolved_database_url)
+        epoch = None
         while True:
             try:
                 heartbeat_worker(db, self.worker_name, self.queues)
-                counts = reap_once(db, self.celery, self.settings)
+                now_epoch = broker_epoch(self.celery, self.settings)
+                restarted = bool(epoch and now_epoch and now_epoch != epoch)
+                if restarted:
+                    log.warning(
+                        "reaper: the broker restarted (it may have lost its messages): re-sending queued jobs"
+                    )
+                epoch = now_epoch or epoch
+                counts = reap_once(db, self.celery, self.settings, resend_all=restarted)
                 if any(counts.values()):
                     log.info("reaper: %s", counts)
             except Exception as exc:  # never let the reaper die: the database may be briefly away

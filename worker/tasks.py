@@ -54,7 +54,16 @@ def claim(db: jobdb.Database, job_id: str, me: str, settings: Settings) -> JobRe
     to run: unknown, final, a follower, or running under a worker that is still alive."""
     with db.session() as s:
         job = s.get(JobRecord, job_id)
-        if job is None or job.status in FINAL or job.leader_id is not None:
+        if job is None:
+            log.warning(
+                "job %s is not in this worker's job store (%s, data dir %s): the API and the workers must "
+                "share MAGNET_DATABASE_URL and MAGNET_DATA_DIR; message dropped",
+                job_id,
+                db.engine.url.render_as_string(hide_password=True),
+                settings.data_dir.resolve(),
+            )
+            return None
+        if job.status in FINAL or job.leader_id is not None:
             return None
         if job.status == RUNNING:
             age = (utcnow() - job.heartbeat_at).total_seconds() if job.heartbeat_at else 1e9

@@ -6,6 +6,7 @@ import argparse
 import json
 import os
 import sys
+import time
 
 from magnet_client.client import Client, JobFailed, MagnetHTTPError
 
@@ -92,7 +93,30 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def summary_line(job: dict, seconds: float) -> str:
+    """The one line `magnet agglomerate` prints (elements, parts split, fragments absorbed, holed
+    elements split, stage timings, total), plus the job id."""
+    result = job.get("result") or {}
+    extra = []
+    if result.get("parts_split"):
+        extra.append(f"{result['parts_split']} parts split")
+    if result.get("fragments_absorbed"):
+        extra.append(f"{result['fragments_absorbed']} fragments absorbed")
+    if result.get("holes_split"):
+        extra.append(f"{result['holes_split']} holed elements split")
+    if job.get("cached"):
+        extra.append("cached result")
+    note = f" ({', '.join(extra)})" if extra else ""
+    stages = " ".join(f"{k} {v:.2f}s" for k, v in (result.get("timings") or {}).items())
+    cells = (job.get("mesh") or {}).get("cells")
+    return (
+        f"{result.get('elements')} elements from {cells} cells{note} | {stages} | total {seconds:.2f}s"
+        f" | job {job['id']}"
+    )
+
+
 def cmd_agglomerate(client: Client, args: argparse.Namespace) -> int:
+    t0 = time.perf_counter()
     job = client.agglomerate(
         args.mesh,
         args.output,
@@ -115,12 +139,7 @@ def cmd_agglomerate(client: Client, args: argparse.Namespace) -> int:
         boundary_tag=args.boundary_tag,
         seed=args.seed,
     )
-    result = job.get("result") or {}
-    stages = " ".join(f"{k} {v:.2f}s" for k, v in (result.get("timings") or {}).items())
-    cached = " (cached result)" if job.get("cached") else ""
-    print(
-        f"{result.get('elements')} elements from {job['mesh']['cells']} cells{cached} | {stages} | job {job['id']}"
-    )
+    print(summary_line(job, time.perf_counter() - t0))
     return 0
 
 

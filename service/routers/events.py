@@ -26,7 +26,7 @@ from jobqueue.db import FINAL
 from service.auth import current_user
 from service.context import Context, get_context
 from service.jobs import NotFound, visible_job
-from service.routers.jobs import job_out
+from service.routers.jobs import JOB_ID, job_out
 from service.schemas import ErrorOut
 
 router = APIRouter(prefix="/v1", tags=["jobs"])
@@ -86,7 +86,10 @@ async def job_stream(request: Request, ctx: Context, user: str, job_id: str, fir
     },
 )
 async def job_events(
-    job_id: str, request: Request, user: str = Depends(current_user), ctx: Context = Depends(get_context)
+    request: Request,
+    job_id: str = JOB_ID,
+    user: str = Depends(current_user),
+    ctx: Context = Depends(get_context),
 ):
     """Follow a job live (server-sent events): status, stage and progress as they change."""
     first = await run_in_threadpool(snapshot, ctx, user, job_id)  # 404 before the stream starts

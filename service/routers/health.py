@@ -48,6 +48,13 @@ def readyz(ctx: Context = Depends(get_context)):
                 select(func.count()).select_from(WorkerRecord).where(WorkerRecord.last_seen >= cutoff)
             )
         checks["workers"] = f"{alive} online" if alive else "none online"
+        if not alive and checks["broker"] == "ok" and not ctx.settings.embedded_broker:
+            strangers = _workers_on_broker(ctx)
+            if strangers:
+                checks["workers"] = (
+                    f"none online in this job store, but {strangers} on the broker: they do not share the "
+                    "API's MAGNET_DATABASE_URL / MAGNET_DATA_DIR, so they cannot see its jobs"
+                )
     else:
         checks["workers"] = "unknown"
     ready = (
@@ -57,3 +64,11 @@ def readyz(ctx: Context = Depends(get_context)):
     )
     body = Health(status="ready" if ready else "not ready", checks=checks)
     return body if ready else JSONResponse(body.model_dump(), status_code=503)
+
+
+def _workers_on_broker(ctx: Context) -> int:
+    """Workers answering a ping over the broker (Redis only: remote control is off when embedded)."""
+    try:
+        return len(ctx.celery.control.ping(timeout=1.0) or [])
+    except Exception:
+        return 0

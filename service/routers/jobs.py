@@ -9,7 +9,8 @@ import json
 import re
 from pathlib import Path
 
-from fastapi import APIRouter, Depends, Query, Request, Response
+from fastapi import APIRouter, Depends, Query, Request, Response, Security
+from fastapi import Path as PathParam
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse
 from pydantic import ValidationError
@@ -17,23 +18,25 @@ from sqlalchemy import delete, func, select
 from starlette.concurrency import run_in_threadpool
 
 from jobqueue.db import SUCCEEDED, JobRecord
-from service.auth import authenticate, current_user
+from service.auth import authenticate, bearer_scheme, current_user
 from service.context import Context, get_context
 from service.jobs import NotFinished, NotFound, cancel_job, submit_job, visible_job
 from service.mesh_check import UploadRejected
+from service.openapi import binary, errors
 from service.routers.meshes import ERRORS, multipart_file
-from service.schemas import ErrorOut, JobCreate, JobList, JobOut, JobParams, JobResult, JobStatus
+from service.schemas import JobCreate, JobList, JobOut, JobParams, JobResult, JobStatus
 from service.uploads import receive_mesh, stream_of
 
 router = APIRouter(prefix="/v1", tags=["jobs"])
-JOB_ERRORS = {**ERRORS, 409: {"model": ErrorOut}, 429: {"model": ErrorOut}, 503: {"model": ErrorOut}}
+SUBMIT_ERRORS = errors(401, 413, 422, 429, 503)
+JOB_ID = PathParam(description="The job id, as the submission answered it.")
 
 
 def job_out(job: JobRecord) -> JobOut:
     result = None
     if job.result:
         result = JobResult(
-            **{k: job.result.get(k) for k in ("elements", "parts_split", "fragments_absorbed")},
+            **{k: job.result.get(k) for k in ("elements", "parts_split", "fragments_absorbed", "holes_split")},
             timings=job.result.get("timings") or {},
         )
     return JobOut(
@@ -60,7 +63,7 @@ def accepted(job: JobRecord, response: Response) -> JobOut:
     return job_out(job)
 
 
-@router.post("/jobs", status_code=202, response_model=JobOut, responses=JOB_ERRORS)
+@router.post("/jobs", status_code=202, response_model=JobOut, responses=errors(401, 404, 413, 422, 429, 503))
 def create_job(
     body: JobCreate,
     response: Response,
@@ -151,7 +154,7 @@ def form_body(file_field: dict, media: str, extra: dict | None = None) -> dict:
     "/agglomerate",
     status_code=202,
     response_model=JobOut,
-    responses=JOB_ERRORS,
+    responses=SUBMIT_ERRORS,
     openapi_extra=form_body({"file": {"type": "string", "format": "binary"}}, "multipart/form-data"),
 )
 async def agglomerate(
@@ -176,7 +179,7 @@ async def agglomerate(
     "/agglomerate/form",
     status_code=202,
     response_model=JobOut,
-    responses=JOB_ERRORS,
+    responses=SUBMIT_ERRORS,
     openapi_extra=form_body(
         {
             "file_b64": {"type": "string", "description": "the mesh file, base64"},
@@ -185,6 +188,7 @@ async def agglomerate(
         "application/x-www-form-urlencoded",
         {"token": {"type": "string", "description": "API key (or the header)"}},
     ),
+    dependencies=[Security(bearer_scheme)],
 )
 async def agglomerate_form(
     request: Request, response: Response, ctx: Context = Depends(get_context)
@@ -222,11 +226,11 @@ async def agglomerate_form(
 # --- polling, listing, cancelling ----------------------------------------------------------------
 
 
-@router.get("/jobs", response_model=JobList, responses=ERRORS)
+@router.get("/jobs", response_model=JobList, responses=errors(401, 422))
 def list_jobs(
-    limit: int = Query(50, ge=1, le=500),
-    offset: int = Query(0, ge=0, le=10**9),
-    status: JobStatus | None = None,
+    limit: int = Query(50, ge=1, le=500, description="Jobs per page."),
+    offset: int = Query(0, ge=0, le=10**9, description="Jobs to skip (newest first)."),
+    status: JobStatus | None = Query(None, description="Only jobs in this state."),
     user: str = Depends(current_user),
     ctx: Context = Depends(get_context),
 ) -> JobList:
@@ -245,7 +249,9 @@ def list_jobs(
 
 
 @router.get("/jobs/{job_id}", response_model=JobOut, responses=ERRORS)
-def get_job(job_id: str, user: str = Depends(current_user), ctx: Context = Depends(get_context)) -> JobOut:
+def get_job(
+    job_id: str = JOB_ID, user: str = Depends(current_user), ctx: Context = Depends(get_context)
+) -> JobOut:
     """Status, progress, stage, timestamps, error or result summary."""
     with ctx.db.session() as s:
         return job_out(visible_job(s, user, job_id))
@@ -254,10 +260,10 @@ def get_job(job_id: str, user: str = Depends(current_user), ctx: Context = Depen
 @router.delete(
     "/jobs/{job_id}",
     response_model=JobOut,
-    responses={**JOB_ERRORS, 204: {"description": "purged: the job is gone from your list"}},
+    responses={**errors(401, 404, 409, 422), 204: {"description": "purged: the job is gone from your list"}},
 )
 def delete_job(
-    job_id: str,
+    job_id: str = JOB_ID,
     purge: bool = Query(
         False,
         description="also remove the job from your list, finished or not (a running one is cancelled "
@@ -300,7 +306,9 @@ def result_file(ctx: Context, user: str, job_id: str, filename: str) -> Path:
 
 
 def _download(name: str, media: str, doc: str):
-    def endpoint(job_id: str, user: str = Depends(current_user), ctx: Context = Depends(get_context)):
+    def endpoint(
+        job_id: str = JOB_ID, user: str = Depends(current_user), ctx: Context = Depends(get_context)
+    ):
         return FileResponse(
             result_file(ctx, user, job_id, name), media_type=media, filename=f"{job_id}-{name}"
         )
@@ -309,29 +317,58 @@ def _download(name: str, media: str, doc: str):
     return endpoint
 
 
-RESULT_ERRORS = {**ERRORS, 409: {"model": ErrorOut}}
+RESULT_ERRORS = errors(401, 404, 409)
 # the result files of a finished job: (path, stored file, media type, description, route name)
 for _path, _file, _media, _doc, _name in (
     ("mesh", "mesh.vtu", "application/octet-stream", "The agglomerated mesh (VTU).", "job_mesh"),
-    ("metrics", "metrics.json", "application/json", "Quality metrics of the agglomerated mesh (JSON).", "job_metrics"),
-    ("labels", "labels.json", "application/json", "Element label of every fine cell (JSON list).", "job_labels"),
+    (
+        "metrics",
+        "metrics.json",
+        "application/json",
+        "Quality metrics of the agglomerated mesh (JSON).",
+        "job_metrics",
+    ),
+    (
+        "labels",
+        "labels.json",
+        "application/json",
+        "Element label of every fine cell (JSON list).",
+        "job_labels",
+    ),
     ("preview.png", "preview.png", "image/png", "A picture of the agglomerated mesh.", "job_preview"),
 ):
     router.add_api_route(
         f"/jobs/{{job_id}}/{_path}",
         _download(_file, _media, _doc),
         methods=["GET"],
-        responses=RESULT_ERRORS,
+        responses={**RESULT_ERRORS, **binary(_media, _doc)},
         response_class=FileResponse,
         name=_name,
     )
 
 
-@router.get("/jobs/{job_id}/lymph", responses=RESULT_ERRORS, response_class=FileResponse)
+@router.get(
+    "/jobs/{job_id}/lymph",
+    responses={
+        **errors(401, 404, 409, 422),
+        200: {
+            "description": "lymph structs: JSON, or a MATLAB .mat file.",
+            "content": {
+                "application/json": {"schema": {"type": "object"}},
+                "application/x-matlab-data": {"schema": {"type": "string", "format": "binary"}},
+            },
+        },
+    },
+    response_class=FileResponse,
+)
 def job_lymph(
     request: Request,
-    job_id: str,
-    format: str | None = Query(None, pattern="^(json|mat)$"),
+    job_id: str = JOB_ID,
+    format: str | None = Query(
+        None,
+        pattern="^(json|mat)$",
+        description="json (default) or mat; or send Accept: application/x-matlab-data",
+    ),
     user: str = Depends(current_user),
     ctx: Context = Depends(get_context),
 ):

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, Query, Request
+from fastapi import APIRouter, Depends, Path, Query, Request
 
 from service.auth import current_user
 from service.context import Context, get_context
 from service.jobs import visible_mesh
 from service.mesh_check import ALLOWED_EXTENSIONS, UploadRejected
-from service.schemas import ErrorOut, MeshOut
+from service.openapi import errors
+from service.schemas import MeshOut
 from service.uploads import mesh_out, receive_mesh, stream_of
 
 router = APIRouter(prefix="/v1", tags=["meshes"])
@@ -28,12 +29,8 @@ UPLOAD_BODY = {
         },
     }
 }
-ERRORS = {
-    401: {"model": ErrorOut},
-    404: {"model": ErrorOut},
-    413: {"model": ErrorOut},
-    422: {"model": ErrorOut},
-}
+ERRORS = errors(401, 404)  # reading one of your own meshes or jobs
+MESH_ID = Path(description="The mesh id (sha256 of its bytes), as POST /v1/meshes answered it.")
 
 
 async def multipart_file(request: Request):
@@ -45,7 +42,13 @@ async def multipart_file(request: Request):
     return form, upload
 
 
-@router.post("/meshes", status_code=201, response_model=MeshOut, responses=ERRORS, openapi_extra=UPLOAD_BODY)
+@router.post(
+    "/meshes",
+    status_code=201,
+    response_model=MeshOut,
+    responses=errors(401, 413, 422),
+    openapi_extra=UPLOAD_BODY,
+)
 async def upload_mesh(
     request: Request,
     filename: str | None = Query(
@@ -65,7 +68,9 @@ async def upload_mesh(
 
 
 @router.get("/meshes/{mesh_id}", response_model=MeshOut, responses=ERRORS)
-def get_mesh(mesh_id: str, user: str = Depends(current_user), ctx: Context = Depends(get_context)) -> MeshOut:
+def get_mesh(
+    mesh_id: str = MESH_ID, user: str = Depends(current_user), ctx: Context = Depends(get_context)
+) -> MeshOut:
     """A mesh you uploaded."""
     with ctx.db.session() as s:
         mesh, owner = visible_mesh(s, user, mesh_id)
