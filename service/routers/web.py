@@ -15,7 +15,7 @@ from fastapi.staticfiles import StaticFiles
 from service.auth import current_user
 from service.context import Context, get_context
 from service.jobs import NotFound
-from service.routers.jobs import result_file
+from service.routers.jobs import JOB_ID, result_file
 from service.schemas import ErrorOut
 
 WEB_DIR = Path(__file__).resolve().parents[1] / "web"
@@ -80,7 +80,9 @@ POLYGON_ERRORS = {
 
 
 @router.get("/v1/jobs/{job_id}/polygons", tags=["jobs"], responses=POLYGON_ERRORS)
-def job_polygons(job_id: str, user: str = Depends(current_user), ctx: Context = Depends(get_context)) -> dict:
+def job_polygons(
+    job_id: str = JOB_ID, user: str = Depends(current_user), ctx: Context = Depends(get_context)
+) -> dict:
     """The elements of a finished 2D job as polygons (what the web page draws): `points`,
     `connectivity` cut by `offsets`, and per-element `cell_data` (metrics, measure, ...).
     404 for a 3D job."""

@@ -169,8 +169,10 @@ function guessField(message) {
 function showErrors(error) {
   const items = [];
   const detail = error.body && error.body.detail;
-  if (error.status === 422 && Array.isArray(detail)) {
-    for (const e of detail) items.push([fieldOf(e.loc), e.msg]);
+  // a malformed request lists each problem in `errors` (loc + msg); the library names one `field`
+  const listed = Array.isArray(detail) ? detail : error.body && error.body.errors;
+  if (error.status === 422 && Array.isArray(listed)) {
+    for (const e of listed) items.push([fieldOf(e.loc), e.msg]);
   } else if (error.status === 422) {
     items.push([(error.body && error.body.field) || guessField(detail), error.message]);
   } else {
