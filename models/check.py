@@ -105,9 +105,9 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
     rep["duplicate_points"] = int(dup_pts)
     if dup_pts:
         issues.append(_issue("duplicate-points", "warning", dup_pts, seam if seam.size else [],
-                             f"{dup_pts} points coincide with another point"
-                             + (f"; {seam.size} of them split the mesh along a seam (cells on both sides are not neighbours)"
-                                if seam.size else "")
+                             f"{dup_pts} points coincide with another point ({dup_groups} places)"
+                             + ("; on the boundary they split the mesh along a seam (cells on both sides are not "
+                                "neighbours; ids of the boundary copies listed)" if seam.size else "")
                              + "; merge them with --weld TOL (e.g. --weld 1e-9)"))
 
     hanging = _hanging_nodes(mesh, f, bnd)

@@ -118,6 +118,32 @@ def fan_triangles(offsets: np.ndarray, nodes: np.ndarray) -> tuple[np.ndarray, n
     return owner, tri
 
 
+def face_triangles(points: np.ndarray, offsets: np.ndarray, nodes: np.ndarray):
+    """Faces cut into triangles the same way from both sides: (owner (T,), a, b, c (T, 3) corners).
+
+    Triangles stay as they are; a face of 4+ nodes is fanned from the mean of its nodes, which
+    does not depend on where its node cycle starts. Two cells sharing a non-planar (warped) face
+    then bound the same surface, so their volumes add up exactly to their union's."""
+    sizes = np.diff(offsets)
+    if sizes.size and sizes.max() == 3 and sizes.min() == 3:
+        t = nodes.reshape(-1, 3)
+        return np.arange(sizes.size), points[t[:, 0]], points[t[:, 1]], points[t[:, 2]]
+    tri = sizes == 3
+    face = cell_index(offsets)
+    nxt = next_in_cycle(offsets)
+    big = ~tri[face]  # node entries of faces with 4+ nodes: one triangle each
+    counts = np.maximum(sizes, 1).astype(np.float64)
+    centre = np.column_stack([np.bincount(face, weights=points[nodes, d], minlength=sizes.size) for d in range(3)]) / counts[:, None]
+    t_ids = np.flatnonzero(tri)
+    t0 = offsets[t_ids]
+    e = np.flatnonzero(big)
+    owner = np.concatenate([t_ids, face[e]])
+    a = np.concatenate([points[nodes[t0]], centre[face[e]]])
+    b = np.concatenate([points[nodes[t0 + 1]], points[nodes[e]]])
+    c = np.concatenate([points[nodes[t0 + 2]], points[nodes[nxt[e]]]])
+    return owner, a, b, c
+
+
 def vertex_means(mesh: Mesh) -> np.ndarray:
     """(C, dim) mean of each cell's nodes."""
     cell = cell_index(mesh.offsets)
@@ -168,11 +194,10 @@ def _measures_and_centroids(mesh: Mesh, faces: Faces | None = None) -> tuple[np.
     if mesh.dim == 2:
         return _polygon_measures(mesh.points, mesh.offsets, mesh.connectivity)
     faces = faces or cell_faces(mesh)
-    owner, tri = fan_triangles(faces.offsets, faces.nodes)
+    owner, a, b, c = face_triangles(mesh.points, faces.offsets, faces.nodes)
     cell = faces.cell[owner]
     o = vertex_means(mesh)
-    p = mesh.points
-    a, b, c = p[tri[:, 0]] - o[cell], p[tri[:, 1]] - o[cell], p[tri[:, 2]] - o[cell]
+    a, b, c = a - o[cell], b - o[cell], c - o[cell]
     v = np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0
     vol = np.bincount(cell, weights=v, minlength=n)
     g = (a + b + c) / 4.0

@@ -329,7 +329,10 @@ def _project_to_plane(mesh: Mesh) -> None:
     _, s, vt = np.linalg.svd(p - origin, full_matrices=False)
     extent = max(float(s[0]), 1e-300)
     if s[2] > 1e-8 * extent:
-        raise MeshError("2D cells lie on a curved (non-planar) surface; only planar 2D meshes are supported")
+        raise MeshError(
+            "2D cells lie on a curved (non-planar) surface; only planar 2D meshes are supported: "
+            "project the surface onto a plane first, or give a 3D volume mesh"
+        )
     e1, e2 = vt[0], vt[1]
     mesh.points = np.column_stack([(pts - origin) @ e1, (pts - origin) @ e2])
     mesh.frame = np.array([origin, e1, e2])

@@ -1,0 +1,133 @@
+"""The defect corpus (tests/data/defects/, written by tests/defects.py): every mesh either
+agglomerates with its total area/volume preserved to 1e-9 relative, or is refused in one line that
+names the defect, the first ids and what to do. `magnet check` reports each defect."""
+
+from __future__ import annotations
+
+import os
+
+import meshio
+import numpy as np
+import pytest
+from defects import OUT, corpus, normalized
+from test_cli import _bad, magnet
+
+from models import pipeline
+from models.check import check_file
+from models.io import mesh_from_arrays, read_mesh
+
+AREA = {  # exact total measure, where the construction fixes it
+    "folded_sliver_2d": 1.0, "folded_tet_3d": 1.0, "unused_points": 1.0, "duplicate_seam": 1.0, "pinch": 2.0,
+    "hanging_node": 1.0, "disconnected": 3.0, "repeated_vertex": 1.0, "nonplanar_quads": 1.0, "mixed_2d_3d": 1.0,
+    "far_from_origin": 36e-6, "micro_scale": 36e-18,
+}
+REFUSED = {
+    "zero_area": ("degenerate (zero-area) cells", "cell ids [3]", "remove them"),
+    "repeated_vertex_triangle": ("degenerate (zero-area) cells", "cell ids [3]", "remove them"),
+    "nonplanar_surface": ("non-planar", "surface", "project the surface onto a plane"),
+}
+
+
+def path(name: str) -> str:
+    ext = corpus_ext()[name]
+    return os.path.join(OUT, f"{name}.{ext}")
+
+
+_EXT: dict = {}
+
+
+def corpus_ext() -> dict:
+    if not _EXT:
+        _EXT.update({k: v[3] for k, v in corpus().items()})
+    return _EXT
+
+
+def test_the_corpus_files_are_what_the_script_writes(tmp_path):
+    from defects import write_corpus
+
+    for fresh in write_corpus(str(tmp_path)):
+        name = os.path.basename(fresh)
+        a, b = meshio.read(fresh), meshio.read(os.path.join(OUT, name))
+        assert np.array_equal(a.points, b.points), name
+        assert all(np.array_equal(x.data, y.data) for x, y in zip(a.cells, b.cells, strict=True)), name
+    assert sorted(os.listdir(OUT)) == sorted(os.listdir(tmp_path))
+
+
+def _total_of_written(res, tmp_path) -> float:
+    out = tmp_path / "out.vtu"
+    pipeline.write_outputs(res, vtu=str(out))
+    assert sum(len(c) for c in meshio.read(out).cells) == res.poly.n_elements
+    return float(read_mesh(out).meta["signed_measures"].sum())
+
+
+@pytest.mark.parametrize("name", sorted(AREA))
+@pytest.mark.parametrize("model,mode,kw", [("metis", "kway", {"k": 4}), ("kmeans", "mult-factor", {"mult_factor": 0.3})])
+def test_agglomerates_with_the_measure_preserved(name, model, mode, kw, tmp_path):
+    m = read_mesh(path(name))
+    total = m.meta["signed_measures"].sum()
+    assert np.isclose(total, AREA[name], rtol=1e-7)  # the far mesh's points are rounded at 1e6
+    res = pipeline.run(m, model=model, mode=mode, compute_metrics=True, **kw)
+    assert np.isclose(res.poly.measure.sum(), total, rtol=1e-9, atol=0)
+    assert np.isclose(_total_of_written(res, tmp_path), total, rtol=1e-9, atol=0)
+    assert res.metrics is not None and len(res.metrics["per_element"]) > 0  # the metrics survive the defect too
+
+
+@pytest.mark.parametrize("name", sorted(REFUSED))
+def test_refused_in_one_line(name, tmp_path):
+    words = REFUSED[name]
+    for w in words:
+        _bad(tmp_path, "agglomerate", path(name), "-o", tmp_path / "x.vtu", "--k", 2, match=w)
+    r = magnet("check", path(name))
+    assert r.returncode == 2 and "verdict: error" in r.stdout and words[0] in r.stdout
+
+
+def _kinds(rep) -> dict:
+    return {i["kind"]: i for i in rep["issues"]}
+
+
+def test_check_reports_each_defect():
+    rep = check_file(path("folded_sliver_2d"))
+    assert rep["verdict"] == "warnings" and _kinds(rep)["folded"]["count"] == 1
+    assert check_file(path("folded_tet_3d"))["orientation"]["folded"] == 1
+    rep = check_file(path("unused_points"))
+    assert rep["verdict"] == "ok" and rep["unused_points"] == 4 and _kinds(rep)["unused-points"]["ids"] == [49, 50, 51, 52]
+    rep = check_file(path("duplicate_seam"))
+    dup = _kinds(rep)["duplicate-points"]
+    assert rep["components"] == 2 and rep["duplicate_points"] == 7 and "--weld" in dup["message"]
+    assert dup["count"] == 7 and dup["ids"][:7] == list(range(21, 28))  # the seam x = 1/2, then its copies
+    rep = check_file(path("pinch"))
+    assert _kinds(rep)["pinch"]["ids"] == [15] and rep["components"] == 2
+    rep = check_file(path("hanging_node"))
+    assert rep["hanging_nodes"] == 2 and _kinds(rep)["non-conforming"]["ids"] == [9, 12]
+    rep = check_file(path("disconnected"))
+    assert rep["components"] == 3 and _kinds(rep)["disconnected"]["count"] == 3 and rep["holes"] == 0
+    rep = check_file(path("repeated_vertex"))
+    assert rep["verdict"] == "ok" and rep["collapsed_repeated_vertices"] == 16
+    assert rep["cell_types"] == {"triangle": 16, "quad": 8}
+    rep = check_file(path("mixed_2d_3d"))
+    assert _kinds(rep)["mixed-dimension"]["ids"] == [0, 1] and rep["dim"] == 3
+    assert check_file(path("nonplanar_quads"))["verdict"] == "ok"
+    for name in REFUSED:
+        assert check_file(path(name))["verdict"] == "error"
+
+
+def test_weld_merges_the_seam(tmp_path):
+    rep = check_file(path("duplicate_seam"), weld=1e-9)
+    assert rep["components"] == 1 and rep["duplicate_points"] == 0 and rep["welded_points"] == 7
+    assert rep["verdict"] == "ok"
+    apart = pipeline.run(read_mesh(path("duplicate_seam")), k=1, compute_metrics=False)
+    welded = pipeline.run(read_mesh(path("duplicate_seam"), weld=1e-9), k=1, compute_metrics=False)
+    assert apart.poly.n_elements == 2 and welded.poly.n_elements == 1  # an element can now cross the seam
+    r = magnet("agglomerate", path("duplicate_seam"), "-o", tmp_path / "w.vtu", "--k", 1, "--weld", "1e-9")
+    assert r.returncode == 0 and r.stdout.startswith("1 elements"), r.stdout + r.stderr
+
+
+@pytest.mark.parametrize("name,scale", [("far_from_origin", 6e-3), ("micro_scale", 6e-9)])
+@pytest.mark.parametrize("model,mode,kw", [("metis", "kway", {"k": 5}), ("kmeans", "kway", {"k": 5}),
+                                           ("metis", "nref", {"nref": 3}), ("metis", "mult-factor", {"mult_factor": 0.3})])
+def test_far_and_tiny_meshes_give_the_normalized_results(name, scale, model, mode, kw):
+    p, cells = normalized(name)
+    ref = pipeline.run(mesh_from_arrays(p, cells), model=model, mode=mode, compute_metrics=False, **kw)
+    res = pipeline.run(read_mesh(path(name)), model=model, mode=mode, compute_metrics=False, **kw)
+    assert np.array_equal(res.agglomeration.labels, ref.agglomeration.labels)
+    assert np.allclose(res.poly.measure / scale**2, ref.poly.measure, rtol=1e-6)
