@@ -23,6 +23,12 @@ ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-net
         "--disable-component-update", "--disable-sync", "--no-first-run"]  # fmt: skip
 
 
+def until(page, expression: str, timeout_ms: int = 30_000):
+    """Poll a JavaScript expression until it is truthy. (Playwright's wait_for_function compiles its
+    predicate with eval, which the page's Content-Security-Policy forbids: evaluate is not.)"""
+    return wait_until(lambda: page.evaluate(expression), timeout_ms / 1000, 0.1, expression)
+
+
 def save(page, path: Path, selector: str | None = None) -> None:
     (page.locator(selector) if selector else page).screenshot(path=str(path))
     Image.open(path).convert("RGB").quantize(96, method=Image.Quantize.MEDIANCUT).save(path, optimize=True)
@@ -54,28 +60,26 @@ def main(out: Path) -> None:
             save(page, out / "web-upload.png", ".left")
             page.fill("[name=k]", "64")
             page.click("button[type=submit]")
-            page.wait_for_function(
-                "(t => t > 0 && t < 100)(parseInt(document.querySelector('#progress-pct').textContent))"
+            until(
+                page, "(t => t > 0 && t < 100)(parseInt(document.querySelector('#progress-pct').textContent))"
             )
             save(page, out / "web-progress.png", ".left")
-            page.wait_for_function("document.querySelector('#progress-pct').textContent === '100%'")
-            page.wait_for_function("document.querySelector('#preview').naturalWidth > 0")
+            until(page, "document.querySelector('#progress-pct').textContent === '100%'")
+            until(page, "document.querySelector('#preview').naturalWidth > 0")
             page.wait_for_selector("#mesh-svg path")
             page.select_option("#color-by", "circle_ratio")
             page.hover("#mesh-svg path[data-e='20']")
             save(page, out / "web-result.png", "#result")
             for model, mode, field, value in (("kmeans", "kway", "k", "64"), ("metis", "nref", "nref", "6")):
                 submit(page, model, mode, field, value)
-                page.wait_for_function(
-                    "document.querySelector('#progress-status').textContent === 'succeeded'"
-                )
+                until(page, "document.querySelector('#progress-status').textContent === 'succeeded'")
                 page.wait_for_timeout(500)
             wait_until(lambda: page.locator("#job-rows tr.succeeded").count() == 3, 30, 0.2, "three jobs")
             for i in range(3):
                 page.locator("#job-rows tr.succeeded input[type=checkbox]").nth(i).check()
             page.click("#compare-button")
-            page.wait_for_function(
-                "[...document.querySelectorAll('#compare-pictures img')].every(i => i.naturalWidth > 0)"
+            until(
+                page, "[...document.querySelectorAll('#compare-pictures img')].every(i => i.naturalWidth > 0)"
             )
             save(page, out / "web-compare.png", "#compare")
             page.mouse.move(0, 0)

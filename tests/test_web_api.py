@@ -40,6 +40,7 @@ def test_page_and_static_files_need_no_key(app):
     page = client.get("/")
     assert page.status_code == 200 and page.headers["content-type"].startswith("text/html")
     assert 'src="static/app.js"' in page.text and "https://" not in page.text  # nothing from elsewhere
+    assert "default-src 'self'" in page.headers["content-security-policy"]
     for name, media in (("app.js", "javascript"), ("style.css", "text/css")):
         r = client.get(f"/static/{name}")
         assert r.status_code == 200 and media in r.headers["content-type"], name

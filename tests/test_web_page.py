@@ -51,11 +51,18 @@ def serve(tmp_path, **env):
     return proc, url
 
 
+def until(page, expression: str, timeout_ms: int = 30_000):
+    """Poll a JavaScript expression until it is truthy. (Playwright's wait_for_function compiles its
+    predicate with eval, which the page's Content-Security-Policy forbids: evaluate is not.)"""
+    return wait_until(lambda: page.evaluate(expression), timeout_ms / 1000, 0.1, expression)
+
+
 def new_page(browser, url):
     context = browser.new_context(viewport={"width": 1280, "height": 900}, accept_downloads=True)
     page = context.new_page()
     errors: list[str] = []
     page.on("pageerror", lambda exc: errors.append(str(exc)))
+    page.on("console", lambda m: "Content Security Policy" in m.text and errors.append(m.text))
     page.goto(url + "/")
     return page, errors
 
@@ -91,10 +98,8 @@ def run_job(page, timeout_ms: int = 120_000) -> list[str]:
           .observe(document.querySelector('#progress-pct'), {childList: true, characterData: true, subtree: true}); }"""
     )
     page.click("button[type=submit]")
-    page.wait_for_function(
-        "document.querySelector('#progress-pct').textContent === '100%'", timeout=timeout_ms
-    )
-    page.wait_for_function("document.querySelector('#progress-status').textContent === 'succeeded'")
+    until(page, "document.querySelector('#progress-pct').textContent === '100%'", timeout_ms=timeout_ms)
+    until(page, "document.querySelector('#progress-status').textContent === 'succeeded'")
     return page.evaluate("window.seenProgress")
 
 
@@ -114,15 +119,13 @@ def test_page_uploads_runs_metis_shows_and_downloads(browser, tmp_path):
         assert "larger than the number of cells" in page.inner_text(".field[data-field=k] .error")
         page.fill("input[name=k]", "0")
         page.click("button[type=submit]")
-        page.wait_for_function(
-            "document.querySelector('.field[data-field=k] .error').textContent.includes('1')"
-        )
+        until(page, "document.querySelector('.field[data-field=k] .error').textContent.includes('1')")
         page.fill("input[name=k]", "64")
         seen = run_job(page)
         assert seen[-1] == "100%" and any(0 < int(v[:-1]) < 100 for v in seen), seen  # live, not only the end
         # the result: picture, SVG with one path per element, hover metrics, colour by a metric, box plots
-        page.wait_for_function("document.querySelector('#preview').naturalWidth > 0")
-        page.wait_for_function("document.querySelectorAll('#mesh-svg path').length === 64")
+        until(page, "document.querySelector('#preview').naturalWidth > 0")
+        until(page, "document.querySelectorAll('#mesh-svg path').length === 64")
         page.hover("#mesh-svg path[data-e='5']")
         tip = page.inner_text("#tip")
         assert "element 5" in tip and "circle_ratio" in tip
@@ -144,8 +147,9 @@ def test_page_uploads_runs_metis_shows_and_downloads(browser, tmp_path):
         for i in range(2):
             rows.nth(i).locator("input[type=checkbox]").check()
         page.click("#compare-button")
-        page.wait_for_function(
-            "[...document.querySelectorAll('#compare-pictures img')].filter(i => i.naturalWidth > 0).length === 2"
+        until(
+            page,
+            "[...document.querySelectorAll('#compare-pictures img')].filter(i => i.naturalWidth > 0).length === 2",
         )
         plots = page.locator("#compare-plots svg.boxplot")
         assert plots.count() == 4 and plots.first.locator("g.box").count() == 2
@@ -167,14 +171,14 @@ def test_page_with_api_keys(browser, tmp_path):
         assert "API key" in page.inner_text("#notice")
         page.fill("#token", "wrong-token")
         page.locator("#token").blur()
-        page.wait_for_function("document.querySelector('#job-rows').textContent.includes('invalid API key')")
+        until(page, "document.querySelector('#job-rows').textContent.includes('invalid API key')")
         page.fill("#token", "alice-token")
         page.locator("#token").blur()
         page.wait_for_selector("#notice", state="hidden")
         drop_brain(page)
         page.fill("input[name=k]", "16")
         run_job(page)
-        page.wait_for_function("document.querySelector('#preview').naturalWidth > 0")
+        until(page, "document.querySelector('#preview').naturalWidth > 0")
         with page.expect_download() as info:
             page.click("#downloads a:text-is('labels.json')")
         assert len(open(info.value.path()).read()) > 14372  # one label per fine cell

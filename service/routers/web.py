@@ -20,6 +20,11 @@ from service.schemas import ErrorOut
 
 WEB_DIR = Path(__file__).resolve().parents[1] / "web"
 router = APIRouter()
+# the page loads only its own files and talks only to this server (pictures arrive as blob: URLs)
+PAGE_POLICY = (
+    "default-src 'self'; img-src 'self' blob: data:; object-src 'none'; base-uri 'none'; "
+    "frame-ancestors 'none'; form-action 'none'"
+)
 
 
 def mount_page(app: FastAPI) -> None:
@@ -31,7 +36,11 @@ def mount_page(app: FastAPI) -> None:
 @router.get("/", include_in_schema=False)
 def index() -> FileResponse:
     """The web page (no auth: the page itself asks for the API key and sends it with every call)."""
-    return FileResponse(WEB_DIR / "index.html", media_type="text/html", headers={"Cache-Control": "no-cache"})
+    return FileResponse(
+        WEB_DIR / "index.html",
+        media_type="text/html",
+        headers={"Cache-Control": "no-cache", "Content-Security-Policy": PAGE_POLICY},
+    )
 
 
 def element_polygons(vtu: Path) -> dict:

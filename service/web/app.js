@@ -495,7 +495,7 @@ async function refreshJobs() {
     ].join("");
     return `<tr data-job="${job.id}" class="${job.status}">`
       + `<td><input type="checkbox" ${state.selected.has(job.id) ? "checked" : ""} ${job.status === "succeeded" ? "" : "disabled"}></td>`
-      + `<td>${esc(new Date(job.created_at).toLocaleString())}</td><td class="status">${job.status}${active ? ` ${Math.round(100 * job.progress)}%` : ""}</td>`
+      + `<td>${esc(new Date(job.created_at).toLocaleString())}</td><td class="status" title="${esc(job.error || "")}">${job.status}${active ? ` ${Math.round(100 * job.progress)}%` : ""}</td>`
       + `<td>${esc(job.params.model)}</td><td>${esc(paramText(job.params))}</td>`
       + `<td>${esc(mesh.filename || "")}${mesh.cells ? ` <small>(${mesh.cells} cells)</small>` : ""}</td>`
       + `<td>${job.result && job.result.elements != null ? job.result.elements : ""}</td><td>${seconds(job)}</td><td>${actions}</td></tr>`;
