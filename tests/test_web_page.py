@@ -71,6 +71,7 @@ def upload_brain(page):
     page.set_input_files("#file", str(BRAIN))
     page.wait_for_selector("#mesh-summary")
     assert "14372" in page.inner_text("#mesh-summary")
+    assert "verdict ok" in page.inner_text("#mesh-check")  # the upload's `check` report
 
 
 def drop_brain(page):

@@ -92,9 +92,20 @@ function showMesh(mesh) {
   ];
   if (mesh.boundary_groups && mesh.boundary_groups.length) rows.push(["boundary groups", mesh.boundary_groups.join(", ")]);
   let html = `<h3>Mesh</h3><table class="kv" id="mesh-summary">${rows.map(([k, v]) => `<tr><th>${k}</th><td>${esc(v)}</td></tr>`).join("")}</table>`;
-  if (mesh.check != null) html += `<h3>Check</h3><div id="mesh-check">${report(mesh.check)}</div>`;
+  if (mesh.check != null) html += `<h3>Check</h3><div id="mesh-check">${checkReport(mesh.check)}</div>`;
   if (mesh.boundary != null) html += `<details><summary>Boundary</summary>${report(mesh.boundary)}</details>`;
   $("#mesh").innerHTML = html;
+}
+
+function checkReport(check) {
+  // `magnet check`'s report: the verdict and each issue in words; the counts folded away
+  if (!check || !Array.isArray(check.issues)) return report(check);
+  const issues = check.issues.map((i) => `<li class="${esc(i.severity)}"><b>${esc(i.severity)}</b> ${esc(i.message || i.kind)}</li>`);
+  const shown = ["file", "verdict", "issues", "dim", "cells", "points", "cell_types", "physical_groups", "boundary", "boundary_notes"];
+  const rest = Object.entries(check).filter(([k]) => !shown.includes(k));
+  return `<p>verdict <span class="verdict ${esc(check.verdict)}">${esc(check.verdict)}</span></p>`
+    + (issues.length ? `<ul class="issues">${issues.join("")}</ul>` : `<p class="hint">no issues</p>`)
+    + (rest.length ? `<details><summary>counts</summary>${report(Object.fromEntries(rest))}</details>` : "");
 }
 
 function report(value) {
