@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import pytest
 from conftest import BRAIN, EMILIA
@@ -71,3 +72,21 @@ def test_upload_returns_the_check(tmp_path):
         assert check["issues"][0]["ids"] == [cell]
         again = client.get(f"/v1/meshes/{r.json()['id']}", headers=auth("alice")).json()
         assert again["check"] == check
+
+
+def test_every_defect_upload_is_201_or_422(tmp_path):
+    pytest.importorskip("fastapi")
+    from test_defects import AREA, REFUSED, path
+    from test_service_api import auth, make
+
+    client, _ = make(tmp_path)
+    with client:
+        for name in sorted(AREA) + sorted(REFUSED):
+            p = path(name)
+            r = client.post("/v1/meshes", params={"filename": os.path.basename(p)}, content=open(p, "rb").read(),
+                            headers={"Content-Type": "application/octet-stream", **auth("alice")})
+            if name in REFUSED:
+                assert r.status_code == 422 and REFUSED[name][0] in r.text, (name, r.text)
+            else:
+                assert r.status_code == 201, (name, r.text)
+                assert r.json()["check"]["verdict"] in ("ok", "warnings")
