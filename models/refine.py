@@ -30,6 +30,7 @@ from .partitioners.base import GraphBatch
 
 REFINERS: dict[str, str] = {
     "fm": "models.refine:FMRefiner",
+    "rl-refiner": "models.partitioners.rl:RLRefiner",
 }
 
 
@@ -115,81 +116,107 @@ def _segment_first_argmax(score: np.ndarray, seg: np.ndarray, n_seg: int) -> np.
     return out
 
 
+class CutState:
+    """A bisection of every graph of a batch with what a move needs, updated move by move:
+    per-node external/internal edge counts, per-graph cut, degree volumes and measures."""
+
+    def __init__(self, batch: GraphBatch, side: np.ndarray, tolerance: float = 0.05):
+        self.batch = batch
+        self.side = np.asarray(side, dtype=np.int64).copy()
+        _, self.ec, self.ext, self.inn, self.gi, self.cut, self.vol, self.meas = bisection_state(batch, self.side)
+        self.d = batch.volumes()
+        self.m = batch.measures
+        self.total_m = self.meas.sum(axis=1)
+        self.tol = float(tolerance)
+
+    def ncut(self) -> np.ndarray:
+        return _ncut(self.cut, self.vol)
+
+    def imbalance(self) -> np.ndarray:
+        """(B,) |measure(side 0) - measure(side 1)| / measure(graph)."""
+        return np.abs(self.meas[:, 0] - self.meas[:, 1]) / np.where(self.total_m > 0, self.total_m, 1.0)
+
+    def evaluate(self, cand: np.ndarray):
+        """For moving each node of `cand`: (normalized cut after, allowed) where allowed = the side
+        it leaves stays non-empty and the imbalance stays within the tolerance or decreases."""
+        cg = self.gi[cand]
+        v_side = self.side[cand]
+        d, m = self.d[cand], self.m[cand]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cut_new = self.cut[cg] - self.ext[cand] + self.inn[cand]
+            vs = self.vol[cg, v_side] - d
+            vt = self.vol[cg, 1 - v_side] + d
+            nc_new = cut_new * (1 / vs + 1 / vt)
+            tm = np.where(self.total_m[cg] > 0, self.total_m[cg], 1.0)
+            imb_new = np.abs(self.meas[cg, v_side] - m - self.meas[cg, 1 - v_side] - m) / tm
+            imb_cur = np.abs(self.meas[cg, 0] - self.meas[cg, 1]) / tm
+        ok = (vs > 0) & ((imb_new <= self.tol) | (imb_new < imb_cur))
+        return nc_new, ok
+
+    def move(self, v: np.ndarray) -> None:
+        """Move the nodes `v` (at most one per graph, so never two adjacent) to the other side."""
+        batch = self.batch
+        g = self.gi[v]
+        old = self.side[v]
+        new = 1 - old
+        ext, inn = self.ext, self.inn
+        self.cut[g] += inn[v] - ext[v]
+        self.vol[g, old] -= self.d[v]
+        self.vol[g, new] += self.d[v]
+        self.meas[g, old] -= self.m[v]
+        self.meas[g, new] += self.m[v]
+        self.side[v] = new
+        # neighbours: an edge to a node now on the neighbour's side becomes internal, and vice versa
+        indptr = batch.indptr
+        cnt = indptr[v + 1] - indptr[v]
+        src = np.repeat(np.arange(v.size), cnt)
+        eidx = np.repeat(indptr[v] - np.r_[0, np.cumsum(cnt)[:-1]], cnt) + np.arange(int(cnt.sum()))
+        u = batch.indices[eidx]
+        w = self.ec[eidx]
+        same_now = self.side[u] == new[src]
+        np.add.at(ext, u, np.where(same_now, -w, w))
+        np.add.at(inn, u, np.where(same_now, w, -w))
+        ext[v], inn[v] = inn[v], ext[v]
+
+
 def fm_pass(batch: GraphBatch, side: np.ndarray, tolerance: float, hops: int, budget: np.ndarray | None = None,
             score_fn=None):
     """One FM pass over every graph of the batch with rollback to the best prefix.
 
-    Returns (new side, per-graph normalized cut before, after). `score_fn(state) -> (n_cand,)`
-    may replace the gain as the move priority (the RL refiner's policy); the rollback always
-    uses the true normalized cut."""
-    side = side.astype(np.int64).copy()
-    rows, ec, ext, inn, gi, cut, vol, meas = bisection_state(batch, side)
+    Returns (new side, per-graph normalized cut before, after). `score_fn(state, cand, gain)`
+    -> (n_cand,) may replace the gain as the move priority (the RL refiner's policy); the
+    rollback always uses the true normalized cut."""
+    st = CutState(batch, side, tolerance)
     B = batch.n_graphs
-    d = batch.volumes()
-    m = batch.measures
-    total_m = meas.sum(axis=1)
-    band = cut_band(batch, side, hops)
+    band = cut_band(batch, st.side, hops)
     cand = np.flatnonzero(band)
-    cg = gi[cand]
+    cg = st.gi[cand]
     if budget is None:
-        budget = np.minimum(cut + 1, np.bincount(cg, minlength=B)).astype(np.int64)
-    nc0 = _ncut(cut, vol)
-    nc_cur = nc0.copy()
+        budget = np.minimum(st.cut + 1, np.bincount(cg, minlength=B)).astype(np.int64)
+    nc0 = st.ncut()
     locked = np.zeros(cand.size, dtype=bool)
     n_steps = int(budget.max()) if budget.size else 0
     moves = np.full((n_steps, B), -1, dtype=np.int64)
     hist = np.full((n_steps, B), np.inf)
-    indptr, indices = batch.indptr, batch.indices
-    tol = float(tolerance)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        for s in range(n_steps):
-            live = budget > s
-            v_side = side[cand]
-            cut_new = cut[cg] - ext[cand] + inn[cand]
-            vs = vol[cg, v_side] - d[cand]
-            vt = vol[cg, 1 - v_side] + d[cand]
-            nc_new = cut_new * (1 / vs + 1 / vt)
-            ms = meas[cg, v_side] - m[cand]
-            mt = meas[cg, 1 - v_side] + m[cand]
-            tm = np.where(total_m[cg] > 0, total_m[cg], 1.0)
-            imb_new = np.abs(ms - mt) / tm
-            imb_cur = np.abs(meas[cg, 0] - meas[cg, 1]) / tm
-            ok = (~locked) & live[cg] & (vs > 0) & ((imb_new <= tol) | (imb_new < imb_cur))
-            if not ok.any():
-                break
-            gain = nc_cur[cg] - nc_new
-            score = gain if score_fn is None else score_fn(cand, side, gain)
-            score = np.where(ok, score, -np.inf)
-            pick = _segment_first_argmax(score, cg, B)
-            got = pick >= 0
-            if not got.any():
-                break
-            p = pick[got]
-            g = np.flatnonzero(got)
-            v = cand[p]
-            locked[p] = True
-            old = side[v]
-            new = 1 - old
-            # update the state
-            cut[g] = cut_new[p]
-            vol[g, old] -= d[v]
-            vol[g, new] += d[v]
-            meas[g, old] -= m[v]
-            meas[g, new] += m[v]
-            nc_cur[g] = nc_new[p]
-            side[v] = new
-            # neighbours: an edge to a node now on the neighbour's side becomes internal, and vice versa
-            cnt = indptr[v + 1] - indptr[v]
-            src = np.repeat(np.arange(v.size), cnt)
-            eidx = np.repeat(indptr[v] - np.r_[0, np.cumsum(cnt)[:-1]], cnt) + np.arange(int(cnt.sum()))
-            u = indices[eidx]
-            w = ec[eidx]
-            same_now = side[u] == new[src]
-            np.add.at(ext, u, np.where(same_now, -w, w))
-            np.add.at(inn, u, np.where(same_now, w, -w))
-            ext[v], inn[v] = inn[v], ext[v]
-            moves[s, g] = v
-            hist[s, g] = nc_cur[g]
+    for s in range(n_steps):
+        nc_new, ok = st.evaluate(cand)
+        ok &= (~locked) & (budget > s)[cg]
+        if not ok.any():
+            break
+        nc_cur = st.ncut()
+        gain = nc_cur[cg] - nc_new
+        score = gain if score_fn is None else score_fn(st, cand, gain)
+        pick = _segment_first_argmax(np.where(ok, score, -np.inf), cg, B)
+        got = pick >= 0
+        if not got.any():
+            break
+        p = pick[got]
+        g = np.flatnonzero(got)
+        locked[p] = True
+        st.move(cand[p])
+        moves[s, g] = cand[p]
+        hist[s, g] = st.ncut()[g]
+    side = st.side
     # rollback to the best prefix (strictly better than the start, else no move)
     if n_steps:
         best_step = np.argmin(hist, axis=0)

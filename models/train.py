@@ -347,7 +347,8 @@ def train(cfg: TrainConfig, log=print) -> dict:
 
 def add_train_args(parser: argparse.ArgumentParser) -> None:
     """Arguments of `magnet train` (unset hyper-parameters take the paper's values for the recipe)."""
-    parser.add_argument("recipe", choices=sorted(PAPER), help="which model and data set recipe")
+    parser.add_argument("recipe", choices=sorted(PAPER) + ["rl-partitioner", "rl-refiner"],
+                        help="which model and data set recipe (rl-*: the A2C agents, models/rl.py)")
     parser.add_argument("-o", "--out", required=True, help="weights file to write (.pt)")
     parser.add_argument("--workdir", default=None, help="checkpoint, log, plot, cached data (default: OUT.stem + '_run')")
     parser.add_argument("--data", default=None, help="a data set .npz (from `magnet generate dataset`)")
@@ -370,6 +371,10 @@ def add_train_args(parser: argparse.ArgumentParser) -> None:
                              "check on held-out meshes (normalized cut / METIS + raw fragment rate), or the last")
     parser.add_argument("--kinds", default=None, help="mesh kinds and weights, e.g. 'delaunay:1,holes:1'")
     parser.add_argument("--init", default=None, help="start from these weights (fine-tuning stage)")
+    parser.add_argument("--episodes", type=int, default=None, help="rl-*: training episodes (default 400)")
+    parser.add_argument("--graphs-per-episode", type=int, default=None, help="rl-*: graphs acting in parallel (8)")
+    parser.add_argument("--max-steps", type=int, default=None, help="rl-*: step cap per episode (200)")
+    parser.add_argument("--dim", type=int, default=2, choices=(2, 3), help="rl-*: mesh dimension of the data (2)")
     parser.add_argument("--stop-epoch", type=int, default=None,
                         help="stop after this epoch; the lr schedule still spans --epochs (replays a run "
                              "that --max-minutes cut short, exactly)")
@@ -378,6 +383,21 @@ def add_train_args(parser: argparse.ArgumentParser) -> None:
 def train_main(args: argparse.Namespace) -> int:
     """Run `magnet train`; returns the process exit code."""
     out = Path(args.out)
+    if args.recipe.startswith("rl-"):
+        from . import rl
+
+        if args.threads and torch is not None:
+            torch.set_num_threads(args.threads)
+        given = {"n_meshes": args.meshes, "episodes": args.episodes, "graphs_per_episode": args.graphs_per_episode,
+                 "max_steps": args.max_steps, "lr": args.lr}
+        rcfg = rl.RLTrainConfig(
+            agent=args.recipe, out=str(out), workdir=args.workdir or str(out.with_name(out.stem + "_run")),
+            dim=args.dim, seed=args.seed, max_minutes=args.max_minutes, resume=args.resume,
+            **{k: v for k, v in given.items() if v is not None},
+        )
+        res = rl.train(rcfg)
+        print(f"wrote {out}: {res['episodes']} episodes, best validation normalized cut {res['best_val']:.5f}")
+        return 0
     cfg = TrainConfig(
         recipe=args.recipe, out=str(out), workdir=args.workdir or str(out.with_name(out.stem + "_run")),
         data=args.data, n_meshes=args.meshes, pieces=args.pieces, epochs=args.epochs, lr=args.lr,

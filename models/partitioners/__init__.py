@@ -13,6 +13,7 @@ REGISTRY: dict[str, str] = {
     "kmeans": "models.partitioners.kmeans:KMeansPartitioner",
     "sage-base": "models.partitioners.sage:SageBasePartitioner",
     "sage-hetero": "models.partitioners.sage:SageHeteroPartitioner",
+    "rl-partitioner": "models.partitioners.rl:RLPartitioner",
 }
 
 
