@@ -8,10 +8,11 @@ inspection) and must never import torch. Neural partitioners are loaded lazily b
   models.boundary.summary}; raises MeshError.
 - validate_params(params, mesh_info=None) -> normalized params dict; raises ParameterError whose
   message names the field. Keys: model, mode, k, nref, target_size, mult_factor, subset (list of
-  cell ids), refiner, options {seed, absorb_fraction, hole_policy, physical_tag, method,
-  boundary_tag (lymph bc_tag of boundary edges without a boundary group, default 1), size_measure
-  ("centroids": a part's size is the largest distance between its cell centroids, the paper's
-  measure, default; "vertices": between its vertices)}.
+  cell ids), refiner (fm | rl-refiner | null), options {seed, absorb_fraction, hole_policy,
+  physical_tag, method, boundary_tag (lymph bc_tag of boundary edges without a boundary group,
+  default 1), size_measure ("centroids": a part's size is the largest distance between its cell
+  centroids, the paper's measure, default; "vertices": between its vertices), threshold (coarsest
+  graph size of mode multilevel, default 200), hierarchy (keep every nested level)}.
 - run_job(mesh_path, out_dir, params, progress=None, should_cancel=None) -> summary dict
   {"elements", "parts_split", "fragments_absorbed", "timings": {stage: seconds}, "outputs": {kind: filename}}
   writing into out_dir: mesh.vtu, metrics.json, labels.json, preview.png, and for 2D meshes
@@ -30,7 +31,8 @@ from collections.abc import Callable
 from .errors import ParameterError
 
 MODEL_VERSION = "0.1.0"
-MODES = ("kway", "nref", "target-size", "mult-factor", "segregated", "coarsen")
+MODES = ("kway", "nref", "target-size", "mult-factor", "segregated", "coarsen", "multilevel")
+REFINERS = ("fm", "rl-refiner")
 MAX_SUBSET = 50_000_000
 
 MODEL_CARDS = [
@@ -58,7 +60,21 @@ MODEL_CARDS = [
         "modes": [m for m in MODES if m != "kway"],
         "description": "SAGE-Heterogeneous graph neural network: like SAGE-Base with the physical group as a feature and a penalty for mixing two groups.",
     },
+    {
+        "name": "rl-partitioner",
+        "dimension": [2],
+        "modes": ["nref", "target-size", "mult-factor", "segregated", "coarsen", "multilevel"],
+        "description": "RL partitioner (A2C, models/weights/rl-partitioner-2d.md): grows one side from a minimum-degree seed; meant for the coarsest graphs of mode multilevel (slow on a whole fine mesh).",
+    },
 ]
+# Refiners (field `refiner`): every model's bisections in nref / target-size / mult-factor /
+# segregated / coarsen / multilevel; k-way mode (metis, kmeans) takes `fm` only.
+for _card in MODEL_CARDS:
+    _card["refiners"] = list(REFINERS)
+    _card["combinations"] = [
+        {"mode": m, "refiners": ["fm"] if m == "kway" else list(REFINERS)} for m in _card["modes"]
+    ]
+del _card
 
 
 class JobCancelled(Exception):
@@ -140,12 +156,20 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
             raise ParameterError("subset must be a list of integer cell ids")
         if min(subset) < 0:
             raise ParameterError(f"subset has negative cell ids, e.g. {min(subset)}")
-    if params.get("refiner") not in (None, "none"):
-        raise ParameterError(f"refiner {params.get('refiner')!r} is not available; use null")
+    refiner = params.get("refiner")
+    if refiner == "none":
+        refiner = None
+    if refiner is not None and refiner not in REFINERS:
+        raise ParameterError(f"refiner must be one of {list(REFINERS)} or null, got {refiner!r}")
+    if refiner == "rl-refiner" and (mode == "kway" or (mode == "coarsen" and k is not None)):
+        raise ParameterError("refiner 'rl-refiner' refines bisections only; k-way mode takes refiner 'fm'")
+    if mode == "multilevel" and all(v is None for v in (nref, target_size, mult_factor)):
+        raise ParameterError("mode 'multilevel' needs one of nref, target_size, mult_factor")
     opts = params.get("options") or {}
     if not isinstance(opts, dict):
         raise ParameterError("options must be an object")
-    known_opts = {"seed", "absorb_fraction", "hole_policy", "physical_tag", "method", "boundary_tag", "size_measure"}
+    known_opts = {"seed", "absorb_fraction", "hole_policy", "physical_tag", "method", "boundary_tag", "size_measure",
+                  "threshold"}
     if set(opts) - known_opts:
         raise ParameterError(f"unknown option(s): {sorted(set(opts) - known_opts)}")
     seed = _int(opts, "seed", lo=0, hi=2**31 - 1) or 0
@@ -160,6 +184,8 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
         raise ParameterError("options.physical_tag must be a non-empty string")
     boundary_tag = _int(opts, "boundary_tag", lo=0, hi=2**31 - 1)
     boundary_tag = 1 if boundary_tag is None else boundary_tag
+    threshold = _int(opts, "threshold", lo=2, hi=1_000_000)
+    threshold = 200 if threshold is None else threshold
     method = opts.get("method", "kway")
     if method not in ("kway", "recursive"):
         raise ParameterError(f"options.method must be 'kway' or 'recursive', got {method!r}")
@@ -176,7 +202,7 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
             raise ParameterError("subset is required for mode 'coarsen'")
         if all(v is None for v in (k, nref, target_size, mult_factor)):
             raise ParameterError("mode 'coarsen' needs one of k, nref, target_size, mult_factor")
-    if model in ("sage-base", "sage-hetero") and (mode == "kway" or (mode == "coarsen" and k is not None)):
+    if model in ("sage-base", "sage-hetero", "rl-partitioner") and (mode == "kway" or (mode == "coarsen" and k is not None)):
         raise ParameterError(f"model {model!r} has no direct k-way mode; use nref, target-size or mult-factor")
 
     if mesh_info is not None:
@@ -188,15 +214,17 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
             raise ParameterError(f"k = {k} is larger than the number of cells to agglomerate ({n_work})")
         if nref is not None and 2**nref > n_work:
             raise ParameterError(f"nref = {nref} asks for 2^{nref} elements, more than the {n_work} cells")
+        if model == "rl-partitioner" and mesh_info.get("dim", 2) != 2:
+            raise ParameterError("model 'rl-partitioner' has weights for 2D meshes only")
         if mode == "segregated" and not mesh_info.get("physical_groups"):
             raise ParameterError("mode 'segregated' needs a mesh with physical groups")
 
     return {
         "model": model, "mode": mode, "k": k, "nref": nref, "target_size": target_size,
-        "mult_factor": mult_factor, "subset": subset, "refiner": None,
+        "mult_factor": mult_factor, "subset": subset, "refiner": refiner,
         "options": {"seed": seed, "absorb_fraction": float(absorb), "hole_policy": hole_policy,
                     "physical_tag": physical_tag, "method": method, "boundary_tag": boundary_tag,
-                    "size_measure": size_measure},
+                    "size_measure": size_measure, "threshold": threshold},
     }
 
 
@@ -225,7 +253,7 @@ def run_job(
     tick(0.0, "read")
     mesh = read_mesh(mesh_path, physical_tag=p["options"]["physical_tag"])
     t_read = time.perf_counter() - t0
-    validate_params(params, {"cells": mesh.n_cells, "physical_groups": mesh.physical_groups()})
+    validate_params(params, {"cells": mesh.n_cells, "physical_groups": mesh.physical_groups(), "dim": mesh.dim})
     o = p["options"]
     model_options = {"method": o["method"]} if p["model"] == "metis" else None
     res = pipeline.run(
@@ -233,6 +261,7 @@ def run_job(
         mult_factor=p["mult_factor"], subset=p["subset"], absorb_fraction=o["absorb_fraction"],
         hole_policy=o["hole_policy"], seed=o["seed"], model_options=model_options, progress=tick,
         size_measure=o["size_measure"],
+        refiner=p["refiner"], threshold=o["threshold"],
     )
     res.timings = {"read": t_read, **res.timings}
     files = {"mesh": "mesh.vtu", "metrics": "metrics.json", "labels": "labels.json", "preview": "preview.png"}

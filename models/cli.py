@@ -18,8 +18,10 @@ EXIT_USER_ERROR = 2
 
 
 def _add_job_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--model", default="metis", help="metis | kmeans | sage-base | sage-hetero (default metis)")
-    p.add_argument("--mode", default="kway", help="kway | nref | target-size | mult-factor | segregated | coarsen")
+    p.add_argument("--model", default="metis", help="metis | kmeans | sage-base | sage-hetero | rl-partitioner (default metis)")
+    p.add_argument("--mode", default="kway", help="kway | nref | target-size | mult-factor | segregated | coarsen | multilevel")
+    p.add_argument("--refiner", choices=["fm", "rl-refiner"], help="refine every bisection (every level in multilevel mode); k-way mode: fm")
+    p.add_argument("--threshold", type=int, default=200, help="multilevel: coarsen every subgraph to at most this many nodes")
     p.add_argument("--k", type=int, help="number of elements (kway)")
     p.add_argument("--nref", type=int, help="number of refinements: 2^nref elements")
     p.add_argument("--target-size", type=float, help="bisect until every element's diameter is below this")
@@ -120,8 +122,13 @@ def cmd_agglomerate(args) -> int:
             seed=args.seed, model_options={"method": args.method} if args.model == "metis" else None,
             size_measure=args.size_measure,
             compute_metrics=bool(args.metrics) or args.model_metrics, progress=prog,
+            refiner=args.refiner, threshold=args.threshold, record_levels=bool(args.hierarchy),
         )
         res.timings = {"read": t_read, **res.timings}
+        if args.hierarchy:
+            idx = pipeline.write_hierarchy(res, args.hierarchy)
+            print(f"hierarchy: {len(idx['levels'])} levels in {args.hierarchy} "
+                  f"({' > '.join(str(lv['elements']) for lv in idx['levels'])} elements)")
         if args.lymph and mesh.dim != 2:
             raise ParameterError("--lymph is for 2D meshes only")
         pipeline.write_outputs(res, vtu=args.output, metrics=args.metrics, labels=args.labels, lymph=args.lymph, plot=args.plot,
@@ -196,6 +203,7 @@ def cmd_compare(args) -> int:
         res = pipeline.run(
             mesh, model=model, mode=mode, k=args.k, nref=args.nref, target_size=args.target_size,
             mult_factor=args.mult_factor, absorb_fraction=args.absorb, seed=args.seed, size_measure=args.size_measure,
+            refiner=args.refiner, threshold=args.threshold,
         )
         rep = dict(res.metrics)
         rep["time"] = time.perf_counter() - t
@@ -224,6 +232,8 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
     p.add_argument("--labels", help="write the fine-cell -> element labels (JSON list) here")
     p.add_argument("--lymph", help="write the lymph structs here (.mat or .json; 2D only)")
     p.add_argument("--plot", help="write a PNG picture of the agglomerated mesh here")
+    p.add_argument("--hierarchy", metavar="OUT_DIR", help="write every level of a recursive mode here, nested "
+                   "(level_L.vtu, level_L.labels.json, level_L.parent.json, level_L.metrics.json, hierarchy.json)")
     p.add_argument("--progress", action="store_true", help="always show the progress bar")
     p.set_defaults(func=cmd_agglomerate, model_metrics=False)
 

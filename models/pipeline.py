@@ -113,8 +113,12 @@ def run(
     compute_metrics: bool = True,
     progress: Callable[[float, str], None] | None = None,
     size_measure: str = "centroids",
+    refiner: str | None = None,
+    threshold: int = 200,
+    record_levels: bool = False,
 ) -> Result:
-    """Agglomerate `mesh`; progress(fraction, stage) is called between stages."""
+    """Agglomerate `mesh`; progress(fraction, stage) is called between stages. refiner, threshold,
+    record_levels: see models.agglomerate.agglomerate (multilevel mode, nested hierarchy)."""
 
     def report(frac: float, stage: str) -> None:
         if progress is not None:
@@ -136,8 +140,12 @@ def run(
         mesh, data, model=model, mode=mode, k=k, nref=nref, target_size=target_size, mult_factor=mult_factor,
         subset=subset, absorb_fraction=absorb_fraction, seed=seed, progress=part_progress, model_options=model_options,
         size_measure=size_measure,
+        refiner=refiner, threshold=threshold, record_levels=record_levels,
     )
     timings["partition"] = time.perf_counter() - t
+    for stage in ("coarsen", "bisect", "refine"):  # parts of "partition" (multilevel mode, refiners)
+        if stage in agg.timings:
+            timings[f"partition.{stage}"] = agg.timings[stage]
 
     t = time.perf_counter()
     report(0.72, "merge")
@@ -244,3 +252,17 @@ def _atomic_write(path: str, text: str) -> None:
     with open(tmp, "w", encoding="utf-8") as fh:
         fh.write(text)
     os.replace(tmp, path)
+
+
+def write_hierarchy(res: Result, out_dir: str, metrics: bool = True, extra: dict | None = None) -> dict:
+    """The nested hierarchy of a recursive run (pipeline.run(..., record_levels=True)) written to
+    out_dir (models.hierarchy); returns the hierarchy.json index."""
+    from .hierarchy import nested_levels
+    from .hierarchy import write_hierarchy as _write
+
+    agg = res.agglomeration
+    if not agg.levels:
+        raise ParameterError("a hierarchy needs a recursive mode (nref, target-size, mult-factor, segregated, "
+                             "multilevel, or coarsen with one of them) run with record_levels=True")
+    levels = nested_levels(res.data, agg.labels, agg.levels, agg.nodes, res.mesh)
+    return _write(out_dir, res.mesh, res.data, levels, metrics=metrics, extra=extra)

@@ -32,7 +32,6 @@ from torch import nn
 from .partitioners.base import GraphBatch
 from .refine import CutState, _segment_first_argmax, bisection_ncut, cut_band
 
-
 # --------------------------------------------------------------------------------- layers
 
 

@@ -83,15 +83,16 @@ class JobOptions(BaseModel):
     size_measure: str | None = Field(
         None, max_length=40, description="part size for target-size / mult-factor: centroids (default) | vertices"
     )
+    threshold: int | None = Field(None, ge=2, le=10**6, description="coarsest graph size, mode multilevel (200)")
 
 
 class JobParams(BaseModel):
     """Agglomeration parameters, as for `magnet agglomerate`; the library validates their meaning."""
 
     model_config = ConfigDict(extra="forbid")
-    model: str | None = Field(None, max_length=40, description="metis | kmeans | sage-base | sage-hetero")
+    model: str | None = Field(None, max_length=40, description="metis | kmeans | sage-base | sage-hetero | rl-partitioner")
     mode: str | None = Field(
-        None, max_length=40, description="kway | nref | target-size | mult-factor | segregated | coarsen"
+        None, max_length=40, description="kway | nref | target-size | mult-factor | segregated | coarsen | multilevel"
     )
     k: int | None = Field(None, ge=1, le=10**8, description="number of elements (kway)")
     nref: int | None = Field(None, ge=0, le=64, description="number of refinements: 2^nref elements")
@@ -102,7 +103,7 @@ class JobParams(BaseModel):
     subset: list[Annotated[int, Field(ge=0, le=2**62)]] | None = Field(
         None, description="cell ids to agglomerate (coarsen mode)"
     )
-    refiner: str | None = Field(None, max_length=40)
+    refiner: str | None = Field(None, max_length=40, description="fm | rl-refiner (null: none)")
     options: JobOptions | None = None
 
     def library_params(self) -> dict:

@@ -47,11 +47,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("mesh")
     p.add_argument("-o", "--output", required=True, help="agglomerated mesh (.vtu)")
     p.add_argument(
-        "--model", default="metis", help="metis | kmeans | sage-base | sage-hetero (default metis)"
+        "--model", default="metis", help="metis | kmeans | sage-base | sage-hetero | rl-partitioner (default metis)"
     )
     p.add_argument(
-        "--mode", default="kway", help="kway | nref | target-size | mult-factor | segregated | coarsen"
+        "--mode", default="kway", help="kway | nref | target-size | mult-factor | segregated | coarsen | multilevel"
     )
+    p.add_argument("--refiner", help="fm | rl-refiner: refine every bisection (k-way mode: fm)")
+    p.add_argument("--threshold", type=int, help="multilevel: coarsen to at most this many nodes (default 200)")
     p.add_argument("--k", type=int, help="number of elements (kway)")
     p.add_argument("--nref", type=int, help="number of refinements: 2^nref elements")
     p.add_argument("--target-size", type=float, help="bisect until every element's diameter is below this")
@@ -138,6 +140,8 @@ def cmd_agglomerate(client: Client, args: argparse.Namespace) -> int:
         hole_policy=args.hole_policy,
         boundary_tag=args.boundary_tag,
         seed=args.seed,
+        refiner=args.refiner,
+        threshold=args.threshold,
     )
     print(summary_line(job, time.perf_counter() - t0))
     return 0

@@ -89,7 +89,7 @@ FORM_FIELDS = {
     "refiner": {"type": "string"},
     "options": {
         "type": "string",
-        "description": "JSON object: seed, absorb_fraction, hole_policy, physical_tag, method, boundary_tag",
+        "description": "JSON object: seed, absorb_fraction, hole_policy, physical_tag, method, boundary_tag, threshold",
     },
     "seed": {"type": "integer"},
     "absorb_fraction": {"type": "number"},
@@ -97,8 +97,9 @@ FORM_FIELDS = {
     "physical_tag": {"type": "string"},
     "method": {"type": "string"},
     "boundary_tag": {"type": "integer"},
+    "threshold": {"type": "integer"},
 }
-OPTION_FIELDS = ("seed", "absorb_fraction", "hole_policy", "physical_tag", "method", "boundary_tag")
+OPTION_FIELDS = ("seed", "absorb_fraction", "hole_policy", "physical_tag", "method", "boundary_tag", "threshold")
 
 
 def params_from_form(form) -> dict:
