@@ -169,7 +169,7 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
     if not isinstance(opts, dict):
         raise ParameterError("options must be an object")
     known_opts = {"seed", "absorb_fraction", "hole_policy", "physical_tag", "method", "boundary_tag", "size_measure",
-                  "threshold"}
+                  "threshold", "hierarchy"}
     if set(opts) - known_opts:
         raise ParameterError(f"unknown option(s): {sorted(set(opts) - known_opts)}")
     seed = _int(opts, "seed", lo=0, hi=2**31 - 1) or 0
@@ -186,6 +186,14 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
     boundary_tag = 1 if boundary_tag is None else boundary_tag
     threshold = _int(opts, "threshold", lo=2, hi=1_000_000)
     threshold = 200 if threshold is None else threshold
+    hierarchy = opts.get("hierarchy", False)
+    if hierarchy in ("true", "false"):  # form fields arrive as strings
+        hierarchy = hierarchy == "true"
+    if not isinstance(hierarchy, bool):
+        raise ParameterError(f"options.hierarchy must be true or false, got {hierarchy!r}")
+    if hierarchy and (mode == "kway" or (mode == "coarsen" and k is not None)):
+        raise ParameterError("options.hierarchy needs a recursive mode (nref, target-size, mult-factor, segregated, "
+                             "coarsen or multilevel), not k-way")
     method = opts.get("method", "kway")
     if method not in ("kway", "recursive"):
         raise ParameterError(f"options.method must be 'kway' or 'recursive', got {method!r}")
@@ -224,7 +232,7 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
         "mult_factor": mult_factor, "subset": subset, "refiner": refiner,
         "options": {"seed": seed, "absorb_fraction": float(absorb), "hole_policy": hole_policy,
                     "physical_tag": physical_tag, "method": method, "boundary_tag": boundary_tag,
-                    "size_measure": size_measure, "threshold": threshold},
+                    "size_measure": size_measure, "threshold": threshold, "hierarchy": hierarchy},
     }
 
 
@@ -261,7 +269,7 @@ def run_job(
         mult_factor=p["mult_factor"], subset=p["subset"], absorb_fraction=o["absorb_fraction"],
         hole_policy=o["hole_policy"], seed=o["seed"], model_options=model_options, progress=tick,
         size_measure=o["size_measure"],
-        refiner=p["refiner"], threshold=o["threshold"],
+        refiner=p["refiner"], threshold=o["threshold"], record_levels=o["hierarchy"],
     )
     res.timings = {"read": t_read, **res.timings}
     files = {"mesh": "mesh.vtu", "metrics": "metrics.json", "labels": "labels.json", "preview": "preview.png"}
@@ -275,8 +283,32 @@ def run_job(
         metrics=join(files["metrics"]), extra={"params": p, "model_version": MODEL_VERSION},
         boundary_tag=o["boundary_tag"],
     )
+    if o["hierarchy"]:
+        tick(0.95, "hierarchy")
+        _write_hierarchy_zip(res, out_dir, o["boundary_tag"])
+        files["hierarchy"] = "hierarchy.zip"
     tick(1.0, "done")
     s = res.summary()
     s["timings"]["total"] = round(time.perf_counter() - t0, 4)
     s["outputs"] = files
     return s
+
+
+def _write_hierarchy_zip(res, out_dir: str, boundary_tag: int) -> None:
+    """Every nested level into out_dir/hierarchy.zip (flat archive; lymph structs per level in 2D)."""
+    import shutil
+    import tempfile
+    import zipfile
+
+    from . import pipeline
+
+    tmp = tempfile.mkdtemp(prefix="hierarchy-", dir=out_dir)
+    try:
+        pipeline.write_hierarchy(res, tmp, metrics=True, lymph=res.mesh.dim == 2, boundary_tag=boundary_tag)
+        part = os.path.join(out_dir, "hierarchy.zip.tmp")
+        with zipfile.ZipFile(part, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+            for name in sorted(os.listdir(tmp)):
+                zf.write(os.path.join(tmp, name), arcname=name)
+        os.replace(part, os.path.join(out_dir, "hierarchy.zip"))
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)

@@ -8,8 +8,9 @@ element joins the coarse part that holds most of its cells, then coarse parts ar
 connected pieces. A coarse element that would enclose a hole is replaced by its children.
 
 write_hierarchy() writes one directory: level_L.vtu, level_L.labels.json (fine cell -> element),
-level_L.parent.json (element of level L -> its element at level L-1, L >= 1), level_L.metrics.json
-and hierarchy.json indexing them; level 0 is the coarsest, the last level the final result.
+level_L.parent.json (element of level L -> its element at level L-1, 0-based, L >= 1),
+level_L.metrics.json, optionally level_L.lymph.json (2D), and hierarchy.json indexing them; level 0
+is the coarsest, the last level the final result (same element numbering as the job's outputs).
 """
 
 from __future__ import annotations
@@ -105,20 +106,32 @@ def is_nested(levels: list[np.ndarray]) -> bool:
 
 
 def write_hierarchy(out_dir: str | os.PathLike, mesh: Mesh, data: CellData, levels: list[np.ndarray],
-                    metrics: bool = True, extra: dict | None = None) -> dict:
-    """Write every level (see the module docstring); returns the hierarchy.json index."""
-    from .merge import merge
+                    metrics: bool = True, extra: dict | None = None, lymph: bool = False, boundary=None,
+                    boundary_tag: int = 1) -> dict:
+    """Write every level (see the module docstring); returns the hierarchy.json index.
+    lymph: also level_L.lymph.json (2D) with the lymph region/neighbor structs of each level;
+    boundary: the fine mesh's boundary groups (models.boundary.fine_boundary), kept on every level."""
+    from .merge import merge, sort_by_vertex_count
     from .metrics import metrics_report, partition_statistics
     from .vtu import write_vtu
 
     out_dir = os.fspath(out_dir)
     os.makedirs(out_dir, exist_ok=True)
     g = data.graph
+    polys = []
+    for labels in levels:
+        poly, _ = merge(mesh, g, labels, data.measures)
+        poly = sort_by_vertex_count(poly)  # 3D: the element order meshio reads back; labels follow
+        if boundary is not None:
+            from .boundary import annotate
+
+            annotate(poly, boundary)
+        polys.append(poly)
+    levels = [np.asarray(p.labels, dtype=np.int64) for p in polys]
     parents = parent_maps(levels)
     index = {"levels": [], "nested": is_nested(levels), "cells": int(mesh.n_cells), "dim": int(mesh.dim),
              **(extra or {})}
-    for L, labels in enumerate(levels):
-        poly, _ = merge(mesh, g, labels, data.measures)
+    for L, (labels, poly) in enumerate(zip(levels, polys, strict=True)):
         entry = {"level": L, "elements": int(poly.n_elements), "mesh": f"level_{L}.vtu",
                  "labels": f"level_{L}.labels.json"}
         cell_data = {}
@@ -137,6 +150,12 @@ def write_hierarchy(out_dir: str | os.PathLike, mesh: Mesh, data: CellData, leve
         if L > 0:
             entry["parent"] = f"level_{L}.parent.json"
             _write_json(os.path.join(out_dir, entry["parent"]), parents[L - 1].tolist())
+        if lymph and mesh.dim == 2:
+            from .lymph import lymph_structs, write_lymph_json
+
+            region, neighbor = lymph_structs(poly, boundary_tag=boundary_tag)
+            entry["lymph"] = f"level_{L}.lymph.json"
+            write_lymph_json(os.path.join(out_dir, entry["lymph"]), region, neighbor)
         index["levels"].append(entry)
     _write_json(os.path.join(out_dir, "hierarchy.json"), index)
     return index

@@ -254,7 +254,8 @@ def _atomic_write(path: str, text: str) -> None:
     os.replace(tmp, path)
 
 
-def write_hierarchy(res: Result, out_dir: str, metrics: bool = True, extra: dict | None = None) -> dict:
+def write_hierarchy(res: Result, out_dir: str, metrics: bool = True, extra: dict | None = None, lymph: bool = False,
+                    boundary_tag: int = 1) -> dict:
     """The nested hierarchy of a recursive run (pipeline.run(..., record_levels=True)) written to
     out_dir (models.hierarchy); returns the hierarchy.json index."""
     from .hierarchy import nested_levels
@@ -265,4 +266,5 @@ def write_hierarchy(res: Result, out_dir: str, metrics: bool = True, extra: dict
         raise ParameterError("a hierarchy needs a recursive mode (nref, target-size, mult-factor, segregated, "
                              "multilevel, or coarsen with one of them) run with record_levels=True")
     levels = nested_levels(res.data, agg.labels, agg.levels, agg.nodes, res.mesh)
-    return _write(out_dir, res.mesh, res.data, levels, metrics=metrics, extra=extra)
+    return _write(out_dir, res.mesh, res.data, levels, metrics=metrics, extra=extra, lymph=lymph, boundary=res.boundary,
+                  boundary_tag=boundary_tag)

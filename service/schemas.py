@@ -84,6 +84,7 @@ class JobOptions(BaseModel):
         None, max_length=40, description="part size for target-size / mult-factor: centroids (default) | vertices"
     )
     threshold: int | None = Field(None, ge=2, le=10**6, description="coarsest graph size, mode multilevel (200)")
+    hierarchy: bool | None = Field(None, description="also keep every nested level (GET /v1/jobs/{id}/hierarchy)")
 
 
 class JobParams(BaseModel):

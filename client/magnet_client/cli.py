@@ -54,6 +54,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--refiner", help="fm | rl-refiner: refine every bisection (k-way mode: fm)")
     p.add_argument("--threshold", type=int, help="multilevel: coarsen to at most this many nodes (default 200)")
+    p.add_argument("--hierarchy", metavar="DIR", help="unpack every nested level of a recursive mode here")
     p.add_argument("--k", type=int, help="number of elements (kway)")
     p.add_argument("--nref", type=int, help="number of refinements: 2^nref elements")
     p.add_argument("--target-size", type=float, help="bisect until every element's diameter is below this")
@@ -142,6 +143,7 @@ def cmd_agglomerate(client: Client, args: argparse.Namespace) -> int:
         seed=args.seed,
         refiner=args.refiner,
         threshold=args.threshold,
+        hierarchy=args.hierarchy,
     )
     print(summary_line(job, time.perf_counter() - t0))
     return 0

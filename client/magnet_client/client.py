@@ -10,7 +10,8 @@ from pathlib import Path
 
 import httpx
 
-OPTION_NAMES = ("seed", "absorb_fraction", "hole_policy", "physical_tag", "method", "boundary_tag", "threshold")
+OPTION_NAMES = ("seed", "absorb_fraction", "hole_policy", "physical_tag", "method", "boundary_tag", "threshold",
+                "hierarchy")
 PARAM_NAMES = ("model", "mode", "k", "nref", "target_size", "mult_factor", "subset", "refiner")
 FINAL = ("succeeded", "failed", "cancelled")
 
@@ -242,6 +243,23 @@ class Client:
     def download_preview(self, job_id: str, path: str | os.PathLike) -> Path:
         return self._save(f"/v1/jobs/{job_id}/preview.png", path)
 
+    def download_hierarchy(self, job_id: str, directory: str | os.PathLike) -> Path:
+        """The nested levels of a job run with options.hierarchy = true, unpacked into `directory`
+        (hierarchy.json, level_L.vtu, level_L.labels.json, level_L.parent.json, ...)."""
+        import tempfile
+        import zipfile
+
+        directory = Path(directory)
+        directory.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory() as tmp:
+            z = self._save(f"/v1/jobs/{job_id}/hierarchy", Path(tmp) / "hierarchy.zip")
+            with zipfile.ZipFile(z) as zf:
+                for name in zf.namelist():  # flat archive of plain file names: nothing escapes `directory`
+                    if "/" in name or "\\" in name or name.startswith("."):
+                        raise MagnetHTTPError(0, f"unexpected entry {name!r} in the hierarchy archive")
+                zf.extractall(directory)
+        return directory
+
     def agglomerate(
         self,
         mesh_path: str | os.PathLike,
@@ -251,11 +269,15 @@ class Client:
         labels: str | None = None,
         lymph: str | None = None,
         plot: str | None = None,
+        hierarchy: str | os.PathLike | None = None,
         progress: bool = True,
         timeout: float | None = None,
         **params,
     ) -> dict:
-        """Upload, submit, wait, download: the remote `magnet agglomerate`. Returns the finished job."""
+        """Upload, submit, wait, download: the remote `magnet agglomerate`. Returns the finished job.
+        hierarchy: a directory to unpack every nested level into (asks the server for them)."""
+        if hierarchy is not None:
+            params["hierarchy"] = True
         mesh = self.upload(mesh_path)
         job = self.submit(mesh["id"], **params)
         job = self.wait(job["id"], progress=progress, timeout=timeout)
@@ -269,5 +291,7 @@ class Client:
             self.download_lymph(job["id"], lymph)
         if plot is not None:
             self.download_preview(job["id"], plot)
+        if hierarchy is not None:
+            self.download_hierarchy(job["id"], hierarchy)
         job["mesh"] = mesh
         return job

@@ -98,8 +98,11 @@ FORM_FIELDS = {
     "method": {"type": "string"},
     "boundary_tag": {"type": "integer"},
     "threshold": {"type": "integer"},
+    "hierarchy": {"type": "boolean"},
 }
-OPTION_FIELDS = ("seed", "absorb_fraction", "hole_policy", "physical_tag", "method", "boundary_tag", "threshold")
+OPTION_FIELDS = (
+    "seed", "absorb_fraction", "hole_policy", "physical_tag", "method", "boundary_tag", "threshold", "hierarchy"
+)
 
 
 def params_from_form(form) -> dict:
@@ -302,6 +305,7 @@ def result_file(ctx: Context, user: str, job_id: str, filename: str) -> Path:
         raise NotFound(
             f"job {job_id} has no {filename}"
             + (" (lymph output is for 2D meshes only)" if filename.startswith("lymph") else "")
+            + (" (submit it with options.hierarchy = true)" if filename == "hierarchy.zip" else "")
         )
     return path
 
@@ -337,6 +341,9 @@ for _path, _file, _media, _doc, _name in (
         "job_labels",
     ),
     ("preview.png", "preview.png", "image/png", "A picture of the agglomerated mesh.", "job_preview"),
+    ("hierarchy", "hierarchy.zip", "application/zip",
+     "Every nested level (zip: hierarchy.json, level_L.vtu/.labels.json/.parent.json/.metrics.json, 2D "
+     "level_L.lymph.json) of a job run with options.hierarchy = true.", "job_hierarchy"),
 ):
     router.add_api_route(
         f"/jobs/{{job_id}}/{_path}",
