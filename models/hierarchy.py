@@ -9,7 +9,7 @@ connected pieces. A coarse element that would enclose a hole is replaced by its 
 
 write_hierarchy() writes one directory: level_L.vtu, level_L.labels.json (fine cell -> element),
 level_L.parent.json (element of level L -> its element at level L-1, 0-based, L >= 1),
-level_L.metrics.json, optionally level_L.lymph.json (2D), and hierarchy.json indexing them; level 0
+level_L.metrics.json, optionally level_L.lymph.json and .mat (2D), and hierarchy.json indexing them; level 0
 is the coarsest, the last level the final result (same element numbering as the job's outputs).
 """
 
@@ -151,11 +151,13 @@ def write_hierarchy(out_dir: str | os.PathLike, mesh: Mesh, data: CellData, leve
             entry["parent"] = f"level_{L}.parent.json"
             _write_json(os.path.join(out_dir, entry["parent"]), parents[L - 1].tolist())
         if lymph and mesh.dim == 2:
-            from .lymph import lymph_structs, write_lymph_json
+            from .lymph import lymph_structs, write_lymph_json, write_lymph_mat
 
             region, neighbor = lymph_structs(poly, boundary_tag=boundary_tag)
             entry["lymph"] = f"level_{L}.lymph.json"
+            entry["lymph_mat"] = f"level_{L}.lymph.mat"
             write_lymph_json(os.path.join(out_dir, entry["lymph"]), region, neighbor)
+            write_lymph_mat(os.path.join(out_dir, entry["lymph_mat"]), region, neighbor)
         index["levels"].append(entry)
     _write_json(os.path.join(out_dir, "hierarchy.json"), index)
     return index

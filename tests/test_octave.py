@@ -84,3 +84,42 @@ def test_octave_wrapper_returns_lymph_structs(tmp_path):
     assert r["tag"] == "P"
     assert "HTTP 422" in r["err"] and "k = 100000" in r["err"]
     assert int(loadmat(saved)["region"]["ne"][0, 0].squeeze()) == r["ne"]
+
+
+HIERARCHY_SCRIPT = r"""
+addpath('{matlab}');
+[region, neighbor, job, levels] = magnet_agglomerate('{mesh}', 'Server', '{url}', 'Token', '{token}', ...
+    'Model', 'metis', 'Mode', 'multilevel', 'Nref', 3, 'Refiner', 'fm', 'Threshold', 100, ...
+    'Hierarchy', true, 'Verbose', false, 'Poll', 0.3);
+ne = cellfun(@(l) l.region.ne, levels);
+ok = true;
+for L = 2:numel(levels)
+  par = levels{{L}}.parent;
+  ok = ok && numel(par) == levels{{L}}.region.ne && max(par) == levels{{L - 1}}.region.ne && min(par) == 1;
+  % exact nesting: the children's areas add up to their parent's
+  ok = ok && max(abs(accumarray(par, levels{{L}}.region.area(:)) - levels{{L - 1}}.region.area(:))) < 1e-9;
+end
+out = struct('ne', ne, 'ok', ok, 'final', region.ne, 'refiner', job.params.refiner);
+fid = fopen('{result}', 'w'); fprintf(fid, '%s', jsonencode(out)); fclose(fid);
+"""
+
+
+def test_octave_wrapper_returns_every_nested_level(tmp_path):
+    octave = shutil.which("octave-cli")
+    if octave is None:
+        pytest.skip("octave-cli not found")
+    env = service_env(tmp_path / "data", api_keys=f"matlab-user:{TOKEN}")
+    proc, url = start_api(env, tmp_path, embedded_worker=True)
+    try:
+        wait_until(lambda: workers_online(url, TOKEN) >= 1, 60, 0.2, "the embedded worker")
+        script, result = tmp_path / "run_levels.m", tmp_path / "levels.json"
+        script.write_text(HIERARCHY_SCRIPT.format(matlab=ROOT / "client" / "matlab", mesh=BRAIN, url=url,
+                                                  token=TOKEN, result=result))
+        out = subprocess.run([octave, "--no-gui", "--quiet", "--no-window-system", str(script)], cwd=tmp_path,
+                             capture_output=True, text=True, timeout=300)
+        assert result.exists(), f"octave failed:\n{out.stdout}\n{out.stderr}"
+        r = json.loads(result.read_text())
+    finally:
+        proc.stop()
+    assert r["ne"] == [1, 2, 4, 8] and r["final"] == 8 and r["ok"] is True
+    assert r["refiner"] == "fm"

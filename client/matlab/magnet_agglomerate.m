@@ -1,9 +1,11 @@
-function [region, neighbor, job] = magnet_agglomerate(mesh_file, varargin)
+function [region, neighbor, job, levels] = magnet_agglomerate(mesh_file, varargin)
 %MAGNET_AGGLOMERATE Agglomerate a mesh on a MAGNET server; return the lymph region/neighbor structs.
 %
 %   [region, neighbor] = magnet_agglomerate('mesh.vtu', 'K', 64)
 %   [region, neighbor, job] = magnet_agglomerate('mesh.vtu', 'Server', 'http://gpu-box:8000', ...
 %       'Token', 'my-api-key', 'Model', 'metis', 'Mode', 'kway', 'K', 128, 'SaveAs', 'brain128.mat')
+%   [region, neighbor, job, levels] = magnet_agglomerate('mesh.vtu', 'Model', 'sage-base', ...
+%       'Mode', 'multilevel', 'Nref', 7, 'Refiner', 'fm', 'Hierarchy', true)
 %
 %   Uploads the mesh, submits a job, polls it and downloads the lymph structs of the agglomerated
 %   (2D) mesh, ready for a PolyDG solve: region (coord, connectivity, ne, nedges, coords_element,
@@ -13,8 +15,12 @@ function [region, neighbor, job] = magnet_agglomerate(mesh_file, varargin)
 %   Name-value options (all optional):
 %     Server      server URL (default: env MAGNET_SERVER, else http://127.0.0.1:8000)
 %     Token       API key (default: env MAGNET_TOKEN; none for a keyless local server)
-%     Model       'metis' (default) | 'kmeans' | 'sage-base' | 'sage-hetero'
+%     Model       'metis' (default) | 'kmeans' | 'sage-base' | 'sage-hetero' | 'rl-partitioner'
 %     Mode        'kway' (default) | 'nref' | 'target-size' | 'mult-factor' | 'segregated' | 'coarsen'
+%                 | 'multilevel'
+%     Refiner     'fm' | 'rl-refiner': refine every bisection (k-way mode: 'fm')
+%     Threshold   multilevel: coarsen every subgraph to at most this many cells (default 200)
+%     Hierarchy   true: also return every nested level in `levels` (recursive modes)
 %     K, Nref, TargetSize, MultFactor   the size parameter of the mode
 %     Subset      cell ids (0-based, as in the mesh file) to agglomerate, mode 'coarsen'
 %     Seed, PhysicalTag, Absorb, Method, HolePolicy, BoundaryTag   as in `magnet agglomerate`
@@ -28,12 +34,18 @@ function [region, neighbor, job] = magnet_agglomerate(mesh_file, varargin)
 %   order of region.connectivity_bc; region.id the element's physical group. The job output
 %   carries the mesh summary: job.mesh.boundary.groups lists each group's tag and name.
 %
+%   levels (with 'Hierarchy', true): a cell array, coarsest level first, the last one the result;
+%   levels{L}.region / levels{L}.neighbor are that level's lymph structs and levels{L}.parent
+%   (L >= 2) gives, for each element of level L, its element (1-based) in level L-1: every coarse
+%   element is exactly the union of the finer elements that name it.
+%
 %   Errors of the server (bad mesh, bad parameter, full queue, failed job) are raised as
 %   MATLAB/Octave errors with the server's message.
 
   p = struct('Server', getenv('MAGNET_SERVER'), 'Token', getenv('MAGNET_TOKEN'), 'Model', 'metis', ...
              'Mode', 'kway', 'K', [], 'Nref', [], 'TargetSize', [], 'MultFactor', [], 'Subset', [], ...
              'Seed', [], 'PhysicalTag', '', 'Absorb', [], 'Method', '', 'HolePolicy', '', 'BoundaryTag', [], ...
+             'Refiner', '', 'Threshold', [], 'Hierarchy', false, ...
              'SaveAs', '', 'Timeout', 3600, 'Poll', 1, 'Verbose', true);
   if mod(numel(varargin), 2) ~= 0
     error('magnet:args', 'options must be name-value pairs');
@@ -71,6 +83,11 @@ function [region, neighbor, job] = magnet_agglomerate(mesh_file, varargin)
   fields = add_field(fields, 'method', p.Method);
   fields = add_field(fields, 'hole_policy', p.HolePolicy);
   fields = add_field(fields, 'boundary_tag', p.BoundaryTag);
+  fields = add_field(fields, 'refiner', p.Refiner);
+  fields = add_field(fields, 'threshold', p.Threshold);
+  if p.Hierarchy
+    fields = [fields, {'hierarchy', 'true'}];
+  end
   if ~isempty(p.Subset)
     fields = [fields, {'subset', sprintf('%d,', p.Subset(:))}];
   end
@@ -121,6 +138,39 @@ function [region, neighbor, job] = magnet_agglomerate(mesh_file, varargin)
   delete(matfile);
   if p.Verbose
     fprintf('magnet: %d elements\n', region.ne);
+  end
+
+  % every nested level: the zip of lymph .mat files and parent maps
+  levels = {};
+  if p.Hierarchy
+    hdir = tempname();
+    mkdir(hdir);
+    zipfile = fullfile(hdir, 'hierarchy.zip');
+    magnet_download([server '/v1/jobs/' job.id '/hierarchy'], zipfile, p.Token, 600);
+    unzip(zipfile, hdir);
+    index = jsondecode(fileread(fullfile(hdir, 'hierarchy.json')));
+    entries = index.levels;
+    if ~iscell(entries)
+      entries = num2cell(entries);
+    end
+    levels = cell(1, numel(entries));
+    for L = 1:numel(entries)
+      e = entries{L};
+      s = load(fullfile(hdir, e.lymph_mat));
+      lev = struct('region', s.region, 'neighbor', s.neighbor, 'parent', []);
+      if isfield(e, 'parent') && ischar(e.parent)
+        parent = jsondecode(fileread(fullfile(hdir, e.parent)));
+        lev.parent = parent(:) + 1;
+      end
+      levels{L} = lev;
+    end
+    if exist('OCTAVE_VERSION', 'builtin')
+      confirm_recursive_rmdir(false, 'local');
+    end
+    rmdir(hdir, 's');
+    if p.Verbose
+      fprintf('magnet: %d nested levels\n', numel(levels));
+    end
   end
 end
 
