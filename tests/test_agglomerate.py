@@ -235,5 +235,10 @@ def test_absorb_gives_the_user_the_count_they_asked_for(brain):
     raw = agglomerate(m, d, model="kmeans", mode="nref", nref=7)
     assert raw.parts_split > 0 and raw.n_elements > 128  # k-means leaves fragments on the brain
     fixed = agglomerate(m, d, model="kmeans", mode="nref", nref=7, absorb_fraction=0.3)
-    assert fixed.n_elements == 128 and fixed.fragments_absorbed == raw.n_elements - 128
+    assert fixed.fragments_absorbed == raw.n_elements - fixed.n_elements > 0
+    # every part left is at least 0.3 x the mean size of the 128 parts asked for, so the count is
+    # 128 give or take a fragment above that size (kept) or a small part merged whole
+    size = np.bincount(fixed.labels, weights=d.measures)
+    assert size.min() >= 0.3 * size.sum() / 128
+    assert abs(fixed.n_elements - 128) <= 2
     assert all_connected(g, fixed.labels)
