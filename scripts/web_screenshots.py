@@ -15,6 +15,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
+import meshio  # noqa: E402
+from meshes import tets  # noqa: E402
 from PIL import Image  # noqa: E402
 from playwright.sync_api import sync_playwright  # noqa: E402
 from service_fixtures import BRAIN, service_env, start_api, wait_until, workers_online  # noqa: E402
@@ -84,6 +86,19 @@ def main(out: Path) -> None:
             save(page, out / "web-compare.png", "#compare")
             page.mouse.move(0, 0)
             save(page, out / "web-jobs.png", "#jobs")
+            # a 3D job: the exploded-view picture instead of the SVG
+            cube = tmp / "cube.vtu"
+            meshio.write(cube, meshio.Mesh(*tets(8)[:1], [("tetra", tets(8)[1])]))
+            page.set_input_files("#file", str(cube))
+            page.wait_for_selector("#mesh-summary")
+            submit(page, "metis", "kway", "k", "12")
+            until(page, "document.querySelector('#progress-status').textContent === 'succeeded'")
+            until(
+                page,
+                "document.querySelector('#drawing').hidden && document.querySelector('#preview').naturalWidth > 0",
+            )
+            until(page, "document.querySelector('#result-title').textContent.includes('k=12')")
+            save(page, out / "web-result-3d.png", "#result")
             browser.close()
     finally:
         proc.stop()
