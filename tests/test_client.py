@@ -212,7 +212,7 @@ def test_progress_bar_and_event_stream(server, tmp_path):
     assert len({f.split()[0] for f in frames}) >= 2, frames  # several stages shown, not just the end
     sys.path.insert(0, str(CLIENT))
     try:
-        from magnet_client import Client
+        from magnet_client import Client, MagnetHTTPError
     finally:
         sys.path.remove(str(CLIENT))
     with Client(server, TOKEN) as client:
@@ -222,3 +222,6 @@ def test_progress_bar_and_event_stream(server, tmp_path):
         assert [r["progress"] for r in records] == sorted(r["progress"] for r in records)
         assert list(client.events(job["id"])) == [records[-1]]  # a finished job: its final record at once
         assert client.wait(job["id"], progress=False) == records[-1]
+        with pytest.raises(MagnetHTTPError) as err:  # the stream's 404 falls back to the job: 404 too
+            list(client.follow("0" * 32))
+        assert err.value.status == 404
