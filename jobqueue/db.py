@@ -109,6 +109,18 @@ class WorkerRecord(Base):
     last_seen: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
 
 
+class ApiKey(Base):
+    """An API key managed with `magnet keys`: only its SHA-256 is stored."""
+
+    __tablename__ = "api_keys"
+    id: Mapped[str] = mapped_column(String(32), primary_key=True)
+    user: Mapped[str] = mapped_column(String(200), index=True)
+    sha256: Mapped[str] = mapped_column(String(64), unique=True)
+    note: Mapped[str] = mapped_column(String(200), default="")
+    created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+    revoked_at: Mapped[datetime | None] = mapped_column(DateTime, nullable=True)
+
+
 def _sqlite_pragmas(dbapi_connection, _record) -> None:
     cursor = dbapi_connection.cursor()
     cursor.execute("PRAGMA journal_mode=WAL")
@@ -144,7 +156,11 @@ class Database:
     def create_schema(self) -> None:
         try:
             Base.metadata.create_all(self.engine)
-        except (OperationalError, ProgrammingError, IntegrityError):  # another process created the tables between check and CREATE
+        except (
+            OperationalError,
+            ProgrammingError,
+            IntegrityError,
+        ):  # another process created the tables between check and CREATE
             Base.metadata.create_all(self.engine)
 
     def ping(self) -> None:

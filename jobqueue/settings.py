@@ -43,6 +43,22 @@ class Settings(BaseSettings):
     heartbeat_timeout_s: float = 60.0
     requeue_after_s: float = 300.0
     gpu_queue: bool = Field(False, description="Route neural models to the 'gpu' queue (a GPU worker runs).")
+    preload_models: bool = Field(
+        False,
+        description="Workers load torch and the shipped networks when they start (not at the first job).",
+    )
+
+    retention_days: float = Field(
+        0.0,
+        ge=0,
+        description="Finished jobs (and their result files) older than this are removed; 0 keeps them.",
+    )
+    cleanup_interval_s: float = Field(
+        3600.0, gt=0, description="How often a worker's reaper cleans up storage."
+    )
+    max_storage_bytes_per_user: int = Field(
+        0, ge=0, description="Bytes of meshes and results one user may hold; 0 = no quota."
+    )
 
     @property
     def resolved_database_url(self) -> str:

@@ -65,6 +65,8 @@ class Storage:
 
     def publish_result(self, work_dir: Path, result_key: str, summary: dict) -> None:
         """Make a finished work directory the result for result_key; the first publisher wins."""
+        files = [p for p in work_dir.rglob("*") if p.is_file()]
+        summary = {**summary, "result_bytes": sum(p.stat().st_size for p in files)}
         (work_dir / SUMMARY).write_text(json.dumps(summary, default=_plain))
         dest = self.result_dir(result_key)
         try:
@@ -76,6 +78,16 @@ class Storage:
                 os.rename(work_dir, dest)
             else:
                 shutil.rmtree(work_dir, ignore_errors=True)
+
+    def result_bytes(self, result_key: str) -> int:
+        """Bytes of a published result (from its summary; measured for results older than that)."""
+        try:
+            known = self.read_summary(result_key).get("result_bytes")
+        except (OSError, ValueError):
+            return 0
+        if known is None:
+            known = sum(p.stat().st_size for p in self.result_dir(result_key).rglob("*") if p.is_file())
+        return int(known)
 
     def check_writable(self) -> None:
         probe = self.root / "tmp" / f".probe-{uuid.uuid4().hex}"

@@ -15,11 +15,11 @@ from models.errors import MagnetError
 from service.auth import load_keys
 from service.context import Context
 from service.error_envelope import ErrorsInBody
-from service.jobs import NotFinished, NotFound, QueueFull
+from service.jobs import InUse, NotFinished, NotFound, QueueFull, QuotaExceeded
 from service.limits import BodySizeLimit
 from service.mesh_check import UploadRejected
 from service.openapi import install as install_openapi
-from service.routers import events, health, jobs, meshes, models, web
+from service.routers import events, health, jobs, meshes, metrics, models, web
 
 DESCRIPTION = """Mesh agglomeration as a service: upload a mesh, queue an agglomeration job (METIS,
 k-means, graph neural networks), poll it, download the agglomerated mesh, its quality metrics,
@@ -43,7 +43,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         form_max_bytes=settings.max_upload_bytes * 4 // 3 + (1 << 20),
     )
     app.add_middleware(ErrorsInBody)
-    for router in (health.router, meshes.router, jobs.router, events.router, models.router):
+    for router in (health.router, metrics.router, meshes.router, jobs.router, events.router, models.router):
         app.include_router(router)
     web.mount_page(app)
     _error_handlers(app)
@@ -94,6 +94,14 @@ def _error_handlers(app: FastAPI) -> None:
     @app.exception_handler(NotFinished)
     async def not_finished(_: Request, exc: NotFinished):
         return _error(409, str(exc))
+
+    @app.exception_handler(InUse)
+    async def in_use(_: Request, exc: InUse):
+        return _error(409, str(exc))
+
+    @app.exception_handler(QuotaExceeded)
+    async def quota(_: Request, exc: QuotaExceeded):
+        return _error(exc.status, str(exc))
 
     @app.exception_handler(QueueFull)
     async def queue_full(_: Request, exc: QueueFull):

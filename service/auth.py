@@ -1,22 +1,30 @@
-"""Bearer API keys: each key is a user. With no key configured every caller is the user 'anonymous'
-(allowed only on a loopback address; `magnet serve` refuses other binds without keys)."""
+"""Bearer API keys: each key is a user. Keys come from the job store (`magnet keys add|list|revoke`,
+seen by the running API at once) and from MAGNET_API_KEYS / MAGNET_API_KEYS_FILE; only SHA-256
+hashes are kept in memory and on disk (a keys file may hold `user:sha256:<hex>` entries). With no
+key configured every caller is the user 'anonymous' (allowed only on a loopback address;
+`magnet serve` refuses other binds without keys)."""
 
 from __future__ import annotations
 
-import hmac
+import re
 from pathlib import Path
 
 from fastapi import HTTPException, Request, Security
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from jobqueue.settings import Settings
+from service.keys import any_stored, digest
+from service.keys import user_of as stored_user
 
 ANONYMOUS = "anonymous"
 LOOPBACK_HOSTS = {"127.0.0.1", "::1", "localhost"}
 
 
+HASHED = re.compile(r"sha256:([0-9a-fA-F]{64})")
+
+
 def parse_keys(text: str, separator: str = ",") -> dict[str, str]:
-    """'alice:tok1,bob:tok2' (or one entry per line) -> {token: user}."""
+    """'alice:tok1,bob:sha256:<hex>' (or one entry per line) -> {sha256 of the token: user}."""
     keys: dict[str, str] = {}
     for entry in text.replace("\n", separator).split(separator):
         entry = entry.strip()
@@ -25,12 +33,13 @@ def parse_keys(text: str, separator: str = ",") -> dict[str, str]:
         user, sep, token = entry.partition(":")
         if not sep or not user.strip() or not token.strip():
             raise ValueError(f"API key entry must be 'user:token', got {entry[:20]!r}...")
-        keys[token.strip()] = user.strip()
+        hashed = HASHED.fullmatch(token.strip())
+        keys[hashed.group(1).lower() if hashed else digest(token.strip())] = user.strip()
     return keys
 
 
 def load_keys(settings: Settings) -> dict[str, str]:
-    """All configured API keys {token: user} from MAGNET_API_KEYS and MAGNET_API_KEYS_FILE."""
+    """API keys {sha256: user} from MAGNET_API_KEYS and MAGNET_API_KEYS_FILE."""
     keys: dict[str, str] = {}
     if settings.api_keys:
         keys.update(parse_keys(settings.api_keys))
@@ -40,12 +49,8 @@ def load_keys(settings: Settings) -> dict[str, str]:
 
 
 def user_for_token(keys: dict[str, str], token: str | None) -> str | None:
-    """The user owning `token`, compared in constant time; None when unknown."""
-    found = None
-    for known, user in keys.items():
-        if token is not None and hmac.compare_digest(known.encode(), token.encode()):
-            found = user
-    return found
+    """The user owning `token` (looked up by its hash: no secret is compared); None when unknown."""
+    return keys.get(digest(token)) if token else None
 
 
 def bearer_token(request: Request) -> str | None:
@@ -59,9 +64,11 @@ def bearer_token(request: Request) -> str | None:
 def authenticate(request: Request, token: str | None = None) -> str:
     """The caller's user name; 401 when keys are configured and the token is missing or wrong."""
     keys: dict[str, str] = request.app.state.api_keys
-    if not keys:
+    db = request.app.state.ctx.db
+    presented = bearer_token(request) or token
+    user = user_for_token(keys, presented) or (stored_user(db, presented) if presented else None)
+    if user is None and not keys and not any_stored(db):
         return ANONYMOUS
-    user = user_for_token(keys, bearer_token(request) or token)
     if user is None:
         raise HTTPException(
             401,

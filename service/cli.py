@@ -49,16 +49,83 @@ def register_serve(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument("--log-level", default="info")
     p.set_defaults(func=run_serve)
+    if "keys" not in subparsers.choices:  # `magnet keys` rides on the serve entry point
+        register_keys(subparsers)
     return p
 
 
 def check_bind(host: str, settings: Settings) -> None:
     """Refuse to serve on a non-loopback address without API keys."""
-    if host not in LOOPBACK_HOSTS and not load_keys(settings):
+    if host not in LOOPBACK_HOSTS and not load_keys(settings) and not _stored_keys(settings):
         raise SystemExit(
             f"magnet serve: refusing to listen on {host} without API keys; set MAGNET_API_KEYS "
             "('user:token,...') or MAGNET_API_KEYS_FILE, or bind to 127.0.0.1"
         )
+
+
+def _stored_keys(settings: Settings) -> bool:
+    from jobqueue.db import Database
+    from service.keys import any_stored
+
+    db = Database(settings.resolved_database_url)
+    db.create_schema()
+    return any_stored(db)
+
+
+def register_keys(subparsers) -> argparse.ArgumentParser:
+    """Add `magnet keys add|list|revoke` (API keys in the job store, hashed; no API restart needed)."""
+    p = subparsers.add_parser(
+        "keys",
+        help="manage API keys (add USER | list | revoke ID_OR_USER)",
+        description="API keys live in the job store (MAGNET_DATABASE_URL, default SQLite in MAGNET_DATA_DIR) "
+        "as SHA-256 hashes: a running API sees a change at its next request. `add` prints the new key "
+        "once; it cannot be shown again.",
+    )
+    p.add_argument("action", choices=("add", "list", "revoke"))
+    p.add_argument("who", nargs="?", help="add: the user name; revoke: a key id or a user (all their keys)")
+    p.add_argument("--note", default="", help="add: a note shown by `list` (e.g. where the key is used)")
+    p.add_argument("--data-dir", default=None, help="overrides MAGNET_DATA_DIR")
+    p.add_argument("--database-url", default=None, help="overrides MAGNET_DATABASE_URL")
+    p.set_defaults(func=run_keys)
+    return p
+
+
+def run_keys(args: argparse.Namespace) -> int:
+    from jobqueue.db import Database
+    from service import keys
+
+    for attr, var in (("data_dir", "MAGNET_DATA_DIR"), ("database_url", "MAGNET_DATABASE_URL")):
+        if getattr(args, attr, None):
+            os.environ[var] = str(getattr(args, attr))
+    settings = Settings()
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    db = Database(settings.resolved_database_url)
+    db.create_schema()
+    if args.action in ("add", "revoke") and not args.who:
+        print(
+            f"magnet keys {args.action}: say which {'user' if args.action == 'add' else 'key id or user'}",
+            file=sys.stderr,
+        )
+        return 2
+    if args.action == "add":
+        try:
+            key_id, token = keys.add_key(db, args.who, args.note)
+        except ValueError as exc:
+            print(f"magnet keys add: {exc}", file=sys.stderr)
+            return 2
+        print(f"key {key_id} for {args.who}: {token}")
+        print("(shown once: only its hash is stored)", file=sys.stderr)
+    elif args.action == "list":
+        for k in keys.list_keys(db):
+            state = f"revoked {k.revoked_at:%Y-%m-%d %H:%M}" if k.revoked_at else "active"
+            print(f"{k.id}  {k.user:<20} {k.created_at:%Y-%m-%d %H:%M}  {state}  {k.note}".rstrip())
+    else:
+        n = keys.revoke(db, args.who)
+        if not n:
+            print(f"magnet keys revoke: no active key with id or user {args.who!r}", file=sys.stderr)
+            return 2
+        print(f"revoked {n} key(s)")
+    return 0
 
 
 class EmbeddedWorker:

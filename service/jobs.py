@@ -54,6 +54,85 @@ class NotFinished(Exception):
     """The job has no results (yet)."""
 
 
+class InUse(Exception):
+    """The resource is used by a queued or running job (409)."""
+
+
+class QuotaExceeded(Exception):
+    """The user's storage quota is used up; `status` 413 (an upload) or 429 (a submission)."""
+
+    def __init__(self, status: int, message: str):
+        super().__init__(message)
+        self.status = status
+
+
+def storage_used(db: Database, storage: Storage, user: str) -> int:
+    """Bytes charged to `user`: the meshes they own and the results of their succeeded jobs."""
+    with db.session() as s:
+        meshes = s.scalar(
+            select(func.coalesce(func.sum(MeshRecord.size), 0))
+            .select_from(MeshOwner)
+            .join(MeshRecord, MeshRecord.id == MeshOwner.mesh_id)
+            .where(MeshOwner.user == user)
+        )
+        keys = s.scalars(
+            select(JobRecord.result_key)
+            .where(JobRecord.user == user, JobRecord.status == SUCCEEDED)
+            .distinct()
+        ).all()
+    return int(meshes or 0) + sum(storage.result_bytes(k) for k in keys)
+
+
+def check_quota(
+    db: Database, storage: Storage, settings: Settings, user: str, adding: int, status: int
+) -> None:
+    """QuotaExceeded when `adding` more bytes would take `user` over MAGNET_MAX_STORAGE_BYTES_PER_USER."""
+    quota = settings.max_storage_bytes_per_user
+    if not quota:
+        return
+    used = storage_used(db, storage, user)
+    if used + adding > quota or (adding == 0 and used >= quota):
+        mb = 1024 * 1024
+        raise QuotaExceeded(
+            status,
+            f"storage quota exceeded: you hold {used / mb:.1f} MB of your {quota / mb:.1f} MB"
+            + (f" and this upload needs {adding / mb:.1f} MB" if adding else "")
+            + "; delete meshes (DELETE /v1/meshes/{id}) or jobs (DELETE /v1/jobs/{id}?purge=true) to free space",
+        )
+
+
+def delete_mesh(db: Database, storage: Storage, user: str, mesh_id: str) -> None:
+    """Forget `user`'s upload of a mesh; InUse (409) while one of their jobs on it is queued or running.
+    The file goes once nobody owns the mesh and no job uses it (else the cleanup removes it later)."""
+    with db.session() as s:
+        _, owner = visible_mesh(s, user, mesh_id)
+        active = s.scalar(
+            select(func.count())
+            .select_from(JobRecord)
+            .where(JobRecord.mesh_id == mesh_id, JobRecord.user == user, JobRecord.status.in_(ACTIVE))
+        )
+        if active:
+            raise InUse(
+                f"mesh {mesh_id[:12]}... is used by {active} queued or running job(s) of yours: "
+                "cancel them (DELETE /v1/jobs/{id}) or wait for them to finish"
+            )
+        s.delete(owner)
+        s.commit()
+        others = s.scalar(select(func.count()).select_from(MeshOwner).where(MeshOwner.mesh_id == mesh_id))
+        busy = s.scalar(
+            select(func.count())
+            .select_from(JobRecord)
+            .where(JobRecord.mesh_id == mesh_id, JobRecord.status.in_(ACTIVE))
+        )
+        if others or busy:
+            return
+        mesh = s.get(MeshRecord, mesh_id)
+        if mesh is not None:
+            s.delete(mesh)
+            s.commit()
+            storage.mesh_path(mesh_id, mesh.ext).unlink(missing_ok=True)
+
+
 def result_key(mesh_id: str, params: dict, model_version: str) -> str:
     blob = json.dumps({"mesh": mesh_id, "params": params, "version": model_version}, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()
@@ -149,6 +228,7 @@ def submit_job(
             .select_from(JobRecord)
             .where(JobRecord.user == user, JobRecord.status.in_(ACTIVE))
         )
+        check_quota(db, storage, settings, user, 0, 429)
         if active >= settings.max_queued_jobs_per_user:
             raise QueueFull(
                 f"you have {active} queued or running jobs; the limit is "

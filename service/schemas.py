@@ -51,7 +51,8 @@ class MeshOut(BaseModel):
         default_factory=list, description="tags of the boundary groups (tagged edges in 2D, faces in 3D)"
     )
     boundary: dict | None = Field(
-        None, description="boundary groups: tag, name, facets on the boundary / inside; untagged boundary facets"
+        None,
+        description="boundary groups: tag, name, facets on the boundary / inside; untagged boundary facets",
     )
     bbox: list[list[float]]
     check: dict | None = Field(
@@ -78,10 +79,15 @@ class JobOptions(BaseModel):
     )
     method: str | None = Field(None, max_length=40, description="METIS kway | recursive")
     boundary_tag: int | None = Field(
-        None, ge=0, le=2**31 - 1, description="lymph bc_tag of boundary edges without a boundary group (default 1)"
+        None,
+        ge=0,
+        le=2**31 - 1,
+        description="lymph bc_tag of boundary edges without a boundary group (default 1)",
     )
     size_measure: str | None = Field(
-        None, max_length=40, description="part size for target-size / mult-factor: centroids (default) | vertices"
+        None,
+        max_length=40,
+        description="part size for target-size / mult-factor: centroids (default) | vertices",
     )
     threshold: int | None = Field(None, ge=2, le=10**6, description="coarsest graph size, mode multilevel (200)")
     hierarchy: bool | None = Field(None, description="also keep every nested level (GET /v1/jobs/{id}/hierarchy)")

@@ -13,6 +13,7 @@ from starlette.concurrency import run_in_threadpool
 
 from jobqueue.db import MeshOwner, MeshRecord, utcnow
 from service.context import Context
+from service.jobs import check_quota
 from service.mesh_check import UploadRejected, extension_of, inspect_upload
 from service.schemas import MeshOut
 
@@ -49,6 +50,10 @@ async def receive_mesh(
 def _file_mesh(
     ctx: Context, user: str, tmp, mesh_id: str, ext: str, size: int, filename: str | None
 ) -> MeshOut:
+    with ctx.db.session() as s:
+        owned = s.get(MeshOwner, (mesh_id, user)) is not None
+    if not owned:
+        check_quota(ctx.db, ctx.storage, ctx.settings, user, size, 413)
     with ctx.db.session() as s:
         mesh = s.get(MeshRecord, mesh_id)
     if mesh is None:

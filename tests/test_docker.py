@@ -26,7 +26,11 @@ def magnet_parser() -> argparse.ArgumentParser:
     """The `magnet` sub-commands the server side registers through the magnet.commands entry points."""
     pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text())
     commands = pyproject["project"]["entry-points"]["magnet.commands"]
-    assert commands == {"serve": "service.cli:register_serve", "worker": "worker.cli:register_worker"}
+    assert commands == {
+        "serve": "service.cli:register_serve",
+        "keys": "service.cli:register_keys",
+        "worker": "worker.cli:register_worker",
+    }
     assert pyproject["project"]["scripts"]["magnet"] == "models.cli:main"
     parser = argparse.ArgumentParser(prog="magnet", exit_on_error=False)
     sub = parser.add_subparsers(dest="command", required=True)

@@ -36,6 +36,12 @@ def register_worker(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--data-dir", default=None, help="overrides MAGNET_DATA_DIR")
     p.add_argument("--broker-url", default=None, help="overrides MAGNET_BROKER_URL")
     p.add_argument("--database-url", default=None, help="overrides MAGNET_DATABASE_URL")
+    p.add_argument(
+        "--preload-models",
+        action="store_true",
+        help="load the neural networks when the worker starts, not at its first neural job "
+        "(MAGNET_PRELOAD_MODELS=true); they stay loaded between jobs either way",
+    )
     p.add_argument("--loglevel", "-l", default="INFO")
     p.set_defaults(func=run_worker)
     return p
@@ -51,6 +57,8 @@ def apply_overrides(args: argparse.Namespace) -> None:
         value = getattr(args, attr, None)
         if value:
             os.environ[var] = str(value)
+    if getattr(args, "preload_models", False):
+        os.environ["MAGNET_PRELOAD_MODELS"] = "true"
 
 
 def run_worker(args: argparse.Namespace) -> int:

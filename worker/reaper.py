@@ -8,7 +8,9 @@ Every worker's main process runs a Reaper thread that, each few seconds:
   lost); duplicates are harmless, the task is idempotent;
 - re-sends every queued job at once when the broker restarted (Redis: its run_id changed), since a
   Redis without persistence comes back empty;
-- settles followers whose leader finished.
+- settles followers whose leader finished;
+- every MAGNET_CLEANUP_INTERVAL_S, cleans up storage (jobqueue.cleanup: retention policy,
+  unreferenced results and meshes, abandoned temp folders).
 Several workers may reap at once: every change is a conditional UPDATE, only one wins.
 """
 
@@ -17,15 +19,18 @@ from __future__ import annotations
 import logging
 import os
 import threading
+import time
 from datetime import timedelta
 
 from celery import signals
 from sqlalchemy import delete, select, update
 
 from jobqueue import db as jobdb
+from jobqueue.cleanup import clean_up
 from jobqueue.db import ACTIVE, FAILED, FINAL, QUEUED, RUNNING, JobRecord, WorkerRecord, utcnow
 from jobqueue.dispatch import BrokerUnavailable, enqueue, settle_follower
 from jobqueue.settings import Settings
+from jobqueue.storage import Storage
 
 log = logging.getLogger("magnet.reaper")
 
@@ -151,7 +156,7 @@ class Reaper(threading.Thread):
 
     def run(self) -> None:
         db = jobdb.for_process(self.settings.resolved_database_url)
-        epoch = None
+        epoch, last_cleanup = None, None
         while True:
             try:
                 heartbeat_worker(db, self.worker_name, self.queues)
@@ -163,6 +168,14 @@ class Reaper(threading.Thread):
                     )
                 epoch = now_epoch or epoch
                 counts = reap_once(db, self.celery, self.settings, resend_all=restarted)
+                if (
+                    last_cleanup is None
+                    or time.monotonic() - last_cleanup >= self.settings.cleanup_interval_s
+                ):
+                    last_cleanup = time.monotonic()
+                    removed = clean_up(db, Storage(self.settings.data_dir), self.settings)
+                    if any(removed.values()):
+                        log.info("cleanup: removed %s", removed)
                 if any(counts.values()):
                     log.info("reaper: %s", counts)
             except Exception as exc:  # never let the reaper die: the database may be briefly away
@@ -184,6 +197,18 @@ _reaper: Reaper | None = None
 def _prepare(sender=None, **_):
     settings = getattr(sender.app, "magnet_settings", None) or Settings()
     settings.data_dir.mkdir(parents=True, exist_ok=True)
+
+
+@signals.worker_process_init.connect
+def _warm_up(**_):
+    """MAGNET_PRELOAD_MODELS: each pool process loads the networks once, before its first job (they
+    stay loaded for the process's life: jobs never reload them)."""
+    if Settings().preload_models:
+        from models.partitioners.sage import warm_up
+
+        t0 = time.perf_counter()
+        loaded = warm_up()
+        log.info("preloaded %s in %.2f s", ", ".join(loaded), time.perf_counter() - t0)
 
 
 @signals.worker_ready.connect

@@ -62,6 +62,20 @@ def _load_numpy(path: Path) -> dict:
         return _CACHE[key]
 
 
+def warm_up(device: str | None = None) -> list[str]:
+    """Load every shipped network into this process's cache (numpy weights on the CPU, torch modules
+    on a GPU), so a worker's first neural job pays no import or weight load; returns what it loaded."""
+    device = device or SageBasePartitioner()._device()
+    loaded = []
+    for path in sorted(WEIGHTS_DIR.glob("sage-*.pt")):
+        if device == "cpu":
+            _load_numpy(path)
+        else:
+            _load(path, device)
+        loaded.append(path.stem)
+    return loaded
+
+
 def batch_features(batch: GraphBatch, hetero: bool) -> np.ndarray:
     """Raw node features: centroid, cell measure and, for the heterogeneous model, the group p
     (0 for the smallest tag of the node's graph, 1 for the other one)."""

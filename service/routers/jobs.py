@@ -36,7 +36,9 @@ def job_out(job: JobRecord) -> JobOut:
     result = None
     if job.result:
         result = JobResult(
-            **{k: job.result.get(k) for k in ("elements", "parts_split", "fragments_absorbed", "holes_split")},
+            **{
+                k: job.result.get(k) for k in ("elements", "parts_split", "fragments_absorbed", "holes_split")
+            },
             timings=job.result.get("timings") or {},
         )
     return JobOut(

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, Path, Query, Request
+from fastapi import APIRouter, Depends, Path, Query, Request, Response
 
 from service.auth import current_user
 from service.context import Context, get_context
-from service.jobs import visible_mesh
+from service.jobs import delete_mesh, visible_mesh
 from service.mesh_check import ALLOWED_EXTENSIONS, UploadRejected
 from service.openapi import errors
 from service.schemas import MeshOut
@@ -75,3 +75,13 @@ def get_mesh(
     with ctx.db.session() as s:
         mesh, owner = visible_mesh(s, user, mesh_id)
     return mesh_out(mesh, owner)
+
+
+@router.delete("/meshes/{mesh_id}", status_code=204, responses=errors(401, 404, 409))
+def remove_mesh(
+    mesh_id: str = MESH_ID, user: str = Depends(current_user), ctx: Context = Depends(get_context)
+):
+    """Delete your upload of a mesh (409 while one of your jobs on it is queued or running); your
+    finished jobs and their results stay. The file goes once no other user holds the same bytes."""
+    delete_mesh(ctx.db, ctx.storage, user, mesh_id)
+    return Response(status_code=204)
