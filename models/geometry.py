@@ -64,6 +64,11 @@ def cell_faces(mesh: Mesh) -> Faces:
         nodes = np.column_stack([mesh.connectivity, mesh.connectivity[nxt]]).reshape(-1)
         cell = cell_index(mesh.offsets)
         return Faces(cell=cell, offsets=np.arange(0, nodes.size + 1, 2, dtype=np.int64), nodes=nodes)
+    if _all_tetrahedra(mesh):  # one reshape, faces already grouped by cell
+        n = mesh.n_cells
+        nodes = mesh.connectivity.reshape(-1, 4)[:, np.array(FACE_TEMPLATES[VTK_TETRA])].reshape(-1)
+        return Faces(cell=np.repeat(np.arange(n), 4), offsets=np.arange(0, 12 * n + 1, 3, dtype=np.int64),
+                     nodes=nodes.astype(np.int64, copy=False))
     parts_cell, parts_size, parts_nodes = [], [], []
     for t, faces in FACE_TEMPLATES.items():
         sel = np.flatnonzero(mesh.cell_types == t)
@@ -189,16 +194,48 @@ def _polygon_measures(points: np.ndarray, offsets: np.ndarray, conn: np.ndarray)
     return area, cen
 
 
+def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of (n, 3) arrays (column by column: several times numpy.cross's speed)."""
+    u0, u1, u2 = u[:, 0], u[:, 1], u[:, 2]
+    v0, v1, v2 = v[:, 0], v[:, 1], v[:, 2]
+    out = np.empty(u.shape, dtype=np.result_type(u, v))
+    np.subtract(u1 * v2, u2 * v1, out=out[:, 0])
+    np.subtract(u2 * v0, u0 * v2, out=out[:, 1])
+    np.subtract(u0 * v1, u1 * v0, out=out[:, 2])
+    return out
+
+
+def _all_tetrahedra(mesh: Mesh) -> bool:
+    n = mesh.n_cells
+    return (mesh.dim == 3 and n > 0 and mesh.connectivity.size == 4 * n and mesh.poly_cells is None
+            and bool(np.all(mesh.cell_types == VTK_TETRA)))
+
+
+def _tetra_measures(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
+    """Signed volume and centroid of every cell of an all-tetrahedra mesh, in closed form: the same
+    values as the face-based formula (a tetrahedron with outward faces (0,2,1), (0,1,3), (1,2,3),
+    (0,3,2) has volume det(p1 - p0, p2 - p0, p3 - p0) / 6 and its vertex mean as centroid)."""
+    t = mesh.connectivity.reshape(-1, 4)
+    p0 = mesh.points[t[:, 0]]
+    a = mesh.points[t[:, 1]] - p0
+    b = mesh.points[t[:, 2]] - p0
+    c = mesh.points[t[:, 3]] - p0
+    vol = np.einsum("ij,ij->i", a, _cross(b, c)) / 6.0
+    return vol, p0 + (a + b + c) / 4.0
+
+
 def _measures_and_centroids(mesh: Mesh, faces: Faces | None = None) -> tuple[np.ndarray, np.ndarray]:
     n = mesh.n_cells
     if mesh.dim == 2:
         return _polygon_measures(mesh.points, mesh.offsets, mesh.connectivity)
+    if _all_tetrahedra(mesh):
+        return _tetra_measures(mesh)
     faces = faces or cell_faces(mesh)
     owner, a, b, c = face_triangles(mesh.points, faces.offsets, faces.nodes)
     cell = faces.cell[owner]
     o = vertex_means(mesh)
     a, b, c = a - o[cell], b - o[cell], c - o[cell]
-    v = np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0
+    v = np.einsum("ij,ij->i", a, _cross(b, c)) / 6.0
     vol = np.bincount(cell, weights=v, minlength=n)
     g = (a + b + c) / 4.0
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -253,9 +290,14 @@ def face_measures(points: np.ndarray, faces: Faces, which: np.ndarray | None = N
         d = points[e[:, 1]] - points[e[:, 0]]
         return np.hypot(d[:, 0], d[:, 1])
     offsets, nodes = (faces.offsets, faces.nodes) if which is None else reorder_csr(faces.offsets, faces.nodes, which)
-    owner, tri = fan_triangles(offsets, nodes)
     p = points
-    cr = np.cross(p[tri[:, 1]] - p[tri[:, 0]], p[tri[:, 2]] - p[tri[:, 0]])
+    if nodes.size == 3 * (offsets.size - 1):  # all triangles: no fan, no sum per face
+        tri = nodes.reshape(-1, 3)
+        p0 = p[tri[:, 0]]
+        cr = _cross(p[tri[:, 1]] - p0, p[tri[:, 2]] - p0)
+        return 0.5 * np.sqrt(np.einsum("ij,ij->i", cr, cr))
+    owner, tri = fan_triangles(offsets, nodes)
+    cr = _cross(p[tri[:, 1]] - p[tri[:, 0]], p[tri[:, 2]] - p[tri[:, 0]])
     return 0.5 * np.bincount(owner, weights=np.sqrt(np.einsum("ij,ij->i", cr, cr)), minlength=offsets.size - 1)
 
 

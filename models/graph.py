@@ -61,17 +61,32 @@ def face_keys(faces: Faces, n_points: int) -> np.ndarray:
         a, b = e[:, 0], e[:, 1]
         # elementwise, not e.min(axis=1): a reduction over rows of length 2 is ~10x slower
         return np.minimum(a, b) * np.int64(n_points) + np.maximum(a, b)
-    width = int(sizes.max())
-    pad = np.full((faces.n, width), np.iinfo(np.int64).max, dtype=np.int64)
-    col = np.arange(faces.nodes.size) - np.repeat(faces.offsets[:-1], sizes)
-    pad[np.repeat(np.arange(faces.n), sizes), col] = faces.nodes
-    if width > 3:
-        pad.partition(2, axis=1)  # three smallest first
-        three = np.sort(pad[:, :3], axis=1)
-    else:
-        three = np.sort(pad, axis=1)
-    s = np.minimum(sizes, 7).astype(np.int64)
     bits = max(int(n_points - 1).bit_length(), 1)
+    if faces.nodes.size == 3 * faces.n:  # all triangles: sorted by elementwise min / max
+        t = faces.nodes.reshape(-1, 3)
+        a, b, c = t[:, 0], t[:, 1], t[:, 2]
+        lo, hi = np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b), c)
+        mid = a + b + c - lo - hi
+        if 3 * bits + 3 <= 63:  # the same key as below, without the (F, 3) table
+            lo <<= bits
+            lo |= mid
+            lo <<= bits
+            lo |= hi
+            lo <<= 3
+            lo |= 3
+            return lo
+        three = np.column_stack([lo, mid, hi])
+    else:
+        width = int(sizes.max())
+        pad = np.full((faces.n, width), np.iinfo(np.int64).max, dtype=np.int64)
+        col = np.arange(faces.nodes.size) - np.repeat(faces.offsets[:-1], sizes)
+        pad[np.repeat(np.arange(faces.n), sizes), col] = faces.nodes
+        if width > 3:
+            pad.partition(2, axis=1)  # three smallest first
+            three = np.sort(pad[:, :3], axis=1)
+        else:
+            three = np.sort(pad, axis=1)
+    s = np.minimum(sizes, 7).astype(np.int64)
     if 3 * bits + 3 <= 63:
         return (((three[:, 0] << bits) | three[:, 1]) << bits | three[:, 2]) << 3 | s
     return np.column_stack([three, s])

@@ -36,6 +36,10 @@ def _face_direction(faces: Faces) -> np.ndarray:
     if np.all(sizes == 2):
         e = faces.nodes.reshape(-1, 2)
         return e[:, 0] < e[:, 1]
+    if faces.nodes.size == 3 * faces.n:  # all triangles: the same bit from three comparisons
+        t = faces.nodes.reshape(-1, 3)
+        a, b, c = t[:, 0], t[:, 1], t[:, 2]
+        return ~((a < b) ^ (b < c) ^ (c < a))
     width = int(sizes.max())
     big = np.iinfo(np.int64).max
     pad = np.full((faces.n, width), big, dtype=np.int64)

@@ -1,0 +1,88 @@
+"""Reading at scale: our read and graph stages against the floor, in the same run.
+
+The floor: meshio.read of the same file, plus pairing the tetrahedra's faces with one numpy argsort
+(sort every face's nodes, one int64 key per face, argsort, equal neighbours are the shared faces).
+Ours does more (orientation by topology, checks, measures, centroids, face areas), all kept.
+
+  python bench/bench_read.py            # 998,250 tetrahedra (55^3 cubes x 6)
+  python bench/bench_read.py --n 30     # 162,000 tetrahedra
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.dirname(HERE))
+sys.path.insert(0, HERE)
+
+
+def floor(path: str) -> tuple[float, float]:
+    import meshio
+
+    t = time.perf_counter()
+    m = meshio.read(path)
+    t_read = time.perf_counter() - t
+    t = time.perf_counter()
+    tets = m.cells_dict["tetra"].astype(np.int64)
+    f = np.sort(tets[:, [[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]]].reshape(-1, 3), axis=1)
+    bits = int(len(m.points)).bit_length()
+    key = (f[:, 0] << (2 * bits)) | (f[:, 1] << bits) | f[:, 2]
+    order = np.argsort(key)
+    sk = key[order]
+    same = np.flatnonzero(sk[1:] == sk[:-1])
+    _pairs = np.stack([order[same] // 4, order[same + 1] // 4])
+    return t_read, time.perf_counter() - t
+
+
+def ours(path: str) -> tuple[float, float]:
+    from models.io import read_mesh
+    from models.pipeline import prepare
+
+    t = time.perf_counter()
+    mesh = read_mesh(path)
+    t_read = time.perf_counter() - t
+    t = time.perf_counter()
+    prepare(mesh)
+    return t_read, time.perf_counter() - t
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n", type=int, default=55, help="cubes per side (6 n^3 tetrahedra)")
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--format", default="vtu", choices=["vtu", "msh"])
+    args = ap.parse_args()
+    import structured
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, f"cube.{args.format}")
+        p, t = structured.cube(args.n)
+        structured.write(path, p, t)
+        rf, rg, of, og = [], [], [], []
+        for _ in range(args.repeat):  # alternate, so that drifting load hits both alike
+            a, b = floor(path)
+            rf.append(a)
+            rg.append(b)
+            a, b = ours(path)
+            of.append(a)
+            og.append(b)
+    med = statistics.median
+    fl, us = med(rf) + med(rg), med(of) + med(og)
+    print(f"# read + graph, {len(t):,} tetrahedra ({args.format}), medians of {args.repeat}")
+    print("| | read s | graph / pairing s | total s |")
+    print("|---|---|---|---|")
+    print(f"| floor: meshio.read + one argsort pairing | {med(rf):.2f} | {med(rg):.2f} | {fl:.2f} |")
+    print(f"| ours: read_mesh + prepare | {med(of):.2f} | {med(og):.2f} | {us:.2f} |")
+    print(f"| ratio ours / floor | | | {us / fl:.2f} |")
+
+
+if __name__ == "__main__":
+    main()
