@@ -446,6 +446,11 @@ def agglomerate(
             raise ParameterError(f"model {part.name!r} has no direct k-way mode; use nref, target-size or mult-factor")
         requested = int(k)
         batch = make_batch(data, labels, nodes)
+        if getattr(part, "wants_cell_boxes", False):
+            from .partitioners.rtree import cell_boxes
+
+            lo_hi = cell_boxes(data.points, data.offsets, data.connectivity)
+            batch.cell_boxes = (lo_hi[0][batch.node_ids], lo_hi[1][batch.node_ids])
         raw = np.asarray(part.kway(batch, int(k)), dtype=np.int64)
         labels = np.empty(nodes.size, dtype=np.int64)
         pos = np.empty(n, dtype=np.int64)

@@ -49,6 +49,12 @@ MODEL_CARDS = [
         "description": "k-means (scikit-learn) on cell centroids, seeded and deterministic; parts split into connected components.",
     },
     {
+        "name": "rtree",
+        "dimension": [2, 3],
+        "modes": list(MODES),
+        "description": "R-tree-like nested geometric agglomeration: box cuts along the longest extent at measure-weighted quantiles, exact counts, every part connected; deterministic and fast (magnet hierarchy builds nested levels with it).",
+    },
+    {
         "name": "sage-base",
         "dimension": [2, 3],
         "modes": [m for m in MODES if m != "kway"],

@@ -18,7 +18,7 @@ EXIT_USER_ERROR = 2
 
 
 def _add_job_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--model", default="metis", help="metis | kmeans | sage-base | sage-hetero | rl-partitioner (default metis)")
+    p.add_argument("--model", default="metis", help="metis | kmeans | rtree | sage-base | sage-hetero | rl-partitioner (default metis)")
     p.add_argument("--mode", default="kway", help="kway | nref | target-size | mult-factor | segregated | coarsen | multilevel")
     p.add_argument("--refiner", choices=["fm", "rl-refiner"], help="refine every bisection (every level in multilevel mode); k-way mode: fm")
     p.add_argument("--threshold", type=int, default=200, help="multilevel: coarsen every subgraph to at most this many nodes")

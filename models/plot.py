@@ -40,6 +40,8 @@ METRIC_SHORT = {
     "uniformity_factor": "UF",
     "volume_difference": "VD",
     "heterogeneity_preservation": "HP",
+    "box_ratio": "BR",
+    "box_circle_ratio": "CRbox",
 }
 
 

@@ -97,7 +97,7 @@ class JobParams(BaseModel):
     """Agglomeration parameters, as for `magnet agglomerate`; the library validates their meaning."""
 
     model_config = ConfigDict(extra="forbid")
-    model: str | None = Field(None, max_length=40, description="metis | kmeans | sage-base | sage-hetero | rl-partitioner")
+    model: str | None = Field(None, max_length=40, description="metis | kmeans | rtree | sage-base | sage-hetero | rl-partitioner")
     mode: str | None = Field(
         None, max_length=40, description="kway | nref | target-size | mult-factor | segregated | coarsen | multilevel"
     )

@@ -14,7 +14,7 @@ from models.graph import dual_graph
 from models.io import mesh_from_arrays, read_mesh
 from models.pipeline import prepare, run
 
-PARTITIONERS = ["metis", "kmeans"]
+PARTITIONERS = ["metis", "kmeans", "rtree"]
 
 
 def all_connected(graph, labels):

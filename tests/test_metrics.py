@@ -617,9 +617,14 @@ def test_metrics_report_2d_json():
     rep = metrics_report(pm, indptr, indices)
     json.dumps(rep, allow_nan=False)
     assert rep["elements"] == 2 and rep["dim"] == 2
-    keys = ["circle_ratio", "area_perimeter_ratio", "uniformity_factor", "volume_difference"]
+    keys = ["circle_ratio", "area_perimeter_ratio", "uniformity_factor", "volume_difference", "box_ratio",
+            "box_circle_ratio"]
     assert list(rep["per_element"]) == keys and list(rep["summary"]) == keys
     assert rep["per_element"]["circle_ratio"][0] == pytest.approx(1 / SQ2)
+    # boxes (R3MG's measures): the square fills its box, the L three quarters of its 2 x 2 box
+    assert rep["per_element"]["box_ratio"] == pytest.approx([1.0, 0.75])
+    assert rep["coverage"] == pytest.approx((1 + 4) / (1 + 3))
+    assert rep["per_element"]["box_circle_ratio"][0] == pytest.approx(0.5 / (SQ2 / 2))
     assert rep["per_element"]["uniformity_factor"] == pytest.approx([0.5, 1.0])
     assert rep["partition"] == {"cut": 1, "normalized_cut": pytest.approx(1 / 3 + 1 / 5),
                                 "volume_imbalance": pytest.approx(1.2), "parts": 2, "connected": True}
@@ -637,7 +642,10 @@ def test_metrics_report_3d_keys():
     rep = metrics_report(pm, indptr, indices)
     json.dumps(rep, allow_nan=False)
     assert rep["dim"] == 3
-    assert list(rep["per_element"]) == ["circle_ratio", "sphericity", "uniformity_factor", "volume_difference"]
+    assert list(rep["per_element"]) == ["circle_ratio", "sphericity", "uniformity_factor", "volume_difference",
+                                        "box_ratio", "box_circle_ratio"]
+    assert rep["per_element"]["box_ratio"] == pytest.approx([1.0, 1 / 3])  # regular tetra in its cube
+    assert rep["coverage"] == pytest.approx(9 / (1 + 8 / 3))
     assert rep["per_element"]["circle_ratio"] == pytest.approx([1 / math.sqrt(3), 1 / 3])
     assert rep["summary"]["sphericity"]["max"] == pytest.approx((math.pi / 6) ** (1 / 3))
 

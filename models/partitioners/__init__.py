@@ -11,6 +11,7 @@ from .base import GraphBatch, Partitioner
 REGISTRY: dict[str, str] = {
     "metis": "models.partitioners.metis:MetisPartitioner",
     "kmeans": "models.partitioners.kmeans:KMeansPartitioner",
+    "rtree": "models.partitioners.rtree:RTreePartitioner",
     "sage-base": "models.partitioners.sage:SageBasePartitioner",
     "sage-hetero": "models.partitioners.sage:SageHeteroPartitioner",
     "rl-partitioner": "models.partitioners.rl:RLPartitioner",

@@ -26,6 +26,8 @@ class GraphBatch:
     edge_count (nnz,) or None: how many fine dual-graph edges each edge stands for (a coarsened
     graph, models.coarsen); None = 1 each. volume (N,) or None: sum of fine degrees of each node;
     None = degrees(). The normalized cut of a coarse graph uses these, so it equals the fine one.
+    cell_boxes: the cells' own bounding boxes, filled by agglomerate() for partitioners that set
+    `wants_cell_boxes` (rtree), else None.
     """
 
     indptr: np.ndarray
@@ -38,6 +40,7 @@ class GraphBatch:
     node_ids: np.ndarray
     edge_count: np.ndarray | None = None
     volume: np.ndarray | None = None
+    cell_boxes: tuple | None = None  # ((N, dim) lower, (N, dim) upper corners of each cell), if asked
 
     @property
     def n_nodes(self) -> int:
