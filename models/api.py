@@ -12,7 +12,8 @@ inspection) and must never import torch. Neural partitioners are loaded lazily b
   physical_tag, method, boundary_tag (lymph bc_tag of boundary edges without a boundary group,
   default 1), size_measure ("centroids": a part's size is the largest distance between its cell
   centroids, the paper's measure, default; "vertices": between its vertices), threshold (coarsest
-  graph size of mode multilevel, default 200), hierarchy (keep every nested level)}.
+  graph size of mode multilevel, default 200), hierarchy (keep every nested level), weld (merge
+  points closer than this first)}.
 - run_job(mesh_path, out_dir, params, progress=None, should_cancel=None) -> summary dict
   {"elements", "parts_split", "fragments_absorbed", "timings": {stage: seconds}, "outputs": {kind: filename}}
   writing into out_dir: mesh.vtu, metrics.json, labels.json, preview.png, and for 2D meshes
@@ -175,7 +176,7 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
     if not isinstance(opts, dict):
         raise ParameterError("options must be an object")
     known_opts = {"seed", "absorb_fraction", "hole_policy", "physical_tag", "method", "boundary_tag", "size_measure",
-                  "threshold", "hierarchy"}
+                  "threshold", "hierarchy", "weld"}
     if set(opts) - known_opts:
         raise ParameterError(f"unknown option(s): {sorted(set(opts) - known_opts)}")
     seed = _int(opts, "seed", lo=0, hi=2**31 - 1) or 0
@@ -203,6 +204,9 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
     method = opts.get("method", "kway")
     if method not in ("kway", "recursive"):
         raise ParameterError(f"options.method must be 'kway' or 'recursive', got {method!r}")
+    weld = _float(opts, "weld")
+    if weld is not None and weld < 0:
+        raise ParameterError(f"options.weld must be >= 0 (a distance), got {weld}")
     size_measure = opts.get("size_measure", "centroids")
     if size_measure not in ("centroids", "vertices"):
         raise ParameterError(f"options.size_measure must be 'centroids' or 'vertices', got {size_measure!r}")
@@ -238,7 +242,7 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
         "mult_factor": mult_factor, "subset": subset, "refiner": refiner,
         "options": {"seed": seed, "absorb_fraction": float(absorb), "hole_policy": hole_policy,
                     "physical_tag": physical_tag, "method": method, "boundary_tag": boundary_tag,
-                    "size_measure": size_measure, "threshold": threshold, "hierarchy": hierarchy},
+                    "size_measure": size_measure, "threshold": threshold, "hierarchy": hierarchy, "weld": weld},
     }
 
 
@@ -265,7 +269,7 @@ def run_job(
 
     t0 = time.perf_counter()
     tick(0.0, "read")
-    mesh = read_mesh(mesh_path, physical_tag=p["options"]["physical_tag"])
+    mesh = read_mesh(mesh_path, physical_tag=p["options"]["physical_tag"], weld=p["options"]["weld"])
     t_read = time.perf_counter() - t0
     validate_params(params, {"cells": mesh.n_cells, "physical_groups": mesh.physical_groups(), "dim": mesh.dim})
     o = p["options"]

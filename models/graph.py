@@ -105,14 +105,22 @@ def dual_graph(mesh: Mesh, faces: Faces | None = None) -> DualGraph:
         sk = keys[order]
         same = np.all(sk[1:] == sk[:-1], axis=1)
     if same.size > 1 and np.any(same[1:] & same[:-1]):
-        n_bad = int(np.count_nonzero(same[1:] & same[:-1]))
-        raise MeshError(f"the mesh is not a manifold: {n_bad} edges/faces are shared by more than two cells")
+        j = np.flatnonzero(same[1:] & same[:-1])
+        cells = sorted_unique(faces.cell[order[np.concatenate([j, j + 1, j + 2])]])
+        raise MeshError(
+            f"the mesh is not a manifold: {j.size} edges/faces are shared by more than two cells, "
+            f"e.g. by cells {cells[:6].tolist()}; remove the overlapping cells or split the mesh there"
+        )
     i = np.flatnonzero(same)
     fa, fb = order[i], order[i + 1]
     ca, cb = faces.cell[fa], faces.cell[fb]
     self_loop = ca == cb
     if self_loop.any():
-        raise MeshError(f"{int(self_loop.sum())} cells have the same edge/face twice (duplicated nodes in a cell)")
+        bad = sorted_unique(ca[self_loop])
+        raise MeshError(
+            f"{bad.size} cells have the same edge/face twice (duplicated nodes in a cell), e.g. cells "
+            f"{bad[:6].tolist()}; fix their connectivity"
+        )
     partner = np.full(faces.n, -1, dtype=np.int64)
     partner[fa] = fb
     partner[fb] = fa

@@ -84,6 +84,9 @@ class JobOptions(BaseModel):
         le=2**31 - 1,
         description="lymph bc_tag of boundary edges without a boundary group (default 1)",
     )
+    weld: float | None = Field(
+        None, ge=0, **Finite, description="merge points closer than this distance first (duplicate points that split the mesh)"
+    )
     size_measure: str | None = Field(
         None,
         max_length=40,

@@ -191,6 +191,9 @@ def corpus() -> dict:
     tr2 = tr2.copy()
     tr2[3] = [tr2[3, 0], tr2[3, 0], tr2[3, 1]]
     out["repeated_vertex_triangle"] = (pr, [("triangle", tr2)], None, "vtk")
+    # three triangles on one edge (an overlapping flap): not a manifold
+    pn = np.array([[0, 0], [1, 0], [0.5, 1], [0.5, -1], [0.4, 0.5]], dtype=np.float64)
+    out["nonmanifold_edge"] = (pn, [("triangle", np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]]))], None, "vtu")
     # hexahedra with warped faces (interior points moved out of their planes)
     phx, hx = hexes(3)
     phx = phx.astype(np.float64)

@@ -25,6 +25,7 @@ REFUSED = {
     "zero_area": ("degenerate (zero-area) cells", "cell ids [3]", "remove them"),
     "repeated_vertex_triangle": ("degenerate (zero-area) cells", "cell ids [3]", "remove them"),
     "nonplanar_surface": ("non-planar", "surface", "project the surface onto a plane"),
+    "nonmanifold_edge": ("not a manifold", "cells [0, 1, 2]", "remove the overlapping cells"),
 }
 
 

@@ -65,3 +65,17 @@ def test_api_option():
     assert validate_params({"mode": "mult-factor", "mult_factor": 0.1})["options"]["size_measure"] == "centroids"
     with pytest.raises(ParameterError, match="size_measure"):
         validate_params({"mode": "mult-factor", "mult_factor": 0.1, "options": {"size_measure": "x"}})
+
+
+def test_api_weld_option(tmp_path):
+    from defects import OUT
+
+    from models.api import run_job
+
+    p = validate_params({"k": 1, "options": {"weld": 1e-9}})
+    assert p["options"]["weld"] == 1e-9 and validate_params({"k": 1})["options"]["weld"] is None
+    with pytest.raises(ParameterError, match="weld"):
+        validate_params({"k": 1, "options": {"weld": -1}})
+    seam = f"{OUT}/duplicate_seam.vtu"
+    assert run_job(seam, tmp_path / "a", {"k": 1})["elements"] == 2  # the seam splits the square
+    assert run_job(seam, tmp_path / "b", {"k": 1, "options": {"weld": 1e-9}})["elements"] == 1
