@@ -288,8 +288,12 @@ def _collapse_repeated_nodes(mesh: Mesh) -> None:
     from .geometry import cell_index, next_in_cycle
 
     conn = mesh.connectivity
-    rep = conn == conn[next_in_cycle(mesh.offsets)]
     sizes = np.diff(mesh.offsets)
+    if sizes.size and sizes.min() == sizes.max():  # the usual case: one cell size, a cheap test first
+        c = conn.reshape(-1, int(sizes[0]))
+        if not np.any(c == np.roll(c, -1, axis=1)):
+            return
+    rep = conn == conn[next_in_cycle(mesh.offsets)]
     # keep at least one node per cell (a cell whose nodes are all equal keeps one)
     cell = cell_index(mesh.offsets)
     all_rep = np.bincount(cell, weights=rep, minlength=sizes.size) == sizes

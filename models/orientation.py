@@ -73,22 +73,77 @@ def _face_pairs(faces: Faces, n_points: int) -> tuple[np.ndarray, np.ndarray]:
     return order[i], order[i + 1]
 
 
+def _consistent_2d(offsets: np.ndarray, conn: np.ndarray, flip: np.ndarray, n_points: int) -> bool:
+    """_consistent for 2D cells straight from the CSR arrays (no edge list is built when all cells
+    have the same number of nodes, the usual case)."""
+    sizes = np.diff(offsets)
+    if sizes.size == 0 or sizes.min() != sizes.max():
+
+        faces = Faces(cell=np.repeat(np.arange(sizes.size), sizes), offsets=np.arange(0, 2 * conn.size + 1, 2),
+                      nodes=np.column_stack([conn, conn[_next(offsets)]]).reshape(-1))
+        return bool(_consistent(faces, flip, n_points))
+    c = conn.reshape(-1, int(sizes[0]))
+    if flip.any():
+        c = np.where(flip[:, None], c[:, ::-1], c)
+    keys = c * np.int64(n_points) + np.roll(c, -1, axis=1)
+    s = np.sort(keys, axis=None)
+    return not np.any(s[1:] == s[:-1])
+
+
+def _next(offsets: np.ndarray) -> np.ndarray:
+    from .geometry import next_in_cycle
+
+    return next_in_cycle(offsets)
+
+
+def _consistent(faces: Faces, flip: np.ndarray, n_points: int) -> bool | None:
+    """True when, with the cells in `flip` reversed, no face is met twice in the same direction
+    (every shared face is then run through oppositely by its two cells). One np.sort of directed
+    face keys, no argsort: this is the common case (no folded cell) and must stay cheap.
+    False/None: there may be a contradiction (None: keys too wide here), take the full path."""
+    sizes = faces.sizes()
+    if np.all(sizes == 2):
+        e = faces.nodes.reshape(-1, 2)
+        f = flip[faces.cell]
+        a, b = np.where(f, e[:, 1], e[:, 0]), np.where(f, e[:, 0], e[:, 1])
+        keys = a * np.int64(n_points) + b
+    else:
+        bits = max(int(n_points - 1).bit_length(), 1)
+        if 3 * bits + 3 > 63:
+            return None
+        width = int(sizes.max())
+        pad = np.full((faces.n, width), np.iinfo(np.int64).max, dtype=np.int64)
+        col = np.arange(faces.nodes.size) - np.repeat(faces.offsets[:-1], sizes)
+        pad[np.repeat(np.arange(faces.n), sizes), col] = faces.nodes
+        j = pad.argmin(axis=1)
+        r = np.arange(faces.n)
+        m, nxt, prv = pad[r, j], pad[r, (j + 1) % sizes], pad[r, (j - 1) % sizes]
+        f = flip[faces.cell]
+        nxt, prv = np.where(f, prv, nxt), np.where(f, nxt, prv)
+        keys = (((m << bits) | nxt) << bits | prv) << 3 | np.minimum(sizes, 7)
+    s = np.sort(keys)
+    return not np.any(s[1:] == s[:-1])
+
+
 def orientation_flips(mesh, measures: np.ndarray, faces: Faces | None = None) -> np.ndarray:
     """(C,) bool: the cells to flip so that neighbours agree and every piece is positive overall.
 
     `measures` are the signed measures in the cells' current node order. Raises MeshError when no
     consistent orientation exists.
     """
-    faces = faces or cell_faces(mesh)
     n = mesh.n_cells
+    own = measures < 0
+    if mesh.dim == 2 and _consistent_2d(mesh.offsets, mesh.connectivity, own, mesh.n_points):
+        return own  # fast path (one plain sort): flipping each cell by its own sign is consistent
+    faces = faces or cell_faces(mesh)
+    if mesh.dim == 3 and _consistent(faces, own, mesh.n_points):
+        return own
     fa, fb = _face_pairs(faces, mesh.n_points)
     ca, cb = faces.cell[fa], faces.cell[fb]
     keep = ca != cb
     fa, fb, ca, cb = fa[keep], fb[keep], ca[keep], cb[keep]
     bit = _face_direction(faces)
     parity = bit[fa] == bit[fb]  # True: same direction, one of the two must flip
-    # fast path: flipping each cell by its own sign already makes every pair agree (no folded cell)
-    own = measures < 0
     if not np.any(parity ^ own[ca] ^ own[cb]):
         return own
     flip, piece, n_pieces = _propagate(n, ca, cb, parity, mesh.dim)
