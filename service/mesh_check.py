@@ -144,6 +144,9 @@ def _child_main(argv: list[str]) -> int:
         info = api.inspect_mesh(str(path), physical_tag=physical_tag, check=physical_tag is None)
         if int(info["cells"]) > max_cells:
             raise UploadRejected(413, f"the mesh has {info['cells']} cells; the limit is {max_cells}")
+        errors = [i["message"] for i in info["check"]["issues"] if i["severity"] == "error"]
+        if errors:  # read, but it cannot be agglomerated (e.g. not a manifold): say so now, not in a job
+            raise UploadRejected(422, errors[0])
         out = {"info": info}
     except UploadRejected as exc:
         out = {"status": exc.status, "error": exc.message}
