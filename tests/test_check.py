@@ -90,3 +90,20 @@ def test_every_defect_upload_is_201_or_422(tmp_path):
             else:
                 assert r.status_code == 201, (name, r.text)
                 assert r.json()["check"]["verdict"] in ("ok", "warnings")
+
+
+def test_3d_cavity_and_2d_hole_are_counted():
+    import numpy as np
+    from meshes import hexes, quads
+
+    from models.check import mesh_report
+    from models.io import mesh_from_arrays
+
+    p, h = hexes(3)
+    inner = np.all(np.abs(p[h].mean(axis=1) - 0.5) < 0.2, axis=1)  # the middle hexahedron removed
+    rep = mesh_report(mesh_from_arrays(p, [("hexahedron", h[~inner])]))
+    assert rep["components"] == 1 and rep["boundary_shells"] == 2 and rep["holes"] == 1 and rep["boundary_facets"] == 60
+    p, q = quads(3)
+    inner = np.all(np.abs(p[q].mean(axis=1) - 0.5) < 0.2, axis=1)
+    rep = mesh_report(mesh_from_arrays(p, [("quad", q[~inner])]))
+    assert rep["boundary_loops"] == 2 and rep["holes"] == 1 and rep["verdict"] == "ok"
