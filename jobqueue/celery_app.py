@@ -18,6 +18,7 @@ from jobqueue import embedded_transport  # noqa: F401  (registers the embedded b
 from jobqueue.settings import Settings
 
 TASK_NAME = "magnet.run_agglomeration"
+EMBEDDED_POLL_S = 0.05
 QUEUES = ("cpu", "gpu")
 
 
@@ -27,7 +28,9 @@ def make_celery(settings: Settings | None = None, include: tuple[str, ...] = ())
     settings = settings or Settings()
     broker = settings.resolved_broker_url
     if settings.embedded_broker:
-        transport_options = {"polling_interval": 0.25, "connect_args": {"timeout": 30}}
+        # the worker polls the SQLite queue: every 50 ms keeps a job's wait for pick-up at ~25 ms on
+        # average (0.25 s cost ~125 ms per job) for one indexed query per poll on an idle machine
+        transport_options = {"polling_interval": EMBEDDED_POLL_S, "connect_args": {"timeout": 30}}
     else:
         transport_options = {
             "visibility_timeout": settings.task_time_limit_s + 300,
