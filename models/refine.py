@@ -120,7 +120,10 @@ class CutState:
     """A bisection of every graph of a batch with what a move needs, updated move by move:
     per-node external/internal edge counts, per-graph cut, degree volumes and measures."""
 
-    def __init__(self, batch: GraphBatch, side: np.ndarray, tolerance: float = 0.05):
+    def __init__(self, batch: GraphBatch, side: np.ndarray, tolerance: float = 0.05, cap: np.ndarray | None = None):
+        """cap (B,): the largest measure a side may have (k-way pairs: (1 + tol) x mean part);
+        with it the objective is the edge cut, else the normalized cut with the tolerance."""
+        self.cap = None if cap is None else np.asarray(cap, dtype=np.float64)
         self.batch = batch
         self.side = np.asarray(side, dtype=np.int64).copy()
         _, self.ec, self.ext, self.inn, self.gi, self.cut, self.vol, self.meas = bisection_state(batch, self.side)
@@ -131,6 +134,10 @@ class CutState:
 
     def ncut(self) -> np.ndarray:
         return _ncut(self.cut, self.vol)
+
+    def objective(self) -> np.ndarray:
+        """(B,) what the moves minimize: the normalized cut, or the edge cut when capped."""
+        return self.ncut() if self.cap is None else self.cut.astype(np.float64).copy()
 
     def imbalance(self) -> np.ndarray:
         """(B,) |measure(side 0) - measure(side 1)| / measure(graph)."""
@@ -150,6 +157,10 @@ class CutState:
             tm = np.where(self.total_m[cg] > 0, self.total_m[cg], 1.0)
             imb_new = np.abs(self.meas[cg, v_side] - m - self.meas[cg, 1 - v_side] - m) / tm
             imb_cur = np.abs(self.meas[cg, 0] - self.meas[cg, 1]) / tm
+        if self.cap is not None:
+            mt = self.meas[cg, 1 - v_side] + m
+            ok = (vs > 0) & ((mt <= self.cap[cg]) | (mt <= self.meas[cg, v_side] - m))
+            return cut_new.astype(np.float64), ok
         ok = (vs > 0) & ((imb_new <= self.tol) | (imb_new < imb_cur))
         return nc_new, ok
 
@@ -180,20 +191,20 @@ class CutState:
 
 
 def fm_pass(batch: GraphBatch, side: np.ndarray, tolerance: float, hops: int, budget: np.ndarray | None = None,
-            score_fn=None):
+            score_fn=None, cap: np.ndarray | None = None):
     """One FM pass over every graph of the batch with rollback to the best prefix.
 
     Returns (new side, per-graph normalized cut before, after). `score_fn(state, cand, gain)`
     -> (n_cand,) may replace the gain as the move priority (the RL refiner's policy); the
     rollback always uses the true normalized cut."""
-    st = CutState(batch, side, tolerance)
+    st = CutState(batch, side, tolerance, cap)
     B = batch.n_graphs
     band = cut_band(batch, st.side, hops)
     cand = np.flatnonzero(band)
     cg = st.gi[cand]
     if budget is None:
         budget = np.minimum(st.cut + 1, np.bincount(cg, minlength=B)).astype(np.int64)
-    nc0 = st.ncut()
+    nc0 = st.objective()
     locked = np.zeros(cand.size, dtype=bool)
     n_steps = int(budget.max()) if budget.size else 0
     moves = np.full((n_steps, B), -1, dtype=np.int64)
@@ -203,7 +214,7 @@ def fm_pass(batch: GraphBatch, side: np.ndarray, tolerance: float, hops: int, bu
         ok &= (~locked) & (budget > s)[cg]
         if not ok.any():
             break
-        nc_cur = st.ncut()
+        nc_cur = st.objective()
         gain = nc_cur[cg] - nc_new
         score = gain if score_fn is None else score_fn(st, cand, gain)
         pick = _segment_first_argmax(np.where(ok, score, -np.inf), cg, B)
@@ -215,7 +226,7 @@ def fm_pass(batch: GraphBatch, side: np.ndarray, tolerance: float, hops: int, bu
         locked[p] = True
         st.move(cand[p])
         moves[s, g] = cand[p]
-        hist[s, g] = st.ncut()[g]
+        hist[s, g] = st.objective()[g]
     side = st.side
     # rollback to the best prefix (strictly better than the start, else no move)
     if n_steps:
@@ -239,7 +250,7 @@ class FMRefiner(Refiner):
                    "tolerance, rollback to the best prefix, parts kept connected; vectorized over the batch")
 
     def __init__(self, tolerance: float = 0.05, hops: int = 4, passes: int = 8, kway_rounds: int = 30,
-                 kway_tolerance: float = 0.03, seed: int | None = 0):
+                 kway_tolerance: float = 0.03, pair_rounds: int = 4, seed: int | None = 0):
         if not 0 <= tolerance < 1:
             raise ParameterError(f"fm tolerance must be in [0, 1), got {tolerance}")
         self.tolerance = float(tolerance)
@@ -247,6 +258,7 @@ class FMRefiner(Refiner):
         self.passes = int(passes)
         self.kway_rounds = int(kway_rounds)
         self.kway_tolerance = float(kway_tolerance)
+        self.pair_rounds = int(pair_rounds)
         self.seed = seed
 
     def refine(self, batch: GraphBatch, labels: np.ndarray) -> np.ndarray:
@@ -261,7 +273,11 @@ class FMRefiner(Refiner):
         return keep_better(batch, labels, connected_sides(batch, side))
 
     def refine_kway(self, batch: GraphBatch, labels: np.ndarray) -> np.ndarray:
-        return kway_refine(batch, labels, self.kway_tolerance, self.kway_rounds)
+        labels = kway_refine(batch, labels, self.kway_tolerance, self.kway_rounds)
+        if self.pair_rounds > 0:
+            labels = pairwise_fm(batch, labels, self.kway_tolerance, self.pair_rounds, self.hops, self.seed or 0)
+            labels = kway_refine(batch, labels, self.kway_tolerance, self.kway_rounds)
+        return labels
 
 
 def connected_sides(batch: GraphBatch, side: np.ndarray) -> np.ndarray:
@@ -357,4 +373,58 @@ def kway_refine(batch: GraphBatch, labels: np.ndarray, tolerance: float = 0.03, 
         if v.size == 0:
             break
         w_part = np.bincount(labels, weights=m, minlength=k)
+    return labels
+
+
+def pairwise_fm(batch: GraphBatch, labels: np.ndarray, tolerance: float = 0.03, rounds: int = 6, hops: int = 3,
+                seed: int = 0) -> np.ndarray:
+    """k-way FM by pairs of parts: each round matches adjacent parts (heavy-edge matching on the
+    quotient graph, weighted by their shared cut, randomized per round), runs one edge-cut FM pass
+    with rollback on every pair at once (a batch of two-part graphs), moves stray islands back so
+    both parts stay connected, and keeps a pair's new split only if its cut went down and neither
+    part grew past (1 + tolerance) x the mean part measure (or past its own earlier measure)."""
+    from .coarsen import heavy_edge_matching
+    from .graph import subgraph_by_labels
+
+    labels = np.asarray(labels, dtype=np.int64).copy()
+    n = batch.n_nodes
+    if n == 0:
+        return labels
+    k = int(labels.max()) + 1
+    rows = np.repeat(np.arange(n), np.diff(batch.indptr))
+    cols = batch.indices
+    ec = batch.edge_counts()
+    cap = (1 + tolerance) * float(batch.measures.sum()) / k
+    rng = np.random.default_rng(seed)
+    for _ in range(rounds):
+        lr, lc = labels[rows], labels[cols]
+        x = lr != lc
+        q = sp.csr_matrix((ec[x], (lr[x], lc[x])), shape=(k, k))
+        q.sum_duplicates()
+        q.sort_indices()
+        qb = GraphBatch(indptr=q.indptr.astype(np.int64), indices=q.indices.astype(np.int64), weights=q.data,
+                        graph_ptr=np.array([0, k]), centroids=np.zeros((k, 1)), measures=np.ones(k), tags=None,
+                        node_ids=np.arange(k), edge_count=q.data.astype(np.float64), volume=1 + rng.random(k))
+        mate = heavy_edge_matching(qb, seed=int(rng.integers(2**31)))
+        a = np.flatnonzero((mate >= 0) & (np.arange(k) < mate))
+        if a.size == 0:
+            break
+        b = mate[a]
+        pid = np.full(k, -1, dtype=np.int64)
+        pid[a] = np.arange(a.size)
+        pid[b] = np.arange(a.size)
+        nodes = np.flatnonzero(pid[labels] >= 0)
+        order, ptr, ip, ix, w = subgraph_by_labels(batch.indptr, batch.indices, batch.weights, pid[labels[nodes]], nodes)
+        pb = GraphBatch(indptr=ip, indices=ix, weights=w, graph_ptr=ptr, centroids=batch.centroids[order],
+                        measures=batch.measures[order], tags=None, node_ids=order)
+        side = (labels[order] == b[pid[labels[order]]]).astype(np.int64)
+        caps = np.full(a.size, cap)
+        new, _, _ = fm_pass(pb, side, tolerance, hops, cap=caps)
+        new = connected_sides(pb, new)
+        before, after = CutState(pb, side, cap=caps), CutState(pb, new, cap=caps)
+        grew = np.any(after.meas > np.maximum(cap, before.meas) + 1e-12 * cap, axis=1)
+        ok = (after.cut < before.cut) & ~grew & (after.meas.min(axis=1) > 0)
+        take = ok[pb.graph_index()]
+        gi = pid[labels[order]]
+        labels[order[take]] = np.where(new[take] == 1, b[gi[take]], a[gi[take]])
     return labels

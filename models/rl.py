@@ -254,7 +254,12 @@ class PartitionerEnv:
         return torch.from_numpy(f.astype(np.float32))
 
     def mask(self, step: int) -> np.ndarray:
-        return (self.st.side == 0) & (self.st.ext > 0) & (self.n_steps > step)[self.gi_np]
+        """Side-0 nodes next to side 1; in a graph where there is none (side 1 filled its connected
+        piece of a disconnected graph) any side-0 node."""
+        live = (self.st.side == 0) & (self.n_steps > step)[self.gi_np]
+        m = live & (self.st.ext > 0)
+        has = np.bincount(self.gi_np, weights=m, minlength=self.B) > 0
+        return m | (live & ~has[self.gi_np])
 
     def potential(self) -> np.ndarray:
         return np.minimum(self.st.ncut(), 4.0)
@@ -280,8 +285,10 @@ def _principal_coords(batch: GraphBatch) -> np.ndarray:
 
 
 def refine_with_policy(model: ActorCritic, batch: GraphBatch, side: np.ndarray, hops: int = 3,
-                       tolerance: float = 0.05, passes: int = 2) -> np.ndarray:
-    """Greedy policy moves (argmax logit) for at most cut + 1 steps, rollback to the best prefix."""
+                       tolerance: float = 0.05, passes: int = 2, actions_per_pass: int = 1) -> np.ndarray:
+    """Greedy policy moves (argmax logit) for at most cut + 1 steps, rollback to the best prefix.
+    actions_per_pass > 1: that many moves per graph per forward pass (the logits of one pass, the
+    mask refreshed after every move)."""
     from .refine import connected_sides, keep_better
 
     side0 = np.asarray(side, dtype=np.int64)
@@ -293,18 +300,26 @@ def refine_with_policy(model: ActorCritic, batch: GraphBatch, side: np.ndarray, 
         moves = np.full((steps, env.B), -1, dtype=np.int64)
         hist = np.full((steps, env.B), np.inf)
         with torch.inference_mode():
-            for s in range(steps):
+            s = 0
+            while s < steps:
                 m = env.mask(s)
                 if not m.any():
                     break
                 logits, _ = model(env.features(), env.adj, env.gi, env.B)
-                mt = torch.from_numpy(m)
-                logp, _ = masked_log_softmax(logits, mt, env.gi, env.B)
-                pick = sample_per_graph(logp, mt, env.gi, env.B, None, greedy=True).numpy()
-                env.step(pick)
-                got = pick >= 0
-                moves[s, got] = env.nodes[pick[got]]
-                hist[s, got] = env.st.ncut()[got]
+                logits = logits.numpy().astype(np.float64)
+                for _ in range(max(actions_per_pass, 1)):
+                    if s >= steps:
+                        break
+                    m = env.mask(s)
+                    if not m.any():
+                        break
+                    pick = _segment_first_argmax(np.where(m, logits, -np.inf), env.gi_np, env.B)
+                    got = pick >= 0
+                    pick = np.where(got, pick, -1)
+                    env.step(pick)
+                    moves[s, got] = env.nodes[pick[got]]
+                    hist[s, got] = env.st.ncut()[got]
+                    s += 1
         new = env.st.side
         if steps:
             best = np.argmin(hist, axis=0)

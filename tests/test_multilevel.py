@@ -215,3 +215,22 @@ def test_cli_multilevel_and_hierarchy(tmp_path):
     index = json.load(open(out / "hierarchy.json"))
     assert [lv["elements"] for lv in index["levels"]] == [1, 2, 4, 8] and index["nested"]
     assert main(["agglomerate", BRAIN, "-o", str(tmp_path / "b.vtu"), "--mode", "multilevel"]) == 2
+
+
+def test_pairwise_fm_keeps_parts_connected_and_within_the_cap(brain):
+    from models.refine import pairwise_fm
+
+    m, g, d = brain
+    b = make_batch(d, np.zeros(m.n_cells, dtype=np.int64))
+    from models.agglomerate import connected_parts
+
+    lab, _ = connected_parts(d, get_partitioner("kmeans").kway(b, 24), b.node_ids)
+    out = pairwise_fm(b, lab, tolerance=0.05, rounds=4)
+    inv = np.argsort(b.node_ids)
+    s0 = partition_statistics(g.indptr, g.indices, lab[inv])
+    s1 = partition_statistics(g.indptr, g.indices, out[inv])
+    assert s1["connected"] and s1["parts"] == s0["parts"] and s1["cut"] < s0["cut"]
+    w0 = np.bincount(lab, weights=b.measures)
+    w1 = np.bincount(out, weights=b.measures)
+    cap = 1.05 * b.measures.sum() / w0.size
+    assert np.all((w1 <= cap + 1e-9) | (w1 <= w0 + 1e-9))  # no part grew past the cap (or past itself)
