@@ -107,7 +107,8 @@ def cmd_agglomerate(args) -> int:
     from . import pipeline
     from .io import read_mesh
 
-    check_output_path(args.output, "output mesh", (".vtu",))
+    check_output_path(args.output, "output mesh", (".vtu", ".ucd", ".inp"))
+    ucd = os.path.splitext(args.output)[1].lower() in (".ucd", ".inp")
     for what in ("metrics", "labels", "lymph", "plot"):
         check_output_path(getattr(args, what), f"--{what} file")
     t0 = time.perf_counter()
@@ -131,7 +132,12 @@ def cmd_agglomerate(args) -> int:
                   f"({' > '.join(str(lv['elements']) for lv in idx['levels'])} elements)")
         if args.lymph and mesh.dim != 2:
             raise ParameterError("--lymph is for 2D meshes only")
-        pipeline.write_outputs(res, vtu=args.output, metrics=args.metrics, labels=args.labels, lymph=args.lymph, plot=args.plot,
+        if ucd:  # deal.II: the fine cells, material id = agglomerated element (UCD has no polytopes)
+            from .ucd import write_ucd
+
+            write_ucd(args.output, res.mesh, material=res.agglomeration.labels,
+                      comment=f"magnet: {res.poly.n_elements} agglomerated elements; material id = element (0-based)")
+        pipeline.write_outputs(res, vtu=None if ucd else args.output, metrics=args.metrics, labels=args.labels, lymph=args.lymph, plot=args.plot,
                                boundary_tag=args.boundary_tag)
     finally:
         prog.close()
@@ -226,7 +232,7 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
 
     p = sub.add_parser("agglomerate", help="agglomerate a mesh in-process")
     p.add_argument("mesh")
-    p.add_argument("-o", "--output", required=True, help="agglomerated mesh (.vtu)")
+    p.add_argument("-o", "--output", required=True, help="agglomerated mesh (.vtu), or .ucd/.inp for deal.II: the fine cells with the element id as material")
     _add_job_args(p)
     p.add_argument("--metrics", help="write the metrics JSON here")
     p.add_argument("--labels", help="write the fine-cell -> element labels (JSON list) here")

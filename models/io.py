@@ -63,7 +63,7 @@ MIRROR = {
 }
 TAG_NAMES = ("gmsh:physical", "CellEntityIds", "cell_tags", "medit:ref", "physical", "material", "tag", "physical_group", "avsucd:material")
 BOUNDARY_TAG_NAME = "boundary_tag"  # boundary groups of lower-dimensional cells, as models.vtu writes them
-SUPPORTED_EXTENSIONS = (".vtu", ".vtk", ".msh", ".xdmf", ".xmf", ".mesh", ".med", ".inp", ".obj", ".off", ".ply", ".stl", ".h5m", ".su2", ".nas", ".bdf", ".f3grid", ".avs", ".dat", ".tec", ".ugrid")
+SUPPORTED_EXTENSIONS = (".vtu", ".vtk", ".msh", ".xdmf", ".xmf", ".mesh", ".med", ".inp", ".ucd", ".obj", ".off", ".ply", ".stl", ".h5m", ".su2", ".nas", ".bdf", ".f3grid", ".avs", ".dat", ".tec", ".ugrid")
 
 
 def read_mesh(path: str | os.PathLike, physical_tag: str | None = None, file_format: str | None = None,
@@ -77,6 +77,11 @@ def read_mesh(path: str | os.PathLike, physical_tag: str | None = None, file_for
     if os.path.getsize(path) == 0:
         raise MeshError(f"mesh file is empty: {os.path.basename(path)}")
     ext = os.path.splitext(path)[1].lower()
+    if file_format in ("ucd", "avsucd") or (file_format is None and ext in (".inp", ".ucd")):
+        from .ucd import is_ucd, read_ucd
+
+        if ext == ".ucd" or file_format is not None or is_ucd(path):  # .inp is Abaqus unless it looks like UCD
+            return mesh_from_meshio(read_ucd(path), physical_tag=physical_tag, weld=weld)
     if file_format is None and ext not in meshio.extension_to_filetypes:
         raise MeshError(
             f"unknown mesh format {ext or '(no extension)'!r}; use one of: "
