@@ -502,6 +502,16 @@ def agglomerate(
                 h = f * mesh_diameter(data.points[_used_points(data, nodes)])
         labels = recursive_bisection(data, bisector, nodes, labels, h=h, progress=progress, record=level_labels,
                                      size_measure=size_measure)
+    if refiner is not None and hasattr(refiner, "polish") and sub_mode not in ("kway", "segregated") and labels.size:
+        # the recursion optimized each bisection alone; polish pairs of final parts for the k-way cut
+        t = time.perf_counter()
+        batch = make_batch(data, np.zeros(nodes.size, dtype=np.int64), nodes)
+        pos = np.empty(n, dtype=np.int64)
+        pos[nodes] = np.arange(nodes.size)
+        polished = np.asarray(refiner.polish(batch, compact_labels(labels)[pos[batch.node_ids]]), dtype=np.int64)
+        labels = labels.copy()
+        labels[pos[batch.node_ids]] = polished
+        stage_times["refine"] = stage_times.get("refine", 0.0) + time.perf_counter() - t
     t_part = time.perf_counter() - t0
 
     parts_before = int(np.count_nonzero(np.bincount(labels)))

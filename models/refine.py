@@ -120,9 +120,13 @@ class CutState:
     """A bisection of every graph of a batch with what a move needs, updated move by move:
     per-node external/internal edge counts, per-graph cut, degree volumes and measures."""
 
-    def __init__(self, batch: GraphBatch, side: np.ndarray, tolerance: float = 0.05, cap: np.ndarray | None = None):
+    def __init__(self, batch: GraphBatch, side: np.ndarray, tolerance: float = 0.05, cap: np.ndarray | None = None,
+                 third: np.ndarray | None = None):
         """cap (B,): the largest measure a side may have (k-way pairs: (1 + tol) x mean part);
-        with it the objective is the edge cut, else the normalized cut with the tolerance."""
+        with it the objective is the edge cut, else the normalized cut with the tolerance.
+        third (N,): edges of each node to nodes outside the batch (two parts of a k-way partition:
+        their cut to the other parts), counted in each side's cut: the objective is then those two
+        parts' share of the k-way normalized cut."""
         self.cap = None if cap is None else np.asarray(cap, dtype=np.float64)
         self.batch = batch
         self.side = np.asarray(side, dtype=np.int64).copy()
@@ -131,9 +135,16 @@ class CutState:
         self.m = batch.measures
         self.total_m = self.meas.sum(axis=1)
         self.tol = float(tolerance)
+        B = batch.n_graphs
+        self.third = np.zeros(batch.n_nodes) if third is None else np.asarray(third, dtype=np.float64)
+        self.X = np.bincount(self.gi * 2 + self.side, weights=self.third, minlength=2 * B).reshape(B, 2)
 
     def ncut(self) -> np.ndarray:
-        return _ncut(self.cut, self.vol)
+        if not self.X.any():
+            return _ncut(self.cut, self.vol)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return (np.where(self.vol[:, 0] > 0, (self.cut + self.X[:, 0]) / self.vol[:, 0], 0.0)
+                    + np.where(self.vol[:, 1] > 0, (self.cut + self.X[:, 1]) / self.vol[:, 1], 0.0))
 
     def objective(self) -> np.ndarray:
         """(B,) what the moves minimize: the normalized cut, or the edge cut when capped."""
@@ -153,7 +164,8 @@ class CutState:
             cut_new = self.cut[cg] - self.ext[cand] + self.inn[cand]
             vs = self.vol[cg, v_side] - d
             vt = self.vol[cg, 1 - v_side] + d
-            nc_new = cut_new * (1 / vs + 1 / vt)
+            t = self.third[cand]
+            nc_new = (cut_new + self.X[cg, v_side] - t) / vs + (cut_new + self.X[cg, 1 - v_side] + t) / vt
             tm = np.where(self.total_m[cg] > 0, self.total_m[cg], 1.0)
             imb_new = np.abs(self.meas[cg, v_side] - m - self.meas[cg, 1 - v_side] - m) / tm
             imb_cur = np.abs(self.meas[cg, 0] - self.meas[cg, 1]) / tm
@@ -176,6 +188,8 @@ class CutState:
         self.vol[g, new] += self.d[v]
         self.meas[g, old] -= self.m[v]
         self.meas[g, new] += self.m[v]
+        self.X[g, old] -= self.third[v]
+        self.X[g, new] += self.third[v]
         self.side[v] = new
         # neighbours: an edge to a node now on the neighbour's side becomes internal, and vice versa
         indptr = batch.indptr
@@ -191,13 +205,13 @@ class CutState:
 
 
 def fm_pass(batch: GraphBatch, side: np.ndarray, tolerance: float, hops: int, budget: np.ndarray | None = None,
-            score_fn=None, cap: np.ndarray | None = None):
+            score_fn=None, cap: np.ndarray | None = None, third: np.ndarray | None = None):
     """One FM pass over every graph of the batch with rollback to the best prefix.
 
     Returns (new side, per-graph normalized cut before, after). `score_fn(state, cand, gain)`
     -> (n_cand,) may replace the gain as the move priority (the RL refiner's policy); the
     rollback always uses the true normalized cut."""
-    st = CutState(batch, side, tolerance, cap)
+    st = CutState(batch, side, tolerance, cap, third)
     B = batch.n_graphs
     band = cut_band(batch, st.side, hops)
     cand = np.flatnonzero(band)
@@ -250,7 +264,8 @@ class FMRefiner(Refiner):
                    "tolerance, rollback to the best prefix, parts kept connected; vectorized over the batch")
 
     def __init__(self, tolerance: float = 0.05, hops: int = 4, passes: int = 8, kway_rounds: int = 30,
-                 kway_tolerance: float = 0.03, pair_rounds: int = 4, seed: int | None = 0):
+                 kway_tolerance: float = 0.03, pair_rounds: int = 2, objective: str = "ncut", polish_rounds: int = 4,
+                 seed: int | None = 0):
         if not 0 <= tolerance < 1:
             raise ParameterError(f"fm tolerance must be in [0, 1), got {tolerance}")
         self.tolerance = float(tolerance)
@@ -259,6 +274,10 @@ class FMRefiner(Refiner):
         self.kway_rounds = int(kway_rounds)
         self.kway_tolerance = float(kway_tolerance)
         self.pair_rounds = int(pair_rounds)
+        if objective not in ("ncut", "cut"):
+            raise ParameterError(f"fm objective must be 'ncut' or 'cut', got {objective!r}")
+        self.objective = objective
+        self.polish_rounds = int(polish_rounds)
         self.seed = seed
 
     def refine(self, batch: GraphBatch, labels: np.ndarray) -> np.ndarray:
@@ -266,11 +285,22 @@ class FMRefiner(Refiner):
         if batch.n_nodes == 0:
             return labels.copy()
         side = labels.copy()
+        cap = None
+        if self.objective == "cut":  # edge cut under a measure cap per side, judged by the normalized cut
+            cap = (0.5 + self.tolerance / 2) * np.bincount(batch.graph_index(), weights=batch.measures,
+                                                           minlength=batch.n_graphs)
         for _ in range(self.passes):
-            side, before, after = fm_pass(batch, side, self.tolerance, self.hops)
+            side, before, after = fm_pass(batch, side, self.tolerance, self.hops, cap=cap)
             if not np.any(after < before - 1e-12):
                 break
         return keep_better(batch, labels, connected_sides(batch, side))
+
+    def polish(self, batch: GraphBatch, labels: np.ndarray) -> np.ndarray:
+        """After a recursive bisection: pairs of adjacent parts refined for their share of the
+        k-way normalized cut (pairwise_fm, objective "ncut"), parts kept connected."""
+        if self.polish_rounds <= 0:
+            return np.asarray(labels, dtype=np.int64)
+        return pairwise_fm(batch, labels, self.tolerance, self.polish_rounds, self.hops, self.seed or 0, "ncut")
 
     def refine_kway(self, batch: GraphBatch, labels: np.ndarray) -> np.ndarray:
         labels = kway_refine(batch, labels, self.kway_tolerance, self.kway_rounds)
@@ -377,12 +407,14 @@ def kway_refine(batch: GraphBatch, labels: np.ndarray, tolerance: float = 0.03, 
 
 
 def pairwise_fm(batch: GraphBatch, labels: np.ndarray, tolerance: float = 0.03, rounds: int = 6, hops: int = 3,
-                seed: int = 0) -> np.ndarray:
+                seed: int = 0, objective: str = "cut") -> np.ndarray:
     """k-way FM by pairs of parts: each round matches adjacent parts (heavy-edge matching on the
     quotient graph, weighted by their shared cut, randomized per round), runs one edge-cut FM pass
     with rollback on every pair at once (a batch of two-part graphs), moves stray islands back so
     both parts stay connected, and keeps a pair's new split only if its cut went down and neither
-    part grew past (1 + tolerance) x the mean part measure (or past its own earlier measure)."""
+    part grew past (1 + tolerance) x the mean part measure (or past its own earlier measure).
+    objective "ncut": the pair's share of the k-way normalized cut (its cut to the other parts
+    included, degree volumes of the whole graph) under the bisection tolerance instead."""
     from .coarsen import heavy_edge_matching
     from .graph import subgraph_by_labels
 
@@ -390,10 +422,13 @@ def pairwise_fm(batch: GraphBatch, labels: np.ndarray, tolerance: float = 0.03, 
     n = batch.n_nodes
     if n == 0:
         return labels
+    if batch.edge_count is not None:
+        raise ParameterError("k-way refinement works on a fine graph")
     k = int(labels.max()) + 1
     rows = np.repeat(np.arange(n), np.diff(batch.indptr))
     cols = batch.indices
     ec = batch.edge_counts()
+    full_deg = np.diff(batch.indptr).astype(np.float64)
     cap = (1 + tolerance) * float(batch.measures.sum()) / k
     rng = np.random.default_rng(seed)
     for _ in range(rounds):
@@ -416,14 +451,22 @@ def pairwise_fm(batch: GraphBatch, labels: np.ndarray, tolerance: float = 0.03, 
         nodes = np.flatnonzero(pid[labels] >= 0)
         order, ptr, ip, ix, w = subgraph_by_labels(batch.indptr, batch.indices, batch.weights, pid[labels[nodes]], nodes)
         pb = GraphBatch(indptr=ip, indices=ix, weights=w, graph_ptr=ptr, centroids=batch.centroids[order],
-                        measures=batch.measures[order], tags=None, node_ids=order)
+                        measures=batch.measures[order], tags=None, node_ids=order, volume=full_deg[order])
         side = (labels[order] == b[pid[labels[order]]]).astype(np.int64)
-        caps = np.full(a.size, cap)
-        new, _, _ = fm_pass(pb, side, tolerance, hops, cap=caps)
-        new = connected_sides(pb, new)
-        before, after = CutState(pb, side, cap=caps), CutState(pb, new, cap=caps)
-        grew = np.any(after.meas > np.maximum(cap, before.meas) + 1e-12 * cap, axis=1)
-        ok = (after.cut < before.cut) & ~grew & (after.meas.min(axis=1) > 0)
+        if objective == "ncut":
+            third = full_deg[order] - np.diff(ip)
+            new, _, _ = fm_pass(pb, side, tolerance, hops, third=third)
+            new = connected_sides(pb, new)
+            before, after = CutState(pb, side, tolerance, third=third), CutState(pb, new, tolerance, third=third)
+            worse_balance = after.imbalance() > np.maximum(tolerance, before.imbalance()) + 1e-12
+            ok = (after.ncut() < before.ncut() - 1e-12) & ~worse_balance & (after.meas.min(axis=1) > 0)
+        else:
+            caps = np.full(a.size, cap)
+            new, _, _ = fm_pass(pb, side, tolerance, hops, cap=caps)
+            new = connected_sides(pb, new)
+            before, after = CutState(pb, side, cap=caps), CutState(pb, new, cap=caps)
+            grew = np.any(after.meas > np.maximum(cap, before.meas) + 1e-12 * cap, axis=1)
+            ok = (after.cut < before.cut) & ~grew & (after.meas.min(axis=1) > 0)
         take = ok[pb.graph_index()]
         gi = pid[labels[order]]
         labels[order[take]] = np.where(new[take] == 1, b[gi[take]], a[gi[take]])

@@ -234,3 +234,14 @@ def test_pairwise_fm_keeps_parts_connected_and_within_the_cap(brain):
     w1 = np.bincount(out, weights=b.measures)
     cap = 1.05 * b.measures.sum() / w0.size
     assert np.all((w1 <= cap + 1e-9) | (w1 <= w0 + 1e-9))  # no part grew past the cap (or past itself)
+
+
+def test_fm_polish_lowers_the_kway_normalized_cut(brain):
+    m, g, d = brain
+    b = make_batch(d, np.zeros(m.n_cells, dtype=np.int64))
+    lab = agglomerate(m, d, model="metis", mode="nref", nref=5).labels
+    out = FMRefiner().polish(b, lab)
+    s0 = partition_statistics(g.indptr, g.indices, lab)
+    s1 = partition_statistics(g.indptr, g.indices, out)
+    assert s1["connected"] and s1["parts"] == 32
+    assert s1["normalized_cut"] < s0["normalized_cut"]
