@@ -177,13 +177,15 @@ def kmeans(
     rng = np.random.default_rng(seed)
     xc = x - [float(x[:, d].mean()) for d in range(x.shape[1])]  # centred: |x|^2 - 2 x.c + |c|^2 keeps its precision
     abs_tol = tol * float(np.mean([np.dot(xc[:, d], xc[:, d]) for d in range(x.shape[1])])) / max(n, 1)
-    if n > 4 * bins_per_cluster * k:
+    if n > 2 * bins_per_cluster * k:
         pts, w, bins = grid_summary(xc, bins_per_cluster * k)
     else:
         pts, w, bins = xc, None, None
     best = None
     for _ in range(max(1, n_init)):
-        c0 = kmeans_plus_plus(pts, k, rng, w)
+        # k-means++ costs O(len(pts) k log k): on a random subset of at most 64 k points
+        sub = np.arange(len(pts)) if len(pts) <= 64 * k else np.sort(rng.choice(len(pts), 64 * k, replace=False))
+        c0 = kmeans_plus_plus(pts[sub], k, rng, None if w is None else w[sub])
         c, lab, inertia = lloyd(pts, c0, max_iter, abs_tol, w)
         if best is None or inertia < best[1]:
             best = (c, inertia, lab)
