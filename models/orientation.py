@@ -96,6 +96,17 @@ def _next(offsets: np.ndarray) -> np.ndarray:
     return next_in_cycle(offsets)
 
 
+def _triangle_rotation(t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(smallest node, the node after it, the node before it) of each triangle (T, 3), elementwise."""
+    a, b, c = t[:, 0], t[:, 1], t[:, 2]
+    at_a = (a < b) & (a < c)
+    at_b = ~at_a & (b < c)
+    m = np.where(at_a, a, np.where(at_b, b, c))
+    nxt = np.where(at_a, b, np.where(at_b, c, a))
+    prv = np.where(at_a, c, np.where(at_b, a, b))
+    return m, nxt, prv
+
+
 def _consistent(faces: Faces, flip: np.ndarray, n_points: int) -> bool | None:
     """True when, with the cells in `flip` reversed, no face is met twice in the same direction
     (every shared face is then run through oppositely by its two cells). One np.sort of directed
@@ -111,13 +122,16 @@ def _consistent(faces: Faces, flip: np.ndarray, n_points: int) -> bool | None:
         bits = max(int(n_points - 1).bit_length(), 1)
         if 3 * bits + 3 > 63:
             return None
-        width = int(sizes.max())
-        pad = np.full((faces.n, width), np.iinfo(np.int64).max, dtype=np.int64)
-        col = np.arange(faces.nodes.size) - np.repeat(faces.offsets[:-1], sizes)
-        pad[np.repeat(np.arange(faces.n), sizes), col] = faces.nodes
-        j = pad.argmin(axis=1)
-        r = np.arange(faces.n)
-        m, nxt, prv = pad[r, j], pad[r, (j + 1) % sizes], pad[r, (j - 1) % sizes]
+        if faces.nodes.size == 3 * faces.n:  # all triangles: no padded table
+            m, nxt, prv = _triangle_rotation(faces.nodes.reshape(-1, 3))
+        else:
+            width = int(sizes.max())
+            pad = np.full((faces.n, width), np.iinfo(np.int64).max, dtype=np.int64)
+            col = np.arange(faces.nodes.size) - np.repeat(faces.offsets[:-1], sizes)
+            pad[np.repeat(np.arange(faces.n), sizes), col] = faces.nodes
+            j = pad.argmin(axis=1)
+            r = np.arange(faces.n)
+            m, nxt, prv = pad[r, j], pad[r, (j + 1) % sizes], pad[r, (j - 1) % sizes]
         f = flip[faces.cell]
         nxt, prv = np.where(f, prv, nxt), np.where(f, nxt, prv)
         keys = (((m << bits) | nxt) << bits | prv) << 3 | np.minimum(sizes, 7)

@@ -73,3 +73,14 @@ def test_tetra_faces_keys_and_directions_equal_general_path(monkeypatch):
     mixed = geometry.Faces(cell=np.r_[slow.cell, 0], offsets=offsets, nodes=nodes)
     assert np.array_equal(face_keys(mixed, mesh.n_points)[:-1], keys)
     assert np.array_equal(orientation._face_direction(mixed)[:-1], bits)
+
+
+def test_triangle_rotation_matches_padded_argmin():
+    from models import orientation
+
+    rng = np.random.default_rng(2)
+    t = np.array([rng.permutation(50)[:3] for _ in range(300)])
+    m, nxt, prv = orientation._triangle_rotation(t)
+    j = t.argmin(axis=1)
+    r = np.arange(len(t))
+    assert np.array_equal(m, t[r, j]) and np.array_equal(nxt, t[r, (j + 1) % 3]) and np.array_equal(prv, t[r, (j - 1) % 3])
