@@ -276,6 +276,10 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
     for name, module, adder, runner, help_ in (
         ("generate", "models.generate_cli", "add_generate_args", "generate_main", "generate meshes / data sets (gmsh)"),
         ("train", "models.train", "add_train_args", "train_main", "train a SAGE model"),
+        ("hierarchy", "models.hierarchy_cli", "add_hierarchy_args", "hierarchy_main",
+         "nested levels for multigrid (rtree natively, any model), with aggregation operators"),
+        ("mgcheck", "models.hierarchy_cli", "add_mgcheck_args", "mgcheck_main",
+         "judge a hierarchy with a multigrid solve (pyamg, TPFA Poisson) beside pyamg's own aggregation"),
     ):
         p = sub.add_parser(name, help=help_)
         if len(argv) > 0 and argv[0] == name:

@@ -107,10 +107,12 @@ def is_nested(levels: list[np.ndarray]) -> bool:
 
 def write_hierarchy(out_dir: str | os.PathLike, mesh: Mesh, data: CellData, levels: list[np.ndarray],
                     metrics: bool = True, extra: dict | None = None, lymph: bool = False, boundary=None,
-                    boundary_tag: int = 1) -> dict:
+                    boundary_tag: int = 1, operators: bool = True) -> dict:
     """Write every level (see the module docstring); returns the hierarchy.json index.
     lymph: also level_L.lymph.json (2D) with the lymph region/neighbor structs of each level;
-    boundary: the fine mesh's boundary groups (models.boundary.fine_boundary), kept on every level."""
+    boundary: the fine mesh's boundary groups (models.boundary.fine_boundary), kept on every level;
+    operators: also the aggregation operator into each level (write_operators). metrics=False still
+    gives the partition statistics and the box measures (box ratio, coverage) of each level."""
     from .merge import merge, sort_by_vertex_count
     from .metrics import metrics_report, partition_statistics
     from .vtu import write_vtu
@@ -141,7 +143,12 @@ def write_hierarchy(out_dir: str | os.PathLike, mesh: Mesh, data: CellData, leve
                 cell_data[name] = np.asarray(vals, dtype=np.float64)
             rep = {k: v for k, v in rep.items() if k != "per_element"}
         else:
-            rep = {"partition": partition_statistics(g.indptr, g.indices, labels)}
+            from .metrics import box_measures, summarize
+
+            bm = box_measures(mesh.points, mesh.offsets, mesh.connectivity, labels, data.measures)
+            rep = {"elements": int(poly.n_elements), "dim": int(mesh.dim), "coverage": bm["coverage"],
+                   "summary": {"box_ratio": summarize(bm["box_ratio"])},
+                   "partition": partition_statistics(g.indptr, g.indices, labels)}
         _write_json(os.path.join(out_dir, f"level_{L}.metrics.json"), rep)
         entry["metrics"] = f"level_{L}.metrics.json"
         entry["normalized_cut"] = rep["partition"]["normalized_cut"]
@@ -159,8 +166,150 @@ def write_hierarchy(out_dir: str | os.PathLike, mesh: Mesh, data: CellData, leve
             write_lymph_json(os.path.join(out_dir, entry["lymph"]), region, neighbor)
             write_lymph_mat(os.path.join(out_dir, entry["lymph_mat"]), region, neighbor)
         index["levels"].append(entry)
+    if operators:
+        for entry, op in zip(index["levels"], write_operators(out_dir, levels, mesh.n_cells), strict=True):
+            entry["aggregation"] = op
     _write_json(os.path.join(out_dir, "hierarchy.json"), index)
     return index
+
+
+def aggregation_operators(levels: list[np.ndarray], n_cells: int | None = None) -> list:
+    """The aggregation operator into each level, coarsest first: P_L (rows x elements of level L), a
+    single 1 per row, rows = the elements of level L+1, or the fine cells for the finest level.
+    In multigrid order (fine to coarse) they are reversed(...): what pyamg's predefined
+    aggregation takes (`AggOp`)."""
+    import scipy.sparse as sp
+
+    ops = []
+    for L, labels in enumerate(levels):
+        if L + 1 < len(levels):
+            p = parent_maps(levels[L: L + 2])[0]  # elements of L+1 -> element of L
+        else:
+            p = np.asarray(labels, dtype=np.int64)
+        k = int(labels.max()) + 1
+        ops.append(sp.csr_matrix((np.ones(p.size), (np.arange(p.size), p)), shape=(p.size, k)))
+    return ops
+
+
+def write_operators(out_dir: str, levels: list[np.ndarray], n_cells: int) -> list[dict]:
+    """level_L.agg.npz (scipy.sparse.save_npz) and level_L.agg.mtx (MatrixMarket, for Matlab's
+    mmread) per level; returns their hierarchy.json entries."""
+    import scipy.io
+    import scipy.sparse as sp
+
+    out = []
+    for L, P in enumerate(aggregation_operators(levels, n_cells)):
+        npz, mtx = f"level_{L}.agg.npz", f"level_{L}.agg.mtx"
+        sp.save_npz(os.path.join(out_dir, npz), P)
+        scipy.io.mmwrite(os.path.join(out_dir, mtx), P.tocoo(), field="integer",
+                         comment=f" aggregation into level {L}: rows = {'fine cells' if L + 1 == len(levels) else f'elements of level {L + 1}'}")
+        out.append({"npz": npz, "mtx": mtx, "rows": "cells" if L + 1 == len(levels) else f"level_{L + 1}",
+                    "shape": [int(P.shape[0]), int(P.shape[1])]})
+    return out
+
+
+def coarse_graph(batch_or_data, labels: np.ndarray):
+    """The dual graph of the agglomerates (a GraphBatch of one graph): shared face measures summed,
+    measures summed, centroids measure-weighted, edge counts and volumes kept for cuts."""
+    import scipy.sparse as sp
+
+    from .partitioners.base import GraphBatch
+
+    g = batch_or_data.graph if hasattr(batch_or_data, "graph") else batch_or_data
+    indptr, indices, weights = g.indptr, g.indices, g.weights
+    meas, cen = batch_or_data.measures, batch_or_data.centroids
+    n = indptr.size - 1
+    k = int(labels.max()) + 1
+    rows = np.repeat(np.arange(n), np.diff(indptr))
+    a, b = labels[rows], labels[indices]
+    off = a != b
+    W = sp.csr_matrix((weights[off], (a[off], b[off])), shape=(k, k))
+    W.sum_duplicates()
+    C = sp.csr_matrix((np.ones(int(off.sum())), (a[off], b[off])), shape=(k, k))
+    C.sum_duplicates()
+    m = np.bincount(labels, weights=meas, minlength=k)
+    c = np.column_stack([np.bincount(labels, weights=meas * cen[:, d], minlength=k) for d in range(cen.shape[1])])
+    c /= np.maximum(m, 1e-300)[:, None]
+    vol = np.bincount(labels, weights=np.diff(indptr).astype(np.float64), minlength=k)
+    return GraphBatch(indptr=W.indptr.astype(np.int64), indices=W.indices.astype(np.int64), weights=W.data,
+                      graph_ptr=np.array([0, k], dtype=np.int64), centroids=c, measures=m, tags=None,
+                      node_ids=np.arange(k), edge_count=C.data, volume=vol)
+
+
+def build_hierarchy(mesh: Mesh, data: CellData, model: str = "rtree", ratio: float = 8.0, coarsest: int = 10,
+                    seed: int = 0, groups: bool = False, model_options: dict | None = None) -> tuple[list[np.ndarray], dict]:
+    """Exactly nested levels (coarsest first) with about `ratio` times fewer elements per level, from
+    n_cells / ratio down to at most `coarsest` elements; every element connected.
+
+    rtree: natively (models.partitioners.rtree.rtree_levels). Models with a k-way mode (metis,
+    kmeans): the agglomerates are agglomerated (k-way on each level's coarse dual graph, pieces
+    then joined to a neighbour so counts stay exact). Bisection-only models (sage-base, ...): one
+    recursive bisection, recorded, and the levels nearest the wanted counts.
+    groups: no element crosses a physical group (rtree only). Returns (levels, info)."""
+    import time
+
+    from .agglomerate import agglomerate, make_batch
+    from .errors import ParameterError
+    from .partitioners import get_partitioner
+    from .partitioners.rtree import cell_boxes, level_counts, make_connected, rtree_levels
+
+    t0 = time.perf_counter()
+    n = mesh.n_cells
+    counts = level_counts(n, ratio, coarsest)
+    if not counts:
+        raise ParameterError(f"the mesh has {n} cells: nothing to coarsen with coarsest = {coarsest}")
+    if groups and mesh.tags is None:
+        raise ParameterError("respecting physical groups needs a mesh with physical groups")
+    if groups and model != "rtree":
+        raise ParameterError("physical groups in a hierarchy: model rtree only")
+    if model == "rtree":
+        batch = make_batch(data, np.zeros(n, dtype=np.int64))
+        batch.cell_boxes = cell_boxes(data.points, data.offsets, data.connectivity)
+        tags = None if not groups else np.unique(mesh.tags, return_inverse=True)[1].astype(np.int64)
+        levels = rtree_levels(batch, counts, groups=tags, **(model_options or {}))
+        how = "native"
+    else:
+        part = get_partitioner(model, seed=seed, **(model_options or {}))
+        if part.supports_kway:
+            fine = agglomerate(mesh, data, model=part, mode="kway", k=counts[-1], seed=seed).labels
+            levels = [fine]
+            for c in reversed(counts[:-1]):
+                cg = coarse_graph(data, levels[0])
+                raw = np.asarray(part.kway(cg, int(c)), dtype=np.int64)
+                from .agglomerate import compact_labels
+
+                raw, _ = make_connected(cg.indptr, cg.indices, cg.weights, compact_labels(raw), measures=cg.measures)
+                levels.insert(0, compact_labels(raw)[levels[0]])
+            how = "agglomerates agglomerated (k-way on each coarse dual graph)"
+        else:
+            depth = max(1, int(round(np.log2(max(counts[-1], 2)))))
+            agg = agglomerate(mesh, data, model=part, mode="nref", nref=min(depth, int(np.log2(n))), seed=seed,
+                              record_levels=True)
+            cand = nested_levels(data, agg.labels, agg.levels, agg.nodes)
+            sizes = np.array([int(c.max()) + 1 for c in cand])
+            pick = sorted({int(np.argmin(np.abs(np.log(sizes) - np.log(c)))) for c in counts})
+            levels = [cand[i] for i in pick]
+            how = "top-down recursive bisection, recorded"
+    levels = [np.asarray(lv, dtype=np.int64) for lv in levels]
+    levels = _fix_holes(mesh, data, levels)
+    info = {"model": model, "ratio": float(ratio), "coarsest": int(coarsest), "requested": counts,
+            "method": how, "build_time": time.perf_counter() - t0}
+    return levels, info
+
+
+def _fix_holes(mesh: Mesh, data: CellData, levels: list[np.ndarray]) -> list[np.ndarray]:
+    """Elements that would enclose a hole are replaced by their children (finest: by cells),
+    finest level first, so the levels stay nested and every written polygon has one loop."""
+    from .merge import merge
+
+    out = list(levels)
+    finer = np.arange(mesh.n_cells)
+    for L in range(len(out) - 1, -1, -1):
+        _, holes = merge(mesh, data.graph, out[L], data.measures)
+        if np.unique(holes.elements).size:
+            out[L] = _without_holes(mesh, data, out[L], finer)
+        finer = out[L]
+    return out
 
 
 def _write_json(path: str, obj) -> None:
