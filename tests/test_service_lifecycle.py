@@ -217,9 +217,17 @@ def test_prometheus_metrics(tmp_path, meshes):
     assert config["scrape_configs"][0]["metrics_path"] == "/metrics"
 
 
-def test_networks_stay_loaded_in_the_worker_process():
+def test_networks_stay_loaded_in_the_worker_process(monkeypatch):
     from models.partitioners import sage
+    from worker.cli import apply_overrides, register_worker
+    from worker.warmup import warm_up
 
+    parser = __import__("argparse").ArgumentParser()
+    register_worker(parser.add_subparsers(dest="command"))
+    monkeypatch.delenv("MAGNET_PRELOAD_MODELS", raising=False)
+    apply_overrides(parser.parse_args(["worker", "--preload-models"]))
+    assert Settings().preload_models is True
+    assert len(warm_up()) == 4  # what a pool process runs at start with MAGNET_PRELOAD_MODELS
     loaded = sage.warm_up("cpu")
     assert sorted(loaded) == ["sage-base-2d", "sage-base-3d", "sage-hetero-2d", "sage-hetero-3d"]
     cached = dict(sage._CACHE)

@@ -8,7 +8,7 @@ from celery import Celery
 from jobqueue.celery_app import make_celery
 from jobqueue.settings import Settings
 
-TASK_MODULES = ("worker.tasks", "worker.reaper")
+TASK_MODULES = ("worker.tasks", "worker.reaper", "worker.warmup")
 
 
 def make_worker_app(settings: Settings | None = None) -> Celery:

@@ -199,18 +199,6 @@ def _prepare(sender=None, **_):
     settings.data_dir.mkdir(parents=True, exist_ok=True)
 
 
-@signals.worker_process_init.connect
-def _warm_up(**_):
-    """MAGNET_PRELOAD_MODELS: each pool process loads the networks once, before its first job (they
-    stay loaded for the process's life: jobs never reload them)."""
-    if Settings().preload_models:
-        from models.partitioners.sage import warm_up
-
-        t0 = time.perf_counter()
-        loaded = warm_up()
-        log.info("preloaded %s in %.2f s", ", ".join(loaded), time.perf_counter() - t0)
-
-
 @signals.worker_ready.connect
 def _start_reaper(sender=None, **_):
     global _reaper
