@@ -9,9 +9,12 @@ volumes, so on a coarsened graph they are the fine graph's.
 - bisection: on the band of nodes within `hops` of the cut, each step moves, in every graph at
   once, the unlocked node whose move lowers the normalized cut most (possibly a negative gain, to
   climb out of local minima) within the balance tolerance; a moved node is locked. After at most
-  cut + 1 steps each graph rolls back to the best prefix of its moves. Passes repeat while they
-  gain. Then stray islands go to the other side (both sides connected) and a graph keeps its old
-  bisection unless the refined one has a strictly lower normalized cut.
+  budget_factor x (cut + 1) steps each graph rolls back to the best prefix of its moves. Passes
+  repeat while they gain. Then stray islands go to the other side (both sides connected); `tries`
+  runs (the later ones break ties between equal gains at random) and a graph keeps its old
+  bisection unless a refined one has a strictly lower normalized cut (the best one). After a
+  whole recursive bisection, `polish` refines pairs of adjacent final parts for their share of
+  the k-way normalized cut.
 - k-way: rounds of simultaneous positive-gain moves of boundary nodes to the neighbouring part
   they share most edges with, on an independent set (no two moved nodes adjacent, so every gain
   is exact), within the balance tolerance; a move that would disconnect its part is undone.
@@ -265,7 +268,7 @@ class FMRefiner(Refiner):
 
     def __init__(self, tolerance: float = 0.05, hops: int = 4, passes: int = 8, kway_rounds: int = 30,
                  kway_tolerance: float = 0.03, pair_rounds: int = 2, objective: str = "ncut", polish_rounds: int = 4,
-                 seed: int | None = 0):
+                 budget_factor: float = 2.0, tries: int = 3, seed: int | None = 0):
         if not 0 <= tolerance < 1:
             raise ParameterError(f"fm tolerance must be in [0, 1), got {tolerance}")
         self.tolerance = float(tolerance)
@@ -278,22 +281,44 @@ class FMRefiner(Refiner):
             raise ParameterError(f"fm objective must be 'ncut' or 'cut', got {objective!r}")
         self.objective = objective
         self.polish_rounds = int(polish_rounds)
+        self.budget_factor = float(budget_factor)
+        self.tries = int(tries)
         self.seed = seed
 
     def refine(self, batch: GraphBatch, labels: np.ndarray) -> np.ndarray:
         labels = np.asarray(labels, dtype=np.int64)
         if batch.n_nodes == 0:
             return labels.copy()
-        side = labels.copy()
         cap = None
         if self.objective == "cut":  # edge cut under a measure cap per side, judged by the normalized cut
             cap = (0.5 + self.tolerance / 2) * np.bincount(batch.graph_index(), weights=batch.measures,
                                                            minlength=batch.n_graphs)
+        best = labels
+        for t in range(max(self.tries, 1)):
+            # later tries break ties between equal gains at random (seeded): another local optimum
+            score_fn = None
+            if t > 0:
+                jitter = np.random.default_rng([self.seed or 0, t]).random(batch.n_nodes)
+
+                def score_fn(st, cand, gain, jitter=jitter):
+                    return gain + 1e-9 * jitter[cand] * np.abs(gain).max(initial=0)
+            side = self._passes(batch, labels, cap, score_fn)
+            best = keep_better(batch, best, connected_sides(batch, side))
+        return best
+
+    def _passes(self, batch, labels, cap, score_fn):
+        side = labels.copy()
         for _ in range(self.passes):
-            side, before, after = fm_pass(batch, side, self.tolerance, self.hops, cap=cap)
+            budget = None
+            if self.budget_factor != 1:
+                st = CutState(batch, side)
+                n_band = np.bincount(st.gi[cut_band(batch, side, self.hops)], minlength=batch.n_graphs)
+                budget = np.minimum(np.ceil(self.budget_factor * (st.cut + 1)), n_band).astype(np.int64)
+            side, before, after = fm_pass(batch, side, self.tolerance, self.hops, budget=budget, cap=cap,
+                                          score_fn=score_fn)
             if not np.any(after < before - 1e-12):
                 break
-        return keep_better(batch, labels, connected_sides(batch, side))
+        return side
 
     def polish(self, batch: GraphBatch, labels: np.ndarray) -> np.ndarray:
         """After a recursive bisection: pairs of adjacent parts refined for their share of the
