@@ -66,7 +66,7 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
                              "once oriented like their neighbours); they are kept, their elements stay closed"))
     if graph is None:
         try:
-            graph = dual_graph(mesh)
+            graph = dual_graph(mesh, measures=False)  # the topology is all the report needs
         except MeshError as exc:
             issues.append(_issue("non-manifold", "error", 1, [], str(exc)))
             return _finish(rep, issues)

@@ -92,8 +92,9 @@ def face_keys(faces: Faces, n_points: int) -> np.ndarray:
     return np.column_stack([three, s])
 
 
-def dual_graph(mesh: Mesh, faces: Faces | None = None) -> DualGraph:
-    """Build the dual graph (linear after one sort of the face keys)."""
+def dual_graph(mesh: Mesh, faces: Faces | None = None, measures: bool = True) -> DualGraph:
+    """Build the dual graph (linear after one sort of the face keys). measures=False: unit edge
+    weights instead of shared edge lengths / face areas (for callers that need the topology only)."""
     faces = faces or cell_faces(mesh)
     keys = face_keys(faces, mesh.n_points)
     if keys.ndim == 1:
@@ -124,7 +125,7 @@ def dual_graph(mesh: Mesh, faces: Faces | None = None) -> DualGraph:
     partner = np.full(faces.n, -1, dtype=np.int64)
     partner[fa] = fb
     partner[fb] = fa
-    fm = face_measures(mesh.points, faces, fa)  # only the shared faces
+    fm = face_measures(mesh.points, faces, fa) if measures else np.ones(fa.size)  # only the shared faces
     n = mesh.n_cells
     rows = np.concatenate([ca, cb])
     cols = np.concatenate([cb, ca])
