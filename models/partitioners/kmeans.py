@@ -56,9 +56,15 @@ def nearest_center(x: np.ndarray, centers: np.ndarray, guess: np.ndarray | None 
     n_near = 8 if x.shape[1] == 2 else 20
     if guess is None or k <= 2 * n_near:
         return _brute_nearest(x, centers)
-    cdist = np.sum((centers[:, None, :] - centers[None, :, :]) ** 2, axis=2)
-    order = np.argsort(cdist, axis=1)[:, : n_near + 2]  # itself first, then its nearest
-    reach = cdist[np.arange(k), order[:, n_near + 1]] / 4.0  # (s(a) / 2)^2
+    if k <= 256:
+        cdist = np.sum((centers[:, None, :] - centers[None, :, :]) ** 2, axis=2)
+        order = np.argsort(cdist, axis=1)[:, : n_near + 2]  # itself first, then its nearest
+        reach = cdist[np.arange(k), order[:, n_near + 1]] / 4.0  # (s(a) / 2)^2
+    else:  # a k-d tree: O(k log k), not a k x k table
+        from scipy.spatial import cKDTree
+
+        dd, order = cKDTree(centers).query(centers, k=n_near + 2)
+        reach = dd[:, n_near + 1] ** 2 / 4.0
     cols = [np.ascontiguousarray(x[:, d]) for d in range(x.shape[1])]
     ccols = [np.ascontiguousarray(centers[:, d]) for d in range(x.shape[1])]
 
@@ -94,12 +100,14 @@ def _centers_of(x: np.ndarray, labels: np.ndarray, old: np.ndarray, w: np.ndarra
     return out
 
 
-def kmeans_plus_plus(x: np.ndarray, k: int, rng: np.random.Generator, w: np.ndarray | None = None) -> np.ndarray:
-    """Greedy k-means++: each new centre is the best of 2 + log(k) candidates drawn with probability
-    proportional to the (weighted) squared distance to the nearest centre so far."""
+def kmeans_plus_plus(
+    x: np.ndarray, k: int, rng: np.random.Generator, w: np.ndarray | None = None, greedy: bool = True
+) -> np.ndarray:
+    """Greedy k-means++: each new centre is the best of 2 + log(k) candidates (1 when not greedy)
+    drawn with probability proportional to the (weighted) squared distance to the nearest centre."""
     n = len(x)
     w = np.ones(n) if w is None else w
-    trials = 2 + int(np.log(k))
+    trials = 2 + int(np.log(k)) if greedy else 1
     centers = np.empty((k, x.shape[1]), dtype=x.dtype)
     first = min(int(np.searchsorted(np.cumsum(w), rng.random() * w.sum(), side="right")), n - 1)
     centers[0] = x[first]
@@ -183,9 +191,13 @@ def kmeans(
         pts, w, bins = xc, None, None
     best = None
     for _ in range(max(1, n_init)):
-        # k-means++ costs O(len(pts) k log k): on a random subset of at most 64 k points
-        sub = np.arange(len(pts)) if len(pts) <= 64 * k else np.sort(rng.choice(len(pts), 64 * k, replace=False))
-        c0 = kmeans_plus_plus(pts[sub], k, rng, None if w is None else w[sub])
+        # k-means++ costs O(m k trials) on m points: on a random subset of 64 k points, and for many
+        # clusters on 8 k points with one candidate per centre (plain k-means++), so that it stays
+        # linear in k (Lloyd's iterations that follow do the fine work)
+        few = k <= 512
+        m = min(len(pts), (64 if few else 8) * k)
+        sub = np.arange(len(pts)) if m == len(pts) else np.sort(rng.choice(len(pts), m, replace=False))
+        c0 = kmeans_plus_plus(pts[sub], k, rng, None if w is None else w[sub], greedy=few)
         c, lab, inertia = lloyd(pts, c0, max_iter, abs_tol, w)
         if best is None or inertia < best[1]:
             best = (c, inertia, lab)
