@@ -51,7 +51,8 @@ def clean_up(db: Database, storage: Storage, settings: Settings, grace_s: float 
         records = {m.id: m for m in s.scalars(select(MeshRecord))}
     results = storage.root / "results"
     for folder in results.iterdir() if results.is_dir() else ():
-        if folder.name not in keys and _older_than(folder, grace_s / 60):
+        # published (renamed into place) after the snapshot of keys above: younger than the grace
+        if folder.name not in keys and _older_than(folder, min(grace_s, 30.0)):
             shutil.rmtree(folder, ignore_errors=True)
             done["results"] += 1
     grace_cut = now - timedelta(seconds=grace_s)

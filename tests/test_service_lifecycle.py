@@ -232,3 +232,23 @@ def test_networks_stay_loaded_in_the_worker_process(monkeypatch):
     assert sorted(loaded) == ["sage-base-2d", "sage-base-3d", "sage-hetero-2d", "sage-hetero-3d"]
     cached = dict(sage._CACHE)
     assert sage.warm_up("cpu") == loaded and all(sage._CACHE[k] is v for k, v in cached.items())
+
+
+def test_a_real_worker_applies_the_retention_policy(tmp_path, meshes):
+    """`magnet serve` with its embedded worker: the worker's reaper removes a finished job (record and
+    result files) once it is older than MAGNET_RETENTION_DAYS."""
+    from service_fixtures import Api, service_env, start_api, wait_until, workers_online
+
+    env = service_env(tmp_path / "data", retention_days=3 / 86400, cleanup_interval_s=1)  # 3 seconds
+    proc, url = start_api(env, tmp_path, embedded_worker=True)
+    try:
+        wait_until(lambda: workers_online(url) >= 1, 90, 0.5, "the embedded worker")
+        api = Api(url)
+        job = api.wait(api.submit(api.upload(meshes[2])["id"], k=4)["id"], 120)
+        assert job["status"] == "succeeded"
+        results = tmp_path / "data" / "results"
+        assert any(results.iterdir())
+        wait_until(lambda: api.http.get(f"/v1/jobs/{job['id']}").status_code == 404, 60, 0.5, "the cleanup")
+        wait_until(lambda: not any(results.iterdir()), 90, 0.5, "the result files to go")
+    finally:
+        proc.stop()
