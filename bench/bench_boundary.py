@@ -29,11 +29,19 @@ def grid_square(n: int):
     q = np.column_stack([v(i, j), v(i + 1, j), v(i + 1, j + 1), v(i, j + 1)])
     t = np.vstack([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
     k = np.arange(n)
-    lines = np.vstack([np.column_stack([v(k, 0), v(k + 1, 0)]), np.column_stack([v(n, k), v(n, k + 1)]),
-                       np.column_stack([v(k, n), v(k + 1, n)]), np.column_stack([v(0, k), v(0, k + 1)])])
+    lines = np.vstack(
+        [
+            np.column_stack([v(k, 0), v(k + 1, 0)]),
+            np.column_stack([v(n, k), v(n, k + 1)]),
+            np.column_stack([v(k, n), v(k + 1, n)]),
+            np.column_stack([v(0, k), v(0, k + 1)]),
+        ]
+    )
     tags = np.repeat([2, 3, 4, 5], n)
-    return (mesh_from_arrays(p, [("triangle", t), ("line", lines)], tags=[np.ones(len(t)), tags]),
-            mesh_from_arrays(p, [("triangle", t)]))
+    return (
+        mesh_from_arrays(p, [("triangle", t), ("line", lines)], tags=[np.ones(len(t)), tags]),
+        mesh_from_arrays(p, [("triangle", t)]),
+    )
 
 
 def grid_cube(n: int):
@@ -45,10 +53,28 @@ def grid_cube(n: int):
     p = np.column_stack([x.ravel(), y.ravel(), z.ravel()])
     v = lambda a, b, c: (a * (n + 1) + b) * (n + 1) + c  # noqa: E731
     i, j, k = (a.ravel() for a in np.meshgrid(*(np.arange(n),) * 3, indexing="ij"))
-    h = np.column_stack([v(i, j, k), v(i + 1, j, k), v(i + 1, j + 1, k), v(i, j + 1, k),
-                         v(i, j, k + 1), v(i + 1, j, k + 1), v(i + 1, j + 1, k + 1), v(i, j + 1, k + 1)])
-    t = np.vstack([h[:, [0, 1, 2, 6]], h[:, [0, 1, 5, 6]], h[:, [0, 3, 2, 6]],
-                   h[:, [0, 3, 7, 6]], h[:, [0, 4, 5, 6]], h[:, [0, 4, 7, 6]]])
+    h = np.column_stack(
+        [
+            v(i, j, k),
+            v(i + 1, j, k),
+            v(i + 1, j + 1, k),
+            v(i, j + 1, k),
+            v(i, j, k + 1),
+            v(i + 1, j, k + 1),
+            v(i + 1, j + 1, k + 1),
+            v(i, j + 1, k + 1),
+        ]
+    )
+    t = np.vstack(
+        [
+            h[:, [0, 1, 2, 6]],
+            h[:, [0, 1, 5, 6]],
+            h[:, [0, 3, 2, 6]],
+            h[:, [0, 3, 7, 6]],
+            h[:, [0, 4, 5, 6]],
+            h[:, [0, 4, 7, 6]],
+        ]
+    )
     from models.geometry import cell_faces
     from models.io import mesh_from_arrays as mfa
 
@@ -87,7 +113,10 @@ def main() -> int:
     for name, (tagged, bare), k in cases:
         rows = [
             ("describe", lambda m: describe(m)),
-            ("run (metis kway)", lambda m, k=k: pipeline.run(m, model="metis", mode="kway", k=k, compute_metrics=False)),
+            (
+                "run (metis kway)",
+                lambda m, k=k: pipeline.run(m, model="metis", mode="kway", k=k, compute_metrics=False),
+            ),
         ]
         for step, fn in rows:
             a = timed(lambda fn=fn, m=tagged: fn(m))

@@ -55,12 +55,16 @@ def main() -> None:
             warnings.simplefilter("ignore")
             meshio.read(path)
 
-    print(f"{'mesh':24s} {'meshio.read':>12s} {'read_mesh':>12s} {'check':>12s} {'read/meshio':>12s} {'check/meshio':>13s}")
+    print(
+        f"{'mesh':24s} {'meshio.read':>12s} {'read_mesh':>12s} {'check':>12s} {'read/meshio':>12s} {'check/meshio':>13s}"
+    )
     for name, path in cases:
         t_meshio = best(lambda p=path: quiet_meshio(p), args.repeat)
         t_read = best(lambda p=path: read_mesh(p), args.repeat)
         t_check = best(lambda p=path: check_file(p), args.repeat)
-        print(f"{name:24s} {t_meshio:11.3f}s {t_read:11.3f}s {t_check:11.3f}s {t_read / t_meshio:11.1f}x {t_check / t_meshio:12.1f}x")
+        print(
+            f"{name:24s} {t_meshio:11.3f}s {t_read:11.3f}s {t_check:11.3f}s {t_read / t_meshio:11.1f}x {t_check / t_meshio:12.1f}x"
+        )
 
 
 if __name__ == "__main__":

@@ -76,7 +76,11 @@ def _match(query: np.ndarray, ref: np.ndarray) -> np.ndarray:
 
 
 def _group_faces(mesh: Mesh) -> Faces:
-    return Faces(cell=np.arange(len(mesh.boundary_types)), offsets=mesh.boundary_offsets, nodes=mesh.boundary_connectivity)
+    return Faces(
+        cell=np.arange(len(mesh.boundary_types)),
+        offsets=mesh.boundary_offsets,
+        nodes=mesh.boundary_connectivity,
+    )
 
 
 def has_groups(mesh: Mesh) -> bool:
@@ -117,9 +121,13 @@ def fine_boundary(mesh: Mesh, faces: Faces | None = None, partner: np.ndarray | 
     keep = on_boundary | (tags != NO_TAG)
     sel = rep[keep]
     return FineBoundary(
-        keys=rkeys[keep], tags=tags[keep], on_boundary=on_boundary[keep],
+        keys=rkeys[keep],
+        tags=tags[keep],
+        on_boundary=on_boundary[keep],
         measure=face_measures(mesh.points, faces, sel),
-        names=dict(mesh.meta.get("boundary_names", {})), unmatched=unmatched, conflicts=conflicts,
+        names=dict(mesh.meta.get("boundary_names", {})),
+        unmatched=unmatched,
+        conflicts=conflicts,
     )
 
 
@@ -128,8 +136,14 @@ def _poly_faces(poly: PolyMesh) -> Faces:
     if poly.dim == 2:
         nxt = next_in_cycle(poly.loop_offsets)
         nodes = np.column_stack([poly.loop_nodes, poly.loop_nodes[nxt]]).reshape(-1)
-        return Faces(cell=np.zeros(poly.loop_nodes.size, np.int64), offsets=np.arange(0, nodes.size + 1, 2, dtype=np.int64), nodes=nodes)
-    return Faces(cell=np.zeros(poly.loop_offsets.size - 1, np.int64), offsets=poly.loop_offsets, nodes=poly.loop_nodes)
+        return Faces(
+            cell=np.zeros(poly.loop_nodes.size, np.int64),
+            offsets=np.arange(0, nodes.size + 1, 2, dtype=np.int64),
+            nodes=nodes,
+        )
+    return Faces(
+        cell=np.zeros(poly.loop_offsets.size - 1, np.int64), offsets=poly.loop_offsets, nodes=poly.loop_nodes
+    )
 
 
 def annotate(poly: PolyMesh, fb: FineBoundary) -> PolyMesh:
@@ -177,7 +191,9 @@ def output_cells(poly: PolyMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
     offsets = np.zeros(keep.size + 1, dtype=np.int64)
     np.cumsum(sizes, out=offsets[1:])
     src = np.repeat(f.offsets[keep] - offsets[:-1], sizes) + np.arange(offsets[-1])
-    types = np.select([sizes == 2, sizes == 3, sizes == 4], [VTK_LINE, VTK_TRIANGLE, VTK_QUAD], VTK_POLYGON).astype(np.uint8)
+    types = np.select(
+        [sizes == 2, sizes == 3, sizes == 4], [VTK_LINE, VTK_TRIANGLE, VTK_QUAD], VTK_POLYGON
+    ).astype(np.uint8)
     return offsets, f.nodes[src], types, poly.facet_tags[keep]
 
 
@@ -215,8 +231,13 @@ def measure_report(fb: FineBoundary, poly: PolyMesh) -> dict:
     ia = _per_tag(tb[~on & (tb != NO_TAG)], pm[~on & (tb != NO_TAG)])
     for t, (n0, m0) in ib.items():
         n1, m1 = ia.get(t, (0, 0.0))  # each interface facet of the result belongs to two elements
-        out["interfaces"][str(t)] = {"name": name(t), "facets_before": n0, "facets_after": n1 // 2,
-                                     "measure_before": m0, "measure_after": m1 / 2}
+        out["interfaces"][str(t)] = {
+            "name": name(t),
+            "facets_before": n0,
+            "facets_after": n1 // 2,
+            "measure_before": m0,
+            "measure_after": m1 / 2,
+        }
     return out
 
 
@@ -229,10 +250,15 @@ def summary(mesh: Mesh) -> dict:
     groups = []
     for t in fb.groups:
         sel = fb.tags == t
-        groups.append({
-            "tag": t, "name": fb.names.get(t), "on_boundary": int(np.count_nonzero(sel & fb.on_boundary)),
-            "interior": int(np.count_nonzero(sel & ~fb.on_boundary)), "measure": float(fb.measure[sel].sum()),
-        })
+        groups.append(
+            {
+                "tag": t,
+                "name": fb.names.get(t),
+                "on_boundary": int(np.count_nonzero(sel & fb.on_boundary)),
+                "interior": int(np.count_nonzero(sel & ~fb.on_boundary)),
+                "measure": float(fb.measure[sel].sum()),
+            }
+        )
     untagged = fb.on_boundary & (fb.tags == NO_TAG)
     return {
         "facet": "edge" if mesh.dim == 2 else "face",
@@ -251,9 +277,15 @@ def check_lines(s: dict | Mesh) -> list[str]:
     if not s["groups"]:
         return ["boundary groups: none (every boundary facet gets the --boundary-tag default)"]
     f = s["facet"]
-    return ["boundary groups: " + ", ".join(
-        f"{g['tag']}{' ' + repr(g['name']) if g['name'] else ''} ({g['on_boundary']} boundary {f}s"
-        + (f", {g['interior']} interior" if g["interior"] else "") + ")" for g in s["groups"])]
+    return [
+        "boundary groups: "
+        + ", ".join(
+            f"{g['tag']}{' ' + repr(g['name']) if g['name'] else ''} ({g['on_boundary']} boundary {f}s"
+            + (f", {g['interior']} interior" if g["interior"] else "")
+            + ")"
+            for g in s["groups"]
+        )
+    ]
 
 
 def check_issues(s: dict) -> list[dict]:
@@ -269,17 +301,29 @@ def check_issues(s: dict) -> list[dict]:
         out.append({"kind": kind, "severity": severity, "count": int(count), "ids": [], "message": message})
 
     if s["untagged_boundary_facets"]:
-        issue("untagged-boundary", "info", s["untagged_boundary_facets"],
-              f"{s['untagged_boundary_facets']} of {s['boundary_facets']} boundary {f}s are in no boundary group "
-              "(they get the --boundary-tag default, 1)")
+        issue(
+            "untagged-boundary",
+            "info",
+            s["untagged_boundary_facets"],
+            f"{s['untagged_boundary_facets']} of {s['boundary_facets']} boundary {f}s are in no boundary group "
+            "(they get the --boundary-tag default, 1)",
+        )
     if s["interior_tagged_facets"]:
         tags = [g["tag"] for g in s["groups"] if g["interior"]]
-        issue("interface-groups", "info", s["interior_tagged_facets"],
-              f"{s['interior_tagged_facets']} tagged {f}s lie inside the domain (interfaces, groups {tags}); "
-              "--mode segregated keeps them as element boundaries where they separate materials")
+        issue(
+            "interface-groups",
+            "info",
+            s["interior_tagged_facets"],
+            f"{s['interior_tagged_facets']} tagged {f}s lie inside the domain (interfaces, groups {tags}); "
+            "--mode segregated keeps them as element boundaries where they separate materials",
+        )
     if s["conflicting_facets"]:
-        issue("group-conflict", "warning", s["conflicting_facets"],
-              f"{s['conflicting_facets']} {f}s are in two boundary groups; the first one in the file is kept")
+        issue(
+            "group-conflict",
+            "warning",
+            s["conflicting_facets"],
+            f"{s['conflicting_facets']} {f}s are in two boundary groups; the first one in the file is kept",
+        )
     return out
 
 

@@ -30,16 +30,24 @@ def check_file(path: str | os.PathLike, physical_tag: str | None = None, weld: f
     try:
         mesh = read_mesh(path, physical_tag=physical_tag, weld=weld)
     except MagnetError as exc:
-        return {"file": os.path.basename(os.fspath(path)), "verdict": "error",
-                "issues": [_issue("unreadable", "error", 1, [], str(exc))]}
+        return {
+            "file": os.path.basename(os.fspath(path)),
+            "verdict": "error",
+            "issues": [_issue("unreadable", "error", 1, [], str(exc))],
+        }
     report = mesh_report(mesh)
     report["file"] = os.path.basename(os.fspath(path))
     return report
 
 
 def _issue(kind: str, severity: str, count: int, ids, message: str) -> dict:
-    return {"kind": kind, "severity": severity, "count": int(count), "ids": [int(i) for i in list(ids)[:N_IDS]],
-            "message": message}
+    return {
+        "kind": kind,
+        "severity": severity,
+        "count": int(count),
+        "ids": [int(i) for i in list(ids)[:N_IDS]],
+        "message": message,
+    }
 
 
 def mesh_report(mesh: Mesh, graph=None) -> dict:
@@ -61,9 +69,16 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
     if mesh.meta.get("collapsed"):
         rep["collapsed_repeated_vertices"] = int(mesh.meta["collapsed"])
     if o.get("folded"):
-        issues.append(_issue("folded", "warning", o["folded"], o.get("folded_cells", []),
-                             f"{o['folded']} cells are folded over (negative {'area' if mesh.dim == 2 else 'volume'} "
-                             "once oriented like their neighbours); they are kept, their elements stay closed"))
+        issues.append(
+            _issue(
+                "folded",
+                "warning",
+                o["folded"],
+                o.get("folded_cells", []),
+                f"{o['folded']} cells are folded over (negative {'area' if mesh.dim == 2 else 'volume'} "
+                "once oriented like their neighbours); they are kept, their elements stay closed",
+            )
+        )
     if graph is None:
         try:
             graph = dual_graph(mesh, measures=False)  # the topology is all the report needs
@@ -75,16 +90,31 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
     unused = np.flatnonzero(~used)
     rep["unused_points"] = int(unused.size)
     if unused.size:
-        issues.append(_issue("unused-points", "info", unused.size, unused,
-                             f"{unused.size} points belong to no cell (ignored)"))
+        issues.append(
+            _issue(
+                "unused-points",
+                "info",
+                unused.size,
+                unused,
+                f"{unused.size} points belong to no cell (ignored)",
+            )
+        )
 
     # connected pieces of the dual graph
     n_pieces, piece = connected_components(graph.matrix(), directed=False)
     rep["components"] = int(n_pieces)
     if n_pieces > 1:
         sizes = np.bincount(piece)
-        issues.append(_issue("disconnected", "warning", n_pieces, [], f"the mesh has {n_pieces} disconnected pieces "
-                             f"(smallest: {int(sizes.min())} cells); each is agglomerated on its own"))
+        issues.append(
+            _issue(
+                "disconnected",
+                "warning",
+                n_pieces,
+                [],
+                f"the mesh has {n_pieces} disconnected pieces "
+                f"(smallest: {int(sizes.min())} cells); each is agglomerated on its own",
+            )
+        )
 
     # boundary facets, loops / shells, holes
     f = graph.faces
@@ -96,35 +126,67 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
     rep["holes"] = max(loops - int(n_pieces), 0)
     if pinch.size:
         what = "vertices" if mesh.dim == 2 else "edges (first vertex ids)"
-        issues.append(_issue("pinch", "warning", pinch.size, pinch,
-                             f"{pinch.size} boundary {what} where cells touch only at a point/edge (pinch); "
-                             "elements never cross them"))
+        issues.append(
+            _issue(
+                "pinch",
+                "warning",
+                pinch.size,
+                pinch,
+                f"{pinch.size} boundary {what} where cells touch only at a point/edge (pinch); "
+                "elements never cross them",
+            )
+        )
 
     # coincident points among the used ones; on the boundary they split the mesh along a seam
     dup_groups, dup_pts, seam = _duplicates(mesh, used, f, bnd)
     rep["duplicate_points"] = int(dup_pts)
     if dup_pts:
-        issues.append(_issue("duplicate-points", "warning", dup_pts, seam if seam.size else [],
-                             f"{dup_pts} points coincide with another point ({dup_groups} places)"
-                             + ("; on the boundary they split the mesh along a seam (cells on both sides are not "
-                                "neighbours; ids of the boundary copies listed)" if seam.size else "")
-                             + "; merge them with --weld TOL (e.g. --weld 1e-9)"))
+        issues.append(
+            _issue(
+                "duplicate-points",
+                "warning",
+                dup_pts,
+                seam if seam.size else [],
+                f"{dup_pts} points coincide with another point ({dup_groups} places)"
+                + (
+                    "; on the boundary they split the mesh along a seam (cells on both sides are not "
+                    "neighbours; ids of the boundary copies listed)"
+                    if seam.size
+                    else ""
+                )
+                + "; merge them with --weld TOL (e.g. --weld 1e-9)",
+            )
+        )
 
     hanging = _hanging_nodes(mesh, f, bnd)
     rep["hanging_nodes"] = int(hanging.size)
     if hanging.size:
-        issues.append(_issue("non-conforming", "warning", hanging.size, hanging,
-                             f"{hanging.size} vertices lie inside another cell's {'edge' if mesh.dim == 2 else 'face edge'} "
-                             "(hanging nodes / T-junctions, point ids listed): the cells there are not neighbours, "
-                             "elements do not cross that line"))
+        issues.append(
+            _issue(
+                "non-conforming",
+                "warning",
+                hanging.size,
+                hanging,
+                f"{hanging.size} vertices lie inside another cell's {'edge' if mesh.dim == 2 else 'face edge'} "
+                "(hanging nodes / T-junctions, point ids listed): the cells there are not neighbours, "
+                "elements do not cross that line",
+            )
+        )
 
     stray = _stray_lower_dim(mesh)
     if mesh.boundary_types is not None:
         rep["lower_dim_cells"] = int(mesh.boundary_types.size)
     if stray.size:
-        issues.append(_issue("mixed-dimension", "warning", stray.size, stray,
-                             f"{stray.size} {mesh.dim - 1}D cells are no {'edge' if mesh.dim == 2 else 'face'} of any "
-                             f"{mesh.dim}D cell (ignored: only the {mesh.dim}D cells are agglomerated)"))
+        issues.append(
+            _issue(
+                "mixed-dimension",
+                "warning",
+                stray.size,
+                stray,
+                f"{stray.size} {mesh.dim - 1}D cells are no {'edge' if mesh.dim == 2 else 'face'} of any "
+                f"{mesh.dim}D cell (ignored: only the {mesh.dim}D cells are agglomerated)",
+            )
+        )
     try:
         from .boundary import check_issues, check_lines, summary
 
@@ -267,14 +329,20 @@ def format_report(rep: dict) -> str:
     lines = []
     if "cells" in rep:
         types = ", ".join(f"{n} {t}" for t, n in rep["cell_types"].items())
-        lines.append(f"{rep.get('file', 'mesh')}: {rep['dim']}D, {rep['cells']} cells ({types}), {rep['points']} points")
+        lines.append(
+            f"{rep.get('file', 'mesh')}: {rep['dim']}D, {rep['cells']} cells ({types}), {rep['points']} points"
+        )
         if "components" in rep:
             loops = rep.get("boundary_loops", rep.get("boundary_shells"))
             kind = "loops" if rep["dim"] == 2 else "shells"
-            lines.append(f"pieces: {rep['components']}, boundary {kind}: {loops}, holes: {rep['holes']}, "
-                         f"boundary {'edges' if rep['dim'] == 2 else 'faces'}: {rep['boundary_facets']}")
+            lines.append(
+                f"pieces: {rep['components']}, boundary {kind}: {loops}, holes: {rep['holes']}, "
+                f"boundary {'edges' if rep['dim'] == 2 else 'faces'}: {rep['boundary_facets']}"
+            )
         o = rep["orientation"]
-        lines.append(f"orientation: {o['flipped']} cells re-oriented to match their neighbours, {o['folded']} folded")
+        lines.append(
+            f"orientation: {o['flipped']} cells re-oriented to match their neighbours, {o['folded']} folded"
+        )
         if rep.get("welded_points"):
             lines.append(f"welded: {rep['welded_points']} points merged into coincident ones")
         lines.append(f"physical groups: {rep['physical_groups'] or 'none'}")

@@ -61,13 +61,50 @@ MIRROR = {
     VTK_WEDGE: np.array([0, 2, 1, 3, 5, 4]),
     VTK_PYRAMID: np.array([0, 3, 2, 1, 4]),
 }
-TAG_NAMES = ("gmsh:physical", "CellEntityIds", "cell_tags", "medit:ref", "physical", "material", "tag", "physical_group", "avsucd:material")
+TAG_NAMES = (
+    "gmsh:physical",
+    "CellEntityIds",
+    "cell_tags",
+    "medit:ref",
+    "physical",
+    "material",
+    "tag",
+    "physical_group",
+    "avsucd:material",
+)
 BOUNDARY_TAG_NAME = "boundary_tag"  # boundary groups of lower-dimensional cells, as models.vtu writes them
-SUPPORTED_EXTENSIONS = (".vtu", ".vtk", ".msh", ".xdmf", ".xmf", ".mesh", ".med", ".inp", ".ucd", ".obj", ".off", ".ply", ".stl", ".h5m", ".su2", ".nas", ".bdf", ".f3grid", ".avs", ".dat", ".tec", ".ugrid")
+SUPPORTED_EXTENSIONS = (
+    ".vtu",
+    ".vtk",
+    ".msh",
+    ".xdmf",
+    ".xmf",
+    ".mesh",
+    ".med",
+    ".inp",
+    ".ucd",
+    ".obj",
+    ".off",
+    ".ply",
+    ".stl",
+    ".h5m",
+    ".su2",
+    ".nas",
+    ".bdf",
+    ".f3grid",
+    ".avs",
+    ".dat",
+    ".tec",
+    ".ugrid",
+)
 
 
-def read_mesh(path: str | os.PathLike, physical_tag: str | None = None, file_format: str | None = None,
-              weld: float | None = None) -> Mesh:
+def read_mesh(
+    path: str | os.PathLike,
+    physical_tag: str | None = None,
+    file_format: str | None = None,
+    weld: float | None = None,
+) -> Mesh:
     """Read a mesh file and return a validated, positively oriented `Mesh`.
 
     weld: merge points closer than this distance first (coincident duplicates that split a mesh)."""
@@ -80,21 +117,27 @@ def read_mesh(path: str | os.PathLike, physical_tag: str | None = None, file_for
     if file_format in ("ucd", "avsucd") or (file_format is None and ext in (".inp", ".ucd")):
         from .ucd import is_ucd, read_ucd
 
-        if ext == ".ucd" or file_format is not None or is_ucd(path):  # .inp is Abaqus unless it looks like UCD
+        # .inp is Abaqus unless it looks like UCD
+        if ext == ".ucd" or file_format is not None or is_ucd(path):
             return mesh_from_meshio(read_ucd(path), physical_tag=physical_tag, weld=weld)
     if file_format is None and ext not in meshio.extension_to_filetypes:
         raise MeshError(
-            f"unknown mesh format {ext or '(no extension)'!r}; use one of: "
-            + ", ".join(SUPPORTED_EXTENSIONS)
+            f"unknown mesh format {ext or '(no extension)'!r}; use one of: " + ", ".join(SUPPORTED_EXTENSIONS)
         )
     try:
-        with warnings.catch_warnings(), contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        with (
+            warnings.catch_warnings(),
+            contextlib.redirect_stdout(io.StringIO()),
+            contextlib.redirect_stderr(io.StringIO()),
+        ):
             warnings.simplefilter("ignore")
             m = meshio.read(path, file_format=file_format)
     except MeshError:
         raise
     except (Exception, SystemExit) as exc:  # meshio raises many kinds (even SystemExit) on broken input
-        meshio_polyhedra_bug = "polyhedra with other cells" in str(exc) or "Incompatible cell data" in str(exc)
+        meshio_polyhedra_bug = "polyhedra with other cells" in str(exc) or "Incompatible cell data" in str(
+            exc
+        )
         if meshio_polyhedra_bug and (file_format or ext).lstrip(".") == "vtu":
             # e.g. our own 3D output with its boundary faces, or polyhedra not sorted by vertex count
             from .vtu import read_vtu_mixed
@@ -128,7 +171,9 @@ def mesh_from_meshio(m, physical_tag: str | None = None, weld: float | None = No
     mesh = mesh_from_blocks(np.asarray(m.points, dtype=np.float64), cells, tag_name=tag_key, weld=weld)
     from .boundary import group_names
 
-    mesh.meta["group_names"], mesh.meta["boundary_names"] = group_names(getattr(m, "field_data", None), mesh.dim)
+    mesh.meta["group_names"], mesh.meta["boundary_names"] = group_names(
+        getattr(m, "field_data", None), mesh.dim
+    )
     return mesh
 
 
@@ -143,7 +188,9 @@ def mesh_from_arrays(points, cells, tags=None) -> Mesh:
         else:
             raise MeshError(f"unsupported cell type {name!r}")
         blocks.append((name, data, None if tags is None else np.asarray(tags[j]).reshape(-1), tdim))
-    return mesh_from_blocks(np.asarray(points, dtype=np.float64), blocks, tag_name=None if tags is None else "tags")
+    return mesh_from_blocks(
+        np.asarray(points, dtype=np.float64), blocks, tag_name=None if tags is None else "tags"
+    )
 
 
 def _find_tag_key(cell_data: dict, physical_tag: str | None) -> str | None:
@@ -161,14 +208,24 @@ def _find_tag_key(cell_data: dict, physical_tag: str | None) -> str | None:
 
 def _csr_from_blocks(blocks):
     """Concatenate fixed-width blocks (grouped by width, a loop over blocks, not cells) into CSR."""
-    sizes = np.concatenate([np.full(len(d), d.shape[1], dtype=np.int64) for d in blocks]) if blocks else np.zeros(0, np.int64)
-    conn = np.concatenate([np.asarray(d, dtype=np.int64).reshape(-1) for d in blocks]) if blocks else np.zeros(0, np.int64)
+    sizes = (
+        np.concatenate([np.full(len(d), d.shape[1], dtype=np.int64) for d in blocks])
+        if blocks
+        else np.zeros(0, np.int64)
+    )
+    conn = (
+        np.concatenate([np.asarray(d, dtype=np.int64).reshape(-1) for d in blocks])
+        if blocks
+        else np.zeros(0, np.int64)
+    )
     offsets = np.zeros(len(sizes) + 1, dtype=np.int64)
     np.cumsum(sizes, out=offsets[1:])
     return offsets, conn
 
 
-def mesh_from_blocks(points: np.ndarray, blocks, tag_name: str | None = None, weld: float | None = None) -> Mesh:
+def mesh_from_blocks(
+    points: np.ndarray, blocks, tag_name: str | None = None, weld: float | None = None
+) -> Mesh:
     """Core builder: split elements from boundary cells, check, orient, project 2D meshes.
 
     weld: merge points closer than this (see weld_points) before anything else is checked."""
@@ -180,13 +237,17 @@ def mesh_from_blocks(points: np.ndarray, blocks, tag_name: str | None = None, we
         points = np.column_stack([points, np.zeros(len(points))])
     bad = ~np.isfinite(points).all(axis=1)
     if bad.any():
-        raise MeshError(f"the mesh has {int(bad.sum())} points with NaN or infinite coordinates (first: point {int(np.flatnonzero(bad)[0])})")
+        raise MeshError(
+            f"the mesh has {int(bad.sum())} points with NaN or infinite coordinates (first: point {int(np.flatnonzero(bad)[0])})"
+        )
     nonempty = [b for b in blocks if len(b[1]) > 0]
     if not nonempty:
         raise MeshError("the mesh has no cells")
     dim = max(b[3] for b in nonempty)
     if dim < 2:
-        raise MeshError("1D meshes are not supported: the file holds only line/vertex cells, no 2D or 3D elements")
+        raise MeshError(
+            "1D meshes are not supported: the file holds only line/vertex cells, no 2D or 3D elements"
+        )
 
     elem, bnd = [], []
     for name, data, tags, tdim in nonempty:
@@ -233,7 +294,14 @@ def mesh_from_blocks(points: np.ndarray, blocks, tag_name: str | None = None, we
             f"cells refer to missing points: point ids must be in 0..{len(points) - 1}, found {int(conn.min())}..{int(conn.max())}"
         )
 
-    mesh = Mesh(points=points, offsets=offsets, connectivity=conn, cell_types=cell_types, tags=tags, tag_name=tag_name if tags is not None else None)
+    mesh = Mesh(
+        points=points,
+        offsets=offsets,
+        connectivity=conn,
+        cell_types=cell_types,
+        tags=tags,
+        tag_name=tag_name if tags is not None else None,
+    )
     welded = None
     if weld is not None:
         welded = weld_points(points, weld)
@@ -251,7 +319,11 @@ def mesh_from_blocks(points: np.ndarray, blocks, tag_name: str | None = None, we
             mesh.poly_face_nodes = welded[pf]
 
     if bnd:
-        b_data = [np.asarray(d, dtype=np.int64)[:, : (_TYPES[n][2] or None)] for n, d, _ in bnd if not n.startswith("polyhedron")]
+        b_data = [
+            np.asarray(d, dtype=np.int64)[:, : (_TYPES[n][2] or None)]
+            for n, d, _ in bnd
+            if not n.startswith("polyhedron")
+        ]
         mesh.boundary_offsets, mesh.boundary_connectivity = _csr_from_blocks(b_data)
         mesh.boundary_types = np.concatenate([np.full(len(d), _TYPES[n][0], np.uint8) for n, d, _ in bnd])
         if all(t is not None for _, _, t in bnd):
@@ -277,7 +349,11 @@ def weld_points(points: np.ndarray, tol: float) -> np.ndarray:
     if not (isinstance(tol, int | float) and np.isfinite(tol) and tol >= 0):
         raise ParameterError(f"weld tolerance must be a finite number >= 0, got {tol!r}")
     n = len(points)
-    pairs = cKDTree(points).query_pairs(float(tol), output_type="ndarray") if tol > 0 else np.zeros((0, 2), np.int64)
+    pairs = (
+        cKDTree(points).query_pairs(float(tol), output_type="ndarray")
+        if tol > 0
+        else np.zeros((0, 2), np.int64)
+    )
     if pairs.size == 0:
         return np.arange(n)
     g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
@@ -309,7 +385,9 @@ def _collapse_repeated_nodes(mesh: Mesh) -> None:
     new_sizes = sizes - np.bincount(cell, weights=rep, minlength=sizes.size).astype(np.int64)
     mesh.connectivity = conn[~rep]
     mesh.offsets = np.concatenate([[0], np.cumsum(new_sizes)]).astype(np.int64)
-    mesh.cell_types = np.where(new_sizes == 3, VTK_TRIANGLE, np.where(new_sizes == 4, VTK_QUAD, VTK_POLYGON)).astype(np.uint8)
+    mesh.cell_types = np.where(
+        new_sizes == 3, VTK_TRIANGLE, np.where(new_sizes == 4, VTK_QUAD, VTK_POLYGON)
+    ).astype(np.uint8)
 
 
 def _attach_polyhedra(mesh: Mesh, poly_faces) -> None:
@@ -430,4 +508,11 @@ def _boundary_summary(mesh: Mesh) -> dict:
     return {"boundary_groups": [g["tag"] for g in s["groups"]], "boundary": s}
 
 
-__all__ = ["read_mesh", "mesh_from_arrays", "mesh_from_meshio", "mesh_from_blocks", "describe", "CELL_TYPE_NAMES"]
+__all__ = [
+    "read_mesh",
+    "mesh_from_arrays",
+    "mesh_from_meshio",
+    "mesh_from_blocks",
+    "describe",
+    "CELL_TYPE_NAMES",
+]

@@ -78,9 +78,11 @@ def _consistent_2d(offsets: np.ndarray, conn: np.ndarray, flip: np.ndarray, n_po
     have the same number of nodes, the usual case)."""
     sizes = np.diff(offsets)
     if sizes.size == 0 or sizes.min() != sizes.max():
-
-        faces = Faces(cell=np.repeat(np.arange(sizes.size), sizes), offsets=np.arange(0, 2 * conn.size + 1, 2),
-                      nodes=np.column_stack([conn, conn[_next(offsets)]]).reshape(-1))
+        faces = Faces(
+            cell=np.repeat(np.arange(sizes.size), sizes),
+            offsets=np.arange(0, 2 * conn.size + 1, 2),
+            nodes=np.column_stack([conn, conn[_next(offsets)]]).reshape(-1),
+        )
         return bool(_consistent(faces, flip, n_points))
     c = conn.reshape(-1, int(sizes[0]))
     if flip.any():
@@ -200,7 +202,11 @@ def _propagate(n: int, ca: np.ndarray, cb: np.ndarray, parity: np.ndarray, dim: 
     if bad.any():
         i = np.flatnonzero(bad)
         cells = np.unique(np.concatenate([ca[i], cb[i]]))
-        what = "surface is not orientable (a Moebius-like strip)" if dim == 2 else "3D cells cannot be oriented consistently (inconsistent faces)"
+        what = (
+            "surface is not orientable (a Moebius-like strip)"
+            if dim == 2
+            else "3D cells cannot be oriented consistently (inconsistent faces)"
+        )
         raise MeshError(
             f"the mesh {what}: {i.size} shared {'edges' if dim == 2 else 'faces'} contradict the others, "
             f"e.g. between cells {cells[:6].tolist()}; check the connectivity of these cells"

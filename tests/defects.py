@@ -41,7 +41,9 @@ def folded_brain():
     key, cnt = np.unique(edges[:, 0] * len(p) + edges[:, 1], return_counts=True)
     boundary_nodes = np.unique(np.stack([key[cnt == 1] // len(p), key[cnt == 1] % len(p)]))
     area = np.abs(_signed_areas(p2, t))
-    L = np.stack([np.linalg.norm(p2[t[:, (j + 1) % 3]] - p2[t[:, (j + 2) % 3]], axis=1) for j in range(3)], axis=1)
+    L = np.stack(
+        [np.linalg.norm(p2[t[:, (j + 1) % 3]] - p2[t[:, (j + 2) % 3]], axis=1) for j in range(3)], axis=1
+    )
     thin = 2 * area / L.max(axis=1) ** 2
     for c in np.argsort(thin, kind="stable"):
         j = int(L[c].argmax())  # the vertex opposite the longest edge
@@ -114,7 +116,9 @@ def fold_one_triangle(p, t):
     edges = np.sort(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]), axis=1)
     key, cnt = np.unique(edges[:, 0] * len(p) + edges[:, 1], return_counts=True)
     boundary_nodes = np.unique(np.stack([key[cnt == 1] // len(p), key[cnt == 1] % len(p)]))
-    L = np.stack([np.linalg.norm(p[t[:, (j + 1) % 3]] - p[t[:, (j + 2) % 3]], axis=1) for j in range(3)], axis=1)
+    L = np.stack(
+        [np.linalg.norm(p[t[:, (j + 1) % 3]] - p[t[:, (j + 2) % 3]], axis=1) for j in range(3)], axis=1
+    )
     thin = 2 * np.abs(_signed_areas(p, t)) / L.max(axis=1) ** 2
     for c in np.argsort(thin, kind="stable"):
         j = int(L[c].argmax())
@@ -167,11 +171,24 @@ def corpus() -> dict:
     ph = ph.astype(np.float64)
     tr = int(np.flatnonzero(np.all(ph[qh].mean(axis=1) > 0.5, axis=1))[0])
     a, b, c, d = qh[tr]
-    mids = np.array([(ph[a] + ph[b]) / 2, (ph[b] + ph[c]) / 2, (ph[c] + ph[d]) / 2, (ph[d] + ph[a]) / 2, ph[qh[tr]].mean(axis=0)])
+    mids = np.array(
+        [
+            (ph[a] + ph[b]) / 2,
+            (ph[b] + ph[c]) / 2,
+            (ph[c] + ph[d]) / 2,
+            (ph[d] + ph[a]) / 2,
+            ph[qh[tr]].mean(axis=0),
+        ]
+    )
     m0 = len(ph)
     ab, bc, cd, da, ce = m0, m0 + 1, m0 + 2, m0 + 3, m0 + 4
     fine = np.array([[a, ab, ce, da], [ab, b, bc, ce], [ce, bc, c, cd], [da, ce, cd, d]])
-    out["hanging_node"] = (np.vstack([ph, mids]), [("quad", np.vstack([np.delete(qh, tr, axis=0), fine]))], None, "vtu")
+    out["hanging_node"] = (
+        np.vstack([ph, mids]),
+        [("quad", np.vstack([np.delete(qh, tr, axis=0), fine]))],
+        None,
+        "vtu",
+    )
     # three separate squares
     pieces_p, pieces_t = [], []
     for i, (dx, dy) in enumerate([(0, 0), (2, 0), (0, 3)]):
@@ -181,7 +198,12 @@ def corpus() -> dict:
     out["disconnected"] = (np.vstack(pieces_p), [("triangle", np.vstack(pieces_t))], None, "vtu")
     # a zero-area triangle (three collinear points) in a fan
     pz = np.array([[0, 0], [1, 0], [2, 0], [1, 1], [0, 1]], dtype=np.float64)
-    out["zero_area"] = (pz, [("triangle", np.array([[0, 1, 3], [1, 2, 3], [0, 3, 4], [0, 2, 1]]))], None, "vtk")
+    out["zero_area"] = (
+        pz,
+        [("triangle", np.array([[0, 1, 3], [1, 2, 3], [0, 3, 4], [0, 2, 1]]))],
+        None,
+        "vtk",
+    )
     # triangles exported as quads with a repeated last corner (collapsed quads), next to real quads
     pm, blocks = mixed_2d(4)
     tris = blocks[1][1]
@@ -212,7 +234,12 @@ def corpus() -> dict:
     # a triangulated piece of a cylinder: a surface in 3D space that is not planar
     ps, ts = triangles(4)
     ang = ps[:, 0] * np.pi / 2
-    out["nonplanar_surface"] = (np.column_stack([np.cos(ang), np.sin(ang), ps[:, 1]]), [("triangle", ts)], None, "vtu")
+    out["nonplanar_surface"] = (
+        np.column_stack([np.cos(ang), np.sin(ang), ps[:, 1]]),
+        [("triangle", ts)],
+        None,
+        "vtu",
+    )
     return out
 
 
@@ -229,7 +256,9 @@ def write_corpus(folder: str = OUT) -> list[str]:
     for name, (pts, cells, cell_data, ext) in corpus().items():
         path = os.path.join(folder, f"{name}.{ext}")
         mesh = meshio.Mesh(_z(np.asarray(pts, dtype=np.float64)), cells, cell_data=cell_data or {})
-        meshio.write(path, mesh, binary=(ext == "vtu")) if ext == "vtu" else meshio.write(path, mesh, binary=False)
+        meshio.write(path, mesh, binary=(ext == "vtu")) if ext == "vtu" else meshio.write(
+            path, mesh, binary=False
+        )
         written.append(path)
     return written
 

@@ -24,11 +24,22 @@ from models.lymph import lymph_from_mat, lymph_structs
 DATA = Path(__file__).parent / "data"
 ROOT = Path(__file__).parent.parent
 SQUARE, INCLUSION, CUBE = DATA / "square_sides.msh", DATA / "square_inclusion.msh", DATA / "cube_faces.msh"
-SIDE_TAGS = {2: (1, 0.0), 3: (0, 1.0), 4: (1, 1.0), 5: (0, 0.0)}  # tag -> (axis, value): bottom right top left
+SIDE_TAGS = {
+    2: (1, 0.0),
+    3: (0, 1.0),
+    4: (1, 1.0),
+    5: (0, 0.0),
+}  # tag -> (axis, value): bottom right top left
 CUBE_TAGS = {11 + 2 * a + s: (a, float(s)) for a in range(3) for s in (0, 1)}
-RUNS = [("metis", "kway", {"k": 12}), ("kmeans", "kway", {"k": 12}), ("sage-base", "nref", {"nref": 3}),
-        ("sage-hetero", "nref", {"nref": 3}), ("metis", "segregated", {"mult_factor": 0.3}),
-        ("kmeans", "segregated", {"mult_factor": 0.3}), ("sage-base", "segregated", {"mult_factor": 0.3})]
+RUNS = [
+    ("metis", "kway", {"k": 12}),
+    ("kmeans", "kway", {"k": 12}),
+    ("sage-base", "nref", {"nref": 3}),
+    ("sage-hetero", "nref", {"nref": 3}),
+    ("metis", "segregated", {"mult_factor": 0.3}),
+    ("kmeans", "segregated", {"mult_factor": 0.3}),
+    ("sage-base", "segregated", {"mult_factor": 0.3}),
+]
 
 
 def side_of(mid: np.ndarray, sides: dict) -> np.ndarray:
@@ -71,8 +82,11 @@ def test_square_sides_keep_their_tags(tmp_path, model, mode, kw):
     assert_boundary_report(rep, "length")
 
 
-@pytest.mark.parametrize(("model", "mode", "kw"), [r for r in RUNS if r[1] != "nref"] + [("sage-hetero", "segregated", {"mult_factor": 0.3})],
-                         ids=lambda x: str(x) if not isinstance(x, dict) else "")
+@pytest.mark.parametrize(
+    ("model", "mode", "kw"),
+    [r for r in RUNS if r[1] != "nref"] + [("sage-hetero", "segregated", {"mult_factor": 0.3})],
+    ids=lambda x: str(x) if not isinstance(x, dict) else "",
+)
 def test_inclusion_materials_and_interface(tmp_path, model, mode, kw):
     mesh = read_mesh(INCLUSION)
     assert mesh.physical_groups() == [1, 2]
@@ -94,7 +108,10 @@ def test_inclusion_materials_and_interface(tmp_path, model, mode, kw):
     # segregated: every element is one material, and the interface curve stays an edge of both neighbours
     for e in range(poly.n_elements):
         assert np.unique(mesh.tags[labels == e]).size == 1
-    assert iface["facets_after"] == 23 and abs(iface["measure_after"] - iface["measure_before"]) <= 1e-12 * iface["measure_before"]
+    assert (
+        iface["facets_after"] == 23
+        and abs(iface["measure_after"] - iface["measure_before"]) <= 1e-12 * iface["measure_before"]
+    )
     on6 = poly.facet_tags == 6
     assert on6.sum() == 2 * 23 and not poly.facet_on_boundary[on6].any()
     # in lymph's neighbour struct, the interface edges have an element on the other side, of the other material
@@ -110,8 +127,15 @@ def test_inclusion_materials_and_interface(tmp_path, model, mode, kw):
     assert (region["id"][owner[t == 6]] != region["id"][nb[t == 6] - 1]).all()
 
 
-@pytest.mark.parametrize(("model", "mode", "kw"), [("metis", "kway", {"k": 10}), ("kmeans", "kway", {"k": 10}),
-                                                   ("sage-base", "nref", {"nref": 3}), ("metis", "segregated", {"mult_factor": 0.5})])
+@pytest.mark.parametrize(
+    ("model", "mode", "kw"),
+    [
+        ("metis", "kway", {"k": 10}),
+        ("kmeans", "kway", {"k": 10}),
+        ("sage-base", "nref", {"nref": 3}),
+        ("metis", "segregated", {"mult_factor": 0.5}),
+    ],
+)
 def test_cube_faces_keep_their_tags(tmp_path, model, mode, kw):
     mesh = read_mesh(CUBE)
     res = pipeline.run(mesh, model=model, mode=mode, **kw)
@@ -172,14 +196,25 @@ def test_vtk_reads_the_3d_output(tmp_path):
     assert (vals[:6] == -1).all() and set(vals[6:].tolist()) == set(CUBE_TAGS)
 
 
-@pytest.mark.parametrize(("ext", "key"), [(".vtu", "CellEntityIds"), (".vtk", "CellEntityIds"), (".avs", "avsucd:material")])
+@pytest.mark.parametrize(
+    ("ext", "key"), [(".vtu", "CellEntityIds"), (".vtk", "CellEntityIds"), (".avs", "avsucd:material")]
+)
 def test_vtu_vtk_ucd_input_with_tagged_lines(tmp_path, ext, key):
     m = meshio.read(SQUARE)
     tri, lines = m.cells_dict["triangle"], np.vstack([c.data for c in m.cells if c.type == "line"])
-    ltags = np.concatenate([d for c, d in zip(m.cells, m.cell_data["gmsh:physical"], strict=True) if c.type == "line"])
+    ltags = np.concatenate(
+        [d for c, d in zip(m.cells, m.cell_data["gmsh:physical"], strict=True) if c.type == "line"]
+    )
     path = tmp_path / f"sq{ext}"
-    meshio.write(path, meshio.Mesh(m.points, [("line", lines[:, ::-1]), ("triangle", tri)],
-                                   cell_data={key: [ltags, np.full(len(tri), 7)]}), **({} if ext == ".avs" else {"binary": False}))
+    meshio.write(
+        path,
+        meshio.Mesh(
+            m.points,
+            [("line", lines[:, ::-1]), ("triangle", tri)],
+            cell_data={key: [ltags, np.full(len(tri), 7)]},
+        ),
+        **({} if ext == ".avs" else {"binary": False}),
+    )
     mesh = read_mesh(path)
     assert mesh.physical_groups() == [7]
     assert describe(mesh)["boundary_groups"] == [2, 3, 4, 5]
@@ -191,7 +226,11 @@ def test_vtu_vtk_ucd_input_with_tagged_lines(tmp_path, ext, key):
 def test_untagged_boundary_gets_the_default(tmp_path):
     m = meshio.read(SQUARE)
     tri = m.cells_dict["triangle"]
-    keep = [(c.data, d) for c, d in zip(m.cells, m.cell_data["gmsh:physical"], strict=True) if c.type == "line" and d[0] != 3]
+    keep = [
+        (c.data, d)
+        for c, d in zip(m.cells, m.cell_data["gmsh:physical"], strict=True)
+        if c.type == "line" and d[0] != 3
+    ]
     lines, ltags = np.vstack([k[0] for k in keep]), np.concatenate([k[1] for k in keep])
     # one extra line that is no cell edge (a diagonal): reported as unmatched
     lines = np.vstack([lines, [[tri[0, 0], tri[-1, 1]]]])
@@ -221,8 +260,11 @@ def test_conflicting_and_interior_groups_are_reported():
     tri = m.cells_dict["triangle"]
     lines = np.vstack([c.data for c in m.cells if c.type == "line"])
     inner = tri[200, :2][None, :]  # an interior edge, tagged
-    mesh = mesh_from_arrays(m.points, [("triangle", tri), ("line", np.vstack([lines, lines[:1], inner]))],
-                            tags=[np.ones(len(tri)), np.r_[np.full(len(lines), 2), 8, 9]])
+    mesh = mesh_from_arrays(
+        m.points,
+        [("triangle", tri), ("line", np.vstack([lines, lines[:1], inner]))],
+        tags=[np.ones(len(tri)), np.r_[np.full(len(lines), 2), 8, 9]],
+    )
     fb = fine_boundary(mesh)
     assert fb.conflicts == 1 and fb.unmatched == 0
     s = summary(mesh)
@@ -254,8 +296,25 @@ def test_cli_boundary_tag_and_summary(tmp_path):
     s = json.loads(info.stdout)
     assert s["boundary_groups"] == [2, 3, 4, 5]
     assert [g["name"] for g in s["boundary"]["groups"]] == ["bottom", "right", "top", "left"]
-    out = subprocess.run([*env_py, "agglomerate", str(SQUARE), "-o", str(tmp_path / "o.vtu"), "--k", "6",
-                          "--lymph", str(tmp_path / "o.mat"), "--boundary-tag", "9"], capture_output=True, text=True, env=env, cwd=ROOT)
+    out = subprocess.run(
+        [
+            *env_py,
+            "agglomerate",
+            str(SQUARE),
+            "-o",
+            str(tmp_path / "o.vtu"),
+            "--k",
+            "6",
+            "--lymph",
+            str(tmp_path / "o.mat"),
+            "--boundary-tag",
+            "9",
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=ROOT,
+    )
     assert out.returncode == 0, out.stderr
     region, _ = lymph_from_mat(tmp_path / "o.mat")
     check_lymph(region)  # every edge is tagged: the default is not used
@@ -274,9 +333,14 @@ def test_match_with_wide_keys():
     np.testing.assert_array_equal(_match(wide(query), wide(ref)), want)
 
 
-@pytest.mark.parametrize(("model", "mode", "kw"), [("metis", "segregated", {"mult_factor": 0.6}),
-                                                   ("kmeans", "segregated", {"mult_factor": 0.6}),
-                                                   ("metis", "kway", {"k": 8})])
+@pytest.mark.parametrize(
+    ("model", "mode", "kw"),
+    [
+        ("metis", "segregated", {"mult_factor": 0.6}),
+        ("kmeans", "segregated", {"mult_factor": 0.6}),
+        ("metis", "kway", {"k": 8}),
+    ],
+)
 def test_cube_inclusion_interface_surface(tmp_path, model, mode, kw):
     """3D: the interface surface between two materials stays a face of both neighbours (segregated),
     its area is kept, the outer faces keep their tags; kway may cut through it (reported)."""
@@ -310,8 +374,10 @@ def test_magnet_check_lists_the_groups(capsys):
 
     assert magnet(["check", str(INCLUSION)]) == 0
     text = capsys.readouterr().out
-    assert ("boundary groups: 2 'bottom' (15 boundary edges), 3 'right' (15 boundary edges), 4 'top' (15 boundary edges), "
-            "5 'left' (15 boundary edges), 6 'interface' (0 boundary edges, 23 interior)") in text
+    assert (
+        "boundary groups: 2 'bottom' (15 boundary edges), 3 'right' (15 boundary edges), 4 'top' (15 boundary edges), "
+        "5 'left' (15 boundary edges), 6 'interface' (0 boundary edges, 23 interior)"
+    ) in text
     assert "info: 23 tagged edges lie inside the domain (interfaces, groups [6])" in text
     assert magnet(["check", str(CUBE), "--json"]) == 0
     rep = json.loads(capsys.readouterr().out)

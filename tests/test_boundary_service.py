@@ -51,12 +51,22 @@ def test_upload_summary_and_job_lymph_carry_the_groups(server, tmp_path):
     assert {g["name"]: g["tag"] for g in groups} == {"bottom": 2, "right": 3, "top": 4, "left": 5}
     assert all(g["on_boundary"] == 13 and g["interior"] == 0 for g in groups)
     assert mesh["boundary"]["untagged_boundary_facets"] == 0
-    job = c.agglomerate(SQUARE, tmp_path / "o.vtu", metrics=str(tmp_path / "m.json"), progress=False,
-                        model="metis", mode="kway", k=8, boundary_tag=9)
+    job = c.agglomerate(
+        SQUARE,
+        tmp_path / "o.vtu",
+        metrics=str(tmp_path / "m.json"),
+        progress=False,
+        model="metis",
+        mode="kway",
+        k=8,
+        boundary_tag=9,
+    )
     region = c.download_lymph(job["id"])["region"]
     assert region["bc_tag"] == sides_of(region).tolist() and 9 not in region["bc_tag"]
     rep = json.loads((tmp_path / "m.json").read_text())["boundary"]
-    assert {k: v["measure_after"] for k, v in rep["groups"].items()} == pytest.approx({str(t): 1.0 for t in SIDES}, rel=1e-12)
+    assert {k: v["measure_after"] for k, v in rep["groups"].items()} == pytest.approx(
+        {str(t): 1.0 for t in SIDES}, rel=1e-12
+    )
     assert job["params"]["options"]["boundary_tag"] == 9
 
 
@@ -76,12 +86,21 @@ fid = fopen('{result}', 'w'); fprintf(fid, '%s', jsonencode(out)); fclose(fid);
 def test_octave_wrapper_names_map_to_tags(server, tmp_path):
     octave = shutil.which("octave-cli")
     if octave is None:
-        pytest.skip("octave-cli not found: install GNU Octave (apt-get install -y --no-install-recommends octave)")
+        pytest.skip(
+            "octave-cli not found: install GNU Octave (apt-get install -y --no-install-recommends octave)"
+        )
     result = tmp_path / "r.json"
     script = tmp_path / "run.m"
-    script.write_text(OCTAVE.format(matlab=ROOT / "client" / "matlab", mesh=SQUARE, url=server, token=TOKEN, result=result))
-    out = subprocess.run([octave, "--no-gui", "--quiet", "--no-window-system", str(script)], cwd=tmp_path,
-                         capture_output=True, text=True, timeout=300)
+    script.write_text(
+        OCTAVE.format(matlab=ROOT / "client" / "matlab", mesh=SQUARE, url=server, token=TOKEN, result=result)
+    )
+    out = subprocess.run(
+        [octave, "--no-gui", "--quiet", "--no-window-system", str(script)],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert result.exists(), f"octave failed:\n{out.stdout}\n{out.stderr}"
     r = json.loads(result.read_text())
     assert dict(zip(r["names"], r["tags"], strict=True)) == {"bottom": 2, "right": 3, "top": 4, "left": 5}

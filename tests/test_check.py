@@ -34,13 +34,21 @@ def test_cli_check_text_json_and_exit_codes(tmp_path):
     cell = write_folded_brain(str(fb))
     r = magnet("check", fb)
     assert r.returncode == 0, r.stderr
-    assert "1 folded" in r.stdout and f"[{cell}]" in r.stdout and r.stdout.strip().endswith("verdict: warnings")
+    assert (
+        "1 folded" in r.stdout and f"[{cell}]" in r.stdout and r.stdout.strip().endswith("verdict: warnings")
+    )
     r = magnet("check", fb, "--json")
     rep = json.loads(r.stdout)
-    assert rep["verdict"] == "warnings" and rep["issues"][0]["kind"] == "folded" and rep["issues"][0]["ids"] == [cell]
+    assert (
+        rep["verdict"] == "warnings"
+        and rep["issues"][0]["kind"] == "folded"
+        and rep["issues"][0]["ids"] == [cell]
+    )
     bad = tmp_path / "deg.vtk"
-    bad.write_text("# vtk DataFile Version 4.2\nx\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 4 double\n0 0 0\n1 0 0\n"
-                   "2 0 0\n0 1 0\nCELLS 2 8\n3 0 1 2\n3 0 1 3\nCELL_TYPES 2\n5\n5\n")
+    bad.write_text(
+        "# vtk DataFile Version 4.2\nx\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 4 double\n0 0 0\n1 0 0\n"
+        "2 0 0\n0 1 0\nCELLS 2 8\n3 0 1 2\n3 0 1 3\nCELL_TYPES 2\n5\n5\n"
+    )
     r = magnet("check", bad)
     assert r.returncode == 2 and "degenerate" in r.stdout and "verdict: error" in r.stdout
     assert "Traceback" not in r.stderr
@@ -64,8 +72,12 @@ def test_upload_returns_the_check(tmp_path):
     cell = write_folded_brain(str(fb))
     client, _ = make(tmp_path)
     with client:
-        r = client.post("/v1/meshes", params={"filename": "folded.vtu"}, content=fb.read_bytes(),
-                        headers={"Content-Type": "application/octet-stream", **auth("alice")})
+        r = client.post(
+            "/v1/meshes",
+            params={"filename": "folded.vtu"},
+            content=fb.read_bytes(),
+            headers={"Content-Type": "application/octet-stream", **auth("alice")},
+        )
         assert r.status_code == 201, r.text
         check = r.json()["check"]
         assert check["verdict"] == "warnings" and check["orientation"]["folded"] == 1
@@ -83,8 +95,12 @@ def test_every_defect_upload_is_201_or_422(tmp_path):
     with client:
         for name in sorted(AREA) + sorted(REFUSED):
             p = path(name)
-            r = client.post("/v1/meshes", params={"filename": os.path.basename(p)}, content=open(p, "rb").read(),
-                            headers={"Content-Type": "application/octet-stream", **auth("alice")})
+            r = client.post(
+                "/v1/meshes",
+                params={"filename": os.path.basename(p)},
+                content=open(p, "rb").read(),
+                headers={"Content-Type": "application/octet-stream", **auth("alice")},
+            )
             if name in REFUSED:
                 assert r.status_code == 422 and REFUSED[name][0] in r.text, (name, r.text)
             else:
@@ -102,7 +118,12 @@ def test_3d_cavity_and_2d_hole_are_counted():
     p, h = hexes(3)
     inner = np.all(np.abs(p[h].mean(axis=1) - 0.5) < 0.2, axis=1)  # the middle hexahedron removed
     rep = mesh_report(mesh_from_arrays(p, [("hexahedron", h[~inner])]))
-    assert rep["components"] == 1 and rep["boundary_shells"] == 2 and rep["holes"] == 1 and rep["boundary_facets"] == 60
+    assert (
+        rep["components"] == 1
+        and rep["boundary_shells"] == 2
+        and rep["holes"] == 1
+        and rep["boundary_facets"] == 60
+    )
     p, q = quads(3)
     inner = np.all(np.abs(p[q].mean(axis=1) - 0.5) < 0.2, axis=1)
     rep = mesh_report(mesh_from_arrays(p, [("quad", q[~inner])]))

@@ -17,9 +17,18 @@ from models.check import check_file
 from models.io import mesh_from_arrays, read_mesh
 
 AREA = {  # exact total measure, where the construction fixes it
-    "folded_sliver_2d": 1.0, "folded_tet_3d": 1.0, "unused_points": 1.0, "duplicate_seam": 1.0, "pinch": 2.0,
-    "hanging_node": 1.0, "disconnected": 3.0, "repeated_vertex": 1.0, "nonplanar_quads": 1.0, "mixed_2d_3d": 1.0,
-    "far_from_origin": 36e-6, "micro_scale": 36e-18,
+    "folded_sliver_2d": 1.0,
+    "folded_tet_3d": 1.0,
+    "unused_points": 1.0,
+    "duplicate_seam": 1.0,
+    "pinch": 2.0,
+    "hanging_node": 1.0,
+    "disconnected": 3.0,
+    "repeated_vertex": 1.0,
+    "nonplanar_quads": 1.0,
+    "mixed_2d_3d": 1.0,
+    "far_from_origin": 36e-6,
+    "micro_scale": 36e-18,
 }
 REFUSED = {
     "zero_area": ("degenerate (zero-area) cells", "cell ids [3]", "remove them"),
@@ -62,7 +71,9 @@ def _total_of_written(res, tmp_path) -> float:
 
 
 @pytest.mark.parametrize("name", sorted(AREA))
-@pytest.mark.parametrize("model,mode,kw", [("metis", "kway", {"k": 4}), ("kmeans", "mult-factor", {"mult_factor": 0.3})])
+@pytest.mark.parametrize(
+    "model,mode,kw", [("metis", "kway", {"k": 4}), ("kmeans", "mult-factor", {"mult_factor": 0.3})]
+)
 def test_agglomerates_with_the_measure_preserved(name, model, mode, kw, tmp_path):
     m = read_mesh(path(name))
     total = m.meta["signed_measures"].sum()
@@ -70,7 +81,9 @@ def test_agglomerates_with_the_measure_preserved(name, model, mode, kw, tmp_path
     res = pipeline.run(m, model=model, mode=mode, compute_metrics=True, **kw)
     assert np.isclose(res.poly.measure.sum(), total, rtol=1e-9, atol=0)
     assert np.isclose(_total_of_written(res, tmp_path), total, rtol=1e-9, atol=0)
-    assert res.metrics is not None and len(res.metrics["per_element"]) > 0  # the metrics survive the defect too
+    assert (
+        res.metrics is not None and len(res.metrics["per_element"]) > 0
+    )  # the metrics survive the defect too
 
 
 @pytest.mark.parametrize("name", sorted(REFUSED))
@@ -91,7 +104,11 @@ def test_check_reports_each_defect():
     assert rep["verdict"] == "warnings" and _kinds(rep)["folded"]["count"] == 1
     assert check_file(path("folded_tet_3d"))["orientation"]["folded"] == 1
     rep = check_file(path("unused_points"))
-    assert rep["verdict"] == "ok" and rep["unused_points"] == 4 and _kinds(rep)["unused-points"]["ids"] == [49, 50, 51, 52]
+    assert (
+        rep["verdict"] == "ok"
+        and rep["unused_points"] == 4
+        and _kinds(rep)["unused-points"]["ids"] == [49, 50, 51, 52]
+    )
     rep = check_file(path("duplicate_seam"))
     dup = _kinds(rep)["duplicate-points"]
     assert rep["components"] == 2 and rep["duplicate_points"] == 7 and "--weld" in dup["message"]
@@ -124,8 +141,15 @@ def test_weld_merges_the_seam(tmp_path):
 
 
 @pytest.mark.parametrize("name,scale", [("far_from_origin", 6e-3), ("micro_scale", 6e-9)])
-@pytest.mark.parametrize("model,mode,kw", [("metis", "kway", {"k": 5}), ("kmeans", "kway", {"k": 5}),
-                                           ("metis", "nref", {"nref": 3}), ("metis", "mult-factor", {"mult_factor": 0.3})])
+@pytest.mark.parametrize(
+    "model,mode,kw",
+    [
+        ("metis", "kway", {"k": 5}),
+        ("kmeans", "kway", {"k": 5}),
+        ("metis", "nref", {"nref": 3}),
+        ("metis", "mult-factor", {"mult_factor": 0.3}),
+    ],
+)
 def test_far_and_tiny_meshes_give_the_normalized_results(name, scale, model, mode, kw):
     p, cells = normalized(name)
     ref = pipeline.run(mesh_from_arrays(p, cells), model=model, mode=mode, compute_metrics=False, **kw)

@@ -141,11 +141,21 @@ def test_clockwise_and_inverted_cells_are_reoriented():
 
 def test_named_physical_tag(tmp_path):
     p, t = triangles(3)
-    path = write(tmp_path, "m.vtu", np.column_stack([p, np.zeros(len(p))]), [("triangle", t)],
-                 cell_data={"material": [np.arange(len(t)) % 3]})
+    path = write(
+        tmp_path,
+        "m.vtu",
+        np.column_stack([p, np.zeros(len(p))]),
+        [("triangle", t)],
+        cell_data={"material": [np.arange(len(t)) % 3]},
+    )
     assert read_mesh(path).physical_groups() == [0, 1, 2]  # found by its common name
-    path2 = write(tmp_path, "n.vtu", np.column_stack([p, np.zeros(len(p))]), [("triangle", t)],
-                  cell_data={"zone_id": [np.arange(len(t)) % 2]})
+    path2 = write(
+        tmp_path,
+        "n.vtu",
+        np.column_stack([p, np.zeros(len(p))]),
+        [("triangle", t)],
+        cell_data={"zone_id": [np.arange(len(t)) % 2]},
+    )
     assert read_mesh(path2).tags is None
     assert read_mesh(path2, physical_tag="zone_id").physical_groups() == [0, 1]
     with pytest.raises(ParameterError, match="nope"):
@@ -153,6 +163,7 @@ def test_named_physical_tag(tmp_path):
 
 
 # ---- bad input: one clear MeshError each ----------------------------------------------------
+
 
 def test_missing_file(tmp_path):
     with pytest.raises(MeshError, match="not found"):
@@ -188,8 +199,10 @@ def test_mesh_without_cells(tmp_path):
     with pytest.raises(MeshError, match="no cells"):
         mesh_from_arrays(np.random.rand(5, 3), [])
     path = tmp_path / "n.vtk"
-    path.write_text("# vtk DataFile Version 4.2\nno cells\nASCII\nDATASET UNSTRUCTURED_GRID\n"
-                    "POINTS 3 double\n0 0 0\n1 0 0\n0 1 0\nCELLS 0 0\nCELL_TYPES 0\n")
+    path.write_text(
+        "# vtk DataFile Version 4.2\nno cells\nASCII\nDATASET UNSTRUCTURED_GRID\n"
+        "POINTS 3 double\n0 0 0\n1 0 0\n0 1 0\nCELLS 0 0\nCELL_TYPES 0\n"
+    )
     with pytest.raises(MeshError, match="no cells|cannot read"):
         read_mesh(path)
 

@@ -62,25 +62,53 @@ fid = fopen('{result}', 'w'); fprintf(fid, '%s', jsonencode(out)); fclose(fid);
 def run_octave(tmp_path: Path, mat: Path) -> dict:
     octave = shutil.which("octave-cli")
     if octave is None:
-        pytest.skip("octave-cli not found: install GNU Octave (apt-get install -y --no-install-recommends octave)")
+        pytest.skip(
+            "octave-cli not found: install GNU Octave (apt-get install -y --no-install-recommends octave)"
+        )
     result = tmp_path / "result.json"
     script = tmp_path / "marks.m"
     script.write_text(SCRIPT.format(mat=mat, result=result))
-    out = subprocess.run([octave, "--no-gui", "--quiet", "--no-window-system", str(script)], cwd=tmp_path,
-                         capture_output=True, text=True, timeout=300)
+    out = subprocess.run(
+        [octave, "--no-gui", "--quiet", "--no-window-system", str(script)],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert result.exists(), f"octave failed:\n{out.stdout}\n{out.stderr}"
     return json.loads(result.read_text())
 
 
-@pytest.mark.parametrize(("mesh", "mode", "sides", "ids"), [
-    ("square_sides.msh", ["--k", "16"], 13, None),
-    ("square_inclusion.msh", ["--mode", "segregated", "--mult-factor", "0.3"], 15, True),
-])
+@pytest.mark.parametrize(
+    ("mesh", "mode", "sides", "ids"),
+    [
+        ("square_sides.msh", ["--k", "16"], 13, None),
+        ("square_inclusion.msh", ["--mode", "segregated", "--mult-factor", "0.3"], 15, True),
+    ],
+)
 def test_octave_marks_boundary_edges_per_tag(tmp_path, mesh, mode, sides, ids):
     mat = tmp_path / "out.mat"
-    cmd = [sys.executable, "-m", "models.cli", "agglomerate", str(DATA / mesh), "-o", str(tmp_path / "out.vtu"),
-           "--lymph", str(mat), "--labels", str(tmp_path / "labels.json"), *mode]
-    run = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "MPLBACKEND": "Agg"})
+    cmd = [
+        sys.executable,
+        "-m",
+        "models.cli",
+        "agglomerate",
+        str(DATA / mesh),
+        "-o",
+        str(tmp_path / "out.vtu"),
+        "--lymph",
+        str(mat),
+        "--labels",
+        str(tmp_path / "labels.json"),
+        *mode,
+    ]
+    run = subprocess.run(
+        cmd,
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "MPLBACKEND": "Agg"},
+    )
     assert run.returncode == 0, run.stderr
     r = run_octave(tmp_path, mat)
     assert r["missing"] == 0 and r["unknown"] == 0

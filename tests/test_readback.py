@@ -27,7 +27,9 @@ def _mesh(name):
         p, blocks = mixed_3d(4)
         return mesh_from_arrays(p, blocks)
     p, c = CASES[name]()
-    return mesh_from_arrays(p, [("quad" if name == "quads" else "triangle" if name == "triangles" else "tetra", c)])
+    return mesh_from_arrays(
+        p, [("quad" if name == "quads" else "triangle" if name == "triangles" else "tetra", c)]
+    )
 
 
 @pytest.mark.parametrize("name", list(CASES))
@@ -80,9 +82,17 @@ def test_cli_reagglomerates_its_own_3d_output(tmp_path):
     src = tmp_path / "cube.vtu"
     meshio.write(src, meshio.Mesh(p, [("tetra", t)]))
     cli = [sys.executable, "-m", "models.cli"]
-    r = subprocess.run(cli + ["agglomerate", str(src), "-o", str(tmp_path / "a.vtu"), "--k", "20"], capture_output=True, text=True)
+    r = subprocess.run(
+        cli + ["agglomerate", str(src), "-o", str(tmp_path / "a.vtu"), "--k", "20"],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 0, r.stderr
-    r = subprocess.run(cli + ["agglomerate", str(tmp_path / "a.vtu"), "-o", str(tmp_path / "b.vtu"), "--k", "4"], capture_output=True, text=True)
+    r = subprocess.run(
+        cli + ["agglomerate", str(tmp_path / "a.vtu"), "-o", str(tmp_path / "b.vtu"), "--k", "4"],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 0, r.stderr
     assert sum(len(c) for c in meshio.read(tmp_path / "b.vtu").cells) >= 4
     r = subprocess.run(cli + ["info", str(tmp_path / "b.vtu")], capture_output=True, text=True)

@@ -22,8 +22,12 @@ import sys
 import gmsh
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-SIDES = {2: ("bottom", lambda x, y: abs(y) < 1e-9), 3: ("right", lambda x, y: abs(x - 1) < 1e-9),
-         4: ("top", lambda x, y: abs(y - 1) < 1e-9), 5: ("left", lambda x, y: abs(x) < 1e-9)}
+SIDES = {
+    2: ("bottom", lambda x, y: abs(y) < 1e-9),
+    3: ("right", lambda x, y: abs(x - 1) < 1e-9),
+    4: ("top", lambda x, y: abs(y - 1) < 1e-9),
+    5: ("left", lambda x, y: abs(x) < 1e-9),
+}
 
 
 def _tag_sides(curves) -> list[int]:
