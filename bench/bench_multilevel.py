@@ -163,6 +163,7 @@ def cube(bars, cells: int):
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="brain only")
+    ap.add_argument("--cube-only", action="store_true", help="cube only")
     ap.add_argument("--cube-cells", type=int, default=100_000)
     ap.add_argument("--json", help="write every number here")
     ap.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
@@ -171,7 +172,7 @@ def main() -> int:
 
     torch.set_num_threads(args.threads)
     bars: list[dict] = []
-    out = brain(bars)
+    out = {} if args.cube_only else brain(bars)
     if not args.quick:
         out.update(cube(bars, args.cube_cells))
     out["bars"] = bars

@@ -285,10 +285,12 @@ def _principal_coords(batch: GraphBatch) -> np.ndarray:
 
 
 def refine_with_policy(model: ActorCritic, batch: GraphBatch, side: np.ndarray, hops: int = 3,
-                       tolerance: float = 0.05, passes: int = 2, actions_per_pass: int = 1) -> np.ndarray:
+                       tolerance: float = 0.05, passes: int = 2, actions_per_pass: int = 1,
+                       max_forwards: int | None = None) -> np.ndarray:
     """Greedy policy moves (argmax logit) for at most cut + 1 steps, rollback to the best prefix.
     actions_per_pass > 1: that many moves per graph per forward pass (the logits of one pass, the
-    mask refreshed after every move)."""
+    mask refreshed after every move); max_forwards: at most that many forward passes per pass
+    (more moves per pass on graphs with a long cut)."""
     from .refine import connected_sides, keep_better
 
     side0 = np.asarray(side, dtype=np.int64)
@@ -299,6 +301,9 @@ def refine_with_policy(model: ActorCritic, batch: GraphBatch, side: np.ndarray, 
         steps = int(env.budget.max()) if env.budget.size else 0
         moves = np.full((steps, env.B), -1, dtype=np.int64)
         hist = np.full((steps, env.B), np.inf)
+        per_pass = max(actions_per_pass, 1)
+        if max_forwards:
+            per_pass = max(per_pass, -(-steps // max_forwards))
         with torch.inference_mode():
             s = 0
             while s < steps:
@@ -307,7 +312,7 @@ def refine_with_policy(model: ActorCritic, batch: GraphBatch, side: np.ndarray, 
                     break
                 logits, _ = model(env.features(), env.adj, env.gi, env.B)
                 logits = logits.numpy().astype(np.float64)
-                for _ in range(max(actions_per_pass, 1)):
+                for _ in range(per_pass):
                     if s >= steps:
                         break
                     m = env.mask(s)
