@@ -213,7 +213,8 @@ def submit_job(
 
     with db.session() as s:
         mesh, _ = visible_mesh(s, user, mesh_id)
-    tag = (params_in.get("options") or {}).get("physical_tag") if isinstance(params_in, dict) else None
+    opts = params_in.get("options") if isinstance(params_in, dict) else None
+    tag = opts.get("physical_tag") if isinstance(opts, dict) else None
     info = (
         mesh.info
         if not isinstance(tag, str) or not tag
