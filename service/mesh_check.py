@@ -144,7 +144,8 @@ def _child_main(argv: list[str]) -> int:
         info = api.inspect_mesh(str(path), physical_tag=physical_tag, check=physical_tag is None)
         if int(info["cells"]) > max_cells:
             raise UploadRejected(413, f"the mesh has {info['cells']} cells; the limit is {max_cells}")
-        errors = [i["message"] for i in info["check"]["issues"] if i["severity"] == "error"]
+        issues = info.get("check", {}).get("issues", [])  # no check report when re-read for a physical_tag
+        errors = [i["message"] for i in issues if i["severity"] == "error"]
         if errors:  # read, but it cannot be agglomerated (e.g. not a manifold): say so now, not in a job
             raise UploadRejected(422, errors[0])
         out = {"info": info}
