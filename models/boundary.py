@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .geometry import Faces, cell_faces, face_measures, next_in_cycle
-from .graph import face_keys, sorted_unique
+from .graph import face_keys, sort_keys, sorted_unique
 from .mesh import VTK_LINE, VTK_POLYGON, VTK_QUAD, VTK_TRIANGLE, Mesh, PolyMesh
 
 NO_TAG = np.iinfo(np.int64).min  # "this facet has no boundary group"
@@ -94,10 +94,7 @@ def fine_boundary(mesh: Mesh, faces: Faces | None = None, partner: np.ndarray | 
     keys = face_keys(faces, mesh.n_points)
     n = faces.n
     if partner is None:  # each key once (boundary) or twice (interior)
-        (ids,) = _as_ids(keys)
-        order = np.argsort(ids, kind="stable")
-        s = ids[order]
-        same = s[1:] == s[:-1]
+        order, same = sort_keys(keys)
         partner = np.full(n, -1, dtype=np.int64)
         i = np.flatnonzero(same)
         partner[order[i]], partner[order[i + 1]] = order[i + 1], order[i]

@@ -12,6 +12,7 @@ should know, "error" that it cannot be agglomerated as it is. The verdict is "ok
 from __future__ import annotations
 
 import os
+from itertools import chain
 
 import numpy as np
 import scipy.sparse as sp
@@ -283,11 +284,11 @@ def _hanging_nodes(mesh: Mesh, f, bnd: np.ndarray) -> np.ndarray:
     mid = 0.5 * (p[u] + p[v])
     half = 0.5 * np.linalg.norm(p[v] - p[u], axis=1)
     hits = tree.query_ball_point(mid, half * (1 + 1e-9))
-    counts = np.fromiter((len(h) for h in hits), dtype=np.int64, count=len(hits))
+    counts = np.fromiter(map(len, hits), dtype=np.int64, count=len(hits))  # C-level iteration
     if counts.sum() == 0:
         return np.zeros(0, np.int64)
     edge = np.repeat(np.arange(u.size), counts)
-    cand = verts[np.fromiter((j for h in hits for j in h), dtype=np.int64, count=int(counts.sum()))]
+    cand = verts[np.fromiter(chain.from_iterable(hits), dtype=np.int64, count=int(counts.sum()))]
     keep = (cand != u[edge]) & (cand != v[edge])
     edge, cand = edge[keep], cand[keep]
     d = p[v[edge]] - p[u[edge]]

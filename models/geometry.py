@@ -42,6 +42,15 @@ class Faces:
     def sizes(self) -> np.ndarray:
         return np.diff(self.offsets)
 
+    def padded(self) -> np.ndarray:
+        """(F, widest face) table of the nodes, short faces padded with the largest int64 (which
+        sorts last and is never a face's smallest node)."""
+        sizes = self.sizes()
+        pad = np.full((self.n, int(sizes.max())), np.iinfo(np.int64).max, dtype=np.int64)
+        col = np.arange(self.nodes.size) - np.repeat(self.offsets[:-1], sizes)
+        pad[np.repeat(np.arange(self.n), sizes), col] = self.nodes
+        return pad
+
 
 def cell_index(offsets: np.ndarray) -> np.ndarray:
     """(nnz,) the row of every entry of a CSR array."""

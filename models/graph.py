@@ -77,11 +77,8 @@ def face_keys(faces: Faces, n_points: int) -> np.ndarray:
             return lo
         three = np.column_stack([lo, mid, hi])
     else:
-        width = int(sizes.max())
-        pad = np.full((faces.n, width), np.iinfo(np.int64).max, dtype=np.int64)
-        col = np.arange(faces.nodes.size) - np.repeat(faces.offsets[:-1], sizes)
-        pad[np.repeat(np.arange(faces.n), sizes), col] = faces.nodes
-        if width > 3:
+        pad = faces.padded()
+        if pad.shape[1] > 3:
             pad.partition(2, axis=1)  # three smallest first
             three = np.sort(pad[:, :3], axis=1)
         else:
@@ -92,19 +89,23 @@ def face_keys(faces: Faces, n_points: int) -> np.ndarray:
     return np.column_stack([three, s])
 
 
+def sort_keys(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(order, same): a stable sort of face keys (1D, or rows of a key table) and, for each sorted
+    position but the last, whether its key equals the next one (the two faces are one face)."""
+    if keys.ndim == 1:
+        order = np.argsort(keys, kind="stable")
+        sk = keys[order]
+        return order, sk[1:] == sk[:-1]
+    order = np.lexsort(keys.T[::-1])
+    sk = keys[order]
+    return order, np.all(sk[1:] == sk[:-1], axis=1)
+
+
 def dual_graph(mesh: Mesh, faces: Faces | None = None, measures: bool = True) -> DualGraph:
     """Build the dual graph (linear after one sort of the face keys). measures=False: unit edge
     weights instead of shared edge lengths / face areas (for callers that need the topology only)."""
     faces = faces or cell_faces(mesh)
-    keys = face_keys(faces, mesh.n_points)
-    if keys.ndim == 1:
-        order = np.argsort(keys, kind="stable")
-        sk = keys[order]
-        same = sk[1:] == sk[:-1]
-    else:
-        order = np.lexsort(keys.T[::-1])
-        sk = keys[order]
-        same = np.all(sk[1:] == sk[:-1], axis=1)
+    order, same = sort_keys(face_keys(faces, mesh.n_points))
     if same.size > 1 and np.any(same[1:] & same[:-1]):
         j = np.flatnonzero(same[1:] & same[:-1])
         cells = sorted_unique(faces.cell[order[np.concatenate([j, j + 1, j + 2])]])

@@ -40,32 +40,15 @@ def _face_direction(faces: Faces) -> np.ndarray:
         t = faces.nodes.reshape(-1, 3)
         a, b, c = t[:, 0], t[:, 1], t[:, 2]
         return ~((a < b) ^ (b < c) ^ (c < a))
-    width = int(sizes.max())
-    big = np.iinfo(np.int64).max
-    pad = np.full((faces.n, width), big, dtype=np.int64)
-    col = np.arange(faces.nodes.size) - np.repeat(faces.offsets[:-1], sizes)
-    row = np.repeat(np.arange(faces.n), sizes)
-    pad[row, col] = faces.nodes
-    j = pad.argmin(axis=1)
-    r = np.arange(faces.n)
-    nxt = pad[r, (j + 1) % sizes]
-    prv = pad[r, (j - 1) % sizes]
+    _, nxt, prv = _rotation(faces)
     return nxt < prv
 
 
 def _face_pairs(faces: Faces, n_points: int) -> tuple[np.ndarray, np.ndarray]:
     """Pairs (fa, fb) of faces with the same nodes, only where exactly two cells share the face."""
-    from .graph import face_keys
+    from .graph import face_keys, sort_keys
 
-    keys = face_keys(faces, n_points)
-    if keys.ndim == 1:
-        order = np.argsort(keys, kind="stable")
-        sk = keys[order]
-        same = sk[1:] == sk[:-1]
-    else:
-        order = np.lexsort(keys.T[::-1])
-        sk = keys[order]
-        same = np.all(sk[1:] == sk[:-1], axis=1)
+    order, same = sort_keys(face_keys(faces, n_points))
     # keep runs of exactly two (a face shared by 3+ cells is a non-manifold seam: left to the graph check)
     before = np.r_[False, same[:-1]] if same.size else same
     after = np.r_[same[1:], False] if same.size else same
@@ -109,6 +92,17 @@ def _triangle_rotation(t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return m, nxt, prv
 
 
+def _rotation(faces: Faces) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(smallest node, the node after it, the node before it) of each face (not edges)."""
+    if faces.nodes.size == 3 * faces.n:  # all triangles: no padded table
+        return _triangle_rotation(faces.nodes.reshape(-1, 3))
+    sizes = faces.sizes()
+    pad = faces.padded()
+    j = pad.argmin(axis=1)
+    r = np.arange(faces.n)
+    return pad[r, j], pad[r, (j + 1) % sizes], pad[r, (j - 1) % sizes]
+
+
 def _consistent(faces: Faces, flip: np.ndarray, n_points: int) -> bool | None:
     """True when, with the cells in `flip` reversed, no face is met twice in the same direction
     (every shared face is then run through oppositely by its two cells). One np.sort of directed
@@ -124,16 +118,7 @@ def _consistent(faces: Faces, flip: np.ndarray, n_points: int) -> bool | None:
         bits = max(int(n_points - 1).bit_length(), 1)
         if 3 * bits + 3 > 63:
             return None
-        if faces.nodes.size == 3 * faces.n:  # all triangles: no padded table
-            m, nxt, prv = _triangle_rotation(faces.nodes.reshape(-1, 3))
-        else:
-            width = int(sizes.max())
-            pad = np.full((faces.n, width), np.iinfo(np.int64).max, dtype=np.int64)
-            col = np.arange(faces.nodes.size) - np.repeat(faces.offsets[:-1], sizes)
-            pad[np.repeat(np.arange(faces.n), sizes), col] = faces.nodes
-            j = pad.argmin(axis=1)
-            r = np.arange(faces.n)
-            m, nxt, prv = pad[r, j], pad[r, (j + 1) % sizes], pad[r, (j - 1) % sizes]
+        m, nxt, prv = _rotation(faces)
         f = flip[faces.cell]
         nxt, prv = np.where(f, prv, nxt), np.where(f, nxt, prv)
         keys = (((m << bits) | nxt) << bits | prv) << 3 | np.minimum(sizes, 7)
