@@ -7,7 +7,10 @@ Redis key prefix, so nothing collides with other users of the machine's Redis.
 
 from __future__ import annotations
 
+import contextlib
+import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -282,3 +285,42 @@ def child_pids(pid: int) -> list[int]:
             if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
                 kids.append(int(entry.name))
     return kids
+
+
+@contextlib.contextmanager
+def embedded_server(tmp: Path, token: str, user: str = "tester"):
+    """A live API with its embedded worker and one API key (`user`:`token`); yields the URL once a
+    worker is online, stops the server after."""
+    proc, url = start_api(service_env(tmp / "data", api_keys=f"{user}:{token}"), tmp, embedded_worker=True)
+    try:
+        wait_until(lambda: workers_online(url, token) >= 1, 60, 0.2, "the embedded worker")
+        yield url
+    finally:
+        proc.stop()
+
+
+def octave_cli() -> str:
+    """The octave-cli executable; skips the test, saying how to install it, when there is none."""
+    import pytest
+
+    octave = shutil.which("octave-cli")
+    if octave is None:
+        pytest.skip(
+            "octave-cli not found: install GNU Octave (apt-get install -y --no-install-recommends octave)"
+        )
+    return octave
+
+
+def run_octave(script: Path, text: str, result: Path) -> dict:
+    """Write `text` to `script`, run it with octave-cli in its folder and load the JSON it writes to
+    `result` (the test fails with Octave's output when that file is missing)."""
+    script.write_text(text)
+    out = subprocess.run(
+        [octave_cli(), "--no-gui", "--quiet", "--no-window-system", str(script)],
+        cwd=script.parent,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.exists(), f"octave failed:\n{out.stdout}\n{out.stderr}"
+    return json.loads(result.read_text())

@@ -5,13 +5,11 @@ the Matlab/Octave wrapper (job.mesh.boundary.groups maps names to tags). A live 
 from __future__ import annotations
 
 import json
-import shutil
-import subprocess
 import sys
 
 import numpy as np
 import pytest
-from service_fixtures import ROOT, service_env, start_api, wait_until, workers_online
+from service_fixtures import ROOT, embedded_server, run_octave
 
 TOKEN = "boundary-key"
 SQUARE = ROOT / "tests" / "data" / "square_sides.msh"
@@ -23,14 +21,8 @@ from magnet_client import Client  # noqa: E402
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("boundary-server")
-    env = service_env(tmp / "data", api_keys=f"tester:{TOKEN}")
-    proc, url = start_api(env, tmp, embedded_worker=True)
-    try:
-        wait_until(lambda: workers_online(url, TOKEN) >= 1, 60, 0.2, "the embedded worker")
+    with embedded_server(tmp_path_factory.mktemp("boundary-server"), TOKEN) as url:
         yield url
-    finally:
-        proc.stop()
 
 
 def sides_of(region: dict) -> np.ndarray:
@@ -84,24 +76,10 @@ fid = fopen('{result}', 'w'); fprintf(fid, '%s', jsonencode(out)); fclose(fid);
 @pytest.mark.octave
 @pytest.mark.slow
 def test_octave_wrapper_names_map_to_tags(server, tmp_path):
-    octave = shutil.which("octave-cli")
-    if octave is None:
-        pytest.skip(
-            "octave-cli not found: install GNU Octave (apt-get install -y --no-install-recommends octave)"
-        )
     result = tmp_path / "r.json"
-    script = tmp_path / "run.m"
-    script.write_text(
-        OCTAVE.format(matlab=ROOT / "client" / "matlab", mesh=SQUARE, url=server, token=TOKEN, result=result)
+    text = OCTAVE.format(
+        matlab=ROOT / "client" / "matlab", mesh=SQUARE, url=server, token=TOKEN, result=result
     )
-    out = subprocess.run(
-        [octave, "--no-gui", "--quiet", "--no-window-system", str(script)],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert result.exists(), f"octave failed:\n{out.stdout}\n{out.stderr}"
-    r = json.loads(result.read_text())
+    r = run_octave(tmp_path / "run.m", text, result)
     assert dict(zip(r["names"], r["tags"], strict=True)) == {"bottom": 2, "right": 3, "top": 4, "left": 5}
     assert r["bc"] == [2, 3, 4, 5] and r["nbc"] == 52

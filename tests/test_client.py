@@ -11,7 +11,7 @@ import sys
 import zipfile
 
 import pytest
-from service_fixtures import ROOT, service_env, square_mesh, start_api, wait_until, workers_online
+from service_fixtures import ROOT, embedded_server, square_mesh
 
 from models.cli import main as magnet
 
@@ -28,14 +28,8 @@ def client_env() -> dict:
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("client-server")
-    env = service_env(tmp / "data", api_keys=f"tester:{TOKEN}")
-    proc, url = start_api(env, tmp, embedded_worker=True)
-    try:
-        wait_until(lambda: workers_online(url, TOKEN) >= 1, 60, 0.2, "the embedded worker")
+    with embedded_server(tmp_path_factory.mktemp("client-server"), TOKEN) as url:
         yield url
-    finally:
-        proc.stop()
 
 
 def test_client_imports_no_torch_and_no_server_code():

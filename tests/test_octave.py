@@ -4,15 +4,11 @@ areas summing to the domain's area; server errors arrive as Octave errors with t
 
 from __future__ import annotations
 
-import json
-import shutil
-import subprocess
-
 import meshio
 import numpy as np
 import pytest
 from scipy.io import loadmat
-from service_fixtures import BRAIN, ROOT, service_env, start_api, wait_until, workers_online
+from service_fixtures import BRAIN, ROOT, embedded_server, octave_cli, run_octave
 
 pytestmark = [pytest.mark.octave, pytest.mark.slow]
 TOKEN = "octave-key"
@@ -45,38 +41,13 @@ def domain_area(path) -> float:
 
 
 def test_octave_wrapper_returns_lymph_structs(tmp_path):
-    octave = shutil.which("octave-cli")
-    if octave is None:
-        pytest.skip(
-            "octave-cli not found: install GNU Octave (apt-get install -y --no-install-recommends octave)"
+    octave_cli()  # skip before starting a server
+    result, saved = tmp_path / "result.json", tmp_path / "brain64.mat"
+    with embedded_server(tmp_path, TOKEN, user="matlab-user") as url:
+        text = SCRIPT.format(
+            matlab=ROOT / "client" / "matlab", mesh=BRAIN, url=url, token=TOKEN, saved=saved, result=result
         )
-    env = service_env(tmp_path / "data", api_keys=f"matlab-user:{TOKEN}")
-    proc, url = start_api(env, tmp_path, embedded_worker=True)
-    try:
-        wait_until(lambda: workers_online(url, TOKEN) >= 1, 60, 0.2, "the embedded worker")
-        script = tmp_path / "run_magnet.m"
-        result, saved = tmp_path / "result.json", tmp_path / "brain64.mat"
-        script.write_text(
-            SCRIPT.format(
-                matlab=ROOT / "client" / "matlab",
-                mesh=BRAIN,
-                url=url,
-                token=TOKEN,
-                saved=saved,
-                result=result,
-            )
-        )
-        out = subprocess.run(
-            [octave, "--no-gui", "--quiet", "--no-window-system", str(script)],
-            cwd=tmp_path,
-            capture_output=True,
-            text=True,
-            timeout=300,
-        )
-        assert result.exists(), f"octave failed:\n{out.stdout}\n{out.stderr}"
-        r = json.loads(result.read_text())
-    finally:
-        proc.stop()
+        r = run_octave(tmp_path / "run_magnet.m", text, result)
     assert r["ne"] == r["ncells"] == r["elements"] == r["nedges"] and r["ne"] >= 64
     assert r["cmin"] == 1 and r["cmax"] == r["nv"]  # 1-based, every vertex used
     assert r["area"] == pytest.approx(domain_area(BRAIN), rel=1e-9)
@@ -105,21 +76,12 @@ fid = fopen('{result}', 'w'); fprintf(fid, '%s', jsonencode(out)); fclose(fid);
 
 
 def test_octave_wrapper_returns_every_nested_level(tmp_path):
-    octave = shutil.which("octave-cli")
-    if octave is None:
-        pytest.skip("octave-cli not found")
-    env = service_env(tmp_path / "data", api_keys=f"matlab-user:{TOKEN}")
-    proc, url = start_api(env, tmp_path, embedded_worker=True)
-    try:
-        wait_until(lambda: workers_online(url, TOKEN) >= 1, 60, 0.2, "the embedded worker")
-        script, result = tmp_path / "run_levels.m", tmp_path / "levels.json"
-        script.write_text(HIERARCHY_SCRIPT.format(matlab=ROOT / "client" / "matlab", mesh=BRAIN, url=url,
-                                                  token=TOKEN, result=result))
-        out = subprocess.run([octave, "--no-gui", "--quiet", "--no-window-system", str(script)], cwd=tmp_path,
-                             capture_output=True, text=True, timeout=300)
-        assert result.exists(), f"octave failed:\n{out.stdout}\n{out.stderr}"
-        r = json.loads(result.read_text())
-    finally:
-        proc.stop()
+    octave_cli()  # skip before starting a server
+    result = tmp_path / "levels.json"
+    with embedded_server(tmp_path, TOKEN, user="matlab-user") as url:
+        text = HIERARCHY_SCRIPT.format(
+            matlab=ROOT / "client" / "matlab", mesh=BRAIN, url=url, token=TOKEN, result=result
+        )
+        r = run_octave(tmp_path / "run_levels.m", text, result)
     assert r["ne"] == [1, 2, 4, 8] and r["final"] == 8 and r["ok"] is True
     assert r["refiner"] == "fm"

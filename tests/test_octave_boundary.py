@@ -6,13 +6,12 @@ edge's two vertices in connectivity_bc, mapped through Data.TagBc / Data.LabBc t
 
 from __future__ import annotations
 
-import json
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from service_fixtures import run_octave
 
 pytestmark = [pytest.mark.octave]
 ROOT = Path(__file__).parent.parent
@@ -59,24 +58,9 @@ fid = fopen('{result}', 'w'); fprintf(fid, '%s', jsonencode(out)); fclose(fid);
 """
 
 
-def run_octave(tmp_path: Path, mat: Path) -> dict:
-    octave = shutil.which("octave-cli")
-    if octave is None:
-        pytest.skip(
-            "octave-cli not found: install GNU Octave (apt-get install -y --no-install-recommends octave)"
-        )
+def marks_in_octave(tmp_path: Path, mat: Path) -> dict:
     result = tmp_path / "result.json"
-    script = tmp_path / "marks.m"
-    script.write_text(SCRIPT.format(mat=mat, result=result))
-    out = subprocess.run(
-        [octave, "--no-gui", "--quiet", "--no-window-system", str(script)],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert result.exists(), f"octave failed:\n{out.stdout}\n{out.stderr}"
-    return json.loads(result.read_text())
+    return run_octave(tmp_path / "marks.m", SCRIPT.format(mat=mat, result=result), result)
 
 
 @pytest.mark.parametrize(
@@ -110,7 +94,7 @@ def test_octave_marks_boundary_edges_per_tag(tmp_path, mesh, mode, sides, ids):
         env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "MPLBACKEND": "Agg"},
     )
     assert run.returncode == 0, run.stderr
-    r = run_octave(tmp_path, mat)
+    r = marks_in_octave(tmp_path, mat)
     assert r["missing"] == 0 and r["unknown"] == 0
     assert r["counts"] == [sides] * 4 and r["nbc"] == 4 * sides  # every fine boundary edge, on its side
     assert r["dirichlet"] == 3 * sides and r["neumann"] == sides  # 'DNDD': the right side (3) is Neumann
