@@ -32,32 +32,10 @@ def folded_brain():
     m = meshio.read(BRAIN)
     p = np.asarray(m.points, dtype=np.float64)
     t = np.asarray(m.cells_dict["triangle"], dtype=np.int64)
-    p2 = p[:, :2]
-    # orient consistently first (by own sign: the file is a valid, unfolded mesh)
-    s = _signed_areas(p2, t)
-    t_file = t
-    t = np.where((s < 0)[:, None], t[:, ::-1], t)
-    edges = np.sort(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]), axis=1)
-    key, cnt = np.unique(edges[:, 0] * len(p) + edges[:, 1], return_counts=True)
-    boundary_nodes = np.unique(np.stack([key[cnt == 1] // len(p), key[cnt == 1] % len(p)]))
-    area = np.abs(_signed_areas(p2, t))
-    L = np.stack(
-        [np.linalg.norm(p2[t[:, (j + 1) % 3]] - p2[t[:, (j + 2) % 3]], axis=1) for j in range(3)], axis=1
-    )
-    thin = 2 * area / L.max(axis=1) ** 2
-    for c in np.argsort(thin, kind="stable"):
-        j = int(L[c].argmax())  # the vertex opposite the longest edge
-        v, a, b = t[c, j], t[c, (j + 1) % 3], t[c, (j + 2) % 3]
-        if v in boundary_nodes:
-            continue
-        d = p2[b] - p2[a]
-        n = np.array([-d[1], d[0]]) / np.linalg.norm(d)
-        q = p.copy()
-        q[v, :2] = p2[v] - 2 * np.dot(p2[v] - p2[a], n) * n
-        neg = np.flatnonzero(_signed_areas(q[:, :2], t) < 0)
-        if neg.tolist() == [c]:
-            return q, t_file, int(c)
-    raise RuntimeError("no foldable sliver found")
+    q2, c = fold_one_triangle(p[:, :2], t)  # (the file is a valid, unfolded mesh)
+    q = p.copy()
+    q[:, :2] = q2
+    return q, t, c
 
 
 def write_folded_brain(path: str) -> int:

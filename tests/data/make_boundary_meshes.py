@@ -47,6 +47,23 @@ def _tag_sides(curves) -> list[int]:
     return rest
 
 
+FACES = {(0, 0): "x0", (0, 1): "x1", (1, 0): "y0", (1, 1): "y1", (2, 0): "z0", (2, 1): "z1"}
+
+
+def _tag_faces(surfaces) -> list[int]:
+    """Physical surfaces 11..16 (FACES) for the unit cube's six faces; returns the surfaces not on one."""
+    rest = []
+    for _, f in surfaces:
+        c = gmsh.model.occ.getCenterOfMass(2, f)
+        hit = [(a, s) for a in range(3) for s in (0, 1) if abs(c[a] - s) < 1e-9]
+        if hit:
+            a, s = hit[0]
+            gmsh.model.addPhysicalGroup(2, [f], 11 + 2 * a + s, name=FACES[a, s])
+        else:
+            rest.append(f)
+    return rest
+
+
 def _write(name: str) -> None:
     gmsh.option.setNumber("Mesh.MshFileVersion", 4.1)
     path = os.path.join(HERE, name)
@@ -89,13 +106,7 @@ def cube_faces() -> None:
     v = gmsh.model.occ.addBox(0, 0, 0, 1, 1, 1)
     gmsh.model.occ.synchronize()
     gmsh.model.addPhysicalGroup(3, [v], 1, name="domain")
-    names = {(0, 0): "x0", (0, 1): "x1", (1, 0): "y0", (1, 1): "y1", (2, 0): "z0", (2, 1): "z1"}
-    for _, f in gmsh.model.getEntities(2):
-        c = gmsh.model.occ.getCenterOfMass(2, f)
-        for axis in range(3):
-            for side in (0, 1):
-                if abs(c[axis] - side) < 1e-9:
-                    gmsh.model.addPhysicalGroup(2, [f], 11 + 2 * axis + side, name=names[axis, side])
+    _tag_faces(gmsh.model.getEntities(2))
     gmsh.option.setNumber("Mesh.MeshSizeMax", 0.3)
     gmsh.model.mesh.generate(3)
     _write("cube_faces.msh")
@@ -111,16 +122,7 @@ def cube_inclusion() -> None:
     small = min(vols, key=lambda v: gmsh.model.occ.getMass(3, v))
     gmsh.model.addPhysicalGroup(3, [v for v in vols if v != small], 1, name="matrix")
     gmsh.model.addPhysicalGroup(3, [small], 2, name="inclusion")
-    names = {(0, 0): "x0", (0, 1): "x1", (1, 0): "y0", (1, 1): "y1", (2, 0): "z0", (2, 1): "z1"}
-    rest = []
-    for _, f in gmsh.model.getEntities(2):
-        c = gmsh.model.occ.getCenterOfMass(2, f)
-        hit = [(a, s) for a in range(3) for s in (0, 1) if abs(c[a] - s) < 1e-9]
-        if hit:
-            a, s = hit[0]
-            gmsh.model.addPhysicalGroup(2, [f], 11 + 2 * a + s, name=names[a, s])
-        else:
-            rest.append(f)
+    rest = _tag_faces(gmsh.model.getEntities(2))
     gmsh.model.addPhysicalGroup(2, rest, 20, name="interface")
     gmsh.option.setNumber("Mesh.MeshSizeMax", 0.3)
     gmsh.model.mesh.generate(3)
