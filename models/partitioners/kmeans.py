@@ -191,11 +191,11 @@ def kmeans(
         pts, w, bins = xc, None, None
     best = None
     for _ in range(max(1, n_init)):
-        # k-means++ costs O(m k trials) on m points: on a random subset of 64 k points, and for many
-        # clusters on 8 k points with one candidate per centre (plain k-means++), so that it stays
-        # linear in k (Lloyd's iterations that follow do the fine work)
+        # k-means++ costs O(m k trials) on m points: on a random subset of max(64 k, 32768) points,
+        # and for many clusters on 8 k points with one candidate per centre (plain k-means++), so
+        # that it stays linear in k (Lloyd's iterations that follow do the fine work)
         few = k <= 512
-        m = min(len(pts), (64 if few else 8) * k)
+        m = min(len(pts), max(64 * k, 32768) if few else 8 * k)
         sub = np.arange(len(pts)) if m == len(pts) else np.sort(rng.choice(len(pts), m, replace=False))
         c0 = kmeans_plus_plus(pts[sub], k, rng, None if w is None else w[sub], greedy=few)
         c, lab, inertia = lloyd(pts, c0, max_iter, abs_tol, w)
