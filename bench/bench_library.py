@@ -110,10 +110,15 @@ def row(name, k, path, tmp, repeat=1):
     f = floor(path, k, repeat)
     o = ours(path, k, os.path.join(tmp, name), repeat)
     st = " ".join(f"{a}={b:.3f}" for a, b in o["stages"].items())
-    spread = (f" (runs {min(o['totals']) / f['floor']:.2f}-{max(o['totals']) / f['floor']:.2f}x)"
-              if len(o["totals"]) > 1 else "")
-    print(f"{name:<28} {o['cells']:>9} {k:>5} {o['elements']:>6} | floor {f['floor']:6.2f}s (read {f['meshio_read']:.2f} + metis {f['pymetis']:.2f}) "
-          f"| ours {o['total']:6.2f}s ratio {o['total'] / f['floor']:5.2f}x{spread} | peak {o['peak_mb']:.0f} MB | {st}")
+    spread = (
+        f" (runs {min(o['totals']) / f['floor']:.2f}-{max(o['totals']) / f['floor']:.2f}x)"
+        if len(o["totals"]) > 1
+        else ""
+    )
+    print(
+        f"{name:<28} {o['cells']:>9} {k:>5} {o['elements']:>6} | floor {f['floor']:6.2f}s (read {f['meshio_read']:.2f} + metis {f['pymetis']:.2f}) "
+        f"| ours {o['total']:6.2f}s ratio {o['total'] / f['floor']:5.2f}x{spread} | peak {o['peak_mb']:.0f} MB | {st}"
+    )
     return {"name": name, "floor": f, "ours": o, "ratio": o["total"] / f["floor"]}
 
 

@@ -94,32 +94,50 @@ def run(data: CellData, part: Partitioner, nref: int) -> dict:
     n_parts = int(np.unique(raw).size)
     n_split = int(split.max()) + 1
     return {
-        "labels": raw, "split": split, "ncut": normalized_cut(data.graph.indptr, data.graph.indices, raw),
-        "parts": n_parts, "elements_after_split": n_split, "extra_fragments_pct": 100.0 * (n_split - n_parts) / n_parts,
-        "connected_after": bool(all_connected(data, split)), "cpu_s": cpu, "wall_s": wall,
+        "labels": raw,
+        "split": split,
+        "ncut": normalized_cut(data.graph.indptr, data.graph.indices, raw),
+        "parts": n_parts,
+        "elements_after_split": n_split,
+        "extra_fragments_pct": 100.0 * (n_split - n_parts) / n_parts,
+        "connected_after": bool(all_connected(data, split)),
+        "cpu_s": cpu,
+        "wall_s": wall,
         "cpu_per_10k_s": cpu / data.graph.n * 1e4,
     }
 
 
 def table(title: str, rows: dict, ref: str = "metis") -> None:
     print(f"\n## {title}")
-    print("| method | parts | normalized cut | ratio to METIS | extra fragments % | connected after split | "
-          "CPU s | CPU s / 10k cells |")
+    print(
+        "| method | parts | normalized cut | ratio to METIS | extra fragments % | connected after split | "
+        "CPU s | CPU s / 10k cells |"
+    )
     print("|---|---|---|---|---|---|---|---|")
     for name, r in rows.items():
-        print(f"| {name} | {r['parts']} | {r['ncut']:.4f} | {r['ncut'] / rows[ref]['ncut']:.3f} | "
-              f"{r['extra_fragments_pct']:.2f} | {r['connected_after']} | {r['cpu_s']:.2f} | {r['cpu_per_10k_s']:.3f} |")
+        print(
+            f"| {name} | {r['parts']} | {r['ncut']:.4f} | {r['ncut'] / rows[ref]['ncut']:.3f} | "
+            f"{r['extra_fragments_pct']:.2f} | {r['connected_after']} | {r['cpu_s']:.2f} | {r['cpu_per_10k_s']:.3f} |"
+        )
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--brain", default=str(ROOT / "tests/data/BrainCoronalNoHoles.vtu"))
-    ap.add_argument("--weights-dir", default=None, help="use weights from this folder instead of models/weights")
-    ap.add_argument("--cube-size", type=float, default=0.036, help="gmsh size h of the cube (0.036: ~100k tets)")
+    ap.add_argument(
+        "--weights-dir", default=None, help="use weights from this folder instead of models/weights"
+    )
+    ap.add_argument(
+        "--cube-size", type=float, default=0.036, help="gmsh size h of the cube (0.036: ~100k tets)"
+    )
     ap.add_argument("--quick", action="store_true", help="skip the 100k cube")
-    ap.add_argument("--skip", default="", help="comma list of sections to skip: brain,batch,cube,hetero,hetero3d")
+    ap.add_argument(
+        "--skip", default="", help="comma list of sections to skip: brain,batch,cube,hetero,hetero3d"
+    )
     ap.add_argument("--json", default=None, help="also write the numbers as JSON")
-    ap.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1: CPU time is what is compared)")
+    ap.add_argument(
+        "--threads", type=int, default=1, help="torch CPU threads (default 1: CPU time is what is compared)"
+    )
     args = ap.parse_args(argv)
     skip = set(filter(None, args.skip.split(",")))
 
@@ -130,11 +148,17 @@ def main(argv=None) -> int:
 
     torch.set_num_threads(args.threads)
     opts = {} if args.weights_dir is None else {"weights_dir": args.weights_dir}
-    methods = {"metis": get_partitioner("metis"), "kmeans": get_partitioner("kmeans"),
-               "sage-base": get_partitioner("sage-base", **opts),
-               "sage-base (raw argmax)": get_partitioner("sage-base", contiguous=False, smooth=0, **opts)}
+    methods = {
+        "metis": get_partitioner("metis"),
+        "kmeans": get_partitioner("kmeans"),
+        "sage-base": get_partitioner("sage-base", **opts),
+        "sage-base (raw argmax)": get_partitioner("sage-base", contiguous=False, smooth=0, **opts),
+    }
     device = f"GPU {torch.cuda.get_device_name(0)}" if torch.cuda.is_available() else "CPU"
-    out: dict = {"machine": f"{torch.get_num_threads()} torch thread(s), {device}", "torch": torch.__version__}
+    out: dict = {
+        "machine": f"{torch.get_num_threads()} torch thread(s), {device}",
+        "torch": torch.__version__,
+    }
     print(f"# bench_neural ({out['machine']}, torch {torch.__version__})")
 
     if "brain" not in skip or "batch" not in skip:
@@ -145,7 +169,9 @@ def main(argv=None) -> int:
     if "brain" not in skip:
         rows = {name: run(data, p, 7) for name, p in methods.items()}
         table(f"Brain coronal slice ({brain.n_cells} triangles), nref 7", rows)
-        out["brain"] = {k: {kk: vv for kk, vv in v.items() if kk not in ("labels", "split")} for k, v in rows.items()}
+        out["brain"] = {
+            k: {kk: vv for kk, vv in v.items() if kk not in ("labels", "split")} for k, v in rows.items()
+        }
     if "batch" not in skip:
         tb, ts = Timed(methods["sage-base"]), Timed(methods["sage-base"], per_graph=True)
         batched, single = run(data, tb, 7), run(data, ts, 7)
@@ -153,14 +179,26 @@ def main(argv=None) -> int:
         print("\n## Batched level-by-level inference vs one forward pass per subgraph (brain, nref 7)")
         print("| inference | forward calls | inference CPU s | inference wall s | whole bisection CPU s |")
         print("|---|---|---|---|---|")
-        for label, t, r in (("batched (one pass per level)", tb, batched), ("one pass per subgraph", ts, single)):
+        for label, t, r in (
+            ("batched (one pass per level)", tb, batched),
+            ("one pass per subgraph", ts, single),
+        ):
             print(f"| {label} | {t.calls} | {t.cpu:.3f} | {t.wall:.3f} | {r['cpu_s']:.3f} |")
         speed_cpu, speed_wall = ts.cpu / tb.cpu, ts.wall / tb.wall
-        print(f"inference speed-up {speed_cpu:.1f}x CPU time, {speed_wall:.1f}x wall; whole recursive bisection "
-              f"{single['cpu_s'] / batched['cpu_s']:.1f}x; identical labels: {same}")
-        out["batching"] = {"batched_cpu_s": tb.cpu, "per_graph_cpu_s": ts.cpu, "batched_wall_s": tb.wall,
-                           "per_graph_wall_s": ts.wall, "speedup_cpu": speed_cpu, "speedup_wall": speed_wall,
-                           "calls": [tb.calls, ts.calls], "identical": same}
+        print(
+            f"inference speed-up {speed_cpu:.1f}x CPU time, {speed_wall:.1f}x wall; whole recursive bisection "
+            f"{single['cpu_s'] / batched['cpu_s']:.1f}x; identical labels: {same}"
+        )
+        out["batching"] = {
+            "batched_cpu_s": tb.cpu,
+            "per_graph_cpu_s": ts.cpu,
+            "batched_wall_s": tb.wall,
+            "per_graph_wall_s": ts.wall,
+            "speedup_cpu": speed_cpu,
+            "speedup_wall": speed_wall,
+            "calls": [tb.calls, ts.calls],
+            "identical": same,
+        }
     if not args.quick and "cube" not in skip:
         t = time.perf_counter()
         cube = generate("cube", seed=0, size=args.cube_size).to_mesh()
@@ -169,13 +207,17 @@ def main(argv=None) -> int:
         methods["sage-base"].bisect_batch(make_warmup(data3))
         rows = {name: run(data3, p, 8) for name, p in methods.items()}
         table(f"Unit cube ({cube.n_cells} tetrahedra), nref 8", rows)
-        out["cube"] = {k: {kk: vv for kk, vv in v.items() if kk not in ("labels", "split")} for k, v in rows.items()}
+        out["cube"] = {
+            k: {kk: vv for kk, vv in v.items() if kk not in ("labels", "split")} for k, v in rows.items()
+        }
     if "hetero" not in skip:
         sq = generate("inclusions", seed=0, n=16, regular=True, size=0.01).to_mesh()
         datah = cell_data(sq)
         hm = dict(methods)
         hm["sage-hetero"] = get_partitioner("sage-hetero", **opts)
-        print(f"\n## Unit square with 16 inclusions ({sq.n_cells} triangles), nref 6: heterogeneity preservation")
+        print(
+            f"\n## Unit square with 16 inclusions ({sq.n_cells} triangles), nref 6: heterogeneity preservation"
+        )
         print("| method | elements | HP mean | HP min | normalized cut | CPU s |\n|---|---|---|---|---|---|")
         out["hetero"] = {}
         for name, p in hm.items():
@@ -183,17 +225,26 @@ def main(argv=None) -> int:
                 p.bisect_batch(make_warmup(datah))  # weights loaded outside the timing
             r = run(datah, p, 6)
             hp = heterogeneity_preservation(r["split"], sq.tags)
-            print(f"| {name} | {r['elements_after_split']} | {hp.mean():.4f} | {hp.min():.3f} | {r['ncut']:.4f} | "
-                  f"{r['cpu_s']:.2f} |")
-            out["hetero"][name] = {"hp_mean": float(hp.mean()), "hp_min": float(hp.min()), "ncut": r["ncut"],
-                                   "elements": r["elements_after_split"], "cpu_s": r["cpu_s"]}
+            print(
+                f"| {name} | {r['elements_after_split']} | {hp.mean():.4f} | {hp.min():.3f} | {r['ncut']:.4f} | "
+                f"{r['cpu_s']:.2f} |"
+            )
+            out["hetero"][name] = {
+                "hp_mean": float(hp.mean()),
+                "hp_min": float(hp.min()),
+                "ncut": r["ncut"],
+                "elements": r["elements_after_split"],
+                "cpu_s": r["cpu_s"],
+            }
     if "hetero3d" not in skip:
         cube_h = generate("cube-hetero", seed=1, parts=4, size=0.06).to_mesh()
         datah3 = cell_data(cube_h)
         hm = dict(methods)
         hm["sage-hetero"] = get_partitioner("sage-hetero", **opts)
-        print(f"\n## Unit cube in 4 heterogeneous parts ({cube_h.n_cells} tetrahedra), nref 5: heterogeneity "
-              "preservation")
+        print(
+            f"\n## Unit cube in 4 heterogeneous parts ({cube_h.n_cells} tetrahedra), nref 5: heterogeneity "
+            "preservation"
+        )
         print("| method | elements | HP mean | HP min | normalized cut | CPU s |\n|---|---|---|---|---|---|")
         out["hetero3d"] = {}
         for name, p in hm.items():
@@ -201,10 +252,17 @@ def main(argv=None) -> int:
                 p.bisect_batch(make_warmup(datah3))
             r = run(datah3, p, 5)
             hp = heterogeneity_preservation(r["split"], cube_h.tags)
-            print(f"| {name} | {r['elements_after_split']} | {hp.mean():.4f} | {hp.min():.3f} | {r['ncut']:.4f} | "
-                  f"{r['cpu_s']:.2f} |")
-            out["hetero3d"][name] = {"hp_mean": float(hp.mean()), "hp_min": float(hp.min()), "ncut": r["ncut"],
-                                     "elements": r["elements_after_split"], "cpu_s": r["cpu_s"]}
+            print(
+                f"| {name} | {r['elements_after_split']} | {hp.mean():.4f} | {hp.min():.3f} | {r['ncut']:.4f} | "
+                f"{r['cpu_s']:.2f} |"
+            )
+            out["hetero3d"][name] = {
+                "hp_mean": float(hp.mean()),
+                "hp_min": float(hp.min()),
+                "ncut": r["ncut"],
+                "elements": r["elements_after_split"],
+                "cpu_s": r["cpu_s"],
+            }
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1))
     return 0

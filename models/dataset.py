@@ -46,18 +46,37 @@ class Recipe:
 # The paper's data sets (MISSION.md sections 2-3). Kind weights are the fractions of meshes.
 RECIPES: dict[str, Recipe] = {
     "sage-base-2d": Recipe(
-        "sage-base-2d", 2, False, 800,
-        {"square-quad": 1, "square-tri": 1, "delaunay": 1, "voronoi": 1}, (0.025, 0.06),
+        "sage-base-2d",
+        2,
+        False,
+        800,
+        {"square-quad": 1, "square-tri": 1, "delaunay": 1, "voronoi": 1},
+        (0.025, 0.06),
     ),
     "sage-base-3d": Recipe(
-        "sage-base-3d", 3, False, 400, {"cube": 1, "cube-portion": 3}, (0.09, 0.18),
+        "sage-base-3d",
+        3,
+        False,
+        400,
+        {"cube": 1, "cube-portion": 3},
+        (0.09, 0.18),
     ),
     "sage-hetero-2d": Recipe(
-        "sage-hetero-2d", 2, True, 600,
-        {"homogeneous": 1, "split": 1, "inclusions": 1}, (0.025, 0.06), extra={"inclusions": (6, 12)},
+        "sage-hetero-2d",
+        2,
+        True,
+        600,
+        {"homogeneous": 1, "split": 1, "inclusions": 1},
+        (0.025, 0.06),
+        extra={"inclusions": (6, 12)},
     ),
     "sage-hetero-3d": Recipe(
-        "sage-hetero-3d", 3, True, 400, {"cube-hetero": 1}, (0.09, 0.18),
+        "sage-hetero-3d",
+        3,
+        True,
+        400,
+        {"cube-hetero": 1},
+        (0.09, 0.18),
     ),
 }
 _HOMOGENEOUS_2D = ("square-quad", "square-tri", "delaunay", "voronoi")
@@ -123,7 +142,9 @@ def _sub_csr(indptr, indices, nodes):
     return sub_ptr, c
 
 
-def random_piece(x: np.ndarray, indptr, indices, dim: int, rng: np.random.Generator, depth: int) -> np.ndarray:
+def random_piece(
+    x: np.ndarray, indptr, indices, dim: int, rng: np.random.Generator, depth: int
+) -> np.ndarray:
     """Nodes of a random connected piece: `depth` random plane cuts at random quantiles, keeping one
     side each time, then the largest connected component."""
     from scipy.sparse import csr_matrix
@@ -146,8 +167,11 @@ def random_piece(x: np.ndarray, indptr, indices, dim: int, rng: np.random.Genera
 def graph_from_nodes(x, indptr, indices, nodes, kind, seed) -> GraphArrays:
     sub_ptr, sub_idx = _sub_csr(indptr, indices, nodes)
     return GraphArrays(
-        x=x[nodes].astype(np.float32), edges=_csr_edges(sub_ptr, sub_idx),
-        degree=np.diff(sub_ptr).astype(np.int32), kind=kind, seed=seed,
+        x=x[nodes].astype(np.float32),
+        edges=_csr_edges(sub_ptr, sub_idx),
+        degree=np.diff(sub_ptr).astype(np.int32),
+        kind=kind,
+        seed=seed,
     )
 
 
@@ -183,7 +207,9 @@ def recipe_graph(recipe: Recipe, index: int, seed: int) -> GraphArrays:
     x, indptr, indices, _ = mesh_graph(gen.to_mesh(), recipe.hetero)
     nodes = np.arange(len(x))
     if piece:
-        nodes = random_piece(x, indptr, indices, recipe.dim, rng, int(rng.integers(*recipe.piece_depth, endpoint=True)))
+        nodes = random_piece(
+            x, indptr, indices, recipe.dim, rng, int(rng.integers(*recipe.piece_depth, endpoint=True))
+        )
     return graph_from_nodes(x, indptr, indices, nodes, kind + ("-piece" if piece else ""), mesh_seed)
 
 
@@ -222,15 +248,25 @@ class GraphDataset:
         np.cumsum([len(g.x) for g in graphs], out=node_ptr[1:])
         np.cumsum([len(g.edges) for g in graphs], out=edge_ptr[1:])
         return cls(
-            np.concatenate([g.x for g in graphs]), np.concatenate([g.edges for g in graphs]),
-            np.concatenate([g.degree for g in graphs]), node_ptr, edge_ptr,
-            np.array([g.kind for g in graphs]), meta,
+            np.concatenate([g.x for g in graphs]),
+            np.concatenate([g.edges for g in graphs]),
+            np.concatenate([g.degree for g in graphs]),
+            node_ptr,
+            edge_ptr,
+            np.array([g.kind for g in graphs]),
+            meta,
         )
 
     def save(self, path: str | Path) -> None:
         np.savez_compressed(
-            path, x=self.x, edges=self.edges, degree=self.degree.astype(np.int16), node_ptr=self.node_ptr,
-            edge_ptr=self.edge_ptr, kinds=self.kinds, meta=np.array(json.dumps(self.meta)),
+            path,
+            x=self.x,
+            edges=self.edges,
+            degree=self.degree.astype(np.int16),
+            node_ptr=self.node_ptr,
+            edge_ptr=self.edge_ptr,
+            kinds=self.kinds,
+            meta=np.array(json.dumps(self.meta)),
         )
 
     @classmethod
@@ -239,8 +275,15 @@ class GraphDataset:
             meta = json.loads(str(f["meta"]))
             if meta.get("format") != FORMAT_VERSION:
                 raise ParameterError(f"{path}: data set format {meta.get('format')} != {FORMAT_VERSION}")
-            return cls(f["x"], f["edges"], f["degree"].astype(np.int64), f["node_ptr"], f["edge_ptr"],
-                       f["kinds"], meta)
+            return cls(
+                f["x"],
+                f["edges"],
+                f["degree"].astype(np.int64),
+                f["node_ptr"],
+                f["edge_ptr"],
+                f["kinds"],
+                meta,
+            )
 
     def subset(self, ids) -> GraphDataset:
         graphs = [self.arrays(int(i)) for i in ids]
@@ -281,7 +324,10 @@ class GraphDataset:
 
 
 def build_dataset(
-    recipe: str | Recipe, path: str | Path | None = None, seed: int = 0, n_meshes: int | None = None,
+    recipe: str | Recipe,
+    path: str | Path | None = None,
+    seed: int = 0,
+    n_meshes: int | None = None,
     log=print,
 ) -> GraphDataset:
     """Generate the recipe's meshes (seeded), extract their graphs, save to `path` if given."""
@@ -291,9 +337,17 @@ def build_dataset(
     for i in range(recipe.n_meshes):
         graphs.append(recipe_graph(recipe, i, seed))
         if log and (i + 1) % max(1, recipe.n_meshes // 10) == 0:
-            log(f"  data set {recipe.name}: {i + 1}/{recipe.n_meshes} graphs ({time.perf_counter() - t0:.0f} s)")
-    meta = {"format": FORMAT_VERSION, "dim": recipe.dim, "hetero": recipe.hetero, "seed": seed,
-            "recipe": recipe.to_dict(), "build_seconds": round(time.perf_counter() - t0, 1)}
+            log(
+                f"  data set {recipe.name}: {i + 1}/{recipe.n_meshes} graphs ({time.perf_counter() - t0:.0f} s)"
+            )
+    meta = {
+        "format": FORMAT_VERSION,
+        "dim": recipe.dim,
+        "hetero": recipe.hetero,
+        "seed": seed,
+        "recipe": recipe.to_dict(),
+        "build_seconds": round(time.perf_counter() - t0, 1),
+    }
     ds = GraphDataset.from_graphs(graphs, meta)
     if path is not None:
         Path(path).parent.mkdir(parents=True, exist_ok=True)

@@ -92,7 +92,9 @@ def _gmsh(seed: int, h: float):
         gmsh.finalize()
 
 
-def _extract(gmsh, dim: int, tag_of_entity: dict[int, int] | None) -> tuple[np.ndarray, list, np.ndarray | None]:
+def _extract(
+    gmsh, dim: int, tag_of_entity: dict[int, int] | None
+) -> tuple[np.ndarray, list, np.ndarray | None]:
     """Linear cells of dimension `dim` from the current gmsh model, with used nodes only."""
     node_tags, coords, _ = gmsh.model.mesh.getNodes()
     coords = coords.reshape(-1, 3)
@@ -325,8 +327,12 @@ def delaunay(seed: int, n: int) -> GeneratedMesh:
     m = max(2, int(np.sqrt(n)))
     t = np.linspace(0, 1, m + 1)[:-1]
     boundary = np.concatenate(
-        [np.column_stack([t, 0 * t]), np.column_stack([1 + 0 * t, t]), np.column_stack([1 - t, 1 + 0 * t]),
-         np.column_stack([0 * t, 1 - t])]
+        [
+            np.column_stack([t, 0 * t]),
+            np.column_stack([1 + 0 * t, t]),
+            np.column_stack([1 - t, 1 + 0 * t]),
+            np.column_stack([0 * t, 1 - t]),
+        ]
     )
     interior = _square_points(rng, n) * (1 - 1.0 / m) + 0.5 / m
     points = np.concatenate([boundary, interior])

@@ -15,8 +15,13 @@ from .generate import KINDS, generate
 def add_generate_args(parser: argparse.ArgumentParser) -> None:
     """Arguments of `magnet generate`."""
     parser.add_argument("kind", choices=KINDS + ("dataset",), help="mesh kind, or 'dataset' (see --recipe)")
-    parser.add_argument("-o", "--out", required=True, help="output file (.vtu, .vtk, .msh, ...), or a folder "
-                        "when --count > 1, or the .npz file of a dataset")
+    parser.add_argument(
+        "-o",
+        "--out",
+        required=True,
+        help="output file (.vtu, .vtk, .msh, ...), or a folder "
+        "when --count > 1, or the .npz file of a dataset",
+    )
     parser.add_argument("--seed", type=int, default=0, help="random seed (same seed, same mesh)")
     parser.add_argument("--count", type=int, default=1, help="number of meshes (seeds seed, seed+1, ...)")
     parser.add_argument("--size", type=float, default=None, help="mesh size h (default: random per mesh)")

@@ -161,10 +161,14 @@ def lymph_structs(poly: PolyMesh, boundary_tag: int = 1) -> tuple[dict, dict]:
     bc_tag = edge_tags(poly, used[v0[bnd]], used[v1[bnd]], default=boundary_tag)
 
     area = _shoelace(xy, starts, counts)
-    bbox = np.column_stack([
-        np.minimum.reduceat(xy[:, 0], starts), np.maximum.reduceat(xy[:, 0], starts),
-        np.minimum.reduceat(xy[:, 1], starts), np.maximum.reduceat(xy[:, 1], starts),
-    ])
+    bbox = np.column_stack(
+        [
+            np.minimum.reduceat(xy[:, 0], starts),
+            np.maximum.reduceat(xy[:, 0], starts),
+            np.minimum.reduceat(xy[:, 1], starts),
+            np.maximum.reduceat(xy[:, 1], starts),
+        ]
+    )
     kb = max_kb(xy, starts, counts)
 
     if poly.tags is not None:
@@ -338,8 +342,16 @@ def _max_kb_block(xy: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> tup
         tb = t3[e]
         b, c = v[ec, jn[e]], v[ec, ke]
         ok = _separated(
-            le[e], (_lines(b, c) @ hom[e]) <= tb, (_lines(c, v[e]) @ hom[e]) <= tb,
-            ge_t[e], ge_tn[e], ge_t[ec, ke], le_t[e], _next_rows(le_t[e], counts[e]), le_t[ec, ke])
+            le[e],
+            (_lines(b, c) @ hom[e]) <= tb,
+            (_lines(c, v[e]) @ hom[e]) <= tb,
+            ge_t[e],
+            ge_tn[e],
+            ge_t[ec, ke],
+            le_t[e],
+            _next_rows(le_t[e], counts[e]),
+            le_t[ec, ke],
+        )
         fail = found[e] & ~ok
         fail_r, fail_j = e[np.nonzero(fail)[0]], np.nonzero(fail)[1]
     else:
@@ -355,12 +367,12 @@ def _max_kb_block(xy: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> tup
         pos, width = 0, 2
         step = max(1, _BLOCK // n)
         while rows.size:
-            kk = srt[rows, pos:pos + width]
+            kk = srt[rows, pos : pos + width]
             w = kk.shape[1]
             rr, cc = np.nonzero((pos + np.arange(w))[None, :] < nval[rows][:, None])
             inside = np.zeros((rows.size, w), dtype=bool)
             for s0 in range(0, rr.size, step):
-                q, qc = rr[s0:s0 + step], cc[s0:s0 + step]
+                q, qc = rr[s0 : s0 + step], cc[s0 : s0 + step]
                 er, ej, ek = fail_r[rows[q]], fail_j[rows[q]], kk[q, qc]
                 en = jn[er, ej]
                 a, b, c = v[er, ej], v[er, en], v[er, ek]
@@ -370,7 +382,13 @@ def _max_kb_block(xy: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> tup
                     le[er, ej],
                     np.einsum("pk,pkn->pn", _lines(b, c), hq) <= tq,
                     np.einsum("pk,pkn->pn", _lines(c, a), hq) <= tq,
-                    ge_t[er, ej], ge_t[er, en], ge_t[er, ek], le_t[er, ej], le_t[er, en], le_t[er, ek])
+                    ge_t[er, ej],
+                    ge_t[er, en],
+                    ge_t[er, ek],
+                    le_t[er, ej],
+                    le_t[er, en],
+                    le_t[er, ek],
+                )
             hit = inside.any(axis=1)
             first = np.argmax(inside, axis=1)
             hr = rows[hit]
@@ -479,7 +497,9 @@ def lymph_from_mat(path) -> tuple[dict, dict]:
 
     data = loadmat(str(path), squeeze_me=False, struct_as_record=True)
     reg, nb = data["region"][0, 0], data["neighbor"][0, 0]
-    coords = [np.asarray(c, dtype=np.float64).reshape(-1, 2) for c in np.asarray(reg["coords_element"]).reshape(-1)]
+    coords = [
+        np.asarray(c, dtype=np.float64).reshape(-1, 2) for c in np.asarray(reg["coords_element"]).reshape(-1)
+    ]
     region = {
         "coord": np.asarray(reg["coord"], dtype=np.float64).reshape(-1, 2),
         "connectivity": _uncell(reg["connectivity"], np.int64),

@@ -66,7 +66,9 @@ def _list_rank(nxt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return cyc, pos
 
 
-def merge_2d(mesh: Mesh, graph: DualGraph, labels: np.ndarray, measures: np.ndarray) -> tuple[PolyMesh, Holes]:
+def merge_2d(
+    mesh: Mesh, graph: DualGraph, labels: np.ndarray, measures: np.ndarray
+) -> tuple[PolyMesh, Holes]:
     """Polygons (outer loop CCW first, then holes CW) for every element."""
     f = graph.faces
     bf = boundary_faces(graph, labels)
@@ -125,13 +127,18 @@ def merge_2d(mesh: Mesh, graph: DualGraph, labels: np.ndarray, measures: np.ndar
     np.cumsum(per_elem, out=elem_offsets[1:])
     hole_loops = np.flatnonzero(~is_outer)
     centers = np.column_stack(
-        [np.bincount(cyc, weights=p[a, d], minlength=area.size) / np.bincount(cyc, minlength=area.size) for d in range(2)]
+        [
+            np.bincount(cyc, weights=p[a, d], minlength=area.size) / np.bincount(cyc, minlength=area.size)
+            for d in range(2)
+        ]
     )
     holes = Holes(elements=loop_elem[hole_loops], centers=centers[hole_loops])
     return _polymesh(mesh, elem_offsets, loop_offsets, loop_nodes, labels, measures), holes
 
 
-def merge_3d(mesh: Mesh, graph: DualGraph, labels: np.ndarray, measures: np.ndarray) -> tuple[PolyMesh, Holes]:
+def merge_3d(
+    mesh: Mesh, graph: DualGraph, labels: np.ndarray, measures: np.ndarray
+) -> tuple[PolyMesh, Holes]:
     """Polyhedra as their outward boundary faces; inner shells (cavities) reported as holes."""
     f = graph.faces
     bf = boundary_faces(graph, labels)
@@ -182,7 +189,9 @@ def _shells(points, face_elem, fo, nodes) -> Holes:
     first = np.r_[True, shell_elem[o][1:] != shell_elem[o][:-1]]
     inner = o[~first]
     cnt = np.bincount(shell[face_of], minlength=nshell).astype(np.float64)
-    centers = np.column_stack([np.bincount(shell[face_of], weights=points[nodes, d], minlength=nshell) / cnt for d in range(3)])
+    centers = np.column_stack(
+        [np.bincount(shell[face_of], weights=points[nodes, d], minlength=nshell) / cnt for d in range(3)]
+    )
     return Holes(elements=shell_elem[inner], centers=centers[inner])
 
 
@@ -239,11 +248,20 @@ def sort_by_vertex_count(poly: PolyMesh) -> PolyMesh:
     inv[perm] = np.arange(e)
     elem_offsets, face_ids = reorder_csr(poly.elem_offsets, np.arange(face_elem.size), perm)
     loop_offsets, loop_nodes = reorder_csr(poly.loop_offsets, poly.loop_nodes, face_ids)
-    per_face = {k: None if getattr(poly, k) is None else getattr(poly, k)[face_ids] for k in ("facet_tags", "facet_on_boundary")}
+    per_face = {
+        k: None if getattr(poly, k) is None else getattr(poly, k)[face_ids]
+        for k in ("facet_tags", "facet_on_boundary")
+    }
     return dataclasses.replace(
-        poly, elem_offsets=elem_offsets, loop_offsets=loop_offsets, loop_nodes=loop_nodes,
-        measure=poly.measure[perm], n_fine=poly.n_fine[perm], labels=inv[poly.labels],
-        tags=None if poly.tags is None else poly.tags[perm], **per_face,
+        poly,
+        elem_offsets=elem_offsets,
+        loop_offsets=loop_offsets,
+        loop_nodes=loop_nodes,
+        measure=poly.measure[perm],
+        n_fine=poly.n_fine[perm],
+        labels=inv[poly.labels],
+        tags=None if poly.tags is None else poly.tags[perm],
+        **per_face,
     )
 
 

@@ -33,8 +33,13 @@ def _data_array(name: str, arr: np.ndarray, ncomp: int = 1) -> str:
     return f'<DataArray type="{_VTK_TYPES[arr.dtype]}" Name="{name}"{comps} format="binary">{payload}</DataArray>\n'
 
 
-def write_vtu(path: str | os.PathLike, poly: PolyMesh, cell_data: dict[str, np.ndarray] | None = None, boundary=None,
-              group_names: dict[str, tuple[int, int]] | None = None) -> None:
+def write_vtu(
+    path: str | os.PathLike,
+    poly: PolyMesh,
+    cell_data: dict[str, np.ndarray] | None = None,
+    boundary=None,
+    group_names: dict[str, tuple[int, int]] | None = None,
+) -> None:
     """Write the agglomerated mesh; `cell_data` adds per-element arrays (e.g. metrics).
 
     boundary: None or (offsets, nodes, VTK types, tags) of tagged edges/faces (models.boundary.
@@ -47,7 +52,9 @@ def write_vtu(path: str | os.PathLike, poly: PolyMesh, cell_data: dict[str, np.n
         lo = poly.loop_offsets
         n_loops = np.diff(poly.elem_offsets)
         if np.any(n_loops != 1):
-            raise MeshError("cannot write elements with holes as VTK polygons; split them first (hole_policy='split')")
+            raise MeshError(
+                "cannot write elements with holes as VTK polygons; split them first (hole_policy='split')"
+            )
         conn = poly.loop_nodes.astype(np.int64)
         offsets = lo[1:].astype(np.int64)
         types = np.full(e, VTK_POLYGON, dtype=np.uint8)
@@ -89,7 +96,9 @@ def write_vtu(path: str | os.PathLike, poly: PolyMesh, cell_data: dict[str, np.n
         types = np.concatenate([types, b_types]).astype(np.uint8)
     if faces_xml:
         stream, foff = faces_xml
-        faces_xml = _data_array("faces", stream) + _data_array("faceoffsets", np.concatenate([foff, np.full(nb, -1, np.int64)]))
+        faces_xml = _data_array("faces", stream) + _data_array(
+            "faceoffsets", np.concatenate([foff, np.full(nb, -1, np.int64)])
+        )
     parts = [
         '<?xml version="1.0"?>\n',
         '<VTKFile type="UnstructuredGrid" version="1.0" byte_order="LittleEndian" header_type="UInt64">\n',
@@ -119,7 +128,11 @@ def write_vtu(path: str | os.PathLike, poly: PolyMesh, cell_data: dict[str, np.n
             arr = np.concatenate([arr, np.full(nb, fill, dtype=arr.dtype)])
         parts.append(_data_array(name, arr))
     if nb:
-        parts.append(_data_array("boundary_tag", np.concatenate([np.full(e, -1, np.int64), np.asarray(b_tags, np.int64)])))
+        parts.append(
+            _data_array(
+                "boundary_tag", np.concatenate([np.full(e, -1, np.int64), np.asarray(b_tags, np.int64)])
+            )
+        )
     parts.append("</CellData>\n</Piece>\n</UnstructuredGrid>\n</VTKFile>\n")
     tmp = os.fspath(path) + ".tmp"
     with open(tmp, "w", encoding="ascii") as fh:
@@ -150,9 +163,28 @@ def _points3d(poly: PolyMesh) -> np.ndarray:
 # meshio's VTU reader refuses polyhedra mixed with other cells, which is what write_vtu writes for
 # a 3D result with boundary groups; this reads such files (inline ascii or uncompressed base64
 # binary DataArrays, as write_vtu and VTK's own writer without compression produce).
-_NP_TYPES = {"Float64": np.float64, "Float32": np.float32, "Int64": np.int64, "Int32": np.int32,
-             "UInt64": np.uint64, "UInt32": np.uint32, "Int8": np.int8, "UInt8": np.uint8, "Int16": np.int16, "UInt16": np.uint16}
-_MESHIO_NAMES = {3: "line", 5: "triangle", 7: "polygon", 9: "quad", 10: "tetra", 12: "hexahedron", 13: "wedge", 14: "pyramid"}
+_NP_TYPES = {
+    "Float64": np.float64,
+    "Float32": np.float32,
+    "Int64": np.int64,
+    "Int32": np.int32,
+    "UInt64": np.uint64,
+    "UInt32": np.uint32,
+    "Int8": np.int8,
+    "UInt8": np.uint8,
+    "Int16": np.int16,
+    "UInt16": np.uint16,
+}
+_MESHIO_NAMES = {
+    3: "line",
+    5: "triangle",
+    7: "polygon",
+    9: "quad",
+    10: "tetra",
+    12: "hexahedron",
+    13: "wedge",
+    14: "pyramid",
+}
 
 
 def _decode(el, header: type) -> np.ndarray:
@@ -190,7 +222,14 @@ def read_vtu_mixed(path: str | os.PathLike):
 
     def arrays(section: str) -> dict:
         node = piece.find(section)
-        return {} if node is None else {el.get("Name"): (_decode(el, header), int(el.get("NumberOfComponents", 1))) for el in node.findall("DataArray")}
+        return (
+            {}
+            if node is None
+            else {
+                el.get("Name"): (_decode(el, header), int(el.get("NumberOfComponents", 1)))
+                for el in node.findall("DataArray")
+            }
+        )
 
     pts, ncomp = next(iter(arrays("Points").values()))
     cells = {k: v[0].astype(np.int64) for k, v in arrays("Cells").items()}
@@ -227,9 +266,15 @@ def read_vtu_mixed(path: str | os.PathLike):
             name = _MESHIO_NAMES[t] if t != 7 else {3: "triangle", 4: "quad"}.get(int(s), "polygon")
             blocks.append(SimpleNamespace(type=name, data=data))
             sel.append(ids)
-    cell_data = {name: [a.reshape(-1, nc)[ids].reshape(-1) if nc == 1 else a.reshape(-1, nc)[ids] for ids in sel]
-                 for name, (a, nc) in arrays("CellData").items()}
+    cell_data = {
+        name: [a.reshape(-1, nc)[ids].reshape(-1) if nc == 1 else a.reshape(-1, nc)[ids] for ids in sel]
+        for name, (a, nc) in arrays("CellData").items()
+    }
     fd = root.find("UnstructuredGrid/FieldData")
     field_data = {} if fd is None else {el.get("Name"): _decode(el, header) for el in fd.findall("DataArray")}
-    return SimpleNamespace(points=pts.reshape(-1, ncomp).astype(np.float64), cells=blocks, cell_data=cell_data, field_data=field_data)
-
+    return SimpleNamespace(
+        points=pts.reshape(-1, ncomp).astype(np.float64),
+        cells=blocks,
+        cell_data=cell_data,
+        field_data=field_data,
+    )

@@ -46,16 +46,34 @@ def hexes(n: int):
     p = cube_points(n)
     i, j, k = (a.ravel() for a in np.meshgrid(*(np.arange(n),) * 3, indexing="ij"))
     v = lambda a, b, c: (a * (n + 1) + b) * (n + 1) + c  # noqa: E731
-    h = np.column_stack([v(i, j, k), v(i + 1, j, k), v(i + 1, j + 1, k), v(i, j + 1, k),
-                         v(i, j, k + 1), v(i + 1, j, k + 1), v(i + 1, j + 1, k + 1), v(i, j + 1, k + 1)])
+    h = np.column_stack(
+        [
+            v(i, j, k),
+            v(i + 1, j, k),
+            v(i + 1, j + 1, k),
+            v(i, j + 1, k),
+            v(i, j, k + 1),
+            v(i + 1, j, k + 1),
+            v(i + 1, j + 1, k + 1),
+            v(i, j + 1, k + 1),
+        ]
+    )
     return p, h
 
 
 def tets(n: int):
     """Kuhn subdivision of each cube into 6 tetrahedra (conforming)."""
     p, h = hexes(n)
-    t = np.vstack([h[:, [0, 1, 2, 6]], h[:, [0, 1, 5, 6]], h[:, [0, 3, 2, 6]],
-                   h[:, [0, 3, 7, 6]], h[:, [0, 4, 5, 6]], h[:, [0, 4, 7, 6]]])
+    t = np.vstack(
+        [
+            h[:, [0, 1, 2, 6]],
+            h[:, [0, 1, 5, 6]],
+            h[:, [0, 3, 2, 6]],
+            h[:, [0, 3, 7, 6]],
+            h[:, [0, 4, 5, 6]],
+            h[:, [0, 4, 7, 6]],
+        ]
+    )
     return p, t
 
 

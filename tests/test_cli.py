@@ -12,20 +12,49 @@ from conftest import BRAIN, EMILIA
 
 def magnet(*args, cwd=None):
     env = dict(os.environ, MPLBACKEND="Agg")
-    return subprocess.run([sys.executable, "-m", "models.cli", *map(str, args)], capture_output=True, text=True, cwd=cwd, env=env, timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "models.cli", *map(str, args)],
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        env=env,
+        timeout=600,
+    )
 
 
 def test_agglomerate_all_outputs(tmp_path):
     out = tmp_path / "brain.vtu"
-    r = magnet("agglomerate", BRAIN, "-o", out, "--model", "metis", "--mode", "kway", "--k", 128,
-               "--metrics", tmp_path / "m.json", "--labels", tmp_path / "l.json", "--lymph", tmp_path / "l.mat",
-               "--plot", tmp_path / "p.png")
+    r = magnet(
+        "agglomerate",
+        BRAIN,
+        "-o",
+        out,
+        "--model",
+        "metis",
+        "--mode",
+        "kway",
+        "--k",
+        128,
+        "--metrics",
+        tmp_path / "m.json",
+        "--labels",
+        tmp_path / "l.json",
+        "--lymph",
+        tmp_path / "l.mat",
+        "--plot",
+        tmp_path / "p.png",
+    )
     assert r.returncode == 0, r.stderr
     assert r.stdout.startswith("128 elements from 14372 cells")
     assert "graph" in r.stdout and "partition" in r.stdout
     rep = json.loads((tmp_path / "m.json").read_text())
     assert rep["elements"] == 128
-    assert set(rep["summary"]) >= {"circle_ratio", "area_perimeter_ratio", "uniformity_factor", "volume_difference"}
+    assert set(rep["summary"]) >= {
+        "circle_ratio",
+        "area_perimeter_ratio",
+        "uniformity_factor",
+        "volume_difference",
+    }
     assert set(rep["partition"]) >= {"cut", "normalized_cut", "parts", "connected"}
     assert rep["partition"]["connected"] is True and rep["partition"]["parts"] == 128
     assert len(rep["per_element"]["circle_ratio"]) == 128
@@ -42,23 +71,57 @@ def test_agglomerate_all_outputs(tmp_path):
 
 
 def test_segregated_and_subset(tmp_path):
-    r = magnet("agglomerate", EMILIA, "-o", tmp_path / "e.vtu", "--mode", "segregated", "--mult-factor", 0.1,
-               "--metrics", tmp_path / "e.json")
+    r = magnet(
+        "agglomerate",
+        EMILIA,
+        "-o",
+        tmp_path / "e.vtu",
+        "--mode",
+        "segregated",
+        "--mult-factor",
+        0.1,
+        "--metrics",
+        tmp_path / "e.json",
+    )
     assert r.returncode == 0, r.stderr
     rep = json.loads((tmp_path / "e.json").read_text())
     assert "heterogeneity_preservation" in rep["summary"]
     assert min(rep["per_element"]["heterogeneity_preservation"]) == 1.0
     (tmp_path / "s.txt").write_text(" ".join(map(str, range(0, 3000))))
-    r = magnet("agglomerate", BRAIN, "-o", tmp_path / "s.vtu", "--mode", "nref", "--nref", 3, "--subset", tmp_path / "s.txt",
-               "--labels", tmp_path / "sl.json")
+    r = magnet(
+        "agglomerate",
+        BRAIN,
+        "-o",
+        tmp_path / "s.vtu",
+        "--mode",
+        "nref",
+        "--nref",
+        3,
+        "--subset",
+        tmp_path / "s.txt",
+        "--labels",
+        tmp_path / "sl.json",
+    )
     assert r.returncode == 0, r.stderr
     lab = np.array(json.loads((tmp_path / "sl.json").read_text()))
     assert np.unique(lab[3000:]).size == 14372 - 3000
 
 
 def test_compare(tmp_path):
-    r = magnet("compare", BRAIN, "--methods", "metis:kway,kmeans:kway,metis:nref", "--k", 16, "--nref", 4,
-               "-o", tmp_path / "c.png", "--json", tmp_path / "c.json")
+    r = magnet(
+        "compare",
+        BRAIN,
+        "--methods",
+        "metis:kway,kmeans:kway,metis:nref",
+        "--k",
+        16,
+        "--nref",
+        4,
+        "-o",
+        tmp_path / "c.png",
+        "--json",
+        tmp_path / "c.json",
+    )
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "c.png").exists()
     data = json.loads((tmp_path / "c.json").read_text())
@@ -93,29 +156,88 @@ def test_bad_parameters_exit_2(tmp_path, extra, match):
 
 def test_bad_subset(tmp_path):
     (tmp_path / "s.json").write_text(json.dumps([1, 2, 99999999]))
-    _bad(tmp_path, "agglomerate", BRAIN, "-o", tmp_path / "x.vtu", "--k", 2, "--subset", tmp_path / "s.json", match="unknown cell ids")
-    (tmp_path / "t.json").write_text("[1, 2, \"x\"]")
-    _bad(tmp_path, "agglomerate", BRAIN, "-o", tmp_path / "x.vtu", "--k", 2, "--subset", tmp_path / "t.json", match="integer cell ids")
+    _bad(
+        tmp_path,
+        "agglomerate",
+        BRAIN,
+        "-o",
+        tmp_path / "x.vtu",
+        "--k",
+        2,
+        "--subset",
+        tmp_path / "s.json",
+        match="unknown cell ids",
+    )
+    (tmp_path / "t.json").write_text('[1, 2, "x"]')
+    _bad(
+        tmp_path,
+        "agglomerate",
+        BRAIN,
+        "-o",
+        tmp_path / "x.vtu",
+        "--k",
+        2,
+        "--subset",
+        tmp_path / "t.json",
+        match="integer cell ids",
+    )
 
 
 def test_bad_files(tmp_path):
     (tmp_path / "a.xyz").write_text("hello")
-    _bad(tmp_path, "agglomerate", tmp_path / "a.xyz", "-o", tmp_path / "x.vtu", "--k", 2, match="unknown mesh format")
+    _bad(
+        tmp_path,
+        "agglomerate",
+        tmp_path / "a.xyz",
+        "-o",
+        tmp_path / "x.vtu",
+        "--k",
+        2,
+        match="unknown mesh format",
+    )
     data = open(BRAIN, "rb").read()
     (tmp_path / "t.vtu").write_bytes(data[:5000])
     _bad(tmp_path, "agglomerate", tmp_path / "t.vtu", "-o", tmp_path / "x.vtu", "--k", 2, match="cannot read")
-    _bad(tmp_path, "agglomerate", tmp_path / "missing.vtu", "-o", tmp_path / "x.vtu", "--k", 2, match="not found")
-    (tmp_path / "nan.vtk").write_text("# vtk DataFile Version 4.2\nx\nASCII\nDATASET UNSTRUCTURED_GRID\n"
-                                      "POINTS 3 double\n0 0 0\n1 nan 0\n0 1 0\nCELLS 1 4\n3 0 1 2\nCELL_TYPES 1\n5\n")
+    _bad(
+        tmp_path,
+        "agglomerate",
+        tmp_path / "missing.vtu",
+        "-o",
+        tmp_path / "x.vtu",
+        "--k",
+        2,
+        match="not found",
+    )
+    (tmp_path / "nan.vtk").write_text(
+        "# vtk DataFile Version 4.2\nx\nASCII\nDATASET UNSTRUCTURED_GRID\n"
+        "POINTS 3 double\n0 0 0\n1 nan 0\n0 1 0\nCELLS 1 4\n3 0 1 2\nCELL_TYPES 1\n5\n"
+    )
     _bad(tmp_path, "agglomerate", tmp_path / "nan.vtk", "-o", tmp_path / "x.vtu", "--k", 1, match="NaN")
-    (tmp_path / "deg.vtk").write_text("# vtk DataFile Version 4.2\nx\nASCII\nDATASET UNSTRUCTURED_GRID\n"
-                                      "POINTS 4 double\n0 0 0\n1 0 0\n2 0 0\n0 1 0\nCELLS 2 8\n3 0 1 2\n3 0 1 3\nCELL_TYPES 2\n5\n5\n")
-    _bad(tmp_path, "agglomerate", tmp_path / "deg.vtk", "-o", tmp_path / "x.vtu", "--k", 1, match="degenerate")
-    (tmp_path / "miss.vtk").write_text("# vtk DataFile Version 4.2\nx\nASCII\nDATASET UNSTRUCTURED_GRID\n"
-                                       "POINTS 3 double\n0 0 0\n1 0 0\n0 1 0\nCELLS 1 4\n3 0 1 7\nCELL_TYPES 1\n5\n")
-    _bad(tmp_path, "agglomerate", tmp_path / "miss.vtk", "-o", tmp_path / "x.vtu", "--k", 1, match="missing points")
-    (tmp_path / "line.vtk").write_text("# vtk DataFile Version 4.2\nx\nASCII\nDATASET UNSTRUCTURED_GRID\n"
-                                       "POINTS 3 double\n0 0 0\n1 0 0\n2 0 0\nCELLS 2 6\n2 0 1\n2 1 2\nCELL_TYPES 2\n3\n3\n")
+    (tmp_path / "deg.vtk").write_text(
+        "# vtk DataFile Version 4.2\nx\nASCII\nDATASET UNSTRUCTURED_GRID\n"
+        "POINTS 4 double\n0 0 0\n1 0 0\n2 0 0\n0 1 0\nCELLS 2 8\n3 0 1 2\n3 0 1 3\nCELL_TYPES 2\n5\n5\n"
+    )
+    _bad(
+        tmp_path, "agglomerate", tmp_path / "deg.vtk", "-o", tmp_path / "x.vtu", "--k", 1, match="degenerate"
+    )
+    (tmp_path / "miss.vtk").write_text(
+        "# vtk DataFile Version 4.2\nx\nASCII\nDATASET UNSTRUCTURED_GRID\n"
+        "POINTS 3 double\n0 0 0\n1 0 0\n0 1 0\nCELLS 1 4\n3 0 1 7\nCELL_TYPES 1\n5\n"
+    )
+    _bad(
+        tmp_path,
+        "agglomerate",
+        tmp_path / "miss.vtk",
+        "-o",
+        tmp_path / "x.vtu",
+        "--k",
+        1,
+        match="missing points",
+    )
+    (tmp_path / "line.vtk").write_text(
+        "# vtk DataFile Version 4.2\nx\nASCII\nDATASET UNSTRUCTURED_GRID\n"
+        "POINTS 3 double\n0 0 0\n1 0 0\n2 0 0\nCELLS 2 6\n2 0 1\n2 1 2\nCELL_TYPES 2\n3\n3\n"
+    )
     _bad(tmp_path, "agglomerate", tmp_path / "line.vtk", "-o", tmp_path / "x.vtu", "--k", 1, match="1D")
     (tmp_path / "empty.vtu").write_bytes(b"")
     _bad(tmp_path, "agglomerate", tmp_path / "empty.vtu", "-o", tmp_path / "x.vtu", "--k", 1, match="empty")
@@ -127,4 +249,15 @@ def test_lymph_on_3d_refused(tmp_path):
 
     p, t = tets(2)
     meshio.write(tmp_path / "c.vtu", meshio.Mesh(p, [("tetra", t)]))
-    _bad(tmp_path, "agglomerate", tmp_path / "c.vtu", "-o", tmp_path / "x.vtu", "--k", 2, "--lymph", tmp_path / "x.mat", match="2D")
+    _bad(
+        tmp_path,
+        "agglomerate",
+        tmp_path / "c.vtu",
+        "-o",
+        tmp_path / "x.vtu",
+        "--k",
+        2,
+        "--lymph",
+        tmp_path / "x.mat",
+        match="2D",
+    )

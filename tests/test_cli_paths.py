@@ -11,14 +11,35 @@ from test_cli import _bad
 
 def test_output_in_a_missing_folder(tmp_path):
     _bad(tmp_path, "agglomerate", BRAIN, "-o", "/nonexistent/x.vtu", "--k", 4, match="does not exist")
-    _bad(tmp_path, "agglomerate", BRAIN, "-o", tmp_path / "x.vtu", "--k", 4, "--metrics", tmp_path / "no" / "m.json",
-         match="does not exist")
+    _bad(
+        tmp_path,
+        "agglomerate",
+        BRAIN,
+        "-o",
+        tmp_path / "x.vtu",
+        "--k",
+        4,
+        "--metrics",
+        tmp_path / "no" / "m.json",
+        match="does not exist",
+    )
 
 
 def test_output_is_a_folder(tmp_path):
     (tmp_path / "d.vtu").mkdir()
     _bad(tmp_path, "agglomerate", BRAIN, "-o", tmp_path / "d.vtu", "--k", 4, match="is a folder")
-    _bad(tmp_path, "agglomerate", BRAIN, "-o", tmp_path / "x.vtu", "--k", 4, "--labels", tmp_path, match="is a folder")
+    _bad(
+        tmp_path,
+        "agglomerate",
+        BRAIN,
+        "-o",
+        tmp_path / "x.vtu",
+        "--k",
+        4,
+        "--labels",
+        tmp_path,
+        match="is a folder",
+    )
 
 
 def test_output_with_the_wrong_extension(tmp_path):

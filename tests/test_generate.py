@@ -17,16 +17,30 @@ from models.geometry import measures_and_centroids  # noqa: E402
 from models.graph import dual_graph  # noqa: E402
 from models.io import read_mesh  # noqa: E402
 
-SMALL = {"square-tri": dict(size=0.1), "square-quad": dict(size=0.1), "delaunay": dict(n=200),
-         "voronoi": dict(n=200), "holes": dict(size=0.08, n=3), "inclusions": dict(size=0.08, n=4),
-         "split": dict(size=0.08), "cube": dict(size=0.25), "cube-portion": dict(size=0.25),
-         "cube-hetero": dict(size=0.25, parts=3)}
+SMALL = {
+    "square-tri": dict(size=0.1),
+    "square-quad": dict(size=0.1),
+    "delaunay": dict(n=200),
+    "voronoi": dict(n=200),
+    "holes": dict(size=0.08, n=3),
+    "inclusions": dict(size=0.08, n=4),
+    "split": dict(size=0.08),
+    "cube": dict(size=0.25),
+    "cube-portion": dict(size=0.25),
+    "cube-hetero": dict(size=0.25, parts=3),
+}
 
 
 def _same(a, b) -> bool:
-    return (np.array_equal(a.points, b.points) and len(a.cells) == len(b.cells)
-            and all(n1 == n2 and np.array_equal(c1, c2) for (n1, c1), (n2, c2) in zip(a.cells, b.cells, strict=True))
-            and (a.tags is None) == (b.tags is None) and (a.tags is None or np.array_equal(a.tags, b.tags)))
+    return (
+        np.array_equal(a.points, b.points)
+        and len(a.cells) == len(b.cells)
+        and all(
+            n1 == n2 and np.array_equal(c1, c2) for (n1, c1), (n2, c2) in zip(a.cells, b.cells, strict=True)
+        )
+        and (a.tags is None) == (b.tags is None)
+        and (a.tags is None or np.array_equal(a.tags, b.tags))
+    )
 
 
 @pytest.mark.parametrize("kind", list(SMALL))
@@ -98,16 +112,23 @@ def test_cli_writes_readable_files(tmp_path):
     parser = argparse.ArgumentParser()
     add_generate_args(parser)
     out = tmp_path / "incl.vtu"
-    assert generate_main(parser.parse_args(["inclusions", "-o", str(out), "--seed", "2", "--size", "0.08"])) == 0
+    assert (
+        generate_main(parser.parse_args(["inclusions", "-o", str(out), "--seed", "2", "--size", "0.08"])) == 0
+    )
     mesh = read_mesh(out)
     assert mesh.physical_groups() == [0, 1]
     folder = tmp_path / "many"
-    assert generate_main(parser.parse_args(["square-quad", "-o", str(folder), "--count", "3", "--size", "0.2"])) == 0
+    assert (
+        generate_main(parser.parse_args(["square-quad", "-o", str(folder), "--count", "3", "--size", "0.2"]))
+        == 0
+    )
     assert len(list(folder.glob("*.vtu"))) == 3
 
 
 def test_dataset_roundtrip_and_loader(tmp_path):
-    recipe = get_recipe("sage-hetero-2d", n_meshes=6, pieces=0.5, size_range=(0.08, 0.12), points_range=(60, 120))
+    recipe = get_recipe(
+        "sage-hetero-2d", n_meshes=6, pieces=0.5, size_range=(0.08, 0.12), points_range=(60, 120)
+    )
     path = tmp_path / "ds.npz"
     ds = build_dataset(recipe, path, seed=1, log=None)
     again = GraphDataset.load(path)

@@ -20,8 +20,12 @@ def _tet_mesh(n: int = 4, flip_every: int = 3) -> Mesh:
     p = p + rng.normal(0, 0.02, p.shape)  # irregular tetrahedra
     t = t.copy()
     t[::flip_every] = t[::flip_every][:, [1, 0, 2, 3]]  # some negatively oriented
-    return Mesh(points=p, offsets=np.arange(0, 4 * len(t) + 1, 4), connectivity=t.ravel(),
-                cell_types=np.full(len(t), VTK_TETRA, dtype=np.uint8))
+    return Mesh(
+        points=p,
+        offsets=np.arange(0, 4 * len(t) + 1, 4),
+        connectivity=t.ravel(),
+        cell_types=np.full(len(t), VTK_TETRA, dtype=np.uint8),
+    )
 
 
 def test_tetra_measures_equal_face_formula(monkeypatch):
@@ -83,4 +87,8 @@ def test_triangle_rotation_matches_padded_argmin():
     m, nxt, prv = orientation._triangle_rotation(t)
     j = t.argmin(axis=1)
     r = np.arange(len(t))
-    assert np.array_equal(m, t[r, j]) and np.array_equal(nxt, t[r, (j + 1) % 3]) and np.array_equal(prv, t[r, (j - 1) % 3])
+    assert (
+        np.array_equal(m, t[r, j])
+        and np.array_equal(nxt, t[r, (j + 1) % 3])
+        and np.array_equal(prv, t[r, (j - 1) % 3])
+    )

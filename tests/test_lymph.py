@@ -98,8 +98,7 @@ def test_grid_counts_connectivity_and_boundary():
     assert on_side.all()
     np.testing.assert_allclose(region["area"], 1.0)
     assert region["area"].sum() == pytest.approx(4.0)
-    np.testing.assert_array_equal(
-        region["BBox"], [[0, 1, 0, 1], [1, 2, 0, 1], [0, 1, 1, 2], [1, 2, 1, 2]])
+    np.testing.assert_array_equal(region["BBox"], [[0, 1, 0, 1], [1, 2, 0, 1], [0, 1, 1, 2], [1, 2, 1, 2]])
     np.testing.assert_array_equal(region["id"], [1, 1, 1, 1])
     for kb in region["max_kb"]:
         np.testing.assert_allclose(kb, 0.5)  # unit square: half of it
@@ -154,8 +153,16 @@ def test_domain_area_and_symmetry_on_a_larger_split():
     loops = []
     for by in range(0, ny, 2):
         for bx in range(0, nx, 2):
-            ring = [(bx, by), (bx + 1, by), (bx + 2, by), (bx + 2, by + 1), (bx + 2, by + 2),
-                    (bx + 1, by + 2), (bx, by + 2), (bx, by + 1)]
+            ring = [
+                (bx, by),
+                (bx + 1, by),
+                (bx + 2, by),
+                (bx + 2, by + 1),
+                (bx + 2, by + 2),
+                (bx + 1, by + 2),
+                (bx, by + 2),
+                (bx, by + 1),
+            ]
             loops.append([idx(x, y) for x, y in ring])
     region, neighbor = lymph_structs(poly_from_loops(pts, loops))
     assert region["ne"] == 6
@@ -168,14 +175,26 @@ def test_domain_area_and_symmetry_on_a_larger_split():
 
 def test_tags_3d_and_holes_rejected():
     poly = grid_2x2()
-    poly3 = PolyMesh(points=np.zeros((4, 3)), elem_offsets=np.array([0, 4]), loop_offsets=np.arange(5) * 3,
-                     loop_nodes=np.array([0, 2, 1, 0, 1, 3, 1, 2, 3, 0, 3, 2]), measure=np.ones(1),
-                     n_fine=np.ones(1, dtype=np.int64), labels=np.zeros(1, dtype=np.int64))
+    poly3 = PolyMesh(
+        points=np.zeros((4, 3)),
+        elem_offsets=np.array([0, 4]),
+        loop_offsets=np.arange(5) * 3,
+        loop_nodes=np.array([0, 2, 1, 0, 1, 3, 1, 2, 3, 0, 3, 2]),
+        measure=np.ones(1),
+        n_fine=np.ones(1, dtype=np.int64),
+        labels=np.zeros(1, dtype=np.int64),
+    )
     with pytest.raises(ParameterError):
         lymph_structs(poly3)
-    holed = PolyMesh(points=poly.points, elem_offsets=np.array([0, 2]), loop_offsets=np.array([0, 4, 8]),
-                     loop_nodes=np.array([0, 2, 8, 6, 1, 4, 5, 2]), measure=np.ones(1),
-                     n_fine=np.ones(1, dtype=np.int64), labels=np.zeros(1, dtype=np.int64))
+    holed = PolyMesh(
+        points=poly.points,
+        elem_offsets=np.array([0, 2]),
+        loop_offsets=np.array([0, 4, 8]),
+        loop_nodes=np.array([0, 2, 8, 6, 1, 4, 5, 2]),
+        measure=np.ones(1),
+        n_fine=np.ones(1, dtype=np.int64),
+        labels=np.zeros(1, dtype=np.int64),
+    )
     with pytest.raises(ParameterError):
         lymph_structs(holed)
 
@@ -374,7 +393,8 @@ def test_octave_reads_the_mat_file(tmp_path):
         "mat2str(region.connectivity{2}), neighbor.neigh{1}(3), neighbor.neighedges{2}(3), "
         "sum(region.max_kb{1}));"
     )
-    out = subprocess.run(["octave-cli", "--no-gui", "--quiet", "--eval", script],
-                         capture_output=True, text=True, timeout=120)
+    out = subprocess.run(
+        ["octave-cli", "--no-gui", "--quiet", "--eval", script], capture_output=True, text=True, timeout=120
+    )
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().splitlines()[-1] == "cell|P|2|[3 6 4]|2|3|7.5"

@@ -27,7 +27,9 @@ def test_polygons_ccw_and_areas():
     poly = res.poly
     assert np.all(np.diff(poly.elem_offsets) == 1)
     lo = poly.loop_offsets
-    areas = np.array([shoelace(poly.points[poly.loop_nodes[lo[i] : lo[i + 1]]]) for i in range(poly.n_elements)])
+    areas = np.array(
+        [shoelace(poly.points[poly.loop_nodes[lo[i] : lo[i + 1]]]) for i in range(poly.n_elements)]
+    )
     assert np.all(areas > 0)  # counter-clockwise
     assert np.allclose(areas, poly.measure, rtol=1e-9)
     assert poly.n_fine.sum() == m.n_cells
@@ -38,7 +40,7 @@ def ring_labels(n=9):
     p, q = quads(n)
     m = mesh_from_arrays(p, [("quad", q)])
     c = np.floor(p[q].mean(axis=1) * n).astype(int)
-    ring = (np.maximum(abs(c[:, 0] - 4), abs(c[:, 1] - 4)) == 2)
+    ring = np.maximum(abs(c[:, 0] - 4), abs(c[:, 1] - 4)) == 2
     centre = np.maximum(abs(c[:, 0] - 4), abs(c[:, 1] - 4)) <= 1
     labels = np.full(m.n_cells, 2)
     labels[ring] = 0
@@ -57,7 +59,9 @@ def test_hole_detected_and_split():
     assert np.all(np.diff(poly.elem_offsets) == 1)  # every element: one loop
     assert np.isclose(poly.measure.sum(), 1.0)
     lo = poly.loop_offsets
-    areas = np.array([shoelace(poly.points[poly.loop_nodes[lo[i] : lo[i + 1]]]) for i in range(poly.n_elements)])
+    areas = np.array(
+        [shoelace(poly.points[poly.loop_nodes[lo[i] : lo[i + 1]]]) for i in range(poly.n_elements)]
+    )
     assert np.allclose(areas, poly.measure)
     with pytest.raises(MeshError, match="enclose a hole"):
         split_holes(m, g, d, labels, "error")

@@ -28,10 +28,19 @@ def check_png(path, min_size=100):
 def grid_mesh(n=4):
     """n x n unit-square quads on [0, n]^2."""
     pts = np.array([(x, y) for y in range(n + 1) for x in range(n + 1)], float)
-    cells = np.array([[y * (n + 1) + x, y * (n + 1) + x + 1, (y + 1) * (n + 1) + x + 1, (y + 1) * (n + 1) + x]
-                      for y in range(n) for x in range(n)])
-    return Mesh(points=pts, offsets=np.arange(len(cells) + 1) * 4, connectivity=cells.ravel(),
-                cell_types=np.full(len(cells), VTK_QUAD, dtype=np.uint8))
+    cells = np.array(
+        [
+            [y * (n + 1) + x, y * (n + 1) + x + 1, (y + 1) * (n + 1) + x + 1, (y + 1) * (n + 1) + x]
+            for y in range(n)
+            for x in range(n)
+        ]
+    )
+    return Mesh(
+        points=pts,
+        offsets=np.arange(len(cells) + 1) * 4,
+        connectivity=cells.ravel(),
+        cell_types=np.full(len(cells), VTK_QUAD, dtype=np.uint8),
+    )
 
 
 def grid_poly_2x2():
@@ -43,13 +52,27 @@ def grid_poly_2x2():
 
     loops = []
     for by, bx in itertools.product((0, 2), (0, 2)):
-        ring = [(bx, by), (bx + 1, by), (bx + 2, by), (bx + 2, by + 1), (bx + 2, by + 2),
-                (bx + 1, by + 2), (bx, by + 2), (bx, by + 1)]
+        ring = [
+            (bx, by),
+            (bx + 1, by),
+            (bx + 2, by),
+            (bx + 2, by + 1),
+            (bx + 2, by + 2),
+            (bx + 1, by + 2),
+            (bx, by + 2),
+            (bx, by + 1),
+        ]
         loops.append([idx(x, y) for x, y in ring])
     labels = np.array([(y // 2) * 2 + x // 2 for y in range(n) for x in range(n)])
-    return PolyMesh(points=grid_mesh(n).points, elem_offsets=np.arange(5),
-                    loop_offsets=np.arange(5) * 8, loop_nodes=np.concatenate(loops),
-                    measure=np.full(4, 4.0), n_fine=np.full(4, 4), labels=labels)
+    return PolyMesh(
+        points=grid_mesh(n).points,
+        elem_offsets=np.arange(5),
+        loop_offsets=np.arange(5) * 8,
+        loop_nodes=np.concatenate(loops),
+        measure=np.full(4, 4.0),
+        n_fine=np.full(4, 4),
+        labels=labels,
+    )
 
 
 def two_cubes():
@@ -75,9 +98,15 @@ def two_cubes():
                 quad = quad[::-1]
             faces.extend(pid(*c) for c in quad)
             offs.append(len(faces))
-    return PolyMesh(points=pts, elem_offsets=np.array([0, 6, 12]), loop_offsets=np.array(offs),
-                    loop_nodes=np.array(faces), measure=np.ones(2), n_fine=np.ones(2, dtype=np.int64),
-                    labels=np.array([0, 1]))
+    return PolyMesh(
+        points=pts,
+        elem_offsets=np.array([0, 6, 12]),
+        loop_offsets=np.array(offs),
+        loop_nodes=np.array(faces),
+        measure=np.ones(2),
+        n_fine=np.ones(2, dtype=np.int64),
+        labels=np.array([0, 1]),
+    )
 
 
 def test_adjacency_and_colouring():
@@ -116,13 +145,34 @@ def test_plot_2d_element_with_a_hole(tmp_path):
     def idx(x, y):
         return y * 4 + x
 
-    outer = [idx(x, y) for x, y in [(0, 0), (1, 0), (2, 0), (3, 0), (3, 1), (3, 2), (3, 3), (2, 3),
-                                    (1, 3), (0, 3), (0, 2), (0, 1)]]
+    outer = [
+        idx(x, y)
+        for x, y in [
+            (0, 0),
+            (1, 0),
+            (2, 0),
+            (3, 0),
+            (3, 1),
+            (3, 2),
+            (3, 3),
+            (2, 3),
+            (1, 3),
+            (0, 3),
+            (0, 2),
+            (0, 1),
+        ]
+    ]
     hole = [idx(x, y) for x, y in [(1, 1), (1, 2), (2, 2), (2, 1)]]  # clockwise
     centre = [idx(x, y) for x, y in [(1, 1), (2, 1), (2, 2), (1, 2)]]
-    poly = PolyMesh(points=mesh.points, elem_offsets=np.array([0, 2, 3]), loop_offsets=np.array([0, 12, 16, 20]),
-                    loop_nodes=np.array(outer + hole + centre), measure=np.array([8.0, 1.0]),
-                    n_fine=np.array([8, 1]), labels=np.array([0, 0, 0, 0, 1, 0, 0, 0, 0]))
+    poly = PolyMesh(
+        points=mesh.points,
+        elem_offsets=np.array([0, 2, 3]),
+        loop_offsets=np.array([0, 12, 16, 20]),
+        loop_nodes=np.array(outer + hole + centre),
+        measure=np.array([8.0, 1.0]),
+        n_fine=np.array([8, 1]),
+        labels=np.array([0, 0, 0, 0, 1, 0, 0, 0, 0]),
+    )
     check_png(plot_agglomeration(poly, tmp_path / "ring.png", fine_mesh=mesh, dpi=60))
 
 
@@ -137,9 +187,16 @@ def test_plot_3d_exploded_two_cubes(tmp_path):
 def test_plot_rejects_bad_input(tmp_path):
     poly = grid_poly_2x2()
     with pytest.raises(ParameterError):
-        plot_agglomeration(poly, tmp_path / "x.png", fine_mesh=Mesh(points=np.zeros((1, 3)), offsets=np.zeros(1, int),
-                                                                  connectivity=np.zeros(0, int),
-                                                                  cell_types=np.zeros(0, np.uint8)))
+        plot_agglomeration(
+            poly,
+            tmp_path / "x.png",
+            fine_mesh=Mesh(
+                points=np.zeros((1, 3)),
+                offsets=np.zeros(1, int),
+                connectivity=np.zeros(0, int),
+                cell_types=np.zeros(0, np.uint8),
+            ),
+        )
     with pytest.raises(ParameterError):
         plot_metric_boxplots({}, tmp_path / "b.png")
 

@@ -28,7 +28,9 @@ def _element_sizes(m, d, labels, measure):
         if measure == "centroids":
             pts = d.centroids[cells]
         else:
-            pts = m.points[np.unique(np.concatenate([m.connectivity[m.offsets[c] : m.offsets[c + 1]] for c in cells]))]
+            pts = m.points[
+                np.unique(np.concatenate([m.connectivity[m.offsets[c] : m.offsets[c + 1]] for c in cells]))
+            ]
         out.append(mesh_diameter(pts))
     return np.array(out)
 
@@ -38,7 +40,10 @@ def test_both_measures_on_emilia(emilia, mode):
     m, d = emilia
     f = 0.04
     n = {}
-    for measure, diameter in (("centroids", mesh_diameter(d.centroids)), ("vertices", mesh_diameter(m.points))):
+    for measure, diameter in (
+        ("centroids", mesh_diameter(d.centroids)),
+        ("vertices", mesh_diameter(m.points)),
+    ):
         r = agglomerate(m, d, mode=mode, mult_factor=f, size_measure=measure)
         h = f * diameter
         sizes = _element_sizes(m, d, r.labels, measure)
@@ -62,7 +67,9 @@ def test_default_is_centroids(emilia):
 def test_api_option():
     p = validate_params({"mode": "mult-factor", "mult_factor": 0.1, "options": {"size_measure": "vertices"}})
     assert p["options"]["size_measure"] == "vertices"
-    assert validate_params({"mode": "mult-factor", "mult_factor": 0.1})["options"]["size_measure"] == "centroids"
+    assert (
+        validate_params({"mode": "mult-factor", "mult_factor": 0.1})["options"]["size_measure"] == "centroids"
+    )
     with pytest.raises(ParameterError, match="size_measure"):
         validate_params({"mode": "mult-factor", "mult_factor": 0.1, "options": {"size_measure": "x"}})
 

@@ -33,8 +33,9 @@ def tiny(tmp_path_factory):
 def _cfg(tmp_path, data, name="run", recipe="sage-base-2d", **kw) -> TrainConfig:
     opts = dict(epochs=4, lr=5e-3, batch_size=2, threads=1, device="cpu", val_fraction=0.2)
     opts.update(kw)
-    return TrainConfig(recipe=recipe, out=str(tmp_path / f"{name}.pt"), workdir=str(tmp_path / name),
-                       data=str(data), **opts)
+    return TrainConfig(
+        recipe=recipe, out=str(tmp_path / f"{name}.pt"), workdir=str(tmp_path / name), data=str(data), **opts
+    )
 
 
 def _outputs(path, ds_path):
@@ -56,7 +57,9 @@ def test_loss_falls_log_plot_and_reload(tmp_path, tiny):
     assert (work / "loss_history.png").stat().st_size > 1000
     assert summary["epochs_run"] == 4 and summary["best_val_loss"] > 0
     # the shipped file and the best checkpoint give identical outputs
-    assert torch.equal(_outputs(tmp_path / "run.pt", tiny / "base.npz"), _outputs(work / "best.pt", tiny / "base.npz"))
+    assert torch.equal(
+        _outputs(tmp_path / "run.pt", tiny / "base.npz"), _outputs(work / "best.pt", tiny / "base.npz")
+    )
 
 
 def test_reproducible_and_resumable(tmp_path, tiny):
@@ -77,8 +80,9 @@ def test_reproducible_and_resumable(tmp_path, tiny):
 
 
 def test_hetero_training_step(tmp_path, tiny):
-    summary = train(_cfg(tmp_path, tiny / "hetero.npz", recipe="sage-hetero-2d", epochs=2, hetero_weight=1.0),
-                    log=None)
+    summary = train(
+        _cfg(tmp_path, tiny / "hetero.npz", recipe="sage-hetero-2d", epochs=2, hetero_weight=1.0), log=None
+    )
     model, _ = load_model(tmp_path / "run.pt")
     assert model.config.hetero and model.config.in_features == 4
     assert np.isfinite(summary["best_val_hard_penalty"])
@@ -87,8 +91,23 @@ def test_hetero_training_step(tmp_path, tiny):
 def test_cli_hooks_and_bad_parameters(tmp_path, tiny):
     parser = argparse.ArgumentParser()
     add_train_args(parser)
-    args = parser.parse_args(["sage-base-2d", "-o", str(tmp_path / "cli.pt"), "--data", str(tiny / "base.npz"),
-                              "--epochs", "1", "--threads", "1", "--device", "cpu", "--batch-size", "4"])
+    args = parser.parse_args(
+        [
+            "sage-base-2d",
+            "-o",
+            str(tmp_path / "cli.pt"),
+            "--data",
+            str(tiny / "base.npz"),
+            "--epochs",
+            "1",
+            "--threads",
+            "1",
+            "--device",
+            "cpu",
+            "--batch-size",
+            "4",
+        ]
+    )
     assert train_main(args) == 0 and (tmp_path / "cli.pt").exists()
     with pytest.raises(ParameterError):
         train(_cfg(tmp_path, tiny / "base.npz", recipe="sage-giant"), log=None)
@@ -98,16 +117,31 @@ def test_cli_hooks_and_bad_parameters(tmp_path, tiny):
 
 def test_fine_tuning_from_weights(tmp_path, tiny):
     train(_cfg(tmp_path, tiny / "base.npz", name="first", epochs=1), log=None)
-    summary = train(_cfg(tmp_path, tiny / "base.npz", name="second", epochs=1, lr=1e-4,
-                         init=str(tmp_path / "first.pt")), log=None)
+    summary = train(
+        _cfg(tmp_path, tiny / "base.npz", name="second", epochs=1, lr=1e-4, init=str(tmp_path / "first.pt")),
+        log=None,
+    )
     assert summary["epochs_run"] == 1
     # SAGE-Heterogeneous may start from SAGE-Base: same network, zero weights for the group input p
-    train(_cfg(tmp_path, tiny / "hetero.npz", name="third", recipe="sage-hetero-2d", epochs=1, lr=1e-12,
-               init=str(tmp_path / "first.pt")), log=None)
+    train(
+        _cfg(
+            tmp_path,
+            tiny / "hetero.npz",
+            name="third",
+            recipe="sage-hetero-2d",
+            epochs=1,
+            lr=1e-12,
+            init=str(tmp_path / "first.pt"),
+        ),
+        log=None,
+    )
     base, _ = load_model(tmp_path / "first.pt")
     het, _ = load_model(tmp_path / "third.pt")
     w = het.convs[0].lin_l.weight.detach()
     assert torch.allclose(w[:, :3], base.convs[0].lin_l.weight.detach(), atol=1e-6)
     assert torch.all(w[:, 3].abs() < 1e-6)
     with pytest.raises(ParameterError, match="does not match"):  # but not the other way round
-        train(_cfg(tmp_path, tiny / "base.npz", name="fourth", epochs=1, init=str(tmp_path / "third.pt")), log=None)
+        train(
+            _cfg(tmp_path, tiny / "base.npz", name="fourth", epochs=1, init=str(tmp_path / "third.pt")),
+            log=None,
+        )
