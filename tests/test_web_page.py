@@ -12,6 +12,7 @@ import base64
 import os
 import shutil
 
+import httpx
 import pytest
 from service_fixtures import BRAIN, service_env, start_api, wait_until, workers_online
 
@@ -132,7 +133,11 @@ def test_page_uploads_runs_metis_shows_and_downloads(browser, tmp_path):
         assert "element 5" in tip and "circle_ratio" in tip
         page.select_option("#color-by", "circle_ratio")
         assert page.locator("#legend .ramp").count() == 1
-        assert page.locator("#boxplots svg.boxplot g.box").count() == 4
+        # one box per metric of the job's summary (read from the API, not hard-coded: metrics get added)
+        done = [j for j in httpx.get(url + "/v1/jobs", timeout=10).json()["items"] if j["status"] == "succeeded"]
+        summary = httpx.get(f"{url}/v1/jobs/{done[0]['id']}/metrics", timeout=10).json()["summary"]
+        assert len(summary) >= 4 and "circle_ratio" in summary
+        assert page.locator("#boxplots svg.boxplot g.box").count() == len(summary)
         assert "64" in page.inner_text("#partition")
         with page.expect_download() as info:
             page.click("#downloads a:text-is('mesh.vtu')")
@@ -153,7 +158,7 @@ def test_page_uploads_runs_metis_shows_and_downloads(browser, tmp_path):
             "[...document.querySelectorAll('#compare-pictures img')].filter(i => i.naturalWidth > 0).length === 2",
         )
         plots = page.locator("#compare-plots svg.boxplot")
-        assert plots.count() == 4 and plots.first.locator("g.box").count() == 2
+        assert plots.count() == len(summary) and plots.first.locator("g.box").count() == 2  # a plot per metric
         # delete one: gone from the list and from the API
         job_id = rows.nth(1).get_attribute("data-job")
         rows.nth(1).locator("button[data-act=delete]").click()
