@@ -12,7 +12,8 @@ inspection) and must never import torch. Neural partitioners are loaded lazily b
   physical_tag, method, boundary_tag (lymph bc_tag of boundary edges without a boundary group,
   default 1), size_measure ("centroids": a part's size is the largest distance between its cell
   centroids, the paper's measure, default; "vertices": between its vertices), threshold (coarsest
-  graph size of mode multilevel, default 200), hierarchy (keep every nested level), weld (merge
+  graph size of mode multilevel, default 200), hierarchy (keep every nested level), ratio / coarsest
+  (with hierarchy: nested levels of their own at this coarsening ratio, as `magnet hierarchy`), weld (merge
   points closer than this first)}.
 - run_job(mesh_path, out_dir, params, progress=None, should_cancel=None) -> summary dict
   {"elements", "parts_split", "fragments_absorbed", "timings": {stage: seconds}, "outputs": {kind: filename}}
@@ -176,7 +177,7 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
     if not isinstance(opts, dict):
         raise ParameterError("options must be an object")
     known_opts = {"seed", "absorb_fraction", "hole_policy", "physical_tag", "method", "boundary_tag", "size_measure",
-                  "threshold", "hierarchy", "weld"}
+                  "threshold", "hierarchy", "weld", "ratio", "coarsest"}
     if set(opts) - known_opts:
         raise ParameterError(f"unknown option(s): {sorted(set(opts) - known_opts)}")
     seed = _int(opts, "seed", lo=0, hi=2**31 - 1) or 0
@@ -198,9 +199,16 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
         hierarchy = hierarchy == "true"
     if not isinstance(hierarchy, bool):
         raise ParameterError(f"options.hierarchy must be true or false, got {hierarchy!r}")
-    if hierarchy and (mode == "kway" or (mode == "coarsen" and k is not None)):
+    ratio = _float(opts, "ratio")
+    if ratio is not None and ratio < 2:
+        raise ParameterError(f"options.ratio must be >= 2 (coarsening ratio per level), got {ratio}")
+    coarsest = _int(opts, "coarsest", lo=1, hi=10**9)
+    if (ratio is not None or coarsest is not None) and not hierarchy:
+        raise ParameterError("options.ratio and options.coarsest go with options.hierarchy = true")
+    if hierarchy and ratio is None and (mode == "kway" or (mode == "coarsen" and k is not None)):
         raise ParameterError("options.hierarchy needs a recursive mode (nref, target-size, mult-factor, segregated, "
-                             "coarsen or multilevel), not k-way")
+                             "coarsen or multilevel), not k-way, or options.ratio (a hierarchy of its own, like "
+                             "`magnet hierarchy`)")
     method = opts.get("method", "kway")
     if method not in ("kway", "recursive"):
         raise ParameterError(f"options.method must be 'kway' or 'recursive', got {method!r}")
@@ -242,7 +250,8 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
         "mult_factor": mult_factor, "subset": subset, "refiner": refiner,
         "options": {"seed": seed, "absorb_fraction": float(absorb), "hole_policy": hole_policy,
                     "physical_tag": physical_tag, "method": method, "boundary_tag": boundary_tag,
-                    "size_measure": size_measure, "threshold": threshold, "hierarchy": hierarchy, "weld": weld},
+                    "size_measure": size_measure, "threshold": threshold, "hierarchy": hierarchy, "weld": weld,
+                    "ratio": ratio, "coarsest": 10 if coarsest is None else coarsest},
     }
 
 
@@ -279,7 +288,7 @@ def run_job(
         mult_factor=p["mult_factor"], subset=p["subset"], absorb_fraction=o["absorb_fraction"],
         hole_policy=o["hole_policy"], seed=o["seed"], model_options=model_options, progress=tick,
         size_measure=o["size_measure"],
-        refiner=p["refiner"], threshold=o["threshold"], record_levels=o["hierarchy"],
+        refiner=p["refiner"], threshold=o["threshold"], record_levels=o["hierarchy"] and o["ratio"] is None,
     )
     res.timings = {"read": t_read, **res.timings}
     files = {"mesh": "mesh.vtu", "metrics": "metrics.json", "labels": "labels.json", "preview": "preview.png"}
@@ -295,7 +304,7 @@ def run_job(
     )
     if o["hierarchy"]:
         tick(0.95, "hierarchy")
-        _write_hierarchy_zip(res, out_dir, o["boundary_tag"])
+        _write_hierarchy_zip(res, out_dir, o["boundary_tag"], p["model"], o)
         files["hierarchy"] = "hierarchy.zip"
     tick(1.0, "done")
     s = res.summary()
@@ -304,8 +313,10 @@ def run_job(
     return s
 
 
-def _write_hierarchy_zip(res, out_dir: str, boundary_tag: int) -> None:
-    """Every nested level into out_dir/hierarchy.zip (flat archive; lymph structs per level in 2D)."""
+def _write_hierarchy_zip(res, out_dir: str, boundary_tag: int, model: str | None = None, o: dict | None = None) -> None:
+    """Every nested level into out_dir/hierarchy.zip (flat archive; lymph structs per level in 2D).
+    With options.ratio: a hierarchy of its own with the job's model (models.hierarchy.build_hierarchy,
+    as `magnet hierarchy`), aggregation operators included."""
     import shutil
     import tempfile
     import zipfile
@@ -314,7 +325,16 @@ def _write_hierarchy_zip(res, out_dir: str, boundary_tag: int) -> None:
 
     tmp = tempfile.mkdtemp(prefix="hierarchy-", dir=out_dir)
     try:
-        pipeline.write_hierarchy(res, tmp, metrics=True, lymph=res.mesh.dim == 2, boundary_tag=boundary_tag)
+        if o is not None and o.get("ratio") is not None:
+            from .hierarchy import build_hierarchy, write_hierarchy
+
+            levels, info = build_hierarchy(res.mesh, res.data, model=model or "rtree", ratio=o["ratio"],
+                                           coarsest=o["coarsest"], seed=o["seed"])
+            write_hierarchy(tmp, res.mesh, res.data, levels, metrics=True, lymph=res.mesh.dim == 2,
+                            boundary=res.boundary, boundary_tag=boundary_tag,
+                            extra={k: info[k] for k in ("model", "ratio", "coarsest", "method", "build_time")})
+        else:
+            pipeline.write_hierarchy(res, tmp, metrics=True, lymph=res.mesh.dim == 2, boundary_tag=boundary_tag)
         part = os.path.join(out_dir, "hierarchy.zip.tmp")
         with zipfile.ZipFile(part, "w", compression=zipfile.ZIP_DEFLATED) as zf:
             for name in sorted(os.listdir(tmp)):

@@ -94,6 +94,9 @@ class JobOptions(BaseModel):
     )
     threshold: int | None = Field(None, ge=2, le=10**6, description="coarsest graph size, mode multilevel (200)")
     hierarchy: bool | None = Field(None, description="also keep every nested level (GET /v1/jobs/{id}/hierarchy)")
+    ratio: float | None = Field(None, ge=2, le=1e6, **Finite, description="with hierarchy: nested levels of their own, "
+                                "this many times fewer elements per level, any model (as `magnet hierarchy`)")
+    coarsest: int | None = Field(None, ge=1, le=10**9, description="with ratio: at most this many elements on the coarsest level (10)")
 
 
 class JobParams(BaseModel):

@@ -141,3 +141,36 @@ def test_readme_snippet_our_levels_in_pyamg(tmp_path):
     assert np.linalg.norm(b - A @ x) <= 1e-7 * np.linalg.norm(b)
     assert len(ml.levels) == len(levels) + 1
     assert with_levels(A, b, ops, smooth=False)["iterations"] == len(res) - 1
+
+
+def test_api_job_with_a_hierarchy_of_its_own(tmp_path):
+    """options.hierarchy + options.ratio through the real app (SQLite store, embedded broker, the worker's
+    execute_job): any model, even in k-way mode; the zip holds the operators too."""
+    import io
+    import zipfile
+
+    from service_fixtures import square_mesh
+    from test_service_api import auth, make, upload
+
+    from worker.tasks import execute_job
+
+    client, settings = make(tmp_path)
+    with client:
+        h = auth("alice")
+        mesh = upload(client, square_mesh(tmp_path / "square.vtu", n=24))
+        body = {"mesh_id": mesh["id"], "model": "rtree", "mode": "kway", "k": 9,
+                "options": {"hierarchy": True, "ratio": 4, "coarsest": 8}}
+        job = client.post("/v1/jobs", json=body, headers=h).json()
+        assert execute_job(job["id"], settings) == "succeeded"
+        assert client.get(f"/v1/jobs/{job['id']}", headers=h).json()["result"]["elements"] == 9
+        zf = zipfile.ZipFile(io.BytesIO(client.get(f"/v1/jobs/{job['id']}/hierarchy", headers=h).content))
+        index = json.loads(zf.read("hierarchy.json"))
+        n = 2 * 24 * 24
+        assert index["nested"] and index["ratio"] == 4 and [lv["elements"] for lv in index["levels"]] == [5, 18, 72, 288]
+        P = sp.load_npz(io.BytesIO(zf.read(index["levels"][-1]["aggregation"]["npz"])))
+        assert P.shape == (n, 288)
+        for bad in ({"mode": "kway", "k": 4, "options": {"ratio": 4}},
+                    {"mode": "kway", "k": 4, "options": {"hierarchy": True, "ratio": 1.5}},
+                    {"mode": "kway", "k": 4, "options": {"hierarchy": True, "ratio": 4, "coarsest": 0}}):
+            r = client.post("/v1/jobs", json={"mesh_id": mesh["id"], **bad}, headers=h)
+            assert r.status_code == 422, r.text

@@ -55,6 +55,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--refiner", help="fm | rl-refiner: refine every bisection (k-way mode: fm)")
     p.add_argument("--threshold", type=int, help="multilevel: coarsen to at most this many nodes (default 200)")
     p.add_argument("--hierarchy", metavar="DIR", help="unpack every nested level of a recursive mode here")
+    p.add_argument("--ratio", type=float, help="with --hierarchy: nested levels of their own, R times fewer elements "
+                   "per level, any model (as `magnet hierarchy`)")
+    p.add_argument("--coarsest", type=int, help="with --ratio: at most N elements on the coarsest level (default 10)")
     p.add_argument("--k", type=int, help="number of elements (kway)")
     p.add_argument("--nref", type=int, help="number of refinements: 2^nref elements")
     p.add_argument("--target-size", type=float, help="bisect until every element's diameter is below this")
@@ -144,6 +147,8 @@ def cmd_agglomerate(client: Client, args: argparse.Namespace) -> int:
         refiner=args.refiner,
         threshold=args.threshold,
         hierarchy=args.hierarchy,
+        ratio=args.ratio,
+        coarsest=args.coarsest,
     )
     print(summary_line(job, time.perf_counter() - t0))
     return 0

@@ -11,7 +11,7 @@ from pathlib import Path
 import httpx
 
 OPTION_NAMES = ("seed", "absorb_fraction", "hole_policy", "physical_tag", "method", "boundary_tag", "threshold",
-                "hierarchy")
+                "hierarchy", "ratio", "coarsest")
 PARAM_NAMES = ("model", "mode", "k", "nref", "target_size", "mult_factor", "subset", "refiner")
 FINAL = ("succeeded", "failed", "cancelled")
 
@@ -275,7 +275,9 @@ class Client:
         **params,
     ) -> dict:
         """Upload, submit, wait, download: the remote `magnet agglomerate`. Returns the finished job.
-        hierarchy: a directory to unpack every nested level into (asks the server for them)."""
+        hierarchy: a directory to unpack every nested level into (asks the server for them); with
+        ratio=R (and coarsest=N) the levels are a hierarchy of their own, as `magnet hierarchy`
+        (aggregation operators level_L.agg.npz / .mtx included)."""
         if hierarchy is not None:
             params["hierarchy"] = True
         mesh = self.upload(mesh_path)

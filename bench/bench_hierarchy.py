@@ -1,0 +1,207 @@
+"""Hierarchies for multigrid, per mesh: rtree, metis, kmeans and sage-base hierarchies (ratio 8) and
+pyamg's standard aggregation on the same TPFA Poisson matrix. Prints levels and counts, connected
+pieces, box ratio / coverage, PCG iterations (unsmoothed / smoothed aggregation), operator complexity
+and build time; then the shape bar at 91 and 364 elements on the refined quad mesh, and the speed
+checks (ratios against METIS in the same run).
+
+    python bench/bench_hierarchy.py [--quick] [--json out.json] [--skip-cube]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+sys.path[:0] = [ROOT, HERE]
+
+from models.agglomerate import agglomerate  # noqa: E402
+from models.hierarchy import build_hierarchy  # noqa: E402
+from models.io import mesh_from_arrays, read_mesh  # noqa: E402
+from models.metrics import box_measures  # noqa: E402
+from models.multigrid import mgcheck  # noqa: E402
+from models.pipeline import prepare  # noqa: E402
+
+BRAIN = os.path.join(ROOT, "tests", "data", "BrainCoronalNoHoles.vtu")
+MODELS = ("rtree", "metis", "kmeans", "sage-base")
+
+
+def torus(h: float = 0.065) -> tuple[np.ndarray, np.ndarray]:
+    """gmsh torus (R 1, r 0.4) of unstructured tetrahedra (about 52k at h = 0.065)."""
+    import gmsh
+
+    gmsh.initialize(["-nt", "1"])
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.occ.addTorus(0, 0, 0, 1.0, 0.4)
+        gmsh.model.occ.synchronize()
+        gmsh.option.setNumber("Mesh.MeshSizeMin", h)
+        gmsh.option.setNumber("Mesh.MeshSizeMax", h)
+        gmsh.model.mesh.generate(3)
+        tags, coords, _ = gmsh.model.mesh.getNodes()
+        types, _, nodes = gmsh.model.mesh.getElements(3)
+        tet = np.asarray(nodes[list(types).index(4)]).reshape(-1, 4)
+    finally:
+        gmsh.finalize()
+    index = np.empty(int(tags.max()) + 1, dtype=np.int64)
+    index[tags] = np.arange(tags.size)
+    return np.asarray(coords).reshape(-1, 3), index[tet]
+
+
+def pieces(graph, labels) -> int:
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    rows = np.repeat(np.arange(graph.n), np.diff(graph.indptr))
+    keep = labels[rows] == labels[graph.indices]
+    m = sp.csr_matrix((np.ones(int(keep.sum())), (rows[keep], graph.indices[keep])), shape=(graph.n, graph.n))
+    return int(connected_components(m, directed=False)[0])
+
+
+def hierarchy_rows(name, mesh, graph, data, models, ratio=8.0) -> list[dict]:
+    rows = []
+    base = None
+    for model in models:
+        t = time.perf_counter()
+        try:
+            levels, _ = build_hierarchy(mesh, data, model=model, ratio=ratio, coarsest=10)
+        except Exception as exc:  # a model that cannot run here (e.g. no weights): say so, go on
+            rows.append({"mesh": name, "model": model, "error": str(exc).splitlines()[0]})
+            continue
+        t_build = time.perf_counter() - t
+        sizes = [int(lv.max()) + 1 for lv in levels]
+        extra_pieces = sum(pieces(graph, lv) - s for lv, s in zip(levels, sizes, strict=True))
+        bm = [box_measures(mesh.points, mesh.offsets, mesh.connectivity, lv, data.measures) for lv in levels]
+        rep = mgcheck(mesh, data, levels)
+        base = rep
+        rows.append({"mesh": name, "model": model, "levels": sizes, "extra_pieces": extra_pieces,
+                     "box_ratio": [float(b["box_ratio"].mean()) for b in bm], "coverage": [b["coverage"] for b in bm],
+                     "it_unsmoothed": rep["unsmoothed"]["iterations"], "it_smoothed": rep["smoothed"]["iterations"],
+                     "oc_unsmoothed": rep["unsmoothed"]["operator_complexity"],
+                     "oc_smoothed": rep["smoothed"]["operator_complexity"], "build_time": t_build})
+    if base is not None:
+        for key, label in (("pyamg_ua", "pyamg (unsm.)"), ("pyamg_sa", "pyamg (SA)")):
+            r = base[key]
+            rows.append({"mesh": name, "model": label, "levels": r["sizes"][1:][::-1], "extra_pieces": None,
+                         "it_unsmoothed" if key == "pyamg_ua" else "it_smoothed": r["iterations"],
+                         "oc_unsmoothed" if key == "pyamg_ua" else "oc_smoothed": r["operator_complexity"],
+                         "build_time": r["setup_time"]})
+    return rows
+
+
+def print_rows(rows: list[dict]) -> None:
+    print(f"{'mesh':<10}{'model':<15}{'levels (coarse > fine)':<34}{'pieces+':>8}{'BR fine/mid':>13}{'cov fine':>9}"
+          f"{'it U':>6}{'OC U':>7}{'it S':>6}{'OC S':>7}{'build s':>9}")
+    for r in rows:
+        if "error" in r:
+            print(f"{r['mesh']:<10}{r['model']:<15}unavailable: {r['error']}")
+            continue
+        lv = " > ".join(map(str, r["levels"]))
+        br = r.get("box_ratio")
+        brs = f"{br[-1]:.2f}/{br[len(br) // 2]:.2f}" if br else "-"
+        cov = f"{r['coverage'][-1]:.2f}" if r.get("coverage") else "-"
+        f = lambda k, spec: format(r[k], spec) if r.get(k) is not None else "-"  # noqa: E731
+        print(f"{r['mesh']:<10}{r['model']:<15}{lv:<34}{f('extra_pieces', 'd'):>8}{brs:>13}{cov:>9}"
+              f"{f('it_unsmoothed', 'd'):>6}{f('oc_unsmoothed', '.2f'):>7}{f('it_smoothed', 'd'):>6}"
+              f"{f('oc_smoothed', '.2f'):>7}{r['build_time']:>9.2f}")
+
+
+def shape_bar(mesh, graph, data) -> list[dict]:
+    """R3MG's numbers at 91 and 364 elements (kway): CR (inscribed / half box diagonal), BR, coverage."""
+    from models.merge import merge
+    from models.metrics import metrics_report
+
+    out = []
+    for model in ("rtree", "metis", "kmeans"):
+        for k in (91, 364):
+            t = time.perf_counter()
+            a = agglomerate(mesh, data, model=model, mode="kway", k=k)
+            dt = time.perf_counter() - t
+            poly, _ = merge(mesh, graph, a.labels, data.measures)
+            rep = metrics_report(poly, graph.indptr, graph.indices)
+            s = rep["summary"]
+            out.append({"model": model, "k": k, "elements": a.n_elements, "CR": s["box_circle_ratio"]["mean"],
+                        "BR": s["box_ratio"]["mean"], "coverage": rep["coverage"], "time": dt})
+    print(f"\nshape at 91 / 364 elements on the refined quad mesh (issue's bar: CR >= .55, BR >= .88, coverage <= 1.15;"
+          f" R3MG .500/.92/1.08 and .479/.86/1.16)")
+    print(f"{'model':<8}{'k':>5}{'elements':>10}{'CR':>7}{'BR':>7}{'coverage':>10}{'time s':>8}")
+    for r in out:
+        print(f"{r['model']:<8}{r['k']:>5}{r['elements']:>10}{r['CR']:>7.3f}{r['BR']:>7.3f}{r['coverage']:>10.3f}{r['time']:>8.2f}")
+    return out
+
+
+def process_time(args: list[str]) -> float:
+    env = {**os.environ, "PYTHONPATH": f"{ROOT}:{ROOT}/client", "MPLBACKEND": "Agg"}
+    t = time.perf_counter()
+    r = subprocess.run([sys.executable, "-m", "models.cli", *args], capture_output=True, text=True, env=env, cwd=ROOT)
+    if r.returncode:
+        raise RuntimeError(r.stderr)
+    return time.perf_counter() - t
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="brain only, rtree and metis")
+    ap.add_argument("--skip-cube", action="store_true", help="no 1M-tetrahedra speed check")
+    ap.add_argument("--json", help="write every number here")
+    a = ap.parse_args()
+    from mesh_quads_refined import refined_quads
+
+    results: dict = {"hierarchies": [], "shape": [], "speed": {}}
+    models = ("rtree", "metis") if a.quick else MODELS
+    meshes = [("brain", lambda: read_mesh(BRAIN))]
+    if not a.quick:
+        meshes += [("torus", lambda: mesh_from_arrays(*(lambda p, t: (p, [("tetra", t)]))(*torus()))),
+                   ("quads93k", lambda: mesh_from_arrays(*(lambda p, q: (p, [("quad", q)]))(*refined_quads(5))))]
+    tmp = tempfile.mkdtemp(prefix="bench_hierarchy_")
+    for name, make in meshes:
+        mesh = make()
+        graph, data = prepare(mesh)
+        print(f"\n{name}: {mesh.n_cells} cells ({mesh.dim}D)", flush=True)
+        rows = hierarchy_rows(name, mesh, graph, data, models)
+        print_rows(rows)
+        results["hierarchies"] += rows
+        if name == "quads93k":
+            results["shape"] = shape_bar(mesh, graph, data)
+            import meshio
+
+            path = os.path.join(tmp, "quads93k.vtu")
+            meshio.write(path, meshio.Mesh(np.column_stack([mesh.points, np.zeros(len(mesh.points))])[:, :3],
+                                           [("quad", mesh.connectivity.reshape(-1, 4))]))
+            t_h = process_time(["hierarchy", path, "-o", os.path.join(tmp, "h"), "--model", "rtree"])
+            t_m = process_time(["agglomerate", path, "--model", "metis", "--mode", "kway", "--k", "364",
+                                "-o", os.path.join(tmp, "m.vtu")])
+            results["speed"]["quads93k"] = {"magnet_hierarchy_rtree": t_h, "magnet_agglomerate_metis_364": t_m}
+            print(f"\nwhole process on the 93k quads: magnet hierarchy --model rtree {t_h:.2f}s, "
+                  f"magnet agglomerate --model metis --mode kway --k 364 {t_m:.2f}s (ratio {t_h / t_m:.2f}; goal <= 1)")
+    if not a.quick and not a.skip_cube:
+        from structured import cube
+
+        p, t = cube(55)
+        mesh = mesh_from_arrays(p, [("tetra", t)])
+        graph, data = prepare(mesh)
+        t0 = time.perf_counter()
+        levels, _ = build_hierarchy(mesh, data, model="rtree", ratio=8, coarsest=10)
+        t_h = time.perf_counter() - t0
+        agg = agglomerate(mesh, data, model="metis", mode="kway", k=1024)
+        t_m = agg.timings["partition"]
+        results["speed"]["cube1M"] = {"rtree_hierarchy_stage": t_h, "metis_kway_1024_partition": t_m,
+                                      "levels": [int(lv.max()) + 1 for lv in levels]}
+        print(f"\n{mesh.n_cells} tetrahedra (structured cube): rtree hierarchy stage {t_h:.2f}s "
+              f"({' > '.join(str(int(lv.max()) + 1) for lv in levels)}), METIS k-way 1024 partition stage {t_m:.2f}s "
+              f"(ratio {t_h / t_m:.2f}; goal <= 0.5)")
+    if a.json:
+        with open(a.json, "w", encoding="utf-8") as fh:
+            json.dump(results, fh, indent=1)
+
+
+if __name__ == "__main__":
+    main()
