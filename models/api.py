@@ -251,7 +251,7 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
         "options": {"seed": seed, "absorb_fraction": float(absorb), "hole_policy": hole_policy,
                     "physical_tag": physical_tag, "method": method, "boundary_tag": boundary_tag,
                     "size_measure": size_measure, "threshold": threshold, "hierarchy": hierarchy, "weld": weld,
-                    "ratio": ratio, "coarsest": 10 if coarsest is None else coarsest},
+                    "ratio": ratio, "coarsest": coarsest},
     }
 
 
@@ -329,7 +329,7 @@ def _write_hierarchy_zip(res, out_dir: str, boundary_tag: int, model: str | None
             from .hierarchy import build_hierarchy, write_hierarchy
 
             levels, info = build_hierarchy(res.mesh, res.data, model=model or "rtree", ratio=o["ratio"],
-                                           coarsest=o["coarsest"], seed=o["seed"])
+                                           coarsest=o["coarsest"] or 10, seed=o["seed"])
             write_hierarchy(tmp, res.mesh, res.data, levels, metrics=True, lymph=res.mesh.dim == 2,
                             boundary=res.boundary, boundary_tag=boundary_tag,
                             extra={k: info[k] for k in ("model", "ratio", "coarsest", "method", "build_time")})
