@@ -108,7 +108,7 @@ def print_rows(rows: list[dict]) -> None:
         br = r.get("box_ratio")
         brs = f"{br[-1]:.2f}/{br[len(br) // 2]:.2f}" if br else "-"
         cov = f"{r['coverage'][-1]:.2f}" if r.get("coverage") else "-"
-        f = lambda k, spec: format(r[k], spec) if r.get(k) is not None else "-"  # noqa: E731
+        f = lambda k, spec, r=r: format(r[k], spec) if r.get(k) is not None else "-"  # noqa: E731
         print(f"{r['mesh']:<10}{r['model']:<15}{lv:<34}{f('extra_pieces', 'd'):>8}{brs:>13}{cov:>9}"
               f"{f('it_unsmoothed', 'd'):>6}{f('oc_unsmoothed', '.2f'):>7}{f('it_smoothed', 'd'):>6}"
               f"{f('oc_smoothed', '.2f'):>7}{r['build_time']:>9.2f}")
@@ -130,8 +130,8 @@ def shape_bar(mesh, graph, data) -> list[dict]:
             s = rep["summary"]
             out.append({"model": model, "k": k, "elements": a.n_elements, "CR": s["box_circle_ratio"]["mean"],
                         "BR": s["box_ratio"]["mean"], "coverage": rep["coverage"], "time": dt})
-    print(f"\nshape at 91 / 364 elements on the refined quad mesh (issue's bar: CR >= .55, BR >= .88, coverage <= 1.15;"
-          f" R3MG .500/.92/1.08 and .479/.86/1.16)")
+    print("\nshape at 91 / 364 elements on the refined quad mesh (issue's bar: CR >= .55, BR >= .88, coverage <= 1.15;"
+          " R3MG .500/.92/1.08 and .479/.86/1.16)")
     print(f"{'model':<8}{'k':>5}{'elements':>10}{'CR':>7}{'BR':>7}{'coverage':>10}{'time s':>8}")
     for r in out:
         print(f"{r['model']:<8}{r['k']:>5}{r['elements']:>10}{r['CR']:>7.3f}{r['BR']:>7.3f}{r['coverage']:>10.3f}{r['time']:>8.2f}")

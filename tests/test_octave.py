@@ -85,3 +85,41 @@ def test_octave_wrapper_returns_every_nested_level(tmp_path):
         r = run_octave(tmp_path / "run_levels.m", text, result)
     assert r["ne"] == [1, 2, 4, 8] and r["final"] == 8 and r["ok"] is True
     assert r["refiner"] == "fm"
+
+
+RATIO_SCRIPT = r"""
+addpath('{matlab}');
+[region, neighbor, job, levels] = magnet_agglomerate('{mesh}', 'Server', '{url}', 'Token', '{token}', ...
+    'Model', 'rtree', 'Mode', 'kway', 'K', 50, 'Hierarchy', true, 'Ratio', 8, 'Coarsest', 10, ...
+    'Verbose', false, 'Poll', 0.3);
+ne = cellfun(@(l) l.region.ne, levels);
+ok = true;
+for L = 1:numel(levels)
+  P = levels{{L}}.P;
+  ok = ok && size(P, 2) == levels{{L}}.region.ne && all(sum(P, 2) == 1);
+end
+cells = size(levels{{end}}.P, 1);
+out = struct('ne', ne, 'ok', ok, 'cells', cells, 'final', region.ne);
+fid = fopen('{result}', 'w'); fprintf(fid, '%s', jsonencode(out)); fclose(fid);
+"""
+
+
+def test_octave_wrapper_hierarchy_with_ratio_and_operators(tmp_path):
+    """'Ratio' gives rtree's nested levels of their own (the job itself k-way) with the aggregation operators."""
+    octave = shutil.which("octave-cli")
+    if octave is None:
+        pytest.skip("octave-cli not found")
+    env = service_env(tmp_path / "data", api_keys=f"matlab-user:{TOKEN}")
+    proc, url = start_api(env, tmp_path, embedded_worker=True)
+    try:
+        wait_until(lambda: workers_online(url, TOKEN) >= 1, 60, 0.2, "the embedded worker")
+        script, result = tmp_path / "run_ratio.m", tmp_path / "ratio.json"
+        script.write_text(RATIO_SCRIPT.format(matlab=ROOT / "client" / "matlab", mesh=BRAIN, url=url,
+                                              token=TOKEN, result=result))
+        out = subprocess.run([octave, "--no-gui", "--quiet", "--no-window-system", str(script)], cwd=tmp_path,
+                             capture_output=True, text=True, timeout=300)
+        assert result.exists(), f"octave failed:\n{out.stdout}\n{out.stderr}"
+        r = json.loads(result.read_text())
+    finally:
+        proc.stop()
+    assert r["ne"] == [4, 29, 225, 1797] and r["ok"] is True and r["cells"] == 14372 and r["final"] == 50

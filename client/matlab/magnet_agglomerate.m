@@ -15,12 +15,15 @@ function [region, neighbor, job, levels] = magnet_agglomerate(mesh_file, varargi
 %   Name-value options (all optional):
 %     Server      server URL (default: env MAGNET_SERVER, else http://127.0.0.1:8000)
 %     Token       API key (default: env MAGNET_TOKEN; none for a keyless local server)
-%     Model       'metis' (default) | 'kmeans' | 'sage-base' | 'sage-hetero' | 'rl-partitioner'
+%     Model       'metis' (default) | 'kmeans' | 'rtree' | 'sage-base' | 'sage-hetero' | 'rl-partitioner'
 %     Mode        'kway' (default) | 'nref' | 'target-size' | 'mult-factor' | 'segregated' | 'coarsen'
 %                 | 'multilevel'
 %     Refiner     'fm' | 'rl-refiner': refine every bisection (k-way mode: 'fm')
 %     Threshold   multilevel: coarsen every subgraph to at most this many cells (default 200)
 %     Hierarchy   true: also return every nested level in `levels` (recursive modes)
+%     Ratio       with Hierarchy: nested levels of their own (any mode, any model: rtree, metis, ...),
+%                 Ratio times fewer elements per level (as `magnet hierarchy`); Coarsest: at most
+%                 this many elements on the coarsest level (default 10)
 %     K, Nref, TargetSize, MultFactor   the size parameter of the mode
 %     Subset      cell ids (0-based, as in the mesh file) to agglomerate, mode 'coarsen'
 %     Seed, PhysicalTag, Absorb, Method, HolePolicy, BoundaryTag   as in `magnet agglomerate`
@@ -37,7 +40,9 @@ function [region, neighbor, job, levels] = magnet_agglomerate(mesh_file, varargi
 %   levels (with 'Hierarchy', true): a cell array, coarsest level first, the last one the result;
 %   levels{L}.region / levels{L}.neighbor are that level's lymph structs and levels{L}.parent
 %   (L >= 2) gives, for each element of level L, its element (1-based) in level L-1: every coarse
-%   element is exactly the union of the finer elements that name it.
+%   element is exactly the union of the finer elements that name it. levels{L}.P is the aggregation
+%   operator into level L (sparse, a single 1 per row; rows: the elements of level L+1, or the fine
+%   cells for the last level), what an algebraic multigrid takes as its aggregates.
 %
 %   Errors of the server (bad mesh, bad parameter, full queue, failed job) are raised as
 %   MATLAB/Octave errors with the server's message.
@@ -45,7 +50,7 @@ function [region, neighbor, job, levels] = magnet_agglomerate(mesh_file, varargi
   p = struct('Server', getenv('MAGNET_SERVER'), 'Token', getenv('MAGNET_TOKEN'), 'Model', 'metis', ...
              'Mode', 'kway', 'K', [], 'Nref', [], 'TargetSize', [], 'MultFactor', [], 'Subset', [], ...
              'Seed', [], 'PhysicalTag', '', 'Absorb', [], 'Method', '', 'HolePolicy', '', 'BoundaryTag', [], ...
-             'Refiner', '', 'Threshold', [], 'Hierarchy', false, ...
+             'Refiner', '', 'Threshold', [], 'Hierarchy', false, 'Ratio', [], 'Coarsest', [], ...
              'SaveAs', '', 'Timeout', 3600, 'Poll', 1, 'Verbose', true);
   if mod(numel(varargin), 2) ~= 0
     error('magnet:args', 'options must be name-value pairs');
@@ -88,6 +93,8 @@ function [region, neighbor, job, levels] = magnet_agglomerate(mesh_file, varargi
   if p.Hierarchy
     fields = [fields, {'hierarchy', 'true'}];
   end
+  fields = add_field(fields, 'ratio', p.Ratio);
+  fields = add_field(fields, 'coarsest', p.Coarsest);
   if ~isempty(p.Subset)
     fields = [fields, {'subset', sprintf('%d,', p.Subset(:))}];
   end
@@ -157,13 +164,20 @@ function [region, neighbor, job, levels] = magnet_agglomerate(mesh_file, varargi
     for L = 1:numel(entries)
       e = entries{L};
       s = load(fullfile(hdir, e.lymph_mat));
-      lev = struct('region', s.region, 'neighbor', s.neighbor, 'parent', []);
+      lev = struct('region', s.region, 'neighbor', s.neighbor, 'parent', [], 'P', []);
       if isfield(e, 'parent') && ischar(e.parent)
         parent = jsondecode(fileread(fullfile(hdir, e.parent)));
         lev.parent = parent(:) + 1;
       end
       levels{L} = lev;
     end
+    % aggregation operators: into level L from level L+1 (parent maps), into the last from the cells
+    for L = 1:numel(levels) - 1
+      par = levels{L + 1}.parent;
+      levels{L}.P = sparse(1:numel(par), par, 1, numel(par), levels{L}.region.ne);
+    end
+    cells = jsondecode(fileread(fullfile(hdir, entries{end}.labels)));
+    levels{end}.P = sparse(1:numel(cells), cells(:) + 1, 1, numel(cells), levels{end}.region.ne);
     if exist('OCTAVE_VERSION', 'builtin')
       confirm_recursive_rmdir(false, 'local');
     end

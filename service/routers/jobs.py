@@ -91,7 +91,7 @@ FORM_FIELDS = {
     "refiner": {"type": "string"},
     "options": {
         "type": "string",
-        "description": "JSON object: seed, absorb_fraction, hole_policy, physical_tag, method, boundary_tag, threshold",
+        "description": "JSON object: seed, absorb_fraction, hole_policy, physical_tag, method, boundary_tag, threshold, hierarchy, ratio, coarsest",
     },
     "seed": {"type": "integer"},
     "absorb_fraction": {"type": "number"},
@@ -101,9 +101,12 @@ FORM_FIELDS = {
     "boundary_tag": {"type": "integer"},
     "threshold": {"type": "integer"},
     "hierarchy": {"type": "boolean"},
+    "ratio": {"type": "number", "description": "with hierarchy: nested levels of their own, this coarsening ratio"},
+    "coarsest": {"type": "integer", "description": "with ratio: at most this many elements on the coarsest level"},
 }
 OPTION_FIELDS = (
-    "seed", "absorb_fraction", "hole_policy", "physical_tag", "method", "boundary_tag", "threshold", "hierarchy"
+    "seed", "absorb_fraction", "hole_policy", "physical_tag", "method", "boundary_tag", "threshold", "hierarchy",
+    "ratio", "coarsest",
 )
 
 
