@@ -802,6 +802,7 @@ _BOUND_POINTS_FW = {2: 6, 3: 8}  # ... and all together (Frank-Wolfe), per dimen
 # Delaunay, Voronoi, holes) and finds radii at least as good
 _BOUND_RHO = {2: 0.0, 3: 1.0}
 _CHILD_EXACT = True
+_BNB_BATCH_PRIMS = 100_000  # boundary primitives per batch of elements in the branch and bound
 _DIVE = {2: False, 3: True}  # greedy dive first: pays off in 3D only (2D: 10-20% slower on the bench meshes)
 _CHILD_PRUNE = {2: False, 3: True}  # bound children before evaluating them (pays off in 3D)
 _CHILD_POINTS = 8  # parent's nearest primitives used to bound its children before evaluating them
@@ -1083,7 +1084,7 @@ def _child_prune(g: _Geometry, leaves, keep: np.ndarray, n_cells: int, pfc: np.n
     return ch
 
 
-def _inscribed_bnb(g: _Geometry, elems: np.ndarray, rel_tol: float):
+def _inscribed_bnb(g: _Geometry, elems: np.ndarray, rel_tol: float, bt: _BallTree | None = None):
     """Branch and bound over a quadtree/octree for the largest inscribed balls of `elems`.
 
     Breadth first, all elements at once. Every cell centre gets its exact distance to the element
@@ -1099,7 +1100,7 @@ def _inscribed_bnb(g: _Geometry, elems: np.ndarray, rel_tol: float):
     eps = rel_tol * g.diameter
     elems = np.asarray(elems, dtype=np.int64)
     elems = elems[(g.diameter[elems] > 0) & (g.prim_ptr[elems + 1] > g.prim_ptr[elems])]
-    bt = _build_ball_tree(g)
+    bt = _build_ball_tree(g) if bt is None else bt
     corners = np.array(list(itertools.product((-1.0, 1.0), repeat=d)))
     sq = math.sqrt(d)
     big = 4.0 * float(g.diameter.max()) + 1.0
@@ -1236,8 +1237,16 @@ def _inscribed(g: _Geometry, rel_tol: float, method: str = "auto"):
     centres, radius = _inscribed_lp(g, np.flatnonzero(convex))
     rest = np.flatnonzero(~convex)
     if rest.size:
-        c2, r2 = _inscribed_bnb(g, rest, rel_tol)
-        centres[rest], radius[rest] = c2[rest], r2[rest]
+        # elements in batches of about _BNB_BATCH_PRIMS boundary primitives: the search's per-level
+        # arrays (cells x candidate nodes) stay bounded, so memory does not grow with the mesh; the
+        # elements are independent, so the result is the same as one search over all of them
+        bt = _build_ball_tree(g)
+        nprim = (g.prim_ptr[rest + 1] - g.prim_ptr[rest]).astype(np.int64)
+        batch = np.cumsum(nprim) // _BNB_BATCH_PRIMS
+        for b in np.unique(batch):
+            part = rest[batch == b]
+            c2, r2 = _inscribed_bnb(g, part, rel_tol, bt)
+            centres[part], radius[part] = c2[part], r2[part]
     return centres, radius
 
 
