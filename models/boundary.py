@@ -238,12 +238,13 @@ def measure_report(fb: FineBoundary, poly: PolyMesh) -> dict:
     return out
 
 
-def summary(mesh: Mesh) -> dict:
+def summary(mesh: Mesh, faces: Faces | None = None, partner: np.ndarray | None = None) -> dict:
     """The boundary part of the mesh summary: groups with their facet counts on the boundary and
-    inside (interfaces), boundary facets left untagged, group cells that match no facet."""
+    inside (interfaces), boundary facets left untagged, group cells that match no facet.
+    faces, partner: the dual graph's, when already built (see fine_boundary)."""
     if not has_groups(mesh):
         return {"groups": []}
-    fb = fine_boundary(mesh)
+    fb = fine_boundary(mesh, faces, partner)
     groups = []
     for t in fb.groups:
         sel = fb.tags == t

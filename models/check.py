@@ -174,7 +174,7 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
             )
         )
 
-    stray = _stray_lower_dim(mesh)
+    stray = _stray_lower_dim(mesh, f)
     if mesh.boundary_types is not None:
         rep["lower_dim_cells"] = int(mesh.boundary_types.size)
     if stray.size:
@@ -191,7 +191,7 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
     try:
         from .boundary import check_issues, check_lines, summary
 
-        rep["boundary"] = summary(mesh)
+        rep["boundary"] = summary(mesh, f, graph.partner)  # the graph's faces, not a second cell_faces
         rep["boundary_notes"] = check_lines(rep["boundary"])
         issues.extend(check_issues(rep["boundary"]))
     except Exception:  # noqa: BLE001 - the boundary summary is an extra, never a reason to fail the check
@@ -301,11 +301,12 @@ def _hanging_nodes(mesh: Mesh, f, bnd: np.ndarray) -> np.ndarray:
     return np.unique(cand[on])
 
 
-def _stray_lower_dim(mesh: Mesh) -> np.ndarray:
-    """Ids (among the lower-dimensional cells) of those that are no facet of any cell."""
+def _stray_lower_dim(mesh: Mesh, ef) -> np.ndarray:
+    """Ids (among the lower-dimensional cells) of those that are no facet of any cell (`ef`: the
+    cells' faces)."""
     if mesh.boundary_types is None or mesh.boundary_offsets is None:
         return np.zeros(0, np.int64)
-    from .geometry import Faces, cell_faces
+    from .geometry import Faces
     from .graph import face_keys
 
     nb = mesh.boundary_types.size
@@ -315,7 +316,6 @@ def _stray_lower_dim(mesh: Mesh) -> np.ndarray:
         bf_ok = sizes == 2
     else:
         bf_ok = sizes >= 3
-    ef = cell_faces(mesh)
     if not bf_ok.any():
         return np.flatnonzero(~bf_ok)
     kb = face_keys(bf, mesh.n_points) if bf_ok.all() else None
