@@ -16,18 +16,16 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
+sys.path.insert(0, HERE)
+import structured  # noqa: E402
 
 
 def grid_square(n: int):
     """n x n squares cut in two triangles, sides tagged 2 (y=0), 3 (x=1), 4 (y=1), 5 (x=0)."""
     from models.io import mesh_from_arrays
 
-    x, y = np.meshgrid(np.linspace(0, 1, n + 1), np.linspace(0, 1, n + 1), indexing="ij")
-    p = np.column_stack([x.ravel(), y.ravel()])
+    p, t = structured.square(n)
     v = lambda a, b: a * (n + 1) + b  # noqa: E731
-    i, j = (a.ravel() for a in np.meshgrid(np.arange(n), np.arange(n), indexing="ij"))
-    q = np.column_stack([v(i, j), v(i + 1, j), v(i + 1, j + 1), v(i, j + 1)])
-    t = np.vstack([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
     k = np.arange(n)
     lines = np.vstack(
         [
@@ -46,39 +44,11 @@ def grid_square(n: int):
 
 def grid_cube(n: int):
     """Kuhn tetrahedra of an n^3 grid, the six faces tagged 11..16."""
+    from models.geometry import cell_faces
     from models.io import mesh_from_arrays
 
-    g = np.linspace(0, 1, n + 1)
-    x, y, z = np.meshgrid(g, g, g, indexing="ij")
-    p = np.column_stack([x.ravel(), y.ravel(), z.ravel()])
-    v = lambda a, b, c: (a * (n + 1) + b) * (n + 1) + c  # noqa: E731
-    i, j, k = (a.ravel() for a in np.meshgrid(*(np.arange(n),) * 3, indexing="ij"))
-    h = np.column_stack(
-        [
-            v(i, j, k),
-            v(i + 1, j, k),
-            v(i + 1, j + 1, k),
-            v(i, j + 1, k),
-            v(i, j, k + 1),
-            v(i + 1, j, k + 1),
-            v(i + 1, j + 1, k + 1),
-            v(i, j + 1, k + 1),
-        ]
-    )
-    t = np.vstack(
-        [
-            h[:, [0, 1, 2, 6]],
-            h[:, [0, 1, 5, 6]],
-            h[:, [0, 3, 2, 6]],
-            h[:, [0, 3, 7, 6]],
-            h[:, [0, 4, 5, 6]],
-            h[:, [0, 4, 7, 6]],
-        ]
-    )
-    from models.geometry import cell_faces
-    from models.io import mesh_from_arrays as mfa
-
-    bare = mfa(p, [("tetra", t)])
+    p, t = structured.cube(n)
+    bare = mesh_from_arrays(p, [("tetra", t)])
     f = cell_faces(bare)
     key = np.sort(f.nodes.reshape(-1, 3), axis=1)
     _, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
