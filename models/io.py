@@ -12,6 +12,7 @@ import contextlib
 import io
 import os
 import warnings
+from itertools import chain
 
 import meshio
 import numpy as np
@@ -207,14 +208,19 @@ def _find_tag_key(cell_data: dict, physical_tag: str | None) -> str | None:
 
 
 def _csr_from_blocks(blocks):
-    """Concatenate fixed-width blocks (grouped by width, a loop over blocks, not cells) into CSR."""
+    """Concatenate blocks into CSR (a loop over blocks, not cells): fixed-width (n, w) arrays, or
+    (sizes, nodes) pairs of variable-width cells (polyhedra)."""
     sizes = (
-        np.concatenate([np.full(len(d), d.shape[1], dtype=np.int64) for d in blocks])
+        np.concatenate(
+            [d[0] if isinstance(d, tuple) else np.full(len(d), d.shape[1], dtype=np.int64) for d in blocks]
+        )
         if blocks
         else np.zeros(0, np.int64)
     )
     conn = (
-        np.concatenate([np.asarray(d, dtype=np.int64).reshape(-1) for d in blocks])
+        np.concatenate(
+            [d[1] if isinstance(d, tuple) else np.asarray(d, dtype=np.int64).reshape(-1) for d in blocks]
+        )
         if blocks
         else np.zeros(0, np.int64)
     )
@@ -258,15 +264,15 @@ def mesh_from_blocks(
             lower[name] = lower.get(name, 0) + len(data)
 
     types_list, data_list, tag_list = [], [], []
-    poly_faces = []  # (cell index in elem order, list of faces)
+    poly_faces = []  # per polyhedron block: (cell ids in elem order, faces per cell, face sizes, face nodes)
     n_so_far = 0
     for name, data, tags in elem:
         if name.startswith("polyhedron"):
-            for c in data:
-                poly_faces.append((n_so_far, [np.asarray(f, dtype=np.int64) for f in c]))
-                data_list.append(np.unique(np.concatenate([np.asarray(f).reshape(-1) for f in c]))[None, :])
-                types_list.append(np.array([VTK_POLYHEDRON], np.uint8))
-                n_so_far += 1
+            nfaces, fsizes, fnodes, sizes, nodes = _polyhedra(data)
+            poly_faces.append((n_so_far + np.arange(len(data), dtype=np.int64), nfaces, fsizes, fnodes))
+            data_list.append((sizes, nodes))
+            types_list.append(np.full(len(data), VTK_POLYHEDRON, np.uint8))
+            n_so_far += len(data)
         else:
             vtk, _, keep = _TYPES[name]
             arr = np.asarray(data, dtype=np.int64)
@@ -390,15 +396,28 @@ def _collapse_repeated_nodes(mesh: Mesh) -> None:
     ).astype(np.uint8)
 
 
+def _polyhedra(data) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """meshio's polyhedron cells (per cell a list of faces) as arrays, iterated at C level only:
+    (faces per cell, face sizes, face nodes, distinct nodes per cell, those nodes ascending per cell)."""
+    nfaces = np.fromiter(map(len, data), dtype=np.int64, count=len(data))
+    faces = list(chain.from_iterable(data))
+    fsizes = np.fromiter(map(len, faces), dtype=np.int64, count=len(faces))
+    fnodes = np.concatenate(faces).astype(np.int64).reshape(-1) if faces else np.zeros(0, np.int64)
+    owner = np.repeat(np.repeat(np.arange(len(data)), nfaces), fsizes)
+    order = np.lexsort((fnodes, owner))
+    so, sn = owner[order], fnodes[order]
+    first = np.ones(sn.size, dtype=bool)
+    first[1:] = (so[1:] != so[:-1]) | (sn[1:] != sn[:-1])
+    return nfaces, fsizes, fnodes, np.bincount(so[first], minlength=len(data)).astype(np.int64), sn[first]
+
+
 def _attach_polyhedra(mesh: Mesh, poly_faces) -> None:
-    cells = np.array([c for c, _ in poly_faces], dtype=np.int64)
-    nfaces = np.array([len(f) for _, f in poly_faces], dtype=np.int64)
-    faces = [f for _, fl in poly_faces for f in fl]
-    fsizes = np.array([len(f) for f in faces], dtype=np.int64)
-    mesh.poly_cells = cells
+    mesh.poly_cells = np.concatenate([c for c, _, _, _ in poly_faces])
+    nfaces = np.concatenate([n for _, n, _, _ in poly_faces])
+    fsizes = np.concatenate([f for _, _, f, _ in poly_faces])
     mesh.poly_cell_faces = np.concatenate([[0], np.cumsum(nfaces)])
     mesh.poly_face_offsets = np.concatenate([[0], np.cumsum(fsizes)])
-    mesh.poly_face_nodes = np.concatenate(faces).astype(np.int64)
+    mesh.poly_face_nodes = np.concatenate([f for _, _, _, f in poly_faces])
 
 
 def _project_to_plane(mesh: Mesh) -> None:
