@@ -4,7 +4,7 @@ pieces, box ratio / coverage, PCG iterations (unsmoothed / smoothed aggregation)
 and build time; then the shape bar at 91 and 364 elements on the refined quad mesh, and the speed
 checks (ratios against METIS in the same run).
 
-    python bench/bench_hierarchy.py [--quick] [--json out.json] [--skip-cube]
+    python bench/bench_hierarchy.py [--quick] [--json out.json] [--skip-cube] [--models rtree,metis] [--meshes brain,torus]
 """
 
 from __future__ import annotations
@@ -152,15 +152,17 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="brain only, rtree and metis")
     ap.add_argument("--skip-cube", action="store_true", help="no 1M-tetrahedra speed check")
     ap.add_argument("--json", help="write every number here")
+    ap.add_argument("--models", default=",".join(MODELS), help=f"comma list (default {','.join(MODELS)})")
+    ap.add_argument("--meshes", default="brain,torus,quads93k", help="comma list of brain, torus, quads93k")
     a = ap.parse_args()
     from mesh_quads_refined import refined_quads
 
     results: dict = {"hierarchies": [], "shape": [], "speed": {}}
-    models = ("rtree", "metis") if a.quick else MODELS
-    meshes = [("brain", lambda: read_mesh(BRAIN))]
-    if not a.quick:
-        meshes += [("torus", lambda: mesh_from_arrays(*(lambda p, t: (p, [("tetra", t)]))(*torus()))),
-                   ("quads93k", lambda: mesh_from_arrays(*(lambda p, q: (p, [("quad", q)]))(*refined_quads(5))))]
+    models = ("rtree", "metis") if a.quick else tuple(a.models.split(","))
+    makers = {"brain": lambda: read_mesh(BRAIN),
+              "torus": lambda: mesh_from_arrays(*(lambda p, t: (p, [("tetra", t)]))(*torus())),
+              "quads93k": lambda: mesh_from_arrays(*(lambda p, q: (p, [("quad", q)]))(*refined_quads(5)))}
+    meshes = [(n, makers[n]) for n in (["brain"] if a.quick else a.meshes.split(","))]
     tmp = tempfile.mkdtemp(prefix="bench_hierarchy_")
     for name, make in meshes:
         mesh = make()
