@@ -3,7 +3,6 @@
 import json
 import shutil
 import subprocess
-import time
 
 import numpy as np
 import pytest
@@ -317,8 +316,9 @@ def test_max_kb_matches_clipping_reference_on_random_polygons():
     np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-12)
 
 
-def test_lymph_structs_speed_on_nonconvex_elements():
-    # 400 star-shaped (strongly non-convex) elements of 100 vertices each
+def test_lymph_structs_on_nonconvex_elements():
+    # 400 star-shaped (strongly non-convex) elements of 100 vertices each (no timing here: house
+    # rule, speed belongs in bench/)
     rng = np.random.default_rng(1)
     n_el, n_v = 400, 100
     ang = np.sort(rng.uniform(0, 2 * np.pi, (n_el, n_v)), axis=1)
@@ -327,10 +327,7 @@ def test_lymph_structs_speed_on_nonconvex_elements():
     pts = np.stack([cx[:, None] + rad * np.cos(ang), cy[:, None] + rad * np.sin(ang)], axis=-1).reshape(-1, 2)
     loops = np.arange(n_el * n_v).reshape(n_el, n_v)
     poly = poly_from_loops(pts, list(loops))
-    t0 = time.perf_counter()
     region, neighbor = lymph_structs(poly)
-    elapsed = time.perf_counter() - t0
-    assert elapsed < 10.0  # about 0.3 s on an idle core
     assert all(np.all(n == -1) for n in neighbor["neigh"])
     assert all(np.all(kb > 0) for kb in region["max_kb"])
     # spot check against the reference
