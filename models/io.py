@@ -144,7 +144,10 @@ def read_mesh(
             from .vtu import read_vtu_mixed
 
             return mesh_from_meshio(read_vtu_mixed(path), physical_tag=physical_tag, weld=weld)
-        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+        if not any(ch.isalpha() for ch in msg):  # e.g. meshio's SystemExit(1) on a garbled file
+            what = ext.lstrip(".") or file_format or "mesh"
+            msg = f"not a valid {what} file ({' '.join([type(exc).__name__, msg]).strip()})"
         raise MeshError(f"cannot read {os.path.basename(path)} as a mesh: {msg}") from None
     return mesh_from_meshio(m, physical_tag=physical_tag, weld=weld)
 
