@@ -106,20 +106,11 @@ fid = fopen('{result}', 'w'); fprintf(fid, '%s', jsonencode(out)); fclose(fid);
 
 def test_octave_wrapper_hierarchy_with_ratio_and_operators(tmp_path):
     """'Ratio' gives rtree's nested levels of their own (the job itself k-way) with the aggregation operators."""
-    octave = shutil.which("octave-cli")
-    if octave is None:
-        pytest.skip("octave-cli not found")
-    env = service_env(tmp_path / "data", api_keys=f"matlab-user:{TOKEN}")
-    proc, url = start_api(env, tmp_path, embedded_worker=True)
-    try:
-        wait_until(lambda: workers_online(url, TOKEN) >= 1, 60, 0.2, "the embedded worker")
-        script, result = tmp_path / "run_ratio.m", tmp_path / "ratio.json"
-        script.write_text(RATIO_SCRIPT.format(matlab=ROOT / "client" / "matlab", mesh=BRAIN, url=url,
-                                              token=TOKEN, result=result))
-        out = subprocess.run([octave, "--no-gui", "--quiet", "--no-window-system", str(script)], cwd=tmp_path,
-                             capture_output=True, text=True, timeout=300)
-        assert result.exists(), f"octave failed:\n{out.stdout}\n{out.stderr}"
-        r = json.loads(result.read_text())
-    finally:
-        proc.stop()
+    octave_cli()  # skip before starting a server
+    result = tmp_path / "ratio.json"
+    with embedded_server(tmp_path, TOKEN, user="matlab-user") as url:
+        text = RATIO_SCRIPT.format(
+            matlab=ROOT / "client" / "matlab", mesh=BRAIN, url=url, token=TOKEN, result=result
+        )
+        r = run_octave(tmp_path / "run_ratio.m", text, result)
     assert r["ne"] == [4, 29, 225, 1797] and r["ok"] is True and r["cells"] == 14372 and r["final"] == 50
