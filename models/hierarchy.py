@@ -314,6 +314,7 @@ def _fix_holes(mesh: Mesh, data: CellData, levels: list[np.ndarray]) -> list[np.
 
 def _write_json(path: str, obj) -> None:
     tmp = f"{path}.tmp"
+    text = json.dumps(obj, indent=None if isinstance(obj, list) else 1)  # dumps: the C encoder (dump is pure Python)
     with open(tmp, "w", encoding="utf-8") as fh:
-        json.dump(obj, fh, indent=None if isinstance(obj, list) else 1)
+        fh.write(text)
     os.replace(tmp, path)

@@ -17,7 +17,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import sparse
-from scipy.optimize import linprog
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull
 
@@ -1211,6 +1210,8 @@ def _inscribed_lp(g: _Geometry, elems: np.ndarray):
     c = np.zeros(nv)
     c[d :: d + 1] = -1.0
     bounds = [(None, None)] * d + [(0, None)]
+    from scipy.optimize import linprog  # lazy: scipy.optimize takes most of a second to import
+
     res = linprog(c, A_ub=A, b_ub=np.concatenate(rhs), bounds=bounds * elems.size, method="highs")
     if res.status != 0 or res.x is None:  # pragma: no cover - bounded and feasible by construction
         raise RuntimeError(f"Chebyshev-centre LP failed: {res.message}")
