@@ -11,7 +11,8 @@ volumes, so on a coarsened graph they are the fine graph's.
   climb out of local minima) within the balance tolerance; a moved node is locked. After at most
   budget_factor x (cut + 1) steps each graph rolls back to the best prefix of its moves. Passes
   repeat while they gain. Then stray islands go to the other side (both sides connected); `tries`
-  runs (the later ones break ties between equal gains at random) and a graph keeps its old
+  runs (default 3 on batches up to 20k nodes, else 1; the later ones break ties between equal
+  gains at random) and a graph keeps its old
   bisection unless a refined one has a strictly lower normalized cut (the best one). After a
   whole recursive bisection, `polish` refines pairs of adjacent final parts for their share of
   the k-way normalized cut.
@@ -268,7 +269,7 @@ class FMRefiner(Refiner):
 
     def __init__(self, tolerance: float = 0.05, hops: int = 4, passes: int = 8, kway_rounds: int = 30,
                  kway_tolerance: float = 0.03, pair_rounds: int = 2, objective: str = "ncut", polish_rounds: int = 4,
-                 budget_factor: float = 2.0, tries: int = 3, seed: int | None = 0):
+                 budget_factor: float = 2.0, tries: int | None = None, seed: int | None = 0):
         if not 0 <= tolerance < 1:
             raise ParameterError(f"fm tolerance must be in [0, 1), got {tolerance}")
         self.tolerance = float(tolerance)
@@ -282,7 +283,7 @@ class FMRefiner(Refiner):
         self.objective = objective
         self.polish_rounds = int(polish_rounds)
         self.budget_factor = float(budget_factor)
-        self.tries = int(tries)
+        self.tries = tries  # None: 3 on batches up to 20k nodes, 1 above (each try is a full FM run)
         self.seed = seed
 
     def refine(self, batch: GraphBatch, labels: np.ndarray) -> np.ndarray:
@@ -294,7 +295,8 @@ class FMRefiner(Refiner):
             cap = (0.5 + self.tolerance / 2) * np.bincount(batch.graph_index(), weights=batch.measures,
                                                            minlength=batch.n_graphs)
         best = labels
-        for t in range(max(self.tries, 1)):
+        tries = self.tries if self.tries is not None else (3 if batch.n_nodes <= 20_000 else 1)
+        for t in range(max(int(tries), 1)):
             # later tries break ties between equal gains at random (seeded): another local optimum
             score_fn = None
             if t > 0:
