@@ -298,10 +298,17 @@ def face_measures(points: np.ndarray, faces: Faces, which: np.ndarray | None = N
             e = e[which]
         d = points[e[:, 1]] - points[e[:, 0]]
         return np.hypot(d[:, 0], d[:, 1])
-    offsets, nodes = (faces.offsets, faces.nodes) if which is None else reorder_csr(faces.offsets, faces.nodes, which)
     p = points
-    if nodes.size == 3 * (offsets.size - 1):  # all triangles: no fan, no sum per face
-        tri = nodes.reshape(-1, 3)
+    tri = None
+    if faces.nodes.size == 3 * faces.n:  # all triangles: no fan, no sum per face, rows by one gather
+        tri = faces.nodes.reshape(-1, 3)
+        if which is not None:
+            tri = tri[which]
+    else:
+        offsets, nodes = (faces.offsets, faces.nodes) if which is None else reorder_csr(faces.offsets, faces.nodes, which)
+        if nodes.size == 3 * (offsets.size - 1):
+            tri = nodes.reshape(-1, 3)
+    if tri is not None:
         p0 = p[tri[:, 0]]
         cr = _cross(p[tri[:, 1]] - p0, p[tri[:, 2]] - p0)
         return 0.5 * np.sqrt(np.einsum("ij,ij->i", cr, cr))

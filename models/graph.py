@@ -104,8 +104,10 @@ def sort_keys(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def dual_graph(mesh: Mesh, faces: Faces | None = None, measures: bool = True) -> DualGraph:
     """Build the dual graph (linear after one sort of the face keys). measures=False: unit edge
     weights instead of shared edge lengths / face areas (for callers that need the topology only)."""
-    faces = faces or cell_faces(mesh)
-    order, same = sort_keys(face_keys(faces, mesh.n_points))
+    if faces is None:
+        c = cached_faces(mesh)
+        faces = c["faces"] if c is not None else cell_faces(mesh)
+    order, same = _cached_pairing(mesh, faces) or sort_keys(face_keys(faces, mesh.n_points))
     if same.size > 1 and np.any(same[1:] & same[:-1]):
         j = np.flatnonzero(same[1:] & same[:-1])
         cells = sorted_unique(faces.cell[order[np.concatenate([j, j + 1, j + 2])]])
@@ -141,6 +143,24 @@ def dual_graph(mesh: Mesh, faces: Faces | None = None, measures: bool = True) ->
         faces=faces,
         partner=partner,
     )
+
+
+def _cached_pairing(mesh: Mesh, faces: Faces) -> tuple[np.ndarray, np.ndarray] | None:
+    """The (order, same) that reading sorted for the orientation (models.io._keep_faces), when it
+    is still this mesh's: same connectivity array, the faces reading kept."""
+    c = cached_faces(mesh)
+    if c is None or c["faces"] is not faces or c["order"] is None:
+        return None
+    return c["order"], c["same"]
+
+
+def cached_faces(mesh: Mesh) -> dict | None:
+    """mesh.meta["cell_faces"] when it still belongs to this mesh's connectivity array. Whoever edits
+    a read mesh's connectivity in place drops meta["cell_faces"] (as for meta["measures"])."""
+    c = mesh.meta.get("cell_faces")
+    if c is None or c["connectivity"] is not mesh.connectivity:
+        return None
+    return c
 
 
 def sorted_unique(x: np.ndarray, return_inverse: bool = False, return_counts: bool = False):

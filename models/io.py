@@ -468,10 +468,13 @@ def _orient_and_check(mesh: Mesh) -> None:
             f"the mesh has {ids.size} degenerate (zero-{kind}) cells, e.g. cell ids {ids[:5].tolist()}; "
             "remove them (or merge their coincident points with --weld) and retry"
         )
-    flip = orientation_flips(mesh, vol, faces)
+    pairing: dict = {}
+    flip = orientation_flips(mesh, vol, faces, pairing)
     signed = np.where(flip, -vol, vol)
     if flip.any():
         _flip_cells(mesh, flip)
+    if faces is not None:
+        _keep_faces(mesh, flip, faces, pairing)
     folded = np.flatnonzero(signed < 0)
     mesh.meta["signed_measures"] = signed
     mesh.meta["orientation"] = {
@@ -479,6 +482,32 @@ def _orient_and_check(mesh: Mesh) -> None:
         "folded": int(folded.size),
         "folded_cells": folded[:20].tolist(),
     }
+
+
+def _keep_faces(mesh: Mesh, flip: np.ndarray, faces, pairing: dict) -> None:
+    """Keep the faces and the face pairing the orientation sorted, for prepare / dual_graph (one
+    sort and one gather of every face: the costliest steps of reading, not done twice).
+    They were made before the flips: a flipped tetrahedron lists the same faces in another local
+    order and direction, so its faces are rebuilt in place and face ids in the pairing renumbered
+    (the keys, hence `same`, do not change). Other meshes keep them only when nothing was flipped."""
+    from .geometry import FACE_TEMPLATES, _all_tetrahedra
+
+    order = pairing.get("order")
+    if flip.any():
+        if not _all_tetrahedra(mesh):
+            return
+        tmpl = FACE_TEMPLATES[VTK_TETRA]
+        sel = np.flatnonzero(flip)
+        faces.nodes.reshape(-1, 4, 3)[sel] = mesh.connectivity.reshape(-1, 4)[sel][:, np.array(tmpl)]
+        if order is not None:
+            m = MIRROR[VTK_TETRA]
+            # new local face k has the nodes of old local face m[tmpl[k]]: old j -> new k
+            mirrored = [frozenset(m[list(f)].tolist()) for f in tmpl]
+            new_of_old = np.array([mirrored.index(frozenset(f)) for f in tmpl])
+            local = order % 4
+            order = np.where(flip[order // 4], order - local + new_of_old[local], order)
+    mesh.meta["cell_faces"] = {"connectivity": mesh.connectivity, "faces": faces, "order": order,
+                               "same": pairing.get("same")}
 
 
 def _flip_cells(mesh: Mesh, flip: np.ndarray) -> None:

@@ -48,12 +48,8 @@ def _face_pairs(faces: Faces, n_points: int) -> tuple[np.ndarray, np.ndarray]:
     """Pairs (fa, fb) of faces with the same nodes, only where exactly two cells share the face."""
     from .graph import face_keys, sort_keys
 
-    order, same = sort_keys(face_keys(faces, n_points))
     # keep runs of exactly two (a face shared by 3+ cells is a non-manifold seam: left to the graph check)
-    before = np.r_[False, same[:-1]] if same.size else same
-    after = np.r_[same[1:], False] if same.size else same
-    i = np.flatnonzero(same & ~before & ~after)
-    return order[i], order[i + 1]
+    return _pairs_of(*sort_keys(face_keys(faces, n_points)))
 
 
 def _consistent_2d(offsets: np.ndarray, conn: np.ndarray, flip: np.ndarray, n_points: int) -> bool:
@@ -126,20 +122,58 @@ def _consistent(faces: Faces, flip: np.ndarray, n_points: int) -> bool | None:
     return not np.any(s[1:] == s[:-1])
 
 
-def orientation_flips(mesh, measures: np.ndarray, faces: Faces | None = None) -> np.ndarray:
+def _pairing(faces: Faces, n_points: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """(order, same) of models.graph.sort_keys for all-triangle faces whose key fits in int64 (the
+    pairing the dual graph needs too), else None."""
+    from .graph import face_keys, sort_keys
+
+    if faces.nodes.size != 3 * faces.n or 3 * max(int(n_points - 1).bit_length(), 1) + 3 > 63:
+        return None
+    return sort_keys(face_keys(faces, n_points))
+
+
+def _consistent_paired(faces: Faces, flip: np.ndarray, order: np.ndarray, same: np.ndarray) -> bool:
+    """_consistent for all-triangle faces from the undirected pairing: no face is met twice in the
+    same direction. Two triangles with the same nodes have the same directed key exactly when their
+    direction bits (after the flips) agree; a face met 3+ times repeats a direction."""
+    if same.size > 1 and np.any(same[1:] & same[:-1]):
+        return False
+    i = np.flatnonzero(same)
+    fa, fb = order[i], order[i + 1]
+    bit = _face_direction(faces)
+    f = flip[faces.cell]
+    return not np.any((bit[fa] ^ f[fa]) == (bit[fb] ^ f[fb]))
+
+
+def _pairs_of(order: np.ndarray, same: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs (fa, fb) from a sorted pairing, only where exactly two faces have the key."""
+    before = np.r_[False, same[:-1]] if same.size else same
+    after = np.r_[same[1:], False] if same.size else same
+    i = np.flatnonzero(same & ~before & ~after)
+    return order[i], order[i + 1]
+
+
+def orientation_flips(mesh, measures: np.ndarray, faces: Faces | None = None, pairing: dict | None = None) -> np.ndarray:
     """(C,) bool: the cells to flip so that neighbours agree and every piece is positive overall.
 
     `measures` are the signed measures in the cells' current node order. Raises MeshError when no
-    consistent orientation exists.
+    consistent orientation exists. `pairing`: a dict that receives "order" and "same" (the sorted
+    face-key pairing of `faces`, before any flip) when they were computed, for the dual graph.
     """
     n = mesh.n_cells
     own = measures < 0
     if mesh.dim == 2 and _consistent_2d(mesh.offsets, mesh.connectivity, own, mesh.n_points):
         return own  # fast path (one plain sort): flipping each cell by its own sign is consistent
     faces = faces or cell_faces(mesh)
-    if mesh.dim == 3 and _consistent(faces, own, mesh.n_points):
+    paired = _pairing(faces, mesh.n_points) if mesh.dim == 3 else None
+    if paired is not None:
+        if pairing is not None:
+            pairing["order"], pairing["same"] = paired
+        if _consistent_paired(faces, own, *paired):
+            return own
+    elif mesh.dim == 3 and _consistent(faces, own, mesh.n_points):
         return own
-    fa, fb = _face_pairs(faces, mesh.n_points)
+    fa, fb = _pairs_of(*paired) if paired is not None else _face_pairs(faces, mesh.n_points)
     ca, cb = faces.cell[fa], faces.cell[fb]
     keep = ca != cb
     fa, fb, ca, cb = fa[keep], fb[keep], ca[keep], cb[keep]

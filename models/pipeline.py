@@ -22,7 +22,7 @@ from .agglomerate import Agglomeration, CellData, agglomerate, compact_labels, c
 from .boundary import FineBoundary, annotate, fine_boundary, has_groups
 from .errors import MeshError, ParameterError
 from .geometry import cell_faces, measures_and_centroids
-from .graph import DualGraph, dual_graph
+from .graph import DualGraph, cached_faces, dual_graph
 from .merge import merge, sort_by_vertex_count
 from .mesh import Mesh, PolyMesh
 
@@ -53,7 +53,8 @@ class Result:
 
 def prepare(mesh: Mesh) -> tuple[DualGraph, CellData]:
     """Dual graph and cell geometry (the features every partitioner uses)."""
-    faces = cell_faces(mesh)
+    c = cached_faces(mesh)  # kept by reading (with the face pairing), else built here
+    faces = c["faces"] if c is not None else cell_faces(mesh)
     graph = dual_graph(mesh, faces)
     measures, centroids = measures_and_centroids(mesh, faces if mesh.dim == 3 else None)
     data = CellData(graph, measures, centroids, mesh.points, mesh.offsets, mesh.connectivity, mesh.tags)

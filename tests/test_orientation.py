@@ -120,3 +120,43 @@ def test_inconsistent_polyhedra_are_refused_with_the_cells():
     cells[3][2] = cells[3][2][::-1]  # one face of one cell turned inside out
     with pytest.raises(MeshError, match=r"cannot be oriented consistently.*cells \["):
         mesh_from_arrays(p, [("polyhedron", cells)])
+
+
+@pytest.mark.parametrize("n", [3, 6])
+def test_faces_kept_by_reading_give_the_same_graph(n):
+    """Reading keeps its faces and face pairing for the dual graph (one sort, not two); with cells
+    flipped by the orientation they must equal the faces and graph built from scratch."""
+    from models.geometry import cell_faces
+    from models.graph import cached_faces, dual_graph
+
+    g = np.linspace(0, 1, n + 1)
+    x, y, z = np.meshgrid(g, g, g, indexing="ij")
+    pts = np.column_stack([x.ravel(), y.ravel(), z.ravel()])
+    m1 = n + 1
+    i, j, k = (a.ravel() for a in np.meshgrid(*(np.arange(n),) * 3, indexing="ij"))
+    c0 = (i * m1 + j) * m1 + k
+    d = [m1 * m1, m1, 1]
+    tets = []
+    for a, b in ((0, 1), (1, 0), (0, 2), (2, 0), (1, 2), (2, 1)):  # 6 tetrahedra along the diagonal
+        p1 = c0 + d[a]
+        tets.append(np.column_stack([c0, p1, p1 + d[b], c0 + sum(d)]))
+    t = np.vstack(tets)
+    rng = np.random.default_rng(n)
+    t = t[rng.permutation(len(t))]
+    sw = rng.random(len(t)) < 0.3
+    t[sw] = t[sw][:, [1, 0, 2, 3]]
+    mesh = mesh_from_arrays(pts, [("tetra", t)])
+    assert mesh.meta["orientation"]["flipped"] > 0
+    kept = cached_faces(mesh)
+    assert kept is not None and kept["order"] is not None
+    fresh = cell_faces(mesh)
+    for a in ("cell", "offsets", "nodes"):
+        assert np.array_equal(getattr(kept["faces"], a), getattr(fresh, a))
+    g1 = dual_graph(mesh)
+    assert g1.faces is kept["faces"]
+    g2 = dual_graph(mesh, fresh)
+    for a in ("indptr", "indices", "weights", "partner"):
+        assert np.array_equal(getattr(g1, a), getattr(g2, a)), a
+    assert g1.n_edges == 2 * 6 * n**3 - 6 * n * n  # every inner face once (4 faces per tetrahedron)
+    mesh.connectivity = mesh.connectivity.copy()  # another connectivity: the kept faces are not used
+    assert cached_faces(mesh) is None
