@@ -331,7 +331,7 @@ def _write_hierarchy_zip(res, out_dir: str, boundary_tag: int, model: str | None
             levels, info = build_hierarchy(res.mesh, res.data, model=model or "rtree", ratio=o["ratio"],
                                            coarsest=o["coarsest"] or 10, seed=o["seed"])
             write_hierarchy(tmp, res.mesh, res.data, levels, metrics=True, lymph=res.mesh.dim == 2,
-                            boundary=res.boundary, boundary_tag=boundary_tag,
+                            boundary=res.boundary, boundary_tag=boundary_tag, merged=info.pop("merged"),
                             extra={k: info[k] for k in ("model", "ratio", "coarsest", "method", "build_time")})
         else:
             pipeline.write_hierarchy(res, tmp, metrics=True, lymph=res.mesh.dim == 2, boundary_tag=boundary_tag)

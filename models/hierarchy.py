@@ -107,12 +107,14 @@ def is_nested(levels: list[np.ndarray]) -> bool:
 
 def write_hierarchy(out_dir: str | os.PathLike, mesh: Mesh, data: CellData, levels: list[np.ndarray],
                     metrics: bool = True, extra: dict | None = None, lymph: bool = False, boundary=None,
-                    boundary_tag: int = 1, operators: bool = True) -> dict:
+                    boundary_tag: int = 1, operators: bool = True, merged: list | None = None) -> dict:
     """Write every level (see the module docstring); returns the hierarchy.json index.
     lymph: also level_L.lymph.json (2D) with the lymph region/neighbor structs of each level;
     boundary: the fine mesh's boundary groups (models.boundary.fine_boundary), kept on every level;
     operators: also the aggregation operator into each level (write_operators). metrics=False still
-    gives the partition statistics and the box measures (box ratio, coverage) of each level."""
+    gives the partition statistics and the box measures (box ratio, coverage) of each level.
+    merged: the polytopes models.merge.merge already made of each level (build_hierarchy's), not
+    merged again."""
     from .merge import merge, sort_by_vertex_count
     from .metrics import metrics_report, partition_statistics
     from .vtu import write_vtu
@@ -121,8 +123,10 @@ def write_hierarchy(out_dir: str | os.PathLike, mesh: Mesh, data: CellData, leve
     os.makedirs(out_dir, exist_ok=True)
     g = data.graph
     polys = []
-    for labels in levels:
-        poly, _ = merge(mesh, g, labels, data.measures)
+    if merged is not None and len(merged) != len(levels):
+        merged = None
+    for L, labels in enumerate(levels):
+        poly = merged[L] if merged is not None else merge(mesh, g, labels, data.measures)[0]
         poly = sort_by_vertex_count(poly)  # 3D: the element order meshio reads back; labels follow
         if boundary is not None:
             from .boundary import annotate
@@ -245,7 +249,8 @@ def build_hierarchy(mesh: Mesh, data: CellData, model: str = "rtree", ratio: flo
     kmeans): the agglomerates are agglomerated (k-way on each level's coarse dual graph, pieces
     then joined to a neighbour so counts stay exact). Bisection-only models (sage-base, ...): one
     recursive bisection, recorded, and the levels nearest the wanted counts.
-    groups: no element crosses a physical group (rtree only). Returns (levels, info)."""
+    groups: no element crosses a physical group (rtree only). Returns (levels, info); info["merged"]
+    holds each level's polytopes (pass them to write_hierarchy as `merged`)."""
     import time
 
     from .agglomerate import agglomerate, make_batch
@@ -291,25 +296,29 @@ def build_hierarchy(mesh: Mesh, data: CellData, model: str = "rtree", ratio: flo
             levels = [cand[i] for i in pick]
             how = "top-down recursive bisection, recorded"
     levels = [np.asarray(lv, dtype=np.int64) for lv in levels]
-    levels = _fix_holes(mesh, data, levels)
+    levels, polys = _fix_holes(mesh, data, levels)
     info = {"model": model, "ratio": float(ratio), "coarsest": int(coarsest), "requested": counts,
-            "method": how, "build_time": time.perf_counter() - t0}
+            "method": how, "build_time": time.perf_counter() - t0, "merged": polys}
     return levels, info
 
 
-def _fix_holes(mesh: Mesh, data: CellData, levels: list[np.ndarray]) -> list[np.ndarray]:
+def _fix_holes(mesh: Mesh, data: CellData, levels: list[np.ndarray]) -> tuple[list[np.ndarray], list]:
     """Elements that would enclose a hole are replaced by their children (finest: by cells),
-    finest level first, so the levels stay nested and every written polygon has one loop."""
+    finest level first, so the levels stay nested and every written polygon has one loop.
+    Returns the levels and their merged polytopes (for write_hierarchy's `merged`)."""
     from .merge import merge
 
     out = list(levels)
+    polys = [None] * len(out)
     finer = np.arange(mesh.n_cells)
     for L in range(len(out) - 1, -1, -1):
-        _, holes = merge(mesh, data.graph, out[L], data.measures)
+        poly, holes = merge(mesh, data.graph, out[L], data.measures)
         if np.unique(holes.elements).size:
             out[L] = _without_holes(mesh, data, out[L], finer)
+            poly, _ = merge(mesh, data.graph, out[L], data.measures)
+        polys[L] = poly
         finer = out[L]
-    return out
+    return out, polys
 
 
 def _write_json(path: str, obj) -> None:

@@ -60,6 +60,7 @@ def hierarchy_main(args) -> int:
     t = time.perf_counter()
     boundary = fine_boundary(mesh, graph.faces, graph.partner) if has_groups(mesh) else None
     index = write_hierarchy(out, mesh, data, levels, metrics=args.metrics, lymph=args.lymph, boundary=boundary,
+                            merged=info.pop("merged"),
                             extra={"model": args.model, "ratio": info["ratio"], "coarsest": info["coarsest"],
                                    "method": info["method"], "build_time": info["build_time"]})
     t_write = time.perf_counter() - t
