@@ -134,3 +134,24 @@ def test_cli_agglomerate_to_ucd_and_info_on_inp(tmp_path):
     inp = _write(tmp_path, "squares.inp", SQUARES)
     r = subprocess.run([sys.executable, "-m", "models.cli", "info", inp], capture_output=True, text=True, env=env, cwd=ROOT)
     assert r.returncode == 0 and "2" in r.stdout and "no points" not in r.stdout + r.stderr
+
+
+@pytest.mark.parametrize("name", ["square_sides.msh", "cube_faces.msh"])
+def test_boundary_groups_written_as_boundary_cells_and_read_back(tmp_path, name):
+    """Issue 15: the UCD result keeps the boundary ids (line cells in 2D, faces in 3D), per tag."""
+    m = read_mesh(os.path.join(ROOT, "tests", "data", name))
+    assert m.boundary_tags is not None and len(np.unique(m.boundary_tags)) >= 4
+    out = str(tmp_path / "res.ucd")
+    write_ucd(out, m, material=np.arange(m.n_cells) % 5)
+    back = read_mesh(out)
+    assert back.n_cells == m.n_cells and np.array_equal(back.tags, np.arange(m.n_cells) % 5)
+
+    def facets(mesh):  # boundary cells as (tag, sorted point coordinates) rows, order-free
+        pts = np.asarray(mesh.points)
+        rows = []
+        for t, a, b in zip(mesh.boundary_tags, mesh.boundary_offsets[:-1], mesh.boundary_offsets[1:], strict=True):
+            xyz = np.round(pts[mesh.boundary_connectivity[a:b]], 12)
+            rows.append((int(t), tuple(sorted(map(tuple, xyz.tolist())))))
+        return sorted(rows)
+
+    assert facets(back) == facets(m)
