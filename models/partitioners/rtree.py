@@ -22,7 +22,7 @@ from scipy.sparse.csgraph import connected_components
 from ..errors import ParameterError
 from .base import GraphBatch, Partitioner
 
-SLACK = 0.1  # cut moves up to 0.1 x one final part's measure for tighter boxes (measured: best BR)
+SLACK = 0.3  # cut moves up to 0.3 x one final part's measure for tighter boxes (BR .881 at 364 on the refined quads; VD .94 -> .83)
 
 
 def _group_boxes(x: np.ndarray, grp: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
