@@ -75,7 +75,8 @@ def cell_faces(mesh: Mesh) -> Faces:
         return Faces(cell=cell, offsets=np.arange(0, nodes.size + 1, 2, dtype=np.int64), nodes=nodes)
     if _all_tetrahedra(mesh):  # one reshape, faces already grouped by cell
         n = mesh.n_cells
-        nodes = mesh.connectivity.reshape(-1, 4)[:, np.array(FACE_TEMPLATES[VTK_TETRA])].reshape(-1)
+        # np.take with a flat index: several times the speed of c[:, (4, 3) table]
+        nodes = np.take(mesh.connectivity.reshape(-1, 4), np.array(FACE_TEMPLATES[VTK_TETRA]).reshape(-1), axis=1).reshape(-1)
         return Faces(cell=np.repeat(np.arange(n), 4), offsets=np.arange(0, 12 * n + 1, 3, dtype=np.int64),
                      nodes=nodes.astype(np.int64, copy=False))
     parts_cell, parts_size, parts_nodes = [], [], []
@@ -225,12 +226,17 @@ def _tetra_measures(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
     values as the face-based formula (a tetrahedron with outward faces (0,2,1), (0,1,3), (1,2,3),
     (0,3,2) has volume det(p1 - p0, p2 - p0, p3 - p0) / 6 and its vertex mean as centroid)."""
     t = mesh.connectivity.reshape(-1, 4)
-    p0 = mesh.points[t[:, 0]]
-    a = mesh.points[t[:, 1]] - p0
-    b = mesh.points[t[:, 2]] - p0
-    c = mesh.points[t[:, 3]] - p0
-    vol = np.einsum("ij,ij->i", a, _cross(b, c)) / 6.0
-    return vol, p0 + (a + b + c) / 4.0
+    vol, cen = np.empty(t.shape[0]), np.empty((t.shape[0], 3))
+    chunk = 1 << 16  # temporaries stay in cache and are reused (elementwise: the same values)
+    for s in range(0, t.shape[0], chunk):
+        tc = t[s : s + chunk]
+        p0 = mesh.points[tc[:, 0]]
+        a = mesh.points[tc[:, 1]] - p0
+        b = mesh.points[tc[:, 2]] - p0
+        c = mesh.points[tc[:, 3]] - p0
+        vol[s : s + chunk] = np.einsum("ij,ij->i", a, _cross(b, c)) / 6.0
+        cen[s : s + chunk] = p0 + (a + b + c) / 4.0
+    return vol, cen
 
 
 def _measures_and_centroids(mesh: Mesh, faces: Faces | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -299,22 +305,29 @@ def face_measures(points: np.ndarray, faces: Faces, which: np.ndarray | None = N
         d = points[e[:, 1]] - points[e[:, 0]]
         return np.hypot(d[:, 0], d[:, 1])
     p = points
-    tri = None
-    if faces.nodes.size == 3 * faces.n:  # all triangles: no fan, no sum per face, rows by one gather
-        tri = faces.nodes.reshape(-1, 3)
-        if which is not None:
-            tri = tri[which]
-    else:
-        offsets, nodes = (faces.offsets, faces.nodes) if which is None else reorder_csr(faces.offsets, faces.nodes, which)
-        if nodes.size == 3 * (offsets.size - 1):
-            tri = nodes.reshape(-1, 3)
-    if tri is not None:
-        p0 = p[tri[:, 0]]
-        cr = _cross(p[tri[:, 1]] - p0, p[tri[:, 2]] - p0)
-        return 0.5 * np.sqrt(np.einsum("ij,ij->i", cr, cr))
+    if faces.nodes.size == 3 * faces.n:  # all triangles: no fan, no sum per face, rows by gathers
+        return _triangle_areas(p, faces.nodes.reshape(-1, 3), which)
+    offsets, nodes = (faces.offsets, faces.nodes) if which is None else reorder_csr(faces.offsets, faces.nodes, which)
+    if nodes.size == 3 * (offsets.size - 1):
+        return _triangle_areas(p, nodes.reshape(-1, 3), None)
     owner, tri = fan_triangles(offsets, nodes)
     cr = _cross(p[tri[:, 1]] - p[tri[:, 0]], p[tri[:, 2]] - p[tri[:, 0]])
     return 0.5 * np.bincount(owner, weights=np.sqrt(np.einsum("ij,ij->i", cr, cr)), minlength=offsets.size - 1)
+
+
+def _triangle_areas(p: np.ndarray, tri: np.ndarray, which: np.ndarray | None, chunk: int = 1 << 16) -> np.ndarray:
+    """Area of the triangles tri[which] (all rows when which is None), in chunks: the temporaries
+    of a chunk stay in cache and their memory is reused (one pass over millions of faces otherwise
+    spends most of its time faulting in fresh temporaries). Elementwise, so chunking changes no bit."""
+    m = tri.shape[0] if which is None else which.size
+    out = np.empty(m)
+    for s in range(0, m, chunk):
+        t = tri[s : s + chunk] if which is None else tri[which[s : s + chunk]]
+        p0 = p[t[:, 0]]
+        cr = _cross(p[t[:, 1]] - p0, p[t[:, 2]] - p0)
+        np.sqrt(np.einsum("ij,ij->i", cr, cr), out=out[s : s + chunk])
+    out *= 0.5
+    return out
 
 
 def mesh_diameter(points: np.ndarray) -> float:
