@@ -158,5 +158,17 @@ def test_faces_kept_by_reading_give_the_same_graph(n):
     for a in ("indptr", "indices", "weights", "partner"):
         assert np.array_equal(getattr(g1, a), getattr(g2, a)), a
     assert g1.n_edges == 2 * 6 * n**3 - 6 * n * n  # every inner face once (4 faces per tetrahedron)
+    # the all-tetrahedra CSR (built from partner) is scipy's canonical CSR of the shared faces
+    import scipy.sparse as sp
+
+    from models.geometry import face_measures
+
+    f = np.flatnonzero(g1.partner >= 0)
+    rows, cols = fresh.cell[f], fresh.cell[g1.partner[f]]
+    a = sp.csr_matrix((face_measures(mesh.points, fresh, f), (rows, cols)), shape=(mesh.n_cells,) * 2)
+    a.sum_duplicates()
+    a.sort_indices()
+    assert np.array_equal(g1.indptr, a.indptr) and np.array_equal(g1.indices, a.indices)
+    assert np.array_equal(g1.weights, a.data)
     mesh.connectivity = mesh.connectivity.copy()  # another connectivity: the kept faces are not used
     assert cached_faces(mesh) is None
