@@ -498,7 +498,9 @@ def _keep_faces(mesh: Mesh, flip: np.ndarray, faces, pairing: dict) -> None:
             return
         tmpl = FACE_TEMPLATES[VTK_TETRA]
         sel = np.flatnonzero(flip)
-        faces.nodes.reshape(-1, 12)[sel] = np.take(mesh.connectivity.reshape(-1, 4)[sel], np.array(tmpl).reshape(-1), axis=1)
+        faces.nodes.reshape(-1, 12)[sel] = np.take(
+            mesh.connectivity.reshape(-1, 4)[sel], np.array(tmpl).reshape(-1), axis=1
+        )
         if order is not None:
             m = MIRROR[VTK_TETRA]
             # new local face k has the nodes of old local face m[tmpl[k]]: old j -> new k
@@ -506,8 +508,12 @@ def _keep_faces(mesh: Mesh, flip: np.ndarray, faces, pairing: dict) -> None:
             new_of_old = np.array([mirrored.index(frozenset(f)) for f in tmpl])
             local = order & 3  # face id = 4 * cell + local face
             order = np.where(flip[order >> 2], order - local + new_of_old[local], order)
-    mesh.meta["cell_faces"] = {"connectivity": mesh.connectivity, "faces": faces, "order": order,
-                               "same": pairing.get("same")}
+    mesh.meta["cell_faces"] = {
+        "connectivity": mesh.connectivity,
+        "faces": faces,
+        "order": order,
+        "same": pairing.get("same"),
+    }
 
 
 def _flip_cells(mesh: Mesh, flip: np.ndarray) -> None:

@@ -153,7 +153,9 @@ def _pairs_of(order: np.ndarray, same: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return order[i], order[i + 1]
 
 
-def orientation_flips(mesh, measures: np.ndarray, faces: Faces | None = None, pairing: dict | None = None) -> np.ndarray:
+def orientation_flips(
+    mesh, measures: np.ndarray, faces: Faces | None = None, pairing: dict | None = None
+) -> np.ndarray:
     """(C,) bool: the cells to flip so that neighbours agree and every piece is positive overall.
 
     `measures` are the signed measures in the cells' current node order. Raises MeshError when no

@@ -134,7 +134,9 @@ def test_page_uploads_runs_metis_shows_and_downloads(browser, tmp_path):
         page.select_option("#color-by", "circle_ratio")
         assert page.locator("#legend .ramp").count() == 1
         # one box per metric of the job's summary (read from the API, not hard-coded: metrics get added)
-        done = [j for j in httpx.get(url + "/v1/jobs", timeout=10).json()["items"] if j["status"] == "succeeded"]
+        done = [
+            j for j in httpx.get(url + "/v1/jobs", timeout=10).json()["items"] if j["status"] == "succeeded"
+        ]
         summary = httpx.get(f"{url}/v1/jobs/{done[0]['id']}/metrics", timeout=10).json()["summary"]
         assert len(summary) >= 4 and "circle_ratio" in summary
         assert page.locator("#boxplots svg.boxplot g.box").count() == len(summary)
@@ -158,7 +160,8 @@ def test_page_uploads_runs_metis_shows_and_downloads(browser, tmp_path):
             "[...document.querySelectorAll('#compare-pictures img')].filter(i => i.naturalWidth > 0).length === 2",
         )
         plots = page.locator("#compare-plots svg.boxplot")
-        assert plots.count() == len(summary) and plots.first.locator("g.box").count() == 2  # a plot per metric
+        # a plot per metric, two boxes (jobs) in each
+        assert plots.count() == len(summary) and plots.first.locator("g.box").count() == 2
         # delete one: gone from the list and from the API
         job_id = rows.nth(1).get_attribute("data-job")
         rows.nth(1).locator("button[data-act=delete]").click()
