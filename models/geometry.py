@@ -76,9 +76,14 @@ def cell_faces(mesh: Mesh) -> Faces:
     if _all_tetrahedra(mesh):  # one reshape, faces already grouped by cell
         n = mesh.n_cells
         # np.take with a flat index: several times the speed of c[:, (4, 3) table]
-        nodes = np.take(mesh.connectivity.reshape(-1, 4), np.array(FACE_TEMPLATES[VTK_TETRA]).reshape(-1), axis=1).reshape(-1)
-        return Faces(cell=np.repeat(np.arange(n), 4), offsets=np.arange(0, 12 * n + 1, 3, dtype=np.int64),
-                     nodes=nodes.astype(np.int64, copy=False))
+        nodes = np.take(
+            mesh.connectivity.reshape(-1, 4), np.array(FACE_TEMPLATES[VTK_TETRA]).reshape(-1), axis=1
+        ).reshape(-1)
+        return Faces(
+            cell=np.repeat(np.arange(n), 4),
+            offsets=np.arange(0, 12 * n + 1, 3, dtype=np.int64),
+            nodes=nodes.astype(np.int64, copy=False),
+        )
     parts_cell, parts_size, parts_nodes = [], [], []
     for t, faces in FACE_TEMPLATES.items():
         sel = np.flatnonzero(mesh.cell_types == t)
@@ -148,7 +153,10 @@ def face_triangles(points: np.ndarray, offsets: np.ndarray, nodes: np.ndarray):
     nxt = next_in_cycle(offsets)
     big = ~tri[face]  # node entries of faces with 4+ nodes: one triangle each
     counts = np.maximum(sizes, 1).astype(np.float64)
-    centre = np.column_stack([np.bincount(face, weights=points[nodes, d], minlength=sizes.size) for d in range(3)]) / counts[:, None]
+    centre = (
+        np.column_stack([np.bincount(face, weights=points[nodes, d], minlength=sizes.size) for d in range(3)])
+        / counts[:, None]
+    )
     t_ids = np.flatnonzero(tri)
     t0 = offsets[t_ids]
     e = np.flatnonzero(big)
@@ -164,11 +172,16 @@ def vertex_means(mesh: Mesh) -> np.ndarray:
     cell = cell_index(mesh.offsets)
     counts = np.diff(mesh.offsets).astype(np.float64)
     return np.column_stack(
-        [np.bincount(cell, weights=mesh.points[mesh.connectivity, d], minlength=mesh.n_cells) / counts for d in range(mesh.dim)]
+        [
+            np.bincount(cell, weights=mesh.points[mesh.connectivity, d], minlength=mesh.n_cells) / counts
+            for d in range(mesh.dim)
+        ]
     )
 
 
-def _polygon_measures(points: np.ndarray, offsets: np.ndarray, conn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _polygon_measures(
+    points: np.ndarray, offsets: np.ndarray, conn: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Signed area and centroid of node cycles, one reshape per distinct cycle length."""
     n = offsets.size - 1
     sizes = np.diff(offsets)
@@ -195,7 +208,9 @@ def _polygon_measures(points: np.ndarray, offsets: np.ndarray, conn: np.ndarray)
         cross = xa * yb - xb * ya
         a = 0.5 * cross.sum(axis=1)
         with np.errstate(divide="ignore", invalid="ignore"):
-            c = np.column_stack([((xa + xb) * cross).sum(axis=1), ((ya + yb) * cross).sum(axis=1)]) / (6 * a[:, None])
+            c = np.column_stack([((xa + xb) * cross).sum(axis=1), ((ya + yb) * cross).sum(axis=1)]) / (
+                6 * a[:, None]
+            )
         c += o[:, 0, :]
         if sel is None:
             return a, c
@@ -217,8 +232,13 @@ def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 def _all_tetrahedra(mesh: Mesh) -> bool:
     n = mesh.n_cells
-    return (mesh.dim == 3 and n > 0 and mesh.connectivity.size == 4 * n and mesh.poly_cells is None
-            and bool(np.all(mesh.cell_types == VTK_TETRA)))
+    return (
+        mesh.dim == 3
+        and n > 0
+        and mesh.connectivity.size == 4 * n
+        and mesh.poly_cells is None
+        and bool(np.all(mesh.cell_types == VTK_TETRA))
+    )
 
 
 def _tetra_measures(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
@@ -254,7 +274,10 @@ def _measures_and_centroids(mesh: Mesh, faces: Faces | None = None) -> tuple[np.
     vol = np.bincount(cell, weights=v, minlength=n)
     g = (a + b + c) / 4.0
     with np.errstate(divide="ignore", invalid="ignore"):
-        cen = np.column_stack([np.bincount(cell, weights=v * g[:, d], minlength=n) for d in range(3)]) / vol[:, None]
+        cen = (
+            np.column_stack([np.bincount(cell, weights=v * g[:, d], minlength=n) for d in range(3)])
+            / vol[:, None]
+        )
     return vol, cen + o
 
 
@@ -307,15 +330,21 @@ def face_measures(points: np.ndarray, faces: Faces, which: np.ndarray | None = N
     p = points
     if faces.nodes.size == 3 * faces.n:  # all triangles: no fan, no sum per face, rows by gathers
         return _triangle_areas(p, faces.nodes.reshape(-1, 3), which)
-    offsets, nodes = (faces.offsets, faces.nodes) if which is None else reorder_csr(faces.offsets, faces.nodes, which)
+    offsets, nodes = (
+        (faces.offsets, faces.nodes) if which is None else reorder_csr(faces.offsets, faces.nodes, which)
+    )
     if nodes.size == 3 * (offsets.size - 1):
         return _triangle_areas(p, nodes.reshape(-1, 3), None)
     owner, tri = fan_triangles(offsets, nodes)
     cr = _cross(p[tri[:, 1]] - p[tri[:, 0]], p[tri[:, 2]] - p[tri[:, 0]])
-    return 0.5 * np.bincount(owner, weights=np.sqrt(np.einsum("ij,ij->i", cr, cr)), minlength=offsets.size - 1)
+    return 0.5 * np.bincount(
+        owner, weights=np.sqrt(np.einsum("ij,ij->i", cr, cr)), minlength=offsets.size - 1
+    )
 
 
-def _triangle_areas(p: np.ndarray, tri: np.ndarray, which: np.ndarray | None, chunk: int = 1 << 16) -> np.ndarray:
+def _triangle_areas(
+    p: np.ndarray, tri: np.ndarray, which: np.ndarray | None, chunk: int = 1 << 16
+) -> np.ndarray:
     """Area of the triangles tri[which] (all rows when which is None), in chunks: the temporaries
     of a chunk stay in cache and their memory is reused (one pass over millions of faces otherwise
     spends most of its time faulting in fresh temporaries). Elementwise, so chunking changes no bit."""

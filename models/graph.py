@@ -177,7 +177,9 @@ def _tetra_csr(faces: Faces, partner: np.ndarray, fa: np.ndarray, fb: np.ndarray
     if n == 0 or faces.n != 4 * n or faces.nodes.size != 3 * faces.n:
         return None
     c4 = faces.cell.reshape(-1, 4)
-    if not np.array_equal(c4[:, 0], np.arange(n)) or any(not np.array_equal(c4[:, 0], c4[:, j]) for j in (1, 2, 3)):
+    if not np.array_equal(c4[:, 0], np.arange(n)) or any(
+        not np.array_equal(c4[:, 0], c4[:, j]) for j in (1, 2, 3)
+    ):
         return None
     w = np.empty(faces.n)
     w[fa] = fm
@@ -254,7 +256,13 @@ def kept_edges(indptr: np.ndarray, indices: np.ndarray, lab: np.ndarray) -> tupl
     return new_indptr, e
 
 
-def subgraph_by_labels(indptr: np.ndarray, indices: np.ndarray, weights: np.ndarray, labels: np.ndarray, nodes: np.ndarray | None = None):
+def subgraph_by_labels(
+    indptr: np.ndarray,
+    indices: np.ndarray,
+    weights: np.ndarray,
+    labels: np.ndarray,
+    nodes: np.ndarray | None = None,
+):
     """Disjoint union of the subgraphs induced by each label (vectorized, no sort of the edges).
 
     labels (N,) in 0..K-1 for the nodes considered (all nodes, or `nodes`). Returns
