@@ -16,6 +16,7 @@ import statistics
 import sys
 import tempfile
 import time
+from datetime import datetime
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -33,6 +34,25 @@ from service_fixtures import (  # noqa: E402
 )
 
 FIRST: dict[str, float] = {}  # submit-to-result of the first job after start-up, per broker
+PARTS: dict[str, list[tuple[float, ...]]] = {}  # per broker: where each job's time went (see parts())
+
+
+def _ts(stamp: str) -> float:
+    return datetime.fromisoformat(stamp.replace("Z", "+00:00")).timestamp()
+
+
+def parts(t_submit: float, t_accepted: float, t_seen: float, job: dict) -> tuple[float, ...]:
+    """A job's time in segments, from the client's wall clock and the job record's timestamps (same
+    machine, same clock): POST answered; created -> started (broker + pick-up + claim); started ->
+    finished (the task: library + result publishing); finished -> seen by the client."""
+    created, started, finished = _ts(job["created_at"]), _ts(job["started_at"]), _ts(job["finished_at"])
+    return (
+        t_accepted - t_submit,
+        created - t_submit,
+        started - created,
+        finished - started,
+        t_seen - finished,
+    )
 
 
 def pct(values: list[float], q: float) -> float:
@@ -73,11 +93,14 @@ def through_queue(broker: str | None, mesh: Path, n: int, tmp: Path, seed0: int)
         wait_done(api, api.submit(mesh_id, k=4)["id"])  # the first job after start-up: counted too
         times = [time.perf_counter() - t]
         FIRST[broker or "embedded"] = times[0]
+        split = PARTS.setdefault(broker or "embedded", [])
         for i in range(n - 1):
-            t = time.perf_counter()
+            t, w0 = time.perf_counter(), time.time()
             job = api.submit(mesh_id, k=4, options={"seed": seed0 + i})
-            wait_done(api, job["id"])
+            w1 = time.time()
+            done = wait_done(api, job["id"])
             times.append(time.perf_counter() - t)
+            split.append(parts(w0, w1, time.time(), done))
         return times
     finally:
         worker.stop()
@@ -128,8 +151,18 @@ def main() -> None:
         print(
             f"{name:34} {statistics.median(t):8.3f} {pct(t, 0.95):8.3f} {statistics.median(t) - base:15.3f}"
         )
-    print("(the queue rows include the first job after start-up: "
-          + ", ".join(f"{k} {v:.3f} s" for k, v in FIRST.items()) + ")")
+    print(
+        "(the queue rows include the first job after start-up: "
+        + ", ".join(f"{k} {v:.3f} s" for k, v in FIRST.items())
+        + ")"
+    )
+    print("\nwhere a queued job's time goes, medians in ms (jobs after the first; record timestamps)")
+    print(f"{'broker':10} {'POST':>7} {'->record':>9} {'->started':>10} {'task':>7} {'->seen':>7}")
+    for name, rows_ in PARTS.items():
+        med = [statistics.median(c) * 1000 for c in zip(*rows_, strict=True)]
+        print(
+            f"{name[:10]:10} " + " ".join(f"{v:{w}.1f}" for v, w in zip(med, (7, 9, 10, 7, 7), strict=True))
+        )
     if args.embedded_only:
         return
     one = throughput(1, mesh, args.batch, tmp)

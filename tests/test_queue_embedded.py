@@ -48,3 +48,39 @@ def test_embedded_serve_runs_jobs_survives_worker_death_and_restart(tmp_path):
         assert api.http.get("/v1/jobs").json()["total"] == 6
     finally:
         serve.stop()
+
+
+def test_the_embedded_broker_wakes_a_waiting_consumer_and_removes_dead_sockets(tmp_path):
+    """A publish wakes a consumer waiting between polls (a datagram on its socket); a socket left by
+    a dead process is removed by the next publish, and the messages still come out in order."""
+    import socket
+    from queue import Empty
+
+    from kombu import Connection
+
+    from jobqueue.embedded_transport import Waker, wake_consumers, wake_dir
+
+    url = f"sqlite:///{tmp_path}/broker.sqlite"
+    folder = wake_dir(url)
+    waker = Waker(folder)
+    assert waker.sock is not None, "no wake-up socket (path too long?)"
+    dead = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    dead.bind(str(folder / "999999999.sock"))
+    dead.close()  # its file stays, nobody listens
+    assert not waker.wait(0)
+    wake_consumers(folder)
+    assert waker.wait(30) is True  # woken, not timed out
+    assert not waker.wait(0)  # the wake-up was consumed
+    assert sorted(os.listdir(folder)) == [os.path.basename(waker.path)]
+
+    with Connection("magnetsql+" + url, transport_options={"polling_interval": 30}) as conn:
+        q = conn.SimpleQueue("q")
+        for i in range(3):
+            q.put({"n": i})
+        assert waker.wait(30) is True  # the publishes woke the (stand-in) consumer
+        assert [q.get(timeout=5).payload["n"] for _ in range(3)] == [0, 1, 2]
+        with pytest.raises(Empty):
+            q.get_nowait()  # delivered messages are deleted, not kept invisible
+        q.close()
+    waker.close()
+    assert not os.path.exists(waker.path)
