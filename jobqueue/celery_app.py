@@ -28,8 +28,8 @@ def make_celery(settings: Settings | None = None, include: tuple[str, ...] = ())
     settings = settings or Settings()
     broker = settings.resolved_broker_url
     if settings.embedded_broker:
-        # the worker polls the SQLite queue: every 50 ms keeps a job's wait for pick-up at ~25 ms on
-        # average (0.25 s cost ~125 ms per job) for one indexed query per poll on an idle machine
+        # a publish wakes the worker through a local socket (jobqueue/embedded_transport.py); this
+        # interval is the polling fallback where no wake-up socket can be bound
         transport_options = {"polling_interval": EMBEDDED_POLL_S, "connect_args": {"timeout": 30}}
     else:
         transport_options = {

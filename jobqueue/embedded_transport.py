@@ -4,11 +4,12 @@ Two changes to kombu's transport: a short polling interval is accepted (kombu wo
 create_engine), and a message is deleted when delivered instead of kept forever as invisible.
 Delivery is at-most-once from the broker's side; the reaper re-sends jobs whose worker died.
 
-Wake-up: a consuming process binds a Unix datagram socket in `<broker file>.wake/` and, between
-empty polls, waits on it (at most the polling interval) instead of sleeping; a publisher sends one
-byte to every socket there after its commit. Polling stays the fallback (no socket support, a path
-too long for a socket, a lost datagram), so a job waits for pick-up about a millisecond, not half a
-polling interval. The Redis deployment does not use this file at all (same tasks, other broker).
+Wake-up: a consuming process binds a Unix datagram socket in `<broker file>.wake/` (in the temp
+folder when that path is too long for a socket) and, between empty polls, waits on it instead of
+sleeping; a publisher sends one byte to every socket there after its commit. A job then waits for
+pick-up about a millisecond, not half a polling interval. Polling stays as the fallback: every
+WOKEN_POLL_S with a socket, the configured interval without one (no AF_UNIX, no socket could be
+bound). The Redis deployment does not use this file (same tasks, only the broker differs).
 URL: magnetsql+sqlite:///path/to/broker.sqlite (registered as a kombu transport alias on import).
 """
 
@@ -33,6 +34,7 @@ from sqlalchemy.exc import OperationalError
 ALIAS = "magnetsql"
 ENGINE_OPTIONS = ("connect_args", "pool_pre_ping", "pool_recycle")
 SOCKET_PATH_MAX = 100  # sun_path is 108 bytes on Linux, 104 on macOS
+WOKEN_POLL_S = 1.0  # the polling interval of a consumer that has a wake-up socket
 SOCKET_NAME_MAX = 32  # "/<pid>-<8 hex>.sock"
 
 
@@ -199,6 +201,8 @@ class Transport(sqla.Transport):
             self._waker = Waker(wake_dir(self.client.hostname))
         start = monotonic()
         interval = self.polling_interval or 0.05
+        if self._waker.sock is not None:
+            interval = max(interval, WOKEN_POLL_S)  # a publish wakes us: poll rarely, as a fallback
         if timeout:
             interval = min(interval, timeout)
         while True:
