@@ -75,6 +75,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--method", default="kway", choices=["kway", "recursive"], help="METIS k-way or recursive")
     p.add_argument("--hole-policy", default="split", choices=["split", "error"])
+    p.add_argument("--weld", type=float, metavar="TOL", help="merge points closer than TOL first (duplicate points)")
+    p.add_argument("--size-measure", choices=["centroids", "vertices"],
+                   help="part size for size modes: cell centroids (server default) or vertices")
     p.add_argument("--boundary-tag", type=int, help="lymph bc_tag of boundary edges without a boundary group (default 1)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--metrics", help="write the metrics JSON here")
@@ -149,6 +152,8 @@ def cmd_agglomerate(client: Client, args: argparse.Namespace) -> int:
         hierarchy=args.hierarchy,
         ratio=args.ratio,
         coarsest=args.coarsest,
+        weld=args.weld,
+        size_measure=args.size_measure,
     )
     print(summary_line(job, time.perf_counter() - t0))
     return 0

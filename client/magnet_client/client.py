@@ -11,7 +11,7 @@ from pathlib import Path
 import httpx
 
 OPTION_NAMES = ("seed", "absorb_fraction", "hole_policy", "physical_tag", "method", "boundary_tag", "threshold",
-                "hierarchy", "ratio", "coarsest")
+                "hierarchy", "ratio", "coarsest", "weld", "size_measure")
 PARAM_NAMES = ("model", "mode", "k", "nref", "target_size", "mult_factor", "subset", "refiner")
 FINAL = ("succeeded", "failed", "cancelled")
 
