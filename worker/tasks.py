@@ -35,7 +35,8 @@ from models import plot as _plot  # noqa: E402, F401  (the preview picture: matp
 from models.partitioners import metis as _metis  # noqa: E402, F401
 
 log = logging.getLogger("magnet.worker")
-PROGRESS_EVERY_S = 0.2  # at most one progress write per this many seconds of a job
+PROGRESS_EVERY_S = 0.2  # at most one progress write per this many seconds within a stage
+PROGRESS_QUIET_S = 0.1  # no progress write in a job's first 0.1 s (a tiny job goes from claim to finish)
 
 
 def worker_identity() -> str:
@@ -190,15 +191,17 @@ def execute_job(job_id: str, settings: Settings) -> str:
     mesh_path = storage.mesh_path(mesh.id, mesh.ext)
     # claim() just wrote "starting" and found the job ours: the first progress write and the first
     # cancellation read wait a while, so a tiny job costs no job-store round-trip between its claim
-    # and its finish (7 stage writes cost a tiny job 25-80 ms on a busy machine). A stage shows up
-    # at most PROGRESS_EVERY_S late; cancellation is also caught by the heartbeat thread.
+    # and its finish (7 stage writes cost a tiny job 25-80 ms on a busy machine). After that every new
+    # stage is written at once; cancellation is also caught by the heartbeat thread.
     started = time.monotonic()
     last = {"progress": started, "cancel_check": started, "cancelled": False}
 
     def progress(fraction: float, stage: str) -> None:
         now = time.monotonic()
-        if fraction >= 1.0 or now - last["progress"] < PROGRESS_EVERY_S:
-            return  # the end is written by finish(), with the result
+        if fraction >= 1.0 or now - started < PROGRESS_QUIET_S:
+            return  # the end is written by finish(), with the result; a tiny job writes nothing between
+        if stage == last.get("stage") and now - last["progress"] < PROGRESS_EVERY_S:
+            return  # a new stage is shown at once (the web page and the client follow it), fractions throttled
         last["progress"], last["stage"] = now, stage
         with db.session() as s:
             jobdb.update_job_and_followers(
