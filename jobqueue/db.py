@@ -7,6 +7,7 @@ Shared by the API and the workers; imports neither FastAPI nor Celery.
 from __future__ import annotations
 
 import os
+import time
 import uuid
 from datetime import UTC, datetime
 
@@ -154,14 +155,17 @@ class Database:
         self.pid = os.getpid()
 
     def create_schema(self) -> None:
-        try:
-            Base.metadata.create_all(self.engine)
-        except (
-            OperationalError,
-            ProgrammingError,
-            IntegrityError,
-        ):  # another process created the tables between check and CREATE
-            Base.metadata.create_all(self.engine)
+        """Create the tables that are missing. Several processes (API, worker, its pool children,
+        the reaper) may meet a fresh store at once: a CREATE that loses the race to another process
+        ("table ... already exists") is retried, each try skipping the tables that exist by then."""
+        for attempt in range(8):
+            try:
+                Base.metadata.create_all(self.engine)
+                return
+            except (OperationalError, ProgrammingError, IntegrityError):
+                if attempt == 7:
+                    raise
+                time.sleep(0.05 * (attempt + 1))
 
     def ping(self) -> None:
         with self.engine.connect() as conn:

@@ -265,3 +265,30 @@ def test_openapi_says_what_the_api_does(app):
     r = client.get("/v1/jobs?limit=0", headers=auth("alice"))
     assert r.status_code == 422 and set(r.json()) == {"detail", "field", "errors"}
     assert r.json()["field"] == "limit" and json.dumps(r.json())
+
+
+def _create_schema_in_a_new_process(url: str) -> None:
+    from jobqueue.db import Database
+
+    Database(url).create_schema()
+
+
+def test_processes_meeting_a_fresh_store_all_create_its_schema(tmp_path):
+    """API, worker, its pool children and the reaper may open a new SQLite store at the same moment:
+    none of them may fail with 'table ... already exists' (seen killing a worker's first task)."""
+    import multiprocessing as mp
+
+    from sqlalchemy import inspect
+
+    from jobqueue.db import Base, Database
+
+    for round_ in range(3):
+        url = f"sqlite:///{tmp_path / f'jobs{round_}.sqlite'}"
+        ctx = mp.get_context("fork")
+        procs = [ctx.Process(target=_create_schema_in_a_new_process, args=(url,)) for _ in range(6)]
+        for p in procs:
+            p.start()
+        for p in procs:
+            p.join(60)
+        assert [p.exitcode for p in procs] == [0] * 6
+        assert set(inspect(Database(url).engine).get_table_names()) >= set(Base.metadata.tables)
