@@ -20,3 +20,26 @@ def brain_path():
 @pytest.fixture
 def emilia_path():
     return EMILIA
+
+
+def pieces(graph, labels) -> int:
+    """Connected pieces of a labelling over the dual graph (each element connected: pieces == count)."""
+    import numpy as np
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    rows = np.repeat(np.arange(graph.n), np.diff(graph.indptr))
+    keep = labels[rows] == labels[graph.indices]
+    m = sp.csr_matrix((np.ones(keep.sum()), (rows[keep], graph.indices[keep])), shape=(graph.n, graph.n))
+    return connected_components(m, directed=False)[0]
+
+
+@pytest.fixture(scope="module")
+def brain():
+    """The brain read and prepared once per module: (mesh, dual graph, cell data)."""
+    from models.io import read_mesh
+    from models.pipeline import prepare
+
+    m = read_mesh(BRAIN)
+    g, d = prepare(m)
+    return m, g, d

@@ -10,32 +10,17 @@ import numpy as np
 import pytest
 import scipy.io
 import scipy.sparse as sp
-from conftest import BRAIN
+from conftest import BRAIN, pieces
 from meshes import quads, tets
-from scipy.sparse.csgraph import connected_components
 
 from models.errors import ParameterError
 from models.hierarchy import aggregation_operators, build_hierarchy, is_nested
-from models.io import mesh_from_arrays, read_mesh
+from models.io import mesh_from_arrays
 from models.multigrid import mgcheck, tpfa_poisson, with_levels
 from models.pipeline import prepare
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ENV = {**os.environ, "PYTHONPATH": f"{ROOT}:{ROOT}/client", "MPLBACKEND": "Agg"}
-
-
-def pieces(graph, labels):
-    rows = np.repeat(np.arange(graph.n), np.diff(graph.indptr))
-    keep = labels[rows] == labels[graph.indices]
-    m = sp.csr_matrix((np.ones(keep.sum()), (rows[keep], graph.indices[keep])), shape=(graph.n, graph.n))
-    return connected_components(m, directed=False)[0]
-
-
-@pytest.fixture(scope="module")
-def brain():
-    m = read_mesh(BRAIN)
-    g, d = prepare(m)
-    return m, g, d
 
 
 def magnet(*args):

@@ -6,10 +6,8 @@ import sys
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
-from conftest import BRAIN, EMILIA
+from conftest import EMILIA, pieces
 from meshes import mixed_3d, tets
-from scipy.sparse.csgraph import connected_components
 
 from models.agglomerate import agglomerate, make_batch
 from models.errors import ParameterError
@@ -20,20 +18,6 @@ from models.partitioners.rtree import apportion, cell_boxes, level_counts, rtree
 from models.pipeline import prepare
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "bench"))
-
-
-def pieces(graph, labels):
-    rows = np.repeat(np.arange(graph.n), np.diff(graph.indptr))
-    keep = labels[rows] == labels[graph.indices]
-    m = sp.csr_matrix((np.ones(keep.sum()), (rows[keep], graph.indices[keep])), shape=(graph.n, graph.n))
-    return connected_components(m, directed=False)[0]
-
-
-@pytest.fixture(scope="module")
-def brain():
-    m = read_mesh(BRAIN)
-    g, d = prepare(m)
-    return m, g, d
 
 
 @pytest.mark.parametrize("k", [2, 3, 91, 364, 1000])
