@@ -64,88 +64,119 @@ def apportion(weights: np.ndarray, total: int, caps: np.ndarray) -> np.ndarray:
     return m
 
 
+def _small_int(a: np.ndarray, k: int) -> np.ndarray:
+    """a as the smallest unsigned type holding 0..k-1 (numpy's stable sort is a radix sort up to 16 bits)."""
+    return a.astype(np.uint16) if k <= 65536 else a.astype(np.uint32) if k <= 2**32 else a
+
+
+def _stable_by(keys: np.ndarray, k: int, order: np.ndarray) -> np.ndarray:
+    """order, stably re-sorted by keys[order] (integers in 0..k-1)."""
+    return order[np.argsort(_small_int(keys[order], k), kind="stable")]
+
+
+class _Segments:
+    """Cells kept, for every axis, in the order (part, coordinate along the axis, cell index): each part
+    is the same contiguous range [start, start + size) of all `dim` orders. Splitting a part is a
+    stable partition of its range (no sort), so a whole hierarchy is cut after one sort per axis."""
+
+    def __init__(self, x: np.ndarray, grp: np.ndarray, k: int, axis_orders: list[np.ndarray] | None = None):
+        n, dim = x.shape
+        idx = np.int32 if n < 2**31 else np.int64
+        if axis_orders is None:
+            axis_orders = [np.argsort(x[:, d], kind="stable") for d in range(dim)]
+        self.axis_orders = axis_orders
+        self.P = np.empty((dim, n), dtype=idx)
+        for d in range(dim):
+            self.P[d] = _stable_by(grp, k, axis_orders[d])
+        self.size = np.bincount(grp, minlength=k).astype(np.int64)
+        self.start = np.zeros(k, dtype=np.int64)
+        np.cumsum(self.size[:-1], out=self.start[1:])
+        self.cur = np.asarray(grp, dtype=np.int64).copy()
+
+
 def split_counts(grp: np.ndarray, need: np.ndarray, x: np.ndarray, w: np.ndarray,
                  cell_lo: np.ndarray | None = None, cell_hi: np.ndarray | None = None,
-                 slack: float = SLACK) -> np.ndarray:
+                 slack: float = SLACK, segments: _Segments | None = None) -> np.ndarray:
     """Cut every group g (labels `grp` in 0..G-1) into need[g] parts by recursive weighted cuts.
 
     cell_lo/cell_hi (N, dim): the cells' own boxes; when given, each cut moves within `slack` x
     the measure of one final part from the quantile to where the two sides' boxes overlap least (tighter
     boxes: higher box ratio, lower coverage; counts stay exact).
+    segments: the cells' per-axis orders for these groups (rtree_levels passes them from level to level).
     Returns (N,) labels in 0..need.sum()-1, the parts of group g numbered need[:g].sum() onwards."""
     n, dim = x.shape
-    cur = np.asarray(grp, dtype=np.int64).copy()
+    grp = np.asarray(grp, dtype=np.int64)
     need = np.asarray(need, dtype=np.int64).copy()
-    root = np.arange(need.size)  # group of each current part
-    count = np.bincount(cur, minlength=need.size)
-    need = np.minimum(need, np.maximum(count, 1))
+    k0 = need.size
+    seg = segments if segments is not None else _Segments(x, grp, k0)
+    P, start, size, cur = seg.P, seg.start, seg.size, seg.cur
+    root = np.arange(k0)
+    need = np.minimum(need, np.maximum(size, 1))
+    tight = cell_lo is not None and slack > 0
+    side = np.zeros(n, dtype=bool)
     while True:
         k = need.size
-        active = need > 1
-        if not active.any():
+        act = np.flatnonzero(need > 1)
+        if act.size == 0:
             break
-        sel = np.flatnonzero(active[cur])
-        g = cur[sel]
-        lo, hi = _group_boxes(x[sel], g, k)
-        ext = np.where(np.isfinite(hi - lo), hi - lo, 0.0)
+        a_start, a_size = start[act], size[act]
+        na = act.size
+        tot = int(a_size.sum())
+        a_off = np.zeros(na + 1, dtype=np.int64)
+        np.cumsum(a_size, out=a_off[1:])
+        gs = np.repeat(np.arange(na), a_size)  # local part of each position
+        pos = np.repeat(a_start - a_off[:-1], a_size) + np.arange(tot)  # position in the orders
+        first, last = a_start, a_start + a_size - 1
+        ext = np.column_stack([x[P[d, last], d] - x[P[d, first], d] for d in range(dim)])
         axis = np.argmax(ext, axis=1)
-        length = ext[np.arange(k), axis]
-        vol = np.bincount(g, weights=w[sel], minlength=k)
-        m = need
-        side = (np.maximum(vol, 1e-300) / np.maximum(m, 1)) ** (1.0 / dim)
-        cols = np.maximum(2, np.rint(length / np.maximum(side, 1e-300))).astype(np.int64)
+        length = ext[np.arange(na), axis]
+        vol = np.bincount(cur, weights=w, minlength=k)[act]
+        m = need[act]
+        side_len = (np.maximum(vol, 1e-300) / np.maximum(m, 1)) ** (1.0 / dim)
+        cols = np.maximum(2, np.rint(length / np.maximum(side_len, 1e-300))).astype(np.int64)
         m1 = np.clip(np.rint(m * (cols // 2) / cols).astype(np.int64), 1, np.maximum(m - 1, 1))
         frac = m1 / np.maximum(m, 1)
-        size = np.bincount(g, minlength=k)
-        # sort the active cells by (group, centroid along the group's axis) and cut at the quantile
-        # (with cell boxes: moved within the slack to where the two sides' boxes overlap least).
-        # Sorting by the cells' box centres or ends instead was tried: no better boxes.
-        keys = [x[sel, axis[g]]]
-        if cell_lo is not None and slack > 0:
-            vlo_all, vhi_all = cell_lo[sel, axis[g]], cell_hi[sel, axis[g]]
-        best_cost = np.full(k, np.inf)
-        order = n0 = None
-        for key in keys:
-            o = np.lexsort((key, g))
-            gs = g[o]
-            ws = w[sel][o]
-            starts = np.flatnonzero(np.r_[True, gs[1:] != gs[:-1]])
-            cum = np.cumsum(ws)
-            base = np.repeat(cum[starts] - ws[starts], np.diff(np.r_[starts, gs.size]))
-            mid = cum - base - 0.5 * ws  # measure before the cell's middle, within its group
-            below = mid < frac[gs] * vol[gs]
-            cut = np.bincount(gs, weights=below, minlength=k).astype(np.int64)
-            if cell_lo is not None and slack > 0:
-                cut, cost = _tight_cut(gs, starts, mid, vol / np.maximum(m, 1), frac * m, slack,
-                                       vlo_all[o], vhi_all[o], cut)
-            else:
-                cost = np.zeros(k)
-            if order is None:
-                order, n0, best_cost = o, cut, cost
-                continue
-            better = cost < best_cost
-            # both orders list the groups in the same segments: take this one where it is better
-            order = np.where(better[g[order]], o, order)
-            n0 = np.where(better, cut, n0)
-            best_cost = np.minimum(cost, best_cost)
-        gs = g[order]
-        starts = np.flatnonzero(np.r_[True, gs[1:] != gs[:-1]])
-        n0 = np.clip(n0, m1, size - (m - m1))  # both sides keep at least as many cells as parts
-        rank = np.arange(gs.size) - np.repeat(starts, np.diff(np.r_[starts, gs.size]))
-        upper = rank >= n0[gs]
-        act = np.flatnonzero(active)
-        new_id = np.full(k, -1, dtype=np.int64)
-        new_id[act] = k + np.arange(act.size)
-        moved = sel[order[upper]]
-        cur[moved] = new_id[cur[moved]]
-        need = np.concatenate([need, (m - m1)[act]])
-        need[act] = m1[act]
+        ax_pos = axis[gs]
+        chosen = P[ax_pos, pos]  # cells of the active parts, sorted along their part's axis
+        ws = w[chosen]
+        cum = np.cumsum(ws)
+        s0 = a_off[:-1]
+        base = np.repeat(cum[s0] - ws[s0], a_size)
+        mid = cum - base - 0.5 * ws  # measure before the cell's middle, within its part
+        below = mid < frac[gs] * vol[gs]
+        cut = np.bincount(gs, weights=below, minlength=na).astype(np.int64)
+        if tight:
+            cut, _ = _tight_cut(gs, s0, mid, vol / np.maximum(m, 1), frac * m, slack,
+                                cell_lo[chosen, ax_pos], cell_hi[chosen, ax_pos], cut)
+        n0 = np.clip(cut, m1, a_size - (m - m1))  # both sides keep at least as many cells as parts
+        upper = (np.arange(tot) - np.repeat(s0, a_size)) >= n0[gs]
+        new_id = k + np.arange(na)
+        moved = chosen[upper]
+        cur[moved] = new_id[gs[upper]]
+        # stable partition of every axis order inside each active range: side 0 first, then side 1
+        side[moved] = True
+        for d in range(dim):
+            vals = P[d, pos]
+            s = side[vals]
+            c1 = np.cumsum(s)
+            before1 = c1 - s - np.repeat(c1[s0] - s[s0], a_size)  # side-1 cells before, in the part
+            r = np.arange(tot) - np.repeat(s0, a_size)
+            dest = np.repeat(a_start, a_size) + np.where(s, n0[gs] + before1, r - before1)
+            P[d, dest] = vals
+        side[moved] = False
+        start = np.concatenate([start, a_start + n0])
+        size = np.concatenate([size, a_size - n0])
+        size[act] = n0
+        need = np.concatenate([need, m - m1])
+        need[act] = m1
         root = np.concatenate([root, root[act]])
     # number the parts group by group
     part_order = np.lexsort((np.arange(need.size), root))
     rank = np.empty(need.size, dtype=np.int64)
     rank[part_order] = np.arange(need.size)
-    return rank[cur]
+    seg.start, seg.size = start[part_order], size[part_order]  # ranges of the parts, in their new numbering
+    seg.cur = rank[cur]
+    return seg.cur.copy()
 
 
 def _tight_cut(gs, starts, mid, vol, frac, slack, vlo, vhi, n0):
@@ -168,12 +199,14 @@ def _tight_cut(gs, starts, mid, vol, frac, slack, vlo, vhi, n0):
     last_in_group[ends - 1] = True
     ok = (dev <= slack) & ~last_in_group
     cost = np.where(ok, overlap + 1e-9 * span * dev, np.inf)
-    o = np.lexsort((cost, gs))
-    best = o[np.r_[True, gs[o][1:] != gs[o][:-1]]]
+    # first position of each group's smallest cost (segmented argmin, no sort)
+    cmin = np.minimum.reduceat(cost, starts) if n else cost
+    hit = np.flatnonzero(cost == cmin[gs])
+    best = hit[np.r_[True, gs[hit][1:] != gs[hit][:-1]]]
     g_best = gs[best]
     good = np.isfinite(cost[best])
     out = n0.copy()
-    rank_best = best - starts[np.searchsorted(starts, best, side="right") - 1]
+    rank_best = best - starts[g_best]  # groups are 0..G-1, each non-empty, starting at `starts`
     out[g_best[good]] = rank_best[good] + 1
     gcost = np.full(n0.size, np.inf)
     gcost[g_best[good]] = cost[best][good]
@@ -205,16 +238,22 @@ def make_connected(indptr: np.ndarray, indices: np.ndarray, weights: np.ndarray,
                    max_rounds: int = 100) -> tuple[np.ndarray, int]:
     """Every part keeps its largest connected piece; other pieces join the neighbouring part (of
     the same parent) that touches them along the longest interface, preferring parts' main pieces.
-    Returns (labels, pieces moved). Parts stay non-empty; a piece with no such neighbour stays."""
+    Pieces with no neighbour in their parent (possible when the parent is itself disconnected) then
+    join any neighbouring part. Returns (labels, pieces moved). Parts stay non-empty."""
     n = labels.size
     labels = np.asarray(labels, dtype=np.int64).copy()
     mes = np.ones(n) if measures is None else np.asarray(measures, dtype=np.float64)
     par = np.zeros(n, dtype=np.int64) if parent is None else np.asarray(parent, dtype=np.int64)
     rows = np.repeat(np.arange(n), np.diff(indptr))
     moved_total = 0
-    for rnd in range(max_rounds):  # in practice 1 to 3 rounds
+    free = parent is None
+    rnd = 0
+    while rnd < max_rounds:  # in practice 1 to 3 rounds
         same = labels[rows] == labels[indices]
-        g = sp.csr_matrix((np.ones(int(same.sum()), dtype=np.int8), (rows[same], indices[same])), shape=(n, n))
+        # the rows stay sorted: the same-label graph as CSR without a COO conversion
+        sp_ptr = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum(np.bincount(rows[same], minlength=n), out=sp_ptr[1:])
+        g = sp.csr_matrix((np.ones(sp_ptr[-1], dtype=np.int8), indices[same], sp_ptr), shape=(n, n))
         nc, comp = connected_components(g, directed=False)
         k = int(labels.max()) + 1
         if nc == k:
@@ -231,15 +270,22 @@ def make_connected(indptr: np.ndarray, indices: np.ndarray, weights: np.ndarray,
         a, b = rows, indices
         e = frag_cell[a] & (labels[a] != labels[b]) & (par[a] == par[b])
         if not e.any():
-            break
+            if free:
+                break
+            free, par, rnd = True, np.zeros(n, dtype=np.int64), 0  # last resort: any neighbour
+            continue
         if rnd >= 1:
             # what is left after one round: every fragment cell joins the main piece it reaches first
             # through fragment cells of its parent (one multi-source BFS), so one pass connects all
             new = _grow_from_mains(rows, indices, labels, frag_cell, par)
             if np.array_equal(new, labels):
-                break
+                if free:
+                    break
+                free, par, rnd = True, np.zeros(n, dtype=np.int64), 0
+                continue
             moved_total += int(np.count_nonzero(new != labels))
             labels = new
+            rnd += 1
             continue
         # interface weight per (fragment piece, neighbour label); main pieces of neighbours count double
         bonus = np.where(main[comp[b[e]]], 2.0, 1.0)
@@ -257,10 +303,14 @@ def make_connected(indptr: np.ndarray, indices: np.ndarray, weights: np.ndarray,
         touches_main[comp[a[em]]] = True
         go = (target >= 0) & ~main & (touches_main | ~touches_main.any())
         if not go.any():
-            break
+            if free:
+                break
+            free, par, rnd = True, np.zeros(n, dtype=np.int64), 0
+            continue
         mv = go[comp]
         labels[mv] = target[comp[mv]]
         moved_total += int(go.sum())
+        rnd += 1
     return labels, moved_total
 
 
@@ -272,6 +322,16 @@ def cut_and_connect(batch: GraphBatch, grp: np.ndarray, need: np.ndarray, balanc
     lab = split_counts(grp, need, batch.centroids, np.maximum(np.asarray(w, dtype=np.float64), 1e-300), lo, hi, slack)
     lab, _ = make_connected(batch.indptr, batch.indices, batch.weights, lab, parent=grp, measures=w)
     return lab
+
+
+def _quotient(indptr: np.ndarray, indices: np.ndarray, weights: np.ndarray, labels: np.ndarray, k: int):
+    """CSR (indptr, indices, summed weights) of the graph of the parts `labels` (0..k-1)."""
+    rows = np.repeat(labels, np.diff(indptr))
+    cols = labels[indices]
+    off = rows != cols
+    q = sp.csr_matrix((weights[off], (rows[off], cols[off])), shape=(k, k))
+    q.sum_duplicates()
+    return q.indptr.astype(np.int64), q.indices.astype(np.int64), q.data
 
 
 def components(batch: GraphBatch, within: np.ndarray | None = None) -> np.ndarray:
@@ -294,20 +354,47 @@ def rtree_levels(batch: GraphBatch, counts: list[int], groups: np.ndarray | None
                  balance: str = "measure", boxes: tuple | None = None, slack: float = SLACK) -> list[np.ndarray]:
     """Nested labels for the element counts `counts` (coarsest first), each level connected.
 
+    The cuts of all levels are made first, top-down (each level's parts split into the next level's
+    share, from one sort of the cells per axis). Then the levels are made connected bottom-up: the
+    finest on the mesh's graph (pieces join a part of the same parent), every coarser one on the
+    graph of the finer level's (connected) elements, which is ratio times smaller, so the elements
+    of each level are unions of the finer level's: exactly nested, every element connected.
     groups: optional (N,) labels (e.g. physical groups) no element may cross."""
     w = batch.measures if balance == "measure" else np.ones(batch.n_nodes)
+    w = np.asarray(w, dtype=np.float64)
+    wp = np.maximum(w, 1e-300)
+    lo, hi = boxes if boxes is not None else (None, None)
     root = components(batch, groups)
     n_root = int(root.max()) + 1 if root.size else 0
-    caps = np.bincount(root, minlength=n_root)
+    seg = _Segments(batch.centroids, root, n_root)
     parent = root
-    out = []
+    raw = []
     for c in counts:
-        k_par = int(parent.max()) + 1
-        caps = np.bincount(parent, minlength=k_par)
-        need = apportion(np.bincount(parent, weights=w, minlength=k_par), int(c), caps)
-        lab = cut_and_connect(batch, parent, need, balance, boxes, slack)
-        out.append(lab)
-        parent = lab
+        k_par = seg.size.size
+        need = apportion(np.bincount(parent, weights=w, minlength=k_par), int(c), seg.size)
+        parent = split_counts(parent, need, batch.centroids, wp, lo, hi, slack, segments=seg)
+        raw.append(parent)
+    out = [None] * len(raw)
+    # element ids stay the raw part ids, so raw parent maps give each element's parents
+    up = []  # up[L]: raw part of level L -> its raw part at level L-1 (root group for L = 0)
+    for L, lab in enumerate(raw):
+        pm = np.zeros(int(lab.max()) + 1 if lab.size else 0, dtype=np.int64)
+        pm[lab] = raw[L - 1] if L > 0 else root
+        up.append(pm)
+    # finest level: pieces of a part join a neighbouring part of the same (raw) parent
+    fine, _ = make_connected(batch.indptr, batch.indices, batch.weights, raw[-1],
+                             parent=up[-1][raw[-1]], measures=w)
+    out[-1] = fine
+    qp, qi, qw = batch.indptr, batch.indices, batch.weights
+    node_lab, node_w = fine, w  # nodes of the graph at hand: cells, then elements of the finer level
+    for L in range(len(raw) - 2, -1, -1):
+        k_f = up[L + 1].size
+        qp, qi, qw = _quotient(qp, qi, qw, node_lab, k_f)  # graph of level L+1's elements
+        node_w = np.bincount(node_lab, weights=node_w, minlength=k_f)
+        init = up[L + 1]  # raw level-L part of each level-(L+1) element
+        lab, _ = make_connected(qp, qi, qw, init, parent=up[L][init], measures=node_w)
+        out[L] = lab[out[L + 1]]
+        node_lab = lab
     return out
 
 
