@@ -1,5 +1,5 @@
 """Take the web page's screenshots in docs/ (README, "Web page"): a real server with its embedded
-worker, Debian's chromium driven by Playwright, the brain mesh.
+worker, Debian's chromium driven by Playwright, the brain mesh (and a hierarchy of it).
 
     PYTHONPATH=. .venv/bin/python scripts/web_screenshots.py [OUT_DIR]
 
@@ -86,6 +86,16 @@ def main(out: Path) -> None:
             save(page, out / "web-compare.png", "#compare")
             page.mouse.move(0, 0)
             save(page, out / "web-jobs.png", "#jobs")
+            # a hierarchy: every level one over the other, over the fine mesh
+            page.check("[name=hierarchy]")
+            page.fill("[name=ratio]", "8")
+            page.fill("[name=coarsest]", "10")
+            submit(page, "rtree", "kway", "k", "64")
+            until(page, "document.querySelector('#progress-status').textContent === 'succeeded'")
+            until(page, "document.querySelectorAll('#levels svg.level-svg').length >= 3", 60_000)
+            page.mouse.move(0, 0)
+            save(page, out / "web-hierarchy.png", "#hierarchy")
+            page.uncheck("[name=hierarchy]")
             # a 3D job: the exploded-view picture instead of the SVG
             cube = tmp / "cube.vtu"
             meshio.write(cube, meshio.Mesh(*tets(8)[:1], [("tetra", tets(8)[1])]))

@@ -60,14 +60,25 @@ def inspect_upload(
     path: Path, ext: str, max_cells: int, memory_bytes: int, timeout_s: float, physical_tag: str | None = None
 ) -> dict:
     """models.api.inspect_mesh of an uploaded file, run in a limited child process."""
+    cmd = [str(path), ext, str(max_cells)] + ([physical_tag] if physical_tag is not None else [])
+    return _run_child(cmd, memory_bytes, timeout_s)["info"]
+
+
+def upload_polygons(path: Path, ext: str, max_cells: int, memory_bytes: int, timeout_s: float) -> dict:
+    """The cells of a stored 2D upload as polygons (points, connectivity cut by offsets), read in the
+    same limited child process as the upload check; 404 for a 3D mesh, 413 above max_cells."""
+    return _run_child(["--polygons", str(path), ext, str(max_cells)], memory_bytes, timeout_s)["polygons"]
+
+
+def _run_child(args: list[str], memory_bytes: int, timeout_s: float) -> dict:
+    """Run `python -m service.mesh_check ARGS` under the limits; its answer, or UploadRejected."""
 
     def limit() -> None:
         resource.setrlimit(resource.RLIMIT_AS, (memory_bytes, memory_bytes))
         cpu = int(timeout_s) + 1
         resource.setrlimit(resource.RLIMIT_CPU, (cpu, cpu))
 
-    cmd = [sys.executable, "-m", "service.mesh_check", str(path), ext, str(max_cells)]
-    cmd += [physical_tag] if physical_tag is not None else []
+    cmd = [sys.executable, "-m", "service.mesh_check", *args]
     with _slots:
         try:
             proc = subprocess.run(
@@ -95,7 +106,7 @@ def inspect_upload(
         )
     if "error" in answer:
         raise UploadRejected(int(answer.get("status", 422)), answer["error"])
-    return answer["info"]
+    return answer
 
 
 def check_xml(path: Path, max_cells: int) -> None:
@@ -133,7 +144,42 @@ def check_xml(path: Path, max_cells: int) -> None:
         raise UploadRejected(422, f"malformed XML: {exc}") from None
 
 
+def polygons_of(path: Path, max_cells: int) -> dict:
+    """A 2D mesh's cells as flat polygon loops: points [[x, y], ...] (rounded to ~7 significant
+    digits of the extent), connectivity (point ids, counter-clockwise) cut by offsets."""
+    import math
+
+    import numpy as np
+
+    from models.io import read_mesh
+
+    mesh = read_mesh(str(path))
+    if mesh.dim != 2:
+        raise UploadRejected(404, "polygons are drawn for 2D meshes only")
+    if mesh.n_cells > max_cells:
+        raise UploadRejected(413, f"the mesh has {mesh.n_cells} cells; at most {max_cells} are drawn")
+    points = mesh.points3d()[:, :2]  # the coordinates of the file, as the result files keep them
+    extent = float(np.ptp(points, axis=0).max()) or 1.0
+    decimals = max(0, 7 - math.ceil(math.log10(extent)))
+    return {
+        "points": np.round(points, decimals).tolist(),
+        "connectivity": mesh.connectivity.tolist(),
+        "offsets": mesh.offsets.tolist(),
+    }
+
+
 def _child_main(argv: list[str]) -> int:
+    if argv and argv[0] == "--polygons":
+        try:
+            out = {"polygons": polygons_of(Path(argv[1]), int(argv[3]))}
+        except UploadRejected as exc:
+            out = {"status": exc.status, "error": exc.message}
+        except MemoryError:
+            out = {"status": 422, "error": "the mesh could not be read within the memory limit"}
+        except Exception as exc:
+            out = {"status": 422, "error": f"cannot read mesh: {type(exc).__name__}: {exc}"[:2000]}
+        print(json.dumps(out))
+        return 0
     path, ext, max_cells = Path(argv[0]), argv[1], int(argv[2])
     physical_tag = argv[3] if len(argv) > 3 else None
     try:

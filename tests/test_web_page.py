@@ -203,3 +203,70 @@ def test_page_with_api_keys(browser, tmp_path):
         assert errors == []
     finally:
         proc.stop()
+
+
+def test_page_builds_a_hierarchy_and_shows_every_level(browser, tmp_path):
+    import io
+    import json
+    import zipfile
+
+    proc, url = serve(tmp_path)
+    try:
+        page, errors = new_page(browser, url)
+        upload_brain(page)
+        page.select_option("select[name=model]", "rtree")
+        page.select_option("select[name=mode]", "kway")
+        page.fill("input[name=k]", "64")
+        assert page.locator(".field[data-field=ratio]").is_hidden()
+        page.check("input[name=hierarchy]")
+        assert page.inner_text("#submit") == "Build hierarchy"
+        # the API's validation of the hierarchy fields shows next to them
+        page.fill("input[name=ratio]", "1")
+        page.click("#submit")
+        page.wait_for_selector(".field[data-field=ratio].invalid")
+        page.fill("input[name=ratio]", "8")
+        page.fill("input[name=coarsest]", "10")
+        seen = run_job(page)
+        assert seen[-1] == "100%"
+        job_id = until(page, "document.querySelector('#hierarchy').dataset.job")
+        assert "hierarchy ratio 8" in page.inner_text("#job-rows")
+        # what the API says the hierarchy is: hierarchy.json in the zip
+        r = httpx.get(f"{url}/v1/jobs/{job_id}/hierarchy", timeout=30)
+        index = json.loads(zipfile.ZipFile(io.BytesIO(r.content)).read("hierarchy.json"))
+        counts = [lv["elements"] for lv in index["levels"]]
+        assert len(counts) >= 3 and counts == sorted(counts) and counts[0] <= 10
+        # every level drawn, one over the other, coarsest on top: its count, one path per element
+        until(
+            page,
+            f"document.querySelectorAll('#levels .level svg.level-svg').length === {len(counts)}",
+            60_000,
+        )
+        levels = page.locator("#levels .level")
+        assert levels.count() == len(counts)
+        tops = []
+        for L, n in enumerate(counts):
+            level = levels.nth(L)
+            assert level.get_attribute("data-level") == str(L)
+            assert level.locator("h3 .count").inner_text() == str(n)
+            assert level.locator("svg .fills path").count() == n
+            assert level.locator("td[data-metric=elements]").inner_text() == str(n)
+            assert float(level.locator("td[data-metric='circle ratio (median)']").inner_text()) > 0
+            # over the fine mesh (its 14372 cells), with the next coarser level's outlines on top
+            assert (
+                page.evaluate(
+                    f"document.querySelectorAll('#levels .level')[{L}].querySelector('path.fine').getAttribute('d').split('Z').length - 1"
+                )
+                == 14372
+            )
+            assert level.locator("svg path.coarser").count() == (1 if L > 0 else 0)
+            tops.append(level.bounding_box()["y"])
+        assert tops == sorted(tops) and len(set(tops)) == len(tops)  # stacked vertically
+        page.hover("#levels .level:last-child svg .fills path[data-e='3']")
+        assert f"level {len(counts) - 1}, element 3" in page.inner_text("#tip")
+        with page.expect_download() as info:
+            page.click("#hierarchy-download a")
+        assert info.value.suggested_filename.endswith("hierarchy.zip")
+        assert "hierarchy.json" in zipfile.ZipFile(info.value.path()).namelist()
+        assert errors == []
+    finally:
+        proc.stop()

@@ -1,21 +1,28 @@
 """The web page at `/` (plain HTML/CSS/JS shipped in service/web, nothing fetched at run time) and
-the one JSON it needs beyond the API: the polygons of a finished 2D job, for drawing it as SVG."""
+the JSON it needs beyond the API: the polygons of a finished 2D job, for drawing it as SVG, and for
+a hierarchy job its levels (numbers, and each 2D level's polygons) and the fine mesh's cells."""
 
 from __future__ import annotations
 
 import json
 import math
+import tempfile
+import zipfile
 from pathlib import Path
 
 import numpy as np
 from fastapi import APIRouter, Depends, FastAPI
+from fastapi import Path as PathParam
 from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 
 from service.auth import current_user
 from service.context import Context, get_context
-from service.jobs import NotFound
+from service.jobs import NotFound, visible_mesh
+from service.mesh_check import UploadRejected, upload_polygons
+from service.openapi import errors
 from service.routers.jobs import JOB_ID, result_file
+from service.routers.meshes import MESH_ID
 from service.schemas import ErrorOut
 
 WEB_DIR = Path(__file__).resolve().parents[1] / "web"
@@ -99,3 +106,108 @@ def job_polygons(
     if metrics.get("dim") != 2:
         raise NotFound("polygons are drawn for 2D meshes only; see preview.png for a 3D job")
     return element_polygons(result_file(ctx, user, job_id, "mesh.vtu"))
+
+
+# --- hierarchies on the page: the levels' numbers, each level's polygons, the fine mesh ------------
+
+DRAWN_CELLS = 200_000  # the fine mesh is drawn under the levels up to this many cells
+LEVEL = PathParam(ge=0, le=10_000, description="Level number: 0 is the coarsest, the last the finest.")
+
+
+def _hierarchy(ctx: Context, user: str, job_id: str) -> tuple[zipfile.ZipFile, dict]:
+    zf = zipfile.ZipFile(result_file(ctx, user, job_id, "hierarchy.zip"))
+    return zf, json.loads(zf.read("hierarchy.json"))
+
+
+@router.get("/v1/jobs/{job_id}/hierarchy/levels", tags=["jobs"], responses=errors(401, 404, 409))
+def hierarchy_levels(
+    job_id: str = JOB_ID, user: str = Depends(current_user), ctx: Context = Depends(get_context)
+) -> dict:
+    """The nested levels of a hierarchy job (options.hierarchy) in one small JSON: what hierarchy.json
+    says (model, ratio, coarsest, nested, cells, dim) and per level (0 = coarsest) its `elements`,
+    `normalized_cut`, `coverage`, `partition` statistics and metric `summary` (from level_L.metrics.json).
+    The polygons of a 2D level: GET .../hierarchy/levels/{level}."""
+    zf, index = _hierarchy(ctx, user, job_id)
+    with zf:
+        levels = []
+        for entry in index["levels"]:
+            rep = json.loads(zf.read(entry["metrics"])) if entry.get("metrics") else {}
+            levels.append(
+                {
+                    "level": entry["level"],
+                    "elements": entry["elements"],
+                    "normalized_cut": entry.get("normalized_cut"),
+                    "coverage": rep.get("coverage"),
+                    "partition": rep.get("partition", {}),
+                    "summary": rep.get("summary", {}),
+                }
+            )
+    keep = ("cells", "dim", "nested", "model", "ratio", "coarsest", "method", "build_time")
+    return {**{k: index[k] for k in keep if k in index}, "levels": levels}
+
+
+@router.get(
+    "/v1/jobs/{job_id}/hierarchy/levels/{level}",
+    tags=["jobs"],
+    responses={
+        **POLYGON_ERRORS,
+        404: {"model": ErrorOut, "description": "no such job or level, or a 3D job"},
+    },
+)
+def hierarchy_level(
+    job_id: str = JOB_ID,
+    level: int = LEVEL,
+    user: str = Depends(current_user),
+    ctx: Context = Depends(get_context),
+) -> dict:
+    """One level of a 2D hierarchy job as polygons (as GET /v1/jobs/{id}/polygons), plus per element
+    its `parent` (element of level - 1; absent for level 0) and `root` (element of level 0), read from
+    the level's labels: the page colours children after their ancestor, so the nesting shows."""
+    zf, index = _hierarchy(ctx, user, job_id)
+    with zf:
+        if index.get("dim") != 2:
+            raise NotFound("levels are drawn for 2D meshes only; hierarchy.zip has the 3D level meshes")
+        if level >= len(index["levels"]):
+            raise NotFound(f"the hierarchy has levels 0..{len(index['levels']) - 1}, not {level}")
+        entry = index["levels"][level]
+        with tempfile.TemporaryDirectory(prefix="level-") as tmp:
+            vtu = Path(tmp) / "level.vtu"
+            vtu.write_bytes(zf.read(entry["mesh"]))
+            out = element_polygons(vtu)
+        labels = np.asarray(json.loads(zf.read(entry["labels"])), dtype=np.int64)
+        n = entry["elements"]
+        if level > 0:
+            out["parent"] = _coarser(labels, json.loads(zf.read(index["levels"][level - 1]["labels"])), n)
+        out["root"] = _coarser(labels, json.loads(zf.read(index["levels"][0]["labels"])), n)
+    out["level"], out["elements"] = level, n
+    return out
+
+
+def _coarser(labels: np.ndarray, coarse, n: int) -> list[int]:
+    """The coarser element of each element (levels are nested: any of its cells tells)."""
+    up = np.zeros(n, dtype=np.int64)
+    up[labels] = np.asarray(coarse, dtype=np.int64)
+    return up.tolist()
+
+
+@router.get("/v1/meshes/{mesh_id}/polygons", tags=["meshes"], responses=errors(401, 404, 413, 422))
+def mesh_polygons(
+    mesh_id: str = MESH_ID, user: str = Depends(current_user), ctx: Context = Depends(get_context)
+) -> dict:
+    """The cells of an uploaded 2D mesh as polygons (`points`, `connectivity` cut by `offsets`), read
+    in the same limited child process as the upload: what the page draws under a hierarchy's levels.
+    404 for a 3D mesh, 413 above 200,000 cells."""
+    with ctx.db.session() as s:
+        mesh, _ = visible_mesh(s, user, mesh_id)
+    if mesh.info.get("dim") != 2:
+        raise NotFound("polygons are drawn for 2D meshes only")
+    limit = min(DRAWN_CELLS, ctx.settings.max_cells)
+    if int(mesh.info.get("cells", 0)) > limit:
+        raise UploadRejected(413, f"the mesh has {mesh.info['cells']} cells; at most {limit} are drawn")
+    return upload_polygons(
+        ctx.storage.mesh_path(mesh.id, mesh.ext),
+        mesh.ext,
+        limit,
+        ctx.settings.parse_memory_bytes,
+        ctx.settings.parse_timeout_s,
+    )

@@ -1,5 +1,6 @@
 // MAGNET web page: upload a mesh, run a job, follow it live (server-sent events), look at the
-// result (2D SVG, picture, box plots, files), list, cancel, delete and compare jobs.
+// result (2D SVG, picture, box plots, files; a hierarchy's levels one over the other), list,
+// cancel, delete and compare jobs.
 // Plain JavaScript, no library: everything goes through the same HTTP API as the other clients.
 "use strict";
 
@@ -8,12 +9,15 @@ const FINAL = ["succeeded", "failed", "cancelled"];
 const NUMBER_FIELDS = ["k", "nref", "target_size", "mult_factor"];
 const OPTION_FIELDS = ["seed", "absorb_fraction", "hole_policy", "method", "physical_tag", "boundary_tag"];
 const NUMBER_OPTIONS = ["seed", "absorb_fraction", "boundary_tag"];
-const FIELDS = ["model", "mode", ...NUMBER_FIELDS, "subset", "refiner", ...OPTION_FIELDS];
+const HIERARCHY_FIELDS = ["ratio", "coarsest"];
+const FIELDS = ["model", "mode", ...NUMBER_FIELDS, "subset", "refiner", "hierarchy", ...HIERARCHY_FIELDS, ...OPTION_FIELDS];
 const MODE_FIELDS = {
   kway: ["k"], nref: ["nref"], "target-size": ["target_size"], "mult-factor": ["mult_factor"],
   segregated: ["mult_factor"], coarsen: ["subset", "k", "nref", "target_size", "mult_factor"],
 };
-const state = { mesh: null, models: [], jobs: [], meshes: new Map(), selected: new Set(), follow: null, timer: null };
+const state = {
+  mesh: null, models: [], jobs: [], meshes: new Map(), selected: new Set(), follow: null, timer: null, fine: new Map(),
+};
 
 // --- HTTP --------------------------------------------------------------------------------------
 
@@ -157,6 +161,15 @@ function onModel() {
 function onMode() {
   const wanted = MODE_FIELDS[input("mode").value] || [];
   for (const name of [...NUMBER_FIELDS, "subset"]) field(name).hidden = !wanted.includes(name);
+  onHierarchy();
+}
+
+function onHierarchy() {
+  // a hierarchy: nested levels of their own at this ratio (any model), or the levels a recursive mode records
+  const on = input("hierarchy").checked;
+  for (const name of HIERARCHY_FIELDS) field(name).hidden = !on;
+  $("#hierarchy-hint").hidden = !on;
+  $("#submit").textContent = on ? "Build hierarchy" : "Agglomerate";
   clearErrors();
 }
 
@@ -217,6 +230,13 @@ function jobBody() {
     const raw = input(name).value.trim();
     if (raw === "" || field(name).hidden) continue;
     options[name] = NUMBER_OPTIONS.includes(name) ? Number(raw) : raw;
+  }
+  if (input("hierarchy").checked) {
+    options.hierarchy = true;
+    const ratio = input("ratio").value.trim();
+    const coarsest = input("coarsest").value.trim();
+    if (ratio !== "") options.ratio = Number(ratio);
+    if (ratio !== "" && coarsest !== "") options.coarsest = Number(coarsest);
   }
   body.options = options;
   return body;
@@ -307,7 +327,9 @@ function paramText(params) {
   const p = params || {};
   const value = { kway: `k=${p.k}`, nref: p.nref, "target-size": p.target_size, "mult-factor": p.mult_factor,
     segregated: `f=${p.mult_factor}`, coarsen: `of ${(p.subset || []).length} cells` }[p.mode];
-  return `${p.mode || ""} ${value ?? ""}`.trim();
+  const o = p.options || {};
+  const levels = o.hierarchy ? ` · hierarchy${o.ratio ? ` ratio ${o.ratio}` : ""}` : "";
+  return `${p.mode || ""} ${value ?? ""}`.trim() + levels;
 }
 
 const jobLabel = (job) => `${job.params.model} ${paramText(job.params)} · ${job.id.slice(0, 6)}`;
@@ -333,7 +355,93 @@ async function showResult(id) {
   $("#boxplots").innerHTML = boxPlot(Object.entries(metrics.summary).map(([name, stats]) => ({ label: name, stats })));
   $("#preview").src = await blobURL(`v1/jobs/${id}/preview.png`);
   $("#drawing").hidden = metrics.dim !== 2;
+  const hierarchy = job.params.options && job.params.options.hierarchy;
+  if (!hierarchy) $("#hierarchy").hidden = true;
   if (metrics.dim === 2) drawMesh(await getJSON(`v1/jobs/${id}/polygons`));
+  if (hierarchy) await showHierarchy(job);
+}
+
+// --- a hierarchy: every level one over the other (coarsest on top), drawn over the fine mesh ------
+
+async function finePolygons(mesh) {
+  // the uploaded cells, drawn thin under every level (fetched once per mesh; none when too many)
+  if (mesh.dim !== 2 || mesh.cells > 200000) return null;
+  if (!state.fine.has(mesh.id)) state.fine.set(mesh.id, getJSON(`v1/meshes/${mesh.id}/polygons`).catch(() => null));
+  return state.fine.get(mesh.id);
+}
+
+function loops(poly) {
+  // one "M...Z" per element (or cell), y flipped for SVG
+  const { points, connectivity, offsets } = poly;
+  const out = [];
+  for (let e = 0; e + 1 < offsets.length; e++) {
+    out.push(`M${connectivity.slice(offsets[e], offsets[e + 1]).map((j) => `${points[j][0]},${-points[j][1]}`).join("L")}Z`);
+  }
+  return out;
+}
+
+const MEDIANS = [["circle_ratio", "circle ratio"], ["box_ratio", "box ratio"], ["uniformity_factor", "uniformity"],
+  ["volume_difference", "volume difference"], ["area_perimeter_ratio", "area/perimeter"]];
+
+function levelTable(level) {
+  const s = level.summary || {};
+  const p = level.partition || {};
+  const rows = [["elements", level.elements]];
+  for (const [name, label] of MEDIANS) if (s[name]) rows.push([`${label} (median)`, s[name].median]);
+  rows.push(["coverage", level.coverage], ["normalized cut", level.normalized_cut], ["connected", p.connected]);
+  return `<table class="kv">${rows.filter(([, v]) => v != null)
+    .map(([k, v]) => `<tr><th>${esc(k)}</th><td data-metric="${esc(k)}">${esc(fmt(v))}</td></tr>`).join("")}</table>`;
+}
+
+async function showHierarchy(job) {
+  const section = $("#hierarchy");
+  section.hidden = false;
+  section.dataset.job = job.id;
+  const info = await getJSON(`v1/jobs/${job.id}/hierarchy/levels`);
+  const n = info.levels.length;
+  $("#hierarchy-title").textContent = `${info.model || job.params.model}${info.ratio ? ` · ratio ${info.ratio}` : ""}`
+    + ` · ${n} levels · ${info.nested ? "nested" : "not nested"} · ${info.cells} cells`;
+  $("#hierarchy-download").innerHTML = `<a href="v1/jobs/${job.id}/hierarchy" data-download="${job.id}-hierarchy.zip">hierarchy.zip</a>`;
+  const host = $("#levels");
+  host.innerHTML = info.levels.map((lv) => `<div class="level" data-level="${lv.level}" data-elements="${lv.elements}">`
+    + `<h3>Level ${lv.level} · <span class="count">${lv.elements}</span> elements${lv.level === n - 1 ? " (finest)" : lv.level === 0 ? " (coarsest)" : ""}</h3>`
+    + `<div class="level-row"><div class="level-view">${info.dim === 2 ? "" : `<p class="hint">3D: open level_${lv.level}.vtu of hierarchy.zip (ParaView)</p>`}</div>`
+    + `${levelTable(lv)}</div></div>`).join("");
+  if (info.dim !== 2) return;
+  const [fine, ...polys] = await Promise.all([
+    meshOf(job.mesh_id).then(finePolygons),
+    ...info.levels.map((lv) => getJSON(`v1/jobs/${job.id}/hierarchy/levels/${lv.level}`)),
+  ]);
+  if ($("#hierarchy").dataset.job !== job.id) return; // another result was opened meanwhile
+  drawLevels(polys, fine);
+}
+
+function drawLevels(polys, fine) {
+  const pts = polys[0].points;
+  const xs = pts.map((p) => p[0]);
+  const ys = pts.map((p) => p[1]);
+  const [x0, x1, y0, y1] = [Math.min(...xs), Math.max(...xs), Math.min(...ys), Math.max(...ys)];
+  const pad = 0.02 * Math.max(x1 - x0, y1 - y0);
+  const home = [x0 - pad, -y1 - pad, x1 - x0 + 2 * pad, y1 - y0 + 2 * pad];
+  const finePath = fine ? `<path class="fine" d="${loops(fine).join("")}"/>` : "";
+  const shapes = polys.map(loops);
+  const svgs = polys.map((poly, L) => {
+    const fills = shapes[L].map((d, e) => `<path data-e="${e}" d="${d}"/>`);
+    const coarser = L > 0 ? `<path class="coarser" d="${shapes[L - 1].join("")}"/>` : "";
+    const svg = `<svg class="level-svg" viewBox="${home.join(" ")}" preserveAspectRatio="xMidYMid meet">`
+      + `<g class="fills">${fills.join("")}</g>${finePath}<path class="outline" d="${shapes[L].join("")}"/>${coarser}</svg>`;
+    const view = $(`#levels .level[data-level="${poly.level}"] .level-view`);
+    view.innerHTML = svg;
+    const el = view.querySelector("svg");
+    // colour after the level-0 ancestor (its hue), siblings in lighter and darker shades
+    el.querySelectorAll(".fills path").forEach((p, e) => {
+      p.style.fill = `hsl(${((poly.root[e] * 137.508) % 360).toFixed(1)}, 55%, ${58 + ((e * 7) % 4) * 8}%)`;
+    });
+    el.dataset.elements = poly.offsets.length - 1;
+    hoverTip(el, (e) => `<b>level ${poly.level}, element ${e}</b>${poly.parent ? ` · in ${poly.parent[e]} of level ${poly.level - 1}` : ""}`, poly.cell_data);
+    return el;
+  });
+  panZoom(svgs, home); // one view for all levels: zoom one, every level follows
 }
 
 async function download(event) {
@@ -399,43 +507,55 @@ function drawMesh(poly) {
   select.onchange = paint;
   paint();
 
+  hoverTip(svg, (e) => `<b>element ${e}</b>`, data);
+  $("#reset-view").onclick = panZoom([svg], home);
+}
+
+function hoverTip(svg, title, data) {
+  // hover an element (path[data-e]): outline it, show its cell data in the tip
+  const names = Object.keys(data).filter((n) => n !== "element_id");
   const tip = $("#tip");
   svg.onmousemove = (event) => {
-    const path = event.target.closest("path");
+    const path = event.target.closest("path[data-e]");
     if (!path) { tip.hidden = true; return; }
     const e = +path.dataset.e;
     svg.querySelectorAll("path.hover").forEach((p) => p.classList.remove("hover"));
     path.classList.add("hover");
-    tip.innerHTML = `<b>element ${e}</b><table>${names.map((n) => `<tr><th>${esc(n)}</th><td>${fmt(data[n][e])}</td></tr>`).join("")}</table>`;
+    tip.innerHTML = `${title(e)}<table>${names.map((n) => `<tr><th>${esc(n)}</th><td>${fmt(data[n][e])}</td></tr>`).join("")}</table>`;
     tip.style.left = `${event.clientX + 14}px`;
     tip.style.top = `${event.clientY + 14}px`;
     tip.hidden = false;
   };
   svg.onmouseleave = () => { tip.hidden = true; };
+}
 
+function panZoom(svgs, home) {
+  // wheel: zoom about the pointer, drag: pan; every SVG of `svgs` shows the same view. Returns a reset.
   let view = [...home];
-  const setView = (v) => { view = v; svg.setAttribute("viewBox", v.join(" ")); };
-  const toWorld = (event) => {
-    const r = svg.getBoundingClientRect();
-    const s = Math.max(view[2] / r.width, view[3] / r.height); // meet: the larger scale applies
-    return [view[0] + view[2] / 2 + (event.clientX - r.left - r.width / 2) * s,
-      view[1] + view[3] / 2 + (event.clientY - r.top - r.height / 2) * s, s];
-  };
-  svg.onwheel = (event) => {
-    event.preventDefault();
-    const [wx, wy] = toWorld(event);
-    const f = Math.exp(event.deltaY * 0.0015);
-    setView([wx - (wx - view[0]) * f, wy - (wy - view[1]) * f, view[2] * f, view[3] * f]);
-  };
-  let drag = null;
-  svg.onpointerdown = (event) => { drag = [event.clientX, event.clientY, toWorld(event)[2], [...view]]; svg.setPointerCapture(event.pointerId); };
-  svg.onpointermove = (event) => {
-    if (!drag) return;
-    const [cx, cy, s, v] = drag;
-    setView([v[0] - (event.clientX - cx) * s, v[1] - (event.clientY - cy) * s, v[2], v[3]]);
-  };
-  svg.onpointerup = () => { drag = null; };
-  $("#reset-view").onclick = () => setView([...home]);
+  const setView = (v) => { view = v; for (const svg of svgs) svg.setAttribute("viewBox", v.join(" ")); };
+  for (const svg of svgs) {
+    const toWorld = (event) => {
+      const r = svg.getBoundingClientRect();
+      const s = Math.max(view[2] / r.width, view[3] / r.height); // meet: the larger scale applies
+      return [view[0] + view[2] / 2 + (event.clientX - r.left - r.width / 2) * s,
+        view[1] + view[3] / 2 + (event.clientY - r.top - r.height / 2) * s, s];
+    };
+    svg.onwheel = (event) => {
+      event.preventDefault();
+      const [wx, wy] = toWorld(event);
+      const f = Math.exp(event.deltaY * 0.0015);
+      setView([wx - (wx - view[0]) * f, wy - (wy - view[1]) * f, view[2] * f, view[3] * f]);
+    };
+    let drag = null;
+    svg.onpointerdown = (event) => { drag = [event.clientX, event.clientY, toWorld(event)[2], [...view]]; svg.setPointerCapture(event.pointerId); };
+    svg.onpointermove = (event) => {
+      if (!drag) return;
+      const [cx, cy, s, v] = drag;
+      setView([v[0] - (event.clientX - cx) * s, v[1] - (event.clientY - cy) * s, v[2], v[3]]);
+    };
+    svg.onpointerup = () => { drag = null; };
+  }
+  return () => setView([...home]);
 }
 
 // --- box plots in SVG, from the metrics summary (min, q1, median, q3, max, mean) ----------------
@@ -534,6 +654,7 @@ async function onJobRow(event) {
       await api(`v1/jobs/${id}?purge=true`, { method: "DELETE" });
       state.selected.delete(id);
       if ($("#result").dataset.job === id) $("#result").hidden = true;
+      if ($("#hierarchy").dataset.job === id) $("#hierarchy").hidden = true;
     }
   } catch (e) {
     notice(e.message);
@@ -549,6 +670,7 @@ async function compare() {
   const metrics = await Promise.all(jobs.map((j) => getJSON(`v1/jobs/${j.id}/metrics`)));
   const pictures = await Promise.all(jobs.map((j) => blobURL(`v1/jobs/${j.id}/preview.png`)));
   $("#result").hidden = true;
+  $("#hierarchy").hidden = true;
   $("#compare").hidden = false;
   const mesh = await meshOf(jobs[0].mesh_id);
   $("#compare-title").textContent = `${jobs.length} jobs of ${mesh.filename || jobs[0].mesh_id.slice(0, 8)}`;
@@ -598,6 +720,8 @@ function init() {
     if (box) { box.classList.remove("invalid"); box.querySelector(".error").textContent = ""; }
   });
   $("#downloads").addEventListener("click", download);
+  $("#hierarchy").addEventListener("click", download);
+  input("hierarchy").addEventListener("change", onHierarchy);
   $("#job-rows").addEventListener("click", onJobRow);
   $("#compare-button").addEventListener("click", compare);
   $("#refresh").addEventListener("click", refreshJobs);

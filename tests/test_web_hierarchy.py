@@ -1,0 +1,71 @@
+"""Hierarchies on the web page: the JSON the page draws them from (in-process, the worker's
+execute_job), and the page itself in Debian's chromium (Playwright, a real server with its
+embedded worker): submit a hierarchy, follow it, see every level one over the other."""
+
+from __future__ import annotations
+
+import io
+import json
+import zipfile
+
+import numpy as np
+from service_fixtures import square_mesh
+from test_web_api import ALICE, BOB, app, finished_job  # noqa: F401 (app: a fixture)
+
+
+def test_hierarchy_levels_json(app, tmp_path):  # noqa: F811
+    client, settings = app
+    square = square_mesh(tmp_path / "square.vtu", 12)
+    job = finished_job(
+        client,
+        settings,
+        square,
+        model="rtree",
+        mode="kway",
+        k=8,
+        options={"hierarchy": True, "ratio": 4, "coarsest": 4},
+    )
+    zf = zipfile.ZipFile(io.BytesIO(client.get(f"/v1/jobs/{job['id']}/hierarchy", headers=ALICE).content))
+    index = json.loads(zf.read("hierarchy.json"))
+    r = client.get(f"/v1/jobs/{job['id']}/hierarchy/levels", headers=ALICE)
+    assert r.status_code == 200, r.text
+    levels = r.json()
+    assert levels["model"] == "rtree" and levels["ratio"] == 4 and levels["dim"] == 2 and levels["nested"]
+    assert [lv["elements"] for lv in levels["levels"]] == [lv["elements"] for lv in index["levels"]]
+    assert len(levels["levels"]) >= 3 and levels["levels"][-1]["elements"] == 288 // 4  # 72, 18, 4
+    for lv in levels["levels"]:
+        assert "circle_ratio" in lv["summary"] and lv["coverage"] >= 1.0
+
+    fine_labels = [np.asarray(json.loads(zf.read(lv["labels"]))) for lv in index["levels"]]
+    for L, lv in enumerate(index["levels"]):
+        r = client.get(f"/v1/jobs/{job['id']}/hierarchy/levels/{L}", headers=ALICE)
+        assert r.status_code == 200, r.text
+        poly = r.json()
+        n = lv["elements"]
+        assert poly["level"] == L and len(poly["offsets"]) == n + 1
+        # the polygons are in label order: element e holds exactly the fine cells labelled e
+        assert poly["cell_data"]["n_fine_cells"] == np.bincount(fine_labels[L], minlength=n).tolist()
+        root = np.asarray(poly["root"])
+        assert np.array_equal(root[fine_labels[L]], fine_labels[0])
+        if L == 0:
+            assert "parent" not in poly and root.tolist() == list(range(n))
+        else:
+            assert np.array_equal(np.asarray(poly["parent"])[fine_labels[L]], fine_labels[L - 1])
+    assert (
+        client.get(f"/v1/jobs/{job['id']}/hierarchy/levels/{len(index['levels'])}", headers=ALICE).status_code
+        == 404
+    )
+    assert client.get(f"/v1/jobs/{job['id']}/hierarchy/levels", headers=BOB).status_code == 404
+
+    # the fine mesh under the levels: the upload's own cells
+    fine = client.get(f"/v1/meshes/{job['mesh_id']}/polygons", headers=ALICE)
+    assert fine.status_code == 200, fine.text
+    fine = fine.json()
+    assert len(fine["offsets"]) == 288 + 1 and len(fine["connectivity"]) == 3 * 288
+    assert len(fine["points"]) == 13 * 13 and max(max(p) for p in fine["points"]) == 1.0
+    assert client.get(f"/v1/meshes/{job['mesh_id']}/polygons", headers=BOB).status_code == 404
+
+    # a job without the option: 404 that says how to get one
+    plain = finished_job(client, settings, square, model="metis", mode="kway", k=4)
+    r = client.get(f"/v1/jobs/{plain['id']}/hierarchy/levels", headers=ALICE)
+    assert r.status_code == 404 and "options.hierarchy" in r.text
