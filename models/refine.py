@@ -15,8 +15,11 @@ volumes, so on a coarsened graph they are the fine graph's.
   gains at random) and a graph keeps its old
   bisection unless a refined one has a strictly lower normalized cut (the best one). After a
   whole recursive bisection, `polish` refines pairs of adjacent final parts for their share of
-  the k-way normalized cut.
-- k-way: rounds of simultaneous positive-gain moves of boundary nodes to the neighbouring part
+  the k-way normalized cut: flow refinement (below) first, then pairwise FM.
+- k-way: first flow refinement (models.flow: for pairs of adjacent parts, a minimum cut inside a
+  band around their boundary whose size keeps a balanced cut possible, pairs by a matching of the
+  quotient graph per round, parts kept connected and within the cap), then rounds of simultaneous
+  positive-gain moves of boundary nodes to the neighbouring part
   they share most edges with, on an independent set (no two moved nodes adjacent, so every gain
   is exact), within the balance tolerance; a move that would disconnect its part is undone.
 """
@@ -269,7 +272,7 @@ class FMRefiner(Refiner):
 
     def __init__(self, tolerance: float = 0.05, hops: int = 4, passes: int = 8, kway_rounds: int = 30,
                  kway_tolerance: float = 0.03, pair_rounds: int = 2, objective: str = "ncut", polish_rounds: int = 4,
-                 budget_factor: float = 2.0, tries: int | None = None, seed: int | None = 0):
+                 budget_factor: float = 2.0, tries: int | None = None, seed: int | None = 0, flow_rounds: int = 40):
         if not 0 <= tolerance < 1:
             raise ParameterError(f"fm tolerance must be in [0, 1), got {tolerance}")
         self.tolerance = float(tolerance)
@@ -285,6 +288,7 @@ class FMRefiner(Refiner):
         self.budget_factor = float(budget_factor)
         self.tries = tries  # None: 3 on batches up to 20k nodes, 1 above (each try is a full FM run)
         self.seed = seed
+        self.flow_rounds = int(flow_rounds)  # flow refinement rounds of pairs of parts (models.flow); 0 = off
 
     def refine(self, batch: GraphBatch, labels: np.ndarray) -> np.ndarray:
         labels = np.asarray(labels, dtype=np.int64)
@@ -323,13 +327,27 @@ class FMRefiner(Refiner):
         return side
 
     def polish(self, batch: GraphBatch, labels: np.ndarray) -> np.ndarray:
-        """After a recursive bisection: pairs of adjacent parts refined for their share of the
-        k-way normalized cut (pairwise_fm, objective "ncut"), parts kept connected."""
+        """After a recursive bisection: pairs of adjacent final parts refined for their share of
+        the k-way normalized cut, by minimum cuts in bands around their boundary (models.flow,
+        parts within (1 + tolerance) x the mean part or no heavier than before) and then by
+        pairwise FM; parts kept connected, no pair's share ever goes up."""
+        labels = np.asarray(labels, dtype=np.int64)
+        if self.flow_rounds > 0 and labels.size:
+            from .flow import flow_kway
+
+            labels = flow_kway(batch, labels, self.tolerance, self.flow_rounds, alpha=8.0, max_alpha=16.0,
+                               seed=self.seed or 0, objective="ncut", schedule="matching")
         if self.polish_rounds <= 0:
-            return np.asarray(labels, dtype=np.int64)
+            return labels
         return pairwise_fm(batch, labels, self.tolerance, self.polish_rounds, self.hops, self.seed or 0, "ncut")
 
     def refine_kway(self, batch: GraphBatch, labels: np.ndarray) -> np.ndarray:
+        if self.flow_rounds > 0:
+            from .flow import flow_kway
+
+            labels = flow_kway(batch, labels, self.kway_tolerance, self.flow_rounds, alpha=8.0, max_alpha=16.0,
+                               seed=self.seed or 0, schedule="matching")
+            return kway_refine(batch, labels, self.kway_tolerance, self.kway_rounds)
         labels = kway_refine(batch, labels, self.kway_tolerance, self.kway_rounds)
         if self.pair_rounds > 0:
             labels = pairwise_fm(batch, labels, self.kway_tolerance, self.pair_rounds, self.hops, self.seed or 0)

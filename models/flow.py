@@ -1,0 +1,373 @@
+"""Flow-based refinement of pairs of adjacent parts (the idea of KaHIP's flow refinement).
+
+For a set of disjoint pairs of parts (A, B) of a partition, all at once:
+- grow a band around the shared boundary by BFS inside A and inside B, layer by layer, the A side
+  limited to a measure budget (`room_a`: how much A may hand to B; with room_a = cap - w(B) any
+  cut inside the band keeps B within the cap) and the B side likewise;
+- contract everything of A outside the band into the source and everything of B into the sink;
+  every pair's network is a component of one flow graph with one source and one sink (they share
+  nothing else, so one maximum flow solves them all and its minimum cut is each pair's minimum);
+- of the minimum cuts take, per pair, the smaller or the larger source side (residual
+  reachability from the source, or from the sink backwards), whichever is feasible and better
+  balanced. The new A-B boundary is that cut: the pair's cut never goes up (the old boundary is a
+  cut of the same network).
+
+`flow_kway` runs rounds of this on the pairs of a k-way partition (pairs with the largest shared
+boundary first, each round a matching of the quotient graph, pairs retried only after one of
+their parts changed, an adaptive band factor per pair), keeping every part connected and within
+its cap; `flow_bisections` does it for every graph of a batch of bisections at once.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import breadth_first_order, connected_components, maximum_flow
+
+from .partitioners.base import GraphBatch
+
+
+def integer_capacities(ec: np.ndarray) -> np.ndarray:
+    """Edge counts as int32 flow capacities (fine graphs: ones; coarse: whole fine-edge counts)."""
+    ec = np.asarray(ec, dtype=np.float64)
+    scale = 1.0 if np.allclose(ec, np.rint(ec)) else 1000.0 / max(float(ec.mean()), 1e-300)
+    return np.clip(np.rint(ec * scale), 1, 2**20).astype(np.int32)
+
+
+def grow_bands(rows, cols, labels, seed_grp, n_grp, budget, m, max_hops):
+    """(N,) group of each band node (-1 = not in a band): BFS layers from the seeds (seed_grp >= 0)
+    inside their own part, a node joining the group of a band neighbour of its part; a group stops
+    growing where its measure would pass budget[g] (its last layer taken in part)."""
+    n = labels.size
+    same = labels[rows] == labels[cols]
+    er, ecl = rows[same], cols[same]
+    grp = np.full(n, -1, dtype=np.int64)
+    used = np.zeros(n_grp)
+    full = np.zeros(n_grp, dtype=bool)
+    layer = np.flatnonzero(seed_grp >= 0)
+    lg = seed_grp[layer]
+    for _ in range(max_hops):
+        keep = ~full[lg]
+        layer, lg = layer[keep], lg[keep]
+        if layer.size == 0:
+            break
+        o = np.argsort(lg, kind="stable")
+        layer, lg = layer[o], lg[o]
+        cum = np.cumsum(m[layer])
+        start = np.r_[True, lg[1:] != lg[:-1]]
+        base = np.maximum.accumulate(np.where(start, cum - m[layer], 0.0))
+        take = used[lg] + (cum - base) <= budget[lg] * (1 + 1e-12)
+        full[lg[~take]] = True
+        added, ag = layer[take], lg[take]
+        grp[added] = ag
+        used += np.bincount(ag, weights=m[added], minlength=n_grp)
+        nxt = (grp[er] >= 0) & (grp[ecl] < 0)
+        nxt &= ~full[np.maximum(grp[er], 0)]
+        if not nxt.any():
+            break
+        cand = np.full(n, -1, dtype=np.int64)
+        np.maximum.at(cand, ecl[nxt], grp[er[nxt]])
+        layer = np.flatnonzero(cand >= 0)
+        lg = cand[layer]
+    return grp
+
+
+def pair_mincut(rows, cols, caps, m, labels, pa, pb, room_a, room_b, limit, max_hops, seed=0):
+    """Minimum cuts between the pairs of parts (pa[p], pb[p]) (pa < pb, sorted by pa * k + pb)
+    inside budget-limited bands; a part may be in several pairs (a boundary node joins the band
+    of one of them), the other pairs' nodes then count as fixed.
+
+    Returns (new labels (N,), ok (P,), band pair (N,), -1 outside the bands): new labels move band
+    nodes only, in the pairs where ok (one of the pair's minimum cuts keeps both parts within
+    limit[p] or no heavier than the heavier one before, taking the pair alone)."""
+    n = labels.size
+    k = int(labels.max()) + 1
+    P = pa.size
+    pkey = pa * k + pb
+    lr, lc = labels[rows], labels[cols]
+    cross = lr != lc
+    ck = np.minimum(lr, lc) * k + np.maximum(lr, lc)
+    pos = np.minimum(np.searchsorted(pkey, ck), P - 1)
+    inpair = cross & (pkey[pos] == ck)
+    # each boundary node seeds one of its pairs (random choice among its cross edges)
+    ev = np.flatnonzero(inpair)
+    ev = ev[np.random.default_rng(seed).permutation(ev.size)]
+    seed_pair = np.full(n, -1, dtype=np.int64)
+    seed_pair[rows[ev]] = pos[ev]
+    sv = np.flatnonzero(seed_pair >= 0)
+    seed_grp = np.full(n, -1, dtype=np.int64)
+    seed_grp[sv] = 2 * seed_pair[sv] + (labels[sv] == pb[seed_pair[sv]])
+    budget = np.empty(2 * P)
+    budget[0::2] = room_a
+    budget[1::2] = room_b
+    grp = grow_bands(rows, cols, labels, seed_grp, 2 * P, np.maximum(budget, 0.0), m, max_hops)
+    bn = np.flatnonzero(grp >= 0)
+    nb = bn.size
+    out = labels.copy()
+    bpair = np.where(grp >= 0, grp // 2, -1)
+    if nb == 0:
+        return out, np.zeros(P, dtype=bool), bpair
+    S, T = nb, nb + 1
+    idx = np.full(n, -1, dtype=np.int64)
+    idx[bn] = np.arange(nb)
+    # network: band-band edges of one pair, band -> own part (fixed) = own terminal, band -> the
+    # pair's other part (fixed) = the other terminal; edges to third parts are constants
+    ev = np.flatnonzero(grp[rows] >= 0)
+    v, u = rows[ev], cols[ev]
+    pv = bpair[v]
+    internal = bpair[u] == pv
+    rv = grp[v] & 1
+    own = ~internal & (labels[u] == labels[v])
+    other = ~internal & (labels[u] == np.where(rv == 0, pb[pv], pa[pv]))
+    term = np.where(own, np.where(rv == 0, S, T), np.where(rv == 0, T, S))
+    tv = own | other
+    src = np.r_[idx[v[internal]], idx[v[tv]], term[tv]]
+    dst = np.r_[idx[u[internal]], term[tv], idx[v[tv]]]
+    cap = np.r_[caps[ev[internal]], caps[ev[tv]], caps[ev[tv]]]
+    M = sp.csr_matrix((cap, (src, dst)), shape=(nb + 2, nb + 2))
+    M.sum_duplicates()
+    flow = maximum_flow(M, S, T, method="dinic").flow
+    R = (M - flow).tocsr()
+    R.data = (R.data > 0).astype(np.int8)
+    R.eliminate_zeros()
+    from_s = np.zeros(nb + 2, dtype=bool)
+    from_s[breadth_first_order(R, S, directed=True, return_predecessors=False)] = True
+    to_t = np.zeros(nb + 2, dtype=bool)
+    to_t[breadth_first_order(R.T.tocsr(), T, directed=True, return_predecessors=False)] = True
+    bp = bpair[bn]
+    mb = m[bn]
+    a_now = (grp[bn] & 1) == 0
+    w_all = np.bincount(labels, weights=m, minlength=k)
+    wa, wb = w_all[pa], w_all[pb]
+    to_a = from_s[:nb].copy()  # the smallest source side, grown below towards balance
+    wa0 = (
+        wa
+        + np.bincount(bp, weights=mb * (to_a & ~a_now), minlength=P)
+        - np.bincount(bp, weights=mb * (~to_a & a_now), minlength=P)
+    )
+    # every minimum cut in between: closed sets of the residual graph. Free nodes (reached neither
+    # from the source nor backwards from the sink) join the source side by strongly connected
+    # components, successors first (sorted by height in the condensation DAG), so each prefix of
+    # that order is a minimum cut; per pair take the best balanced prefix.
+    whole = wa + wb
+    old_hi = np.maximum(wa, wb)
+    hi0 = np.maximum(wa0, whole - wa0)
+    feas0 = ((hi0 <= limit * (1 + 1e-12)) | (hi0 <= old_hi)) & (wa0 > 0) & (whole - wa0 > 0)
+    best = np.where(feas0, hi0, np.inf)
+    f = np.flatnonzero(~from_s[:nb] & ~to_t[:nb])
+    if f.size:
+        sub = R[f][:, f].tocoo()
+        n_scc, scc = connected_components(sub, directed=True, connection="strong")
+        cu, cv = scc[sub.row], scc[sub.col]
+        dag = cu != cv
+        cu, cv = cu[dag], cv[dag]
+        height = np.zeros(n_scc, dtype=np.int64)
+        for _ in range(n_scc):  # longest path to a sink of the DAG (stops at its depth)
+            h2 = height.copy()
+            np.maximum.at(h2, cu, height[cv] + 1)
+            if np.array_equal(h2, height):
+                break
+            height = h2
+        fp = bp[f]
+        o = np.lexsort((scc, height[scc], fp))
+        fo, po, so = f[o], fp[o], scc[o]
+        cum = np.cumsum(mb[fo])
+        start = np.r_[True, po[1:] != po[:-1]]
+        base = np.maximum.accumulate(np.where(start, cum - mb[fo], 0.0))
+        w_a = wa0[po] + cum - base
+        end = np.r_[(so[1:] != so[:-1]) | (po[1:] != po[:-1]), True]  # last node of an SCC: a valid cut
+        hi = np.maximum(w_a, whole[po] - w_a)
+        feas = ((hi <= limit[po] * (1 + 1e-12)) | (hi <= old_hi[po])) & (whole[po] - w_a > 0)
+        val = np.where(end & feas, hi, np.inf)
+        # per pair: the best prefix (ties: the shortest), compared with taking none of them
+        rank = np.arange(fo.size) - np.flatnonzero(start)[np.cumsum(start) - 1]
+        oo = np.lexsort((rank, val, po))
+        firsts = oo[np.r_[True, po[oo][1:] != po[oo][:-1]]]
+        bp_pair, bv, br = po[firsts], val[firsts], rank[firsts]
+        use = bv < best[bp_pair] - 1e-12
+        upto = np.full(P, -1, dtype=np.int64)
+        upto[bp_pair[use]] = br[use]
+        best[bp_pair[use]] = bv[use]
+        to_a[fo[rank <= upto[po]]] = True
+    ok = np.isfinite(best)
+    sel = ok[bp]
+    out[bn[sel]] = np.where(to_a[sel], pa[bp[sel]], pb[bp[sel]])
+    return out, ok, bpair
+
+
+def part_components(rows, cols, labels, k):
+    """(k,) connected components of each part."""
+    n = labels.size
+    same = labels[rows] == labels[cols]
+    g = sp.csr_matrix((np.ones(int(same.sum()), dtype=np.int8), (rows[same], cols[same])), shape=(n, n))
+    nc, comp = connected_components(g, directed=False)
+    first = np.zeros(nc, dtype=np.int64)
+    first[comp] = labels
+    return np.bincount(first, minlength=k)
+
+
+def _greedy_matching(a, b, w, k, rng):
+    """Pairs (a[i], b[i]) by weight, heaviest first (random ties), each part at most once."""
+    o = np.lexsort((rng.random(a.size), -w))
+    used = np.zeros(k, dtype=bool)
+    pick = []
+    for i in o.tolist():  # a loop over pairs of parts
+        x, y = a[i], b[i]
+        if not used[x] and not used[y]:
+            used[x] = used[y] = True
+            pick.append(i)
+    return np.sort(np.asarray(pick, dtype=np.int64))
+
+
+def _part_ncut(rows, cols, ec, vol, labels, k):
+    d = labels[rows] != labels[cols]
+    cut = np.bincount(labels[rows[d]], weights=ec[d], minlength=k)
+    v = np.bincount(labels, weights=vol, minlength=k)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(v > 0, cut / np.where(v > 0, v, 1), 0.0)
+
+
+def flow_kway(
+    batch: GraphBatch,
+    labels: np.ndarray,
+    tolerance: float = 0.03,
+    rounds: int = 40,
+    alpha: float = 8.0,
+    max_alpha: float = 16.0,
+    max_hops: int = 12,
+    seed: int = 0,
+    objective: str = "cut",
+    schedule: str = "matching",
+    limits: np.ndarray | None = None,
+) -> np.ndarray:
+    """Flow refinement of a k-way partition of one graph (see the module docstring).
+
+    objective "cut": the edge cut (edge counts); "ncut": sum over parts of cut / degree volume
+    (schedule "matching" only: there each pair's share is exact). Parts stay within
+    (1 + tolerance) x the mean measure (or `limits` (k,) per part), or no heavier than before, and
+    connected (pairs whose moves break a part are undone). schedule "all": every active pair at
+    once, each boundary node in one pair's band; "matching": a matching of the quotient graph per
+    round, heaviest shared boundaries first."""
+    labels = np.asarray(labels, dtype=np.int64).copy()
+    n = batch.n_nodes
+    if n == 0:
+        return labels
+    if objective == "ncut":
+        schedule = "matching"
+    k = int(labels.max()) + 1
+    rows = np.repeat(np.arange(n), np.diff(batch.indptr))
+    cols = batch.indices
+    caps = integer_capacities(batch.edge_counts())
+    ec = batch.edge_counts()
+    m = np.asarray(batch.measures, dtype=np.float64)
+    vol = batch.volumes()
+    lim_part = (
+        np.full(k, (1 + tolerance) * float(m.sum()) / k)
+        if limits is None
+        else np.asarray(limits, dtype=np.float64)
+    )
+    rng = np.random.default_rng(seed)
+    comps0 = part_components(rows, cols, labels, k)
+    keys = np.zeros(0, dtype=np.int64)  # pair a*k+b (a < b): band factor, round last tried
+    fac = np.zeros(0)
+    tried = np.zeros(0, dtype=np.int64)
+    changed = np.zeros(k, dtype=np.int64)  # round of each part's last change (0 = never)
+    for r in range(1, rounds + 1):
+        lr, lc = labels[rows], labels[cols]
+        x = lr < lc
+        q = sp.csr_matrix((ec[x], (lr[x], lc[x])), shape=(k, k)).tocoo()
+        qa, qb, qw = q.row.astype(np.int64), q.col.astype(np.int64), q.data
+        qk = qa * k + qb
+        o = np.argsort(qk)
+        qa, qb, qw, qk = qa[o], qb[o], qw[o], qk[o]
+        f = np.full(qk.size, alpha)
+        t = np.zeros(qk.size, dtype=np.int64)
+        if keys.size:
+            pos = np.minimum(np.searchsorted(keys, qk), keys.size - 1)
+            known = keys[pos] == qk
+            f[known] = fac[pos[known]]
+            t[known] = tried[pos[known]]
+        keys, fac, tried = qk, f, t
+        active = (tried == 0) | (np.maximum(changed[qa], changed[qb]) >= tried)
+        if not active.any():
+            break
+        ia = np.flatnonzero(active)
+        pick = ia[_greedy_matching(qa[ia], qb[ia], qw[ia], k, rng)] if schedule == "matching" else ia
+        pa, pb = qa[pick], qb[pick]
+        P = pick.size
+        w = np.bincount(labels, weights=m, minlength=k)
+        limit = np.minimum(lim_part[pa], lim_part[pb])
+        # KaHIP's band bound: (1 + fac x tolerance) x the mean part, less the other part's measure;
+        # fac = 1 keeps every cut in the band balanced, a larger fac needs a balanced minimum cut
+        slack = (fac[pick] - 1) * tolerance / (1 + tolerance)
+        room_a = np.maximum(lim_part[pb] * (1 + slack) - w[pb], 0.0)
+        room_b = np.maximum(lim_part[pa] * (1 + slack) - w[pa], 0.0)
+        new, ok, bpair = pair_mincut(
+            rows,
+            cols,
+            caps,
+            m,
+            labels,
+            pa,
+            pb,
+            room_a,
+            room_b,
+            limit,
+            max_hops,
+            seed=int(rng.integers(2**31)),
+        )
+        mv = np.flatnonzero(new != labels)
+        mp = bpair[mv]
+        acc = ok & (np.bincount(mp, minlength=P) > 0)
+        gain = np.zeros(P)
+        for _ in range(12):  # drop pairs that do not gain, overload a part or break one, until stable
+            take = mv[acc[mp]]
+            cand = labels.copy()
+            cand[take] = new[take]
+            wn = np.bincount(cand, weights=m, minlength=k)
+            if objective == "ncut":
+                before = _part_ncut(rows, cols, ec, vol, labels, k)
+                after = _part_ncut(rows, cols, ec, vol, cand, k)
+                gain = (before[pa] + before[pb]) - (after[pa] + after[pb])
+            else:
+                # exact total change, each cut-edge change given to the pair(s) of its moved ends
+                moved = np.zeros(n, dtype=bool)
+                moved[take] = True
+                e = np.flatnonzero(moved[rows] | moved[cols])
+                d = ec[e] * (
+                    (cand[rows[e]] != cand[cols[e]]).astype(np.float64) - (labels[rows[e]] != labels[cols[e]])
+                )
+                owner = np.where(moved[rows[e]], bpair[rows[e]], bpair[cols[e]])
+                gain = -np.bincount(owner, weights=d, minlength=P) / 2
+            bal_gain = np.maximum(w[pa], w[pb]) - np.maximum(wn[pa], wn[pb])
+            over = wn > np.maximum(lim_part, w) * (1 + 1e-12)
+            comps = part_components(rows, cols, cand, k)
+            # an overloaded part drops the pairs that fed it; a broken part drops all its pairs
+            tp = bpair[take]
+            into_a = np.bincount(
+                tp,
+                weights=m[take] * ((new[take] == pa[tp]).astype(np.float64) - (labels[take] == pa[tp])),
+                minlength=P,
+            )
+            broken = comps > comps0
+            fed = (over[pa] & (into_a > 0)) | (over[pb] & (into_a < 0))
+            bad = acc & (
+                fed | broken[pa] | broken[pb] | (gain < -1e-12) | ((gain <= 1e-12) & (bal_gain <= 1e-12))
+            )
+            if not bad.any():
+                break
+            acc &= ~bad
+        else:
+            acc[:] = False
+        # adapt the band factor: bigger after a gain, smaller when no balanced cut was found
+        up = acc & (gain > 1e-12)
+        fac[pick[up]] = np.minimum(fac[pick[up]] * 2, max_alpha)
+        retry = ~ok & (fac[pick] > 1)
+        fac[pick[retry]] = np.maximum(fac[pick[retry]] / 2, 1.0)
+        tried[pick[~retry]] = r  # a pair without a balanced cut is retried at once with a smaller band
+        if acc.any():
+            take = mv[acc[mp]]
+            labels[take] = new[take]
+            changed[pa[acc]] = r
+            changed[pb[acc]] = r
+    return labels

@@ -1,0 +1,134 @@
+"""Flow refinement of pairs of parts (models.flow): known optima on grids, guarantees on the brain."""
+
+import numpy as np
+import pytest
+
+from models.agglomerate import make_batch
+from models.flow import flow_kway, pair_mincut, part_components
+from models.metrics import partition_statistics
+from models.partitioners import get_partitioner
+from models.partitioners.base import GraphBatch
+from models.refine import FMRefiner
+
+
+def grid(nx, ny):
+    """nx x ny 4-neighbour grid as a one-graph batch; node x * ny + y, unit measures."""
+    ids = np.arange(nx * ny).reshape(nx, ny)
+    a = np.r_[ids[:-1, :].ravel(), ids[:, :-1].ravel()]
+    b = np.r_[ids[1:, :].ravel(), ids[:, 1:].ravel()]
+    r, c = np.r_[a, b], np.r_[b, a]
+    o = np.lexsort((c, r))
+    r, c = r[o], c[o]
+    indptr = np.r_[0, np.cumsum(np.bincount(r, minlength=nx * ny))]
+    xy = np.stack(np.divmod(np.arange(nx * ny), ny), axis=1).astype(np.float64)
+    return GraphBatch(
+        indptr=indptr,
+        indices=c,
+        weights=np.ones(c.size),
+        graph_ptr=np.array([0, nx * ny]),
+        centroids=xy,
+        measures=np.ones(nx * ny),
+        tags=None,
+        node_ids=np.arange(nx * ny),
+    )
+
+
+def cut(b, lab):
+    rows = np.repeat(np.arange(b.n_nodes), np.diff(b.indptr))
+    return int((lab[rows] != lab[b.indices]).sum() // 2)
+
+
+def zigzag(nx=12, ny=6):
+    """Two halves of a grid split by a staircase boundary (cut well above the straight ny)."""
+    b = grid(nx, ny)
+    x, y = b.centroids[:, 0], b.centroids[:, 1]
+    lab = (x >= nx / 2 + np.where(y % 2 == 0, -1, 1)).astype(np.int64)
+    return b, lab
+
+
+def test_two_parts_of_a_grid_get_the_straight_cut():
+    b, lab = zigzag()
+    assert cut(b, lab) > 6
+    out = flow_kway(b, lab, tolerance=0.1)
+    assert cut(b, out) == 6  # the optimum: a straight cut across the 6 rows
+    w = np.bincount(out, weights=b.measures)
+    assert w.max() <= 1.1 * 36 + 1e-9
+    assert np.all(part_components(np.repeat(np.arange(b.n_nodes), np.diff(b.indptr)), b.indices, out, 2) == 1)
+
+
+def test_no_room_no_move():
+    # both parts at the cap (tolerance 0): only moves that keep 36 / 36 are allowed, and the
+    # balanced straight cut is still found; with a band factor of 1 nothing heavier can appear
+    b, lab = zigzag()
+    out = flow_kway(b, lab, tolerance=0.0, alpha=1.0, max_alpha=1.0)
+    assert np.array_equal(np.bincount(out), [36, 36])
+    assert cut(b, out) <= cut(b, lab)
+
+
+def test_pair_mincut_bands_stay_within_their_budget():
+    # with room = cap - w(other) every cut in the band is balanced: checked on the proposal itself
+    b, lab = zigzag(16, 8)
+    rows = np.repeat(np.arange(b.n_nodes), np.diff(b.indptr))
+    caps = np.ones(b.indices.size, dtype=np.int32)
+    w = np.bincount(lab, weights=b.measures)
+    cap = 68.0
+    new, ok, band = pair_mincut(
+        rows,
+        b.indices,
+        caps,
+        b.measures,
+        lab,
+        np.array([0]),
+        np.array([1]),
+        np.array([cap - w[1]]),
+        np.array([cap - w[0]]),
+        np.array([cap]),
+        20,
+    )
+    assert ok.all()
+    assert np.bincount(new, weights=b.measures).max() <= cap
+    assert np.all(new[band < 0] == lab[band < 0])  # only band nodes move
+    assert cut(b, new) <= cut(b, lab)
+
+
+@pytest.fixture(scope="module")
+def brain_kway(brain):
+    m, g, d = brain
+    b = make_batch(d, np.zeros(m.n_cells, dtype=np.int64))
+    return g, b, get_partitioner("metis").kway(b, 64)
+
+
+def stats(g, b, lab):
+    full = np.empty_like(lab)
+    full[b.node_ids] = lab
+    return partition_statistics(g.indptr, g.indices, full)
+
+
+def test_flow_kway_on_metis_lowers_the_cut_within_the_cap_and_connected(brain_kway):
+    g, b, lab = brain_kway
+    out = flow_kway(b, lab, tolerance=0.03, rounds=15, alpha=8.0, max_alpha=16.0, schedule="matching")
+    s0, s1 = stats(g, b, lab), stats(g, b, out)
+    assert s1["connected"] and s1["parts"] == 64
+    assert s1["cut"] <= 0.98 * s0["cut"]  # METIS's own refinement leaves >= 2% to the flows
+    w0 = np.bincount(lab, weights=b.measures)
+    w1 = np.bincount(out, weights=b.measures)
+    cap = 1.03 * b.measures.sum() / 64
+    assert np.all((w1 <= cap * (1 + 1e-9)) | (w1 <= w0 + 1e-9))
+
+
+@pytest.mark.parametrize("schedule", ["all", "matching"])
+def test_flow_kway_never_worse_and_ncut_objective(brain_kway, schedule):
+    g, b, lab = brain_kway
+    out = flow_kway(b, lab, rounds=4, schedule=schedule, seed=3)
+    assert stats(g, b, out)["cut"] <= stats(g, b, lab)["cut"]
+    nc = flow_kway(b, lab, rounds=4, objective="ncut", seed=3)
+    s = stats(g, b, nc)
+    assert s["normalized_cut"] < stats(g, b, lab)["normalized_cut"] and s["connected"]
+
+
+def test_fm_refiner_kway_and_polish_use_the_flows(brain_kway):
+    g, b, lab = brain_kway
+    with_flow = FMRefiner(flow_rounds=15).refine_kway(b, lab)
+    without = FMRefiner(flow_rounds=0).refine_kway(b, lab)
+    assert stats(g, b, with_flow)["cut"] < stats(g, b, without)["cut"]
+    assert stats(g, b, with_flow)["connected"]
