@@ -34,13 +34,19 @@ def integer_capacities(ec: np.ndarray) -> np.ndarray:
     return np.clip(np.rint(ec * scale), 1, 2**20).astype(np.int32)
 
 
-def grow_bands(rows, cols, labels, seed_grp, n_grp, budget, m, max_hops):
+def edges_of(indptr, v):
+    """(source node, edge index) of every CSR edge of the nodes v."""
+    cnt = indptr[v + 1] - indptr[v]
+    tot = int(cnt.sum())
+    first = np.repeat(indptr[v] - np.r_[0, np.cumsum(cnt)[:-1]], cnt)
+    return np.repeat(v, cnt), first + np.arange(tot)
+
+
+def grow_bands(indptr, cols, labels, seed_grp, n_grp, budget, m, max_hops):
     """(N,) group of each band node (-1 = not in a band): BFS layers from the seeds (seed_grp >= 0)
     inside their own part, a node joining the group of a band neighbour of its part; a group stops
     growing where its measure would pass budget[g] (its last layer taken in part)."""
     n = labels.size
-    same = labels[rows] == labels[cols]
-    er, ecl = rows[same], cols[same]
     grp = np.full(n, -1, dtype=np.int64)
     used = np.zeros(n_grp)
     full = np.zeros(n_grp, dtype=bool)
@@ -61,18 +67,21 @@ def grow_bands(rows, cols, labels, seed_grp, n_grp, budget, m, max_hops):
         added, ag = layer[take], lg[take]
         grp[added] = ag
         used += np.bincount(ag, weights=m[added], minlength=n_grp)
-        nxt = (grp[er] >= 0) & (grp[ecl] < 0)
-        nxt &= ~full[np.maximum(grp[er], 0)]
+        grow = added[~full[ag]]
+        src, e = edges_of(indptr, grow)
+        u = cols[e]
+        nxt = (labels[u] == labels[src]) & (grp[u] < 0)
         if not nxt.any():
             break
-        cand = np.full(n, -1, dtype=np.int64)
-        np.maximum.at(cand, ecl[nxt], grp[er[nxt]])
-        layer = np.flatnonzero(cand >= 0)
-        lg = cand[layer]
+        u, gu = u[nxt], grp[src[nxt]]
+        o = np.lexsort((-gu, u))  # a node reached by two groups joins the larger id (any rule works)
+        u, gu = u[o], gu[o]
+        first = np.r_[True, u[1:] != u[:-1]]
+        layer, lg = u[first], gu[first]
     return grp
 
 
-def pair_mincut(rows, cols, caps, m, labels, pa, pb, room_a, room_b, limit, max_hops, seed=0):
+def pair_mincut(indptr, cols, caps, m, labels, pa, pb, room_a, room_b, limit, max_hops, seed=0):
     """Minimum cuts between the pairs of parts (pa[p], pb[p]) (pa < pb, sorted by pa * k + pb)
     inside budget-limited bands; a part may be in several pairs (a boundary node joins the band
     of one of them), the other pairs' nodes then count as fixed.
@@ -84,23 +93,24 @@ def pair_mincut(rows, cols, caps, m, labels, pa, pb, room_a, room_b, limit, max_
     k = int(labels.max()) + 1
     P = pa.size
     pkey = pa * k + pb
-    lr, lc = labels[rows], labels[cols]
-    cross = lr != lc
+    rows = np.repeat(np.arange(n), np.diff(indptr))
+    ce = np.flatnonzero(labels[rows] != labels[cols])
+    lr, lc = labels[rows[ce]], labels[cols[ce]]
     ck = np.minimum(lr, lc) * k + np.maximum(lr, lc)
     pos = np.minimum(np.searchsorted(pkey, ck), P - 1)
-    inpair = cross & (pkey[pos] == ck)
+    inpair = pkey[pos] == ck
     # each boundary node seeds one of its pairs (random choice among its cross edges)
     ev = np.flatnonzero(inpair)
     ev = ev[np.random.default_rng(seed).permutation(ev.size)]
     seed_pair = np.full(n, -1, dtype=np.int64)
-    seed_pair[rows[ev]] = pos[ev]
+    seed_pair[rows[ce[ev]]] = pos[ev]
     sv = np.flatnonzero(seed_pair >= 0)
     seed_grp = np.full(n, -1, dtype=np.int64)
     seed_grp[sv] = 2 * seed_pair[sv] + (labels[sv] == pb[seed_pair[sv]])
     budget = np.empty(2 * P)
     budget[0::2] = room_a
     budget[1::2] = room_b
-    grp = grow_bands(rows, cols, labels, seed_grp, 2 * P, np.maximum(budget, 0.0), m, max_hops)
+    grp = grow_bands(indptr, cols, labels, seed_grp, 2 * P, np.maximum(budget, 0.0), m, max_hops)
     bn = np.flatnonzero(grp >= 0)
     nb = bn.size
     out = labels.copy()
@@ -112,8 +122,8 @@ def pair_mincut(rows, cols, caps, m, labels, pa, pb, room_a, room_b, limit, max_
     idx[bn] = np.arange(nb)
     # network: band-band edges of one pair, band -> own part (fixed) = own terminal, band -> the
     # pair's other part (fixed) = the other terminal; edges to third parts are constants
-    ev = np.flatnonzero(grp[rows] >= 0)
-    v, u = rows[ev], cols[ev]
+    v, ev = edges_of(indptr, bn)
+    u = cols[ev]
     pv = bpair[v]
     internal = bpair[u] == pv
     rv = grp[v] & 1
@@ -198,8 +208,9 @@ def pair_mincut(rows, cols, caps, m, labels, pa, pb, room_a, room_b, limit, max_
 def part_components(rows, cols, labels, k):
     """(k,) connected components of each part."""
     n = labels.size
-    same = labels[rows] == labels[cols]
-    g = sp.csr_matrix((np.ones(int(same.sum()), dtype=np.int8), (rows[same], cols[same])), shape=(n, n))
+    same = labels[rows] == labels[cols]  # rows sorted (CSR order): the kept edges are a CSR already
+    ptr = np.r_[0, np.cumsum(np.bincount(rows[same], minlength=n))]
+    g = sp.csr_matrix((np.ones(int(ptr[-1]), dtype=np.int8), cols[same], ptr), shape=(n, n))
     nc, comp = connected_components(g, directed=False)
     first = np.zeros(nc, dtype=np.int64)
     first[comp] = labels
@@ -303,7 +314,7 @@ def flow_kway(
         room_a = np.maximum(lim_part[pb] * (1 + slack) - w[pb], 0.0)
         room_b = np.maximum(lim_part[pa] * (1 + slack) - w[pa], 0.0)
         new, ok, bpair = pair_mincut(
-            rows,
+            batch.indptr,
             cols,
             caps,
             m,
@@ -341,21 +352,22 @@ def flow_kway(
                 gain = -np.bincount(owner, weights=d, minlength=P) / 2
             bal_gain = np.maximum(w[pa], w[pb]) - np.maximum(wn[pa], wn[pb])
             over = wn > np.maximum(lim_part, w) * (1 + 1e-12)
-            comps = part_components(rows, cols, cand, k)
-            # an overloaded part drops the pairs that fed it; a broken part drops all its pairs
+            # an overloaded part drops the pairs that fed it; then a broken part drops all its pairs
             tp = bpair[take]
             into_a = np.bincount(
                 tp,
                 weights=m[take] * ((new[take] == pa[tp]).astype(np.float64) - (labels[take] == pa[tp])),
                 minlength=P,
             )
-            broken = comps > comps0
             fed = (over[pa] & (into_a > 0)) | (over[pb] & (into_a < 0))
-            bad = acc & (
-                fed | broken[pa] | broken[pb] | (gain < -1e-12) | ((gain <= 1e-12) & (bal_gain <= 1e-12))
-            )
+            bad = acc & (fed | (gain < -1e-12) | ((gain <= 1e-12) & (bal_gain <= 1e-12)))
             if not bad.any():
-                break
+                if not acc.any():
+                    break
+                broken = part_components(rows, cols, cand, k) > comps0
+                bad = acc & (broken[pa] | broken[pb])
+                if not bad.any():
+                    break
             acc &= ~bad
         else:
             acc[:] = False
