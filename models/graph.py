@@ -149,7 +149,11 @@ def dual_graph(mesh: Mesh, faces: Faces | None = None, measures: bool = True) ->
     partner = np.full(faces.n, -1, dtype=np.int64)
     partner[fa] = fb
     partner[fb] = fa
-    fm = face_measures(mesh.points, faces, fa) if measures else np.ones(fa.size)  # only the shared faces
+    if not measures:
+        fm = np.ones(fa.size)
+    else:  # only the shared faces; reading computed every tetrahedron's face areas with its volume
+        kept = _cached_areas(mesh, faces)
+        fm = kept[fa] if kept is not None else face_measures(mesh.points, faces, fa)
     n = mesh.n_cells
     direct = _tetra_csr(faces, partner, fa, fb, fm, n)
     if direct is not None:
@@ -184,21 +188,27 @@ def _tetra_csr(faces: Faces, partner: np.ndarray, fa: np.ndarray, fb: np.ndarray
     w = np.empty(faces.n)
     w[fa] = fm
     w[fb] = fm
-    big = np.iinfo(np.int64).max
-    p4 = partner.reshape(n, 4)
-    nb = [np.where(p4[:, j] >= 0, p4[:, j] >> 2, big) for j in range(4)]  # neighbour per face, boundary last
-    wc = [w[j::4] for j in range(4)]
-    for i, j in ((0, 1), (2, 3), (0, 2), (1, 3), (1, 2)):  # a sorting network for rows of 4
-        sw = nb[i] > nb[j]
-        nb[i], nb[j] = np.where(sw, nb[j], nb[i]), np.where(sw, nb[i], nb[j])
-        wc[i], wc[j] = np.where(sw, wc[j], wc[i]), np.where(sw, wc[i], wc[j])
-    nb, wc = np.stack(nb, axis=1), np.stack(wc, axis=1)
-    has = nb != big
+    # sort each row's 4 partner faces (face id 4 * neighbour + local face: the neighbours' order,
+    # boundary -1 made the largest) by a sorting network of elementwise min / max, in chunks
+    q = partner.reshape(n, 4).copy()
+    q[q < 0] = np.iinfo(np.int64).max
+    chunk = 1 << 15
+    for s in range(0, n, chunk):
+        c = [np.ascontiguousarray(q[s : s + chunk, j]) for j in range(4)]
+        for i, j in ((0, 1), (2, 3), (0, 2), (1, 3), (1, 2)):
+            lo = np.minimum(c[i], c[j])
+            np.maximum(c[i], c[j], out=c[j])
+            c[i] = lo
+        for j in range(4):
+            q[s : s + chunk, j] = c[j]
+    has = q != np.iinfo(np.int64).max
+    nb = q >> 2
     if np.any((nb[:, 1:] == nb[:, :-1]) & has[:, 1:]):
         return None
     indptr = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(np.count_nonzero(has, axis=1), out=indptr[1:])
-    return indptr, nb[has], wc[has]
+    q = q[has]
+    return indptr, q >> 2, w[q]  # a shared face's two sides have the same weight
 
 
 def _cached_pairing(mesh: Mesh, faces: Faces) -> tuple[np.ndarray, np.ndarray] | None:
@@ -208,6 +218,14 @@ def _cached_pairing(mesh: Mesh, faces: Faces) -> tuple[np.ndarray, np.ndarray] |
     if c is None or c["faces"] is not faces or c["order"] is None:
         return None
     return c["order"], c["same"]
+
+
+def _cached_areas(mesh: Mesh, faces: Faces) -> np.ndarray | None:
+    """(F,) the area of every face of `faces` when reading computed them (all tetrahedra), else None."""
+    c = cached_faces(mesh)
+    if c is None or c["faces"] is not faces:
+        return None
+    return c.get("areas")
 
 
 def cached_faces(mesh: Mesh) -> dict | None:

@@ -449,11 +449,15 @@ def _project_to_plane(mesh: Mesh) -> None:
 
 def _orient_and_check(mesh: Mesh) -> None:
     """Reject degenerate cells, orient cells by topology (see orientation.py), record what was fixed."""
-    from .geometry import _measures_and_centroids, cell_faces
+    from .geometry import _all_tetrahedra, _measures_and_centroids, _tetra_measures, cell_faces
     from .orientation import orientation_flips
 
     faces = cell_faces(mesh) if mesh.dim == 3 else None
-    vol, cen = _measures_and_centroids(mesh, faces)
+    areas = None  # all tetrahedra: the face areas for the dual graph, from the same corners
+    if faces is not None and _all_tetrahedra(mesh):
+        vol, cen, areas = _tetra_measures(mesh, face_areas=True)
+    else:
+        vol, cen = _measures_and_centroids(mesh, faces)
     mesh.meta["measures"] = np.abs(vol)  # orientation does not change measure or centroid
     mesh.meta["centroids"] = cen
     bbox = mesh.points.max(axis=0) - mesh.points.min(axis=0)
@@ -474,7 +478,7 @@ def _orient_and_check(mesh: Mesh) -> None:
     if flip.any():
         _flip_cells(mesh, flip)
     if faces is not None:
-        _keep_faces(mesh, flip, faces, pairing)
+        _keep_faces(mesh, flip, faces, pairing, areas)
     folded = np.flatnonzero(signed < 0)
     mesh.meta["signed_measures"] = signed
     mesh.meta["orientation"] = {
@@ -484,13 +488,14 @@ def _orient_and_check(mesh: Mesh) -> None:
     }
 
 
-def _keep_faces(mesh: Mesh, flip: np.ndarray, faces, pairing: dict) -> None:
+def _keep_faces(mesh: Mesh, flip: np.ndarray, faces, pairing: dict, areas=None) -> None:
     """Keep the faces and the face pairing the orientation sorted, for prepare / dual_graph (one
     sort and one gather of every face: the costliest steps of reading, not done twice).
     They were made before the flips: a flipped tetrahedron lists the same faces in another local
     order and direction, so its faces are rebuilt in place and face ids in the pairing renumbered
-    (the keys, hence `same`, do not change). Other meshes keep them only when nothing was flipped."""
-    from .geometry import FACE_TEMPLATES, _all_tetrahedra
+    (the keys, hence `same`, do not change). Other meshes keep them only when nothing was flipped.
+    areas: all tetrahedra, _tetra_measures' (5, C) face areas: kept per face id, after the flips."""
+    from .geometry import FACE_TEMPLATES, _all_tetrahedra, tetra_face_areas
 
     order = pairing.get("order")
     if flip.any():
@@ -513,6 +518,7 @@ def _keep_faces(mesh: Mesh, flip: np.ndarray, faces, pairing: dict) -> None:
         "faces": faces,
         "order": order,
         "same": pairing.get("same"),
+        "areas": None if areas is None else tetra_face_areas(areas, flip),
     }
 
 

@@ -172,3 +172,40 @@ def test_faces_kept_by_reading_give_the_same_graph(n):
     assert np.array_equal(g1.weights, a.data)
     mesh.connectivity = mesh.connectivity.copy()  # another connectivity: the kept faces are not used
     assert cached_faces(mesh) is None
+
+
+def test_face_areas_kept_by_reading_are_face_measures_bit_for_bit():
+    """All tetrahedra: reading computes every face's area with the volumes (one gather of the
+    corners); with generic coordinates and mirrored cells they must be face_measures' values exactly,
+    and the graph built from them the graph built from fresh faces."""
+    from models.geometry import cell_faces, face_measures
+    from models.graph import cached_faces, dual_graph
+
+    n = 5
+    g = np.linspace(0, 1, n + 1)
+    x, y, z = np.meshgrid(g, g, g, indexing="ij")
+    rng = np.random.default_rng(7)
+    pts = np.column_stack([x.ravel(), y.ravel(), z.ravel()]) + rng.normal(scale=0.02, size=((n + 1) ** 3, 3))
+    pts = pts * 3.7 + 1e3  # far from the origin: rounding differs between node orders
+    m1 = n + 1
+    i, j, k = (a.ravel() for a in np.meshgrid(*(np.arange(n),) * 3, indexing="ij"))
+    c0 = (i * m1 + j) * m1 + k
+    d = [m1 * m1, m1, 1]
+    t = np.vstack(
+        [
+            np.column_stack([c0, c0 + d[a], c0 + d[a] + d[b], c0 + sum(d)])
+            for a, b in ((0, 1), (1, 0), (0, 2), (2, 0), (1, 2), (2, 1))
+        ]
+    )
+    t = t[rng.permutation(len(t))]
+    for perm in ([1, 0, 2, 3], [2, 3, 0, 1], [3, 1, 0, 2]):  # rotate / mirror some cells' node order
+        sw = rng.random(len(t)) < 0.3
+        t[sw] = t[sw][:, perm]
+    mesh = mesh_from_arrays(pts, [("tetra", t)])
+    assert mesh.meta["orientation"]["flipped"] > 0
+    kept = cached_faces(mesh)
+    fresh = cell_faces(mesh)
+    assert np.array_equal(kept["areas"], face_measures(mesh.points, fresh))
+    g1, g2 = dual_graph(mesh), dual_graph(mesh, fresh)
+    for a in ("indptr", "indices", "weights", "partner"):
+        assert np.array_equal(getattr(g1, a), getattr(g2, a)), a
