@@ -91,7 +91,6 @@ class _Segments:
         self.size = np.bincount(grp, minlength=k).astype(np.int64)
         self.start = np.zeros(k, dtype=np.int64)
         np.cumsum(self.size[:-1], out=self.start[1:])
-        self.cur = np.asarray(grp, dtype=np.int64).copy()
 
 
 def split_counts(grp: np.ndarray, need: np.ndarray, x: np.ndarray, w: np.ndarray,
@@ -109,61 +108,57 @@ def split_counts(grp: np.ndarray, need: np.ndarray, x: np.ndarray, w: np.ndarray
     need = np.asarray(need, dtype=np.int64).copy()
     k0 = need.size
     seg = segments if segments is not None else _Segments(x, grp, k0)
-    P, start, size, cur = seg.P, seg.start, seg.size, seg.cur
+    P, start, size = seg.P, seg.start, seg.size
+    Pf = P.reshape(-1)
     root = np.arange(k0)
     need = np.minimum(need, np.maximum(size, 1))
     tight = cell_lo is not None and slack > 0
+    if tight:
+        lo_f, hi_f = np.ascontiguousarray(cell_lo).reshape(-1), np.ascontiguousarray(cell_hi).reshape(-1)
     side = np.zeros(n, dtype=bool)
     while True:
-        k = need.size
         act = np.flatnonzero(need > 1)
         if act.size == 0:
             break
         a_start, a_size = start[act], size[act]
         na = act.size
-        tot = int(a_size.sum())
         a_off = np.zeros(na + 1, dtype=np.int64)
         np.cumsum(a_size, out=a_off[1:])
-        gs = np.repeat(np.arange(na), a_size)  # local part of each position
-        pos = np.repeat(a_start - a_off[:-1], a_size) + np.arange(tot)  # position in the orders
+        tot = int(a_off[-1])
+        s0, e1 = a_off[:-1], a_off[1:] - 1
+        r = np.arange(tot) - np.repeat(s0, a_size)  # rank inside the part
+        pos = np.repeat(a_start, a_size) + r  # position in the orders
         first, last = a_start, a_start + a_size - 1
         ext = np.column_stack([x[P[d, last], d] - x[P[d, first], d] for d in range(dim)])
         axis = np.argmax(ext, axis=1)
         length = ext[np.arange(na), axis]
-        vol = np.bincount(cur, weights=w, minlength=k)[act]
+        ax_pos = np.repeat(axis, a_size)
+        chosen = Pf[ax_pos * n + pos]  # cells of the active parts, sorted along their part's axis
+        ws = w[chosen]
+        cum = np.cumsum(ws)
+        base = cum[s0] - ws[s0]  # measure before each part
+        vol = cum[e1] - base
+        mid = cum - 0.5 * ws  # measure before each cell's middle (increasing)
         m = need[act]
         side_len = (np.maximum(vol, 1e-300) / np.maximum(m, 1)) ** (1.0 / dim)
         cols = np.maximum(2, np.rint(length / np.maximum(side_len, 1e-300))).astype(np.int64)
         m1 = np.clip(np.rint(m * (cols // 2) / cols).astype(np.int64), 1, np.maximum(m - 1, 1))
-        frac = m1 / np.maximum(m, 1)
-        ax_pos = axis[gs]
-        chosen = P[ax_pos, pos]  # cells of the active parts, sorted along their part's axis
-        ws = w[chosen]
-        cum = np.cumsum(ws)
-        s0 = a_off[:-1]
-        base = np.repeat(cum[s0] - ws[s0], a_size)
-        mid = cum - base - 0.5 * ws  # measure before the cell's middle, within its part
-        below = mid < frac[gs] * vol[gs]
-        cut = np.bincount(gs, weights=below, minlength=na).astype(np.int64)
+        target = base + m1 / np.maximum(m, 1) * vol
+        cut = np.searchsorted(mid, target) - s0  # cells whose middle lies below the quantile
         if tight:
-            cut, _ = _tight_cut(gs, s0, mid, vol / np.maximum(m, 1), frac * m, slack,
-                                cell_lo[chosen, ax_pos], cell_hi[chosen, ax_pos], cut)
+            cut = _tight_cut(chosen, ax_pos, dim, lo_f, hi_f, mid, target, vol / np.maximum(m, 1) * slack,
+                             s0, e1, cut, slack)
         n0 = np.clip(cut, m1, a_size - (m - m1))  # both sides keep at least as many cells as parts
-        upper = (np.arange(tot) - np.repeat(s0, a_size)) >= n0[gs]
-        new_id = k + np.arange(na)
-        moved = chosen[upper]
-        cur[moved] = new_id[gs[upper]]
+        n0_rep = np.repeat(n0, a_size)
+        side[chosen[r >= n0_rep]] = True
         # stable partition of every axis order inside each active range: side 0 first, then side 1
-        side[moved] = True
-        for d in range(dim):
-            vals = P[d, pos]
-            s = side[vals]
-            c1 = np.cumsum(s)
-            before1 = c1 - s - np.repeat(c1[s0] - s[s0], a_size)  # side-1 cells before, in the part
-            r = np.arange(tot) - np.repeat(s0, a_size)
-            dest = np.repeat(a_start, a_size) + np.where(s, n0[gs] + before1, r - before1)
-            P[d, dest] = vals
-        side[moved] = False
+        V = P[:, pos]
+        S = side[V]
+        ex = np.cumsum(S, axis=1) - S  # side-1 cells before, from the first active position
+        before1 = ex - np.repeat(ex[:, s0], a_size, axis=1)
+        dest = np.repeat(a_start, a_size) + np.where(S, n0_rep + before1, r - before1)
+        P[np.arange(dim)[:, None], dest] = V
+        side[V[0]] = False
         start = np.concatenate([start, a_start + n0])
         size = np.concatenate([size, a_size - n0])
         size[act] = n0
@@ -174,43 +169,58 @@ def split_counts(grp: np.ndarray, need: np.ndarray, x: np.ndarray, w: np.ndarray
     part_order = np.lexsort((np.arange(need.size), root))
     rank = np.empty(need.size, dtype=np.int64)
     rank[part_order] = np.arange(need.size)
+    by_pos = np.argsort(start, kind="stable")
+    labels = np.empty(n, dtype=np.int64)
+    labels[P[0]] = np.repeat(rank[by_pos], size[by_pos])
     seg.start, seg.size = start[part_order], size[part_order]  # ranges of the parts, in their new numbering
-    seg.cur = rank[cur]
-    return seg.cur.copy()
+    return labels
 
 
-def _tight_cut(gs, starts, mid, vol, frac, slack, vlo, vhi, n0):
-    """Per group, the cut rank (cells below it go to side 0) within `slack` x vol (the measure of
-    one final part) of the quantile frac x vol, minimising the overlap of the two sides' extents
-    along the cut axis."""
-    n = gs.size
-    ends = np.r_[starts[1:], n]
-    span = float(max(np.max(vhi) - np.min(vlo), 1e-300)) if n else 1.0
+def _tight_cut(chosen, ax_pos, dim, lo_f, hi_f, mid, target, window, s0, e1, cut, slack):
+    """Per part (positions s0..e1 of `chosen`, sorted along the cut axis), the cut (cells before it go
+    to side 0) whose middle measure lies within `window` of the quantile `target`, minimising the
+    overlap of the two sides' extents along the axis (first of the smallest; `cut` where none).
+    Only the window's positions are looked at one by one; the rest of a part by one reduceat each side."""
+    na = s0.size
+    wl = np.maximum(np.searchsorted(mid, target - window, side="left"), s0)
+    wh = np.minimum(np.searchsorted(mid, target + window, side="right"), e1)  # the cut after e1 is no cut
+    wlen = np.maximum(wh - wl, 0)
+    W = int(wlen.sum())
+    if W == 0:
+        return cut
+    vhi = hi_f[chosen * dim + ax_pos]
+    vlo = lo_f[chosen * dim + ax_pos]
+    span = float(max(vhi.max() - vlo.min(), 1e-300))
     big = 4.0 * span + 1.0
-    off = gs * big
-    pmax = np.maximum.accumulate(vhi - np.min(vhi) + off) - off  # max vhi of cells 0..i of the group
-    smin = np.minimum.accumulate((vlo - np.min(vlo) + off)[::-1])[::-1] - off  # min vlo of cells i..end
-    # cut after position i: overlap = pmax[i] - smin[i + 1] (clipped at 0), defined inside a group
-    nxt = np.r_[smin[1:], 0.0]
-    overlap = np.maximum(pmax + np.min(vhi) - (nxt + np.min(vlo)), 0.0)
-    target = frac[gs] * vol[gs]
-    dev = np.abs(mid + 0.0 - target) / np.maximum(vol[gs], 1e-300)
-    last_in_group = np.zeros(n, dtype=bool)
-    last_in_group[ends - 1] = True
-    ok = (dev <= slack) & ~last_in_group
-    cost = np.where(ok, overlap + 1e-9 * span * dev, np.inf)
-    # first position of each group's smallest cost (segmented argmin, no sort)
-    cmin = np.minimum.reduceat(cost, starts) if n else cost
-    hit = np.flatnonzero(cost == cmin[gs])
-    best = hit[np.r_[True, gs[hit][1:] != gs[hit][:-1]]]
-    g_best = gs[best]
-    good = np.isfinite(cost[best])
-    out = n0.copy()
-    rank_best = best - starts[g_best]  # groups are 0..G-1, each non-empty, starting at `starts`
-    out[g_best[good]] = rank_best[good] + 1
-    gcost = np.full(n0.size, np.inf)
-    gcost[g_best[good]] = cost[best][good]
-    return out, gcost
+    vmin = float(vlo.min())
+    # max hi of [s0, wl) and min lo of (wh, e1]: reduceat over interleaved bounds (empty -> +-inf)
+    hi_pad = np.r_[vhi, -np.inf]
+    lo_pad = np.r_[vlo, np.inf]
+    b = np.column_stack([s0, wl]).reshape(-1)
+    pre = np.maximum.reduceat(hi_pad, b)[::2]
+    pre[wl <= s0] = -np.inf
+    b = np.column_stack([wh + 1, e1 + 1]).reshape(-1)
+    post = np.minimum.reduceat(lo_pad, b)[::2]
+    post[wh + 1 > e1] = np.inf
+    gw = np.repeat(np.arange(na), wlen)
+    w_off = np.zeros(na + 1, dtype=np.int64)
+    np.cumsum(wlen, out=w_off[1:])
+    wpos = np.repeat(wl - w_off[:-1], wlen) + np.arange(W)  # cut after wpos
+    off = gw * big
+    pmax = np.maximum.accumulate(vhi[wpos] - vmin + off) - off + vmin
+    pmax = np.maximum(pmax, pre[gw])
+    smin = np.minimum.accumulate((vlo[wpos + 1] - vmin + off)[::-1])[::-1] - off + vmin
+    smin = np.minimum(smin, post[gw])
+    dev = np.abs(mid[wpos] - target[gw]) / np.maximum(window[gw] / slack, 1e-300)  # in final parts' measures
+    cost = np.maximum(pmax - smin, 0.0) + 1e-9 * span * dev
+    ws0 = w_off[:-1][wlen > 0]
+    cmin = np.minimum.reduceat(cost, ws0)
+    has = np.flatnonzero(wlen > 0)
+    hit = np.flatnonzero(cost == np.repeat(cmin, wlen[has]))
+    best = hit[np.r_[True, gw[hit][1:] != gw[hit][:-1]]]
+    out = cut.copy()
+    out[gw[best]] = wpos[best] - s0[gw[best]] + 1
+    return out
 
 
 def _grow_from_mains(rows: np.ndarray, cols: np.ndarray, labels: np.ndarray, frag: np.ndarray,
