@@ -67,3 +67,48 @@ def test_kway_has_no_hierarchy(tmp_path):
     res = run(mesh, model="metis", mode="kway", k=8, record_levels=True, compute_metrics=False)
     with pytest.raises(ParameterError, match="recursive mode"):
         write_hierarchy(res, str(tmp_path))
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_level_statistics_equal_the_per_level_metrics(dim):
+    """The batched statistics write_hierarchy writes without --metrics are metrics' own numbers."""
+    from models.hierarchy import build_hierarchy, level_statistics
+    from models.metrics import box_measures, partition_statistics, summarize
+    from models.pipeline import prepare
+
+    if dim == 2:
+        mesh = read_mesh(BRAIN)
+    else:
+        p, t = tets(6)
+        mesh = mesh_from_arrays(p, [("tetra", t)])
+    graph, data = prepare(mesh)
+    levels, _ = build_hierarchy(mesh, data, model="rtree", ratio=4, coarsest=4)
+    # the finest level with two non-adjacent children of one parent merged: nested, one element
+    # disconnected, which the batched connectedness must tell (then from the fine graph)
+    fine, par = levels[-1], levels[-2]
+    rows = np.repeat(np.arange(fine.size), np.diff(graph.indptr))
+    touching = set(zip(fine[rows].tolist(), fine[graph.indices].tolist(), strict=True))
+    pmap = np.zeros(int(fine.max()) + 1, dtype=np.int64)
+    pmap[fine] = par
+    pair = next((e1, e2) for e1 in range(pmap.size) for e2 in range(e1 + 1, pmap.size)
+                if pmap[e1] == pmap[e2] and (e1, e2) not in touching)
+    broken = np.unique(np.where(fine == pair[1], pair[0], fine), return_inverse=True)[1]
+    for lv in (levels, levels[:-1] + [broken]):
+        assert is_nested(lv)
+        stats = level_statistics(mesh, graph, lv, data.measures)
+        for lab, st in zip(lv, stats, strict=True):
+            bm = box_measures(mesh.points, mesh.offsets, mesh.connectivity, lab, data.measures)
+            assert st["coverage"] == pytest.approx(bm["coverage"], rel=1e-12)
+            assert st["summary"]["box_ratio"] == pytest.approx(summarize(bm["box_ratio"]), rel=1e-12)
+            ps = partition_statistics(graph.indptr, graph.indices, lab)
+            assert st["partition"] == pytest.approx(ps, rel=1e-12)
+            assert st["elements"] == int(lab.max()) + 1
+    assert not stats[-1]["partition"]["connected"] and stats[-2]["partition"]["connected"]
+
+
+def test_int_list_json_reads_back():
+    from models.hierarchy import _int_list_json
+
+    rng = np.random.default_rng(0)
+    for v in (np.array([0]), np.array([7, 0, 10, 99, 100]), rng.integers(0, 10**7, 1000), np.zeros(0, int)):
+        assert json.loads(_int_list_json(v)) == v.tolist()
