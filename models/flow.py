@@ -265,7 +265,7 @@ def flow_kway(
         return labels
     if objective == "ncut":
         schedule = "matching"
-    k = int(labels.max()) + 1
+    k = int(labels.max()) + 1 if limits is None else max(int(labels.max()) + 1, len(limits))
     rows = np.repeat(np.arange(n), np.diff(batch.indptr))
     cols = batch.indices
     caps = integer_capacities(batch.edge_counts())
@@ -275,7 +275,7 @@ def flow_kway(
     lim_part = (
         np.full(k, (1 + tolerance) * float(m.sum()) / k)
         if limits is None
-        else np.asarray(limits, dtype=np.float64)
+        else np.asarray(limits, dtype=np.float64)[:k]
     )
     rng = np.random.default_rng(seed)
     comps0 = part_components(rows, cols, labels, k)
@@ -383,3 +383,19 @@ def flow_kway(
             changed[pa[acc]] = r
             changed[pb[acc]] = r
     return labels
+
+
+def flow_bisections(
+    batch: GraphBatch, side: np.ndarray, tolerance: float = 0.05, rounds: int = 20, seed: int = 0
+) -> np.ndarray:
+    """Every graph's bisection refined by flows for its normalized cut, all graphs at once (its two
+    sides are a pair of parts): sides within (1 + tolerance) / 2 of the graph's measure or no
+    heavier than before, each side kept as connected as it was, no graph's normalized cut up."""
+    side = np.asarray(side, dtype=np.int64)
+    if batch.n_nodes == 0:
+        return side.copy()
+    gi = batch.graph_index()
+    total = np.bincount(gi, weights=batch.measures, minlength=batch.n_graphs)
+    limits = np.repeat((1 + tolerance) / 2 * total, 2)
+    out = flow_kway(batch, 2 * gi + side, tolerance, rounds, seed=seed, objective="ncut", limits=limits)
+    return out - 2 * gi

@@ -272,7 +272,8 @@ class FMRefiner(Refiner):
 
     def __init__(self, tolerance: float = 0.05, hops: int = 4, passes: int = 8, kway_rounds: int = 30,
                  kway_tolerance: float = 0.03, pair_rounds: int = 2, objective: str = "ncut", polish_rounds: int = 4,
-                 budget_factor: float = 2.0, tries: int | None = None, seed: int | None = 0, flow_rounds: int = 40):
+                 budget_factor: float = 2.0, tries: int | None = None, seed: int | None = 0, flow_rounds: int = 40,
+                 fm_max_nodes: int = 20_000):
         if not 0 <= tolerance < 1:
             raise ParameterError(f"fm tolerance must be in [0, 1), got {tolerance}")
         self.tolerance = float(tolerance)
@@ -289,6 +290,7 @@ class FMRefiner(Refiner):
         self.tries = tries  # None: 3 on batches up to 20k nodes, 1 above (each try is a full FM run)
         self.seed = seed
         self.flow_rounds = int(flow_rounds)  # flow refinement rounds of pairs of parts (models.flow); 0 = off
+        self.fm_max_nodes = int(fm_max_nodes)  # with flows: larger batches skip the move-by-move FM passes
 
     def refine(self, batch: GraphBatch, labels: np.ndarray) -> np.ndarray:
         labels = np.asarray(labels, dtype=np.int64)
@@ -299,6 +301,15 @@ class FMRefiner(Refiner):
             cap = (0.5 + self.tolerance / 2) * np.bincount(batch.graph_index(), weights=batch.measures,
                                                            minlength=batch.n_graphs)
         best = labels
+        if self.flow_rounds > 0:
+            # flows first (min cuts in balance-bounded bands, every graph at once), FM from there
+            from .flow import flow_bisections
+
+            flowed = flow_bisections(batch, labels, self.tolerance, min(self.flow_rounds, 20), self.seed or 0)
+            best = keep_better(batch, labels, connected_sides(batch, flowed))
+            if batch.n_nodes > self.fm_max_nodes:  # FM's move-by-move rounds would take minutes here
+                return best
+        start = best
         tries = self.tries if self.tries is not None else (3 if batch.n_nodes <= 20_000 else 1)
         for t in range(max(int(tries), 1)):
             # later tries break ties between equal gains at random (seeded): another local optimum
@@ -308,7 +319,7 @@ class FMRefiner(Refiner):
 
                 def score_fn(st, cand, gain, jitter=jitter):
                     return gain + 1e-9 * jitter[cand] * np.abs(gain).max(initial=0)
-            side = self._passes(batch, labels, cap, score_fn)
+            side = self._passes(batch, start, cap, score_fn)
             best = keep_better(batch, best, connected_sides(batch, side))
         return best
 

@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 
 from models.agglomerate import make_batch
-from models.flow import flow_kway, pair_mincut, part_components
+from models.flow import flow_bisections, flow_kway, pair_mincut, part_components
 from models.metrics import partition_statistics
 from models.partitioners import get_partitioner
 from models.partitioners.base import GraphBatch
-from models.refine import FMRefiner
+from models.refine import FMRefiner, bisection_ncut
 
 
 def grid(nx, ny):
@@ -131,3 +131,47 @@ def test_fm_refiner_kway_and_polish_use_the_flows(brain_kway):
     without = FMRefiner(flow_rounds=0).refine_kway(b, lab)
     assert stats(g, b, with_flow)["cut"] < stats(g, b, without)["cut"]
     assert stats(g, b, with_flow)["connected"]
+
+
+def test_flow_bisections_straighten_every_graph_of_a_batch():
+    # two zigzag grids in one batch: each graph's bisection gets its straight cut, both at once
+    b1, l1 = zigzag()
+    n = b1.n_nodes
+    b = GraphBatch(
+        indptr=np.r_[b1.indptr, b1.indptr[1:] + b1.indptr[-1]],
+        indices=np.r_[b1.indices, b1.indices + n],
+        weights=np.r_[b1.weights, b1.weights],
+        graph_ptr=np.array([0, n, 2 * n]),
+        centroids=np.r_[b1.centroids, b1.centroids],
+        measures=np.ones(2 * n),
+        tags=None,
+        node_ids=np.arange(2 * n),
+    )
+    side = np.r_[l1, 1 - l1]
+    before = bisection_ncut(b, side)
+    out = flow_bisections(b, side, tolerance=0.1)
+    after = bisection_ncut(b, out)
+    assert np.all(after < before)
+    assert cut(b, out) == 12  # 6 per graph: the optimum
+    meas = np.bincount(b.graph_index() * 2 + out, minlength=4).reshape(2, 2)
+    assert np.all(meas.max(axis=1) <= 1.1 / 2 * n + 1e-9)
+
+
+def test_flow_bisections_on_metis_never_worse_and_within_tolerance(brain):
+    m, g, d = brain
+    lab = (d.centroids[:, 0] > np.median(d.centroids[:, 0])).astype(np.int64)
+    b = make_batch(d, lab)
+    side = get_partitioner("metis").bisect_batch(b)
+    out = flow_bisections(b, side, tolerance=0.05)
+    nb, na = bisection_ncut(b, side), bisection_ncut(b, out)
+    assert np.all(na <= nb + 1e-12) and na.sum() < nb.sum()
+    gi = b.graph_index()
+    m0 = np.bincount(gi * 2 + side, weights=b.measures, minlength=4).reshape(2, 2)
+    m1 = np.bincount(gi * 2 + out, weights=b.measures, minlength=4).reshape(2, 2)
+    assert np.all(m1.max(axis=1) <= np.maximum(0.525 * m1.sum(axis=1), m0.max(axis=1)) + 1e-9)
+    # each side as connected as before
+    rows = np.repeat(np.arange(b.n_nodes), np.diff(b.indptr))
+    assert np.all(
+        part_components(rows, b.indices, 2 * gi + out, 4)
+        <= part_components(rows, b.indices, 2 * gi + side, 4)
+    )
