@@ -70,6 +70,17 @@ def upload_polygons(path: Path, ext: str, max_cells: int, memory_bytes: int, tim
     return _run_child(["--polygons", str(path), ext, str(max_cells)], memory_bytes, timeout_s)["polygons"]
 
 
+def level_picture(
+    path: Path, ext: str, archive: Path, level: int, out: Path, memory_bytes: int, timeout_s: float
+) -> None:
+    """The picture of one level of a hierarchy (the job's preview.png style: the exploded view in 3D)
+    written to `out`: the level's labels from the job's hierarchy.zip, the elements merged again from
+    the stored upload, in the same limited child process as the upload check."""
+    _run_child(
+        ["--level-picture", str(path), ext, str(archive), str(level), str(out)], memory_bytes, timeout_s
+    )
+
+
 def _run_child(args: list[str], memory_bytes: int, timeout_s: float) -> dict:
     """Run `python -m service.mesh_check ARGS` under the limits; its answer, or UploadRejected."""
 
@@ -168,7 +179,42 @@ def polygons_of(path: Path, max_cells: int) -> dict:
     }
 
 
+def draw_level(path: Path, archive: Path, level: int, out: Path) -> None:
+    """Merge a hierarchy level's elements (labels from the archive) and plot them (models.plot)."""
+    import zipfile
+
+    import numpy as np
+
+    from models.io import read_mesh
+    from models.merge import merge
+    from models.pipeline import prepare
+    from models.plot import plot_agglomeration
+
+    with zipfile.ZipFile(archive) as zf:
+        index = json.loads(zf.read("hierarchy.json"))
+        labels = np.asarray(json.loads(zf.read(index["levels"][level]["labels"])), dtype=np.int64)
+    mesh = read_mesh(str(path))
+    if labels.shape != (mesh.n_cells,):
+        raise UploadRejected(422, f"level {level} has {labels.size} labels for {mesh.n_cells} cells")
+    graph, data = prepare(mesh)
+    poly = merge(mesh, graph, labels, data.measures)[0]
+    fine = mesh if mesh.dim == 2 and mesh.n_cells <= 200_000 else None
+    plot_agglomeration(poly, out, fine_mesh=fine, title=f"level {level}: {poly.n_elements} elements", dpi=100)
+
+
 def _child_main(argv: list[str]) -> int:
+    if argv and argv[0] == "--level-picture":
+        try:
+            draw_level(Path(argv[1]), Path(argv[3]), int(argv[4]), Path(argv[5]))
+            out = {"picture": argv[5]}
+        except UploadRejected as exc:
+            out = {"status": exc.status, "error": exc.message}
+        except MemoryError:
+            out = {"status": 422, "error": "the level could not be drawn within the memory limit"}
+        except Exception as exc:
+            out = {"status": 422, "error": f"cannot draw the level: {type(exc).__name__}: {exc}"[:2000]}
+        print(json.dumps(out))
+        return 0
     if argv and argv[0] == "--polygons":
         try:
             out = {"polygons": polygons_of(Path(argv[1]), int(argv[3]))}

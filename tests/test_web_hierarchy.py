@@ -69,3 +69,45 @@ def test_hierarchy_levels_json(app, tmp_path):  # noqa: F811
     plain = finished_job(client, settings, square, model="metis", mode="kway", k=4)
     r = client.get(f"/v1/jobs/{plain['id']}/hierarchy/levels", headers=ALICE)
     assert r.status_code == 404 and "options.hierarchy" in r.text
+
+
+def test_hierarchy_level_pictures_of_a_3d_job(app, tmp_path):  # noqa: F811
+    import meshio
+    from meshes import tets
+
+    client, settings = app
+    points, cells = tets(6)[:2]
+    path = tmp_path / "cube.vtu"
+    meshio.write(path, meshio.Mesh(points, [("tetra", cells)]))
+    job = finished_job(
+        client,
+        settings,
+        path,
+        model="rtree",
+        mode="kway",
+        k=8,
+        options={"hierarchy": True, "ratio": 8, "coarsest": 4},
+    )
+    levels = client.get(f"/v1/jobs/{job['id']}/hierarchy/levels", headers=ALICE).json()
+    assert levels["dim"] == 3 and len(levels["levels"]) >= 2
+    # 3D levels are not polygons: a picture each (the exploded view, as a 3D job's preview.png)
+    assert client.get(f"/v1/jobs/{job['id']}/hierarchy/levels/0", headers=ALICE).status_code == 404
+    n = len(levels["levels"])
+    first = None
+    for L in range(n - 1):  # every level but the finest: drawn now
+        r = client.get(f"/v1/jobs/{job['id']}/hierarchy/levels/{L}/preview.png", headers=ALICE)
+        assert r.status_code == 200, r.text
+        assert r.headers["content-type"] == "image/png" and r.content[:8] == b"\x89PNG\r\n\x1a\n"
+        first = first or r.content
+    (tmp_path / "level0.png").write_bytes(first)
+    again = client.get(f"/v1/jobs/{job['id']}/hierarchy/levels/0/preview.png", headers=ALICE)
+    assert again.content == first  # drawn once, then kept with the results
+    bad = client.get(f"/v1/jobs/{job['id']}/hierarchy/levels/{n}/preview.png", headers=ALICE)
+    assert bad.status_code == 404
+    assert client.get(f"/v1/jobs/{job['id']}/hierarchy/levels/0/preview.png", headers=BOB).status_code == 404
+    assert client.get(f"/v1/meshes/{job['mesh_id']}/polygons", headers=ALICE).status_code == 404  # 3D
+    # the upload deleted: the pictures drawn stay, a level not drawn yet cannot be (404 that says why)
+    assert client.delete(f"/v1/meshes/{job['mesh_id']}", headers=ALICE).status_code == 204
+    assert client.get(f"/v1/jobs/{job['id']}/hierarchy/levels/0/preview.png", headers=ALICE).content == first
+    r = client.get(f"/v1/jobs/{job['id']}/hierarchy/levels/{n - 1}/preview.png", headers=ALICE)
+    assert r.status_code == 404 and "deleted" in r.text

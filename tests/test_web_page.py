@@ -267,6 +267,34 @@ def test_page_builds_a_hierarchy_and_shows_every_level(browser, tmp_path):
             page.click("#hierarchy-download a")
         assert info.value.suggested_filename.endswith("hierarchy.zip")
         assert "hierarchy.json" in zipfile.ZipFile(info.value.path()).namelist()
+        # 3D: each level's picture (the exploded view, as a 3D job's preview), one over the other
+        import meshio
+        from meshes import tets
+
+        cube = tmp_path / "cube.vtu"
+        meshio.write(cube, meshio.Mesh(*tets(4)[:1], [("tetra", tets(4)[1])]))
+        page.set_input_files("#file", str(cube))
+        until(page, "document.querySelector('#mesh-summary').textContent.includes('384')")
+        page.select_option("select[name=model]", "rtree")
+        page.fill("input[name=k]", "8")
+        page.fill("input[name=ratio]", "4")
+        page.fill("input[name=coarsest]", "6")
+        run_job(page)
+        until(page, f"(d => d && d !== '{job_id}')(document.querySelector('#hierarchy').dataset.job)")
+        cube_id = page.evaluate("document.querySelector('#hierarchy').dataset.job")
+        counts = [
+            lv["elements"]
+            for lv in httpx.get(f"{url}/v1/jobs/{cube_id}/hierarchy/levels", timeout=30).json()["levels"]
+        ]
+        assert len(counts) >= 2
+        until(
+            page,
+            f"[...document.querySelectorAll('#levels .level img')].filter(i => i.naturalWidth > 0).length === {len(counts)}",
+            60_000,
+        )
+        assert [page.locator("#levels .level h3 .count").nth(L).inner_text() for L in range(len(counts))] == [
+            str(n) for n in counts
+        ]
         assert errors == []
     finally:
         proc.stop()

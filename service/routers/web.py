@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import tempfile
+import uuid
 import zipfile
 from pathlib import Path
 
@@ -16,11 +18,12 @@ from fastapi import Path as PathParam
 from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 
+from jobqueue.db import MeshRecord
 from service.auth import current_user
 from service.context import Context, get_context
-from service.jobs import NotFound, visible_mesh
-from service.mesh_check import UploadRejected, upload_polygons
-from service.openapi import errors
+from service.jobs import NotFound, visible_job, visible_mesh
+from service.mesh_check import UploadRejected, level_picture, upload_polygons
+from service.openapi import binary, errors
 from service.routers.jobs import JOB_ID, result_file
 from service.routers.meshes import MESH_ID
 from service.schemas import ErrorOut
@@ -211,3 +214,49 @@ def mesh_polygons(
         ctx.settings.parse_memory_bytes,
         ctx.settings.parse_timeout_s,
     )
+
+
+@router.get(
+    "/v1/jobs/{job_id}/hierarchy/levels/{level}/preview.png",
+    tags=["jobs"],
+    response_class=FileResponse,
+    responses={**errors(401, 404, 409, 422), **binary("image/png", "A picture of the level.")},
+)
+def hierarchy_level_picture(
+    job_id: str = JOB_ID,
+    level: int = LEVEL,
+    user: str = Depends(current_user),
+    ctx: Context = Depends(get_context),
+) -> FileResponse:
+    """A picture of one level of a hierarchy job, as the job's preview.png (3D: the exploded view):
+    drawn from the stored upload and the level's labels the first time, then kept with the results.
+    404 when the level does not exist or the mesh was deleted."""
+    archive = result_file(ctx, user, job_id, "hierarchy.zip")
+    with zipfile.ZipFile(archive) as zf:
+        levels = len(json.loads(zf.read("hierarchy.json"))["levels"])
+    if level >= levels:
+        raise NotFound(f"the hierarchy has levels 0..{levels - 1}, not {level}")
+    picture = archive.parent / "web" / f"level_{level}.png"
+    if not picture.exists():
+        with ctx.db.session() as s:
+            job = visible_job(s, user, job_id)
+            mesh = s.get(MeshRecord, job.mesh_id)
+        path = ctx.storage.mesh_path(mesh.id, mesh.ext) if mesh is not None else None
+        if path is None or not path.exists():
+            raise NotFound("the job's mesh was deleted: no picture of its levels (hierarchy.zip has them)")
+        picture.parent.mkdir(exist_ok=True)
+        part = picture.with_name(f"{picture.name}.{uuid.uuid4().hex}.tmp")
+        try:
+            level_picture(
+                path,
+                mesh.ext,
+                archive,
+                level,
+                part,
+                ctx.settings.parse_memory_bytes,
+                ctx.settings.parse_timeout_s,
+            )
+            os.replace(part, picture)
+        finally:
+            part.unlink(missing_ok=True)
+    return FileResponse(picture, media_type="image/png", filename=f"{job_id}-level_{level}.png")

@@ -405,9 +405,20 @@ async function showHierarchy(job) {
   const host = $("#levels");
   host.innerHTML = info.levels.map((lv) => `<div class="level" data-level="${lv.level}" data-elements="${lv.elements}">`
     + `<h3>Level ${lv.level} · <span class="count">${lv.elements}</span> elements${lv.level === n - 1 ? " (finest)" : lv.level === 0 ? " (coarsest)" : ""}</h3>`
-    + `<div class="level-row"><div class="level-view">${info.dim === 2 ? "" : `<p class="hint">3D: open level_${lv.level}.vtu of hierarchy.zip (ParaView)</p>`}</div>`
+    + `<div class="level-row"><div class="level-view">${info.dim === 2 ? "" : `<img alt="level ${lv.level}">`}</div>`
     + `${levelTable(lv)}</div></div>`).join("");
-  if (info.dim !== 2) return;
+  if (info.dim !== 2) {
+    // 3D: each level's picture, as a 3D job's preview.png (the exploded view), drawn by the server
+    await Promise.all(info.levels.map(async (lv) => {
+      const img = $(`#levels .level[data-level="${lv.level}"] img`);
+      try {
+        img.src = await blobURL(`v1/jobs/${job.id}/hierarchy/levels/${lv.level}/preview.png`);
+      } catch (e) {
+        img.replaceWith(Object.assign(document.createElement("p"), { className: "error", textContent: e.message }));
+      }
+    }));
+    return;
+  }
   const [fine, ...polys] = await Promise.all([
     meshOf(job.mesh_id).then(finePolygons),
     ...info.levels.map((lv) => getJSON(`v1/jobs/${job.id}/hierarchy/levels/${lv.level}`)),
