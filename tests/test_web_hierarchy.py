@@ -69,6 +69,14 @@ def test_hierarchy_levels_json(app, tmp_path):  # noqa: F811
     plain = finished_job(client, settings, square, model="metis", mode="kway", k=4)
     r = client.get(f"/v1/jobs/{plain['id']}/hierarchy/levels", headers=ALICE)
     assert r.status_code == 404 and "options.hierarchy" in r.text
+    # the levels a recursive mode records (no ratio): the same JSON
+    rec = finished_job(
+        client, settings, square, model="metis", mode="nref", nref=3, options={"hierarchy": True}
+    )
+    levels = client.get(f"/v1/jobs/{rec['id']}/hierarchy/levels", headers=ALICE).json()
+    assert [lv["elements"] for lv in levels["levels"]] == [1, 2, 4, 8] and levels["nested"]
+    poly = client.get(f"/v1/jobs/{rec['id']}/hierarchy/levels/3", headers=ALICE).json()
+    assert len(poly["offsets"]) == 9 and sorted(set(poly["parent"])) == [0, 1, 2, 3]
 
 
 def test_hierarchy_level_pictures_of_a_3d_job(app, tmp_path):  # noqa: F811
