@@ -125,6 +125,12 @@ def read_mesh(
         raise MeshError(
             f"unknown mesh format {ext or '(no extension)'!r}; use one of: " + ", ".join(SUPPORTED_EXTENSIONS)
         )
+    if (file_format or ext.lstrip(".")) == "vtu":
+        from .vtu import read_vtu_simple
+
+        simple = read_vtu_simple(path)  # the common layout without meshio's XML tree; else None
+        if simple is not None:
+            return mesh_from_meshio(simple, physical_tag=physical_tag, weld=weld)
     try:
         with (
             warnings.catch_warnings(),
@@ -449,14 +455,22 @@ def _project_to_plane(mesh: Mesh) -> None:
 
 def _orient_and_check(mesh: Mesh) -> None:
     """Reject degenerate cells, orient cells by topology (see orientation.py), record what was fixed."""
-    from .geometry import _all_tetrahedra, _measures_and_centroids, _tetra_measures, cell_faces
+    from .geometry import (
+        _all_tetrahedra,
+        _measures_and_centroids,
+        _tetra_measures,
+        cell_faces,
+        tetra_face_areas,
+    )
     from .orientation import orientation_flips
 
-    faces = cell_faces(mesh) if mesh.dim == 3 else None
+    tets = _all_tetrahedra(mesh)
     areas = None  # all tetrahedra: the face areas for the dual graph, from the same corners
-    if faces is not None and _all_tetrahedra(mesh):
+    if tets:
+        faces = None  # built once the cells are mirrored by their own sign (below)
         vol, cen, areas = _tetra_measures(mesh, face_areas=True)
     else:
+        faces = cell_faces(mesh) if mesh.dim == 3 else None
         vol, cen = _measures_and_centroids(mesh, faces)
     mesh.meta["measures"] = np.abs(vol)  # orientation does not change measure or centroid
     mesh.meta["centroids"] = cen
@@ -473,12 +487,26 @@ def _orient_and_check(mesh: Mesh) -> None:
             "remove them (or merge their coincident points with --weld) and retry"
         )
     pairing: dict = {}
-    flip = orientation_flips(mesh, vol, faces, pairing)
+    if tets:
+        # Mirror every negative tetrahedron first (the usual answer), then build the faces and their
+        # pairing once, on the mirrored cells: nothing to rebuild or renumber unless the orientation
+        # flips more cells (folded ones). The same result as orienting the cells as they came: the
+        # topology fixes each piece up to one global flip, chosen by the sign of its total volume.
+        own = vol < 0
+        if own.any():
+            c = mesh.connectivity.reshape(-1, 4)
+            sel = np.flatnonzero(own)
+            c[sel, 1], c[sel, 2] = c[sel, 2], c[sel, 1]  # MIRROR[VTK_TETRA]
+        faces = cell_faces(mesh)
+        more = orientation_flips(mesh, np.abs(vol), faces, pairing)
+        flip = own ^ more
+    else:
+        more = flip = orientation_flips(mesh, vol, faces, pairing)
     signed = np.where(flip, -vol, vol)
-    if flip.any():
-        _flip_cells(mesh, flip)
+    if more.any():
+        _flip_cells(mesh, more)
     if faces is not None:
-        _keep_faces(mesh, flip, faces, pairing, areas)
+        _keep_faces(mesh, more, faces, pairing, None if areas is None else tetra_face_areas(areas, flip))
     folded = np.flatnonzero(signed < 0)
     mesh.meta["signed_measures"] = signed
     mesh.meta["orientation"] = {
@@ -494,8 +522,8 @@ def _keep_faces(mesh: Mesh, flip: np.ndarray, faces, pairing: dict, areas=None) 
     They were made before the flips: a flipped tetrahedron lists the same faces in another local
     order and direction, so its faces are rebuilt in place and face ids in the pairing renumbered
     (the keys, hence `same`, do not change). Other meshes keep them only when nothing was flipped.
-    areas: all tetrahedra, _tetra_measures' (5, C) face areas: kept per face id, after the flips."""
-    from .geometry import FACE_TEMPLATES, _all_tetrahedra, tetra_face_areas
+    areas: all tetrahedra, every face's area (face id 4 * cell + local face) after the flips."""
+    from .geometry import FACE_TEMPLATES, _all_tetrahedra
 
     order = pairing.get("order")
     if flip.any():
@@ -518,7 +546,7 @@ def _keep_faces(mesh: Mesh, flip: np.ndarray, faces, pairing: dict, areas=None) 
         "faces": faces,
         "order": order,
         "same": pairing.get("same"),
-        "areas": None if areas is None else tetra_face_areas(areas, flip),
+        "areas": areas,
     }
 
 

@@ -141,8 +141,9 @@ def _consistent_paired(faces: Faces, flip: np.ndarray, order: np.ndarray, same: 
     i = np.flatnonzero(same)
     fa, fb = order[i], order[i + 1]
     bit = _face_direction(faces)
-    f = flip[faces.cell]
-    return not np.any((bit[fa] ^ f[fa]) == (bit[fb] ^ f[fb]))
+    if not flip.any():  # e.g. tetrahedra already mirrored by their own sign
+        return not np.any(bit[fa] == bit[fb])
+    return not np.any((bit[fa] ^ flip[faces.cell[fa]]) == (bit[fb] ^ flip[faces.cell[fb]]))
 
 
 def _pairs_of(order: np.ndarray, same: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

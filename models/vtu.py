@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import base64
 import os
+import re
+import sys
 
 import numpy as np
 
@@ -278,3 +280,195 @@ def read_vtu_mixed(path: str | os.PathLike):
         cell_data=cell_data,
         field_data=field_data,
     )
+
+
+# The common VTU layout, read without meshio's XML tree (what meshio.read of a large file spends
+# beside decoding): one Piece, inline base64 "binary" DataArrays, zlib-compressed or not, cells of
+# one fixed-size type that meshio keeps in VTK's node order, no point or field data. Any other file
+# (or anything unexpected) gives None, and meshio reads it. The arrays are those meshio.read gives.
+_SIMPLE_CELLS = {5: ("triangle", 3), 9: ("quad", 4), 10: ("tetra", 4), 12: ("hexahedron", 8)}
+_ATTR = re.compile(rb'([A-Za-z_][-\w.:]*)\s*=\s*"([^"<&]*)"')
+_SECTIONS = {b"Points", b"Cells", b"CellData", b"PointData"}
+
+
+def read_vtu_simple(path: str | os.PathLike):
+    """meshio.read of a VTU of the common layout above (a meshio-like object: points, cells
+    [.type, .data], cell_data {name: [array]}, field_data), or None for any other file."""
+    if sys.byteorder != "little":
+        return None
+    try:
+        with open(os.fspath(path), "rb") as fh:
+            data = fh.read()
+        return _simple_vtu(data)
+    except Exception:  # noqa: BLE001  (anything unexpected: meshio reads it, and says what is wrong)
+        return None
+
+
+def _simple_vtu(data: bytes):
+    from types import SimpleNamespace
+
+    root, arrays = _scan_vtu(data)
+    if root is None:
+        return None
+    a = {k.decode(): v.decode() for k, v in root.items()}
+    if a.get("type") != "UnstructuredGrid" or a.get("version", "0.1") not in ("0.1", "1.0"):
+        return None
+    if a.get("byte_order", "LittleEndian") != "LittleEndian":
+        return None
+    compressor = a.get("compressor")
+    if compressor not in (None, "vtkZLibDataCompressor"):
+        return None
+    header = {"UInt32": np.dtype("<u4"), "UInt64": np.dtype("<u8")}.get(a.get("header_type", "UInt32"))
+    if header is None:
+        return None
+    piece, sections = arrays
+    n_points, n_cells = int(piece[b"NumberOfPoints"]), int(piece[b"NumberOfCells"])
+    if sections.get(b"PointData") or set(sections) - _SECTIONS or len(sections.get(b"Points", ())) != 1:
+        return None
+    decode = _decode_zlib if compressor else _decode_raw
+
+    def array(attrs: dict, text: bytes) -> np.ndarray:
+        if attrs.get(b"format") != b"binary":
+            raise ValueError("not inline binary")
+        kind = _NP_TYPES[attrs[b"type"].decode()]
+        out = decode(text.strip(), np.dtype(kind).newbyteorder("<"), header)
+        if b"NumberOfComponents" in attrs:
+            out = out.reshape(-1, int(attrs[b"NumberOfComponents"]))
+        return out
+
+    p_attrs, p_text = sections[b"Points"][0]
+    points = array(p_attrs, p_text).reshape(n_points, int(p_attrs[b"NumberOfComponents"]))
+    cells = {attrs[b"Name"]: (attrs, text) for attrs, text in sections.get(b"Cells", ())}
+    if set(cells) != {b"connectivity", b"offsets", b"types"}:
+        return None
+    types = array(*cells[b"types"])
+    offsets = array(*cells[b"offsets"])
+    if types.shape != (n_cells,) or offsets.shape != (n_cells,) or n_cells == 0:
+        return None
+    t = int(types[0])
+    if t not in _SIMPLE_CELLS or not np.all(types == t):
+        return None
+    name, k = _SIMPLE_CELLS[t]
+    conn = array(*cells[b"connectivity"])
+    if conn.shape != (k * n_cells,) or not np.array_equal(offsets, np.arange(k, k * n_cells + 1, k)):
+        return None
+    cell_data = {}
+    for attrs, text in sections.get(b"CellData", ()):
+        d = array(attrs, text)
+        if d.shape[0] != n_cells:
+            return None
+        cell_data[attrs[b"Name"].decode()] = [d[np.arange(n_cells)]]  # a copy, as meshio's d[start + items]
+    return SimpleNamespace(
+        points=points,
+        # meshio adds the piece's point offset (a numpy int64 0): the same dtype promotion, a new array
+        cells=[SimpleNamespace(type=name, data=(conn + np.cumsum([0])[0]).reshape(n_cells, k))],
+        cell_data=cell_data,
+        field_data={},
+    )
+
+
+def _scan_vtu(data: bytes):
+    """The VTKFile tag's attributes and the Piece's attributes and {section: [(attrs, text)]} of its
+    DataArrays, walking the tags with bytes.find (the base64 text between them is never parsed);
+    (None, None) for any layout but VTKFile/UnstructuredGrid/Piece/section/DataArray (with VTK's
+    InformationKey/Value children)."""
+    stack: list[bytes] = []
+    root = piece = None
+    sections: dict[bytes, list] = {}
+    pos = 0
+    while True:
+        lt = data.find(b"<", pos)
+        if lt < 0:
+            break
+        if data.startswith(b"<?", lt):
+            pos = data.index(b"?>", lt) + 2
+            continue
+        if data.startswith(b"<!--", lt):
+            end = data.index(b"-->", lt)
+            if b"<" in data[lt + 4 : end]:
+                return None, None
+            pos = end + 3
+            continue
+        if data.startswith(b"<!", lt):
+            return None, None  # CDATA, DOCTYPE
+        gt = data.index(b">", lt)
+        tag = data[lt + 1 : gt]
+        if b"<" in tag or b"&" in tag:
+            return None, None
+        if tag.startswith(b"/"):
+            if not stack or stack.pop() != tag[1:].strip():
+                return None, None
+            pos = gt + 1
+            continue
+        closed = tag.endswith(b"/")
+        name = tag.rstrip(b"/").split(None, 1)[0]
+        attrs = dict(_ATTR.findall(tag))
+        depth = len(stack)
+        expected = (
+            b"VTKFile",
+            b"UnstructuredGrid",
+            b"Piece",
+            None,
+            b"DataArray",
+            b"InformationKey",
+            b"Value",
+        )
+        if depth >= len(expected) or (expected[depth] is not None and name != expected[depth]):
+            return None, None
+        if depth == 0:
+            if root is not None:
+                return None, None
+            root = attrs
+        elif depth == 2:
+            if piece is not None:
+                return None, None  # more than one Piece
+            piece = attrs
+        elif depth == 3:
+            sections.setdefault(name, [])
+        elif depth == 4:  # its text runs to the next tag (VTK may add InformationKey children)
+            end = data.find(b"<", gt + 1)
+            if closed or end < 0:
+                return None, None
+            sections[stack[3]].append((attrs, data[gt + 1 : end]))
+        if not closed:
+            stack.append(name)
+        pos = gt + 1
+    if stack or root is None or piece is None:
+        return None, None
+    return root, (piece, sections)
+
+
+def _decode_raw(text: bytes, dtype: np.dtype, header: np.dtype) -> np.ndarray:
+    """meshio's read_uncompressed_binary."""
+    raw = base64.b64decode(text)
+    h = header.itemsize
+    total = int(np.frombuffer(raw[:h], header)[0])
+    if len(raw) == h:  # header and data encoded separately
+        raw = base64.b64decode(text[len(base64.b64encode(raw)) :])
+    else:
+        raw = raw[h:]
+    return np.frombuffer(raw[:total], dtype=dtype)
+
+
+def _decode_zlib(text: bytes, dtype: np.dtype, header: np.dtype) -> np.ndarray:
+    """meshio's read_compressed_binary (zlib): a header of block sizes, then the blocks."""
+    import zlib
+
+    h = header.itemsize
+    n_blocks = int(np.frombuffer(base64.b64decode(text[: -(-h // 3) * 4])[:h], header)[0])
+    n_chars = -(-(h * (3 + n_blocks)) // 3) * 4
+    sizes = np.frombuffer(base64.b64decode(text[:n_chars]), header)[3 : 3 + n_blocks].astype(np.int64)
+    raw = memoryview(base64.b64decode(text[n_chars:]))
+    ends = np.cumsum(sizes).tolist()
+    starts = [0, *ends[:-1]]
+    seen: dict[bytes, bytes] = {}  # equal blocks (a types array of one cell type) are inflated once
+    blocks = []
+    for s, e in zip(starts, ends, strict=True):
+        b = raw[s:e].tobytes()
+        out = seen.get(b)
+        if out is None:
+            out = seen[b] = zlib.decompress(b)
+        blocks.append(out)
+    if any(len(b) % dtype.itemsize for b in blocks):
+        raise ValueError("a block does not hold whole items")
+    return np.frombuffer(bytearray().join(blocks), dtype=dtype)  # writable, as meshio's concatenate

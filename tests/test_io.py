@@ -270,3 +270,94 @@ def test_non_planar_surface_mesh():
     pts = np.column_stack([p, (p[:, 0] - 0.5) ** 2])
     with pytest.raises(MeshError, match="non-planar"):
         mesh_from_arrays(pts, [("triangle", t)])
+
+
+def _same_as_meshio(path):
+    from models.vtu import read_vtu_simple
+
+    fast, ref = read_vtu_simple(path), meshio.read(path)
+    if fast is None:
+        return None
+    assert np.array_equal(fast.points, ref.points) and fast.points.dtype == ref.points.dtype
+    assert [(b.type, b.data.dtype) for b in fast.cells] == [(b.type, b.data.dtype) for b in ref.cells]
+    assert all(np.array_equal(a.data, b.data) for a, b in zip(fast.cells, ref.cells, strict=True))
+    assert sorted(fast.cell_data) == sorted(ref.cell_data)
+    for k, v in ref.cell_data.items():
+        assert [(a.dtype, a.shape) for a in fast.cell_data[k]] == [(a.dtype, a.shape) for a in v]
+        assert all(np.array_equal(a, b) for a, b in zip(fast.cell_data[k], v, strict=True))
+    return fast
+
+
+def test_simple_vtu_reader_gives_meshio_arrays_or_leaves_the_file_to_meshio(tmp_path):
+    """The common VTU layout (meshio's and VTK's inline binary, zlib or not) is read without
+    meshio's XML tree, with exactly meshio.read's arrays; any other layout is left to meshio."""
+    vtk = pytest.importorskip("vtk")
+    from vtk.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray
+
+    p, t = tets(3)
+    t = np.asarray(t, dtype=np.int64)
+    tags = (np.arange(len(t)) % 3).astype(np.int32)
+    cd = {"gmsh:physical": [tags], "vec": [np.linspace(0, 1, 3 * len(t)).reshape(-1, 3)]}
+    fast = {
+        "zlib": write(tmp_path, "zlib.vtu", p, [("tetra", t)], cell_data=cd),
+        "raw": str(tmp_path / "raw.vtu"),
+        "int32": write(tmp_path, "i32.vtu", p.astype(np.float32), [("tetra", t.astype(np.int32))]),
+        "triangles": write(tmp_path, "tri.vtu", *(lambda q, c: (q, [("triangle", c)]))(*triangles(4))),
+        "two blocks": write(tmp_path, "two.vtu", p, [("tetra", t[:3]), ("tetra", t[3:])]),
+    }
+    meshio.write(fast["raw"], meshio.Mesh(p, [("tetra", t)], cell_data=cd), compression=None)
+    ug = vtk.vtkUnstructuredGrid()
+    pts = vtk.vtkPoints()
+    pts.SetData(numpy_to_vtk(np.asarray(p, dtype=np.float64)))
+    ug.SetPoints(pts)
+    ca = vtk.vtkCellArray()
+    ca.SetData(
+        numpy_to_vtkIdTypeArray(np.arange(0, 4 * len(t) + 1, 4, dtype=np.int64), deep=True),
+        numpy_to_vtkIdTypeArray(t.ravel().copy(), deep=True),
+    )
+    ug.SetCells(10, ca)
+    arr = numpy_to_vtk(tags, deep=True)
+    arr.SetName("gmsh:physical")
+    ug.GetCellData().AddArray(arr)
+    for comp in (True, False):  # VTK adds InformationKey children to the points
+        w = vtk.vtkXMLUnstructuredGridWriter()
+        w.SetInputData(ug)
+        w.SetDataModeToBinary()
+        if not comp:
+            w.SetCompressorTypeToNone()
+        fast[f"vtk {comp}"] = str(tmp_path / f"vtk{comp}.vtu")
+        w.SetFileName(fast[f"vtk {comp}"])
+        w.Write()
+    for name, path in fast.items():
+        assert _same_as_meshio(path) is not None, name
+        assert (
+            read_mesh(path).meta["orientation"]
+            == mesh_from_arrays(
+                *(lambda m: (m.points, [(b.type, b.data) for b in m.cells]))(meshio.read(path))
+            ).meta["orientation"]
+        )
+    w = vtk.vtkXMLUnstructuredGridWriter()
+    w.SetInputData(ug)
+    w.SetDataModeToAppended()
+    w.SetFileName(str(tmp_path / "appended.vtu"))
+    w.Write()
+    others = [
+        str(tmp_path / "appended.vtu"),
+        write(tmp_path, "mixed.vtu", *mixed_3d(2)),
+        write(
+            tmp_path, "wedges.vtu", *(lambda q, c: (q, [("wedge", c)]))(*wedges(2))
+        ),  # meshio reorders wedges
+        write(tmp_path, "pd.vtu", p, [("tetra", t)], point_data={"u": np.asarray(p)[:, 0]}),
+    ]
+    meshio.write(str(tmp_path / "ascii.vtu"), meshio.Mesh(p, [("tetra", t)]), binary=False)
+    meshio.write(str(tmp_path / "lzma.vtu"), meshio.Mesh(p, [("tetra", t)]), compression="lzma")
+    others += [str(tmp_path / "ascii.vtu"), str(tmp_path / "lzma.vtu")]
+    for path in others:
+        assert _same_as_meshio(path) is None, path
+    broken = tmp_path / "broken.vtu"
+    broken.write_bytes(open(fast["zlib"], "rb").read()[:-3000])
+    from models.vtu import read_vtu_simple
+
+    assert read_vtu_simple(broken) is None
+    with pytest.raises(MeshError):
+        read_mesh(broken)
