@@ -376,7 +376,8 @@ def build_hierarchy(mesh: Mesh, data: CellData, model: str = "rtree", ratio: flo
         batch = make_batch(data, np.zeros(n, dtype=np.int64))
         batch.cell_boxes = cell_boxes(data.points, data.offsets, data.connectivity)
         tags = None if not groups else np.unique(mesh.tags, return_inverse=True)[1].astype(np.int64)
-        levels = rtree_levels(batch, counts, groups=tags, **(model_options or {}))
+        opts = {"boxes": batch.cell_boxes, **(model_options or {})}  # the tight cuts, as the flat modes make them
+        levels = rtree_levels(batch, counts, groups=tags, **opts)
         how = "native"
     else:
         part = get_partitioner(model, seed=seed, **(model_options or {}))
