@@ -219,12 +219,11 @@ def _polygon_measures(
     return area, cen
 
 
-def _cross(u: np.ndarray, v: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Row-wise cross product of (n, 3) arrays (column by column: several times numpy.cross's speed)."""
     u0, u1, u2 = u[:, 0], u[:, 1], u[:, 2]
     v0, v1, v2 = v[:, 0], v[:, 1], v[:, 2]
-    if out is None:
-        out = np.empty(u.shape, dtype=np.result_type(u, v))
+    out = np.empty(u.shape, dtype=np.result_type(u, v))
     np.subtract(u1 * v2, u2 * v1, out=out[:, 0])
     np.subtract(u2 * v0, u0 * v2, out=out[:, 1])
     np.subtract(u0 * v1, u1 * v0, out=out[:, 2])
@@ -242,6 +241,21 @@ def _all_tetrahedra(mesh: Mesh) -> bool:
     )
 
 
+def _dot3(ax, ay, az, bx, by, bz) -> np.ndarray:
+    """Row-wise dot product of 3-vectors given by components, summed as (x + z) + y: the order in
+    which numpy's einsum("ij,ij->i") sums rows of three (what these functions used before they
+    went column-wise), kept so that no measure changes by a bit."""
+    out = ax * bx
+    out += az * bz
+    out += ay * by
+    return out
+
+
+def _cross3(ux, uy, uz, vx, vy, vz) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """u x v by components (the same products and differences as _cross)."""
+    return uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+
+
 def _tetra_measures(mesh: Mesh, face_areas: bool = False):
     """Signed volume and centroid of every cell of an all-tetrahedra mesh, in closed form: the same
     values as the face-based formula (a tetrahedron with outward faces (0,2,1), (0,1,3), (1,2,3),
@@ -249,31 +263,40 @@ def _tetra_measures(mesh: Mesh, face_areas: bool = False):
 
     face_areas: also return (5, C) face areas from the same gathered corners, bit for bit what
     face_measures gives for these faces: rows 0-3 the faces of FACE_TEMPLATES[VTK_TETRA] in the
-    current node order, row 4 face 2 as it is after the cell is mirrored (see tetra_face_areas)."""
+    current node order, row 4 face 2 as it is after the cell is mirrored (see tetra_face_areas).
+    Coordinates are gathered per component (contiguous columns: every operation below is a plain
+    elementwise pass over a chunk that stays in cache)."""
     t = mesh.connectivity.reshape(-1, 4)
     n = t.shape[0]
     vol, cen = np.empty(n), np.empty((n, 3))
     areas = np.empty((5, n)) if face_areas else None
+    xyz = [np.ascontiguousarray(mesh.points[:, d]) for d in range(3)]
     chunk = 1 << 14  # temporaries stay in cache and are reused (elementwise: the same values)
-    buf = np.empty((5, min(chunk, n), 3)) if face_areas else None
-    pts = mesh.points
     for s in range(0, n, chunk):
         tc = t[s : s + chunk]
-        p0 = pts[tc[:, 0]]
-        p1, p2, p3 = pts[tc[:, 1]], pts[tc[:, 2]], pts[tc[:, 3]]
-        a, b, c = p1 - p0, p2 - p0, p3 - p0
-        vol[s : s + chunk] = np.einsum("ij,ij->i", a, _cross(b, c)) / 6.0
-        cen[s : s + chunk] = p0 + (a + b + c) / 4.0
+        ids = [tc[:, j] for j in range(4)]
+        p = [[np.take(x, i) for x in xyz] for i in ids]  # p[corner][component]
+        a = [p[1][d] - p[0][d] for d in range(3)]
+        b = [p[2][d] - p[0][d] for d in range(3)]
+        c = [p[3][d] - p[0][d] for d in range(3)]
+        v = _dot3(*a, *_cross3(*b, *c))
+        v /= 6.0
+        vol[s : s + chunk] = v
+        for d in range(3):
+            cen[s : s + chunk, d] = p[0][d] + (a[d] + b[d] + c[d]) / 4.0
         if face_areas:
             # face (i, j, k) has area |(pj - pi) x (pk - pi)| / 2, as _triangle_areas computes it
-            f = buf[:, : tc.shape[0]]
-            d = p2 - p1
-            _cross(b, a, f[0])  # (0, 2, 1)
-            _cross(a, c, f[1])  # (0, 1, 3)
-            _cross(d, p3 - p1, f[2])  # (1, 2, 3)
-            _cross(c, b, f[3])  # (0, 3, 2)
-            _cross(d, p3 - p2, f[4])  # mirrored (2, 1, 3): (p1 - p2) x (p3 - p2) = -d x (p3 - p2)
-            np.sqrt(np.einsum("fij,fij->fi", f, f), out=areas[:, s : s + chunk])
+            e = [p[2][d] - p[1][d] for d in range(3)]
+            crosses = (
+                _cross3(*b, *a),  # (0, 2, 1)
+                _cross3(*a, *c),  # (0, 1, 3)
+                _cross3(*e, *[p[3][d] - p[1][d] for d in range(3)]),  # (1, 2, 3)
+                _cross3(*c, *b),  # (0, 3, 2)
+                # mirrored (2, 1, 3): (p1 - p2) x (p3 - p2) = -e x (p3 - p2), the same norm
+                _cross3(*e, *[p[3][d] - p[2][d] for d in range(3)]),
+            )
+            for k, cr in enumerate(crosses):
+                np.sqrt(_dot3(*cr, *cr), out=areas[k, s : s + chunk])
     if face_areas:
         areas *= 0.5
         return vol, cen, areas
@@ -388,11 +411,12 @@ def _triangle_areas(
     spends most of its time faulting in fresh temporaries). Elementwise, so chunking changes no bit."""
     m = tri.shape[0] if which is None else which.size
     out = np.empty(m)
+    xyz = [np.ascontiguousarray(p[:, d]) for d in range(3)]
     for s in range(0, m, chunk):
         t = tri[s : s + chunk] if which is None else tri[which[s : s + chunk]]
-        p0 = p[t[:, 0]]
-        cr = _cross(p[t[:, 1]] - p0, p[t[:, 2]] - p0)
-        np.sqrt(np.einsum("ij,ij->i", cr, cr), out=out[s : s + chunk])
+        q = [[np.take(x, t[:, j]) for x in xyz] for j in range(3)]  # q[corner][component]
+        cr = _cross3(*[q[1][d] - q[0][d] for d in range(3)], *[q[2][d] - q[0][d] for d in range(3)])
+        np.sqrt(_dot3(*cr, *cr), out=out[s : s + chunk])
     out *= 0.5
     return out
 
