@@ -273,7 +273,7 @@ class FMRefiner(Refiner):
     def __init__(self, tolerance: float = 0.05, hops: int = 4, passes: int = 8, kway_rounds: int = 30,
                  kway_tolerance: float = 0.03, pair_rounds: int = 2, objective: str = "ncut", polish_rounds: int = 4,
                  budget_factor: float = 2.0, tries: int | None = None, seed: int | None = 0, flow_rounds: int = 40,
-                 fm_max_nodes: int = 20_000):
+                 fm_max_nodes: int = 1_000):
         if not 0 <= tolerance < 1:
             raise ParameterError(f"fm tolerance must be in [0, 1), got {tolerance}")
         self.tolerance = float(tolerance)
