@@ -76,12 +76,7 @@ def _without_holes(mesh: Mesh, data: CellData, coarse: np.ndarray, finer: np.nda
         bad = np.unique(holes.elements)
         if bad.size == 0:
             return coarse
-        is_bad = np.zeros(int(coarse.max()) + 1, dtype=bool)
-        is_bad[bad] = True
-        sel = is_bad[coarse]
-        coarse = coarse.copy()
-        coarse[sel] = int(coarse.max()) + 1 + finer[sel]
-        coarse = compact_labels(coarse)
+        coarse = _split_elements(coarse, bad, finer)
     return coarse
 
 
@@ -125,7 +120,7 @@ def write_hierarchy(out_dir: str | os.PathLike, mesh: Mesh, data: CellData, leve
     if merged is not None and len(merged) != len(levels):
         merged = None
     for L, labels in enumerate(levels):
-        poly = merged[L] if merged is not None else merge(mesh, g, labels, data.measures)[0]
+        poly = merged[L] if merged is not None and merged[L] is not None else merge(mesh, g, labels, data.measures)[0]
         poly = sort_by_vertex_count(poly)  # 3D: the element order meshio reads back; labels follow
         if boundary is not None:
             from .boundary import annotate
@@ -408,16 +403,120 @@ def build_hierarchy(mesh: Mesh, data: CellData, model: str = "rtree", ratio: flo
     return levels, info
 
 
+def _sparse_min(values: np.ndarray) -> list[np.ndarray]:
+    """Sparse table: tab[j][i] = min(values[i : i + 2**j])."""
+    tab = [values]
+    j = 1
+    while (1 << j) <= values.size:
+        prev = tab[-1]
+        h = 1 << (j - 1)
+        tab.append(np.minimum(prev[:-h], prev[h:]))
+        j += 1
+    return tab
+
+
+def cavity_elements(graph, labels: np.ndarray) -> np.ndarray | None:
+    """3D elements that enclose a cavity (other elements), found on the graph of the elements, not by
+    merging them: with one extra node for the outside (joined to every element with a boundary face),
+    an element encloses something exactly when removing it cuts part of the graph off the outside,
+    i.e. it is an articulation point of a depth-first tree rooted outside whose child's subtree has
+    no edge above it. One DFS (scipy) and sparse-table range minima, no loop over elements. Assumes
+    a domain without voids (see _has_voids); pinched contacts count as enclosing (conservative)."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import depth_first_order
+
+    labels = np.asarray(labels, dtype=np.int64)
+    k = int(labels.max()) + 1
+    out_node = k
+    n = labels.size
+    rows = np.repeat(np.arange(n), np.diff(graph.indptr))
+    a, b = labels[rows], labels[graph.indices]
+    off = a != b
+    bcell = graph.faces.cell[graph.partner < 0]
+    on_bnd = np.unique(labels[bcell])
+    ea = np.concatenate([a[off], on_bnd, np.full(on_bnd.size, out_node)])
+    eb = np.concatenate([b[off], np.full(on_bnd.size, out_node), on_bnd])
+    G = sp.csr_matrix((np.ones(ea.size, dtype=np.int8), (ea, eb)), shape=(k + 1, k + 1))
+    G.sum_duplicates()
+    order, pred = depth_first_order(G, out_node, directed=False, return_predecessors=True)
+    N = order.size
+    if N < k + 1:  # part of the graph never reaches the boundary (not a mesh we know): let merging decide
+        return None
+    pre = np.empty(k + 1, dtype=np.int64)
+    pre[order] = np.arange(N)
+    # depth in the DFS tree by pointer jumping (anc: an ancestor, d: the edges up to it)
+    par = np.where(pred < 0, out_node, pred).astype(np.int64)
+    anc = par.copy()
+    d = (np.arange(k + 1) != out_node).astype(np.int64)
+    for _ in range(70):
+        if np.all(anc == out_node):
+            break
+        d, anc = d + d[anc], anc[anc]
+    d_by_pos = d[order]
+    # end of every subtree: the first later position not deeper than the node
+    tab_d = _sparse_min(d_by_pos)
+    q = np.arange(1, N + 1)
+    dv = d_by_pos
+    for j in range(len(tab_d) - 1, -1, -1):
+        t = tab_d[j]
+        ok = q <= t.size - 1
+        step = np.zeros(N, dtype=bool)
+        step[ok] = t[q[ok]] > dv[ok]
+        q = np.where(step, q + (1 << j), q)
+    end = np.minimum(q, N)
+    # lowest preorder number any node of a subtree touches
+    nb_pre = pre[G.indices]
+    deg = np.diff(G.indptr)
+    nbmin = np.full(k + 1, N, dtype=np.int64)
+    has = deg > 0
+    nbmin[has] = np.minimum.reduceat(nb_pre, G.indptr[:-1][has])
+    tab = _sparse_min(nbmin[order])
+    start = np.arange(N)
+    length = end - start
+    lj = np.floor(np.log2(np.maximum(length, 1))).astype(np.int64)
+    low = np.empty(N, dtype=np.int64)
+    for j in np.unique(lj):  # a loop over the table's rows
+        s = lj == j
+        low[s] = np.minimum(tab[j][start[s]], tab[j][end[s] - (1 << j)])
+    child = order  # position i holds node order[i]
+    p = par[child]
+    cut = (child != out_node) & (p != out_node) & (low >= pre[p])
+    return np.unique(p[cut])
+
+
+def _has_voids(mesh: Mesh, graph) -> bool:
+    """3D: does the domain's boundary have more than one shell (a void, or several bodies)?"""
+    from .merge import merge_3d
+
+    _, holes = merge_3d(mesh, graph, np.zeros(mesh.n_cells, dtype=np.int64), np.ones(mesh.n_cells))
+    return bool(holes.elements.size)
+
+
 def _fix_holes(mesh: Mesh, data: CellData, levels: list[np.ndarray]) -> tuple[list[np.ndarray], list]:
     """Elements that would enclose a hole are replaced by their children (finest: by cells),
     finest level first, so the levels stay nested and every written polygon has one loop.
-    Returns the levels and their merged polytopes (for write_hierarchy's `merged`)."""
+    Returns the levels and their merged polytopes (for write_hierarchy's `merged`; None where a
+    level was checked without merging: 3D domains without voids are checked on the elements' graph
+    (cavity_elements), and the writer merges)."""
     from .merge import merge
 
     out = list(levels)
     polys = [None] * len(out)
     finer = np.arange(mesh.n_cells)
+    by_graph = mesh.dim == 3 and not _has_voids(mesh, data.graph)
     for L in range(len(out) - 1, -1, -1):
+        if by_graph:
+            for _ in range(int(out[L].max()) + 2):
+                bad = cavity_elements(data.graph, out[L])
+                if bad is None:
+                    by_graph = False
+                    break
+                if bad.size == 0:
+                    break
+                out[L] = _split_elements(out[L], bad, finer)
+            if by_graph:
+                finer = out[L]
+                continue
         poly, holes = merge(mesh, data.graph, out[L], data.measures)
         if np.unique(holes.elements).size:
             out[L] = _without_holes(mesh, data, out[L], finer)
@@ -425,6 +524,16 @@ def _fix_holes(mesh: Mesh, data: CellData, levels: list[np.ndarray]) -> tuple[li
         polys[L] = poly
         finer = out[L]
     return out, polys
+
+
+def _split_elements(coarse: np.ndarray, bad: np.ndarray, finer: np.ndarray) -> np.ndarray:
+    """The elements `bad` of `coarse` replaced by their children in `finer` (labels compacted)."""
+    is_bad = np.zeros(int(coarse.max()) + 1, dtype=bool)
+    is_bad[bad] = True
+    sel = is_bad[coarse]
+    coarse = coarse.copy()
+    coarse[sel] = int(coarse.max()) + 1 + finer[sel]
+    return compact_labels(coarse)
 
 
 def _int_list_json(values: np.ndarray) -> str:

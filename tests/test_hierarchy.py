@@ -112,3 +112,24 @@ def test_int_list_json_reads_back():
     rng = np.random.default_rng(0)
     for v in (np.array([0]), np.array([7, 0, 10, 99, 100]), rng.integers(0, 10**7, 1000), np.zeros(0, int)):
         assert json.loads(_int_list_json(v)) == v.tolist()
+
+
+def test_cavities_found_on_the_element_graph_as_merging_finds_them():
+    """cavity_elements (3D, no merge) flags the elements merging finds with an inner shell."""
+    from models.hierarchy import _has_voids, build_hierarchy, cavity_elements
+    from models.merge import merge
+    from models.pipeline import prepare
+
+    p, t = tets(6)
+    mesh = mesh_from_arrays(p, [("tetra", t)])
+    graph, data = prepare(mesh)
+    assert not _has_voids(mesh, graph)
+    c = data.centroids
+    inner = np.all(np.abs(c - 0.5) < 1 / 6, axis=1)
+    shell = np.all(np.abs(c - 0.5) < 2 / 6, axis=1) & ~inner
+    nested_shells = np.where(inner, 1, np.where(shell, 0, 2))  # 0 encloses 1, and 2 encloses 0 and 1
+    levels, _ = build_hierarchy(mesh, data, model="rtree", ratio=4, coarsest=4)
+    for lab in [nested_shells, np.where(inner, 1, 0), *levels]:
+        _, holes = merge(mesh, graph, lab, data.measures)
+        assert np.array_equal(cavity_elements(graph, lab), np.unique(holes.elements))
+    assert np.array_equal(cavity_elements(graph, nested_shells), [0, 2])
