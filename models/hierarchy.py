@@ -415,30 +415,54 @@ def _sparse_min(values: np.ndarray) -> list[np.ndarray]:
     return tab
 
 
-def cavity_elements(graph, labels: np.ndarray) -> np.ndarray | None:
+def _element_graph(graph, labels: np.ndarray):
+    """CSR graph of the elements `labels` of the fine graph plus one outside node (id k), joined to
+    every element with a boundary face."""
+    import scipy.sparse as sp
+
+    labels = np.asarray(labels, dtype=np.int64)
+    k = int(labels.max()) + 1
+    rows = np.repeat(np.arange(labels.size), np.diff(graph.indptr))
+    a, b = labels[rows], labels[graph.indices]
+    off = a != b
+    on_bnd = np.unique(labels[graph.faces.cell[graph.partner < 0]])
+    ea = np.concatenate([a[off], on_bnd, np.full(on_bnd.size, k)])
+    eb = np.concatenate([b[off], np.full(on_bnd.size, k), on_bnd])
+    G = sp.csr_matrix((np.ones(ea.size, dtype=np.int8), (ea, eb)), shape=(k + 1, k + 1))
+    G.sum_duplicates()
+    return G
+
+
+def _coarser_graph(G, node_to: np.ndarray, k: int):
+    """The element graph (with the outside node) of a coarser level from a finer level's one:
+    node_to maps the finer elements to the coarser ones; the outside node stays the last."""
+    import scipy.sparse as sp
+
+    m = np.r_[node_to, k]
+    rows = np.repeat(np.arange(G.shape[0]), np.diff(G.indptr))
+    a, b = m[rows], m[G.indices]
+    off = a != b
+    Q = sp.csr_matrix((np.ones(int(off.sum()), dtype=np.int8), (a[off], b[off])), shape=(k + 1, k + 1))
+    Q.sum_duplicates()
+    return Q
+
+
+def cavity_elements(graph, labels: np.ndarray, G=None) -> np.ndarray | None:
     """3D elements that enclose a cavity (other elements), found on the graph of the elements, not by
     merging them: with one extra node for the outside (joined to every element with a boundary face),
     an element encloses something exactly when removing it cuts part of the graph off the outside,
     i.e. it is an articulation point of a depth-first tree rooted outside whose child's subtree has
     no edge above it. One DFS (scipy) and sparse-table range minima, no loop over elements. Assumes
-    a domain without voids (see _has_voids); pinched contacts count as enclosing (conservative)."""
-    import scipy.sparse as sp
+    a domain without voids (see _has_voids); pinched contacts count as enclosing (conservative).
+    G: the elements' graph (_element_graph) when already known. None: some element never reaches
+    the boundary (let merging decide)."""
     from scipy.sparse.csgraph import depth_first_order
 
-    labels = np.asarray(labels, dtype=np.int64)
-    k = int(labels.max()) + 1
+    if G is None:
+        G = _element_graph(graph, labels)
+    k = G.shape[0] - 1
     out_node = k
-    n = labels.size
-    rows = np.repeat(np.arange(n), np.diff(graph.indptr))
-    a, b = labels[rows], labels[graph.indices]
-    off = a != b
-    bcell = graph.faces.cell[graph.partner < 0]
-    on_bnd = np.unique(labels[bcell])
-    ea = np.concatenate([a[off], on_bnd, np.full(on_bnd.size, out_node)])
-    eb = np.concatenate([b[off], np.full(on_bnd.size, out_node), on_bnd])
-    G = sp.csr_matrix((np.ones(ea.size, dtype=np.int8), (ea, eb)), shape=(k + 1, k + 1))
-    G.sum_duplicates()
-    order, pred = depth_first_order(G, out_node, directed=False, return_predecessors=True)
+    order, pred = depth_first_order(G, out_node, directed=True, return_predecessors=True)  # G is symmetric
     N = order.size
     if N < k + 1:  # part of the graph never reaches the boundary (not a mesh we know): let merging decide
         return None
@@ -504,10 +528,18 @@ def _fix_holes(mesh: Mesh, data: CellData, levels: list[np.ndarray]) -> tuple[li
     polys = [None] * len(out)
     finer = np.arange(mesh.n_cells)
     by_graph = mesh.dim == 3 and not _has_voids(mesh, data.graph)
+    G_finer = None  # the finer level's element graph (each level's comes from it, not from the cells)
     for L in range(len(out) - 1, -1, -1):
         if by_graph:
             for _ in range(int(out[L].max()) + 2):
-                bad = cavity_elements(data.graph, out[L])
+                k = int(out[L].max()) + 1
+                if G_finer is None:
+                    G = _element_graph(data.graph, out[L])
+                else:
+                    node_to = np.zeros(G_finer.shape[0] - 1, dtype=np.int64)
+                    node_to[finer] = out[L]
+                    G = _coarser_graph(G_finer, node_to, k)
+                bad = cavity_elements(data.graph, out[L], G)
                 if bad is None:
                     by_graph = False
                     break
@@ -515,7 +547,7 @@ def _fix_holes(mesh: Mesh, data: CellData, levels: list[np.ndarray]) -> tuple[li
                     break
                 out[L] = _split_elements(out[L], bad, finer)
             if by_graph:
-                finer = out[L]
+                finer, G_finer = out[L], G
                 continue
         poly, holes = merge(mesh, data.graph, out[L], data.measures)
         if np.unique(holes.elements).size:

@@ -355,7 +355,18 @@ def components(batch: GraphBatch, within: np.ndarray | None = None) -> np.ndarra
 
 def cell_boxes(points: np.ndarray, offsets: np.ndarray, connectivity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(C, dim) lower and upper corners of every cell's vertices (vectorized reduceat)."""
-    p = np.asarray(points, dtype=np.float64)[connectivity]
+    pts = np.asarray(points, dtype=np.float64)
+    sizes = np.diff(offsets)
+    if sizes.size and sizes.min() == sizes.max() and offsets[0] == 0 and connectivity.size == offsets[-1]:  # one cell type: a (C, nv, dim) block, no reduceat
+        nv = int(sizes[0])
+        lo = pts[connectivity[0::nv]].copy()
+        hi = lo.copy()
+        for j in range(1, nv):  # a loop over the cell's vertices
+            q = pts[connectivity[j::nv]]
+            np.minimum(lo, q, out=lo)
+            np.maximum(hi, q, out=hi)
+        return lo, hi
+    p = pts[connectivity]
     starts = np.asarray(offsets[:-1], dtype=np.int64)
     return np.minimum.reduceat(p, starts, axis=0), np.maximum.reduceat(p, starts, axis=0)
 
