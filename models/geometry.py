@@ -69,6 +69,19 @@ def next_in_cycle(offsets: np.ndarray) -> np.ndarray:
 def cell_faces(mesh: Mesh) -> Faces:
     """Every face (3D) or edge (2D) of every cell, outward oriented."""
     if mesh.dim == 2:
+        n, nnz = mesh.n_cells, mesh.connectivity.size
+        k = nnz // n if n else 0
+        if k and nnz == k * n and np.array_equal(mesh.offsets, np.arange(0, nnz + 1, k)):
+            c = mesh.connectivity.reshape(n, k)  # one cell size: edges (c[j], c[j + 1]) by one copy each
+            nodes = np.empty((n, k, 2), dtype=mesh.connectivity.dtype)
+            nodes[:, :, 0] = c
+            nodes[:, :-1, 1] = c[:, 1:]
+            nodes[:, -1, 1] = c[:, 0]
+            return Faces(
+                cell=np.repeat(np.arange(n), k),
+                offsets=np.arange(0, 2 * nnz + 1, 2, dtype=np.int64),
+                nodes=nodes.reshape(-1),
+            )
         nxt = next_in_cycle(mesh.offsets)
         nodes = np.column_stack([mesh.connectivity, mesh.connectivity[nxt]]).reshape(-1)
         cell = cell_index(mesh.offsets)
@@ -382,12 +395,17 @@ def cell_diameters(mesh: Mesh) -> np.ndarray:
 
 def face_measures(points: np.ndarray, faces: Faces, which: np.ndarray | None = None) -> np.ndarray:
     """Length of each edge (2D) or area of each face (3D); only faces `which` when given."""
-    if points.shape[1] == 2:
+    if points.shape[1] == 2:  # in chunks: the temporaries stay in cache (elementwise, the same values)
         e = faces.nodes.reshape(-1, 2)
-        if which is not None:
-            e = e[which]
-        d = points[e[:, 1]] - points[e[:, 0]]
-        return np.hypot(d[:, 0], d[:, 1])
+        m = e.shape[0] if which is None else which.size
+        out = np.empty(m)
+        x, y = np.ascontiguousarray(points[:, 0]), np.ascontiguousarray(points[:, 1])
+        chunk = 1 << 16
+        for s in range(0, m, chunk):
+            ec = e[s : s + chunk] if which is None else e[which[s : s + chunk]]
+            a, b = ec[:, 0], ec[:, 1]
+            np.hypot(np.take(x, b) - np.take(x, a), np.take(y, b) - np.take(y, a), out=out[s : s + chunk])
+        return out
     p = points
     if faces.nodes.size == 3 * faces.n:  # all triangles: no fan, no sum per face, rows by gathers
         return _triangle_areas(p, faces.nodes.reshape(-1, 3), which)

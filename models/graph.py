@@ -60,10 +60,7 @@ def face_keys(faces: Faces, n_points: int) -> np.ndarray:
         return _triangle_keys(faces.nodes.reshape(-1, 3), bits)
     sizes = faces.sizes()
     if np.all(sizes == 2):
-        e = faces.nodes.reshape(-1, 2)
-        a, b = e[:, 0], e[:, 1]
-        # elementwise, not e.min(axis=1): a reduction over rows of length 2 is ~10x slower
-        return np.minimum(a, b) * np.int64(n_points) + np.maximum(a, b)
+        return _edge_keys(faces.nodes.reshape(-1, 2), n_points)
     bits = max(int(n_points - 1).bit_length(), 1)
     if faces.nodes.size == 3 * faces.n:  # all triangles: sorted by elementwise min / max
         t = faces.nodes.reshape(-1, 3)
@@ -92,6 +89,19 @@ def face_keys(faces: Faces, n_points: int) -> np.ndarray:
     return np.column_stack([three, s])
 
 
+def _edge_keys(e: np.ndarray, n_points: int, chunk: int = 1 << 16) -> np.ndarray:
+    """face_keys of edges: min * n_points + max, elementwise (not e.min(axis=1): a reduction over
+    rows of length 2 is ~10x slower), in chunks whose temporaries stay in cache."""
+    out = np.empty(e.shape[0], dtype=np.int64)
+    for s in range(0, e.shape[0], chunk):
+        a, b = e[s : s + chunk, 0], e[s : s + chunk, 1]
+        lo = np.minimum(a, b)
+        lo *= np.int64(n_points)
+        lo += np.maximum(a, b)
+        out[s : s + chunk] = lo
+    return out
+
+
 def _triangle_keys(t: np.ndarray, bits: int, chunk: int = 1 << 16) -> np.ndarray:
     """face_keys of all-triangle faces (sorted nodes by elementwise min / max, then the size 3), in
     chunks whose temporaries stay in cache (the same key, elementwise)."""
@@ -115,8 +125,12 @@ def sort_keys(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     position but the last, whether its key equals the next one (the two faces are one face)."""
     if keys.ndim == 1:
         order = np.argsort(keys, kind="stable")
-        sk = keys[order]
-        return order, sk[1:] == sk[:-1]
+        same = np.empty(max(keys.size - 1, 0), dtype=bool)
+        chunk = 1 << 16  # the sorted keys a chunk at a time (no sorted copy of every key)
+        for s in range(0, same.size, chunk):
+            sk = keys[order[s : s + chunk + 1]]
+            np.equal(sk[1:], sk[:-1], out=same[s : s + chunk])
+        return order, same
     order = np.lexsort(keys.T[::-1])
     sk = keys[order]
     return order, np.all(sk[1:] == sk[:-1], axis=1)
@@ -136,8 +150,11 @@ def dual_graph(mesh: Mesh, faces: Faces | None = None, measures: bool = True) ->
             f"the mesh is not a manifold: {j.size} edges/faces are shared by more than two cells, "
             f"e.g. by cells {cells[:6].tolist()}; remove the overlapping cells or split the mesh there"
         )
+    # temporaries are dropped as soon as they are used: at millions of cells the stage's peak memory
+    # is what costs (fresh pages), more than the arithmetic
     i = np.flatnonzero(same)
     fa, fb = order[i], order[i + 1]
+    del i, order, same
     ca, cb = faces.cell[fa], faces.cell[fb]
     self_loop = ca == cb
     if self_loop.any():
@@ -146,6 +163,7 @@ def dual_graph(mesh: Mesh, faces: Faces | None = None, measures: bool = True) ->
             f"{bad.size} cells have the same edge/face twice (duplicated nodes in a cell), e.g. cells "
             f"{bad[:6].tolist()}; fix their connectivity"
         )
+    del self_loop
     partner = np.full(faces.n, -1, dtype=np.int64)
     partner[fa] = fb
     partner[fb] = fa
@@ -155,10 +173,20 @@ def dual_graph(mesh: Mesh, faces: Faces | None = None, measures: bool = True) ->
         kept = _cached_areas(mesh, faces)
         fm = kept[fa] if kept is not None else face_measures(mesh.points, faces, fa)
     n = mesh.n_cells
-    direct = _tetra_csr(faces, partner, fa, fb, fm, n)
-    if direct is not None:
-        indptr, indices, weights = direct
-        return DualGraph(indptr=indptr, indices=indices, weights=weights, faces=faces, partner=partner)
+    if _fixed_layout(faces, n):
+        w = np.empty(faces.n)  # per face: the measure of the face it is shared with
+        w[fa] = fm
+        w[fb] = fm
+        del fa, fb, ca, cb, fm
+        direct = _fixed_csr(faces.n // n, partner, w)
+        if direct is not None:
+            indptr, indices, weights = direct
+            return DualGraph(indptr=indptr, indices=indices, weights=weights, faces=faces, partner=partner)
+        f = np.flatnonzero(partner >= 0)  # a row with a neighbour twice: rebuild the pairs
+        fa = f[f < partner[f]]
+        fb = partner[fa]
+        fm, ca, cb = w[fa], faces.cell[fa], faces.cell[fb]
+        del w, f
     rows = np.concatenate([ca, cb])
     cols = np.concatenate([cb, ca])
     w = np.concatenate([fm, fm])
@@ -174,41 +202,54 @@ def dual_graph(mesh: Mesh, faces: Faces | None = None, measures: bool = True) ->
     )
 
 
-def _tetra_csr(faces: Faces, partner: np.ndarray, fa: np.ndarray, fb: np.ndarray, fm: np.ndarray, n: int):
-    """The canonical CSR straight from `partner` when every cell has 4 faces laid out cell by cell
-    (all tetrahedra): each row sorted among its own <= 4 entries, no COO conversion. None when that
-    layout does not hold or a row has a neighbour twice (then the general path sums the measures)."""
-    if n == 0 or faces.n != 4 * n or faces.nodes.size != 3 * faces.n:
-        return None
-    c4 = faces.cell.reshape(-1, 4)
-    if not np.array_equal(c4[:, 0], np.arange(n)) or any(
-        not np.array_equal(c4[:, 0], c4[:, j]) for j in (1, 2, 3)
-    ):
-        return None
-    w = np.empty(faces.n)
-    w[fa] = fm
-    w[fb] = fm
-    # sort each row's 4 partner faces (face id 4 * neighbour + local face: the neighbours' order,
-    # boundary -1 made the largest) by a sorting network of elementwise min / max, in chunks
-    q = partner.reshape(n, 4).copy()
-    q[q < 0] = np.iinfo(np.int64).max
+_NETWORKS = {3: ((0, 1), (1, 2), (0, 1)), 4: ((0, 1), (2, 3), (0, 2), (1, 3), (1, 2))}
+
+
+def _fixed_layout(faces: Faces, n: int) -> bool:
+    """Every cell has k = 3 or 4 faces, laid out cell by cell (triangles, quads, tetrahedra)."""
+    k = faces.n // n if n else 0
+    if k not in _NETWORKS or faces.n != k * n:
+        return False
+    ck = faces.cell.reshape(-1, k)
+    return np.array_equal(ck[:, 0], np.arange(n)) and all(
+        np.array_equal(ck[:, 0], ck[:, j]) for j in range(1, k)
+    )
+
+
+def _fixed_csr(k: int, partner: np.ndarray, w: np.ndarray):
+    """The canonical CSR straight from `partner` for the _fixed_layout (k faces per cell): each row
+    sorted among its own k entries by a sorting network of elementwise min / max, in chunks (no
+    COO conversion, no temporaries of the size of the mesh but the outputs). w: (F,) the measure
+    of every face. None when a row has a neighbour twice (the general path sums the measures)."""
+    n = partner.size // k
+    big = np.iinfo(np.int64).max
+    q = partner.reshape(n, k).copy()  # face id k * neighbour + local face: the neighbours' order
+    counts = np.empty(n, dtype=np.int64)
     chunk = 1 << 15
     for s in range(0, n, chunk):
-        c = [np.ascontiguousarray(q[s : s + chunk, j]) for j in range(4)]
-        for i, j in ((0, 1), (2, 3), (0, 2), (1, 3), (1, 2)):
+        c = [np.ascontiguousarray(q[s : s + chunk, j]) for j in range(k)]
+        has = [x >= 0 for x in c]
+        for j in range(k):
+            c[j][~has[j]] = big  # the domain boundary sorts last
+        for i, j in _NETWORKS[k]:
             lo = np.minimum(c[i], c[j])
             np.maximum(c[i], c[j], out=c[j])
             c[i] = lo
-        for j in range(4):
+        for j in range(1, k):
+            if np.any((c[j] // k == c[j - 1] // k) & (c[j] != big)):
+                return None
+        counts[s : s + chunk] = sum(has)
+        for j in range(k):
             q[s : s + chunk, j] = c[j]
-    has = q != np.iinfo(np.int64).max
-    nb = q >> 2
-    if np.any((nb[:, 1:] == nb[:, :-1]) & has[:, 1:]):
-        return None
     indptr = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(np.count_nonzero(has, axis=1), out=indptr[1:])
-    q = q[has]
-    return indptr, q >> 2, w[q]  # a shared face's two sides have the same weight
+    np.cumsum(counts, out=indptr[1:])
+    q = q[q != big]  # row by row, the boundary (last in each row) left out
+    weights = w[q]  # a shared face's two sides have the same measure
+    if k == 4:
+        q >>= 2
+    else:
+        q //= k
+    return indptr, q, weights
 
 
 def _cached_pairing(mesh: Mesh, faces: Faces) -> tuple[np.ndarray, np.ndarray] | None:
