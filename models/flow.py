@@ -1,21 +1,23 @@
 """Flow-based refinement of pairs of adjacent parts (the idea of KaHIP's flow refinement).
 
-For a set of disjoint pairs of parts (A, B) of a partition, all at once:
+For a set of pairs of parts (A, B) of a partition, all at once (`pair_mincut`):
 - grow a band around the shared boundary by BFS inside A and inside B, layer by layer, the A side
-  limited to a measure budget (`room_a`: how much A may hand to B; with room_a = cap - w(B) any
-  cut inside the band keeps B within the cap) and the B side likewise;
+  limited to a measure budget (how much A may hand to B: (1 + f x tolerance) x the mean part less
+  w(B); with f = 1 any cut inside the band keeps B within the cap, a larger f (adaptive per pair,
+  doubled after a gain, halved when no balanced cut was found) needs a balanced minimum cut);
 - contract everything of A outside the band into the source and everything of B into the sink;
   every pair's network is a component of one flow graph with one source and one sink (they share
-  nothing else, so one maximum flow solves them all and its minimum cut is each pair's minimum);
-- of the minimum cuts take, per pair, the smaller or the larger source side (residual
-  reachability from the source, or from the sink backwards), whichever is feasible and better
-  balanced. The new A-B boundary is that cut: the pair's cut never goes up (the old boundary is a
-  cut of the same network).
+  nothing else, so one scipy maximum flow solves them all and its minimum cut is each pair's);
+- of the pair's minimum cuts take the best balanced feasible one: the smallest source side grown
+  by the strongly connected components of the residual graph, successors first (every prefix of
+  that order is a minimum cut). The new A-B boundary is that cut: the pair's cut never goes up
+  (the old boundary is a cut of the same network).
 
-`flow_kway` runs rounds of this on the pairs of a k-way partition (pairs with the largest shared
-boundary first, each round a matching of the quotient graph, pairs retried only after one of
-their parts changed, an adaptive band factor per pair), keeping every part connected and within
-its cap; `flow_bisections` does it for every graph of a batch of bisections at once.
+`flow_kway` runs rounds of this on the pairs of a k-way partition (each round a matching of the
+quotient graph, heaviest shared boundaries first; a pair is retried only after one of its parts
+changed), keeping the pairs whose edge cut (or share of the normalized cut) goes down, every part
+connected and within its cap; `flow_bisections` does it for every graph of a batch of bisections
+at once (the two sides of each graph are a pair).
 """
 
 from __future__ import annotations
