@@ -1170,11 +1170,70 @@ def _inscribed_bnb(g: _Geometry, elems: np.ndarray, rel_tol: float, bt: _BallTre
         else:  # pragma: no cover - the cell size halves every level, so this cannot happen
             raise RuntimeError("inscribed-ball branch and bound did not converge")
 
-    # a greedy dive first gives a good lower bound, so the full search prunes from the start
+    # a greedy dive first gives a good lower bound, so the full search prunes from the start;
+    # a few local ascent steps from the dive's point then bring it close to the optimum
     if _DIVE[d]:
         search(dive=True)
+    if _POLISH_STEPS[d]:
+        _polish(g, elems, best, best_pt, orient)
     search(dive=False)
     return best_pt, best
+
+
+_POLISH_STEPS = {2: 0, 3: 3}  # sequential-LP ascent steps after the dive (3D)
+_POLISH_REACH = 0.5  # primitives within (1 + this) * best of the point enter the local model
+_POLISH_TRUST = 0.25  # the step stays within this * best of the point (each coordinate)
+
+
+def _polish(g: _Geometry, elems: np.ndarray, best: np.ndarray, best_pt: np.ndarray, orient: np.ndarray) -> None:
+    """Raise the lower bound of each element: sequential linear programming on the distance to the
+    boundary, from its best interior point so far (updates best / best_pt in place).
+
+    Around x0, every primitive i near x0 (closest point y_i, unit direction u_i = (x0 - y_i) / D_i)
+    gives dist(x, prim i) >= u_i.(x - y_i) (the distance to a convex set is convex), so the local
+    model max r s.t. u_i.(x - y_i) >= r, |x - x0|_inf <= trust, one block-diagonal LP for all
+    elements, proposes a point; it is kept only when it is certified inside (as in the search)
+    and its exact distance to all of the element's primitives beats the best so far. It only ever
+    raises best to an exact distance at a certified interior point, so the guarantee is the
+    search's; for planar contacts the model is exact and the step lands on the local optimum.
+    """
+    from scipy.optimize import linprog  # lazy: scipy.optimize takes most of a second to import
+
+    e = elems[np.isfinite(best_pt[elems, 0]) & (best[elems] > 0)]
+    for _ in range(_POLISH_STEPS[g.dim]):
+        if e.size == 0:
+            return
+        x0, s = best_pt[e], best[e]
+        cnt = g.prim_ptr[e + 1] - g.prim_ptr[e]
+        row, pos = _ragged_arange(cnt)
+        p = g.prim_ptr[e][row] + pos
+        v = _offset_to_closest(g, np.take(x0, row, axis=0), p)
+        D = np.sqrt(np.einsum("ij,ij->i", v, v))
+        m = np.flatnonzero((D <= (1.0 + _POLISH_REACH) * s[row]) & (D > 0))
+        r_, u, Dn = row[m], v[m] / D[m, None], D[m] / s[row[m]]
+        # variables per element: z = (x - x0) / s (3), r / s; r/s - u.z <= D / s; maximise sum r / s
+        nv = e.size * 4
+        cols = np.column_stack([4 * r_ + k for k in range(4)]).ravel()
+        vals = np.column_stack([-u, np.ones(r_.size)]).ravel()
+        A = sparse.csr_matrix((vals, (np.repeat(np.arange(r_.size), 4), cols)), shape=(r_.size, nv))
+        c = np.zeros(nv)
+        c[3::4] = -1.0
+        bounds = [(-_POLISH_TRUST, _POLISH_TRUST)] * 3 + [(0, None)]
+        res = linprog(c, A_ub=A, b_ub=Dn, bounds=bounds * e.size, method="highs")
+        if res.status != 0 or res.x is None:  # pragma: no cover - bounded and feasible (z = 0)
+            return
+        x = x0 + s[:, None] * res.x.reshape(e.size, 4)[:, :3]
+        # exact distance to every primitive of the element, and the inside test of the search
+        d2, loc, side = _prim_distance(g, np.take(x, row, axis=0), p)
+        k = _group_argmin_sorted(row, d2)
+        dist = np.sqrt(d2[k])
+        ok = np.flatnonzero(dist > best[e])
+        if ok.size:
+            st = _classify(g, x[ok], e[ok], p[k][ok], loc[k][ok], side[k][ok], orient)
+            ok = ok[st == 1]
+        best[e[ok]] = dist[ok]
+        best_pt[e[ok]] = x[ok]
+        e = e[ok]
 
 
 def _inscribed_lp(g: _Geometry, elems: np.ndarray):

@@ -406,6 +406,63 @@ def test_l_prism_bound_for_coarse_tolerances(rel_tol):
     assert R_L - rel_tol * element_diameters(pm)[0] - 1e-12 <= r[0] <= R_L + 1e-12
 
 
+def test_polish_raises_the_lower_bound_to_certified_points_only():
+    """The local ascent after the dive (3D): from a poor interior point of the L prism it reaches the
+    closed-form radius (two walls and the reflex edge), never above it, at a point that is inside
+    and whose distance is the exact one; an element without a start point is left alone."""
+    from models.metrics import _polish, _prepare
+
+    pm = poly3d([l_prism(1.5), cube()], offsets=[(0, 0, 0), (5, 5, 5)])
+    g = _prepare(pm)
+    x0 = np.array([0.3, 0.35, 0.7])  # in the corner square, 0.3 from the wall x = 0
+    best = np.array([0.3, 0.0])
+    best_pt = np.array([x0, [np.nan] * 3])
+    for _ in range(3):  # a few ascent steps each
+        _polish(g, np.arange(2), best, best_pt, g.signed_measure >= 0)
+    assert R_L - 1e-6 <= best[0] <= R_L + 1e-12
+    x = best_pt[0]
+    tri = _l_prism_triangles()
+    A, B, C = (tri[:, k] - x for k in range(3))
+    la, lb, lc = (np.linalg.norm(M, axis=-1) for M in (A, B, C))
+    num = (A * np.cross(B, C)).sum(-1)
+    den = la * lb * lc + (A * B).sum(-1) * lc + (A * C).sum(-1) * lb + (B * C).sum(-1) * la
+    assert abs(2 * np.arctan2(num, den).sum()) > 2 * np.pi  # winding number 1: inside
+    with np.errstate(invalid="ignore", divide="ignore"):  # the caps' degenerate fan triangles
+        exact = point_tri_dist(x[None], tri).min()
+    assert best[0] == pytest.approx(exact, abs=1e-12)
+    assert best[1] == 0.0 and np.isnan(best_pt[1]).all()
+
+
+def _l_prism_triangles():
+    v, faces = l_prism(1.5)
+    return np.array([[v[f[0]], v[f[j]], v[f[j + 1]]] for f in faces for j in range(1, len(f) - 1)])
+
+
+def test_polish_off_gives_the_same_certified_radii(monkeypatch):
+    """With and without the ascent the radii of the jagged agglomerated tets stay within eps of
+    each other (both certified to rel_tol x diameter)."""
+    from meshes import tets
+
+    import models.metrics as mm
+    from models.io import mesh_from_arrays
+    from models.merge import merge
+    from models.pipeline import prepare
+
+    p, t = tets(8)
+    m = mesh_from_arrays(p, [("tetra", t)])
+    g, d = prepare(m)
+    c = p[t].mean(axis=1)
+    labels = (np.floor(3 * (c[:, 0] + 0.12 * np.sin(7 * c[:, 1]))) + 3 * (c[:, 2] > 0.5)).astype(np.int64)
+    labels = np.unique(labels, return_inverse=True)[1]
+    poly, _ = merge(m, g, labels, d.measures)
+    eps = 1e-3 * element_diameters(poly)
+    _, r_on = largest_inscribed_ball(poly, method="bnb")
+    monkeypatch.setitem(mm._POLISH_STEPS, 3, 0)
+    _, r_off = largest_inscribed_ball(poly, method="bnb")
+    assert np.all(np.abs(r_on - r_off) <= eps + 1e-12)
+    assert np.all(r_on > 0)
+
+
 def _classify_points(pm, q):
     """Fast (closest-feature) and brute-force inside tests of points q against element 0."""
     from models.metrics import _classify, _inside_bruteforce, _prepare, _prim_distance
