@@ -102,12 +102,17 @@ def _edge_keys(e: np.ndarray, n_points: int, chunk: int = 1 << 16) -> np.ndarray
     return out
 
 
-def _triangle_keys(t: np.ndarray, bits: int, chunk: int = 1 << 16) -> np.ndarray:
+def _triangle_keys(
+    t: np.ndarray, bits: int, chunk: int = 1 << 16, direction: np.ndarray | None = None
+) -> np.ndarray:
     """face_keys of all-triangle faces (sorted nodes by elementwise min / max, then the size 3), in
-    chunks whose temporaries stay in cache (the same key, elementwise)."""
+    chunks whose temporaries stay in cache (the same key, elementwise). direction: (F,) bool filled
+    with models.orientation._face_direction's bits from the same chunks."""
     out = np.empty(t.shape[0], dtype=np.int64)
     for s in range(0, t.shape[0], chunk):
         a, b, c = t[s : s + chunk, 0], t[s : s + chunk, 1], t[s : s + chunk, 2]
+        if direction is not None:
+            np.invert((a < b) ^ (b < c) ^ (c < a), out=direction[s : s + chunk])
         lo, hi = np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b), c)
         mid = a + b + c - lo - hi
         lo <<= bits

@@ -122,17 +122,21 @@ def _consistent(faces: Faces, flip: np.ndarray, n_points: int) -> bool | None:
     return not np.any(s[1:] == s[:-1])
 
 
-def _pairing(faces: Faces, n_points: int) -> tuple[np.ndarray, np.ndarray] | None:
+def _pairing(faces: Faces, n_points: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """(order, same) of models.graph.sort_keys for all-triangle faces whose key fits in int64 (the
-    pairing the dual graph needs too), else None."""
-    from .graph import face_keys, sort_keys
+    pairing the dual graph needs too) and the faces' _face_direction bits (from the same pass over
+    the nodes as the keys), else None."""
+    from .graph import _triangle_keys, sort_keys
 
-    if faces.nodes.size != 3 * faces.n or 3 * max(int(n_points - 1).bit_length(), 1) + 3 > 63:
+    bits = max(int(n_points - 1).bit_length(), 1)
+    if faces.nodes.size != 3 * faces.n or not faces.n or 3 * bits + 3 > 63:
         return None
-    return sort_keys(face_keys(faces, n_points))
+    direction = np.empty(faces.n, dtype=bool)
+    keys = _triangle_keys(faces.nodes.reshape(-1, 3), bits, direction=direction)
+    return (*sort_keys(keys), direction)
 
 
-def _consistent_paired(faces: Faces, flip: np.ndarray, order: np.ndarray, same: np.ndarray) -> bool:
+def _consistent_paired(faces: Faces, flip: np.ndarray, order: np.ndarray, same: np.ndarray, bit=None) -> bool:
     """_consistent for all-triangle faces from the undirected pairing: no face is met twice in the
     same direction. Two triangles with the same nodes have the same directed key exactly when their
     direction bits (after the flips) agree; a face met 3+ times repeats a direction."""
@@ -140,7 +144,7 @@ def _consistent_paired(faces: Faces, flip: np.ndarray, order: np.ndarray, same: 
         return False
     i = np.flatnonzero(same)
     fa, fb = order[i], order[i + 1]
-    bit = _face_direction(faces)
+    bit = _face_direction(faces) if bit is None else bit
     if not flip.any():  # e.g. tetrahedra already mirrored by their own sign
         return not np.any(bit[fa] == bit[fb])
     return not np.any((bit[fa] ^ flip[faces.cell[fa]]) == (bit[fb] ^ flip[faces.cell[fb]]))
@@ -171,16 +175,16 @@ def orientation_flips(
     paired = _pairing(faces, mesh.n_points) if mesh.dim == 3 else None
     if paired is not None:
         if pairing is not None:
-            pairing["order"], pairing["same"] = paired
+            pairing["order"], pairing["same"] = paired[:2]
         if _consistent_paired(faces, own, *paired):
             return own
     elif mesh.dim == 3 and _consistent(faces, own, mesh.n_points):
         return own
-    fa, fb = _pairs_of(*paired) if paired is not None else _face_pairs(faces, mesh.n_points)
+    fa, fb = _pairs_of(*paired[:2]) if paired is not None else _face_pairs(faces, mesh.n_points)
     ca, cb = faces.cell[fa], faces.cell[fb]
     keep = ca != cb
     fa, fb, ca, cb = fa[keep], fb[keep], ca[keep], cb[keep]
-    bit = _face_direction(faces)
+    bit = paired[2] if paired is not None else _face_direction(faces)
     parity = bit[fa] == bit[fb]  # True: same direction, one of the two must flip
     if not np.any(parity ^ own[ca] ^ own[cb]):
         return own

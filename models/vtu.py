@@ -360,8 +360,16 @@ def _simple_vtu(data: bytes):
         cell_data[attrs[b"Name"].decode()] = [d[np.arange(n_cells)]]  # a copy, as meshio's d[start + items]
     return SimpleNamespace(
         points=points,
-        # meshio adds the piece's point offset (a numpy int64 0): the same dtype promotion, a new array
-        cells=[SimpleNamespace(type=name, data=(conn + np.cumsum([0])[0]).reshape(n_cells, k))],
+        # meshio adds the piece's point offset (a numpy int64 0): the same dtype promotion and values
+        # in a new array (inflated blocks already are one: kept as they are when int64)
+        cells=[
+            SimpleNamespace(
+                type=name,
+                data=(conn if compressor and conn.dtype == np.int64 else conn + np.cumsum([0])[0]).reshape(
+                    n_cells, k
+                ),
+            )
+        ],
         cell_data=cell_data,
         field_data={},
     )
