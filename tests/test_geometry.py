@@ -92,3 +92,37 @@ def test_triangle_rotation_matches_padded_argmin():
         and np.array_equal(nxt, t[r, (j + 1) % 3])
         and np.array_equal(prv, t[r, (j - 1) % 3])
     )
+
+
+def test_direct_csr_and_2d_edges_equal_the_general_paths(monkeypatch):
+    """Triangles, quads and tetrahedra in random order with jittered points: the dual graph's direct
+    CSR (a sorting network per row) equals scipy's COO->CSR of the shared faces, and 2D edges of
+    one-size cells equal the general next-in-cycle edges, bit for bit."""
+    from meshes import quads, tets, triangles
+
+    from models import graph
+    from models.io import mesh_from_arrays
+
+    rng = np.random.default_rng(11)
+    for kind, (p, c) in (("triangle", triangles(9, 7)), ("quad", quads(8, 9)), ("tetra", tets(4))):
+        p = np.asarray(p, dtype=np.float64)
+        p = p + rng.normal(scale=0.01, size=p.shape)
+        c = np.asarray(c)[rng.permutation(len(c))]
+        mesh = mesh_from_arrays(p, [(kind, c)])
+        fast = graph.dual_graph(mesh, geometry.cell_faces(mesh))
+        if mesh.dim == 2:
+            n, k = mesh.n_cells, c.shape[1]
+            nxt = geometry.next_in_cycle(mesh.offsets)
+            assert np.array_equal(
+                fast.faces.nodes, np.column_stack([mesh.connectivity, mesh.connectivity[nxt]]).ravel()
+            )
+            assert (
+                np.array_equal(fast.faces.cell, geometry.cell_index(mesh.offsets)) and fast.faces.n == n * k
+            )
+        with monkeypatch.context() as mp:
+            mp.setattr(graph, "_fixed_layout", lambda faces, n: False)
+            slow = graph.dual_graph(mesh, geometry.cell_faces(mesh))
+        for a in ("indptr", "indices", "weights", "partner"):
+            assert np.array_equal(getattr(fast, a), getattr(slow, a)), (kind, a)
+            assert getattr(fast, a).dtype == getattr(slow, a).dtype
+        assert fast.n_edges > 0
