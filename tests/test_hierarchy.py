@@ -28,8 +28,14 @@ def check_nested_files(out, index, n_cells):
     return levels
 
 
-@pytest.mark.parametrize("mode,extra", [("nref", {"nref": 4}), ("multilevel", {"nref": 4, "refiner": "fm"}),
-                                        ("mult-factor", {"mult_factor": 0.3})])
+@pytest.mark.parametrize(
+    "mode,extra",
+    [
+        ("nref", {"nref": 4}),
+        ("multilevel", {"nref": 4, "refiner": "fm"}),
+        ("mult-factor", {"mult_factor": 0.3}),
+    ],
+)
 def test_brain_hierarchy_is_nested(tmp_path, mode, extra):
     mesh = read_mesh(BRAIN)
     res = run(mesh, model="metis", mode=mode, record_levels=True, compute_metrics=False, **extra)
@@ -55,9 +61,18 @@ def test_3d_hierarchy_with_metrics(tmp_path):
 
 def test_nesting_survives_fragment_absorption(tmp_path):
     mesh = read_mesh(BRAIN)
-    res = run(mesh, model="kmeans", mode="nref", nref=5, absorb_fraction=0.3, record_levels=True,
-              compute_metrics=False)
-    levels = nested_levels(res.data, res.agglomeration.labels, res.agglomeration.levels, res.agglomeration.nodes, mesh)
+    res = run(
+        mesh,
+        model="kmeans",
+        mode="nref",
+        nref=5,
+        absorb_fraction=0.3,
+        record_levels=True,
+        compute_metrics=False,
+    )
+    levels = nested_levels(
+        res.data, res.agglomeration.labels, res.agglomeration.levels, res.agglomeration.nodes, mesh
+    )
     assert is_nested(levels)
     assert np.array_equal(levels[-1], res.agglomeration.labels)
 
@@ -90,8 +105,12 @@ def test_level_statistics_equal_the_per_level_metrics(dim):
     touching = set(zip(fine[rows].tolist(), fine[graph.indices].tolist(), strict=True))
     pmap = np.zeros(int(fine.max()) + 1, dtype=np.int64)
     pmap[fine] = par
-    pair = next((e1, e2) for e1 in range(pmap.size) for e2 in range(e1 + 1, pmap.size)
-                if pmap[e1] == pmap[e2] and (e1, e2) not in touching)
+    pair = next(
+        (e1, e2)
+        for e1 in range(pmap.size)
+        for e2 in range(e1 + 1, pmap.size)
+        if pmap[e1] == pmap[e2] and (e1, e2) not in touching
+    )
     broken = np.unique(np.where(fine == pair[1], pair[0], fine), return_inverse=True)[1]
     for lv in (levels, levels[:-1] + [broken]):
         assert is_nested(lv)

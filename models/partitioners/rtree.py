@@ -93,9 +93,16 @@ class _Segments:
         np.cumsum(self.size[:-1], out=self.start[1:])
 
 
-def split_counts(grp: np.ndarray, need: np.ndarray, x: np.ndarray, w: np.ndarray,
-                 cell_lo: np.ndarray | None = None, cell_hi: np.ndarray | None = None,
-                 slack: float = SLACK, segments: _Segments | None = None) -> np.ndarray:
+def split_counts(
+    grp: np.ndarray,
+    need: np.ndarray,
+    x: np.ndarray,
+    w: np.ndarray,
+    cell_lo: np.ndarray | None = None,
+    cell_hi: np.ndarray | None = None,
+    slack: float = SLACK,
+    segments: _Segments | None = None,
+) -> np.ndarray:
     """Cut every group g (labels `grp` in 0..G-1) into need[g] parts by recursive weighted cuts.
 
     cell_lo/cell_hi (N, dim): the cells' own boxes; when given, each cut moves within `slack` x
@@ -146,8 +153,20 @@ def split_counts(grp: np.ndarray, need: np.ndarray, x: np.ndarray, w: np.ndarray
         target = base + m1 / np.maximum(m, 1) * vol
         cut = np.searchsorted(mid, target) - s0  # cells whose middle lies below the quantile
         if tight:
-            cut = _tight_cut(chosen, ax_pos, dim, lo_f, hi_f, mid, target, vol / np.maximum(m, 1) * slack,
-                             s0, e1, cut, slack)
+            cut = _tight_cut(
+                chosen,
+                ax_pos,
+                dim,
+                lo_f,
+                hi_f,
+                mid,
+                target,
+                vol / np.maximum(m, 1) * slack,
+                s0,
+                e1,
+                cut,
+                slack,
+            )
         n0 = np.clip(cut, m1, a_size - (m - m1))  # both sides keep at least as many cells as parts
         n0_rep = np.repeat(n0, a_size)
         side[chosen[r >= n0_rep]] = True
@@ -223,8 +242,9 @@ def _tight_cut(chosen, ax_pos, dim, lo_f, hi_f, mid, target, window, s0, e1, cut
     return out
 
 
-def _grow_from_mains(rows: np.ndarray, cols: np.ndarray, labels: np.ndarray, frag: np.ndarray,
-                     par: np.ndarray) -> np.ndarray:
+def _grow_from_mains(
+    rows: np.ndarray, cols: np.ndarray, labels: np.ndarray, frag: np.ndarray, par: np.ndarray
+) -> np.ndarray:
     """Labels where every fragment cell takes the label of the nearest main-piece cell (hops through
     fragment cells of the same parent; the shortest-path tree keeps each region connected to its
     main piece). Fragment cells no main piece reaches keep their label."""
@@ -236,16 +256,24 @@ def _grow_from_mains(rows: np.ndarray, cols: np.ndarray, labels: np.ndarray, fra
     if src.size == 0:
         return labels
     g = sp.csr_matrix((np.ones(int(e.sum())), (rows[e], cols[e])), shape=(n, n))
-    _, _, source = dijkstra(g, directed=True, indices=src, unweighted=True, min_only=True, return_predecessors=True)
+    _, _, source = dijkstra(
+        g, directed=True, indices=src, unweighted=True, min_only=True, return_predecessors=True
+    )
     out = labels.copy()
     hit = frag & (source >= 0)
     out[hit] = labels[source[hit]]
     return out
 
 
-def make_connected(indptr: np.ndarray, indices: np.ndarray, weights: np.ndarray, labels: np.ndarray,
-                   parent: np.ndarray | None = None, measures: np.ndarray | None = None,
-                   max_rounds: int = 100) -> tuple[np.ndarray, int]:
+def make_connected(
+    indptr: np.ndarray,
+    indices: np.ndarray,
+    weights: np.ndarray,
+    labels: np.ndarray,
+    parent: np.ndarray | None = None,
+    measures: np.ndarray | None = None,
+    max_rounds: int = 100,
+) -> tuple[np.ndarray, int]:
     """Every part keeps its largest connected piece; other pieces join the neighbouring part (of
     the same parent) that touches them along the longest interface, preferring parts' main pieces.
     Pieces with no neighbour in their parent (possible when the parent is itself disconnected) then
@@ -324,12 +352,20 @@ def make_connected(indptr: np.ndarray, indices: np.ndarray, weights: np.ndarray,
     return labels, moved_total
 
 
-def cut_and_connect(batch: GraphBatch, grp: np.ndarray, need: np.ndarray, balance: str = "measure",
-                    boxes: tuple | None = None, slack: float = SLACK) -> np.ndarray:
+def cut_and_connect(
+    batch: GraphBatch,
+    grp: np.ndarray,
+    need: np.ndarray,
+    balance: str = "measure",
+    boxes: tuple | None = None,
+    slack: float = SLACK,
+) -> np.ndarray:
     """split_counts + make_connected inside each group: (N,) labels, exact counts where possible."""
     w = batch.measures if balance == "measure" else np.ones(batch.n_nodes)
     lo, hi = boxes if boxes is not None else (None, None)
-    lab = split_counts(grp, need, batch.centroids, np.maximum(np.asarray(w, dtype=np.float64), 1e-300), lo, hi, slack)
+    lab = split_counts(
+        grp, need, batch.centroids, np.maximum(np.asarray(w, dtype=np.float64), 1e-300), lo, hi, slack
+    )
     lab, _ = make_connected(batch.indptr, batch.indices, batch.weights, lab, parent=grp, measures=w)
     return lab
 
@@ -349,15 +385,21 @@ def components(batch: GraphBatch, within: np.ndarray | None = None) -> np.ndarra
     n = batch.n_nodes
     rows = np.repeat(np.arange(n), np.diff(batch.indptr))
     keep = np.ones(rows.size, dtype=bool) if within is None else within[rows] == within[batch.indices]
-    g = sp.csr_matrix((np.ones(int(keep.sum()), dtype=np.int8), (rows[keep], batch.indices[keep])), shape=(n, n))
+    g = sp.csr_matrix(
+        (np.ones(int(keep.sum()), dtype=np.int8), (rows[keep], batch.indices[keep])), shape=(n, n)
+    )
     return connected_components(g, directed=False)[1].astype(np.int64)
 
 
-def cell_boxes(points: np.ndarray, offsets: np.ndarray, connectivity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def cell_boxes(
+    points: np.ndarray, offsets: np.ndarray, connectivity: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """(C, dim) lower and upper corners of every cell's vertices (vectorized reduceat)."""
     pts = np.asarray(points, dtype=np.float64)
     sizes = np.diff(offsets)
-    if sizes.size and sizes.min() == sizes.max() and offsets[0] == 0 and connectivity.size == offsets[-1]:  # one cell type: a (C, nv, dim) block, no reduceat
+    if (
+        sizes.size and sizes.min() == sizes.max() and offsets[0] == 0 and connectivity.size == offsets[-1]
+    ):  # one cell type: a (C, nv, dim) block, no reduceat
         nv = int(sizes[0])
         lo = pts[connectivity[0::nv]].copy()
         hi = lo.copy()
@@ -371,8 +413,14 @@ def cell_boxes(points: np.ndarray, offsets: np.ndarray, connectivity: np.ndarray
     return np.minimum.reduceat(p, starts, axis=0), np.maximum.reduceat(p, starts, axis=0)
 
 
-def rtree_levels(batch: GraphBatch, counts: list[int], groups: np.ndarray | None = None,
-                 balance: str = "measure", boxes: tuple | None = None, slack: float = SLACK) -> list[np.ndarray]:
+def rtree_levels(
+    batch: GraphBatch,
+    counts: list[int],
+    groups: np.ndarray | None = None,
+    balance: str = "measure",
+    boxes: tuple | None = None,
+    slack: float = SLACK,
+) -> list[np.ndarray]:
     """Nested labels for the element counts `counts` (coarsest first), each level connected.
 
     The cuts of all levels are made first, top-down (each level's parts split into the next level's
@@ -403,8 +451,9 @@ def rtree_levels(batch: GraphBatch, counts: list[int], groups: np.ndarray | None
         pm[lab] = raw[L - 1] if L > 0 else root
         up.append(pm)
     # finest level: pieces of a part join a neighbouring part of the same (raw) parent
-    fine, _ = make_connected(batch.indptr, batch.indices, batch.weights, raw[-1],
-                             parent=up[-1][raw[-1]], measures=w)
+    fine, _ = make_connected(
+        batch.indptr, batch.indices, batch.weights, raw[-1], parent=up[-1][raw[-1]], measures=w
+    )
     out[-1] = fine
     qp, qi, qw = batch.indptr, batch.indices, batch.weights
     node_lab, node_w = fine, w  # nodes of the graph at hand: cells, then elements of the finer level
@@ -439,8 +488,10 @@ class RTreePartitioner(Partitioner):
 
     name = "rtree"
     supports_kway = True
-    description = ("Nested geometric agglomeration: box cuts along the longest extent at measure-weighted "
-                   "quantiles (exact counts), connected parts; fast, vectorized, any ratio per level.")
+    description = (
+        "Nested geometric agglomeration: box cuts along the longest extent at measure-weighted "
+        "quantiles (exact counts), connected parts; fast, vectorized, any ratio per level."
+    )
 
     wants_cell_boxes = True  # agglomerate() fills GraphBatch.cell_boxes for the tight cuts
 
@@ -457,7 +508,9 @@ class RTreePartitioner(Partitioner):
         n = batch.n_nodes
         if k <= 1 or n == 0:
             return np.zeros(n, dtype=np.int64)
-        return rtree_levels(batch, [int(k)], balance=self.balance, boxes=batch.cell_boxes, slack=self.slack)[0]
+        return rtree_levels(batch, [int(k)], balance=self.balance, boxes=batch.cell_boxes, slack=self.slack)[
+            0
+        ]
 
     def bisect_batch(self, batch: GraphBatch) -> np.ndarray:
         gi = batch.graph_index()
