@@ -249,23 +249,31 @@ def make_bisector(
     threshold: int = 200,
     seed: int = 0,
     timings: dict | None = None,
+    group_weight: float | None = None,
 ) -> Callable[[GraphBatch], np.ndarray]:
     """batch -> (N,) sides: the partitioner's bisection, optionally multilevel (coarsen every graph
     to `threshold` nodes by heavy-edge matching, bisect the coarsest graphs, project back level by
     level) and refined (at every level when multilevel, else once on the batch). Stage times add
-    up in `timings` (coarsen, bisect, refine)."""
+    up in `timings` (coarsen, bisect, refine). group_weight (keep groups, models.groups): the
+    refiner sees edges between physical groups at this weight, and a graph keeps its refined
+    bisection only if no more fine cells end up outside their side's majority group."""
     from .coarsen import coarsen
+    from .groups import group_weighted, keep_purer
 
     tm = timings if timings is not None else {}
 
     def clock(stage: str, t: float) -> None:
         tm[stage] = tm.get(stage, 0.0) + time.perf_counter() - t
 
-    def refine(b: GraphBatch, split: np.ndarray) -> np.ndarray:
+    def refine(b: GraphBatch, split: np.ndarray, counts: np.ndarray | None = None) -> np.ndarray:
         if refiner is None:
             return split
         t = time.perf_counter()
-        out = _force_split(b, np.asarray(refiner.refine(b, split), dtype=np.int64))
+        if group_weight is None:
+            out = _force_split(b, np.asarray(refiner.refine(b, split), dtype=np.int64))
+        else:
+            out = _force_split(b, np.asarray(refiner.refine(group_weighted(b, group_weight), split), dtype=np.int64))
+            out = keep_purer(b, split, out, counts)
         clock("refine", t)
         return out
 
@@ -279,8 +287,16 @@ def make_bisector(
         t = time.perf_counter()
         split = _force_split(coarse, np.asarray(partitioner.bisect_batch(coarse), dtype=np.int64))
         clock("bisect", t)
-        for lv in reversed(levels):
-            split = refine(lv.batch, split)[lv.cmap]
+        counts = [None]  # fine cells per node of each level (the groups' guard counts cells)
+        if group_weight is not None and batch.tags is not None:
+            for lv in levels:
+                counts.append(np.bincount(lv.cmap, weights=counts[-1], minlength=lv.batch.n_nodes)
+                              if counts[-1] is not None else np.bincount(lv.cmap, minlength=lv.batch.n_nodes))
+        else:
+            counts = [None] * (len(levels) + 1)
+        for i in range(len(levels), 0, -1):
+            lv = levels[i - 1]
+            split = refine(lv.batch, split, counts[i])[lv.cmap]
         return refine(batch, split)
 
     return bisect
@@ -379,6 +395,8 @@ def agglomerate(
     threshold: int = 200,
     record_levels: bool = False,
     size_measure: str = "centroids",
+    keep_groups: bool | None = None,
+    group_weight: float | None = None,
 ) -> Agglomeration:
     """Partition the cells and return connected parts (see the module docstring for the modes).
 
@@ -389,7 +407,11 @@ def agglomerate(
     level in `Agglomeration.levels` (the nested hierarchy, models.hierarchy). size_measure: what
     target-size / mult-factor / segregated compare with h: "centroids" (largest distance between
     the centroids of a part's cells, and the mesh diameter the same way: the paper's measure) or
-    "vertices" (largest distance between its vertices: every element is then below h)."""
+    "vertices" (largest distance between its vertices: every element is then below h).
+    keep_groups (None = on for heterogeneity-aware models, sage-hetero): on a mesh with physical
+    groups, the refiner sees edges between groups at `group_weight` (default 0.01) so its cuts
+    prefer material interfaces, and a refined bisection (k-way partition, polished partition) is
+    kept only if no more cells end up outside the majority group of their part (models.groups)."""
     t0 = time.perf_counter()
     n = mesh.n_cells
     if mode not in MODES:
@@ -403,8 +425,17 @@ def agglomerate(
         refiner = None if refiner == "none" else get_refiner(refiner, seed=seed)
     if isinstance(threshold, bool) or not isinstance(threshold, int | np.integer) or threshold < 2:
         raise ParameterError(f"threshold must be an integer >= 2, got {threshold!r}")
+    if keep_groups is None:
+        keep_groups = bool(getattr(part, "hetero", False))
+    if group_weight is None:
+        from .groups import DEFAULT_GROUP_WEIGHT
+
+        group_weight = DEFAULT_GROUP_WEIGHT
+    if isinstance(group_weight, bool) or not isinstance(group_weight, int | float | np.floating) or not 0 < group_weight <= 1:
+        raise ParameterError(f"group_weight must be a number in (0, 1], got {group_weight!r}")
+    gw = float(group_weight) if keep_groups and data.tags is not None and refiner is not None else None
     stage_times: dict[str, float] = {}
-    bisector = make_bisector(part, refiner, mode == "multilevel", int(threshold), seed, stage_times)
+    bisector = make_bisector(part, refiner, mode == "multilevel", int(threshold), seed, stage_times, gw)
     if refiner is None and mode != "multilevel":
         bisector = part
     level_labels: list[np.ndarray] | None = [] if record_levels else None
@@ -459,8 +490,9 @@ def agglomerate(
         labels = compact_labels(labels)
         if refiner is not None:
             t = time.perf_counter()
-            refined = np.asarray(refiner.refine_kway(batch, labels[pos[batch.node_ids]]), dtype=np.int64)
-            labels[pos[batch.node_ids]] = refined
+            start = labels[pos[batch.node_ids]]
+            refined = np.asarray(refiner.refine_kway(_weighted(batch, gw), start), dtype=np.int64)
+            labels[pos[batch.node_ids]] = _purer(batch, gw, start, refined)
             labels = compact_labels(labels)
             stage_times["refine"] = time.perf_counter() - t
     elif sub_mode == "nref":
@@ -508,7 +540,8 @@ def agglomerate(
         batch = make_batch(data, np.zeros(nodes.size, dtype=np.int64), nodes)
         pos = np.empty(n, dtype=np.int64)
         pos[nodes] = np.arange(nodes.size)
-        polished = np.asarray(refiner.polish(batch, compact_labels(labels)[pos[batch.node_ids]]), dtype=np.int64)
+        start = compact_labels(labels)[pos[batch.node_ids]]
+        polished = _purer(batch, gw, start, np.asarray(refiner.polish(_weighted(batch, gw), start), dtype=np.int64))
         labels = labels.copy()
         labels[pos[batch.node_ids]] = polished
         stage_times["refine"] = stage_times.get("refine", 0.0) + time.perf_counter() - t
@@ -535,6 +568,25 @@ def agglomerate(
         levels=level_labels,
         nodes=nodes if record_levels else None,
     )
+
+
+def _weighted(batch: GraphBatch, group_weight: float | None) -> GraphBatch:
+    """The batch a k-way refiner sees: edges between groups at group_weight (None: as it is)."""
+    if group_weight is None:
+        return batch
+    from .groups import group_weighted
+
+    return group_weighted(batch, group_weight)
+
+
+def _purer(batch: GraphBatch, group_weight: float | None, before: np.ndarray, after: np.ndarray) -> np.ndarray:
+    """A refined k-way partition, unless (keeping groups) more cells are outside their part's
+    majority group than before: then the partition before."""
+    if group_weight is None or batch.tags is None:
+        return after
+    from .groups import kway_impurity
+
+    return before if kway_impurity(batch.tags, after) > kway_impurity(batch.tags, before) + 1e-9 else after
 
 
 def _cells_nodes(data: CellData, cells: np.ndarray) -> np.ndarray:

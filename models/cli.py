@@ -22,6 +22,9 @@ def _add_job_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", default="kway", help="kway | nref | target-size | mult-factor | segregated | coarsen | multilevel")
     p.add_argument("--refiner", choices=["fm", "rl-refiner"], help="refine every bisection (every level in multilevel mode); k-way mode: fm")
     p.add_argument("--threshold", type=int, default=200, help="multilevel: coarsen every subgraph to at most this many nodes")
+    p.add_argument("--keep-groups", default="auto", choices=["auto", "on", "off"],
+                   help="refiner: cuts prefer physical-group interfaces and never leave more cells outside their part's "
+                        "majority group (auto: on for sage-hetero)")
     p.add_argument("--k", type=int, help="number of elements (kway)")
     p.add_argument("--nref", type=int, help="number of refinements: 2^nref elements")
     p.add_argument("--target-size", type=float, help="bisect until every element's diameter is below this")
@@ -124,6 +127,7 @@ def cmd_agglomerate(args) -> int:
             size_measure=args.size_measure,
             compute_metrics=bool(args.metrics) or args.model_metrics, progress=prog,
             refiner=args.refiner, threshold=args.threshold, record_levels=bool(args.hierarchy),
+            keep_groups={"auto": None, "on": True, "off": False}[args.keep_groups],
         )
         res.timings = {"read": t_read, **res.timings}
         if args.hierarchy:
@@ -210,6 +214,7 @@ def cmd_compare(args) -> int:
             mesh, model=model, mode=mode, k=args.k, nref=args.nref, target_size=args.target_size,
             mult_factor=args.mult_factor, absorb_fraction=args.absorb, seed=args.seed, size_measure=args.size_measure,
             refiner=args.refiner, threshold=args.threshold,
+            keep_groups={"auto": None, "on": True, "off": False}[args.keep_groups],
         )
         rep = dict(res.metrics)
         rep["time"] = time.perf_counter() - t

@@ -117,9 +117,11 @@ def run(
     refiner: str | None = None,
     threshold: int = 200,
     record_levels: bool = False,
+    keep_groups: bool | None = None,
 ) -> Result:
     """Agglomerate `mesh`; progress(fraction, stage) is called between stages. refiner, threshold,
-    record_levels: see models.agglomerate.agglomerate (multilevel mode, nested hierarchy)."""
+    record_levels, keep_groups: see models.agglomerate.agglomerate (multilevel mode, nested
+    hierarchy, refiners that keep physical groups apart)."""
 
     def report(frac: float, stage: str) -> None:
         if progress is not None:
@@ -141,7 +143,7 @@ def run(
         mesh, data, model=model, mode=mode, k=k, nref=nref, target_size=target_size, mult_factor=mult_factor,
         subset=subset, absorb_fraction=absorb_fraction, seed=seed, progress=part_progress, model_options=model_options,
         size_measure=size_measure,
-        refiner=refiner, threshold=threshold, record_levels=record_levels,
+        refiner=refiner, threshold=threshold, record_levels=record_levels, keep_groups=keep_groups,
     )
     timings["partition"] = time.perf_counter() - t
     for stage in ("coarsen", "bisect", "refine"):  # parts of "partition" (multilevel mode, refiners)

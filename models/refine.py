@@ -42,7 +42,12 @@ REFINERS: dict[str, str] = {
 
 
 class Refiner:
-    """Base class: subclasses set `name` and implement `refine` (and `refine_kway` if they can)."""
+    """Base class: subclasses set `name` and implement `refine` (and `refine_kway` if they can).
+
+    Physical groups: a refiner only sees the batch's edge counts and volumes. To keep materials
+    apart (agglomerate(keep_groups=...), on for sage-hetero) the caller hands it a batch whose
+    edges between two groups count 1% (models.groups.group_weighted: cuts drift to material
+    interfaces) and keeps a refined result only where it mixes no more cells (keep_purer)."""
 
     name: str = "base"
     description: str = ""
@@ -478,13 +483,12 @@ def pairwise_fm(batch: GraphBatch, labels: np.ndarray, tolerance: float = 0.03, 
     n = batch.n_nodes
     if n == 0:
         return labels
-    if batch.edge_count is not None:
-        raise ParameterError("k-way refinement works on a fine graph")
     k = int(labels.max()) + 1
     rows = np.repeat(np.arange(n), np.diff(batch.indptr))
     cols = batch.indices
     ec = batch.edge_counts()
-    full_deg = np.diff(batch.indptr).astype(np.float64)
+    # degree volumes (degrees on a fine graph); edge counts and volumes as given (models.groups)
+    full_deg = batch.volumes()
     cap = (1 + tolerance) * float(batch.measures.sum()) / k
     rng = np.random.default_rng(seed)
     for _ in range(rounds):
@@ -505,12 +509,15 @@ def pairwise_fm(batch: GraphBatch, labels: np.ndarray, tolerance: float = 0.03, 
         pid[a] = np.arange(a.size)
         pid[b] = np.arange(a.size)
         nodes = np.flatnonzero(pid[labels] >= 0)
-        order, ptr, ip, ix, w = subgraph_by_labels(batch.indptr, batch.indices, batch.weights, pid[labels[nodes]], nodes)
-        pb = GraphBatch(indptr=ip, indices=ix, weights=w, graph_ptr=ptr, centroids=batch.centroids[order],
-                        measures=batch.measures[order], tags=None, node_ids=order, volume=full_deg[order])
+        order, ptr, ip, ix, eid = subgraph_by_labels(batch.indptr, batch.indices, np.arange(cols.size),
+                                                     pid[labels[nodes]], nodes)
+        pb = GraphBatch(indptr=ip, indices=ix, weights=batch.weights[eid], graph_ptr=ptr,
+                        centroids=batch.centroids[order], measures=batch.measures[order], tags=None, node_ids=order,
+                        edge_count=None if batch.edge_count is None else ec[eid], volume=full_deg[order])
         side = (labels[order] == b[pid[labels[order]]]).astype(np.int64)
         if objective == "ncut":
-            third = full_deg[order] - np.diff(ip)
+            third = full_deg[order] - np.bincount(np.repeat(np.arange(order.size), np.diff(ip)), weights=ec[eid],
+                                                  minlength=order.size)
             new, _, _ = fm_pass(pb, side, tolerance, hops, third=third)
             new = connected_sides(pb, new)
             before, after = CutState(pb, side, tolerance, third=third), CutState(pb, new, tolerance, third=third)
