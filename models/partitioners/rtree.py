@@ -171,13 +171,16 @@ def split_counts(
         n0_rep = np.repeat(n0, a_size)
         side[chosen[r >= n0_rep]] = True
         # stable partition of every axis order inside each active range: side 0 first, then side 1
-        V = P[:, pos]
-        S = side[V]
-        ex = np.cumsum(S, axis=1) - S  # side-1 cells before, from the first active position
-        before1 = ex - np.repeat(ex[:, s0], a_size, axis=1)
-        dest = np.repeat(a_start, a_size) + np.where(S, n0_rep + before1, r - before1)
-        P[np.arange(dim)[:, None], dest] = V
-        side[V[0]] = False
+        it = np.int32 if n < 2**31 else np.int64
+        r_i, n0_i, pr = r.astype(it), n0_rep.astype(it), (pos - r).astype(it)
+        for d in range(dim):  # a loop over the axes
+            V = P[d, pos]
+            S = side[V]
+            ex = np.cumsum(S, dtype=it)
+            ex -= S  # side-1 cells before, from the first active position
+            before1 = ex - np.repeat(ex[s0], a_size)
+            P[d, pr + np.where(S, n0_i + before1, r_i - before1)] = V
+        side[V] = False
         start = np.concatenate([start, a_start + n0])
         size = np.concatenate([size, a_size - n0])
         size[act] = n0
