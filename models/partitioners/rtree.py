@@ -386,11 +386,14 @@ def _quotient(indptr: np.ndarray, indices: np.ndarray, weights: np.ndarray, labe
 def components(batch: GraphBatch, within: np.ndarray | None = None) -> np.ndarray:
     """Connected components of the batch graph (only edges inside equal `within` labels)."""
     n = batch.n_nodes
-    rows = np.repeat(np.arange(n), np.diff(batch.indptr))
-    keep = np.ones(rows.size, dtype=bool) if within is None else within[rows] == within[batch.indices]
-    g = sp.csr_matrix(
-        (np.ones(int(keep.sum()), dtype=np.int8), (rows[keep], batch.indices[keep])), shape=(n, n)
-    )
+    indptr, indices = batch.indptr, batch.indices
+    if within is not None:  # keep the CSR rows: the filtered graph without a COO conversion
+        rows = np.repeat(np.arange(n), np.diff(indptr))
+        keep = within[rows] == within[indices]
+        indptr = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum(np.bincount(rows[keep], minlength=n), out=indptr[1:])
+        indices = indices[keep]
+    g = sp.csr_matrix((np.ones(indices.size, dtype=np.int8), indices, indptr), shape=(n, n))
     return connected_components(g, directed=False)[1].astype(np.int64)
 
 
