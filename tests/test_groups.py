@@ -117,8 +117,10 @@ def test_refined_sage_hetero_multilevel_keeps_the_groups(request, mesh, refiner)
     m, g, d = request.getfixturevalue(mesh)
     kw = dict(model="sage-hetero", mode="multilevel", nref=4, threshold=100)
     plain = hetero(m, agglomerate(m, d, **kw))
-    kept = hetero(m, agglomerate(m, d, refiner=refiner, **kw))  # auto: on for sage-hetero
+    agg = agglomerate(m, d, refiner=refiner, **kw)  # auto: on for sage-hetero
+    kept = hetero(m, agg)
     assert kept >= plain - 1e-12
+    assert agg.parts_before_split == 16  # a refinement that empties a part is refused too
     assert kept == hetero(m, agglomerate(m, d, refiner=refiner, keep_groups=True, **kw))
     if (mesh, refiner) != ("square", "rl-refiner"):  # there the blind rl-refiner happens not to mix
         blind = hetero(m, agglomerate(m, d, refiner=refiner, keep_groups=False, **kw))
