@@ -512,24 +512,31 @@ def _triangle_projection(T: np.ndarray, q: np.ndarray):
     return bv, bw, h, inside
 
 
-def _rim_closest(T: np.ndarray, q: np.ndarray):
+def _rim_closest(T: np.ndarray, q: np.ndarray, what: int = 3):
     """3D: closest point of each triangle's rim (its three edges) to q. Returns the squared
     distance, q minus that point, and the edge (0: corners 0-1, 1: 0-2, 2: 1-2) when the point
-    lies strictly inside it (-1 at a corner)."""
+    lies strictly inside it (-1 at a corner); the first edge wins ties. what = 1: the squared
+    distance only; 2: and the vector; 3: all three."""
     a, e0, e1 = T[:, 0:3], T[:, 3:6], T[:, 6:9]
-    best = np.full(q.shape[0], np.inf)
-    vec = np.zeros((q.shape[0], 3))
-    edge = np.full(q.shape[0], -1)
     m = _INTERIOR_MARGIN
+    best = vec = edge = None
     for k, (s0, t) in enumerate(((a, e0), (a, e1), (a + e0, e1 - e0))):
         w = q - s0
         tt = np.einsum("ij,ij->i", w, t) / np.maximum(np.einsum("ij,ij->i", t, t), 1e-300)
-        diff = w - np.clip(tt, 0, 1)[:, None] * t
-        dd = np.einsum("ij,ij->i", diff, diff)
+        w -= np.clip(tt, 0, 1)[:, None] * t  # w: q minus the closest point of edge k
+        dd = np.einsum("ij,ij->i", w, w)
+        if k == 0:
+            best = dd
+            vec = w if what >= 2 else None
+            if what >= 3:
+                edge = np.where((tt > m) & (tt < 1 - m), 0, -1)
+            continue
         better = dd < best
-        best[better] = dd[better]
-        vec[better] = diff[better]
-        edge[better] = np.where((tt[better] > m) & (tt[better] < 1 - m), k, -1)
+        best = np.where(better, dd, best)
+        if what >= 2:
+            vec = np.where(better[:, None], w, vec)
+        if what >= 3:
+            edge = np.where(better, np.where((tt > m) & (tt < 1 - m), k, -1), edge)
     return best, vec, edge
 
 
@@ -553,7 +560,7 @@ def _prim_distance(g: _Geometry, q: np.ndarray, p: np.ndarray, T: np.ndarray | N
     d2 = h * h
     rim = np.flatnonzero(~proj_in)
     if rim.size:
-        d2[rim] = _rim_closest(T[rim], q[rim])[0]
+        d2[rim] = _rim_closest(T[rim], q[rim], 1)[0]
     bu = 1.0 - bv - bw
     interior = proj_in & (bu > m) & (bv > m) & (bw > m)
     loc = np.where(interior, _LOC_INTERIOR, _LOC_RIM).astype(np.int8)
@@ -576,7 +583,7 @@ def _offset_to_closest(g: _Geometry, q: np.ndarray, p: np.ndarray) -> np.ndarray
     out = T[:, 9:12] * h[:, None]
     rim = np.flatnonzero(~inside)
     if rim.size:
-        out[rim] = _rim_closest(T[rim], q[rim])[1]
+        out[rim] = _rim_closest(T[rim], q[rim], 2)[1]
     return out
 
 
@@ -1181,8 +1188,9 @@ def _inscribed_bnb(g: _Geometry, elems: np.ndarray, rel_tol: float, bt: _BallTre
 
 
 _POLISH_STEPS = {2: 0, 3: 3}  # sequential-LP ascent steps after the dive (3D)
-_POLISH_REACH = 0.5  # primitives within (1 + this) * best of the point enter the local model
-_POLISH_TRUST = 0.25  # the step stays within this * best of the point (each coordinate)
+_POLISH_REACH = 0.3  # primitives within (1 + this) * best of the point enter the local model (a step
+# moves at most sqrt(3) * trust * best, so every primitive left out stays farther than best)
+_POLISH_TRUST = 0.15  # the step stays within this * best of the point (each coordinate)
 
 
 def _polish(g: _Geometry, elems: np.ndarray, best: np.ndarray, best_pt: np.ndarray, orient: np.ndarray) -> None:
