@@ -26,8 +26,9 @@ from service_fixtures import (
 )
 
 pytestmark = [pytest.mark.redis, pytest.mark.slow]
-# on a 110 x 110 square: about 10 s on an idle machine (fm refinement at every coarsening level), with
-# progress and cancellation points all along; a plain METIS job there is done in about a second now
+# on a 160 x 160 square (51,200 triangles): about 7-8 s of CPU (fm refinement, flows first, at every
+# coarsening level), with progress and cancellation points all along; on a 110 x 110 square the flow
+# refiner is done in about 4 s now, and a plain METIS job in about a second: too fast to kill mid-job
 SLOW = {"model": "metis", "mode": "multilevel", "nref": 6, "refiner": "fm"}
 
 
@@ -41,7 +42,7 @@ def redis_up() -> bool:
 @pytest.fixture(scope="module")
 def meshes(tmp_path_factory):
     d = tmp_path_factory.mktemp("meshes")
-    return {"tiny": square_mesh(d / "tiny.vtu", 8), "slow": square_mesh(d / "slow.vtu", 110)}
+    return {"tiny": square_mesh(d / "tiny.vtu", 8), "slow": square_mesh(d / "slow.vtu", 160)}
 
 
 @pytest.fixture
