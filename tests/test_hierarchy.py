@@ -152,3 +152,15 @@ def test_cavities_found_on_the_element_graph_as_merging_finds_them():
         _, holes = merge(mesh, graph, lab, data.measures)
         assert np.array_equal(cavity_elements(graph, lab), np.unique(holes.elements))
     assert np.array_equal(cavity_elements(graph, nested_shells), [0, 2])
+
+
+def test_mtx_written_by_numpy_reads_back(tmp_path):
+    import scipy.io
+
+    from models.hierarchy import _write_mtx, aggregation_operators
+
+    lab = np.random.default_rng(1).permutation(np.arange(1234) % 97)
+    P = aggregation_operators([lab], lab.size)[0]
+    _write_mtx(str(tmp_path / "p.mtx"), P.indices, P.shape[1], " test")
+    M = scipy.io.mmread(tmp_path / "p.mtx")
+    assert M.shape == P.shape and (abs(M.tocsr() - P) != 0).nnz == 0 and M.dtype.kind == "i"
