@@ -287,13 +287,11 @@ def make_bisector(
         t = time.perf_counter()
         split = _force_split(coarse, np.asarray(partitioner.bisect_batch(coarse), dtype=np.int64))
         clock("bisect", t)
-        counts = [None]  # fine cells per node of each level (the groups' guard counts cells)
+        counts: list = [None] * (len(levels) + 1)  # fine cells per node of each level (the groups' guard)
         if group_weight is not None and batch.tags is not None:
-            for lv in levels:
-                counts.append(np.bincount(lv.cmap, weights=counts[-1], minlength=lv.batch.n_nodes)
-                              if counts[-1] is not None else np.bincount(lv.cmap, minlength=lv.batch.n_nodes))
-        else:
-            counts = [None] * (len(levels) + 1)
+            c = np.ones(batch.n_nodes)
+            for i, lv in enumerate(levels, 1):
+                counts[i] = c = np.bincount(lv.cmap, weights=c, minlength=lv.batch.n_nodes)
         for i in range(len(levels), 0, -1):
             lv = levels[i - 1]
             split = refine(lv.batch, split, counts[i])[lv.cmap]
