@@ -70,9 +70,9 @@ MODEL_CARDS = [
     },
     {
         "name": "rl-partitioner",
-        "dimension": [2],
+        "dimension": [2, 3],
         "modes": ["nref", "target-size", "mult-factor", "segregated", "coarsen", "multilevel"],
-        "description": "RL partitioner (A2C, models/weights/rl-partitioner-2d.md): grows one side from a minimum-degree seed; meant for the coarsest graphs of mode multilevel (slow on a whole fine mesh).",
+        "description": "RL partitioner (A2C, models/weights/rl-partitioner-2d.md and -3d.md, picked by the mesh's dimension): grows one side from a minimum-degree seed; meant for the coarsest graphs of mode multilevel (slow on a whole fine mesh).",
     },
 ]
 # Refiners (field `refiner`): every model's bisections in nref / target-size / mult-factor /
@@ -240,8 +240,6 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
             raise ParameterError(f"k = {k} is larger than the number of cells to agglomerate ({n_work})")
         if nref is not None and 2**nref > n_work:
             raise ParameterError(f"nref = {nref} asks for 2^{nref} elements, more than the {n_work} cells")
-        if model == "rl-partitioner" and mesh_info.get("dim", 2) != 2:
-            raise ParameterError("model 'rl-partitioner' has weights for 2D meshes only")
         if mode == "segregated" and not mesh_info.get("physical_groups"):
             raise ParameterError("mode 'segregated' needs a mesh with physical groups")
 

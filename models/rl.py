@@ -419,7 +419,9 @@ def training_graphs(cfg: RLTrainConfig, log=print) -> list[tuple[GraphBatch, np.
     from .pipeline import prepare
 
     rng = np.random.default_rng(cfg.seed)
-    kinds = ["square-tri", "delaunay", "square-quad", "voronoi"] if cfg.dim == 2 else ["cube"]
+    # 3D: the unit cube and random boxes (some with a corner cut away: an L-shaped solid), so that
+    # the agent does not only see cubes
+    kinds = ["square-tri", "delaunay", "square-quad", "voronoi"] if cfg.dim == 2 else ["cube", "cube-portion"]
     sage = get_partitioner("sage-base") if cfg.agent == "rl-refiner" else None
     out = []
     t0 = time.perf_counter()
@@ -430,8 +432,8 @@ def training_graphs(cfg: RLTrainConfig, log=print) -> list[tuple[GraphBatch, np.
             gen = generate(kind, ms, size=1.0 / int(rng.integers(20, 60)))
         elif kind in ("delaunay", "voronoi"):
             gen = generate(kind, ms, n=int(rng.integers(400, 3000)))
-        else:
-            gen = generate(kind, ms, size=float(rng.uniform(0.08, 0.15)))
+        else:  # 3D: 1k-25k tetrahedra (coarsened several levels, as in multilevel mode)
+            gen = generate(kind, ms, size=float(rng.uniform(0.06, 0.12)))
         mesh = gen.to_mesh()
         _, data = prepare(mesh)
         b = make_batch(data, np.zeros(mesh.n_cells, dtype=np.int64))
@@ -439,12 +441,11 @@ def training_graphs(cfg: RLTrainConfig, log=print) -> list[tuple[GraphBatch, np.
         coarse = levels[-1].batch if levels else b
         if sage is None:
             out.append((coarse, None))
-            continue
-        split = sage.bisect_batch(coarse)
-        cur = split
-        for i in range(len(levels) - 1, -1, -1):
-            cur = cur[levels[i].cmap]
-            out.append((levels[i - 1].batch if i > 0 else b, cur.copy()))
+        else:
+            cur = sage.bisect_batch(coarse)
+            for j in range(len(levels) - 1, -1, -1):
+                cur = cur[levels[j].cmap]
+                out.append((levels[j - 1].batch if j > 0 else b, cur.copy()))
         if (i + 1) % 10 == 0:
             log(f"  data: {i + 1}/{cfg.n_meshes} meshes, {len(out)} graphs ({time.perf_counter() - t0:.0f} s)")
     return out

@@ -195,10 +195,11 @@ def test_api_accepts_refiners_and_multilevel():
     ]:
         with pytest.raises(ParameterError, match=msg):
             validate_params(bad)
-    with pytest.raises(ParameterError, match="2D meshes only"):
-        validate_params({"model": "rl-partitioner", "mode": "multilevel", "nref": 2}, {"cells": 100, "dim": 3})
+    # 3D meshes are accepted (rl-partitioner-3d.pt, picked by the mesh's dimension)
+    p3 = validate_params({"model": "rl-partitioner", "mode": "multilevel", "nref": 2}, {"cells": 100, "dim": 3})
+    assert p3["model"] == "rl-partitioner" and p3["mode"] == "multilevel"
     cards = {c["name"]: c for c in list_models()}
-    assert "multilevel" in cards["sage-base"]["modes"] and "rl-partitioner" in cards
+    assert "multilevel" in cards["sage-base"]["modes"] and cards["rl-partitioner"]["dimension"] == [2, 3]
     kway = [c for c in cards["metis"]["combinations"] if c["mode"] == "kway"][0]
     assert kway["refiners"] == ["fm"]
 

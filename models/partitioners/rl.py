@@ -1,7 +1,8 @@
 """The A2C agents of models/rl.py as a Partitioner (`rl-partitioner`) and a Refiner (`rl-refiner`).
 
-Weights ship in models/weights/ (rl-partitioner-2d.pt, rl-refiner.pt), trained by
-`magnet train rl-partitioner|rl-refiner`. torch is imported only when a graph is processed.
+Weights ship in models/weights/ (rl-partitioner-2d.pt and rl-partitioner-3d.pt, picked by the
+mesh's dimension as SAGE-Base's; rl-refiner.pt for both), trained by
+`magnet train rl-partitioner|rl-refiner [--dim 3]`. torch is imported only when a graph is processed.
 """
 
 from __future__ import annotations
@@ -24,7 +25,9 @@ def _load(path: Path):
     with _LOCK:
         if str(path) not in _CACHE:
             if not path.is_file():
-                raise ModelError(f"weights file {path} is missing: train it with `magnet train {path.stem.rsplit('-', 1)[0] if path.stem.endswith(('-2d', '-3d')) else path.stem} -o {path}`")
+                stem = path.stem.rsplit("-", 1)[0] if path.stem.endswith(("-2d", "-3d")) else path.stem
+                dim = " --dim 3" if path.stem.endswith("-3d") else ""
+                raise ModelError(f"weights file {path} is missing: train it with `magnet train {stem}{dim} -o {path}`")
             from ..rl import load
 
             try:
@@ -38,7 +41,7 @@ class RLPartitioner(Partitioner):
     """A2C partitioner: grows side 1 from a minimum-degree seed to half the graph (models/rl.py)."""
 
     name = "rl-partitioner"
-    dims = (2,)
+    dims = (2, 3)
     description = ("RL partitioner (A2C): grows one side from a minimum-degree seed, one node per action, "
                    "keeps the least normalized cut within +-1% of half; for the coarsest graphs of mode multilevel")
 
@@ -53,10 +56,13 @@ class RLPartitioner(Partitioner):
         from ..rl import partition_with_policy
 
         if batch.dim not in self.dims:
-            raise ModelError(f"{self.name} has weights for 2D meshes only")
+            raise ModelError(f"{self.name} handles 2D and 3D meshes, not {batch.dim}D")
         if batch.n_nodes == 0:
             return np.zeros(0, dtype=np.int64)
         model = _load(Path(self.weights_dir or WEIGHTS_DIR) / f"rl-partitioner-{batch.dim}d.pt")
+        if model.cfg.in_features != batch.dim + 2:
+            raise ModelError(f"weights of {self.name} for {batch.dim}D meshes have {model.cfg.in_features} input "
+                             f"features, not {batch.dim + 2}: a file of the wrong dimension?")
         side = partition_with_policy(model, batch, self.actions_per_pass)
         if self.contiguous:
             from .sage import contiguous_sides
