@@ -309,6 +309,7 @@ def flow_kway(
         pa, pb = qa[pick], qb[pick]
         P = pick.size
         w = np.bincount(labels, weights=m, minlength=k)
+        cnt = np.bincount(labels, minlength=k)
         limit = np.minimum(lim_part[pa], lim_part[pb])
         # KaHIP's band bound: (1 + fac x tolerance) x the mean part, less the other part's measure;
         # fac = 1 keeps every cut in the band balanced, a larger fac needs a balanced minimum cut
@@ -362,6 +363,9 @@ def flow_kway(
                 minlength=P,
             )
             fed = (over[pa] & (into_a > 0)) | (over[pb] & (into_a < 0))
+            # a part swallowed whole is no gain (an empty part adds nothing to the k-way ncut)
+            emptied = (np.bincount(cand, minlength=k) == 0) & (cnt > 0)
+            fed |= emptied[pa] | emptied[pb]
             bad = acc & (fed | (gain < -1e-12) | ((gain <= 1e-12) & (bal_gain <= 1e-12)))
             if not bad.any():
                 if not acc.any():

@@ -1,5 +1,7 @@
 """Flow refinement of pairs of parts (models.flow): known optima on grids, guarantees on the brain."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -9,6 +11,8 @@ from models.metrics import partition_statistics
 from models.partitioners import get_partitioner
 from models.partitioners.base import GraphBatch
 from models.refine import FMRefiner, bisection_ncut
+
+DATA = Path(__file__).parent / "data"
 
 
 def grid(nx, ny):
@@ -175,3 +179,21 @@ def test_flow_bisections_on_metis_never_worse_and_within_tolerance(brain):
         part_components(rows, b.indices, 2 * gi + out, 4)
         <= part_components(rows, b.indices, 2 * gi + side, 4)
     )
+
+
+
+def test_flow_kway_never_swallows_a_part():
+    """Unequal parts, as sage-hetero makes them on a mesh with an inclusion (sizes 7 to 89): under
+    the k-way normalized cut an emptied part adds nothing, so taking a small part whole looked like
+    a gain (14 of 16 parts were left); every part must keep a cell, whatever the objective."""
+    from models.agglomerate import agglomerate
+    from models.io import read_mesh
+    from models.pipeline import prepare
+
+    mesh = read_mesh(DATA / "square_inclusion.msh")
+    _, data = prepare(mesh)
+    lab = agglomerate(mesh, data, model="sage-hetero", mode="nref", nref=4).labels
+    b = make_batch(data, np.zeros(mesh.n_cells, dtype=np.int64))
+    for objective in ("ncut", "cut"):
+        out = flow_kway(b, lab[b.node_ids], 0.05, 40, alpha=8.0, max_alpha=16.0, seed=0, objective=objective)
+        assert np.bincount(out, minlength=16).min() > 0, objective
