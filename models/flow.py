@@ -83,20 +83,25 @@ def grow_bands(indptr, cols, labels, seed_grp, n_grp, budget, m, max_hops):
     return grp
 
 
-def pair_mincut(indptr, cols, caps, m, labels, pa, pb, room_a, room_b, limit, max_hops, seed=0):
+def pair_mincut(
+    indptr, cols, caps, m, labels, pa, pb, room_a, room_b, limit, max_hops, seed=0, rows=None, ce=None
+):
     """Minimum cuts between the pairs of parts (pa[p], pb[p]) (pa < pb, sorted by pa * k + pb)
     inside budget-limited bands; a part may be in several pairs (a boundary node joins the band
     of one of them), the other pairs' nodes then count as fixed.
 
     Returns (new labels (N,), ok (P,), band pair (N,), -1 outside the bands): new labels move band
     nodes only, in the pairs where ok (one of the pair's minimum cuts keeps both parts within
-    limit[p] or no heavier than the heavier one before, taking the pair alone)."""
+    limit[p] or no heavier than the heavier one before, taking the pair alone). rows (the CSR
+    row of every edge) and ce (the edges between parts) may be passed by a caller that has them."""
     n = labels.size
     k = int(labels.max()) + 1
     P = pa.size
     pkey = pa * k + pb
-    rows = np.repeat(np.arange(n), np.diff(indptr))
-    ce = np.flatnonzero(labels[rows] != labels[cols])
+    if rows is None:
+        rows = np.repeat(np.arange(n), np.diff(indptr))
+    if ce is None:
+        ce = np.flatnonzero(labels[rows] != labels[cols])
     lr, lc = labels[rows[ce]], labels[cols[ce]]
     ck = np.minimum(lr, lc) * k + np.maximum(lr, lc)
     pos = np.minimum(np.searchsorted(pkey, ck), P - 1)
@@ -173,13 +178,18 @@ def pair_mincut(indptr, cols, caps, m, labels, pa, pb, room_a, room_b, limit, ma
         cu, cv = scc[sub.row], scc[sub.col]
         dag = cu != cv
         cu, cv = cu[dag], cv[dag]
-        height = np.zeros(n_scc, dtype=np.int64)
-        for _ in range(n_scc):  # longest path to a sink of the DAG (stops at its depth)
-            h2 = height.copy()
-            np.maximum.at(h2, cu, height[cv] + 1)
-            if np.array_equal(h2, height):
-                break
-            height = h2
+        # scipy labels the strong components in the order its (Pearce's) search completes them,
+        # successors first: already a topological order of the condensation, and each prefix of
+        # it a closed set. The iterated longest paths below only serve if an edge says otherwise.
+        height = np.arange(n_scc, dtype=np.int64)
+        if np.any(cu < cv):
+            height = np.zeros(n_scc, dtype=np.int64)
+            for _ in range(n_scc):  # longest path to a sink of the DAG (stops at its depth)
+                h2 = height.copy()
+                np.maximum.at(h2, cu, height[cv] + 1)
+                if np.array_equal(h2, height):
+                    break
+                height = h2
         fp = bp[f]
         o = np.lexsort((scc, height[scc], fp))
         fo, po, so = f[o], fp[o], scc[o]
@@ -207,15 +217,20 @@ def pair_mincut(indptr, cols, caps, m, labels, pa, pb, room_a, room_b, limit, ma
     return out, ok, bpair
 
 
-def part_components(rows, cols, labels, k):
-    """(k,) connected components of each part."""
+def part_components(rows, cols, labels, k, parts=None):
+    """(k,) connected components of each part (only of the parts where `parts` (k,) bool is set,
+    if given; 0 for the others)."""
     n = labels.size
     same = labels[rows] == labels[cols]  # rows sorted (CSR order): the kept edges are a CSR already
+    if parts is not None:
+        same &= parts[labels[rows]]
     ptr = np.r_[0, np.cumsum(np.bincount(rows[same], minlength=n))]
     g = sp.csr_matrix((np.ones(int(ptr[-1]), dtype=np.int8), cols[same], ptr), shape=(n, n))
     nc, comp = connected_components(g, directed=False)
     first = np.zeros(nc, dtype=np.int64)
     first[comp] = labels
+    if parts is not None:  # the other parts' nodes are singletons here: do not count them
+        return np.bincount(first, weights=parts[first], minlength=k).astype(np.int64)
     return np.bincount(first, minlength=k)
 
 
@@ -287,12 +302,11 @@ def flow_kway(
     changed = np.zeros(k, dtype=np.int64)  # round of each part's last change (0 = never)
     for r in range(1, rounds + 1):
         lr, lc = labels[rows], labels[cols]
-        x = lr < lc
-        q = sp.csr_matrix((ec[x], (lr[x], lc[x])), shape=(k, k)).tocoo()
-        qa, qb, qw = q.row.astype(np.int64), q.col.astype(np.int64), q.data
-        qk = qa * k + qb
-        o = np.argsort(qk)
-        qa, qb, qw, qk = qa[o], qb[o], qw[o], qk[o]
+        ce = np.flatnonzero(lr != lc)  # the edges between parts (both directions)
+        x = ce[lr[ce] < lc[ce]]
+        qk, inv = np.unique(lr[x] * k + lc[x], return_inverse=True)  # the quotient graph, sorted
+        qw = np.bincount(inv, weights=ec[x], minlength=qk.size)
+        qa, qb = qk // k, qk % k
         f = np.full(qk.size, alpha)
         t = np.zeros(qk.size, dtype=np.int64)
         if keys.size:
@@ -329,6 +343,8 @@ def flow_kway(
             limit,
             max_hops,
             seed=int(rng.integers(2**31)),
+            rows=rows,
+            ce=ce,
         )
         mv = np.flatnonzero(new != labels)
         mp = bpair[mv]
@@ -370,7 +386,9 @@ def flow_kway(
             if not bad.any():
                 if not acc.any():
                     break
-                broken = part_components(rows, cols, cand, k) > comps0
+                touched = np.zeros(k, dtype=bool)
+                touched[pa[acc]] = touched[pb[acc]] = True
+                broken = touched & (part_components(rows, cols, cand, k, touched) > comps0)
                 bad = acc & (broken[pa] | broken[pb])
                 if not bad.any():
                     break
