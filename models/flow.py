@@ -361,14 +361,15 @@ def flow_kway(
                 gain = (before[pa] + before[pb]) - (after[pa] + after[pb])
             else:
                 # exact total change, each cut-edge change given to the pair(s) of its moved ends
+                # (over the edges of the moved nodes only: an edge to an unmoved node counts in
+                # full for the moved end's pair, one between two moved nodes half for each)
                 moved = np.zeros(n, dtype=bool)
                 moved[take] = True
-                e = np.flatnonzero(moved[rows] | moved[cols])
-                d = ec[e] * (
-                    (cand[rows[e]] != cand[cols[e]]).astype(np.float64) - (labels[rows[e]] != labels[cols[e]])
-                )
-                owner = np.where(moved[rows[e]], bpair[rows[e]], bpair[cols[e]])
-                gain = -np.bincount(owner, weights=d, minlength=P) / 2
+                v, e = edges_of(batch.indptr, take)
+                u = cols[e]
+                d = ec[e] * ((cand[v] != cand[u]).astype(np.float64) - (labels[v] != labels[u]))
+                d *= np.where(moved[u], 0.5, 1.0)
+                gain = -np.bincount(bpair[v], weights=d, minlength=P)
             bal_gain = np.maximum(w[pa], w[pb]) - np.maximum(wn[pa], wn[pb])
             over = wn > np.maximum(lim_part, w) * (1 + 1e-12)
             # an overloaded part drops the pairs that fed it; then a broken part drops all its pairs
