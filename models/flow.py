@@ -144,8 +144,13 @@ def pair_mincut(
     M = sp.csr_matrix((cap, (src, dst)), shape=(nb + 2, nb + 2))
     M.sum_duplicates()
     flow = maximum_flow(M, S, T, method="dinic").flow
-    R = (M - flow).tocsr()
-    R.data = (R.data > 0).astype(np.int8)
+    if np.array_equal(flow.indptr, M.indptr) and np.array_equal(flow.indices, M.indices):
+        # the network holds every edge both ways, so the flow comes on M's own structure: the
+        # residual capacities are plain array differences (float64: csgraph's own dtype, no copies)
+        R = sp.csr_matrix(((M.data > flow.data).astype(np.float64), M.indices, M.indptr), shape=M.shape)
+    else:
+        R = (M - flow).tocsr()
+        R.data = (R.data > 0).astype(np.float64)
     R.eliminate_zeros()
     from_s = np.zeros(nb + 2, dtype=bool)
     from_s[breadth_first_order(R, S, directed=True, return_predecessors=False)] = True
@@ -173,7 +178,12 @@ def pair_mincut(
     best = np.where(feas0, hi0, np.inf)
     f = np.flatnonzero(~from_s[:nb] & ~to_t[:nb])
     if f.size:
-        sub = R[f][:, f].tocoo()
+        free = np.full(nb + 2, -1, dtype=np.int64)
+        free[f] = np.arange(f.size)
+        rr = free[np.repeat(np.arange(nb + 2), np.diff(R.indptr))]
+        cc = free[R.indices]
+        keep = (rr >= 0) & (cc >= 0)
+        sub = sp.coo_matrix((R.data[keep], (rr[keep], cc[keep])), shape=(f.size, f.size))
         n_scc, scc = connected_components(sub, directed=True, connection="strong")
         cu, cv = scc[sub.row], scc[sub.col]
         dag = cu != cv
