@@ -94,6 +94,31 @@ def test_pair_mincut_bands_stay_within_their_budget():
     assert cut(b, new) <= cut(b, lab)
 
 
+def test_pair_mincut_bands_stop_at_max_hops():
+    # a wide budget: the band is bounded by the hops alone, max_hops - 1 layers beyond the boundary
+    b, lab = zigzag(16, 8)
+    caps = np.ones(b.indices.size, dtype=np.int32)
+    big = np.array([1e9])
+    _, _, band = pair_mincut(b.indptr, b.indices, caps, b.measures, lab, np.array([0]), np.array([1]), big, big,
+                             big, 3)
+    rows = np.repeat(np.arange(b.n_nodes), np.diff(b.indptr))
+    hop = np.where(np.isin(np.arange(b.n_nodes), rows[lab[rows] != lab[b.indices]]), 0, -1)
+    for d in range(1, b.n_nodes):  # BFS layers inside each side
+        grow = (hop[rows] == d - 1) & (hop[b.indices] < 0) & (lab[rows] == lab[b.indices])
+        if not grow.any():
+            break
+        hop[b.indices[grow]] = d
+    assert band.max() == 0 and np.all(hop[band >= 0] <= 2)
+    assert np.all(band[(hop >= 0) & (hop <= 2)] == 0)  # and it reaches that far
+
+
+def test_fm_refiner_kway_band_hops_follow_the_part_size(brain_kway):
+    g, b, lab = brain_kway
+    auto = FMRefiner(flow_rounds=6).refine_kway(b, lab)  # 64 parts of ~225 cells: 5 hops
+    assert np.array_equal(auto, FMRefiner(flow_rounds=6, flow_hops=5).refine_kway(b, lab))
+    assert stats(g, b, auto)["connected"] and stats(g, b, auto)["cut"] < stats(g, b, lab)["cut"]
+
+
 @pytest.fixture(scope="module")
 def brain_kway(brain):
     m, g, d = brain
