@@ -521,10 +521,11 @@ def _fix_holes(mesh: Mesh, data: CellData, levels: list[np.ndarray]) -> tuple[li
     Returns the levels and their merged polytopes (for write_hierarchy's `merged`; None where a
     level was checked without merging: 3D domains without voids are checked on the elements' graph
     (cavity_elements), and the writer merges)."""
-    from .merge import merge
+    from .merge import boundary_faces, merge, merge_2d
 
     out = list(levels)
     polys = [None] * len(out)
+    bf = None  # 2D: the finer level's boundary faces (None: all faces)
     finer = np.arange(mesh.n_cells)
     by_graph = mesh.dim == 3 and not _has_voids(mesh, data.graph)
     G_finer = None  # the finer level's element graph (each level's comes from it, not from the cells)
@@ -548,10 +549,20 @@ def _fix_holes(mesh: Mesh, data: CellData, levels: list[np.ndarray]) -> tuple[li
             if by_graph:
                 finer, G_finer = out[L], G
                 continue
-        poly, holes = merge(mesh, data.graph, out[L], data.measures)
+        if mesh.dim == 2:  # a nested coarser level's boundary edges are among the finer level's
+            if bf is not None:
+                node_to = np.zeros(int(finer.max()) + 1, dtype=np.int64)
+                node_to[finer] = out[L]
+                if not np.array_equal(node_to[finer], out[L]):
+                    bf = None
+            bf = boundary_faces(data.graph, out[L], among=bf)
+            poly, holes = merge_2d(mesh, data.graph, out[L], data.measures, faces=bf)
+        else:
+            poly, holes = merge(mesh, data.graph, out[L], data.measures)
         if np.unique(holes.elements).size:
             out[L] = _without_holes(mesh, data, out[L], finer)
             poly, _ = merge(mesh, data.graph, out[L], data.measures)
+            bf = None if mesh.dim != 2 else boundary_faces(data.graph, out[L])
         polys[L] = poly
         finer = out[L]
     return out, polys

@@ -35,13 +35,18 @@ class Holes:
     centers: np.ndarray  # (H, dim) a point of the hole (mean of its boundary vertices)
 
 
-def boundary_faces(graph: DualGraph, labels: np.ndarray) -> np.ndarray:
-    """Ids of the faces on the boundary of their part."""
+def boundary_faces(graph: DualGraph, labels: np.ndarray, among: np.ndarray | None = None) -> np.ndarray:
+    """Ids of the faces on the boundary of their part. among: only these face ids are looked at (a
+    superset of the answer, e.g. the boundary faces of finer parts nested in these), increasing."""
     f = graph.faces
-    lab = labels[f.cell]
-    p = graph.partner
+    if among is None:
+        lab = labels[f.cell]
+        p = graph.partner
+        other = np.where(p >= 0, labels[f.cell[np.maximum(p, 0)]], -1)
+        return np.flatnonzero((p < 0) | (other != lab))
+    p = graph.partner[among]
     other = np.where(p >= 0, labels[f.cell[np.maximum(p, 0)]], -1)
-    return np.flatnonzero((p < 0) | (other != lab))
+    return among[(p < 0) | (other != labels[f.cell[among]])]
 
 
 def _list_rank(nxt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -67,11 +72,12 @@ def _list_rank(nxt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def merge_2d(
-    mesh: Mesh, graph: DualGraph, labels: np.ndarray, measures: np.ndarray
+    mesh: Mesh, graph: DualGraph, labels: np.ndarray, measures: np.ndarray, faces: np.ndarray | None = None
 ) -> tuple[PolyMesh, Holes]:
-    """Polygons (outer loop CCW first, then holes CW) for every element."""
+    """Polygons (outer loop CCW first, then holes CW) for every element. faces: the boundary faces
+    of the parts when already known (boundary_faces; a coarser level's are among a finer one's)."""
     f = graph.faces
-    bf = boundary_faces(graph, labels)
+    bf = boundary_faces(graph, labels) if faces is None else faces
     a = f.nodes[2 * bf]
     b = f.nodes[2 * bf + 1]
     e = labels[f.cell[bf]]
