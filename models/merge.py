@@ -86,15 +86,17 @@ def merge_2d(
     order = np.argsort(key_start, kind="stable")
     sk = key_start[order]
     want = e * P + b
-    lo = np.searchsorted(sk, want, "left")
-    hi = np.searchsorted(sk, want, "right")
-    cnt = hi - lo
-    if np.any(cnt == 0):
+    lo = np.minimum(np.searchsorted(sk, want, "left"), sk.size - 1)
+    if sk.size == 0 or not np.array_equal(sk[lo], want):
         raise MeshError("an element boundary is not closed (the mesh is not a valid 2D manifold)")
-    nxt = order[np.minimum(lo, sk.size - 1)]
-    pinch = np.flatnonzero(cnt > 1)
+    nxt = order[lo]
+    # more than one edge leaving the vertex in the element (one searchsorted, not two)
+    pinch = np.flatnonzero(sk[np.minimum(lo + 1, sk.size - 1)] == want)
+    pinch = pinch[lo[pinch] + 1 < sk.size]
     if pinch.size:
         pts = mesh.points
+        hi = lo.copy()
+        hi[pinch] = np.searchsorted(sk, want[pinch], "right")
         for i in pinch:  # rare: vertices where an element touches itself
             cands = order[lo[i] : hi[i]]
             back = pts[a[i]] - pts[b[i]]
