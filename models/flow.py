@@ -227,10 +227,23 @@ def pair_mincut(
     return out, ok, bpair
 
 
-def part_components(rows, cols, labels, k, parts=None):
+def part_components(rows, cols, labels, k, parts=None, indptr=None):
     """(k,) connected components of each part (only of the parts where `parts` (k,) bool is set,
-    if given; 0 for the others)."""
+    if given; 0 for the others: with the CSR indptr too, only their nodes' edges are read)."""
     n = labels.size
+    if parts is not None and indptr is not None:
+        nodes = np.flatnonzero(parts[labels])
+        loc = np.full(n, -1, dtype=np.int64)
+        loc[nodes] = np.arange(nodes.size)
+        v, e = edges_of(indptr, nodes)
+        u = cols[e]
+        keep = labels[u] == labels[v]
+        ptr = np.r_[0, np.cumsum(np.bincount(loc[v[keep]], minlength=nodes.size))]
+        g = sp.csr_matrix((np.ones(int(ptr[-1])), loc[u[keep]], ptr), shape=(nodes.size, nodes.size))
+        nc, comp = connected_components(g, directed=False)
+        first = np.zeros(nc, dtype=np.int64)
+        first[comp] = labels[nodes]
+        return np.bincount(first, minlength=k)
     same = labels[rows] == labels[cols]  # rows sorted (CSR order): the kept edges are a CSR already
     if parts is not None:
         same &= parts[labels[rows]]
@@ -399,7 +412,7 @@ def flow_kway(
                     break
                 touched = np.zeros(k, dtype=bool)
                 touched[pa[acc]] = touched[pb[acc]] = True
-                broken = touched & (part_components(rows, cols, cand, k, touched) > comps0)
+                broken = touched & (part_components(rows, cols, cand, k, touched, batch.indptr) > comps0)
                 bad = acc & (broken[pa] | broken[pb])
                 if not bad.any():
                     break

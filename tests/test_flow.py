@@ -222,3 +222,25 @@ def test_flow_kway_never_swallows_a_part():
     for objective in ("ncut", "cut"):
         out = flow_kway(b, lab[b.node_ids], 0.05, 40, alpha=8.0, max_alpha=16.0, seed=0, objective=objective)
         assert np.bincount(out, minlength=16).min() > 0, objective
+
+
+def test_part_components_of_some_parts_agree_with_the_whole_graph():
+    import scipy.sparse as sp
+
+    rng = np.random.default_rng(1)
+    n = 300
+    r, c = rng.integers(0, n, 700), rng.integers(0, n, 700)
+    a = sp.csr_matrix((np.ones(r.size), (r, c)), shape=(n, n))
+    a = ((a + a.T) > 0).tocsr()
+    a.setdiag(0)
+    a.eliminate_zeros()
+    a.sort_indices()
+    rows = np.repeat(np.arange(n), np.diff(a.indptr))
+    lab = rng.integers(0, 20, n)
+    whole = part_components(rows, a.indices, lab, 20)
+    assert whole.max() > 1  # random labels: parts in pieces
+    for _ in range(10):
+        parts = rng.random(20) < 0.5
+        some = part_components(rows, a.indices, lab, 20, parts, a.indptr)
+        assert np.array_equal(some, np.where(parts, whole, 0))
+        assert np.array_equal(some, part_components(rows, a.indices, lab, 20, parts))
