@@ -7,7 +7,13 @@ import numpy as np
 import pytest
 
 from models.partitioners.base import GraphBatch
-from models.partitioners.kmeans import _brute_nearest, kmeans, nearest_center, two_means_batch
+from models.partitioners.kmeans import (
+    _brute_nearest,
+    bisection_seeds,
+    kmeans,
+    nearest_center,
+    two_means_batch,
+)
 
 
 def _inertia(x, labels):
@@ -69,3 +75,59 @@ def test_two_means_batch_is_per_graph():
     c = np.stack([g[s == 0].mean(0), g[s == 1].mean(0)])
     d = ((g[:, None, :] - c[None]) ** 2).sum(-1)
     assert np.all(d[np.arange(len(g)), s] <= d[np.arange(len(g)), 1 - s] + 1e-12)
+
+
+def test_bisection_seeds_one_nonempty_part_per_cluster():
+    """The many-cluster start: k centres, each the (weighted) mean of a non-empty part, even with
+    k close to the number of points, duplicates and skewed weights."""
+    rng = np.random.default_rng(4)
+    x = np.vstack([rng.random((997, 3)), np.zeros((50, 3))])
+    w = rng.random(len(x)) ** 4 + 1e-3
+    for k, ww in ((1047, None), (600, w), (3, w)):
+        c = bisection_seeds(x, k, ww)
+        assert c.shape == (k, 3) and np.all(np.isfinite(c))
+        assert np.all(c >= x.min(0) - 1e-12) and np.all(c <= x.max(0) + 1e-12)
+    c = bisection_seeds(x[:997], 997)  # one point per part: the centres are the points themselves
+    assert np.array_equal(np.unique(c, axis=0), np.unique(x[:997], axis=0))
+
+
+@pytest.mark.parametrize("dim,k", [(2, 1500), (3, 2000)])
+def test_kmeans_many_clusters(dim, k):
+    """k ~ n / 8 (the kmeans hierarchy's finest level): exactly k non-empty clusters and an inertia
+    within 5% of scikit-learn's (same data, n_init 1), deterministic."""
+    from sklearn.cluster import KMeans
+
+    rng = np.random.default_rng(dim)
+    x = np.vstack([rng.random((12_000, dim)), rng.normal(0.3, 0.05, (4_000, dim))])
+    lab = kmeans(x, k, seed=0)
+    assert np.unique(lab).size == k
+    ref = KMeans(n_clusters=k, n_init=1, random_state=0, max_iter=100).fit(x).inertia_
+    assert _inertia(x, lab) <= 1.05 * ref, (_inertia(x, lab), ref)
+    assert np.array_equal(lab, kmeans(x, k, seed=0))
+
+
+def test_lloyd_passes_do_not_grow_with_k():
+    """The stopping test is relative to the inertia: on uniform 3D points with about 1000 points per
+    cluster, k = 40 and k = 400 take comparable numbers of Lloyd passes (the summed-shift test took
+    39 and 112)."""
+    from models.partitioners import kmeans as km
+
+    calls = []
+    real = km.nearest_center
+
+    def counting(*a, **kw):
+        calls.append(1)
+        return real(*a, **kw)
+
+    rng = np.random.default_rng(0)
+    passes = []
+    for k in (40, 400):
+        x = rng.random((1000 * k, 3))
+        calls.clear()
+        try:
+            km.nearest_center = counting
+            km.kmeans(x, k, seed=0)
+        finally:
+            km.nearest_center = real
+        passes.append(len(calls))
+    assert passes[1] <= 1.5 * passes[0] + 5, passes
