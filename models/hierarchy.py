@@ -211,7 +211,7 @@ def level_statistics(mesh: Mesh, graph, levels: list[np.ndarray], measures: np.n
     level's connectedness is decided on the graph of the finer level's elements."""
     import scipy.sparse as sp
 
-    from .partitioners.rtree import cell_boxes
+    from .partitioners.rtree import _small_int, cell_boxes
 
     indptr, indices = np.asarray(graph.indptr, dtype=np.int64), np.asarray(graph.indices, dtype=np.int64)
     n = indptr.size - 1
@@ -232,6 +232,8 @@ def level_statistics(mesh: Mesh, graph, levels: list[np.ndarray], measures: np.n
     lo, hi = cell_boxes(mesh.points, mesh.offsets, mesh.connectivity)
     out: list[dict] = [None] * len(levels)
     q_ptr, q_ind = indptr, indices  # graph of the finer nodes: cells, then the finer level's elements
+    ea, eb, ec = a, b, None  # its undirected edges, each once, with their number of fine edges (None: 1)
+    node_vol, node_n = deg, np.ones(n)  # fine degrees and cells summed over each finer node
     connected_below = True
     for L in range(len(levels) - 1, -1, -1):
         lab = np.asarray(levels[L], dtype=np.int64)
@@ -241,7 +243,7 @@ def level_statistics(mesh: Mesh, graph, levels: list[np.ndarray], measures: np.n
             node_to[levels[L + 1]] = lab
         else:
             node_to = lab
-        order = np.argsort(node_to, kind="stable")
+        order = np.argsort(_small_int(node_to, k), kind="stable")  # a radix sort up to 16 bits
         starts = np.flatnonzero(np.r_[True, node_to[order][1:] != node_to[order][:-1]])
         lo = np.minimum.reduceat(lo[order], starts, axis=0)
         hi = np.maximum.reduceat(hi[order], starts, axis=0)
@@ -251,13 +253,17 @@ def level_statistics(mesh: Mesh, graph, levels: list[np.ndarray], measures: np.n
             br = np.clip(np.where(box > 0, m / np.where(box > 0, box, 1.0), 0.0), 0.0, 1.0)
         total = float(m.sum())
         cov = float(box.sum() / total) if total > 0 else float("nan")
-        # partition statistics on the fine edges
-        cut_mask = lab[a] != lab[b]
-        cut_i = np.bincount(lab[a][cut_mask], minlength=k) + np.bincount(lab[b][cut_mask], minlength=k)
-        vol = np.bincount(lab, weights=deg, minlength=k)
+        # partition statistics: the fine edges cut by this level are the finer nodes' edges it cuts
+        ua, ub = node_to[ea], node_to[eb]
+        cut_mask = ua != ub
+        ua, ub = ua[cut_mask], ub[cut_mask]
+        c = None if ec is None else ec[cut_mask]
+        cut_i = np.bincount(ua, weights=c, minlength=k) + np.bincount(ub, weights=c, minlength=k)
+        n_cut = int(cut_mask.sum()) if c is None else int(c.sum())
+        node_vol = np.bincount(node_to, weights=node_vol, minlength=k)  # sums of integers: exact
+        node_n = np.bincount(node_to, weights=node_n, minlength=k)
         with np.errstate(divide="ignore", invalid="ignore"):
-            ncut = float(np.where(vol > 0, cut_i / np.where(vol > 0, vol, 1), 0.0).sum())
-        sizes = np.bincount(lab, minlength=k)
+            ncut = float(np.where(node_vol > 0, cut_i / np.where(node_vol > 0, node_vol, 1), 0.0).sum())
         # connected: every element's finer nodes connected through the finer level's element graph
         if connected_below:  # the finer level's elements are connected: their graph decides
             connected_below = _components_count(q_ptr, q_ind, node_to) == k
@@ -265,14 +271,17 @@ def level_statistics(mesh: Mesh, graph, levels: list[np.ndarray], measures: np.n
         else:
             connected = _components_count(indptr, indices, lab) == k
         out[L] = {"elements": k, "dim": int(mesh.dim), "coverage": cov, "summary": {"box_ratio": _summary(br)},
-                  "partition": {"cut": int(cut_mask.sum()), "normalized_cut": ncut,
-                                "volume_imbalance": float(sizes.max() / sizes.mean()) if k else 0.0,
+                  "partition": {"cut": n_cut, "normalized_cut": ncut,
+                                "volume_imbalance": float(node_n.max() / node_n.mean()) if k else 0.0,
                                 "parts": k, "connected": bool(connected)}}
-        # the graph of this level's elements, for the next (coarser) level
-        qa, qb = node_to[np.repeat(np.arange(q_ptr.size - 1), np.diff(q_ptr))], node_to[q_ind]
-        off = qa != qb
-        qm = sp.csr_matrix((np.ones(int(off.sum()), dtype=np.int8), (qa[off], qb[off])), shape=(k, k))
-        qm.sum_duplicates()
+        if L == 0:
+            break
+        # the undirected edges of this level's elements (with multiplicities), for the next (coarser) level
+        key = np.minimum(ua, ub) * np.int64(k) + np.maximum(ua, ub)
+        uniq, inv = np.unique(key, return_inverse=True)
+        ec = np.bincount(inv, weights=c, minlength=uniq.size).astype(np.int64)
+        ea, eb = uniq // k, uniq % k
+        qm = sp.csr_matrix((np.ones(2 * uniq.size, dtype=np.int8), (np.r_[ea, eb], np.r_[eb, ea])), shape=(k, k))
         q_ptr, q_ind = qm.indptr.astype(np.int64), qm.indices.astype(np.int64)
     return out
 
