@@ -268,6 +268,13 @@ def _grow_from_mains(
     return out
 
 
+def _kept_ptr(keep: np.ndarray, indptr: np.ndarray) -> np.ndarray:
+    """The row pointers of a CSR (indptr[0] = 0) after keeping only the entries `keep` (bool)."""
+    ptr = np.zeros(keep.size + 1, dtype=np.int64)
+    np.cumsum(keep, out=ptr[1:])
+    return ptr[indptr]
+
+
 def make_connected(
     indptr: np.ndarray,
     indices: np.ndarray,
@@ -292,8 +299,7 @@ def make_connected(
     while rnd < max_rounds:  # in practice 1 to 3 rounds
         same = labels[rows] == labels[indices]
         # the rows stay sorted: the same-label graph as CSR without a COO conversion
-        sp_ptr = np.zeros(n + 1, dtype=np.int64)
-        np.cumsum(np.bincount(rows[same], minlength=n), out=sp_ptr[1:])
+        sp_ptr = _kept_ptr(same, indptr)
         g = sp.csr_matrix((np.ones(sp_ptr[-1], dtype=np.int8), indices[same], sp_ptr), shape=(n, n))
         nc, comp = connected_components(g, directed=False)
         k = int(labels.max()) + 1
@@ -303,14 +309,17 @@ def make_connected(
         clab = np.empty(nc, dtype=np.int64)
         clab[comp] = labels
         # main piece of each part: largest measure (ties: lowest piece id)
-        o = np.lexsort((np.arange(nc), -cm, clab))
+        o = np.lexsort((-cm, clab))  # stable: ties keep the lowest piece id
         first = o[np.r_[True, clab[o][1:] != clab[o][:-1]]]
         main = np.zeros(nc, dtype=bool)
         main[first] = True
         frag_cell = ~main[comp]
+        # edges leaving fragment cells into another part of the same parent (as indices: fragments are few)
+        e = np.flatnonzero(frag_cell[rows])
+        a, b = rows[e], indices[e]
+        e = e[(labels[a] != labels[b]) & (par[a] == par[b])]
         a, b = rows, indices
-        e = frag_cell[a] & (labels[a] != labels[b]) & (par[a] == par[b])
-        if not e.any():
+        if e.size == 0:
             if free:
                 break
             free, par, rnd = True, np.zeros(n, dtype=np.int64), 0  # last resort: any neighbour
@@ -340,7 +349,7 @@ def make_connected(
         target[r[best]] = m.indices[best]
         # only pieces touching a main piece move this round (they then join a connected part)
         touches_main = np.zeros(nc, dtype=bool)
-        em = e & main[comp[b]]
+        em = e[main[comp[b[e]]]]
         touches_main[comp[a[em]]] = True
         go = (target >= 0) & ~main & (touches_main | ~touches_main.any())
         if not go.any():
@@ -388,10 +397,8 @@ def components(batch: GraphBatch, within: np.ndarray | None = None) -> np.ndarra
     n = batch.n_nodes
     indptr, indices = batch.indptr, batch.indices
     if within is not None:  # keep the CSR rows: the filtered graph without a COO conversion
-        rows = np.repeat(np.arange(n), np.diff(indptr))
-        keep = within[rows] == within[indices]
-        indptr = np.zeros(n + 1, dtype=np.int64)
-        np.cumsum(np.bincount(rows[keep], minlength=n), out=indptr[1:])
+        keep = np.repeat(within, np.diff(indptr)) == within[indices]
+        indptr = _kept_ptr(keep, indptr)
         indices = indices[keep]
     g = sp.csr_matrix((np.ones(indices.size, dtype=np.int8), indices, indptr), shape=(n, n))
     return connected_components(g, directed=False)[1].astype(np.int64)
