@@ -198,13 +198,14 @@ class RefinerEnv:
         self.b = imbalance_weight
         self.budget = self.st.cut + 1
 
-    def features(self) -> torch.Tensor:
+    def features(self, as_numpy: bool = False):
         st, v = self.st, self.nodes
         s = st.side[v]
         vt = np.maximum(st.vol.sum(axis=1), 1e-12)
         f = np.column_stack([s == 0, s == 1, self.edge_flag, st.vol[self.gi_np, 0] / vt[self.gi_np],
                              st.vol[self.gi_np, 1] / vt[self.gi_np], st.ext[v] / np.maximum(self.tot, 1e-12)])
-        return torch.from_numpy(f.astype(np.float32))
+        f = f.astype(np.float32)
+        return f if as_numpy else torch.from_numpy(f)
 
     def mask(self, step: int) -> np.ndarray:
         _, ok = self.st.evaluate(self.nodes)
@@ -304,6 +305,43 @@ def _induced(ip: np.ndarray, ix: np.ndarray, keep: np.ndarray):
     return out, c
 
 
+def _actor_weights(model: ActorCritic) -> list:
+    """The refiner's actor path as float32 numpy arrays (cached on the model): per SAGE layer
+    (W_l^T, b_l, W_r^T) for the trunk and the actor's layer, then the output layer (w^T, b)."""
+    cached = getattr(model, "_np_actor", None)
+    if cached is None:
+        def arr(t):
+            return t.detach().cpu().numpy().astype(np.float32)
+
+        layers = [(arr(m.lin_l.weight).T.copy(), arr(m.lin_l.bias), arr(m.lin_r.weight).T.copy())
+                  for m in list(model.trunk) + [model.actor_sage]]
+        cached = (layers, (arr(model.actor_out.weight).T.copy(), arr(model.actor_out.bias)))
+        model._np_actor = cached
+    return cached
+
+
+def _mean_csr(indptr: np.ndarray, indices: np.ndarray):
+    """mean_adjacency as a float32 scipy CSR matrix."""
+    import scipy.sparse as sp
+
+    n = indptr.size - 1
+    deg = np.diff(indptr)
+    w = np.repeat(1.0 / np.maximum(deg, 1), deg).astype(np.float32)
+    return sp.csr_matrix((w, indices, indptr), shape=(n, n))
+
+
+def _actor_logits(weights, x: np.ndarray, adj) -> np.ndarray:
+    """ActorCritic.forward's logits (refiner) in numpy: the critic is not needed at inference."""
+    layers, (wo, bo) = weights
+    h = np.ascontiguousarray(x, dtype=np.float32)
+    for wl, bl, wr in layers:
+        out = (adj @ h) @ wl
+        out += h @ wr
+        out += bl
+        h = np.tanh(out, out=out)
+    return (h @ wo + bo)[:, 0].astype(np.float64)
+
+
 def _policy_pass(model: ActorCritic, env: RefinerEnv, steps: int, per_pass: int, slack: int = 8):
     """One greedy episode of the policy on `env` (the moves and the normalized cut after each).
 
@@ -316,6 +354,7 @@ def _policy_pass(model: ActorCritic, env: RefinerEnv, steps: int, per_pass: int,
       whose short list has no allowed node left);
     - no reward bookkeeping (inference)."""
     st, B = env.st, env.B
+    weights = _actor_weights(model)
     moves = np.full((steps, B), -1, dtype=np.int64)
     hist = np.full((steps, B), np.inf)
     ip, ix = _band_csr(env)
@@ -330,15 +369,10 @@ def _policy_pass(model: ActorCritic, env: RefinerEnv, steps: int, per_pass: int,
             fwd_nodes = np.flatnonzero(live)
             if fwd_nodes.size == 0:
                 break
-            if fwd_nodes.size == gi.size:
-                adj = env.adj
-            else:
-                sip, six = _induced(ip, ix, fwd_nodes)
-                adj = mean_adjacency(sip, six, fwd_nodes.size)
-            fgi = torch.from_numpy(gi[fwd_nodes])
-        x = env.features()[torch.from_numpy(fwd_nodes)] if fwd_nodes.size != gi.size else env.features()
-        logits, _ = model(x, adj, fgi, B)
-        logits = logits.numpy().astype(np.float64)
+            sip, six = (ip, ix) if fwd_nodes.size == gi.size else _induced(ip, ix, fwd_nodes)
+            adj = _mean_csr(sip, six)
+        x = env.features(as_numpy=True)
+        logits = _actor_logits(weights, x if fwd_nodes.size == gi.size else x[fwd_nodes], adj)
         # the short lists: unlocked movable nodes of live graphs, by graph then logit (desc) then index
         ok0 = movable[fwd_nodes] & ~env.locked[fwd_nodes] & live[fwd_nodes]
         c = fwd_nodes[ok0]
