@@ -257,9 +257,10 @@ def part_components(rows, cols, labels, k, parts=None, indptr=None):
     return np.bincount(first, minlength=k)
 
 
-def _greedy_matching(a, b, w, k, rng):
-    """Pairs (a[i], b[i]) by weight, heaviest first (random ties), each part at most once."""
-    o = np.lexsort((rng.random(a.size), -w))
+def _greedy_matching(a, b, w, k, rng, later=None):
+    """Pairs (a[i], b[i]) by weight, heaviest first (random ties), each part at most once; pairs
+    where later[i] is set come after all the others."""
+    o = np.lexsort((rng.random(a.size), -w) if later is None else (rng.random(a.size), -w, later))
     used = np.zeros(k, dtype=bool)
     pick = []
     for i in o.tolist():  # a loop over pairs of parts
@@ -322,6 +323,7 @@ def flow_kway(
     keys = np.zeros(0, dtype=np.int64)  # pair a*k+b (a < b): band factor, round last tried
     fac = np.zeros(0)
     tried = np.zeros(0, dtype=np.int64)
+    won = np.zeros(0, dtype=bool)  # the pair's last try gained
     changed = np.zeros(k, dtype=np.int64)  # round of each part's last change (0 = never)
     for r in range(1, rounds + 1):
         lr, lc = labels[rows], labels[cols]
@@ -332,17 +334,22 @@ def flow_kway(
         qa, qb = qk // k, qk % k
         f = np.full(qk.size, alpha)
         t = np.zeros(qk.size, dtype=np.int64)
+        wg = np.zeros(qk.size, dtype=bool)
         if keys.size:
             pos = np.minimum(np.searchsorted(keys, qk), keys.size - 1)
             known = keys[pos] == qk
             f[known] = fac[pos[known]]
             t[known] = tried[pos[known]]
-        keys, fac, tried = qk, f, t
+            wg[known] = won[pos[known]]
+        keys, fac, tried, won = qk, f, t, wg
         active = (tried == 0) | (np.maximum(changed[qa], changed[qb]) >= tried)
         if not active.any():
             break
         ia = np.flatnonzero(active)
-        pick = ia[_greedy_matching(qa[ia], qb[ia], qw[ia], k, rng)] if schedule == "matching" else ia
+        # a pair whose last try gained waits for the others (its parts changed, so it is active
+        # again at once, and would take the matching's heaviest slots round after round: brain
+        # k 128, 4 seeds, -4% in 15 rounds instead of ~20, 40 rounds -4.79% vs -4.52%)
+        pick = ia[_greedy_matching(qa[ia], qb[ia], qw[ia], k, rng, won[ia])] if schedule == "matching" else ia
         pa, pb = qa[pick], qb[pick]
         P = pick.size
         w = np.bincount(labels, weights=m, minlength=k)
@@ -421,6 +428,7 @@ def flow_kway(
             acc[:] = False
         # adapt the band factor: bigger after a gain, smaller when no balanced cut was found
         up = acc & (gain > 1e-12)
+        won[pick] = up
         fac[pick[up]] = np.minimum(fac[pick[up]] * 2, max_alpha)
         retry = ~ok & (fac[pick] > 1)
         fac[pick[retry]] = np.maximum(fac[pick[retry]] / 2, 1.0)
