@@ -587,15 +587,28 @@ def _split_elements(coarse: np.ndarray, bad: np.ndarray, finer: np.ndarray) -> n
     return compact_labels(coarse)
 
 
+_TRIPLES = None  # (1000, 3) ASCII codes of 000..999
+
+
 def _digits(v: np.ndarray, width: int) -> np.ndarray:
-    """(N, width) ASCII codes of the non-negative integers v, right-aligned with blanks."""
-    chars = np.full((v.size, width), ord(" "), dtype=np.uint8)
-    rest = v.copy()
-    for j in range(width - 1, -1, -1):  # a loop over digits
-        digit = rest % 10
-        show = (rest > 0) | (j == width - 1)
-        chars[:, j] = np.where(show, ord("0") + digit, ord(" "))
-        rest //= 10
+    """(N, width) ASCII codes of the non-negative integers v, right-aligned with blanks (three digits
+    at a time from a table, then the leading zeros blanked)."""
+    global _TRIPLES
+    if _TRIPLES is None:
+        _TRIPLES = np.frombuffer("".join(f"{i:03d}" for i in range(1000)).encode("ascii"), np.uint8).reshape(1000, 3)
+    v = np.asarray(v, dtype=np.int64)
+    nb = -(-width // 3)
+    chars = np.empty((v.size, nb), dtype="V3")
+    table = _TRIPLES.view("V3").ravel()
+    rest = v
+    for j in range(nb - 1, -1, -1):  # a loop over blocks of three digits
+        rest, blk = np.divmod(rest, 1000)
+        chars[:, j] = table[blk]
+    chars = chars.view(np.uint8).reshape(v.size, 3 * nb)[:, 3 * nb - width:]
+    nd = np.ones(v.size, dtype=np.int64)  # digits of each number
+    for e in range(1, width):  # a loop over powers of ten
+        nd += v >= 10**e
+    chars = np.where(np.arange(width)[None, :] < (width - nd)[:, None], np.uint8(ord(" ")), chars)
     return chars
 
 
