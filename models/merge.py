@@ -111,8 +111,9 @@ def merge_2d(
     cyc, pos = _list_rank(nxt)
     # signed area of each loop
     p = mesh.points
-    ref = p[a].min(axis=0)
-    xa, ya = (p[a] - ref).T
+    pa = p[a]
+    ref = pa.min(axis=0)
+    xa, ya = (pa - ref).T
     xb, yb = (p[b] - ref).T
     area = 0.5 * np.bincount(cyc, weights=xa * yb - xb * ya)
     loop_elem = np.zeros(area.size, dtype=np.int64)
@@ -125,22 +126,25 @@ def merge_2d(
     is_outer[order_l[first]] = True
     loop_rank = np.empty(area.size, dtype=np.int64)
     loop_rank[order_l] = np.arange(area.size)
-    eorder = np.lexsort((pos, loop_rank[cyc]))
-    loop_nodes = a[eorder]
     loop_len = np.bincount(cyc, minlength=area.size)[order_l]
     loop_offsets = np.zeros(area.size + 1, dtype=np.int64)
     np.cumsum(loop_len, out=loop_offsets[1:])
+    loop_nodes = np.empty_like(a)  # edges by (loop rank, position in the loop): a scatter, no sort
+    loop_nodes[loop_offsets[loop_rank[cyc]] + pos] = a
     per_elem = np.bincount(loop_elem, minlength=n_elem)
     elem_offsets = np.zeros(n_elem + 1, dtype=np.int64)
     np.cumsum(per_elem, out=elem_offsets[1:])
     hole_loops = np.flatnonzero(~is_outer)
-    centers = np.column_stack(
-        [
-            np.bincount(cyc, weights=p[a, d], minlength=area.size) / np.bincount(cyc, minlength=area.size)
-            for d in range(2)
-        ]
-    )
-    holes = Holes(elements=loop_elem[hole_loops], centers=centers[hole_loops])
+    if hole_loops.size:
+        centers = np.column_stack(
+            [
+                np.bincount(cyc, weights=pa[:, d], minlength=area.size) / np.bincount(cyc, minlength=area.size)
+                for d in range(2)
+            ]
+        )[hole_loops]
+    else:
+        centers = np.zeros((0, 2))
+    holes = Holes(elements=loop_elem[hole_loops], centers=centers)
     return _polymesh(mesh, elem_offsets, loop_offsets, loop_nodes, labels, measures), holes
 
 
