@@ -210,14 +210,18 @@ def _tight_cut(chosen, ax_pos, dim, lo_f, hi_f, mid, target, window, s0, e1, cut
     W = int(wlen.sum())
     if W == 0:
         return cut
-    vhi = hi_f[chosen * dim + ax_pos]
-    vlo = lo_f[chosen * dim + ax_pos]
+    idx = chosen * dim + ax_pos
+    # the cells' extents along their part's axis, each padded with one empty bound for the reduceats
+    hi_pad = np.empty(idx.size + 1)
+    lo_pad = np.empty(idx.size + 1)
+    np.take(hi_f, idx, out=hi_pad[:-1])
+    np.take(lo_f, idx, out=lo_pad[:-1])
+    hi_pad[-1], lo_pad[-1] = -np.inf, np.inf
+    vhi, vlo = hi_pad[:-1], lo_pad[:-1]
     span = float(max(vhi.max() - vlo.min(), 1e-300))
     big = 4.0 * span + 1.0
     vmin = float(vlo.min())
     # max hi of [s0, wl) and min lo of (wh, e1]: reduceat over interleaved bounds (empty -> +-inf)
-    hi_pad = np.r_[vhi, -np.inf]
-    lo_pad = np.r_[vlo, np.inf]
     b = np.column_stack([s0, wl]).reshape(-1)
     pre = np.maximum.reduceat(hi_pad, b)[::2]
     pre[wl <= s0] = -np.inf
