@@ -342,6 +342,14 @@ def _actor_logits(weights, x: np.ndarray, adj) -> np.ndarray:
     return (h @ wo + bo)[:, 0].astype(np.float64)
 
 
+def _run_starts(seg: np.ndarray) -> np.ndarray:
+    """Positions where a run of equal values starts (seg non-empty)."""
+    first = np.empty(seg.size, dtype=bool)
+    first[0] = True
+    np.not_equal(seg[1:], seg[:-1], out=first[1:])
+    return first
+
+
 def _policy_pass(model: ActorCritic, env: RefinerEnv, steps: int, per_pass: int, slack: int = 8):
     """One greedy episode of the policy on `env` (the moves and the normalized cut after each).
 
@@ -389,18 +397,29 @@ def _policy_pass(model: ActorCritic, env: RefinerEnv, steps: int, per_pass: int,
         truncated[cg[~keep]] = True
         full_order = c  # the whole sorted list, for the rare fallback
         taken = np.zeros(cand.size, dtype=bool)
+        # what CutState.evaluate's mask needs, fixed for the window (an unmoved node keeps its side)
+        cn = env.nodes[cand]
+        csd = st.side[cn]
+        k_s, k_o = cand_g * 2 + csd, cand_g * 2 + 1 - csd
+        cd, cm = st.d[cn], st.m[cn]
+        tm = np.where(st.total_m > 0, st.total_m, 1.0)
+        ctm = tm[cand_g]
         any_move = False
         for _ in range(per_pass):
             if s >= steps:
                 break
-            _, ok = st.evaluate(env.nodes[cand])
+            vol, meas = st.vol.reshape(-1), st.meas.reshape(-1)
+            imb_cur = (np.abs(st.meas[:, 0] - st.meas[:, 1]) / tm)[cand_g]
+            imb_new = np.abs(meas[k_s] - meas[k_o] - 2 * cm) / ctm
+            ok = (vol[k_s] - cd > 0) & ((imb_new <= st.tol) | (imb_new < imb_cur))
             ok &= ~taken & (env.budget > s)[cand_g]
             pick = np.full(B, -1, dtype=np.int64)
             hit = np.flatnonzero(ok)
             if hit.size:
                 hg = cand_g[hit]
-                first = hit[np.r_[True, hg[1:] != hg[:-1]]]
+                first = hit[_run_starts(hg)]
                 pick[cand_g[first]] = cand[first]
+                taken[first] = True
             need = truncated & (pick < 0) & (env.budget > s)
             if need.any():  # a short list ran dry: the rest of that graph's sorted list
                 sel = need[gi[full_order]] & ~env.locked[full_order]
@@ -409,7 +428,7 @@ def _policy_pass(model: ActorCritic, env: RefinerEnv, steps: int, per_pass: int,
                 h2 = np.flatnonzero(ok2)
                 if h2.size:
                     g2 = gi[fo[h2]]
-                    f2 = h2[np.r_[True, g2[1:] != g2[:-1]]]
+                    f2 = h2[_run_starts(g2)]
                     pick[gi[fo[f2]]] = fo[f2]
             got = pick >= 0
             if not got.any():
@@ -417,7 +436,6 @@ def _policy_pass(model: ActorCritic, env: RefinerEnv, steps: int, per_pass: int,
             any_move = True
             p = pick[got]
             env.locked[p] = True
-            taken |= env.locked[cand]
             st.move(env.nodes[p])
             moves[s, got] = env.nodes[p]
             hist[s, got] = st.ncut()[got]
