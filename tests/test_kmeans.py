@@ -131,3 +131,23 @@ def test_lloyd_passes_do_not_grow_with_k():
             km.nearest_center = real
         passes.append(len(calls))
     assert passes[1] <= 1.5 * passes[0] + 5, passes
+
+
+def test_lloyd_with_bounds_is_exact():
+    """Lloyd's passes with Hamerly's bounds (many centres) give, pass for pass, the labels of the
+    exact nearest-centre search: same centres, labels and inertia as the plain passes."""
+    from models.partitioners import kmeans as km
+
+    rng = np.random.default_rng(5)
+    x = np.vstack([rng.random((30_000, 3)), rng.normal(0.3, 0.05, (10_000, 3))])
+    c0 = x[rng.choice(len(x), 300, replace=False)]
+    for passes in (1, 3, 12):
+        c1, l1, i1 = km.lloyd(x, c0, passes, 0.0)  # 300 centres: bounds
+        old = km._BOUNDS_FROM_K
+        try:
+            km._BOUNDS_FROM_K = 10**9
+            c2, l2, i2 = km.lloyd(x, c0, passes, 0.0)
+        finally:
+            km._BOUNDS_FROM_K = old
+        assert np.allclose(c1, c2, rtol=0, atol=1e-12) and np.mean(l1 == l2) > 0.9999
+        assert abs(i1 - i2) <= 1e-9 * i2

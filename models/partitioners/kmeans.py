@@ -139,11 +139,14 @@ def kmeans_plus_plus(
     return centers
 
 
-def bisection_seeds(x: np.ndarray, k: int, w: np.ndarray | None = None) -> np.ndarray:
+def bisection_seeds(
+    x: np.ndarray, k: int, w: np.ndarray | None = None, density: np.ndarray | None = None
+) -> np.ndarray:
     """(k, dim) starting centres for many clusters: the (weighted) means of k parts of a recursive
     bisection of the points (each part of k_p clusters cut across its longest extent at the weighted
     quantile floor(k_p / 2) / k_p, every part keeping at least one point per cluster). All parts of a
-    level at once: O(m log m log k), where k-means++ takes k sequential O(m) steps. Needs m >= k."""
+    level at once: O(m log m log k), where k-means++ takes k sequential O(m) steps. Needs m >= k.
+    density: the points' density when known (the weights of equal bins), else from 8-NN distances."""
     from scipy.spatial import cKDTree
 
     m, dim = x.shape
@@ -151,10 +154,11 @@ def bisection_seeds(x: np.ndarray, k: int, w: np.ndarray | None = None) -> np.nd
     # optimal quantisers put centres with a density proportional to p^(d / (d + 2)) for a point
     # density p: the parts are balanced on u = w p^(-2 / (d + 2)), p estimated as w / r^d with r the
     # distance to the 8th nearest point (equal counts instead: 1.2x scikit-learn's inertia on graded data)
-    nb = min(8, m - 1)
-    r = cKDTree(x).query(x, k=nb + 1)[0][:, nb] if nb > 0 else np.ones(m)
-    r = np.maximum(r, 1e-12 * max(float(np.ptp(x, axis=0).max()), 1e-300))
-    u = w * (w / r**dim) ** (-2.0 / (dim + 2))
+    if density is None:
+        nb = min(8, m - 1)
+        r = cKDTree(x).query(x, k=nb + 1)[0][:, nb] if nb > 0 else np.ones(m)
+        density = w / np.maximum(r, 1e-12 * max(float(np.ptp(x, axis=0).max()), 1e-300)) ** dim
+    u = w * np.asarray(density, dtype=np.float64) ** (-2.0 / (dim + 2))
     perm = np.arange(m)
     start = np.array([0, m])
     kk = np.array([k])  # segments [start[i], start[i+1]) with kk[i] clusters
@@ -162,13 +166,14 @@ def bisection_seeds(x: np.ndarray, k: int, w: np.ndarray | None = None) -> np.nd
         xs = x[perm]
         ptr = start[:-1]
         size = np.diff(start)
-        ext = np.stack(
-            [np.maximum.reduceat(xs[:, d], ptr) - np.minimum.reduceat(xs[:, d], ptr) for d in range(dim)], 1
-        )
+        lo = np.stack([np.minimum.reduceat(xs[:, d], ptr) for d in range(dim)], 1)
+        ext = np.stack([np.maximum.reduceat(xs[:, d], ptr) for d in range(dim)], 1) - lo
         axis = ext.argmax(axis=1)
         seg = np.repeat(np.arange(len(kk)), size)
-        key = xs[np.arange(m), axis[seg]]
-        o = np.lexsort((key, seg))
+        a = axis[seg]
+        # one argsort of segment + position in [0, 1) along the segment's axis (a lexsort is 3x slower)
+        key = (xs[np.arange(m), a] - lo[seg, a]) / np.maximum(ext[seg, a], 1e-300) * 0.999 + seg
+        o = np.argsort(key)
         perm = perm[o]
         cw = np.cumsum(u[perm])
         before = np.r_[0.0, cw][ptr]
@@ -193,6 +198,47 @@ def bisection_seeds(x: np.ndarray, k: int, w: np.ndarray | None = None) -> np.nd
     )
 
 
+_BOUNDS_FROM_K = 128  # from this many centres Lloyd's assignment keeps Hamerly's bounds
+
+
+class _BoundedAssign:
+    """Nearest centres across Lloyd's passes with Hamerly's bounds: each point keeps a lower bound
+    on its distance to every centre but its own, lowered by the largest centre move of each pass;
+    a point whose exact distance to its own centre is within that bound keeps its centre, and only
+    the others go through a k-d tree (nearest two, which also renews the bound). Exact, and after
+    the first passes most points are settled (the certified search looked at 21 centres per point
+    on every pass)."""
+
+    def __init__(self, x: np.ndarray):
+        self.x = x
+        self.labels = None
+        self.low = None
+
+    def __call__(self, centers: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        from scipy.spatial import cKDTree
+
+        x = self.x
+        if self.labels is None:
+            d, idx = cKDTree(centers).query(x, k=2)
+            self.labels, self.low = idx[:, 0].astype(np.int64), d[:, 1]
+            return self.labels.copy(), d[:, 0] ** 2
+        own = centers[self.labels]
+        dist = (x[:, 0] - own[:, 0]) ** 2
+        for j in range(1, x.shape[1]):
+            dist += (x[:, j] - own[:, j]) ** 2
+        redo = np.flatnonzero(dist > np.maximum(self.low, 0.0) ** 2)  # a bound below 0 says nothing
+        if redo.size:
+            d, idx = cKDTree(centers).query(x[redo], k=2)
+            self.labels[redo] = idx[:, 0]
+            self.low[redo] = d[:, 1]
+            dist[redo] = d[:, 0] ** 2
+        return self.labels.copy(), dist
+
+    def moved(self, shift: np.ndarray) -> None:
+        """The centres moved by `shift` (distances): every lower bound drops by the largest move."""
+        self.low -= float(shift.max()) if shift.size else 0.0
+
+
 def lloyd(
     x: np.ndarray,
     centers: np.ndarray,
@@ -205,11 +251,14 @@ def lloyd(
     """(Weighted) Lloyd's iterations until the centres move less than tol (sum of squared shifts) ->
     (centres, labels, inertia), labels and inertia those of the returned centres."""
     ww = np.ones(len(x)) if w is None else w
+    assign = _BoundedAssign(x) if len(centers) > _BOUNDS_FROM_K else None
     for _ in range(max_iter):
-        labels, dist = nearest_center(x, centers, labels)
+        labels, dist = nearest_center(x, centers, labels) if assign is None else assign(centers)
         new = _centers_of(x, labels, centers, w)
         shifts = np.sum((new - centers) ** 2, axis=1)
         centers = new
+        if assign is not None:
+            assign.moved(np.sqrt(shifts))
         if rel_tol is not None:
             # moving the centres to the means lowers the inertia by exactly sum_j W_j |shift_j|^2:
             # stop when that is under rel_tol of the inertia (a test that does not tighten as k grows,
@@ -220,7 +269,7 @@ def lloyd(
                 break
         elif float(shifts.sum()) <= tol:
             break
-    labels, dist = nearest_center(x, centers, labels)
+    labels, dist = nearest_center(x, centers, labels) if assign is None else assign(centers)
     return centers, labels, float(dist @ (np.ones(len(x)) if w is None else w))
 
 
@@ -284,7 +333,7 @@ def kmeans(
             sub = np.arange(len(pts)) if m == len(pts) else np.sort(rng.choice(len(pts), m, replace=False))
             c0 = kmeans_plus_plus(pts[sub], k, rng, None if w is None else w[sub], greedy=k <= 512)
         else:
-            c0 = bisection_seeds(pts, k, w)
+            c0 = bisection_seeds(pts, k, w, density=w)  # equal bins: the density is the weight
         c, lab, inertia = lloyd(pts, c0, max_iter, 0.0, w, rel_tol=tol)
         if best is None or inertia < best[1]:
             best = (c, inertia, lab)
