@@ -361,7 +361,7 @@ def build_hierarchy(mesh: Mesh, data: CellData, model: str = "rtree", ratio: flo
     holds each level's polytopes (pass them to write_hierarchy as `merged`)."""
     import time
 
-    from .agglomerate import agglomerate, make_batch
+    from .agglomerate import agglomerate
     from .errors import ParameterError
     from .partitioners import get_partitioner
     from .partitioners.rtree import cell_boxes, level_counts, make_connected, rtree_levels
@@ -376,7 +376,12 @@ def build_hierarchy(mesh: Mesh, data: CellData, model: str = "rtree", ratio: flo
     if groups and model != "rtree":
         raise ParameterError("physical groups in a hierarchy: model rtree only")
     if model == "rtree":
-        batch = make_batch(data, np.zeros(n, dtype=np.int64))
+        from .partitioners.base import GraphBatch
+
+        G = data.graph  # the whole mesh as one graph: make_batch's batch of one label, without its sort
+        batch = GraphBatch(indptr=G.indptr, indices=G.indices, weights=G.weights,
+                           graph_ptr=np.array([0, n], dtype=np.int64), centroids=data.centroids,
+                           measures=data.measures, tags=data.tags, node_ids=np.arange(n))
         batch.cell_boxes = cell_boxes(data.points, data.offsets, data.connectivity)
         tags = None if not groups else np.unique(mesh.tags, return_inverse=True)[1].astype(np.int64)
         opts = {"boxes": batch.cell_boxes, **(model_options or {})}  # the tight cuts, as the flat modes make them
