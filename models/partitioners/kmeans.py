@@ -304,14 +304,17 @@ def kmeans(
     seed: int = 0,
     n_init: int = 1,
     bins_per_cluster: int = 256,
-    max_iter: int = 300,
+    max_iter: int = 30,
     tol: float = 1e-4,
     polish: int = 2,
 ) -> np.ndarray:
     """(N,) cluster of each point. On many points: weighted k-means (k-means++ then Lloyd, n_init
     starts, the best kept) on the means of a fine grid of bins (about bins_per_cluster per cluster),
     then `polish` Lloyd's iterations on all the points. The first Lloyd's iterations stop when one
-    lowers the inertia by less than tol of it (a test that does not tighten as k grows)."""
+    lowers the inertia by less than tol of it (a test that does not tighten as k grows), or after
+    max_iter passes: the passes needed to settle grow with k (35 at k = 413, 51 at k = 998 on 3D
+    cubes of 1000 cells per cluster), and the last ones gain little (30 passes: +0.8% inertia at
+    k = 998), so the cap keeps the cost linear in the number of points when k grows with it."""
     x = np.asarray(x, dtype=np.float64)
     n = len(x)
     rng = np.random.default_rng(seed)
