@@ -151,3 +151,20 @@ def test_lloyd_with_bounds_is_exact():
             km._BOUNDS_FROM_K = old
         assert np.allclose(c1, c2, rtol=0, atol=1e-12) and np.mean(l1 == l2) > 0.9999
         assert abs(i1 - i2) <= 1e-9 * i2
+
+
+def test_kmeans_bounds_carried_from_bins_are_exact():
+    """With many centres on binned points, the bins' bounds start the passes on all the points; the
+    labels are those of the plain exact search (bounds off)."""
+    from models.partitioners import kmeans as km
+
+    rng = np.random.default_rng(6)
+    x = np.vstack([rng.random((90_000, 3)), rng.normal(0.3, 0.05, (30_000, 3))])
+    with_bounds = km.kmeans(x, 200, seed=0)
+    old = km._BOUNDS_FROM_K
+    try:
+        km._BOUNDS_FROM_K = 10**9
+        plain = km.kmeans(x, 200, seed=0)
+    finally:
+        km._BOUNDS_FROM_K = old
+    assert np.mean(with_bounds == plain) > 0.9999

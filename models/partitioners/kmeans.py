@@ -209,10 +209,10 @@ class _BoundedAssign:
     the first passes most points are settled (the certified search looked at 21 centres per point
     on every pass)."""
 
-    def __init__(self, x: np.ndarray):
+    def __init__(self, x: np.ndarray, labels: np.ndarray | None = None, low: np.ndarray | None = None):
         self.x = x
-        self.labels = None
-        self.low = None
+        self.labels = labels  # with low: known bounds (e.g. from binned points), else a first full search
+        self.low = low
 
     def __call__(self, centers: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         from scipy.spatial import cKDTree
@@ -247,11 +247,13 @@ def lloyd(
     w: np.ndarray | None = None,
     labels: np.ndarray | None = None,
     rel_tol: float | None = None,
+    assign: _BoundedAssign | None = None,
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """(Weighted) Lloyd's iterations until the centres move less than tol (sum of squared shifts) ->
     (centres, labels, inertia), labels and inertia those of the returned centres."""
     ww = np.ones(len(x)) if w is None else w
-    assign = _BoundedAssign(x) if len(centers) > _BOUNDS_FROM_K else None
+    if assign is None and len(centers) > _BOUNDS_FROM_K:
+        assign = _BoundedAssign(x)
     for _ in range(max_iter):
         labels, dist = nearest_center(x, centers, labels) if assign is None else assign(centers)
         new = _centers_of(x, labels, centers, w)
@@ -337,16 +339,23 @@ def kmeans(
             c0 = kmeans_plus_plus(pts[sub], k, rng, None if w is None else w[sub], greedy=k <= 512)
         else:
             c0 = bisection_seeds(pts, k, w, density=w)  # equal bins: the density is the weight
-        c, lab, inertia = lloyd(pts, c0, max_iter, 0.0, w, rel_tol=tol)
+        state = _BoundedAssign(pts) if k > _BOUNDS_FROM_K else None
+        c, lab, inertia = lloyd(pts, c0, max_iter, 0.0, w, rel_tol=tol, assign=state)
         if best is None or inertia < best[1]:
-            best = (c, inertia, lab)
+            best = (c, inertia, lab, state)
         if k > 512 and len(pts) >= k:  # the bisection start has no randomness: one start is all
             break
-    centers, _, labels = best
+    centers, _, labels, state = best
     if bins is None:
         return labels
     labels = labels[bins]
-    centers, labels, _ = lloyd(xc, centers, polish, 0.0, labels=labels)
+    start = None
+    if state is not None:
+        # the bins' bounds carry over: no centre but its bin's is nearer to a point than the bin's
+        # bound minus the point's distance to its bin's mean (saves a full search on all the points)
+        off = np.sqrt(sum((xc[:, d] - pts[bins, d]) ** 2 for d in range(xc.shape[1])))
+        start = _BoundedAssign(xc, labels.copy(), state.low[bins] - off)
+    centers, labels, _ = lloyd(xc, centers, polish, 0.0, labels=labels, assign=start)
     return labels
 
 
