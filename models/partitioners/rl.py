@@ -79,7 +79,7 @@ class RLRefiner(Refiner):
                    "at most cut + 1 steps, rollback to the best prefix; sides kept connected, never worse than its input")
 
     def __init__(self, weights_dir: str | Path | None = None, hops: int = 3, tolerance: float = 0.05,
-                 passes: int = 2, actions_per_pass: int = 4, max_forwards: int | None = 128, seed: int | None = None):
+                 passes: int = 2, actions_per_pass: int = 1, max_forwards: int | None = 128, seed: int | None = None):
         self.weights_dir = weights_dir
         self.actions_per_pass = int(actions_per_pass)
         self.max_forwards = max_forwards
