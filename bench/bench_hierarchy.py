@@ -82,24 +82,43 @@ def hierarchy_rows(name, mesh, graph, data, models, ratio=8.0) -> list[dict]:
         bm = [box_measures(mesh.points, mesh.offsets, mesh.connectivity, lv, data.measures) for lv in levels]
         rep = mgcheck(mesh, data, levels)
         base = rep
-        rows.append({"mesh": name, "model": model, "levels": sizes, "extra_pieces": extra_pieces,
-                     "box_ratio": [float(b["box_ratio"].mean()) for b in bm], "coverage": [b["coverage"] for b in bm],
-                     "it_unsmoothed": rep["unsmoothed"]["iterations"], "it_smoothed": rep["smoothed"]["iterations"],
-                     "oc_unsmoothed": rep["unsmoothed"]["operator_complexity"],
-                     "oc_smoothed": rep["smoothed"]["operator_complexity"], "build_time": t_build})
+        rows.append(
+            {
+                "mesh": name,
+                "model": model,
+                "levels": sizes,
+                "extra_pieces": extra_pieces,
+                "box_ratio": [float(b["box_ratio"].mean()) for b in bm],
+                "coverage": [b["coverage"] for b in bm],
+                "it_unsmoothed": rep["unsmoothed"]["iterations"],
+                "it_smoothed": rep["smoothed"]["iterations"],
+                "oc_unsmoothed": rep["unsmoothed"]["operator_complexity"],
+                "oc_smoothed": rep["smoothed"]["operator_complexity"],
+                "build_time": t_build,
+            }
+        )
     if base is not None:
         for key, label in (("pyamg_ua", "pyamg (unsm.)"), ("pyamg_sa", "pyamg (SA)")):
             r = base[key]
-            rows.append({"mesh": name, "model": label, "levels": r["sizes"][1:][::-1], "extra_pieces": None,
-                         "it_unsmoothed" if key == "pyamg_ua" else "it_smoothed": r["iterations"],
-                         "oc_unsmoothed" if key == "pyamg_ua" else "oc_smoothed": r["operator_complexity"],
-                         "build_time": r["setup_time"]})
+            rows.append(
+                {
+                    "mesh": name,
+                    "model": label,
+                    "levels": r["sizes"][1:][::-1],
+                    "extra_pieces": None,
+                    "it_unsmoothed" if key == "pyamg_ua" else "it_smoothed": r["iterations"],
+                    "oc_unsmoothed" if key == "pyamg_ua" else "oc_smoothed": r["operator_complexity"],
+                    "build_time": r["setup_time"],
+                }
+            )
     return rows
 
 
 def print_rows(rows: list[dict]) -> None:
-    print(f"{'mesh':<10}{'model':<15}{'levels (coarse > fine)':<34}{'pieces+':>8}{'BR fine/mid':>13}{'cov fine':>9}"
-          f"{'it U':>6}{'OC U':>7}{'it S':>6}{'OC S':>7}{'build s':>9}")
+    print(
+        f"{'mesh':<10}{'model':<15}{'levels (coarse > fine)':<34}{'pieces+':>8}{'BR fine/mid':>13}{'cov fine':>9}"
+        f"{'it U':>6}{'OC U':>7}{'it S':>6}{'OC S':>7}{'build s':>9}"
+    )
     for r in rows:
         if "error" in r:
             print(f"{r['mesh']:<10}{r['model']:<15}unavailable: {r['error']}")
@@ -109,9 +128,11 @@ def print_rows(rows: list[dict]) -> None:
         brs = f"{br[-1]:.2f}/{br[len(br) // 2]:.2f}" if br else "-"
         cov = f"{r['coverage'][-1]:.2f}" if r.get("coverage") else "-"
         f = lambda k, spec, r=r: format(r[k], spec) if r.get(k) is not None else "-"  # noqa: E731
-        print(f"{r['mesh']:<10}{r['model']:<15}{lv:<34}{f('extra_pieces', 'd'):>8}{brs:>13}{cov:>9}"
-              f"{f('it_unsmoothed', 'd'):>6}{f('oc_unsmoothed', '.2f'):>7}{f('it_smoothed', 'd'):>6}"
-              f"{f('oc_smoothed', '.2f'):>7}{r['build_time']:>9.2f}")
+        print(
+            f"{r['mesh']:<10}{r['model']:<15}{lv:<34}{f('extra_pieces', 'd'):>8}{brs:>13}{cov:>9}"
+            f"{f('it_unsmoothed', 'd'):>6}{f('oc_unsmoothed', '.2f'):>7}{f('it_smoothed', 'd'):>6}"
+            f"{f('oc_smoothed', '.2f'):>7}{r['build_time']:>9.2f}"
+        )
 
 
 def shape_bar(mesh, graph, data) -> list[dict]:
@@ -128,13 +149,26 @@ def shape_bar(mesh, graph, data) -> list[dict]:
             poly, _ = merge(mesh, graph, a.labels, data.measures)
             rep = metrics_report(poly, graph.indptr, graph.indices)
             s = rep["summary"]
-            out.append({"model": model, "k": k, "elements": a.n_elements, "CR": s["box_circle_ratio"]["mean"],
-                        "BR": s["box_ratio"]["mean"], "coverage": rep["coverage"], "time": dt})
-    print("\nshape at 91 / 364 elements on the refined quad mesh (issue's bar: CR >= .55, BR >= .88, coverage <= 1.15;"
-          " R3MG .500/.92/1.08 and .479/.86/1.16)")
+            out.append(
+                {
+                    "model": model,
+                    "k": k,
+                    "elements": a.n_elements,
+                    "CR": s["box_circle_ratio"]["mean"],
+                    "BR": s["box_ratio"]["mean"],
+                    "coverage": rep["coverage"],
+                    "time": dt,
+                }
+            )
+    print(
+        "\nshape at 91 / 364 elements on the refined quad mesh (issue's bar: CR >= .55, BR >= .88, coverage <= 1.15;"
+        " R3MG .500/.92/1.08 and .479/.86/1.16)"
+    )
     print(f"{'model':<8}{'k':>5}{'elements':>10}{'CR':>7}{'BR':>7}{'coverage':>10}{'time s':>8}")
     for r in out:
-        print(f"{r['model']:<8}{r['k']:>5}{r['elements']:>10}{r['CR']:>7.3f}{r['BR']:>7.3f}{r['coverage']:>10.3f}{r['time']:>8.2f}")
+        print(
+            f"{r['model']:<8}{r['k']:>5}{r['elements']:>10}{r['CR']:>7.3f}{r['BR']:>7.3f}{r['coverage']:>10.3f}{r['time']:>8.2f}"
+        )
     return out
 
 
@@ -146,7 +180,9 @@ def process_time(args: list[str]) -> tuple[float, float]:
     env = {**os.environ, "PYTHONPATH": f"{ROOT}:{ROOT}/client", "MPLBACKEND": "Agg"}
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
-    r = subprocess.run([sys.executable, "-m", "models.cli", *args], capture_output=True, text=True, env=env, cwd=ROOT)
+    r = subprocess.run(
+        [sys.executable, "-m", "models.cli", *args], capture_output=True, text=True, env=env, cwd=ROOT
+    )
     wall = time.perf_counter() - t
     if r.returncode:
         raise RuntimeError(r.stderr)
@@ -166,9 +202,11 @@ def main() -> None:
 
     results: dict = {"hierarchies": [], "shape": [], "speed": {}}
     models = ("rtree", "metis") if a.quick else tuple(a.models.split(","))
-    makers = {"brain": lambda: read_mesh(BRAIN),
-              "torus": lambda: mesh_from_arrays(*(lambda p, t: (p, [("tetra", t)]))(*torus())),
-              "quads93k": lambda: mesh_from_arrays(*(lambda p, q: (p, [("quad", q)]))(*refined_quads(5)))}
+    makers = {
+        "brain": lambda: read_mesh(BRAIN),
+        "torus": lambda: mesh_from_arrays(*(lambda p, t: (p, [("tetra", t)]))(*torus())),
+        "quads93k": lambda: mesh_from_arrays(*(lambda p, q: (p, [("quad", q)]))(*refined_quads(5))),
+    }
     meshes = [(n, makers[n]) for n in (["brain"] if a.quick else a.meshes.split(","))]
     tmp = tempfile.mkdtemp(prefix="bench_hierarchy_")
     for name, make in meshes:
@@ -183,20 +221,43 @@ def main() -> None:
             import meshio
 
             path = os.path.join(tmp, "quads93k.vtu")
-            meshio.write(path, meshio.Mesh(np.column_stack([mesh.points, np.zeros(len(mesh.points))])[:, :3],
-                                           [("quad", mesh.connectivity.reshape(-1, 4))]))
+            meshio.write(
+                path,
+                meshio.Mesh(
+                    np.column_stack([mesh.points, np.zeros(len(mesh.points))])[:, :3],
+                    [("quad", mesh.connectivity.reshape(-1, 4))],
+                ),
+            )
             runs = []
             for _ in range(3):  # alternating, medians
                 h = process_time(["hierarchy", path, "-o", os.path.join(tmp, "h"), "--model", "rtree"])
-                m = process_time(["agglomerate", path, "--model", "metis", "--mode", "kway", "--k", "364",
-                                  "-o", os.path.join(tmp, "m.vtu")])
+                m = process_time(
+                    [
+                        "agglomerate",
+                        path,
+                        "--model",
+                        "metis",
+                        "--mode",
+                        "kway",
+                        "--k",
+                        "364",
+                        "-o",
+                        os.path.join(tmp, "m.vtu"),
+                    ]
+                )
                 runs.append((*h, *m))
             t_h, c_h, t_m, c_m = (float(np.median(v)) for v in zip(*runs, strict=True))
-            results["speed"]["quads93k"] = {"magnet_hierarchy_rtree": t_h, "magnet_agglomerate_metis_364": t_m,
-                                            "magnet_hierarchy_rtree_cpu": c_h, "magnet_agglomerate_metis_364_cpu": c_m}
-            print(f"\nwhole process on the 93k quads (medians of 3 alternating runs): magnet hierarchy --model rtree "
-                  f"{t_h:.2f}s wall / {c_h:.2f}s CPU, magnet agglomerate --model metis --mode kway --k 364 {t_m:.2f}s / "
-                  f"{c_m:.2f}s (ratio {t_h / t_m:.2f} wall, {c_h / c_m:.2f} CPU; goal <= 1)")
+            results["speed"]["quads93k"] = {
+                "magnet_hierarchy_rtree": t_h,
+                "magnet_agglomerate_metis_364": t_m,
+                "magnet_hierarchy_rtree_cpu": c_h,
+                "magnet_agglomerate_metis_364_cpu": c_m,
+            }
+            print(
+                f"\nwhole process on the 93k quads (medians of 3 alternating runs): magnet hierarchy --model rtree "
+                f"{t_h:.2f}s wall / {c_h:.2f}s CPU, magnet agglomerate --model metis --mode kway --k 364 {t_m:.2f}s / "
+                f"{c_m:.2f}s (ratio {t_h / t_m:.2f} wall, {c_h / c_m:.2f} CPU; goal <= 1)"
+            )
     if not a.quick and not a.skip_cube:
         from structured import cube
 
@@ -215,12 +276,18 @@ def main() -> None:
         c0 = time.process_time()
         get_partitioner("metis").kway(batch, 1024)  # the partition stage again, timed in CPU seconds
         c_m = time.process_time() - c0
-        results["speed"]["cube1M"] = {"rtree_hierarchy_stage": t_h, "metis_kway_1024_partition": t_m,
-                                      "rtree_hierarchy_stage_cpu": c_h, "metis_kway_1024_partition_cpu": c_m,
-                                      "levels": [int(lv.max()) + 1 for lv in levels]}
-        print(f"\n{mesh.n_cells} tetrahedra (structured cube): rtree hierarchy stage {t_h:.2f}s wall / {c_h:.2f}s CPU "
-              f"({' > '.join(str(int(lv.max()) + 1) for lv in levels)}), METIS k-way 1024 partition stage {t_m:.2f}s "
-              f"/ {c_m:.2f}s (ratio {t_h / t_m:.2f} wall, {c_h / c_m:.2f} CPU; goal <= 0.5)")
+        results["speed"]["cube1M"] = {
+            "rtree_hierarchy_stage": t_h,
+            "metis_kway_1024_partition": t_m,
+            "rtree_hierarchy_stage_cpu": c_h,
+            "metis_kway_1024_partition_cpu": c_m,
+            "levels": [int(lv.max()) + 1 for lv in levels],
+        }
+        print(
+            f"\n{mesh.n_cells} tetrahedra (structured cube): rtree hierarchy stage {t_h:.2f}s wall / {c_h:.2f}s CPU "
+            f"({' > '.join(str(int(lv.max()) + 1) for lv in levels)}), METIS k-way 1024 partition stage {t_m:.2f}s "
+            f"/ {c_m:.2f}s (ratio {t_h / t_m:.2f} wall, {c_h / c_m:.2f} CPU; goal <= 0.5)"
+        )
     if a.json:
         with open(a.json, "w", encoding="utf-8") as fh:
             json.dump(results, fh, indent=1)

@@ -82,8 +82,10 @@ def main() -> None:
         t = time.perf_counter()
         agg = agglomerate(mesh, data, model="kmeans", mode=mode, seed=args.seed, **kw)
         dt = time.perf_counter() - t
-        print(f"| ours: partition stage, {mode} ({agg.labels.max() + 1} parts) | {dt:.2f} | "
-              f"{inertia(x, agg.labels):.6g} | - |")
+        print(
+            f"| ours: partition stage, {mode} ({agg.labels.max() + 1} parts) | {dt:.2f} | "
+            f"{inertia(x, agg.labels):.6g} | - |"
+        )
 
 
 if __name__ == "__main__":

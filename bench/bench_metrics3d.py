@@ -75,8 +75,17 @@ def build(case: str, cache: str) -> str:
     agg = agglomerate(mesh, data, model="metis", mode="kway", k=k)
     poly, _, _ = split_holes(mesh, graph, data, agg.labels, "split")
     with open(out, "wb") as f:
-        pickle.dump({"poly": poly, "indptr": graph.indptr, "indices": graph.indices, "tags": mesh.tags,
-                     "cells": int(mesh.n_cells), "k": k}, f)
+        pickle.dump(
+            {
+                "poly": poly,
+                "indptr": graph.indptr,
+                "indices": graph.indices,
+                "tags": mesh.tags,
+                "cells": int(mesh.n_cells),
+                "k": k,
+            },
+            f,
+        )
     return out
 
 
@@ -118,29 +127,52 @@ def main() -> None:
     os.makedirs(a.cache, exist_ok=True)
     base = os.path.join(a.cache, "metrics_baseline.py")
     with open(base, "w") as f:
-        f.write(subprocess.run(["git", "-C", ROOT, "show", f"{a.baseline}:models/metrics.py"], check=True,
-                               capture_output=True, text=True).stdout)
+        f.write(
+            subprocess.run(
+                ["git", "-C", ROOT, "show", f"{a.baseline}:models/metrics.py"],
+                check=True,
+                capture_output=True,
+                text=True,
+            ).stdout
+        )
     versions = {"baseline": base, "current": os.path.join(ROOT, "models", "metrics.py")}
     env = {**os.environ, "PYTHONPATH": ROOT, "OMP_NUM_THREADS": "1"}
-    for case in (["gmsh"] if a.small else ["gmsh", "cube1m"]):
+    for case in ["gmsh"] if a.small else ["gmsh", "cube1m"]:
         data = build(case, a.cache)
         res = {v: [] for v in versions}
         for _ in range(a.repeat):
             for v, path in versions.items():
-                out = subprocess.run([sys.executable, __file__, "--baseline", a.baseline, "--one", path, data,
-                                      os.path.join(a.cache, f"radii_{case}_{v}.npy")],
-                                     capture_output=True, text=True, env=env, check=True)
+                out = subprocess.run(
+                    [
+                        sys.executable,
+                        __file__,
+                        "--baseline",
+                        a.baseline,
+                        "--one",
+                        path,
+                        data,
+                        os.path.join(a.cache, f"radii_{case}_{v}.npy"),
+                    ],
+                    capture_output=True,
+                    text=True,
+                    env=env,
+                    check=True,
+                )
                 res[v].append(json.loads(out.stdout.strip().splitlines()[-1]))
         rb = np.load(os.path.join(a.cache, f"radii_{case}_baseline.npy"))
         rc = np.load(os.path.join(a.cache, f"radii_{case}_current.npy"))
         eps = 1e-3 * rb[:, 1]
         dr = (rc[:, 0] - rb[:, 0]) / np.where(eps > 0, eps, 1.0)
         best = {v: min(r["cpu"] for r in rs) for v, rs in res.items()}
-        print(f"{case}: metrics stage CPU s (best of {a.repeat}) baseline {best['baseline']:.2f} current "
-              f"{best['current']:.2f} -> {best['baseline'] / best['current']:.2f}x; wall "
-              + " / ".join(f"{v} {min(r['wall'] for r in rs):.2f}" for v, rs in res.items())
-              + "; peak MiB above input " + " / ".join(f"{v} {max(r['peak_mib'] for r in rs):.0f}" for v, rs in res.items())
-              + f"; radius change / eps: min {dr.min():.3f} max {dr.max():.3f}", flush=True)
+        print(
+            f"{case}: metrics stage CPU s (best of {a.repeat}) baseline {best['baseline']:.2f} current "
+            f"{best['current']:.2f} -> {best['baseline'] / best['current']:.2f}x; wall "
+            + " / ".join(f"{v} {min(r['wall'] for r in rs):.2f}" for v, rs in res.items())
+            + "; peak MiB above input "
+            + " / ".join(f"{v} {max(r['peak_mib'] for r in rs):.0f}" for v, rs in res.items())
+            + f"; radius change / eps: min {dr.min():.3f} max {dr.max():.3f}",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

@@ -37,9 +37,15 @@ def run_row(mesh, g, data, model, mode, refiner=None, **kw):
     st = partition_statistics(g.indptr, g.indices, a.labels)
     return {
         "method": f"{model} {mode}" + (f" + {refiner}" if refiner else ""),
-        "normalized_cut": st["normalized_cut"], "cut": int(st["cut"]), "connected": bool(st["connected"]),
-        "elements": int(a.n_elements), "parts_split": int(a.parts_split), "time": wall,
-        "stages": {k: round(float(v), 3) for k, v in a.timings.items() if k in ("coarsen", "bisect", "refine")},
+        "normalized_cut": st["normalized_cut"],
+        "cut": int(st["cut"]),
+        "connected": bool(st["connected"]),
+        "elements": int(a.n_elements),
+        "parts_split": int(a.parts_split),
+        "time": wall,
+        "stages": {
+            k: round(float(v), 3) for k, v in a.timings.items() if k in ("coarsen", "bisect", "refine")
+        },
     }
 
 
@@ -57,15 +63,23 @@ def kahip_row(g, data, k: int):
 
     vw = integer_weights(data.measures).tolist()
     t = time.perf_counter()
-    _, blocks = kahip.kaffpa(vw, g.indptr.tolist(), [1] * int(g.indices.size), g.indices.tolist(), k, 0.03, True, 0,
-                             kahip.STRONG)
+    _, blocks = kahip.kaffpa(
+        vw, g.indptr.tolist(), [1] * int(g.indices.size), g.indices.tolist(), k, 0.03, True, 0, kahip.STRONG
+    )
     wall = time.perf_counter() - t
     lab = np.asarray(blocks, dtype=np.int64)
     st = partition_statistics(g.indptr, g.indices, lab)
     name = "kahip strong" + ("" if st["connected"] else " (parts NOT connected)")
-    return {"method": name, "normalized_cut": st["normalized_cut"], "cut": int(st["cut"]),
-            "connected": bool(st["connected"]), "elements": int(st["parts"]), "parts_split": 0, "time": wall,
-            "stages": {}}
+    return {
+        "method": name,
+        "normalized_cut": st["normalized_cut"],
+        "cut": int(st["cut"]),
+        "connected": bool(st["connected"]),
+        "elements": int(st["parts"]),
+        "parts_split": 0,
+        "time": wall,
+        "stages": {},
+    }
 
 
 def warm_up(mesh, data):
@@ -107,8 +121,14 @@ def brain(bars):
     specs = [
         ("metis nref", dict(model="metis", mode="nref", nref=nref)),
         ("sage-base nref", dict(model="sage-base", mode="nref", nref=nref)),
-        ("sage-base ml + rl-refiner", dict(model="sage-base", mode="multilevel", nref=nref, refiner="rl-refiner")),
-        ("rl-partitioner ml + rl-refiner", dict(model="rl-partitioner", mode="multilevel", nref=nref, refiner="rl-refiner")),
+        (
+            "sage-base ml + rl-refiner",
+            dict(model="sage-base", mode="multilevel", nref=nref, refiner="rl-refiner"),
+        ),
+        (
+            "rl-partitioner ml + rl-refiner",
+            dict(model="rl-partitioner", mode="multilevel", nref=nref, refiner="rl-refiner"),
+        ),
         ("sage-base ml + fm", dict(model="sage-base", mode="multilevel", nref=nref, refiner="fm")),
         ("metis nref + fm", dict(model="metis", mode="nref", nref=nref, refiner="fm")),
         ("metis ml + fm", dict(model="metis", mode="multilevel", nref=nref, refiner="fm")),
@@ -117,8 +137,10 @@ def brain(bars):
     for key, kw in specs:
         rows[key] = run_row(mesh, g, data, **kw)
         print(f"  brain {key}: {rows[key]['normalized_cut']:.4f} in {rows[key]['time']:.2f} s", flush=True)
-    kway = {"metis kway": run_row(mesh, g, data, "metis", "kway", k=2**nref),
-            "metis kway + fm": run_row(mesh, g, data, "metis", "kway", refiner="fm", k=2**nref)}
+    kway = {
+        "metis kway": run_row(mesh, g, data, "metis", "kway", k=2**nref),
+        "metis kway + fm": run_row(mesh, g, data, "metis", "kway", refiner="fm", k=2**nref),
+    }
     kahip = kahip_row(g, data, 2**nref)
     if kahip is not None:
         kway["kahip strong"] = kahip
@@ -130,24 +152,61 @@ def brain(bars):
     print()
     r = lambda k: rows[k]["normalized_cut"] / base["normalized_cut"]  # noqa: E731
     s = rows["sage-base ml + rl-refiner"]
-    bar(bars, "brain: sage-base ml + rl-refiner <= plain sage-base",
+    bar(
+        bars,
+        "brain: sage-base ml + rl-refiner <= plain sage-base",
         s["normalized_cut"] <= rows["sage-base nref"]["normalized_cut"],
-        f"{s['normalized_cut']:.4f} vs {rows['sage-base nref']['normalized_cut']:.4f}")
-    bar(bars, "brain: sage-base ml + rl-refiner <= 1.03x METIS", r("sage-base ml + rl-refiner") <= 1.03,
-        f"{r('sage-base ml + rl-refiner'):.3f}x")
-    bar(bars, "brain: sage-base ml + rl-refiner 0 extra fragments", s["parts_split"] == 0 and s["elements"] == 128,
-        f"{s['parts_split']} parts split, {s['elements']} elements")
-    bar(bars, "brain: rl-partitioner ml + rl-refiner <= 1.15x METIS", r("rl-partitioner ml + rl-refiner") <= 1.15,
-        f"{r('rl-partitioner ml + rl-refiner'):.3f}x")
-    bar(bars, "brain: sage-base ml + fm <= 0.97x METIS", r("sage-base ml + fm") <= 0.97, f"{r('sage-base ml + fm'):.3f}x")
-    bar(bars, "brain: metis nref + fm <= 0.97x METIS", r("metis nref + fm") <= 0.97, f"{r('metis nref + fm'):.3f}x")
+        f"{s['normalized_cut']:.4f} vs {rows['sage-base nref']['normalized_cut']:.4f}",
+    )
+    bar(
+        bars,
+        "brain: sage-base ml + rl-refiner <= 1.03x METIS",
+        r("sage-base ml + rl-refiner") <= 1.03,
+        f"{r('sage-base ml + rl-refiner'):.3f}x",
+    )
+    bar(
+        bars,
+        "brain: sage-base ml + rl-refiner 0 extra fragments",
+        s["parts_split"] == 0 and s["elements"] == 128,
+        f"{s['parts_split']} parts split, {s['elements']} elements",
+    )
+    bar(
+        bars,
+        "brain: rl-partitioner ml + rl-refiner <= 1.15x METIS",
+        r("rl-partitioner ml + rl-refiner") <= 1.15,
+        f"{r('rl-partitioner ml + rl-refiner'):.3f}x",
+    )
+    bar(
+        bars,
+        "brain: sage-base ml + fm <= 0.97x METIS",
+        r("sage-base ml + fm") <= 0.97,
+        f"{r('sage-base ml + fm'):.3f}x",
+    )
+    bar(
+        bars,
+        "brain: metis nref + fm <= 0.97x METIS",
+        r("metis nref + fm") <= 0.97,
+        f"{r('metis nref + fm'):.3f}x",
+    )
     kw0, kw1 = kway["metis kway"], kway["metis kway + fm"]
-    bar(bars, "brain: metis kway + fm edge cut >= 4% below METIS k-way", kw1["cut"] <= 0.96 * kw0["cut"],
-        f"{kw1['cut']} vs {kw0['cut']} ({100 * (1 - kw1['cut'] / kw0['cut']):.1f}% lower)")
-    bar(bars, "brain: metis kway + fm every part connected", kw1["connected"] and kw1["parts_split"] == 0,
-        f"connected {kw1['connected']}, {kw1['parts_split']} split")
-    bar(bars, "brain: metis kway + fm at most 2x METIS k-way time", kw1["time"] <= 2 * kw0["time"],
-        f"{kw1['time']:.3f} s vs {kw0['time']:.3f} s ({kw1['time'] / kw0['time']:.2f}x)")
+    bar(
+        bars,
+        "brain: metis kway + fm edge cut >= 4% below METIS k-way",
+        kw1["cut"] <= 0.96 * kw0["cut"],
+        f"{kw1['cut']} vs {kw0['cut']} ({100 * (1 - kw1['cut'] / kw0['cut']):.1f}% lower)",
+    )
+    bar(
+        bars,
+        "brain: metis kway + fm every part connected",
+        kw1["connected"] and kw1["parts_split"] == 0,
+        f"connected {kw1['connected']}, {kw1['parts_split']} split",
+    )
+    bar(
+        bars,
+        "brain: metis kway + fm at most 2x METIS k-way time",
+        kw1["time"] <= 2 * kw0["time"],
+        f"{kw1['time']:.3f} s vs {kw0['time']:.3f} s ({kw1['time'] / kw0['time']:.2f}x)",
+    )
     return {"brain": rows, "brain_kway": kway}
 
 
@@ -168,9 +227,15 @@ def cube(bars, cells: int):
     for key, kw in [
         ("metis nref", dict(model="metis", mode="nref", nref=nref)),
         ("sage-base nref", dict(model="sage-base", mode="nref", nref=nref)),
-        ("sage-base ml + rl-refiner", dict(model="sage-base", mode="multilevel", nref=nref, refiner="rl-refiner")),
+        (
+            "sage-base ml + rl-refiner",
+            dict(model="sage-base", mode="multilevel", nref=nref, refiner="rl-refiner"),
+        ),
         ("sage-base ml + fm", dict(model="sage-base", mode="multilevel", nref=nref, refiner="fm")),
-        ("rl-partitioner ml + rl-refiner", dict(model="rl-partitioner", mode="multilevel", nref=nref, refiner="rl-refiner")),
+        (
+            "rl-partitioner ml + rl-refiner",
+            dict(model="rl-partitioner", mode="multilevel", nref=nref, refiner="rl-refiner"),
+        ),
     ]:
         rows[key] = run_row(mesh, g, data, **kw)
         print(f"  cube {key}: {rows[key]['normalized_cut']:.4f} in {rows[key]['time']:.2f} s", flush=True)
@@ -182,10 +247,19 @@ def cube(bars, cells: int):
     ratio = s["normalized_cut"] / base["normalized_cut"]
     bar(bars, "cube: sage-base ml + rl-refiner <= 1.1x METIS", ratio <= 1.1, f"{ratio:.3f}x")
     extra = (s["elements"] - 256) / 256
-    bar(bars, "cube: sage-base ml + rl-refiner <= 1% extra fragments", extra <= 0.01,
-        f"{s['elements']} elements for 256 ({100 * extra:.1f}% extra, {s['parts_split']} parts split)")
+    bar(
+        bars,
+        "cube: sage-base ml + rl-refiner <= 1% extra fragments",
+        extra <= 0.01,
+        f"{s['elements']} elements for 256 ({100 * extra:.1f}% extra, {s['parts_split']} parts split)",
+    )
     rl = rows["rl-partitioner ml + rl-refiner"]["normalized_cut"] / base["normalized_cut"]
-    bar(bars, "cube: rl-partitioner ml + rl-refiner <= 1.15x METIS (as on the brain)", rl <= 1.15, f"{rl:.3f}x")
+    bar(
+        bars,
+        "cube: rl-partitioner ml + rl-refiner <= 1.15x METIS (as on the brain)",
+        rl <= 1.15,
+        f"{rl:.3f}x",
+    )
     return {"cube": rows, "cube_cells": int(mesh.n_cells)}
 
 

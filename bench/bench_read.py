@@ -87,11 +87,16 @@ def main() -> None:
     print("|---|---|---|---|---|")
     tf = [a + b for a, b in zip(rf, rg, strict=True)]
     to = [a + b for a, b in zip(of, og, strict=True)]
-    print(f"| floor: meshio.read + one argsort pairing | {med(rf):.2f} | {med(rg):.2f} | {med(tf):.2f} | {min(tf):.2f} |")
+    print(
+        f"| floor: meshio.read + one argsort pairing | {med(rf):.2f} | {med(rg):.2f} | {med(tf):.2f} | {min(tf):.2f} |"
+    )
     print(f"| ours: read_mesh + prepare | {med(of):.2f} | {med(og):.2f} | {med(to):.2f} | {min(to):.2f} |")
     print(f"| ratio ours / floor | | | {med(to) / med(tf):.2f} | {min(to) / min(tf):.2f} |")
-    print(f"\nprocess CPU s, best of {args.repeat}: floor {min(cf):.2f}, ours {min(co):.2f}, "
-          f"ratio {min(co) / min(cf):.2f} (median ratio {med(co) / med(cf):.2f})")
+    print(
+        f"\nprocess CPU s, best of {args.repeat}: floor {min(cf):.2f}, ours {min(co):.2f}, "
+        f"ratio {min(co) / min(cf):.2f} (median ratio {med(co) / med(cf):.2f})"
+    )
+
 
 if __name__ == "__main__":
     main()

@@ -86,8 +86,12 @@ def one(dim: int, n: int) -> dict:
 
 def run_one(dim: int, n: int) -> dict:
     """one() in a child process (its peak resident memory is this mesh's)."""
-    out = subprocess.run([sys.executable, __file__, "--one", str(dim), str(n)], capture_output=True, text=True,
-                         env={**os.environ, "PYTHONPATH": os.pathsep.join([ROOT, os.environ.get("PYTHONPATH", "")])})
+    out = subprocess.run(
+        [sys.executable, __file__, "--one", str(dim), str(n)],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONPATH": os.pathsep.join([ROOT, os.environ.get("PYTHONPATH", "")])},
+    )
     if out.returncode != 0:
         raise RuntimeError(f"{dim}D n={n} failed:\n{out.stderr[-2000:]}")
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -115,7 +119,11 @@ def plot(results: dict[int, list[dict]], path: str, clock: str = "cpu") -> None:
         sl = slopes(rows, clock)
         for s in STAGES:
             ax.loglog(x, [r[clock][s] for r in rows], "o-", label=f"{s} (slope {sl[s]:.2f})")
-        ax.set_title(f"{dim}D: " + ("triangles" if dim == 2 else "tetrahedra") + f", ~{CELLS_PER_ELEMENT} cells per element")
+        ax.set_title(
+            f"{dim}D: "
+            + ("triangles" if dim == 2 else "tetrahedra")
+            + f", ~{CELLS_PER_ELEMENT} cells per element"
+        )
         ax.set_xlabel("cells")
         ax.set_ylabel("CPU seconds" if clock == "cpu" else "wall seconds")
         ax.grid(True, which="both", alpha=0.3)
@@ -140,8 +148,12 @@ def main() -> None:
     ap.add_argument("--dims", default="2,3")
     ap.add_argument("--png", default=os.path.join(ROOT, "docs", "scaling.png"))
     ap.add_argument("--json", help="also write every row here")
-    ap.add_argument("--clock", default="cpu", choices=["cpu", "wall"],
-                    help="what the slopes and the picture use: process CPU seconds (default; steadier on a shared machine) or wall")
+    ap.add_argument(
+        "--clock",
+        default="cpu",
+        choices=["cpu", "wall"],
+        help="what the slopes and the picture use: process CPU seconds (default; steadier on a shared machine) or wall",
+    )
     ap.add_argument("--one", nargs=2, type=int, metavar=("DIM", "N"), help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.one:
@@ -153,9 +165,12 @@ def main() -> None:
         for n in sizes[dim]:
             row = run_one(dim, n)
             results[dim].append(row)
-            print(f"{dim}D {row['cells']:>9,} cells k={row['k']:>5}: "
-                  + " ".join(f"{s} {row['times'][s]:.2f}/{row['cpu'][s]:.2f}" for s in STAGES)
-                  + f" (wall/CPU s) | peak {row['peak_mib']:.0f} MiB", flush=True)
+            print(
+                f"{dim}D {row['cells']:>9,} cells k={row['k']:>5}: "
+                + " ".join(f"{s} {row['times'][s]:.2f}/{row['cpu'][s]:.2f}" for s in STAGES)
+                + f" (wall/CPU s) | peak {row['peak_mib']:.0f} MiB",
+                flush=True,
+            )
     clock = "cpu" if args.clock == "cpu" else "times"
     for dim in (2, 3):
         rows = results[dim]
@@ -166,8 +181,11 @@ def main() -> None:
             print("| cells | k | " + " | ".join(STAGES) + " | peak MiB |")
             print("|---" * (len(STAGES) + 3) + "|")
             for r in rows:
-                print(f"| {r['cells']:,} | {r['k']} | " + " | ".join(f"{r[key][s]:.2f}" for s in STAGES)
-                      + f" | {r['peak_mib']:.0f} |")
+                print(
+                    f"| {r['cells']:,} | {r['k']} | "
+                    + " | ".join(f"{r[key][s]:.2f}" for s in STAGES)
+                    + f" | {r['peak_mib']:.0f} |"
+                )
             sl = slopes(rows, key)
             print("| log-log slope | | " + " | ".join(f"{sl[s]:.2f}" for s in STAGES) + " | |")
     if args.json:

@@ -65,11 +65,16 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as tmp:
             rows.append((preload, run(preload, args.jobs, Path(tmp))))
     print("SAGE-Base nref 5 on the brain (14,372 cells), one worker, jobs in a row; run time in s")
-    print(f"{'preload':8} {'job 1':>7} " + " ".join(f"{'job ' + str(i + 1):>7}" for i in range(1, args.jobs))
-          + f" {'job 1 / median(rest)':>22}")
+    print(
+        f"{'preload':8} {'job 1':>7} "
+        + " ".join(f"{'job ' + str(i + 1):>7}" for i in range(1, args.jobs))
+        + f" {'job 1 / median(rest)':>22}"
+    )
     for preload, t in rows:
         rest = sorted(t[1:])[len(t[1:]) // 2]
-        print(f"{str(preload):8} {t[0]:7.2f} " + " ".join(f"{x:7.2f}" for x in t[1:]) + f" {t[0] / rest:22.2f}")
+        print(
+            f"{str(preload):8} {t[0]:7.2f} " + " ".join(f"{x:7.2f}" for x in t[1:]) + f" {t[0] / rest:22.2f}"
+        )
 
 
 if __name__ == "__main__":

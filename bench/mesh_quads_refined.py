@@ -56,7 +56,7 @@ def main() -> None:
 
     p, q = refined_quads(a.levels, a.h)
     meshio.write(a.out, meshio.Mesh(np.column_stack([p, np.zeros(len(p))]), [("quad", q)]))
-    print(f"{a.out}: {len(q)} quads ({len(q) // 4 ** a.levels} before refinement), {len(p)} points")
+    print(f"{a.out}: {len(q)} quads ({len(q) // 4**a.levels} before refinement), {len(p)} points")
 
 
 if __name__ == "__main__":

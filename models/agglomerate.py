@@ -175,7 +175,9 @@ def absorb_fragments(
 SIZE_MEASURES = ("centroids", "vertices")
 
 
-def _size_points(data: CellData, labels: np.ndarray, nodes: np.ndarray, size_measure: str) -> tuple[np.ndarray, np.ndarray]:
+def _size_points(
+    data: CellData, labels: np.ndarray, nodes: np.ndarray, size_measure: str
+) -> tuple[np.ndarray, np.ndarray]:
     """The points whose spread is a part's size, and the part of each: the centroids of its cells
     (the paper's measure, the default) or the vertices of its cells (every element below h)."""
     if size_measure == "centroids":
@@ -188,8 +190,14 @@ def _size_points(data: CellData, labels: np.ndarray, nodes: np.ndarray, size_mea
     return data.points[data.connectivity[keep]], vlab[keep]
 
 
-def _part_extent(data: CellData, labels: np.ndarray, nodes: np.ndarray, parts: np.ndarray, h: float,
-                 size_measure: str = "centroids") -> np.ndarray:
+def _part_extent(
+    data: CellData,
+    labels: np.ndarray,
+    nodes: np.ndarray,
+    parts: np.ndarray,
+    h: float,
+    size_measure: str = "centroids",
+) -> np.ndarray:
     """For each part in `parts`, True when its size (largest distance between its cell centroids,
     or between its vertices: `size_measure`) is >= h.
 
@@ -272,7 +280,9 @@ def make_bisector(
         if group_weight is None:
             out = _force_split(b, np.asarray(refiner.refine(b, split), dtype=np.int64))
         else:
-            out = _force_split(b, np.asarray(refiner.refine(group_weighted(b, group_weight), split), dtype=np.int64))
+            out = _force_split(
+                b, np.asarray(refiner.refine(group_weighted(b, group_weight), split), dtype=np.int64)
+            )
             out = keep_purer(b, split, out, counts)
         clock("refine", t)
         return out
@@ -319,7 +329,11 @@ def recursive_bisection(
     """
     bisect = partitioner.bisect_batch if isinstance(partitioner, Partitioner) else partitioner
     labels = labels.copy()
-    h_part = None if h is None else np.broadcast_to(np.asarray(h, dtype=np.float64), (int(labels.max()) + 1,)).copy()
+    h_part = (
+        None
+        if h is None
+        else np.broadcast_to(np.asarray(h, dtype=np.float64), (int(labels.max()) + 1,)).copy()
+    )
     n_levels = levels if levels is not None else MAX_LEVELS
     if record is not None:
         record.append(labels.copy())
@@ -416,7 +430,11 @@ def agglomerate(
         raise ParameterError(f"unknown mode {mode!r}; choose one of {list(MODES)}")
     if size_measure not in SIZE_MEASURES:
         raise ParameterError(f"size_measure must be one of {list(SIZE_MEASURES)}, got {size_measure!r}")
-    part = model if isinstance(model, Partitioner) else get_partitioner(model, seed=seed, **(model_options or {}))
+    part = (
+        model
+        if isinstance(model, Partitioner)
+        else get_partitioner(model, seed=seed, **(model_options or {}))
+    )
     if isinstance(refiner, str):
         from .refine import get_refiner
 
@@ -429,7 +447,11 @@ def agglomerate(
         from .groups import DEFAULT_GROUP_WEIGHT
 
         group_weight = DEFAULT_GROUP_WEIGHT
-    if isinstance(group_weight, bool) or not isinstance(group_weight, int | float | np.floating) or not 0 < group_weight <= 1:
+    if (
+        isinstance(group_weight, bool)
+        or not isinstance(group_weight, int | float | np.floating)
+        or not 0 < group_weight <= 1
+    ):
         raise ParameterError(f"group_weight must be a number in (0, 1], got {group_weight!r}")
     gw = float(group_weight) if keep_groups and data.tags is not None and refiner is not None else None
     stage_times: dict[str, float] = {}
@@ -450,7 +472,9 @@ def agglomerate(
             raise ParameterError("subset must contain integer cell ids")
         bad = subset[(subset < 0) | (subset >= n)]
         if bad.size:
-            raise ParameterError(f"subset has {bad.size} unknown cell ids (valid: 0..{n - 1}), e.g. {bad[:5].tolist()}")
+            raise ParameterError(
+                f"subset has {bad.size} unknown cell ids (valid: 0..{n - 1}), e.g. {bad[:5].tolist()}"
+            )
         nodes = sorted_unique(subset).astype(np.int64)
     elif mode == "coarsen":
         raise ParameterError("mode 'coarsen' needs a subset of cell ids")
@@ -459,11 +483,29 @@ def agglomerate(
 
     sub_mode = mode
     if mode == "multilevel":
-        sub_mode = "nref" if nref is not None else "target-size" if target_size is not None else "mult-factor" if mult_factor is not None else None
+        sub_mode = (
+            "nref"
+            if nref is not None
+            else "target-size"
+            if target_size is not None
+            else "mult-factor"
+            if mult_factor is not None
+            else None
+        )
         if sub_mode is None:
             raise ParameterError("mode 'multilevel' needs one of nref, target_size or mult_factor")
     if mode == "coarsen":
-        sub_mode = "kway" if k is not None else "nref" if nref is not None else "target-size" if target_size is not None else "mult-factor" if mult_factor is not None else None
+        sub_mode = (
+            "kway"
+            if k is not None
+            else "nref"
+            if nref is not None
+            else "target-size"
+            if target_size is not None
+            else "mult-factor"
+            if mult_factor is not None
+            else None
+        )
         if sub_mode is None:
             raise ParameterError("mode 'coarsen' needs one of k, nref, target_size or mult_factor")
 
@@ -472,7 +514,9 @@ def agglomerate(
     if sub_mode == "kway":
         _check_k(k, nodes.size)
         if not part.supports_kway:
-            raise ParameterError(f"model {part.name!r} has no direct k-way mode; use nref, target-size or mult-factor")
+            raise ParameterError(
+                f"model {part.name!r} has no direct k-way mode; use nref, target-size or mult-factor"
+            )
         requested = int(k)
         batch = make_batch(data, labels, nodes)
         if getattr(part, "wants_cell_boxes", False):
@@ -499,9 +543,13 @@ def agglomerate(
         if not isinstance(nref, int | np.integer) or isinstance(nref, bool) or nref < 0:
             raise ParameterError(f"nref must be an integer >= 0, got {nref!r}")
         if nref > MAX_NREF or 2**nref > nodes.size:
-            raise ParameterError(f"nref = {nref} asks for 2^{nref} elements, more than the {nodes.size} cells to agglomerate")
-        requested = 2**int(nref)
-        labels = recursive_bisection(data, bisector, nodes, labels, levels=int(nref), progress=progress, record=level_labels)
+            raise ParameterError(
+                f"nref = {nref} asks for 2^{nref} elements, more than the {nodes.size} cells to agglomerate"
+            )
+        requested = 2 ** int(nref)
+        labels = recursive_bisection(
+            data, bisector, nodes, labels, levels=int(nref), progress=progress, record=level_labels
+        )
     elif sub_mode in ("target-size", "mult-factor", "segregated"):
         if sub_mode == "target-size":
             if target_size is None:
@@ -515,7 +563,9 @@ def agglomerate(
                 raise ParameterError(f"mult_factor must be in (0, 1], got {f}")
         if sub_mode == "segregated":
             if data.tags is None:
-                raise ParameterError("mode 'segregated' needs physical groups (cell data such as gmsh:physical or CellEntityIds)")
+                raise ParameterError(
+                    "mode 'segregated' needs physical groups (cell data such as gmsh:physical or CellEntityIds)"
+                )
             groups, labels = sorted_unique(data.tags[nodes], return_inverse=True)
             labels = labels.astype(np.int64)
             labels, _ = connected_parts(data, labels, nodes)
@@ -530,16 +580,31 @@ def agglomerate(
                 h = f * mesh_diameter(data.centroids[nodes])
             else:
                 h = f * mesh_diameter(data.points[_used_points(data, nodes)])
-        labels = recursive_bisection(data, bisector, nodes, labels, h=h, progress=progress, record=level_labels,
-                                     size_measure=size_measure)
-    if refiner is not None and hasattr(refiner, "polish") and sub_mode not in ("kway", "segregated") and labels.size:
+        labels = recursive_bisection(
+            data,
+            bisector,
+            nodes,
+            labels,
+            h=h,
+            progress=progress,
+            record=level_labels,
+            size_measure=size_measure,
+        )
+    if (
+        refiner is not None
+        and hasattr(refiner, "polish")
+        and sub_mode not in ("kway", "segregated")
+        and labels.size
+    ):
         # the recursion optimized each bisection alone; polish pairs of final parts for the k-way cut
         t = time.perf_counter()
         batch = make_batch(data, np.zeros(nodes.size, dtype=np.int64), nodes)
         pos = np.empty(n, dtype=np.int64)
         pos[nodes] = np.arange(nodes.size)
         start = compact_labels(labels)[pos[batch.node_ids]]
-        polished = _purer(batch, gw, start, np.asarray(refiner.polish(_weighted(batch, gw), start), dtype=np.int64))
+        polished = _purer(
+            batch, gw, start, np.asarray(refiner.polish(_weighted(batch, gw), start), dtype=np.int64)
+        )
         labels = labels.copy()
         labels[pos[batch.node_ids]] = polished
         stage_times["refine"] = stage_times.get("refine", 0.0) + time.perf_counter() - t
@@ -577,7 +642,9 @@ def _weighted(batch: GraphBatch, group_weight: float | None) -> GraphBatch:
     return group_weighted(batch, group_weight)
 
 
-def _purer(batch: GraphBatch, group_weight: float | None, before: np.ndarray, after: np.ndarray) -> np.ndarray:
+def _purer(
+    batch: GraphBatch, group_weight: float | None, before: np.ndarray, after: np.ndarray
+) -> np.ndarray:
     """A refined k-way partition, unless (keeping groups) more cells are outside their part's
     majority group than before, or a part was emptied (flow refinement can swallow the small parts
     that following the groups leaves: sage-hetero nref 6 + fm on a generated `inclusions` mesh
@@ -587,7 +654,11 @@ def _purer(batch: GraphBatch, group_weight: float | None, before: np.ndarray, af
     from .groups import kway_impurity
 
     lost = np.count_nonzero(np.bincount(after)) < np.count_nonzero(np.bincount(before))
-    return before if lost or kway_impurity(batch.tags, after) > kway_impurity(batch.tags, before) + 1e-9 else after
+    return (
+        before
+        if lost or kway_impurity(batch.tags, after) > kway_impurity(batch.tags, before) + 1e-9
+        else after
+    )
 
 
 def _cells_nodes(data: CellData, cells: np.ndarray) -> np.ndarray:

@@ -160,7 +160,9 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
     if subset is not None:
         if not isinstance(subset, list) or not subset:
             raise ParameterError("subset must be a non-empty list of cell ids")
-        if len(subset) > MAX_SUBSET or not all(isinstance(i, int) and not isinstance(i, bool) for i in subset):
+        if len(subset) > MAX_SUBSET or not all(
+            isinstance(i, int) and not isinstance(i, bool) for i in subset
+        ):
             raise ParameterError("subset must be a list of integer cell ids")
         if min(subset) < 0:
             raise ParameterError(f"subset has negative cell ids, e.g. {min(subset)}")
@@ -176,8 +178,20 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
     opts = params.get("options") or {}
     if not isinstance(opts, dict):
         raise ParameterError("options must be an object")
-    known_opts = {"seed", "absorb_fraction", "hole_policy", "physical_tag", "method", "boundary_tag", "size_measure",
-                  "threshold", "hierarchy", "weld", "ratio", "coarsest"}
+    known_opts = {
+        "seed",
+        "absorb_fraction",
+        "hole_policy",
+        "physical_tag",
+        "method",
+        "boundary_tag",
+        "size_measure",
+        "threshold",
+        "hierarchy",
+        "weld",
+        "ratio",
+        "coarsest",
+    }
     if set(opts) - known_opts:
         raise ParameterError(f"unknown option(s): {sorted(set(opts) - known_opts)}")
     seed = _int(opts, "seed", lo=0, hi=2**31 - 1) or 0
@@ -188,7 +202,9 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
     if hole_policy not in ("split", "error"):
         raise ParameterError(f"options.hole_policy must be 'split' or 'error', got {hole_policy!r}")
     physical_tag = opts.get("physical_tag")
-    if physical_tag is not None and (not isinstance(physical_tag, str) or not physical_tag or len(physical_tag) > 200):
+    if physical_tag is not None and (
+        not isinstance(physical_tag, str) or not physical_tag or len(physical_tag) > 200
+    ):
         raise ParameterError("options.physical_tag must be a non-empty string")
     boundary_tag = _int(opts, "boundary_tag", lo=0, hi=2**31 - 1)
     boundary_tag = 1 if boundary_tag is None else boundary_tag
@@ -206,9 +222,11 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
     if (ratio is not None or coarsest is not None) and not hierarchy:
         raise ParameterError("options.ratio and options.coarsest go with options.hierarchy = true")
     if hierarchy and ratio is None and (mode == "kway" or (mode == "coarsen" and k is not None)):
-        raise ParameterError("options.hierarchy needs a recursive mode (nref, target-size, mult-factor, segregated, "
-                             "coarsen or multilevel), not k-way, or options.ratio (a hierarchy of its own, like "
-                             "`magnet hierarchy`)")
+        raise ParameterError(
+            "options.hierarchy needs a recursive mode (nref, target-size, mult-factor, segregated, "
+            "coarsen or multilevel), not k-way, or options.ratio (a hierarchy of its own, like "
+            "`magnet hierarchy`)"
+        )
     method = opts.get("method", "kway")
     if method not in ("kway", "recursive"):
         raise ParameterError(f"options.method must be 'kway' or 'recursive', got {method!r}")
@@ -219,8 +237,13 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
     if size_measure not in ("centroids", "vertices"):
         raise ParameterError(f"options.size_measure must be 'centroids' or 'vertices', got {size_measure!r}")
 
-    need = {"kway": ("k", k), "nref": ("nref", nref), "target-size": ("target_size", target_size),
-            "mult-factor": ("mult_factor", mult_factor), "segregated": ("mult_factor", mult_factor)}
+    need = {
+        "kway": ("k", k),
+        "nref": ("nref", nref),
+        "target-size": ("target_size", target_size),
+        "mult-factor": ("mult_factor", mult_factor),
+        "segregated": ("mult_factor", mult_factor),
+    }
     if mode in need and need[mode][1] is None:
         raise ParameterError(f"{need[mode][0]} is required for mode {mode!r}")
     if mode == "coarsen":
@@ -228,14 +251,20 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
             raise ParameterError("subset is required for mode 'coarsen'")
         if all(v is None for v in (k, nref, target_size, mult_factor)):
             raise ParameterError("mode 'coarsen' needs one of k, nref, target_size, mult_factor")
-    if model in ("sage-base", "sage-hetero", "rl-partitioner") and (mode == "kway" or (mode == "coarsen" and k is not None)):
-        raise ParameterError(f"model {model!r} has no direct k-way mode; use nref, target-size or mult-factor")
+    if model in ("sage-base", "sage-hetero", "rl-partitioner") and (
+        mode == "kway" or (mode == "coarsen" and k is not None)
+    ):
+        raise ParameterError(
+            f"model {model!r} has no direct k-way mode; use nref, target-size or mult-factor"
+        )
 
     if mesh_info is not None:
         n = int(mesh_info["cells"])
         n_work = n if subset is None else len(set(subset))
         if subset is not None and max(subset) >= n:
-            raise ParameterError(f"subset has unknown cell ids (the mesh has cells 0..{n - 1}), e.g. {max(subset)}")
+            raise ParameterError(
+                f"subset has unknown cell ids (the mesh has cells 0..{n - 1}), e.g. {max(subset)}"
+            )
         if k is not None and k > n_work:
             raise ParameterError(f"k = {k} is larger than the number of cells to agglomerate ({n_work})")
         if nref is not None and 2**nref > n_work:
@@ -244,12 +273,28 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
             raise ParameterError("mode 'segregated' needs a mesh with physical groups")
 
     return {
-        "model": model, "mode": mode, "k": k, "nref": nref, "target_size": target_size,
-        "mult_factor": mult_factor, "subset": subset, "refiner": refiner,
-        "options": {"seed": seed, "absorb_fraction": float(absorb), "hole_policy": hole_policy,
-                    "physical_tag": physical_tag, "method": method, "boundary_tag": boundary_tag,
-                    "size_measure": size_measure, "threshold": threshold, "hierarchy": hierarchy, "weld": weld,
-                    "ratio": ratio, "coarsest": coarsest},
+        "model": model,
+        "mode": mode,
+        "k": k,
+        "nref": nref,
+        "target_size": target_size,
+        "mult_factor": mult_factor,
+        "subset": subset,
+        "refiner": refiner,
+        "options": {
+            "seed": seed,
+            "absorb_fraction": float(absorb),
+            "hole_policy": hole_policy,
+            "physical_tag": physical_tag,
+            "method": method,
+            "boundary_tag": boundary_tag,
+            "size_measure": size_measure,
+            "threshold": threshold,
+            "hierarchy": hierarchy,
+            "weld": weld,
+            "ratio": ratio,
+            "coarsest": coarsest,
+        },
     }
 
 
@@ -278,15 +323,29 @@ def run_job(
     tick(0.0, "read")
     mesh = read_mesh(mesh_path, physical_tag=p["options"]["physical_tag"], weld=p["options"]["weld"])
     t_read = time.perf_counter() - t0
-    validate_params(params, {"cells": mesh.n_cells, "physical_groups": mesh.physical_groups(), "dim": mesh.dim})
+    validate_params(
+        params, {"cells": mesh.n_cells, "physical_groups": mesh.physical_groups(), "dim": mesh.dim}
+    )
     o = p["options"]
     model_options = {"method": o["method"]} if p["model"] == "metis" else None
     res = pipeline.run(
-        mesh, model=p["model"], mode=p["mode"], k=p["k"], nref=p["nref"], target_size=p["target_size"],
-        mult_factor=p["mult_factor"], subset=p["subset"], absorb_fraction=o["absorb_fraction"],
-        hole_policy=o["hole_policy"], seed=o["seed"], model_options=model_options, progress=tick,
+        mesh,
+        model=p["model"],
+        mode=p["mode"],
+        k=p["k"],
+        nref=p["nref"],
+        target_size=p["target_size"],
+        mult_factor=p["mult_factor"],
+        subset=p["subset"],
+        absorb_fraction=o["absorb_fraction"],
+        hole_policy=o["hole_policy"],
+        seed=o["seed"],
+        model_options=model_options,
+        progress=tick,
         size_measure=o["size_measure"],
-        refiner=p["refiner"], threshold=o["threshold"], record_levels=o["hierarchy"] and o["ratio"] is None,
+        refiner=p["refiner"],
+        threshold=o["threshold"],
+        record_levels=o["hierarchy"] and o["ratio"] is None,
     )
     res.timings = {"read": t_read, **res.timings}
     files = {"mesh": "mesh.vtu", "metrics": "metrics.json", "labels": "labels.json", "preview": "preview.png"}
@@ -295,9 +354,13 @@ def run_job(
         files["lymph_mat"] = "lymph.mat"
     join = lambda name: os.path.join(out_dir, name)  # noqa: E731
     pipeline.write_outputs(
-        res, vtu=join(files["mesh"]), labels=join(files["labels"]), plot=join(files["preview"]),
+        res,
+        vtu=join(files["mesh"]),
+        labels=join(files["labels"]),
+        plot=join(files["preview"]),
         lymph=[join("lymph.json"), join("lymph.mat")] if mesh.dim == 2 else None,
-        metrics=join(files["metrics"]), extra={"params": p, "model_version": MODEL_VERSION},
+        metrics=join(files["metrics"]),
+        extra={"params": p, "model_version": MODEL_VERSION},
         boundary_tag=o["boundary_tag"],
     )
     if o["hierarchy"]:
@@ -311,7 +374,9 @@ def run_job(
     return s
 
 
-def _write_hierarchy_zip(res, out_dir: str, boundary_tag: int, model: str | None = None, o: dict | None = None) -> None:
+def _write_hierarchy_zip(
+    res, out_dir: str, boundary_tag: int, model: str | None = None, o: dict | None = None
+) -> None:
     """Every nested level into out_dir/hierarchy.zip (flat archive; lymph structs per level in 2D).
     With options.ratio: a hierarchy of its own with the job's model (models.hierarchy.build_hierarchy,
     as `magnet hierarchy`), aggregation operators included."""
@@ -326,13 +391,30 @@ def _write_hierarchy_zip(res, out_dir: str, boundary_tag: int, model: str | None
         if o is not None and o.get("ratio") is not None:
             from .hierarchy import build_hierarchy, write_hierarchy
 
-            levels, info = build_hierarchy(res.mesh, res.data, model=model or "rtree", ratio=o["ratio"],
-                                           coarsest=o["coarsest"] or 10, seed=o["seed"])
-            write_hierarchy(tmp, res.mesh, res.data, levels, metrics=True, lymph=res.mesh.dim == 2,
-                            boundary=res.boundary, boundary_tag=boundary_tag, merged=info.pop("merged"),
-                            extra={k: info[k] for k in ("model", "ratio", "coarsest", "method", "build_time")})
+            levels, info = build_hierarchy(
+                res.mesh,
+                res.data,
+                model=model or "rtree",
+                ratio=o["ratio"],
+                coarsest=o["coarsest"] or 10,
+                seed=o["seed"],
+            )
+            write_hierarchy(
+                tmp,
+                res.mesh,
+                res.data,
+                levels,
+                metrics=True,
+                lymph=res.mesh.dim == 2,
+                boundary=res.boundary,
+                boundary_tag=boundary_tag,
+                merged=info.pop("merged"),
+                extra={k: info[k] for k in ("model", "ratio", "coarsest", "method", "build_time")},
+            )
         else:
-            pipeline.write_hierarchy(res, tmp, metrics=True, lymph=res.mesh.dim == 2, boundary_tag=boundary_tag)
+            pipeline.write_hierarchy(
+                res, tmp, metrics=True, lymph=res.mesh.dim == 2, boundary_tag=boundary_tag
+            )
         part = os.path.join(out_dir, "hierarchy.zip.tmp")
         with zipfile.ZipFile(part, "w", compression=zipfile.ZIP_DEFLATED) as zf:
             for name in sorted(os.listdir(tmp)):

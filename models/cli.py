@@ -18,30 +18,83 @@ EXIT_USER_ERROR = 2
 
 
 def _add_job_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--model", default="metis", help="metis | kmeans | rtree | sage-base | sage-hetero | rl-partitioner (default metis)")
-    p.add_argument("--mode", default="kway", help="kway | nref | target-size | mult-factor | segregated | coarsen | multilevel")
-    p.add_argument("--refiner", choices=["fm", "rl-refiner"], help="refine every bisection (every level in multilevel mode); k-way mode: fm")
-    p.add_argument("--threshold", type=int, default=200, help="multilevel: coarsen every subgraph to at most this many nodes")
-    p.add_argument("--keep-groups", default="auto", choices=["auto", "on", "off"],
-                   help="refiner: cuts prefer physical-group interfaces and never leave more cells outside their part's "
-                        "majority group (auto: on for sage-hetero)")
+    p.add_argument(
+        "--model",
+        default="metis",
+        help="metis | kmeans | rtree | sage-base | sage-hetero | rl-partitioner (default metis)",
+    )
+    p.add_argument(
+        "--mode",
+        default="kway",
+        help="kway | nref | target-size | mult-factor | segregated | coarsen | multilevel",
+    )
+    p.add_argument(
+        "--refiner",
+        choices=["fm", "rl-refiner"],
+        help="refine every bisection (every level in multilevel mode); k-way mode: fm",
+    )
+    p.add_argument(
+        "--threshold",
+        type=int,
+        default=200,
+        help="multilevel: coarsen every subgraph to at most this many nodes",
+    )
+    p.add_argument(
+        "--keep-groups",
+        default="auto",
+        choices=["auto", "on", "off"],
+        help="refiner: cuts prefer physical-group interfaces and never leave more cells outside their part's "
+        "majority group (auto: on for sage-hetero)",
+    )
     p.add_argument("--k", type=int, help="number of elements (kway)")
     p.add_argument("--nref", type=int, help="number of refinements: 2^nref elements")
     p.add_argument("--target-size", type=float, help="bisect until every element's diameter is below this")
     p.add_argument("--mult-factor", type=float, help="target size = factor x mesh diameter (0 < f <= 1)")
-    p.add_argument("--subset", help="file with the cell ids to agglomerate (JSON list or whitespace separated); the rest stays")
-    p.add_argument("--physical-tag", help="cell-data name holding the physical groups (default: gmsh:physical, CellEntityIds, ...)")
-    p.add_argument("--weld", type=float, metavar="TOL", help="merge points closer than TOL first (duplicate points that split the mesh)")
-    p.add_argument("--absorb", type=float, default=0.0, metavar="FRACTION",
-                   help="absorb parts smaller than FRACTION x mean part size into their longest-interface neighbour")
-    p.add_argument("--method", default="kway", choices=["kway", "recursive"], help="METIS k-way or recursive (kway mode)")
-    p.add_argument("--boundary-tag", type=int, default=1, metavar="N",
-                   help="lymph bc_tag of boundary edges without a boundary group (default 1)")
-    p.add_argument("--hole-policy", default="split", choices=["split", "error"], help="what to do with elements that enclose a hole")
+    p.add_argument(
+        "--subset",
+        help="file with the cell ids to agglomerate (JSON list or whitespace separated); the rest stays",
+    )
+    p.add_argument(
+        "--physical-tag",
+        help="cell-data name holding the physical groups (default: gmsh:physical, CellEntityIds, ...)",
+    )
+    p.add_argument(
+        "--weld",
+        type=float,
+        metavar="TOL",
+        help="merge points closer than TOL first (duplicate points that split the mesh)",
+    )
+    p.add_argument(
+        "--absorb",
+        type=float,
+        default=0.0,
+        metavar="FRACTION",
+        help="absorb parts smaller than FRACTION x mean part size into their longest-interface neighbour",
+    )
+    p.add_argument(
+        "--method", default="kway", choices=["kway", "recursive"], help="METIS k-way or recursive (kway mode)"
+    )
+    p.add_argument(
+        "--boundary-tag",
+        type=int,
+        default=1,
+        metavar="N",
+        help="lymph bc_tag of boundary edges without a boundary group (default 1)",
+    )
+    p.add_argument(
+        "--hole-policy",
+        default="split",
+        choices=["split", "error"],
+        help="what to do with elements that enclose a hole",
+    )
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--size-measure", default="centroids", choices=["centroids", "vertices"],
-                   help="size of a part for target-size / mult-factor / segregated: largest distance between its cell "
-                        "centroids (the paper's, default) or between its vertices (every element below h)")
+    p.add_argument(
+        "--size-measure",
+        default="centroids",
+        choices=["centroids", "vertices"],
+        help="size of a part for target-size / mult-factor / segregated: largest distance between its cell "
+        "centroids (the paper's, default) or between its vertices (every element below h)",
+    )
 
 
 def _read_subset(path: str | None):
@@ -121,28 +174,53 @@ def cmd_agglomerate(args) -> int:
     prog = _Progress(args.progress or (sys.stderr.isatty() and mesh.n_cells > 200_000))
     try:
         res = pipeline.run(
-            mesh, model=args.model, mode=args.mode, k=args.k, nref=args.nref, target_size=args.target_size,
-            mult_factor=args.mult_factor, subset=subset, absorb_fraction=args.absorb, hole_policy=args.hole_policy,
-            seed=args.seed, model_options={"method": args.method} if args.model == "metis" else None,
+            mesh,
+            model=args.model,
+            mode=args.mode,
+            k=args.k,
+            nref=args.nref,
+            target_size=args.target_size,
+            mult_factor=args.mult_factor,
+            subset=subset,
+            absorb_fraction=args.absorb,
+            hole_policy=args.hole_policy,
+            seed=args.seed,
+            model_options={"method": args.method} if args.model == "metis" else None,
             size_measure=args.size_measure,
-            compute_metrics=bool(args.metrics) or args.model_metrics, progress=prog,
-            refiner=args.refiner, threshold=args.threshold, record_levels=bool(args.hierarchy),
+            compute_metrics=bool(args.metrics) or args.model_metrics,
+            progress=prog,
+            refiner=args.refiner,
+            threshold=args.threshold,
+            record_levels=bool(args.hierarchy),
             keep_groups={"auto": None, "on": True, "off": False}[args.keep_groups],
         )
         res.timings = {"read": t_read, **res.timings}
         if args.hierarchy:
             idx = pipeline.write_hierarchy(res, args.hierarchy)
-            print(f"hierarchy: {len(idx['levels'])} levels in {args.hierarchy} "
-                  f"({' > '.join(str(lv['elements']) for lv in idx['levels'])} elements)")
+            print(
+                f"hierarchy: {len(idx['levels'])} levels in {args.hierarchy} "
+                f"({' > '.join(str(lv['elements']) for lv in idx['levels'])} elements)"
+            )
         if args.lymph and mesh.dim != 2:
             raise ParameterError("--lymph is for 2D meshes only")
         if ucd:  # deal.II: the fine cells, material id = agglomerated element (UCD has no polytopes)
             from .ucd import write_ucd
 
-            write_ucd(args.output, res.mesh, material=res.agglomeration.labels,
-                      comment=f"magnet: {res.poly.n_elements} agglomerated elements; material id = element (0-based)")
-        pipeline.write_outputs(res, vtu=None if ucd else args.output, metrics=args.metrics, labels=args.labels, lymph=args.lymph, plot=args.plot,
-                               boundary_tag=args.boundary_tag)
+            write_ucd(
+                args.output,
+                res.mesh,
+                material=res.agglomeration.labels,
+                comment=f"magnet: {res.poly.n_elements} agglomerated elements; material id = element (0-based)",
+            )
+        pipeline.write_outputs(
+            res,
+            vtu=None if ucd else args.output,
+            metrics=args.metrics,
+            labels=args.labels,
+            lymph=args.lymph,
+            plot=args.plot,
+            boundary_tag=args.boundary_tag,
+        )
     finally:
         prog.close()
     total = time.perf_counter() - t0
@@ -188,13 +266,17 @@ def cmd_plot(args) -> int:
     except (OSError, ValueError, TypeError) as exc:
         raise ParameterError(f"cannot read labels file {args.labels}: {exc}") from None
     if labels.ndim != 1 or labels.size != mesh.n_cells or labels.min() < 0:
-        raise ParameterError(f"labels must be a list of {mesh.n_cells} non-negative element ids (one per cell)")
+        raise ParameterError(
+            f"labels must be a list of {mesh.n_cells} non-negative element ids (one per cell)"
+        )
     graph, data = pipeline.prepare(mesh)
     from .agglomerate import compact_labels
 
     labels = compact_labels(labels)
     poly, _, _ = pipeline.split_holes(mesh, graph, data, labels, "split")
-    plot_agglomeration(poly, args.output, fine_mesh=mesh if mesh.n_cells <= 200_000 else None, title=args.title)
+    plot_agglomeration(
+        poly, args.output, fine_mesh=mesh if mesh.n_cells <= 200_000 else None, title=args.title
+    )
     print(f"wrote {args.output} ({poly.n_elements} elements)")
     return 0
 
@@ -211,9 +293,18 @@ def cmd_compare(args) -> int:
         mode = mode or args.mode
         t = time.perf_counter()
         res = pipeline.run(
-            mesh, model=model, mode=mode, k=args.k, nref=args.nref, target_size=args.target_size,
-            mult_factor=args.mult_factor, absorb_fraction=args.absorb, seed=args.seed, size_measure=args.size_measure,
-            refiner=args.refiner, threshold=args.threshold,
+            mesh,
+            model=model,
+            mode=mode,
+            k=args.k,
+            nref=args.nref,
+            target_size=args.target_size,
+            mult_factor=args.mult_factor,
+            absorb_fraction=args.absorb,
+            seed=args.seed,
+            size_measure=args.size_measure,
+            refiner=args.refiner,
+            threshold=args.threshold,
             keep_groups={"auto": None, "on": True, "off": False}[args.keep_groups],
         )
         rep = dict(res.metrics)
@@ -227,7 +318,14 @@ def cmd_compare(args) -> int:
             fh.write(table + "\n")
     if args.json:
         with open(args.json, "w", encoding="utf-8") as fh:
-            json.dump({k: {"summary": v["summary"], "partition": v["partition"], "time": v["time"]} for k, v in results.items()}, fh, indent=1)
+            json.dump(
+                {
+                    k: {"summary": v["summary"], "partition": v["partition"], "time": v["time"]}
+                    for k, v in results.items()
+                },
+                fh,
+                indent=1,
+            )
     return 0
 
 
@@ -237,18 +335,30 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
 
     p = sub.add_parser("agglomerate", help="agglomerate a mesh in-process")
     p.add_argument("mesh")
-    p.add_argument("-o", "--output", required=True, help="agglomerated mesh (.vtu), or .ucd/.inp for deal.II: the fine cells with the element id as material")
+    p.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        help="agglomerated mesh (.vtu), or .ucd/.inp for deal.II: the fine cells with the element id as material",
+    )
     _add_job_args(p)
     p.add_argument("--metrics", help="write the metrics JSON here")
     p.add_argument("--labels", help="write the fine-cell -> element labels (JSON list) here")
     p.add_argument("--lymph", help="write the lymph structs here (.mat or .json; 2D only)")
     p.add_argument("--plot", help="write a PNG picture of the agglomerated mesh here")
-    p.add_argument("--hierarchy", metavar="OUT_DIR", help="write every level of a recursive mode here, nested "
-                   "(level_L.vtu, level_L.labels.json, level_L.parent.json, level_L.metrics.json, hierarchy.json)")
+    p.add_argument(
+        "--hierarchy",
+        metavar="OUT_DIR",
+        help="write every level of a recursive mode here, nested "
+        "(level_L.vtu, level_L.labels.json, level_L.parent.json, level_L.metrics.json, hierarchy.json)",
+    )
     p.add_argument("--progress", action="store_true", help="always show the progress bar")
     p.set_defaults(func=cmd_agglomerate, model_metrics=False)
 
-    p = sub.add_parser("check", help="report on a mesh (pieces, holes, folded/duplicate/unused/hanging points, ...) with a verdict")
+    p = sub.add_parser(
+        "check",
+        help="report on a mesh (pieces, holes, folded/duplicate/unused/hanging points, ...) with a verdict",
+    )
     p.add_argument("mesh")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.add_argument("--physical-tag")
@@ -260,7 +370,9 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
     p.add_argument("--physical-tag")
     p.set_defaults(func=cmd_info)
 
-    p = sub.add_parser("plot", help="draw an agglomeration (fine mesh + labels) to PNG; 3D as an exploded view")
+    p = sub.add_parser(
+        "plot", help="draw an agglomeration (fine mesh + labels) to PNG; 3D as an exploded view"
+    )
     p.add_argument("mesh")
     p.add_argument("--labels", required=True, help="labels JSON written by `magnet agglomerate --labels`")
     p.add_argument("-o", "--output", required=True)
@@ -270,7 +382,11 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
 
     p = sub.add_parser("compare", help="run several methods on one mesh; box plots of the metrics + a table")
     p.add_argument("mesh")
-    p.add_argument("--methods", default="metis,kmeans", help="comma list of MODEL[:MODE], e.g. metis:kway,kmeans:kway,metis:nref")
+    p.add_argument(
+        "--methods",
+        default="metis,kmeans",
+        help="comma list of MODEL[:MODE], e.g. metis:kway,kmeans:kway,metis:nref",
+    )
     p.add_argument("-o", "--output", required=True, help="PNG with the box plots")
     p.add_argument("--table", help="also write the table here")
     p.add_argument("--json", help="also write the summaries here")
@@ -279,12 +395,28 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
 
     # generate / train live in modules that import gmsh / torch: load them only when asked for
     for name, module, adder, runner, help_ in (
-        ("generate", "models.generate_cli", "add_generate_args", "generate_main", "generate meshes / data sets (gmsh)"),
+        (
+            "generate",
+            "models.generate_cli",
+            "add_generate_args",
+            "generate_main",
+            "generate meshes / data sets (gmsh)",
+        ),
         ("train", "models.train", "add_train_args", "train_main", "train a SAGE model"),
-        ("hierarchy", "models.hierarchy_cli", "add_hierarchy_args", "hierarchy_main",
-         "nested levels for multigrid (rtree natively, any model), with aggregation operators"),
-        ("mgcheck", "models.hierarchy_cli", "add_mgcheck_args", "mgcheck_main",
-         "judge a hierarchy with a multigrid solve (pyamg, TPFA Poisson) beside pyamg's own aggregation"),
+        (
+            "hierarchy",
+            "models.hierarchy_cli",
+            "add_hierarchy_args",
+            "hierarchy_main",
+            "nested levels for multigrid (rtree natively, any model), with aggregation operators",
+        ),
+        (
+            "mgcheck",
+            "models.hierarchy_cli",
+            "add_mgcheck_args",
+            "mgcheck_main",
+            "judge a hierarchy with a multigrid solve (pyamg, TPFA Poisson) beside pyamg's own aggregation",
+        ),
     ):
         p = sub.add_parser(name, help=help_)
         if len(argv) > 0 and argv[0] == name:

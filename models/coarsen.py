@@ -47,7 +47,9 @@ def _row_argmax(indptr: np.ndarray, rows: np.ndarray, cols: np.ndarray, score: n
     return best
 
 
-def heavy_edge_matching(batch: GraphBatch, active: np.ndarray | None = None, seed: int = 0, rounds: int = 5) -> np.ndarray:
+def heavy_edge_matching(
+    batch: GraphBatch, active: np.ndarray | None = None, seed: int = 0, rounds: int = 5
+) -> np.ndarray:
     """(N,) mate of each node (-1 = unmatched). `active` (N,) bool: only these nodes may match."""
     n = batch.n_nodes
     rows = np.repeat(np.arange(n), np.diff(batch.indptr))
@@ -98,8 +100,12 @@ def contract(batch: GraphBatch, mate: np.ndarray) -> Level:
     w.sort_indices()
     meas = np.bincount(cmap, weights=batch.measures, minlength=nc)
     safe = np.where(meas > 0, meas, 1.0)
-    cen = np.column_stack([np.bincount(cmap, weights=batch.measures * batch.centroids[:, d], minlength=nc) / safe
-                           for d in range(batch.dim)])
+    cen = np.column_stack(
+        [
+            np.bincount(cmap, weights=batch.measures * batch.centroids[:, d], minlength=nc) / safe
+            for d in range(batch.dim)
+        ]
+    )
     if np.any(meas <= 0):  # zero-measure cells: plain mean
         cnt = np.bincount(cmap, minlength=nc)
         for d in range(batch.dim):
@@ -123,8 +129,13 @@ def contract(batch: GraphBatch, mate: np.ndarray) -> Level:
     return Level(coarse, cmap)
 
 
-def coarsen(batch: GraphBatch, threshold: int = DEFAULT_THRESHOLD, seed: int = 0, max_levels: int = 60,
-            min_shrink: float = 0.95) -> list[Level]:
+def coarsen(
+    batch: GraphBatch,
+    threshold: int = DEFAULT_THRESHOLD,
+    seed: int = 0,
+    max_levels: int = 60,
+    min_shrink: float = 0.95,
+) -> list[Level]:
     """Coarsen every graph of the batch until it has at most `threshold` nodes (or stops shrinking:
     a level that keeps more than `min_shrink` of a graph's nodes freezes that graph). Returns the
     levels, finest first; the last level's batch is the coarsest graph ([] if nothing to do)."""

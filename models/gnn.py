@@ -65,7 +65,8 @@ class SageConv(nn.Module):
             src, dst = edge_index[0], edge_index[1]
             agg = torch.zeros_like(x).index_add_(0, dst, x[src])
             deg = torch.zeros(x.shape[0], dtype=x.dtype, device=x.device).index_add_(
-                0, dst, torch.ones_like(dst, dtype=x.dtype))
+                0, dst, torch.ones_like(dst, dtype=x.dtype)
+            )
             agg = agg / deg.clamp_min(1).unsqueeze(1)
         return self.lin_l(agg) + self.lin_r(x)
 
@@ -119,8 +120,12 @@ def csr_adjacency(indptr, indices, n: int, device=None) -> torch.Tensor:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # "sparse CSR support is in beta"
         return torch.sparse_csr_tensor(
-            torch.as_tensor(indptr, dtype=torch.int64), torch.as_tensor(indices, dtype=torch.int64),
-            torch.ones(len(indices), dtype=torch.float32), size=(n, n), device=device, check_invariants=False,
+            torch.as_tensor(indptr, dtype=torch.int64),
+            torch.as_tensor(indices, dtype=torch.int64),
+            torch.ones(len(indices), dtype=torch.float32),
+            size=(n, n),
+            device=device,
+            check_invariants=False,
         )
 
 
@@ -130,8 +135,10 @@ def neighbour_lists(indptr, indices, device=None) -> tuple[torch.Tensor, torch.T
     import numpy as np
 
     ip = np.asarray(indptr, dtype=np.int64)
-    return (torch.as_tensor(np.asarray(indices, dtype=np.int64), device=device),
-            torch.as_tensor(ip[:-1].copy(), device=device))
+    return (
+        torch.as_tensor(np.asarray(indices, dtype=np.int64), device=device),
+        torch.as_tensor(ip[:-1].copy(), device=device),
+    )
 
 
 def _per_graph_sum(values: torch.Tensor, batch: torch.Tensor, n_graphs: int) -> torch.Tensor:

@@ -19,8 +19,12 @@ import scipy.sparse as sp
 SMALL_BATCH = 200_000  # nodes; below this the products run on one BLAS thread
 
 _DTYPES = {
-    "FloatStorage": np.float32, "DoubleStorage": np.float64, "HalfStorage": np.float16,
-    "LongStorage": np.int64, "IntStorage": np.int32, "BoolStorage": np.bool_,
+    "FloatStorage": np.float32,
+    "DoubleStorage": np.float64,
+    "HalfStorage": np.float16,
+    "LongStorage": np.int64,
+    "IntStorage": np.int32,
+    "BoolStorage": np.bool_,
 }
 
 
@@ -74,11 +78,15 @@ def read_weights(path: str | Path) -> dict:
 def _per_graph_sum(values: np.ndarray, gi: np.ndarray, n_graphs: int) -> np.ndarray:
     """Sum of the rows of `values` (N, ...) per graph -> (B, ...)."""
     flat = values.reshape(len(values), -1)
-    out = np.stack([np.bincount(gi, weights=flat[:, j], minlength=n_graphs) for j in range(flat.shape[1])], axis=1)
+    out = np.stack(
+        [np.bincount(gi, weights=flat[:, j], minlength=n_graphs) for j in range(flat.shape[1])], axis=1
+    )
     return out.reshape((n_graphs,) + values.shape[1:])
 
 
-def normalize_features(x: np.ndarray, gi: np.ndarray, n_graphs: int, dim: int, eps: float = 1e-12) -> np.ndarray:
+def normalize_features(
+    x: np.ndarray, gi: np.ndarray, n_graphs: int, dim: int, eps: float = 1e-12
+) -> np.ndarray:
     """gnn.normalize_features in numpy (float64 inside, float32 out): per graph, coordinates on their
     principal axes (widest first, sign by skewness) at unit variance, the measure at zero mean and
     unit relative spread, the group p as 2p - 1 in graphs holding both groups."""

@@ -38,8 +38,9 @@ def _majority(child: np.ndarray, rec: np.ndarray) -> np.ndarray:
     return out
 
 
-def nested_levels(data: CellData, final: np.ndarray, recorded: list[np.ndarray], nodes: np.ndarray,
-                  mesh: Mesh | None = None) -> list[np.ndarray]:
+def nested_levels(
+    data: CellData, final: np.ndarray, recorded: list[np.ndarray], nodes: np.ndarray, mesh: Mesh | None = None
+) -> list[np.ndarray]:
     """Exactly nested labels over all cells, coarsest first, the last one = `final`.
 
     recorded: labels over `nodes` after each recursion level (Agglomeration.levels, coarsest
@@ -100,9 +101,19 @@ def is_nested(levels: list[np.ndarray]) -> bool:
     return True
 
 
-def write_hierarchy(out_dir: str | os.PathLike, mesh: Mesh, data: CellData, levels: list[np.ndarray],
-                    metrics: bool = True, extra: dict | None = None, lymph: bool = False, boundary=None,
-                    boundary_tag: int = 1, operators: bool = True, merged: list | None = None) -> dict:
+def write_hierarchy(
+    out_dir: str | os.PathLike,
+    mesh: Mesh,
+    data: CellData,
+    levels: list[np.ndarray],
+    metrics: bool = True,
+    extra: dict | None = None,
+    lymph: bool = False,
+    boundary=None,
+    boundary_tag: int = 1,
+    operators: bool = True,
+    merged: list | None = None,
+) -> dict:
     """Write every level (see the module docstring); returns the hierarchy.json index.
     lymph: also level_L.lymph.json (2D) with the lymph region/neighbor structs of each level;
     boundary: the fine mesh's boundary groups (models.boundary.fine_boundary), kept on every level;
@@ -120,7 +131,11 @@ def write_hierarchy(out_dir: str | os.PathLike, mesh: Mesh, data: CellData, leve
     if merged is not None and len(merged) != len(levels):
         merged = None
     for L, labels in enumerate(levels):
-        poly = merged[L] if merged is not None and merged[L] is not None else merge(mesh, g, labels, data.measures)[0]
+        poly = (
+            merged[L]
+            if merged is not None and merged[L] is not None
+            else merge(mesh, g, labels, data.measures)[0]
+        )
         poly = sort_by_vertex_count(poly)  # 3D: the element order meshio reads back; labels follow
         if boundary is not None:
             from .boundary import annotate
@@ -130,12 +145,22 @@ def write_hierarchy(out_dir: str | os.PathLike, mesh: Mesh, data: CellData, leve
     levels = [np.asarray(p.labels, dtype=np.int64) for p in polys]
     parents = parent_maps(levels)
     nested = is_nested(levels)
-    index = {"levels": [], "nested": nested, "cells": int(mesh.n_cells), "dim": int(mesh.dim), **(extra or {})}
+    index = {
+        "levels": [],
+        "nested": nested,
+        "cells": int(mesh.n_cells),
+        "dim": int(mesh.dim),
+        **(extra or {}),
+    }
     if not metrics and nested:
         stats = level_statistics(mesh, g, levels, data.measures)  # all levels at once (no metrics import)
     for L, (labels, poly) in enumerate(zip(levels, polys, strict=True)):
-        entry = {"level": L, "elements": int(poly.n_elements), "mesh": f"level_{L}.vtu",
-                 "labels": f"level_{L}.labels.json"}
+        entry = {
+            "level": L,
+            "elements": int(poly.n_elements),
+            "mesh": f"level_{L}.vtu",
+            "labels": f"level_{L}.labels.json",
+        }
         cell_data = {}
         if metrics:
             from .metrics import metrics_report
@@ -150,9 +175,13 @@ def write_hierarchy(out_dir: str | os.PathLike, mesh: Mesh, data: CellData, leve
             from .metrics import box_measures, partition_statistics, summarize
 
             bm = box_measures(mesh.points, mesh.offsets, mesh.connectivity, labels, data.measures)
-            rep = {"elements": int(poly.n_elements), "dim": int(mesh.dim), "coverage": bm["coverage"],
-                   "summary": {"box_ratio": summarize(bm["box_ratio"])},
-                   "partition": partition_statistics(g.indptr, g.indices, labels)}
+            rep = {
+                "elements": int(poly.n_elements),
+                "dim": int(mesh.dim),
+                "coverage": bm["coverage"],
+                "summary": {"box_ratio": summarize(bm["box_ratio"])},
+                "partition": partition_statistics(g.indptr, g.indices, labels),
+            }
         _write_json(os.path.join(out_dir, f"level_{L}.metrics.json"), rep)
         entry["metrics"] = f"level_{L}.metrics.json"
         entry["normalized_cut"] = rep["partition"]["normalized_cut"]
@@ -223,8 +252,13 @@ def level_statistics(mesh: Mesh, graph, levels: list[np.ndarray], measures: np.n
         a, b = rows[upper], indices[upper]  # a canonical symmetric CSR (the dual graph's): as it is
     else:
         off = rows != indices
-        up = sp.csr_matrix((np.ones(int(off.sum()), dtype=bool),
-                            (np.minimum(rows, indices)[off], np.maximum(rows, indices)[off])), shape=(n, n))
+        up = sp.csr_matrix(
+            (
+                np.ones(int(off.sum()), dtype=bool),
+                (np.minimum(rows, indices)[off], np.maximum(rows, indices)[off]),
+            ),
+            shape=(n, n),
+        )
         a = np.repeat(np.arange(n), np.diff(up.indptr))
         b = up.indices.astype(np.int64)
     deg = (np.bincount(a, minlength=n) + np.bincount(b, minlength=n)).astype(np.float64)
@@ -270,10 +304,19 @@ def level_statistics(mesh: Mesh, graph, levels: list[np.ndarray], measures: np.n
             connected = connected_below
         else:
             connected = _components_count(indptr, indices, lab) == k
-        out[L] = {"elements": k, "dim": int(mesh.dim), "coverage": cov, "summary": {"box_ratio": _summary(br)},
-                  "partition": {"cut": n_cut, "normalized_cut": ncut,
-                                "volume_imbalance": float(node_n.max() / node_n.mean()) if k else 0.0,
-                                "parts": k, "connected": bool(connected)}}
+        out[L] = {
+            "elements": k,
+            "dim": int(mesh.dim),
+            "coverage": cov,
+            "summary": {"box_ratio": _summary(br)},
+            "partition": {
+                "cut": n_cut,
+                "normalized_cut": ncut,
+                "volume_imbalance": float(node_n.max() / node_n.mean()) if k else 0.0,
+                "parts": k,
+                "connected": bool(connected),
+            },
+        }
         if L == 0:
             break
         # the undirected edges of this level's elements (with multiplicities), for the next (coarser) level
@@ -281,7 +324,9 @@ def level_statistics(mesh: Mesh, graph, levels: list[np.ndarray], measures: np.n
         uniq, inv = np.unique(key, return_inverse=True)
         ec = np.bincount(inv, weights=c, minlength=uniq.size).astype(np.int64)
         ea, eb = uniq // k, uniq % k
-        qm = sp.csr_matrix((np.ones(2 * uniq.size, dtype=np.int8), (np.r_[ea, eb], np.r_[eb, ea])), shape=(k, k))
+        qm = sp.csr_matrix(
+            (np.ones(2 * uniq.size, dtype=np.int8), (np.r_[ea, eb], np.r_[eb, ea])), shape=(k, k)
+        )
         q_ptr, q_ind = qm.indptr.astype(np.int64), qm.indices.astype(np.int64)
     return out
 
@@ -296,7 +341,7 @@ def aggregation_operators(levels: list[np.ndarray], n_cells: int | None = None) 
     ops = []
     for L, labels in enumerate(levels):
         if L + 1 < len(levels):
-            p = parent_maps(levels[L: L + 2])[0]  # elements of L+1 -> element of L
+            p = parent_maps(levels[L : L + 2])[0]  # elements of L+1 -> element of L
         else:
             p = np.asarray(labels, dtype=np.int64)
         k = int(labels.max()) + 1
@@ -314,9 +359,17 @@ def write_operators(out_dir: str, levels: list[np.ndarray], n_cells: int) -> lis
         npz, mtx = f"level_{L}.agg.npz", f"level_{L}.agg.mtx"
         sp.save_npz(os.path.join(out_dir, npz), P, compressed=False)  # zlib took 0.1 s of 5 levels of 92k
         rows = "fine cells" if L + 1 == len(levels) else f"elements of level {L + 1}"
-        _write_mtx(os.path.join(out_dir, mtx), P.indices, P.shape[1], f" aggregation into level {L}: rows = {rows}")
-        out.append({"npz": npz, "mtx": mtx, "rows": "cells" if L + 1 == len(levels) else f"level_{L + 1}",
-                    "shape": [int(P.shape[0]), int(P.shape[1])]})
+        _write_mtx(
+            os.path.join(out_dir, mtx), P.indices, P.shape[1], f" aggregation into level {L}: rows = {rows}"
+        )
+        out.append(
+            {
+                "npz": npz,
+                "mtx": mtx,
+                "rows": "cells" if L + 1 == len(levels) else f"level_{L + 1}",
+                "shape": [int(P.shape[0]), int(P.shape[1])],
+            }
+        )
     return out
 
 
@@ -340,16 +393,35 @@ def coarse_graph(batch_or_data, labels: np.ndarray):
     C = sp.csr_matrix((np.ones(int(off.sum())), (a[off], b[off])), shape=(k, k))
     C.sum_duplicates()
     m = np.bincount(labels, weights=meas, minlength=k)
-    c = np.column_stack([np.bincount(labels, weights=meas * cen[:, d], minlength=k) for d in range(cen.shape[1])])
+    c = np.column_stack(
+        [np.bincount(labels, weights=meas * cen[:, d], minlength=k) for d in range(cen.shape[1])]
+    )
     c /= np.maximum(m, 1e-300)[:, None]
     vol = np.bincount(labels, weights=np.diff(indptr).astype(np.float64), minlength=k)
-    return GraphBatch(indptr=W.indptr.astype(np.int64), indices=W.indices.astype(np.int64), weights=W.data,
-                      graph_ptr=np.array([0, k], dtype=np.int64), centroids=c, measures=m, tags=None,
-                      node_ids=np.arange(k), edge_count=C.data, volume=vol)
+    return GraphBatch(
+        indptr=W.indptr.astype(np.int64),
+        indices=W.indices.astype(np.int64),
+        weights=W.data,
+        graph_ptr=np.array([0, k], dtype=np.int64),
+        centroids=c,
+        measures=m,
+        tags=None,
+        node_ids=np.arange(k),
+        edge_count=C.data,
+        volume=vol,
+    )
 
 
-def build_hierarchy(mesh: Mesh, data: CellData, model: str = "rtree", ratio: float = 8.0, coarsest: int = 10,
-                    seed: int = 0, groups: bool = False, model_options: dict | None = None) -> tuple[list[np.ndarray], dict]:
+def build_hierarchy(
+    mesh: Mesh,
+    data: CellData,
+    model: str = "rtree",
+    ratio: float = 8.0,
+    coarsest: int = 10,
+    seed: int = 0,
+    groups: bool = False,
+    model_options: dict | None = None,
+) -> tuple[list[np.ndarray], dict]:
     """Exactly nested levels (coarsest first) with about `ratio` times fewer elements per level, from
     n_cells / ratio down to at most `coarsest` elements; every element connected.
 
@@ -379,12 +451,22 @@ def build_hierarchy(mesh: Mesh, data: CellData, model: str = "rtree", ratio: flo
         from .partitioners.base import GraphBatch
 
         G = data.graph  # the whole mesh as one graph: make_batch's batch of one label, without its sort
-        batch = GraphBatch(indptr=G.indptr, indices=G.indices, weights=G.weights,
-                           graph_ptr=np.array([0, n], dtype=np.int64), centroids=data.centroids,
-                           measures=data.measures, tags=data.tags, node_ids=np.arange(n))
+        batch = GraphBatch(
+            indptr=G.indptr,
+            indices=G.indices,
+            weights=G.weights,
+            graph_ptr=np.array([0, n], dtype=np.int64),
+            centroids=data.centroids,
+            measures=data.measures,
+            tags=data.tags,
+            node_ids=np.arange(n),
+        )
         batch.cell_boxes = cell_boxes(data.points, data.offsets, data.connectivity)
         tags = None if not groups else np.unique(mesh.tags, return_inverse=True)[1].astype(np.int64)
-        opts = {"boxes": batch.cell_boxes, **(model_options or {})}  # the tight cuts, as the flat modes make them
+        opts = {
+            "boxes": batch.cell_boxes,
+            **(model_options or {}),
+        }  # the tight cuts, as the flat modes make them
         levels = rtree_levels(batch, counts, groups=tags, **opts)
         how = "native"
     else:
@@ -397,13 +479,22 @@ def build_hierarchy(mesh: Mesh, data: CellData, model: str = "rtree", ratio: flo
                 raw = np.asarray(part.kway(cg, int(c)), dtype=np.int64)
                 from .agglomerate import compact_labels
 
-                raw, _ = make_connected(cg.indptr, cg.indices, cg.weights, compact_labels(raw), measures=cg.measures)
+                raw, _ = make_connected(
+                    cg.indptr, cg.indices, cg.weights, compact_labels(raw), measures=cg.measures
+                )
                 levels.insert(0, compact_labels(raw)[levels[0]])
             how = "agglomerates agglomerated (k-way on each coarse dual graph)"
         else:
             depth = max(1, int(round(np.log2(max(counts[-1], 2)))))
-            agg = agglomerate(mesh, data, model=part, mode="nref", nref=min(depth, int(np.log2(n))), seed=seed,
-                              record_levels=True)
+            agg = agglomerate(
+                mesh,
+                data,
+                model=part,
+                mode="nref",
+                nref=min(depth, int(np.log2(n))),
+                seed=seed,
+                record_levels=True,
+            )
             cand = nested_levels(data, agg.labels, agg.levels, agg.nodes)
             sizes = np.array([int(c.max()) + 1 for c in cand])
             pick = sorted({int(np.argmin(np.abs(np.log(sizes) - np.log(c)))) for c in counts})
@@ -411,8 +502,15 @@ def build_hierarchy(mesh: Mesh, data: CellData, model: str = "rtree", ratio: flo
             how = "top-down recursive bisection, recorded"
     levels = [np.asarray(lv, dtype=np.int64) for lv in levels]
     levels, polys = _fix_holes(mesh, data, levels)
-    info = {"model": model, "ratio": float(ratio), "coarsest": int(coarsest), "requested": counts,
-            "method": how, "build_time": time.perf_counter() - t0, "merged": polys}
+    info = {
+        "model": model,
+        "ratio": float(ratio),
+        "coarsest": int(coarsest),
+        "requested": counts,
+        "method": how,
+        "build_time": time.perf_counter() - t0,
+        "merged": polys,
+    }
     return levels, info
 
 
@@ -600,7 +698,9 @@ def _digits(v: np.ndarray, width: int) -> np.ndarray:
     at a time from a table, then the leading zeros blanked)."""
     global _TRIPLES
     if _TRIPLES is None:
-        _TRIPLES = np.frombuffer("".join(f"{i:03d}" for i in range(1000)).encode("ascii"), np.uint8).reshape(1000, 3)
+        _TRIPLES = np.frombuffer("".join(f"{i:03d}" for i in range(1000)).encode("ascii"), np.uint8).reshape(
+            1000, 3
+        )
     v = np.asarray(v, dtype=np.int64)
     nb = -(-width // 3)
     chars = np.empty((v.size, nb), dtype="V3")
@@ -609,7 +709,7 @@ def _digits(v: np.ndarray, width: int) -> np.ndarray:
     for j in range(nb - 1, -1, -1):  # a loop over blocks of three digits
         rest, blk = np.divmod(rest, 1000)
         chars[:, j] = table[blk]
-    chars = chars.view(np.uint8).reshape(v.size, 3 * nb)[:, 3 * nb - width:]
+    chars = chars.view(np.uint8).reshape(v.size, 3 * nb)[:, 3 * nb - width :]
     nd = np.ones(v.size, dtype=np.int64)  # digits of each number
     for e in range(1, width):  # a loop over powers of ten
         nd += v >= 10**e
@@ -623,7 +723,9 @@ def _int_list_json(values: np.ndarray) -> str:
     v = np.asarray(values, dtype=np.int64).ravel()
     if v.size == 0 or v.min() < 0:
         return json.dumps(v.tolist())
-    chars = np.concatenate([_digits(v, len(str(int(v.max())))), np.full((v.size, 1), ord(","), np.uint8)], axis=1)
+    chars = np.concatenate(
+        [_digits(v, len(str(int(v.max())))), np.full((v.size, 1), ord(","), np.uint8)], axis=1
+    )
     chars[-1, -1] = ord("]")
     return "[" + chars.tobytes().decode("ascii")
 
@@ -638,8 +740,10 @@ def _write_mtx(path: str, cols: np.ndarray, k: int, comment: str) -> None:
         i = _digits(np.arange(1, n + 1), len(str(n)))
         j = _digits(cols + 1, len(str(int(cols.max()) + 1)))
         sep = np.full((n, 1), ord(" "), np.uint8)
-        body = np.concatenate([i, sep, j, sep, np.full((n, 1), ord("1"), np.uint8),
-                               np.full((n, 1), ord("\n"), np.uint8)], axis=1).tobytes()
+        body = np.concatenate(
+            [i, sep, j, sep, np.full((n, 1), ord("1"), np.uint8), np.full((n, 1), ord("\n"), np.uint8)],
+            axis=1,
+        ).tobytes()
     else:
         body = b""
     tmp = f"{path}.tmp"
@@ -653,7 +757,9 @@ def _write_json(path: str, obj) -> None:
     if isinstance(obj, np.ndarray):
         text = _int_list_json(obj)
     else:
-        text = json.dumps(obj, indent=None if isinstance(obj, list) else 1)  # dumps: the C encoder (dump is pure Python)
+        text = json.dumps(
+            obj, indent=None if isinstance(obj, list) else 1
+        )  # dumps: the C encoder (dump is pure Python)
     with open(tmp, "w", encoding="utf-8") as fh:
         fh.write(text)
     os.replace(tmp, path)

@@ -138,7 +138,8 @@ def merge_2d(
     if hole_loops.size:
         centers = np.column_stack(
             [
-                np.bincount(cyc, weights=pa[:, d], minlength=area.size) / np.bincount(cyc, minlength=area.size)
+                np.bincount(cyc, weights=pa[:, d], minlength=area.size)
+                / np.bincount(cyc, minlength=area.size)
                 for d in range(2)
             ]
         )[hole_loops]

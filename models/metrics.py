@@ -232,7 +232,9 @@ def _hulls_2d(vpts: np.ndarray, v_ptr: np.ndarray):
     hull_measure = np.where(cnt >= 3, area, 0.0)
     hull_pts = [p if c >= 3 else None for p, c in zip(pts_split, cnt, strict=True)]
     hull_eq = [q if c >= 3 else None for q, c in zip(eq_split, cnt, strict=True)]
-    for e in np.flatnonzero(cnt < 3):  # collinear / single point: no hull, all its points (as qhull's failure)
+    for e in np.flatnonzero(
+        cnt < 3
+    ):  # collinear / single point: no hull, all its points (as qhull's failure)
         hull_pts[e], diameter[e] = _farthest_first(vpts[v_ptr[e] : v_ptr[e + 1]])
     for e in np.flatnonzero(cnt > 256):
         hull_pts[e], diameter[e] = _farthest_first(hull_pts[e])
@@ -325,7 +327,9 @@ def _prepare(poly: PolyMesh) -> _Geometry:
     if prim.shape[0]:
         span = np.maximum(bbox_hi - bbox_lo, 1e-300)[prim_elem]
         bits = 16 if dim == 2 else 10
-        ic = np.clip(((cen - bbox_lo[prim_elem]) / span * ((1 << bits) - 1)).astype(np.int64), 0, (1 << bits) - 1)
+        ic = np.clip(
+            ((cen - bbox_lo[prim_elem]) / span * ((1 << bits) - 1)).astype(np.int64), 0, (1 << bits) - 1
+        )
         code = np.zeros(prim.shape[0], dtype=np.int64)
         for b in range(bits):
             for k in range(dim):
@@ -335,14 +339,34 @@ def _prepare(poly: PolyMesh) -> _Geometry:
         inv[perm] = np.arange(perm.size)
         prim, prim_elem, cen = prim[perm], prim_elem[perm], cen[perm]
         if dim == 2:
-            extra = {"prim_next": inv[extra["prim_next"][perm]], "prim_prev": inv[extra["prim_prev"][perm]],
-                     "start_unsafe": extra["start_unsafe"][perm]}
+            extra = {
+                "prim_next": inv[extra["prim_next"][perm]],
+                "prim_prev": inv[extra["prim_prev"][perm]],
+                "start_unsafe": extra["start_unsafe"][perm],
+            }
         else:
             extra = {"tri_adj": _triangle_neighbours(extra["tri_nodes"][perm], prim_elem, pts.shape[0])}
     rad = np.linalg.norm(prim - cen[:, None], axis=2).max(1) if prim.size else np.zeros(0)
-    return _Geometry(dim, n, prim, prim_elem, prim_ptr, size, signed, np.diff(eo), bbox_lo, bbox_hi,
-                     hull_pts, hull_eq, hull_measure, diameter, table=_prim_table(prim), cen=cen, rad=rad,
-                     **extra)
+    return _Geometry(
+        dim,
+        n,
+        prim,
+        prim_elem,
+        prim_ptr,
+        size,
+        signed,
+        np.diff(eo),
+        bbox_lo,
+        bbox_hi,
+        hull_pts,
+        hull_eq,
+        hull_measure,
+        diameter,
+        table=_prim_table(prim),
+        cen=cen,
+        rad=rad,
+        **extra,
+    )
 
 
 # --------------------------------------------------------------------------------------------------
@@ -415,8 +439,11 @@ def _enclosing_balls(sets: list[np.ndarray], dim: int) -> tuple[np.ndarray, np.n
     # _prepare: usually close to the answer); any set's smallest ball is a valid start
     c = 0.5 * (P[:, 0] + P[:, 1]) if H > 1 else P[:, 0].copy()
     rr = ((P[:, 0] - c) ** 2).sum(-1)
-    support = np.concatenate([P[:, :2], np.repeat(P[:, 1:2], dim - 1, axis=1)], axis=1) if H > 1 else \
-        np.repeat(P[:, :1], dim + 1, axis=1)
+    support = (
+        np.concatenate([P[:, :2], np.repeat(P[:, 1:2], dim - 1, axis=1)], axis=1)
+        if H > 1
+        else np.repeat(P[:, :1], dim + 1, axis=1)
+    )
     active = np.arange(live.size)
     for _ in range(1000):
         d2 = ((P[active] - c[active, None]) ** 2).sum(-1)
@@ -629,7 +656,9 @@ def _cell_bounds(g: _Geometry, fc: np.ndarray, half: np.ndarray, rows: np.ndarra
     k = np.flatnonzero(~dup)
     rows, v, D = rows[k], v[k], D[k]
     st = _row_starts(rows)
-    k = np.flatnonzero(np.arange(rows.size) - np.repeat(st, np.diff(np.r_[st, rows.size])) < _BOUND_POINTS_FW[g.dim])
+    k = np.flatnonzero(
+        np.arange(rows.size) - np.repeat(st, np.diff(np.r_[st, rows.size])) < _BOUND_POINTS_FW[g.dim]
+    )
     rows, v, D = rows[k], v[k], D[k]
     h = np.take(half, rows)
     single = np.sqrt(((np.abs(v) + h[:, None]) ** 2).sum(1))
@@ -655,8 +684,12 @@ def _cell_bounds(g: _Geometry, fc: np.ndarray, half: np.ndarray, rows: np.ndarra
             lam = np.clip(np.column_stack([np.zeros(a_.size), np.ones(a_.size), lam]), 0.0, 1.0)
             rho2 = (h[a_] ** 2) * g.dim
             w = lam[:, :, None] * ua[:, None, :] + (1 - lam[:, :, None]) * ub_[:, None, :]
-            val = (lam * D[a_, None] + (1 - lam) * D[b_, None] + h[a_, None] * np.abs(w).sum(2)
-                   + rho2[:, None] * (lam / (2 * D[a_, None]) + (1 - lam) / (2 * D[b_, None])))
+            val = (
+                lam * D[a_, None]
+                + (1 - lam) * D[b_, None]
+                + h[a_, None] * np.abs(w).sum(2)
+                + rho2[:, None] * (lam / (2 * D[a_, None]) + (1 - lam) / (2 * D[b_, None]))
+            )
             out[r_] = np.minimum(out[r_], val.min(1))
     # all points of a row: Frank-Wolfe on F(l) = sum l_i D_i + half sqrt(d) |sum l_i u_i|_2 (a
     # smooth stand-in for the bound), line search on a grid; any l in the simplex gives a valid
@@ -680,16 +713,22 @@ def _cell_bounds(g: _Geometry, fc: np.ndarray, half: np.ndarray, rows: np.ndarra
             j = grad.argmin(1)
             step = U[ar, j] - x
             dd = Dp[ar, j] - ld
-            trial = ld[:, None] + gam[None, :] * dd[:, None] + w[:, None] * np.linalg.norm(
-                x[:, None, :] + gam[None, :, None] * step[:, None, :], axis=2)
+            trial = (
+                ld[:, None]
+                + gam[None, :] * dd[:, None]
+                + w[:, None] * np.linalg.norm(x[:, None, :] + gam[None, :, None] * step[:, None, :], axis=2)
+            )
             gb = gam[trial.argmin(1)]
             x += gb[:, None] * step
             ld += gb * dd
             lam *= (1.0 - gb)[:, None]
             lam[ar, j] += gb
         with np.errstate(divide="ignore", invalid="ignore"):
-            val = ((lam * Dp).sum(1) + hb * np.abs(x).sum(1)
-                   + (hb**2) * g.dim * (lam / (2.0 * np.where(Dp > 0, Dp, 1.0))).sum(1))
+            val = (
+                (lam * Dp).sum(1)
+                + hb * np.abs(x).sum(1)
+                + (hb**2) * g.dim * (lam / (2.0 * np.where(Dp > 0, Dp, 1.0))).sum(1)
+            )
         r_ = rows[st[big]][okp]
         out[r_] = np.minimum(out[r_], val[okp])
     return out
@@ -710,8 +749,10 @@ def _wedge_inside(g: _Geometry, q: np.ndarray, s: np.ndarray, at_end: np.ndarray
     u = q - v
 
     def angle(w):
-        return np.mod(np.arctan2(d_out[:, 0] * w[:, 1] - d_out[:, 1] * w[:, 0], np.einsum("ij,ij->i", d_out, w)),
-                      2 * np.pi)
+        return np.mod(
+            np.arctan2(d_out[:, 0] * w[:, 1] - d_out[:, 1] * w[:, 0], np.einsum("ij,ij->i", d_out, w)),
+            2 * np.pi,
+        )
 
     return angle(u) < angle(d_back)
 
@@ -744,16 +785,27 @@ def _inside_bruteforce(g: _Geometry, q: np.ndarray, elem: np.ndarray) -> np.ndar
             A, B, C = (P[:, k] - x for k in range(3))
             la, lb, lc = (np.linalg.norm(V, axis=1) for V in (A, B, C))
             num = np.einsum("ij,ij->i", A, np.cross(B, C))
-            den = (la * lb * lc + np.einsum("ij,ij->i", A, B) * lc + np.einsum("ij,ij->i", A, C) * lb
-                   + np.einsum("ij,ij->i", B, C) * la)
+            den = (
+                la * lb * lc
+                + np.einsum("ij,ij->i", A, B) * lc
+                + np.einsum("ij,ij->i", A, C) * lb
+                + np.einsum("ij,ij->i", B, C) * la
+            )
             w = np.bincount(row, 2.0 * np.arctan2(num, den), minlength=i1 - i0)
             out[i0:i1] = np.abs(w) > 2.0 * np.pi
         i0 = i1
     return out
 
 
-def _classify(g: _Geometry, q: np.ndarray, elem: np.ndarray, near: np.ndarray, loc: np.ndarray,
-              side: np.ndarray, orient: np.ndarray) -> np.ndarray:
+def _classify(
+    g: _Geometry,
+    q: np.ndarray,
+    elem: np.ndarray,
+    near: np.ndarray,
+    loc: np.ndarray,
+    side: np.ndarray,
+    orient: np.ndarray,
+) -> np.ndarray:
     """+1 inside / -1 outside for points q whose closest boundary primitive is `near` (with the
     loc / side flags of _prim_distance). The open segment from q to its closest boundary point
     misses the boundary, so the local geometry there decides: the primitive's side when the point
@@ -763,7 +815,9 @@ def _classify(g: _Geometry, q: np.ndarray, elem: np.ndarray, near: np.ndarray, l
     m = loc == _LOC_INTERIOR
     st[m] = np.where(side[m] == orient[elem[m]], 1, -1)
     if g.dim == 2:
-        m = ((loc == _LOC_START) & ~g.start_unsafe[near]) | ((loc == _LOC_END) & ~g.start_unsafe[g.prim_next[near]])
+        m = ((loc == _LOC_START) & ~g.start_unsafe[near]) | (
+            (loc == _LOC_END) & ~g.start_unsafe[g.prim_next[near]]
+        )
         m = np.flatnonzero(m & (st == 0))
         if m.size:
             w = _wedge_inside(g, q[m], near[m], loc[m] == _LOC_END)
@@ -878,11 +932,20 @@ def _build_ball_tree(g: _Geometry) -> _BallTree:
         elem = elem[gstart]
         ids = base + np.arange(gstart.size)
         base += gstart.size
-    bt = _BallTree(np.concatenate(centre), np.concatenate(radius), np.concatenate(rep), np.concatenate(cstart),
-                   np.concatenate(ccount), root, S)
+    bt = _BallTree(
+        np.concatenate(centre),
+        np.concatenate(radius),
+        np.concatenate(rep),
+        np.concatenate(cstart),
+        np.concatenate(ccount),
+        root,
+        S,
+    )
     if g.dim == 3:
         nrm = g.table[:, 9:12]
-        bt.leaf3 = np.column_stack([g.cen, g.rad, g.prim[:, 0], nrm, np.einsum("ij,ij->i", nrm, g.prim[:, 0])])
+        bt.leaf3 = np.column_stack(
+            [g.cen, g.rad, g.prim[:, 0], nrm, np.einsum("ij,ij->i", nrm, g.prim[:, 0])]
+        )
     return bt
 
 
@@ -900,7 +963,9 @@ def _row_starts(rows: np.ndarray) -> np.ndarray:
     return np.flatnonzero(first)
 
 
-def _evaluate(g: _Geometry, bt: _BallTree, fc: np.ndarray, rho: np.ndarray, rows: np.ndarray, nodes: np.ndarray):
+def _evaluate(
+    g: _Geometry, bt: _BallTree, fc: np.ndarray, rho: np.ndarray, rows: np.ndarray, nodes: np.ndarray
+):
     """Exact distance from each cell centre fc[i] to its element boundary.
 
     (rows, nodes), sorted by row, is each cell's candidate list: ball-tree nodes covering every
@@ -1029,8 +1094,17 @@ def _dense_bound(V: np.ndarray, valid: np.ndarray, h: np.ndarray) -> np.ndarray:
     return out.min(1)
 
 
-def _child_prune(g: _Geometry, leaves, keep: np.ndarray, n_cells: int, pfc: np.ndarray, cfc: np.ndarray,
-                 cside: np.ndarray, nc: int, floor: np.ndarray) -> np.ndarray:
+def _child_prune(
+    g: _Geometry,
+    leaves,
+    keep: np.ndarray,
+    n_cells: int,
+    pfc: np.ndarray,
+    cfc: np.ndarray,
+    cside: np.ndarray,
+    nc: int,
+    floor: np.ndarray,
+) -> np.ndarray:
     """Children (indices into cfc, child i of kept cell keep[i // nc]) whose upper bound from their
     parent's nearest boundary points (closest points of its nearest exactly evaluated primitives,
     see _dense_bound) exceeds `floor`."""
@@ -1193,7 +1267,9 @@ _POLISH_REACH = 0.3  # primitives within (1 + this) * best of the point enter th
 _POLISH_TRUST = 0.15  # the step stays within this * best of the point (each coordinate)
 
 
-def _polish(g: _Geometry, elems: np.ndarray, best: np.ndarray, best_pt: np.ndarray, orient: np.ndarray) -> None:
+def _polish(
+    g: _Geometry, elems: np.ndarray, best: np.ndarray, best_pt: np.ndarray, orient: np.ndarray
+) -> None:
     """Raise the lower bound of each element: sequential linear programming on the distance to the
     boundary, from its best interior point so far (updates best / best_pt in place).
 
@@ -1273,7 +1349,9 @@ def _inscribed_lp(g: _Geometry, elems: np.ndarray):
         rhs.append(-b)
         r0 += f
     nv = elems.size * (d + 1)
-    A = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(r0, nv))
+    A = sparse.csr_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(r0, nv)
+    )
     c = np.zeros(nv)
     c[d :: d + 1] = -1.0
     bounds = [(None, None)] * d + [(0, None)]
@@ -1318,8 +1396,9 @@ def _inscribed(g: _Geometry, rel_tol: float, method: str = "auto"):
     return centres, radius
 
 
-def largest_inscribed_ball(poly: PolyMesh, rel_tol: float = DEFAULT_REL_TOL,
-                           method: str = "auto") -> tuple[np.ndarray, np.ndarray]:
+def largest_inscribed_ball(
+    poly: PolyMesh, rel_tol: float = DEFAULT_REL_TOL, method: str = "auto"
+) -> tuple[np.ndarray, np.ndarray]:
     """Centres (E, d) and radii (E,) of the largest balls inside each element.
 
     Convex elements (measure equal to the hull measure, one loop in 2D): exact Chebyshev centre
@@ -1436,7 +1515,9 @@ def _compact(values: np.ndarray) -> tuple[np.ndarray, int]:
     return inv, int(u.size)
 
 
-def heterogeneity_preservation(labels: np.ndarray, fine_tags: np.ndarray, n_elements: int | None = None) -> np.ndarray:
+def heterogeneity_preservation(
+    labels: np.ndarray, fine_tags: np.ndarray, n_elements: int | None = None
+) -> np.ndarray:
     """Fraction of each element's fine cells that belong to its majority tag group.
 
     With two groups (tags mapped to 0/1) this is max(p, 1 - p), p the mean tag; with more groups it
@@ -1495,7 +1576,7 @@ def partition_statistics(indptr: np.ndarray, indices: np.ndarray, labels: np.nda
     deg = np.bincount(a, minlength=nc) + np.bincount(b, minlength=nc)
     part, parts = _compact(labels)
     cut_mask = part[a] != part[b]
-    cut_i = (np.bincount(part[a][cut_mask], minlength=parts) + np.bincount(part[b][cut_mask], minlength=parts))
+    cut_i = np.bincount(part[a][cut_mask], minlength=parts) + np.bincount(part[b][cut_mask], minlength=parts)
     vol = np.bincount(part, weights=deg, minlength=parts)
     with np.errstate(divide="ignore", invalid="ignore"):
         ncut = float(np.where(vol > 0, cut_i / np.where(vol > 0, vol, 1), 0.0).sum())
@@ -1533,8 +1614,13 @@ def coverage(box_measures: np.ndarray, measures: np.ndarray) -> float:
     return float(np.sum(box_measures) / total) if total > 0 else float("nan")
 
 
-def box_measures(points: np.ndarray, offsets: np.ndarray, connectivity: np.ndarray, labels: np.ndarray,
-                 measures: np.ndarray) -> dict:
+def box_measures(
+    points: np.ndarray,
+    offsets: np.ndarray,
+    connectivity: np.ndarray,
+    labels: np.ndarray,
+    measures: np.ndarray,
+) -> dict:
     """Box ratio per element and coverage straight from the fine mesh (no merged polytopes):
     {"box_ratio": (E,), "coverage": float, "box": (E,) box measures}. Vectorized."""
     labels = np.asarray(labels, dtype=np.int64)
@@ -1556,8 +1642,13 @@ def _plain(values: np.ndarray) -> list:
     return [float(x) if np.isfinite(x) else None for x in np.asarray(values, dtype=np.float64)]
 
 
-def metrics_report(poly: PolyMesh, indptr: np.ndarray, indices: np.ndarray, fine_tags: np.ndarray | None = None,
-                   rel_tol: float = DEFAULT_REL_TOL) -> dict:
+def metrics_report(
+    poly: PolyMesh,
+    indptr: np.ndarray,
+    indices: np.ndarray,
+    fine_tags: np.ndarray | None = None,
+    rel_tol: float = DEFAULT_REL_TOL,
+) -> dict:
     """All MISSION.md section 6 metrics of an agglomerated mesh as a JSON-serialisable dict."""
     g = _prepare(poly)
     rel_tol = _check_tol(rel_tol)

@@ -55,8 +55,13 @@ def _solve(ml, b: np.ndarray) -> dict:
     t = time.perf_counter()
     x = ml.solve(b, tol=TOL, accel="cg", maxiter=MAXITER, residuals=res)
     t_solve = time.perf_counter() - t
-    return {"iterations": len(res) - 1, "solve_time": t_solve, "converged": bool(res and res[-1] <= TOL * res[0]),
-            "final_relative_residual": float(res[-1] / res[0]) if res and res[0] > 0 else 0.0, "x": x}
+    return {
+        "iterations": len(res) - 1,
+        "solve_time": t_solve,
+        "converged": bool(res and res[-1] <= TOL * res[0]),
+        "final_relative_residual": float(res[-1] / res[0]) if res and res[0] > 0 else 0.0,
+        "x": x,
+    }
 
 
 def with_levels(A: sp.csr_matrix, b: np.ndarray, ops_fine_to_coarse: list, smooth: bool) -> dict:
@@ -65,13 +70,20 @@ def with_levels(A: sp.csr_matrix, b: np.ndarray, ops_fine_to_coarse: list, smoot
 
     t = time.perf_counter()
     ml = pyamg.smoothed_aggregation_solver(
-        A, aggregate=[("predefined", {"AggOp": P.tocsr()}) for P in ops_fine_to_coarse],
+        A,
+        aggregate=[("predefined", {"AggOp": P.tocsr()}) for P in ops_fine_to_coarse],
         smooth=("jacobi", {"omega": 4.0 / 3.0}) if smooth else None,
-        max_levels=len(ops_fine_to_coarse) + 1, max_coarse=1)
+        max_levels=len(ops_fine_to_coarse) + 1,
+        max_coarse=1,
+    )
     setup = time.perf_counter() - t
     out = _solve(ml, b)
-    return {"setup_time": setup, "operator_complexity": float(ml.operator_complexity()),
-            "levels": len(ml.levels), **out}
+    return {
+        "setup_time": setup,
+        "operator_complexity": float(ml.operator_complexity()),
+        "levels": len(ml.levels),
+        **out,
+    }
 
 
 def pyamg_sa(A: sp.csr_matrix, b: np.ndarray, smooth: bool = True) -> dict:
@@ -83,8 +95,13 @@ def pyamg_sa(A: sp.csr_matrix, b: np.ndarray, smooth: bool = True) -> dict:
     ml = pyamg.smoothed_aggregation_solver(A) if smooth else pyamg.smoothed_aggregation_solver(A, smooth=None)
     setup = time.perf_counter() - t
     out = _solve(ml, b)
-    return {"setup_time": setup, "operator_complexity": float(ml.operator_complexity()),
-            "levels": len(ml.levels), "sizes": [int(lv.A.shape[0]) for lv in ml.levels], **out}
+    return {
+        "setup_time": setup,
+        "operator_complexity": float(ml.operator_complexity()),
+        "levels": len(ml.levels),
+        "sizes": [int(lv.A.shape[0]) for lv in ml.levels],
+        **out,
+    }
 
 
 def mgcheck(mesh: Mesh, data: CellData, levels: list[np.ndarray]) -> dict:
@@ -97,7 +114,9 @@ def mgcheck(mesh: Mesh, data: CellData, levels: list[np.ndarray]) -> dict:
     if any(np.asarray(lv).size != mesh.n_cells for lv in levels):
         raise ParameterError("the hierarchy's labels do not match the mesh (different number of cells)")
     if not is_nested(levels):
-        raise ParameterError("the levels are not nested: every element must lie inside one element of the coarser level")
+        raise ParameterError(
+            "the levels are not nested: every element must lie inside one element of the coarser level"
+        )
     A, b = tpfa_poisson(mesh, data)
     ops = list(reversed(aggregation_operators(levels, mesh.n_cells)))
     base_un = pyamg_sa(A, b, smooth=False)
@@ -112,22 +131,39 @@ def mgcheck(mesh: Mesh, data: CellData, levels: list[np.ndarray]) -> dict:
         "smoothed_iterations_vs_pyamg": sm["iterations"] / max(base["iterations"], 1),
         "smoothed_complexity_vs_pyamg": sm["operator_complexity"] / base["operator_complexity"],
     }
-    return {"problem": "TPFA Poisson, Dirichlet boundary, rhs = cell measures; PCG, V-cycle, tol 1e-8",
-            "unknowns": int(A.shape[0]), "level_sizes": [int(lv.max()) + 1 for lv in reversed(levels)],
-            "unsmoothed": un, "smoothed": sm, "pyamg_ua": base_un, "pyamg_sa": base, "ratios": ratio}
+    return {
+        "problem": "TPFA Poisson, Dirichlet boundary, rhs = cell measures; PCG, V-cycle, tol 1e-8",
+        "unknowns": int(A.shape[0]),
+        "level_sizes": [int(lv.max()) + 1 for lv in reversed(levels)],
+        "unsmoothed": un,
+        "smoothed": sm,
+        "pyamg_ua": base_un,
+        "pyamg_sa": base,
+        "ratios": ratio,
+    }
 
 
 def format_report(rep: dict) -> str:
     """A small table for the terminal."""
-    lines = [f"{rep['problem']}; {rep['unknowns']} unknowns; our levels {' > '.join(map(str, rep['level_sizes']))}",
-             f"{'solver':<29}{'iterations':>11}{'op. complexity':>16}{'setup [s]':>11}{'solve [s]':>11}"]
-    for name, key in (("ours, unsmoothed", "unsmoothed"), ("pyamg std aggr., unsmoothed", "pyamg_ua"),
-                      ("ours, smoothed (Jacobi)", "smoothed"), ("pyamg std aggr., smoothed", "pyamg_sa")):
+    lines = [
+        f"{rep['problem']}; {rep['unknowns']} unknowns; our levels {' > '.join(map(str, rep['level_sizes']))}",
+        f"{'solver':<29}{'iterations':>11}{'op. complexity':>16}{'setup [s]':>11}{'solve [s]':>11}",
+    ]
+    for name, key in (
+        ("ours, unsmoothed", "unsmoothed"),
+        ("pyamg std aggr., unsmoothed", "pyamg_ua"),
+        ("ours, smoothed (Jacobi)", "smoothed"),
+        ("pyamg std aggr., smoothed", "pyamg_sa"),
+    ):
         r = rep[key]
         it = f"{r['iterations']}" + ("" if r["converged"] else "*")
-        lines.append(f"{name:<29}{it:>11}{r['operator_complexity']:>16.3f}{r['setup_time']:>11.3f}{r['solve_time']:>11.3f}")
+        lines.append(
+            f"{name:<29}{it:>11}{r['operator_complexity']:>16.3f}{r['setup_time']:>11.3f}{r['solve_time']:>11.3f}"
+        )
     q = rep["ratios"]
-    lines.append(f"vs pyamg: unsmoothed {q['unsmoothed_iterations_vs_pyamg']:.2f}x iterations at "
-                 f"{q['unsmoothed_complexity_vs_pyamg']:.2f}x complexity (pyamg unsmoothed); smoothed {q['smoothed_iterations_vs_pyamg']:.2f}x "
-                 f"at {q['smoothed_complexity_vs_pyamg']:.2f}x (pyamg smoothed)")
+    lines.append(
+        f"vs pyamg: unsmoothed {q['unsmoothed_iterations_vs_pyamg']:.2f}x iterations at "
+        f"{q['unsmoothed_complexity_vs_pyamg']:.2f}x complexity (pyamg unsmoothed); smoothed {q['smoothed_iterations_vs_pyamg']:.2f}x "
+        f"at {q['smoothed_complexity_vs_pyamg']:.2f}x (pyamg smoothed)"
+    )
     return "\n".join(lines)

@@ -61,7 +61,14 @@ def prepare(mesh: Mesh) -> tuple[DualGraph, CellData]:
     return graph, data
 
 
-def split_holes(mesh: Mesh, graph: DualGraph, data: CellData, labels: np.ndarray, policy: str = "split", max_rounds: int = 8):
+def split_holes(
+    mesh: Mesh,
+    graph: DualGraph,
+    data: CellData,
+    labels: np.ndarray,
+    policy: str = "split",
+    max_rounds: int = 8,
+):
     """Merge, and split elements that enclose holes until none does. Returns (poly, labels, n_split)."""
     if policy not in HOLE_POLICIES:
         raise ParameterError(f"hole_policy must be one of {list(HOLE_POLICIES)}, got {policy!r}")
@@ -95,7 +102,9 @@ def split_holes(mesh: Mesh, graph: DualGraph, data: CellData, labels: np.ndarray
         labels, _s = connected_parts(data, new_label, all_nodes)
         labels = compact_labels(labels)
         n_split += elems.size
-    raise MeshError(f"could not remove the holes of {elems.size} elements after {max_rounds} rounds of splitting")
+    raise MeshError(
+        f"could not remove the holes of {elems.size} elements after {max_rounds} rounds of splitting"
+    )
 
 
 def run(
@@ -140,10 +149,24 @@ def run(
         report(0.1 + 0.6 * frac, stage)
 
     agg = agglomerate(
-        mesh, data, model=model, mode=mode, k=k, nref=nref, target_size=target_size, mult_factor=mult_factor,
-        subset=subset, absorb_fraction=absorb_fraction, seed=seed, progress=part_progress, model_options=model_options,
+        mesh,
+        data,
+        model=model,
+        mode=mode,
+        k=k,
+        nref=nref,
+        target_size=target_size,
+        mult_factor=mult_factor,
+        subset=subset,
+        absorb_fraction=absorb_fraction,
+        seed=seed,
+        progress=part_progress,
+        model_options=model_options,
         size_measure=size_measure,
-        refiner=refiner, threshold=threshold, record_levels=record_levels, keep_groups=keep_groups,
+        refiner=refiner,
+        threshold=threshold,
+        record_levels=record_levels,
+        keep_groups=keep_groups,
     )
     timings["partition"] = time.perf_counter() - t
     for stage in ("coarsen", "bisect", "refine"):  # parts of "partition" (multilevel mode, refiners)
@@ -163,7 +186,16 @@ def run(
         annotate(poly, fb)  # every element facet keeps the group of its fine facet
     timings["merge"] = time.perf_counter() - t
 
-    res = Result(mesh=mesh, graph=graph, data=data, agglomeration=agg, poly=poly, holes_split=n_split, timings=timings, boundary=fb)
+    res = Result(
+        mesh=mesh,
+        graph=graph,
+        data=data,
+        agglomeration=agg,
+        poly=poly,
+        holes_split=n_split,
+        timings=timings,
+        boundary=fb,
+    )
     if compute_metrics:
         t = time.perf_counter()
         report(0.8, "metrics")
@@ -204,7 +236,9 @@ def write_outputs(
                 cell_data[name] = np.asarray(vals, dtype=np.float64)
         from .boundary import output_cells
 
-        write_vtu(vtu, res.poly, cell_data, boundary=output_cells(res.poly), group_names=_group_names(res.mesh))
+        write_vtu(
+            vtu, res.poly, cell_data, boundary=output_cells(res.poly), group_names=_group_names(res.mesh)
+        )
         out["mesh"] = vtu
     if labels:
         _atomic_write(labels, json.dumps(res.agglomeration.labels.tolist()))
@@ -257,8 +291,14 @@ def _atomic_write(path: str, text: str) -> None:
     os.replace(tmp, path)
 
 
-def write_hierarchy(res: Result, out_dir: str, metrics: bool = True, extra: dict | None = None, lymph: bool = False,
-                    boundary_tag: int = 1) -> dict:
+def write_hierarchy(
+    res: Result,
+    out_dir: str,
+    metrics: bool = True,
+    extra: dict | None = None,
+    lymph: bool = False,
+    boundary_tag: int = 1,
+) -> dict:
     """The nested hierarchy of a recursive run (pipeline.run(..., record_levels=True)) written to
     out_dir (models.hierarchy); returns the hierarchy.json index."""
     from .hierarchy import nested_levels
@@ -266,8 +306,19 @@ def write_hierarchy(res: Result, out_dir: str, metrics: bool = True, extra: dict
 
     agg = res.agglomeration
     if not agg.levels:
-        raise ParameterError("a hierarchy needs a recursive mode (nref, target-size, mult-factor, segregated, "
-                             "multilevel, or coarsen with one of them) run with record_levels=True")
+        raise ParameterError(
+            "a hierarchy needs a recursive mode (nref, target-size, mult-factor, segregated, "
+            "multilevel, or coarsen with one of them) run with record_levels=True"
+        )
     levels = nested_levels(res.data, agg.labels, agg.levels, agg.nodes, res.mesh)
-    return _write(out_dir, res.mesh, res.data, levels, metrics=metrics, extra=extra, lymph=lymph, boundary=res.boundary,
-                  boundary_tag=boundary_tag)
+    return _write(
+        out_dir,
+        res.mesh,
+        res.data,
+        levels,
+        metrics=metrics,
+        extra=extra,
+        lymph=lymph,
+        boundary=res.boundary,
+        boundary_tag=boundary_tag,
+    )

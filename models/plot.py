@@ -27,11 +27,28 @@ from models.graph import sorted_unique
 from models.mesh import Mesh, PolyMesh
 
 # Qualitative palette (matplotlib tab20, light and dark tones interleaved) used by the colouring.
-_PALETTE = to_rgba_array([
-    "#aec7e8", "#ffbb78", "#98df8a", "#ff9896", "#c5b0d5", "#c49c94", "#f7b6d2", "#dbdb8d",
-    "#9edae5", "#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
-    "#bcbd22", "#17becf",
-])
+_PALETTE = to_rgba_array(
+    [
+        "#aec7e8",
+        "#ffbb78",
+        "#98df8a",
+        "#ff9896",
+        "#c5b0d5",
+        "#c49c94",
+        "#f7b6d2",
+        "#dbdb8d",
+        "#9edae5",
+        "#1f77b4",
+        "#ff7f0e",
+        "#2ca02c",
+        "#d62728",
+        "#9467bd",
+        "#8c564b",
+        "#e377c2",
+        "#bcbd22",
+        "#17becf",
+    ]
+)
 
 METRIC_SHORT = {
     "circle_ratio": "CR",
@@ -174,11 +191,11 @@ def _plot_2d(poly: PolyMesh, ax, fine_mesh: Mesh | None, colors: np.ndarray) -> 
         paths = []
         eo = np.asarray(poly.elem_offsets, dtype=np.int64)
         for e in range(poly.n_elements):  # one compound path per element (only with holes)
-            parts = loops[eo[e]:eo[e + 1]]
+            parts = loops[eo[e] : eo[e + 1]]
             verts = np.concatenate([np.vstack([p, p[:1]]) for p in parts])
-            codes = np.concatenate([
-                np.r_[MplPath.MOVETO, np.full(len(p) - 1, MplPath.LINETO), MplPath.CLOSEPOLY] for p in parts
-            ]).astype(MplPath.code_type)
+            codes = np.concatenate(
+                [np.r_[MplPath.MOVETO, np.full(len(p) - 1, MplPath.LINETO), MplPath.CLOSEPOLY] for p in parts]
+            ).astype(MplPath.code_type)
             paths.append(MplPath(verts, codes))
         faces = PathCollection(paths, facecolors=colors, edgecolors="none", zorder=1)
         edges = PathCollection(paths, facecolors="none", edgecolors="k", linewidths=lw, zorder=3)
@@ -208,7 +225,10 @@ def _plot_3d(poly: PolyMesh, ax, colors: np.ndarray, explode: float, max_faces: 
     xyz = pts[np.asarray(poly.loop_nodes, dtype=np.int64)[_padded_index(offs, sizes)]]
     fc = xyz.mean(axis=1)
     nf = np.maximum(np.bincount(face_elem, minlength=ne), 1)
-    cen = np.column_stack([np.bincount(face_elem, weights=fc[:, d], minlength=ne) for d in range(3)]) / nf[:, None]
+    cen = (
+        np.column_stack([np.bincount(face_elem, weights=fc[:, d], minlength=ne) for d in range(3)])
+        / nf[:, None]
+    )
     lo, hi = xyz.min(axis=(0, 1)), xyz.max(axis=(0, 1))
     shift = explode * (cen - 0.5 * (lo + hi))
     xyz += shift[face_elem][:, None, :]
@@ -221,7 +241,9 @@ def _plot_3d(poly: PolyMesh, ax, colors: np.ndarray, explode: float, max_faces: 
     eye = np.array([ce * ca, ce * sa, se])
     x, y, z = xyz[..., 0], xyz[..., 1], xyz[..., 2]
     xn, yn, zn = (np.roll(c, -1, axis=1) for c in (x, y, z))
-    toward = (eye[0] * (y * zn - z * yn) + eye[1] * (z * xn - x * zn) + eye[2] * (x * yn - y * xn)).sum(axis=1)
+    toward = (eye[0] * (y * zn - z * yn) + eye[1] * (z * xn - x * zn) + eye[2] * (x * yn - y * xn)).sum(
+        axis=1
+    )
     visible = toward > 0
     del x, y, z, xn, yn, zn
     if not visible.any():
@@ -250,8 +272,9 @@ def _plot_3d(poly: PolyMesh, ax, colors: np.ndarray, explode: float, max_faces: 
     faces = xyz[visible]
     if faces.shape[1] > 4:  # long padding would upset the shading normals: exact polygons
         faces = [f[:k] for f, k in zip(faces, sizes[visible], strict=True)]
-    coll = Poly3DCollection(faces, facecolors=colors[face_elem[visible]], edgecolors=(0, 0, 0, 0.35),
-                            linewidths=0.1, shade=True)
+    coll = Poly3DCollection(
+        faces, facecolors=colors[face_elem[visible]], edgecolors=(0, 0, 0, 0.35), linewidths=0.1, shade=True
+    )
     ax.add_collection3d(coll)
     ax.set_xlim(lo[0] + min(shift[:, 0].min(), 0), hi[0] + max(shift[:, 0].max(), 0))
     ax.set_ylim(lo[1] + min(shift[:, 1].min(), 0), hi[1] + max(shift[:, 1].max(), 0))
@@ -261,8 +284,16 @@ def _plot_3d(poly: PolyMesh, ax, colors: np.ndarray, explode: float, max_faces: 
     ax.set_axis_off()
 
 
-def plot_agglomeration(poly: PolyMesh, path, fine_mesh: Mesh | None = None, title: str | None = None,
-                       dpi: int = 150, explode: float = 0.5, seed: int = 0, max_faces: int = 60_000) -> str:
+def plot_agglomeration(
+    poly: PolyMesh,
+    path,
+    fine_mesh: Mesh | None = None,
+    title: str | None = None,
+    dpi: int = 150,
+    explode: float = 0.5,
+    seed: int = 0,
+    max_faces: int = 60_000,
+) -> str:
     """Write a PNG of the agglomerated mesh and return its path.
 
     2D: filled elements (neighbours differ in colour), element edges black, and the fine mesh
@@ -300,7 +331,7 @@ def plot_agglomeration(poly: PolyMesh, path, fine_mesh: Mesh | None = None, titl
 def _metric_names(results: dict[str, dict]) -> list[str]:
     names: list[str] = []
     for report in results.values():
-        for k in (report.get("per_element") or {}):
+        for k in report.get("per_element") or {}:
             if k not in names:
                 names.append(k)
     return names
@@ -334,15 +365,23 @@ def plot_metric_boxplots(results: dict[str, dict], path, title: str | None = Non
         ax = fig.add_subplot(nrows, ncols, i + 1)
         data = [_values(results[m], metric) for m in methods]
         pos = [p for p, d in enumerate(data, start=1) if d.size]
-        bp = ax.boxplot([d for d in data if d.size], positions=pos, widths=0.6, patch_artist=True,
-                        showfliers=True, flierprops={"markersize": 2})
+        bp = ax.boxplot(
+            [d for d in data if d.size],
+            positions=pos,
+            widths=0.6,
+            patch_artist=True,
+            showfliers=True,
+            flierprops={"markersize": 2},
+        )
         for j, box in enumerate(bp["boxes"]):
             box.set_facecolor(cmap[(pos[j] - 1) % len(cmap)])
             box.set_alpha(0.8)
         for med in bp["medians"]:
             med.set_color("k")
         ax.set_xticks(range(1, len(methods) + 1))
-        ax.set_xticklabels(methods, rotation=30 if len(methods) > 3 else 0, ha="right" if len(methods) > 3 else "center")
+        ax.set_xticklabels(
+            methods, rotation=30 if len(methods) > 3 else 0, ha="right" if len(methods) > 3 else "center"
+        )
         ax.set_xlim(0.4, len(methods) + 0.6)
         allv = np.concatenate(data) if any(d.size for d in data) else np.zeros(0)
         if allv.size and allv.min() >= 0 and allv.max() <= 1:
@@ -393,7 +432,9 @@ def metrics_table(results: dict[str, dict]) -> str:
     widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(header)]
 
     def fmt(cells):
-        return "  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(cells, widths, strict=True)))
+        return "  ".join(
+            c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(cells, widths, strict=True))
+        )
 
     lines = [fmt(header), "  ".join("-" * w for w in widths)] + [fmt(r) for r in rows]
     return "\n".join(lines)

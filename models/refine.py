@@ -132,8 +132,14 @@ class CutState:
     """A bisection of every graph of a batch with what a move needs, updated move by move:
     per-node external/internal edge counts, per-graph cut, degree volumes and measures."""
 
-    def __init__(self, batch: GraphBatch, side: np.ndarray, tolerance: float = 0.05, cap: np.ndarray | None = None,
-                 third: np.ndarray | None = None):
+    def __init__(
+        self,
+        batch: GraphBatch,
+        side: np.ndarray,
+        tolerance: float = 0.05,
+        cap: np.ndarray | None = None,
+        third: np.ndarray | None = None,
+    ):
         """cap (B,): the largest measure a side may have (k-way pairs: (1 + tol) x mean part);
         with it the objective is the edge cut, else the normalized cut with the tolerance.
         third (N,): edges of each node to nodes outside the batch (two parts of a k-way partition:
@@ -142,7 +148,9 @@ class CutState:
         self.cap = None if cap is None else np.asarray(cap, dtype=np.float64)
         self.batch = batch
         self.side = np.asarray(side, dtype=np.int64).copy()
-        _, self.ec, self.ext, self.inn, self.gi, self.cut, self.vol, self.meas = bisection_state(batch, self.side)
+        _, self.ec, self.ext, self.inn, self.gi, self.cut, self.vol, self.meas = bisection_state(
+            batch, self.side
+        )
         self.d = batch.volumes()
         self.m = batch.measures
         self.total_m = self.meas.sum(axis=1)
@@ -155,8 +163,9 @@ class CutState:
         if not self.X.any():
             return _ncut(self.cut, self.vol)
         with np.errstate(divide="ignore", invalid="ignore"):
-            return (np.where(self.vol[:, 0] > 0, (self.cut + self.X[:, 0]) / self.vol[:, 0], 0.0)
-                    + np.where(self.vol[:, 1] > 0, (self.cut + self.X[:, 1]) / self.vol[:, 1], 0.0))
+            return np.where(self.vol[:, 0] > 0, (self.cut + self.X[:, 0]) / self.vol[:, 0], 0.0) + np.where(
+                self.vol[:, 1] > 0, (self.cut + self.X[:, 1]) / self.vol[:, 1], 0.0
+            )
 
     def objective(self) -> np.ndarray:
         """(B,) what the moves minimize: the normalized cut, or the edge cut when capped."""
@@ -216,8 +225,16 @@ class CutState:
         ext[v], inn[v] = inn[v], ext[v]
 
 
-def fm_pass(batch: GraphBatch, side: np.ndarray, tolerance: float, hops: int, budget: np.ndarray | None = None,
-            score_fn=None, cap: np.ndarray | None = None, third: np.ndarray | None = None):
+def fm_pass(
+    batch: GraphBatch,
+    side: np.ndarray,
+    tolerance: float,
+    hops: int,
+    budget: np.ndarray | None = None,
+    score_fn=None,
+    cap: np.ndarray | None = None,
+    third: np.ndarray | None = None,
+):
     """One FM pass over every graph of the batch with rollback to the best prefix.
 
     Returns (new side, per-graph normalized cut before, after). `score_fn(state, cand, gain)`
@@ -272,13 +289,29 @@ class FMRefiner(Refiner):
 
     name = "fm"
     supports_kway = True
-    description = ("FM: boundary gain moves (normalized cut for bisections, edge cut k-way) within a balance "
-                   "tolerance, rollback to the best prefix, parts kept connected; vectorized over the batch")
+    description = (
+        "FM: boundary gain moves (normalized cut for bisections, edge cut k-way) within a balance "
+        "tolerance, rollback to the best prefix, parts kept connected; vectorized over the batch"
+    )
 
-    def __init__(self, tolerance: float = 0.05, hops: int = 4, passes: int = 8, kway_rounds: int = 30,
-                 kway_tolerance: float = 0.03, pair_rounds: int = 2, objective: str = "ncut", polish_rounds: int = 4,
-                 budget_factor: float = 2.0, tries: int | None = None, seed: int | None = 0, flow_rounds: int = 40,
-                 fm_max_nodes: int = 1_000, flow_hops: int | None = None, kway_flow_rounds: int | None = None):
+    def __init__(
+        self,
+        tolerance: float = 0.05,
+        hops: int = 4,
+        passes: int = 8,
+        kway_rounds: int = 30,
+        kway_tolerance: float = 0.03,
+        pair_rounds: int = 2,
+        objective: str = "ncut",
+        polish_rounds: int = 4,
+        budget_factor: float = 2.0,
+        tries: int | None = None,
+        seed: int | None = 0,
+        flow_rounds: int = 40,
+        fm_max_nodes: int = 1_000,
+        flow_hops: int | None = None,
+        kway_flow_rounds: int | None = None,
+    ):
         if not 0 <= tolerance < 1:
             raise ParameterError(f"fm tolerance must be in [0, 1), got {tolerance}")
         self.tolerance = float(tolerance)
@@ -311,8 +344,9 @@ class FMRefiner(Refiner):
             return labels.copy()
         cap = None
         if self.objective == "cut":  # edge cut under a measure cap per side, judged by the normalized cut
-            cap = (0.5 + self.tolerance / 2) * np.bincount(batch.graph_index(), weights=batch.measures,
-                                                           minlength=batch.n_graphs)
+            cap = (0.5 + self.tolerance / 2) * np.bincount(
+                batch.graph_index(), weights=batch.measures, minlength=batch.n_graphs
+            )
         best = labels
         if self.flow_rounds > 0:
             # flows first (min cuts in balance-bounded bands, every graph at once), FM from there
@@ -332,6 +366,7 @@ class FMRefiner(Refiner):
 
                 def score_fn(st, cand, gain, jitter=jitter):
                     return gain + 1e-9 * jitter[cand] * np.abs(gain).max(initial=0)
+
             side = self._passes(batch, start, cap, score_fn)
             best = keep_better(batch, best, connected_sides(batch, side))
         return best
@@ -344,8 +379,9 @@ class FMRefiner(Refiner):
                 st = CutState(batch, side)
                 n_band = np.bincount(st.gi[cut_band(batch, side, self.hops)], minlength=batch.n_graphs)
                 budget = np.minimum(np.ceil(self.budget_factor * (st.cut + 1)), n_band).astype(np.int64)
-            side, before, after = fm_pass(batch, side, self.tolerance, self.hops, budget=budget, cap=cap,
-                                          score_fn=score_fn)
+            side, before, after = fm_pass(
+                batch, side, self.tolerance, self.hops, budget=budget, cap=cap, score_fn=score_fn
+            )
             if not np.any(after < before - 1e-12):
                 break
         return side
@@ -359,11 +395,22 @@ class FMRefiner(Refiner):
         if self.flow_rounds > 0 and labels.size:
             from .flow import flow_kway
 
-            labels = flow_kway(batch, labels, self.tolerance, self.flow_rounds, alpha=8.0, max_alpha=16.0,
-                               seed=self.seed or 0, objective="ncut", schedule="matching")
+            labels = flow_kway(
+                batch,
+                labels,
+                self.tolerance,
+                self.flow_rounds,
+                alpha=8.0,
+                max_alpha=16.0,
+                seed=self.seed or 0,
+                objective="ncut",
+                schedule="matching",
+            )
         if self.polish_rounds <= 0:
             return labels
-        return pairwise_fm(batch, labels, self.tolerance, self.polish_rounds, self.hops, self.seed or 0, "ncut")
+        return pairwise_fm(
+            batch, labels, self.tolerance, self.polish_rounds, self.hops, self.seed or 0, "ncut"
+        )
 
     def refine_kway(self, batch: GraphBatch, labels: np.ndarray) -> np.ndarray:
         if self.flow_rounds > 0:
@@ -374,12 +421,23 @@ class FMRefiner(Refiner):
             if hops is None:
                 k = int(np.max(labels)) + 1 if labels.size else 1
                 hops = int(np.clip(round(np.sqrt(labels.size / k) / 3), 4, 12))
-            labels = flow_kway(batch, labels, self.kway_tolerance, rounds, alpha=8.0, max_alpha=16.0,
-                               max_hops=hops, seed=self.seed or 0, schedule="matching")
+            labels = flow_kway(
+                batch,
+                labels,
+                self.kway_tolerance,
+                rounds,
+                alpha=8.0,
+                max_alpha=16.0,
+                max_hops=hops,
+                seed=self.seed or 0,
+                schedule="matching",
+            )
             return kway_refine(batch, labels, self.kway_tolerance, self.kway_rounds)
         labels = kway_refine(batch, labels, self.kway_tolerance, self.kway_rounds)
         if self.pair_rounds > 0:
-            labels = pairwise_fm(batch, labels, self.kway_tolerance, self.pair_rounds, self.hops, self.seed or 0)
+            labels = pairwise_fm(
+                batch, labels, self.kway_tolerance, self.pair_rounds, self.hops, self.seed or 0
+            )
             labels = kway_refine(batch, labels, self.kway_tolerance, self.kway_rounds)
         return labels
 
@@ -409,7 +467,9 @@ def _components_per_part(indptr, indices, rows, labels, k):
     return np.bincount(first, minlength=k)
 
 
-def kway_refine(batch: GraphBatch, labels: np.ndarray, tolerance: float = 0.03, rounds: int = 30) -> np.ndarray:
+def kway_refine(
+    batch: GraphBatch, labels: np.ndarray, tolerance: float = 0.03, rounds: int = 30
+) -> np.ndarray:
     """Greedy k-way boundary refinement of the edge cut (see the module docstring)."""
     labels = np.asarray(labels, dtype=np.int64).copy()
     n = batch.n_nodes
@@ -480,8 +540,15 @@ def kway_refine(batch: GraphBatch, labels: np.ndarray, tolerance: float = 0.03, 
     return labels
 
 
-def pairwise_fm(batch: GraphBatch, labels: np.ndarray, tolerance: float = 0.03, rounds: int = 6, hops: int = 3,
-                seed: int = 0, objective: str = "cut") -> np.ndarray:
+def pairwise_fm(
+    batch: GraphBatch,
+    labels: np.ndarray,
+    tolerance: float = 0.03,
+    rounds: int = 6,
+    hops: int = 3,
+    seed: int = 0,
+    objective: str = "cut",
+) -> np.ndarray:
     """k-way FM by pairs of parts: each round matches adjacent parts (heavy-edge matching on the
     quotient graph, weighted by their shared cut, randomized per round), runs one edge-cut FM pass
     with rollback on every pair at once (a batch of two-part graphs), moves stray islands back so
@@ -510,9 +577,18 @@ def pairwise_fm(batch: GraphBatch, labels: np.ndarray, tolerance: float = 0.03, 
         q = sp.csr_matrix((ec[x], (lr[x], lc[x])), shape=(k, k))
         q.sum_duplicates()
         q.sort_indices()
-        qb = GraphBatch(indptr=q.indptr.astype(np.int64), indices=q.indices.astype(np.int64), weights=q.data,
-                        graph_ptr=np.array([0, k]), centroids=np.zeros((k, 1)), measures=np.ones(k), tags=None,
-                        node_ids=np.arange(k), edge_count=q.data.astype(np.float64), volume=1 + rng.random(k))
+        qb = GraphBatch(
+            indptr=q.indptr.astype(np.int64),
+            indices=q.indices.astype(np.int64),
+            weights=q.data,
+            graph_ptr=np.array([0, k]),
+            centroids=np.zeros((k, 1)),
+            measures=np.ones(k),
+            tags=None,
+            node_ids=np.arange(k),
+            edge_count=q.data.astype(np.float64),
+            volume=1 + rng.random(k),
+        )
         mate = heavy_edge_matching(qb, seed=int(rng.integers(2**31)))
         a = np.flatnonzero((mate >= 0) & (np.arange(k) < mate))
         if a.size == 0:
@@ -522,18 +598,32 @@ def pairwise_fm(batch: GraphBatch, labels: np.ndarray, tolerance: float = 0.03, 
         pid[a] = np.arange(a.size)
         pid[b] = np.arange(a.size)
         nodes = np.flatnonzero(pid[labels] >= 0)
-        order, ptr, ip, ix, eid = subgraph_by_labels(batch.indptr, batch.indices, np.arange(cols.size),
-                                                     pid[labels[nodes]], nodes)
-        pb = GraphBatch(indptr=ip, indices=ix, weights=batch.weights[eid], graph_ptr=ptr,
-                        centroids=batch.centroids[order], measures=batch.measures[order], tags=None, node_ids=order,
-                        edge_count=None if batch.edge_count is None else ec[eid], volume=full_deg[order])
+        order, ptr, ip, ix, eid = subgraph_by_labels(
+            batch.indptr, batch.indices, np.arange(cols.size), pid[labels[nodes]], nodes
+        )
+        pb = GraphBatch(
+            indptr=ip,
+            indices=ix,
+            weights=batch.weights[eid],
+            graph_ptr=ptr,
+            centroids=batch.centroids[order],
+            measures=batch.measures[order],
+            tags=None,
+            node_ids=order,
+            edge_count=None if batch.edge_count is None else ec[eid],
+            volume=full_deg[order],
+        )
         side = (labels[order] == b[pid[labels[order]]]).astype(np.int64)
         if objective == "ncut":
-            third = full_deg[order] - np.bincount(np.repeat(np.arange(order.size), np.diff(ip)), weights=ec[eid],
-                                                  minlength=order.size)
+            third = full_deg[order] - np.bincount(
+                np.repeat(np.arange(order.size), np.diff(ip)), weights=ec[eid], minlength=order.size
+            )
             new, _, _ = fm_pass(pb, side, tolerance, hops, third=third)
             new = connected_sides(pb, new)
-            before, after = CutState(pb, side, tolerance, third=third), CutState(pb, new, tolerance, third=third)
+            before, after = (
+                CutState(pb, side, tolerance, third=third),
+                CutState(pb, new, tolerance, third=third),
+            )
             worse_balance = after.imbalance() > np.maximum(tolerance, before.imbalance()) + 1e-12
             ok = (after.ncut() < before.ncut() - 1e-12) & ~worse_balance & (after.meas.min(axis=1) > 0)
         else:

@@ -41,7 +41,9 @@ def mean_adjacency(indptr: np.ndarray, indices: np.ndarray, n: int) -> torch.Ten
     rows = np.repeat(np.arange(n), deg)
     w = 1.0 / np.maximum(deg[rows], 1)
     i = torch.from_numpy(np.stack([rows, indices]).astype(np.int64))
-    return torch.sparse_coo_tensor(i, torch.from_numpy(w.astype(np.float32)), (n, n), check_invariants=False).coalesce()
+    return torch.sparse_coo_tensor(
+        i, torch.from_numpy(w.astype(np.float32)), (n, n), check_invariants=False
+    ).coalesce()
 
 
 class Sage(nn.Module):
@@ -175,8 +177,14 @@ def _sub_batch(batch: GraphBatch, nodes: np.ndarray):
 class RefinerEnv:
     """The refiner's environment on a batch: band, features, moves, rewards."""
 
-    def __init__(self, batch: GraphBatch, side: np.ndarray, hops: int = 3, tolerance: float = 0.05,
-                 imbalance_weight: float = 0.35):
+    def __init__(
+        self,
+        batch: GraphBatch,
+        side: np.ndarray,
+        hops: int = 3,
+        tolerance: float = 0.05,
+        imbalance_weight: float = 0.35,
+    ):
         self.batch = batch
         self.st = CutState(batch, side, tolerance)
         band = cut_band(batch, self.st.side, hops)
@@ -202,8 +210,16 @@ class RefinerEnv:
         st, v = self.st, self.nodes
         s = st.side[v]
         vt = np.maximum(st.vol.sum(axis=1), 1e-12)
-        f = np.column_stack([s == 0, s == 1, self.edge_flag, st.vol[self.gi_np, 0] / vt[self.gi_np],
-                             st.vol[self.gi_np, 1] / vt[self.gi_np], st.ext[v] / np.maximum(self.tot, 1e-12)])
+        f = np.column_stack(
+            [
+                s == 0,
+                s == 1,
+                self.edge_flag,
+                st.vol[self.gi_np, 0] / vt[self.gi_np],
+                st.vol[self.gi_np, 1] / vt[self.gi_np],
+                st.ext[v] / np.maximum(self.tot, 1e-12),
+            ]
+        )
         f = f.astype(np.float32)
         return f if as_numpy else torch.from_numpy(f)
 
@@ -245,7 +261,9 @@ class PartitionerEnv:
         self.gi = torch.from_numpy(gi)
         self.B = batch.n_graphs
         self.adj = mean_adjacency(batch.indptr, batch.indices, n)
-        self.tot = np.maximum(np.bincount(np.repeat(np.arange(n), deg), weights=self.st.ec, minlength=n), 1e-12)
+        self.tot = np.maximum(
+            np.bincount(np.repeat(np.arange(n), deg), weights=self.st.ec, minlength=n), 1e-12
+        )
         self.coords = _principal_coords(batch)
         self.n_steps = np.maximum(sizes // 2 - 1, 0)  # the seed is one node already
 
@@ -310,11 +328,14 @@ def _actor_weights(model: ActorCritic) -> list:
     (W_l^T, b_l, W_r^T) for the trunk and the actor's layer, then the output layer (w^T, b)."""
     cached = getattr(model, "_np_actor", None)
     if cached is None:
+
         def arr(t):
             return t.detach().cpu().numpy().astype(np.float32)
 
-        layers = [(arr(m.lin_l.weight).T.copy(), arr(m.lin_l.bias), arr(m.lin_r.weight).T.copy())
-                  for m in list(model.trunk) + [model.actor_sage]]
+        layers = [
+            (arr(m.lin_l.weight).T.copy(), arr(m.lin_l.bias), arr(m.lin_r.weight).T.copy())
+            for m in list(model.trunk) + [model.actor_sage]
+        ]
         cached = (layers, (arr(model.actor_out.weight).T.copy(), arr(model.actor_out.bias)))
         model._np_actor = cached
     return cached
@@ -445,9 +466,16 @@ def _policy_pass(model: ActorCritic, env: RefinerEnv, steps: int, per_pass: int,
     return moves, hist
 
 
-def refine_with_policy(model: ActorCritic, batch: GraphBatch, side: np.ndarray, hops: int = 3,
-                       tolerance: float = 0.05, passes: int = 2, actions_per_pass: int = 1,
-                       max_forwards: int | None = None) -> np.ndarray:
+def refine_with_policy(
+    model: ActorCritic,
+    batch: GraphBatch,
+    side: np.ndarray,
+    hops: int = 3,
+    tolerance: float = 0.05,
+    passes: int = 2,
+    actions_per_pass: int = 1,
+    max_forwards: int | None = None,
+) -> np.ndarray:
     """Greedy policy moves (argmax logit) for at most cut + 1 steps, rollback to the best prefix.
     actions_per_pass > 1: that many moves per graph per forward pass (the logits of one pass, the
     mask refreshed after every move); max_forwards: at most that many forward passes per pass
@@ -479,8 +507,9 @@ def refine_with_policy(model: ActorCritic, batch: GraphBatch, side: np.ndarray, 
     return keep_better(batch, side0, connected_sides(batch, cur))
 
 
-def partition_with_policy(model: ActorCritic, batch: GraphBatch, actions_per_pass: int = 4,
-                          window: float = 0.01) -> np.ndarray:
+def partition_with_policy(
+    model: ActorCritic, batch: GraphBatch, actions_per_pass: int = 4, window: float = 0.01
+) -> np.ndarray:
     """Greedy growth of side 1, several moves per forward pass (the top logits of each graph, not
     adjacent... taken one after the other with the mask refreshed); keeps the least normalized cut
     inside +-window of half the measure (else the state nearest half)."""
@@ -587,7 +616,9 @@ def training_graphs(cfg: RLTrainConfig, log=print) -> list[tuple[GraphBatch, np.
                 cur = cur[levels[j].cmap]
                 out.append((levels[j - 1].batch if j > 0 else b, cur.copy()))
         if (i + 1) % 10 == 0:
-            log(f"  data: {i + 1}/{cfg.n_meshes} meshes, {len(out)} graphs ({time.perf_counter() - t0:.0f} s)")
+            log(
+                f"  data: {i + 1}/{cfg.n_meshes} meshes, {len(out)} graphs ({time.perf_counter() - t0:.0f} s)"
+            )
     return out
 
 
@@ -596,7 +627,9 @@ def concat_batches(items: list[GraphBatch]) -> GraphBatch:
     off = np.cumsum([0] + [b.n_nodes for b in items])
     eoff = np.cumsum([0] + [b.indices.size for b in items])
     return GraphBatch(
-        indptr=np.concatenate([b.indptr[:-1] + eoff[i] for i, b in enumerate(items)] + [[eoff[-1]]]).astype(np.int64),
+        indptr=np.concatenate([b.indptr[:-1] + eoff[i] for i, b in enumerate(items)] + [[eoff[-1]]]).astype(
+            np.int64
+        ),
         indices=np.concatenate([b.indices + off[i] for i, b in enumerate(items)]),
         weights=np.concatenate([b.weights for b in items]),
         graph_ptr=off.astype(np.int64),
@@ -687,7 +720,10 @@ def evaluate_agent(model, cfg: RLTrainConfig, graphs) -> dict:
         base = get_partitioner("metis").bisect_batch(batch)
         ref = None
         names = ("rl", "metis", None)
-    out = {names[0]: float(np.mean(bisection_ncut(batch, ours))), names[1]: float(np.mean(bisection_ncut(batch, base)))}
+    out = {
+        names[0]: float(np.mean(bisection_ncut(batch, ours))),
+        names[1]: float(np.mean(bisection_ncut(batch, base))),
+    }
     if ref is not None:
         out[names[2]] = float(np.mean(bisection_ncut(batch, ref)))
     return out
@@ -740,11 +776,17 @@ def train(cfg: RLTrainConfig, log=print) -> dict:
         else:
             env = PartitionerEnv(batch)
         model.train()
-        total, pl, vl = run_episode(model, env, gen, cfg.max_steps, cfg.n_step, cfg.gamma, cfg.value_weight,
-                                    cfg.entropy_weight, opt)
+        total, pl, vl = run_episode(
+            model, env, gen, cfg.max_steps, cfg.n_step, cfg.gamma, cfg.value_weight, cfg.entropy_weight, opt
+        )
         episode += 1
-        rec = {"episode": episode, "reward": float(total.mean()), "policy_loss": pl, "value_loss": vl,
-               "seconds": round(elapsed0 + time.perf_counter() - t0, 1)}
+        rec = {
+            "episode": episode,
+            "reward": float(total.mean()),
+            "policy_loss": pl,
+            "value_loss": vl,
+            "seconds": round(elapsed0 + time.perf_counter() - t0, 1),
+        }
         if episode % cfg.eval_every == 0 or episode == cfg.episodes:
             model.eval()
             ev = evaluate_agent(model, cfg, val)
@@ -753,9 +795,19 @@ def train(cfg: RLTrainConfig, log=print) -> dict:
                 best = ev["rl"]
                 save(model, cfg.out, meta={"episode": episode, "val": ev, "config": asdict(cfg)})
             log(json.dumps(rec))
-            torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "gen": gen.get_state(), "rng": rng,
-                        "history": history + [rec], "episode": episode, "best": best,
-                        "elapsed": elapsed0 + time.perf_counter() - t0}, ckpt)
+            torch.save(
+                {
+                    "model": model.state_dict(),
+                    "opt": opt.state_dict(),
+                    "gen": gen.get_state(),
+                    "rng": rng,
+                    "history": history + [rec],
+                    "episode": episode,
+                    "best": best,
+                    "elapsed": elapsed0 + time.perf_counter() - t0,
+                },
+                ckpt,
+            )
         history.append(rec)
         logf.write(json.dumps(rec) + "\n")
         logf.flush()
@@ -767,20 +819,37 @@ def train(cfg: RLTrainConfig, log=print) -> dict:
                 if ev["rl"] < best:
                     best = ev["rl"]
                     save(model, cfg.out, meta={"episode": episode, "val": ev, "config": asdict(cfg)})
-                torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "gen": gen.get_state(),
-                            "rng": rng, "history": history, "episode": episode, "best": best,
-                            "elapsed": elapsed0 + time.perf_counter() - t0}, ckpt)
+                torch.save(
+                    {
+                        "model": model.state_dict(),
+                        "opt": opt.state_dict(),
+                        "gen": gen.get_state(),
+                        "rng": rng,
+                        "history": history,
+                        "episode": episode,
+                        "best": best,
+                        "elapsed": elapsed0 + time.perf_counter() - t0,
+                    },
+                    ckpt,
+                )
             break
     logf.close()
     _plot(history, work / "loss.png", cfg.agent)
-    return {"episodes": episode, "best_val": best, "seconds": time.perf_counter() - t_start, "history": history}
+    return {
+        "episodes": episode,
+        "best_val": best,
+        "seconds": time.perf_counter() - t_start,
+        "history": history,
+    }
 
 
 def _save_graphs(graphs, path):
     blob = []
     for b, s in graphs:
-        blob.append({k: torch.from_numpy(np.asarray(v)) for k, v in asdict(b).items() if v is not None}
-                    | ({"side": torch.from_numpy(s)} if s is not None else {}))
+        blob.append(
+            {k: torch.from_numpy(np.asarray(v)) for k, v in asdict(b).items() if v is not None}
+            | ({"side": torch.from_numpy(s)} if s is not None else {})
+        )
     torch.save(blob, path)
 
 

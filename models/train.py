@@ -247,7 +247,9 @@ def train(cfg: TrainConfig, log=print) -> dict:
         ds = GraphDataset.load(data_path)
         say(f"data set {data_path}: {len(ds)} graphs, {ds.n_nodes} nodes")
     else:
-        say(f"building data set {recipe.name} ({recipe.n_meshes} graphs, pieces {recipe.pieces}) -> {data_path}")
+        say(
+            f"building data set {recipe.name} ({recipe.n_meshes} graphs, pieces {recipe.pieces}) -> {data_path}"
+        )
         ds = build_dataset(recipe, data_path, seed=cfg.seed, log=say)
     rng = np.random.default_rng(cfg.seed)
     perm = rng.permutation(len(ds))
@@ -272,8 +274,10 @@ def train(cfg: TrainConfig, log=print) -> dict:
         history = json.loads(state["history"])
         start, best, train_seconds = int(state["epoch"]), float(state["best"]), float(state["seconds"])
         say(f"resumed from {ckpt} at epoch {start}")
-    say(f"training {cfg.recipe} on {device} ({_hardware(device)}): {len(tr)} train / {len(val)} val graphs, "
-        f"epochs {cfg.epochs}, lr {cfg.lr} ({cfg.lr_schedule}), weight decay {cfg.weight_decay}, batch {cfg.batch_size}")
+    say(
+        f"training {cfg.recipe} on {device} ({_hardware(device)}): {len(tr)} train / {len(val)} val graphs, "
+        f"epochs {cfg.epochs}, lr {cfg.lr} ({cfg.lr_schedule}), weight decay {cfg.weight_decay}, batch {cfg.batch_size}"
+    )
 
     def lr_at(epoch: int) -> float:
         if cfg.lr_schedule == "cosine":
@@ -301,20 +305,45 @@ def train(cfg: TrainConfig, log=print) -> dict:
         rb = check(model.cpu()) if check else {}
         model.to(device)
         seconds = time.perf_counter() - t_start
-        history.append({"epoch": epoch + 1, "train_loss": total / count, "val_loss": ev["loss"],
-                        "val_hard_ncut": ev["hard_ncut"], "val_hard_penalty": ev["hard_penalty"],
-                        "lr": lr_at(epoch), "seconds": round(seconds, 1), **rb})
-        rb_txt = f"  rb ncut/metis {rb['rb_ncut_ratio']:.4f} raw fragments {rb['rb_raw_fragments']:.4f}" if rb else ""
-        say(f"epoch {epoch + 1}/{cfg.epochs}: train {total / count:.5f}  val {ev['loss']:.5f}  "
-            f"val ncut(argmax) {ev['hard_ncut']:.5f}  penalty {ev['hard_penalty']:.5f}{rb_txt}  {seconds:.0f} s")
+        history.append(
+            {
+                "epoch": epoch + 1,
+                "train_loss": total / count,
+                "val_loss": ev["loss"],
+                "val_hard_ncut": ev["hard_ncut"],
+                "val_hard_penalty": ev["hard_penalty"],
+                "lr": lr_at(epoch),
+                "seconds": round(seconds, 1),
+                **rb,
+            }
+        )
+        rb_txt = (
+            f"  rb ncut/metis {rb['rb_ncut_ratio']:.4f} raw fragments {rb['rb_raw_fragments']:.4f}"
+            if rb
+            else ""
+        )
+        say(
+            f"epoch {epoch + 1}/{cfg.epochs}: train {total / count:.5f}  val {ev['loss']:.5f}  "
+            f"val ncut(argmax) {ev['hard_ncut']:.5f}  penalty {ev['hard_penalty']:.5f}{rb_txt}  {seconds:.0f} s"
+        )
         score = rb["rb_ncut_ratio"] + rb["rb_raw_fragments"] if rb else ev["loss"]
         if cfg.select == "last":
             score = -float(epoch)
         if score < best:
             best = score
             save_model(model, work / "best.pt", meta={"epoch": epoch + 1})
-        torch.save({"model": model.state_dict(), "optimizer": opt.state_dict(), "generator": gen.get_state(),
-                    "history": json.dumps(history), "epoch": epoch + 1, "best": best, "seconds": seconds}, ckpt)
+        torch.save(
+            {
+                "model": model.state_dict(),
+                "optimizer": opt.state_dict(),
+                "generator": gen.get_state(),
+                "history": json.dumps(history),
+                "epoch": epoch + 1,
+                "best": best,
+                "seconds": seconds,
+            },
+            ckpt,
+        )
         plot_history(history, work / "loss_history.png", cfg.recipe)
         if cfg.stop_epoch and epoch + 1 >= cfg.stop_epoch:
             say(f"stopping after epoch {epoch + 1} as asked")
@@ -326,34 +355,52 @@ def train(cfg: TrainConfig, log=print) -> dict:
     best_model, best_meta = load_model(work / "best.pt", device="cpu")
     final = evaluate(best_model.to(device), val, cfg, device)
     summary = {
-        "recipe": cfg.recipe, "data_recipe": ds.meta.get("recipe", recipe.to_dict()),
-        "data_seed": ds.meta.get("seed"), "n_train": len(tr), "n_val": len(val),
-        "train_nodes": int(tr.n_nodes), "epochs_run": len(history), "best_epoch": best_meta.get("epoch"),
+        "recipe": cfg.recipe,
+        "data_recipe": ds.meta.get("recipe", recipe.to_dict()),
+        "data_seed": ds.meta.get("seed"),
+        "n_train": len(tr),
+        "n_val": len(val),
+        "train_nodes": int(tr.n_nodes),
+        "epochs_run": len(history),
+        "best_epoch": best_meta.get("epoch"),
         "final_train_loss": history[-1]["train_loss"] if history else None,
-        "best_val_loss": final["loss"], "best_val_hard_ncut": final["hard_ncut"],
-        "best_val_hard_penalty": final["hard_penalty"], "select": cfg.select,
+        "best_val_loss": final["loss"],
+        "best_val_hard_ncut": final["hard_ncut"],
+        "best_val_hard_penalty": final["hard_penalty"],
+        "select": cfg.select,
         "best_epoch_check": next((h for h in history if h["epoch"] == best_meta.get("epoch")), None),
         "train_seconds": round(history[-1]["seconds"], 1) if history else 0.0,
-        "hardware": _hardware(device), "config": asdict(cfg), "torch": torch.__version__,
+        "hardware": _hardware(device),
+        "config": asdict(cfg),
+        "torch": torch.__version__,
     }
     Path(cfg.out).parent.mkdir(parents=True, exist_ok=True)
     save_model(best_model, cfg.out, meta={"summary": json.dumps(summary)})
     (work / "summary.json").write_text(json.dumps(summary, indent=1))
-    say(f"wrote {cfg.out}: best epoch {summary['best_epoch']}, val loss {final['loss']:.5f}, "
-        f"val ncut {final['hard_ncut']:.5f}")
+    say(
+        f"wrote {cfg.out}: best epoch {summary['best_epoch']}, val loss {final['loss']:.5f}, "
+        f"val ncut {final['hard_ncut']:.5f}"
+    )
     logfile.close()
     return summary
 
 
 def add_train_args(parser: argparse.ArgumentParser) -> None:
     """Arguments of `magnet train` (unset hyper-parameters take the paper's values for the recipe)."""
-    parser.add_argument("recipe", choices=sorted(PAPER) + ["rl-partitioner", "rl-refiner"],
-                        help="which model and data set recipe (rl-*: the A2C agents, models/rl.py)")
+    parser.add_argument(
+        "recipe",
+        choices=sorted(PAPER) + ["rl-partitioner", "rl-refiner"],
+        help="which model and data set recipe (rl-*: the A2C agents, models/rl.py)",
+    )
     parser.add_argument("-o", "--out", required=True, help="weights file to write (.pt)")
-    parser.add_argument("--workdir", default=None, help="checkpoint, log, plot, cached data (default: OUT.stem + '_run')")
+    parser.add_argument(
+        "--workdir", default=None, help="checkpoint, log, plot, cached data (default: OUT.stem + '_run')"
+    )
     parser.add_argument("--data", default=None, help="a data set .npz (from `magnet generate dataset`)")
     parser.add_argument("--meshes", type=int, default=None, help="number of training graphs (recipe default)")
-    parser.add_argument("--pieces", type=float, default=None, help="fraction of graphs that are random mesh pieces")
+    parser.add_argument(
+        "--pieces", type=float, default=None, help="fraction of graphs that are random mesh pieces"
+    )
     parser.add_argument("--epochs", type=int, default=None)
     parser.add_argument("--lr", type=float, default=None)
     parser.add_argument("--weight-decay", type=float, default=None)
@@ -364,20 +411,34 @@ def add_train_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     parser.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
-    parser.add_argument("--max-minutes", type=float, default=None, help="stop after the epoch that passes this")
+    parser.add_argument(
+        "--max-minutes", type=float, default=None, help="stop after the epoch that passes this"
+    )
     parser.add_argument("--resume", action="store_true", help="continue from the workdir's checkpoint")
-    parser.add_argument("--select", choices=("val", "rb", "last"), default="val",
-                        help="keep the epoch with the best validation loss, or the best recursive-bisection "
-                             "check on held-out meshes (normalized cut / METIS + raw fragment rate), or the last")
+    parser.add_argument(
+        "--select",
+        choices=("val", "rb", "last"),
+        default="val",
+        help="keep the epoch with the best validation loss, or the best recursive-bisection "
+        "check on held-out meshes (normalized cut / METIS + raw fragment rate), or the last",
+    )
     parser.add_argument("--kinds", default=None, help="mesh kinds and weights, e.g. 'delaunay:1,holes:1'")
     parser.add_argument("--init", default=None, help="start from these weights (fine-tuning stage)")
     parser.add_argument("--episodes", type=int, default=None, help="rl-*: training episodes (default 400)")
-    parser.add_argument("--graphs-per-episode", type=int, default=None, help="rl-*: graphs acting in parallel (8)")
+    parser.add_argument(
+        "--graphs-per-episode", type=int, default=None, help="rl-*: graphs acting in parallel (8)"
+    )
     parser.add_argument("--max-steps", type=int, default=None, help="rl-*: step cap per episode (200)")
-    parser.add_argument("--dim", type=int, default=2, choices=(2, 3), help="rl-*: mesh dimension of the data (2)")
-    parser.add_argument("--stop-epoch", type=int, default=None,
-                        help="stop after this epoch; the lr schedule still spans --epochs (replays a run "
-                             "that --max-minutes cut short, exactly)")
+    parser.add_argument(
+        "--dim", type=int, default=2, choices=(2, 3), help="rl-*: mesh dimension of the data (2)"
+    )
+    parser.add_argument(
+        "--stop-epoch",
+        type=int,
+        default=None,
+        help="stop after this epoch; the lr schedule still spans --epochs (replays a run "
+        "that --max-minutes cut short, exactly)",
+    )
 
 
 def train_main(args: argparse.Namespace) -> int:
@@ -388,23 +449,51 @@ def train_main(args: argparse.Namespace) -> int:
 
         if args.threads and torch is not None:
             torch.set_num_threads(args.threads)
-        given = {"n_meshes": args.meshes, "episodes": args.episodes, "graphs_per_episode": args.graphs_per_episode,
-                 "max_steps": args.max_steps, "lr": args.lr}
+        given = {
+            "n_meshes": args.meshes,
+            "episodes": args.episodes,
+            "graphs_per_episode": args.graphs_per_episode,
+            "max_steps": args.max_steps,
+            "lr": args.lr,
+        }
         rcfg = rl.RLTrainConfig(
-            agent=args.recipe, out=str(out), workdir=args.workdir or str(out.with_name(out.stem + "_run")),
-            dim=args.dim, seed=args.seed, max_minutes=args.max_minutes, resume=args.resume,
+            agent=args.recipe,
+            out=str(out),
+            workdir=args.workdir or str(out.with_name(out.stem + "_run")),
+            dim=args.dim,
+            seed=args.seed,
+            max_minutes=args.max_minutes,
+            resume=args.resume,
             **{k: v for k, v in given.items() if v is not None},
         )
         res = rl.train(rcfg)
-        print(f"wrote {out}: {res['episodes']} episodes, best validation normalized cut {res['best_val']:.5f}")
+        print(
+            f"wrote {out}: {res['episodes']} episodes, best validation normalized cut {res['best_val']:.5f}"
+        )
         return 0
     cfg = TrainConfig(
-        recipe=args.recipe, out=str(out), workdir=args.workdir or str(out.with_name(out.stem + "_run")),
-        data=args.data, n_meshes=args.meshes, pieces=args.pieces, epochs=args.epochs, lr=args.lr,
-        weight_decay=args.weight_decay, batch_size=args.batch_size, lr_schedule=args.lr_schedule,
-        hetero_weight=args.hetero_weight, val_fraction=args.val_fraction, seed=args.seed,
-        threads=args.threads, device=args.device, max_minutes=args.max_minutes, resume=args.resume,
-        select=args.select, kinds=args.kinds, init=args.init, stop_epoch=args.stop_epoch,
+        recipe=args.recipe,
+        out=str(out),
+        workdir=args.workdir or str(out.with_name(out.stem + "_run")),
+        data=args.data,
+        n_meshes=args.meshes,
+        pieces=args.pieces,
+        epochs=args.epochs,
+        lr=args.lr,
+        weight_decay=args.weight_decay,
+        batch_size=args.batch_size,
+        lr_schedule=args.lr_schedule,
+        hetero_weight=args.hetero_weight,
+        val_fraction=args.val_fraction,
+        seed=args.seed,
+        threads=args.threads,
+        device=args.device,
+        max_minutes=args.max_minutes,
+        resume=args.resume,
+        select=args.select,
+        kinds=args.kinds,
+        init=args.init,
+        stop_epoch=args.stop_epoch,
     )
     train(cfg)
     return 0

@@ -87,11 +87,15 @@ def read_ucd(path: str | os.PathLike):
         n_pts, n_cells = int(tokens[0]), int(tokens[1])
         n_node_data, n_cell_data = int(tokens[2]), int(tokens[3])
     except (IndexError, ValueError):
-        raise MeshError(f"{name}: not an AVS UCD file (the header line must be 'n_points n_cells 0 0 0')") from None
+        raise MeshError(
+            f"{name}: not an AVS UCD file (the header line must be 'n_points n_cells 0 0 0')"
+        ) from None
     if n_pts < 0 or n_cells < 0:
         raise MeshError(f"{name}: negative counts in the UCD header")
     if n_node_data or n_cell_data:
-        raise MeshError(f"{name}: UCD node or cell data are not supported (header asks for {n_node_data} and {n_cell_data})")
+        raise MeshError(
+            f"{name}: UCD node or cell data are not supported (header asks for {n_node_data} and {n_cell_data})"
+        )
     body = np.frombuffer(text, dtype=np.uint8, offset=pos) if pos < len(text) else np.zeros(0, np.uint8)
     nl = np.flatnonzero(body == ord("\n"))
     ends = np.r_[nl, body.size]
@@ -99,7 +103,9 @@ def read_ucd(path: str | os.PathLike):
     nonblank = _nonblank_lines(body, starts, ends)
     starts, ends = starts[nonblank], ends[nonblank]
     if starts.size < n_pts + n_cells:
-        raise MeshError(f"{name}: the header announces {n_pts} points and {n_cells} cells, the file has {starts.size} lines")
+        raise MeshError(
+            f"{name}: the header announces {n_pts} points and {n_cells} cells, the file has {starts.size} lines"
+        )
     # points: one flat parse of the block
     p_end = ends[n_pts - 1] if n_pts else (starts[0] if starts.size else 0)
     flat = _numbers(body[:p_end], name)
@@ -125,15 +131,19 @@ def read_ucd(path: str | os.PathLike):
     second = b[np.minimum(ws + 1, b.size - 1)]
     key = (we - ws).astype(np.int64) * 65536 + b[ws].astype(np.int64) * 256 + second
     ukey, first_at, inv = np.unique(key, return_index=True, return_inverse=True)
-    kinds = [b[ws[f]:we[f]].tobytes().decode("ascii", "replace").lower() for f in first_at]
+    kinds = [b[ws[f] : we[f]].tobytes().decode("ascii", "replace").lower() for f in first_at]
     unknown = [k for k in kinds if k not in UCD_TYPES]
     if unknown:
         raise MeshError(f"{name}: unknown UCD cell type {unknown[0]!r} (known: {', '.join(UCD_TYPES)})")
     nv_of_kind = np.array([UCD_TYPES[k][1] for k in kinds], dtype=np.int64)
     nv = nv_of_kind[inv]
     expected_next = type_pos + nv + 3  # id material type v*nv -> the next line's type token
-    if not np.array_equal(expected_next[:-1], type_pos[1:]) or (n_cells and expected_next[-1] - 2 != tok_start.size):
-        raise MeshError(f"{name}: cell lines must be 'id material type v1 v2 ...' with as many vertices as the type has")
+    if not np.array_equal(expected_next[:-1], type_pos[1:]) or (
+        n_cells and expected_next[-1] - 2 != tok_start.size
+    ):
+        raise MeshError(
+            f"{name}: cell lines must be 'id material type v1 v2 ...' with as many vertices as the type has"
+        )
     b[alpha] = ord(" ")
     nums = _numbers(b, name)
     if nums.size != tok_start.size - n_cells:
@@ -192,12 +202,21 @@ def write_ucd(path: str | os.PathLike, mesh, material: np.ndarray | None = None,
     or 0). Polygons and polyhedra have no UCD type: MeshError."""
     from .mesh import VTK_HEXAHEDRON, VTK_LINE, VTK_PYRAMID, VTK_QUAD, VTK_TETRA, VTK_TRIANGLE, VTK_WEDGE
 
-    vtk_to_ucd = {VTK_TRIANGLE: "tri", VTK_QUAD: "quad", VTK_TETRA: "tet", VTK_PYRAMID: "pyr",
-                  VTK_WEDGE: "prism", VTK_HEXAHEDRON: "hex", VTK_LINE: "line"}
+    vtk_to_ucd = {
+        VTK_TRIANGLE: "tri",
+        VTK_QUAD: "quad",
+        VTK_TETRA: "tet",
+        VTK_PYRAMID: "pyr",
+        VTK_WEDGE: "prism",
+        VTK_HEXAHEDRON: "hex",
+        VTK_LINE: "line",
+    }
     types = np.asarray(mesh.cell_types)
     unknown = sorted(set(np.unique(types).tolist()) - set(vtk_to_ucd))
     if unknown:
-        raise MeshError(f"UCD has no cell type for VTK type {unknown[0]} (polygons and polyhedra cannot be written as UCD)")
+        raise MeshError(
+            f"UCD has no cell type for VTK type {unknown[0]} (polygons and polyhedra cannot be written as UCD)"
+        )
     n = types.size
     mat = np.zeros(n, dtype=np.int64) if material is None else np.asarray(material, dtype=np.int64)
     if material is None and mesh.tags is not None:
@@ -224,7 +243,11 @@ def write_ucd(path: str | os.PathLike, mesh, material: np.ndarray | None = None,
     lines.append(f"{len(pts)} {n} 0 0 0")
     out = ["\n".join(lines), "\n"]
     # text formatting: one %-format per row through map() (C-level iteration, no Python loop body)
-    out.append("".join(map("%d %.17g %.17g %.17g\n".__mod__, zip(range(1, len(pts) + 1), *pts.T.tolist(), strict=True))))
+    out.append(
+        "".join(
+            map("%d %.17g %.17g %.17g\n".__mod__, zip(range(1, len(pts) + 1), *pts.T.tolist(), strict=True))
+        )
+    )
     sizes = np.diff(offsets)
     conn = np.asarray(connectivity, dtype=np.int64) + 1
     cell_lines = np.empty(n, dtype=object)
@@ -235,7 +258,9 @@ def write_ucd(path: str | os.PathLike, mesh, material: np.ndarray | None = None,
         if t == VTK_PYRAMID:
             v = v[:, _PYR_TO_UCD]
         fmt = "%d %d " + vtk_to_ucd[int(t)] + " %d" * k + "\n"
-        cell_lines[rows] = list(map(fmt.__mod__, map(tuple, np.column_stack([rows + 1, mat[rows], v]).tolist())))
+        cell_lines[rows] = list(
+            map(fmt.__mod__, map(tuple, np.column_stack([rows + 1, mat[rows], v]).tolist()))
+        )
     out.append("".join(cell_lines.tolist()))
     tmp = f"{os.fspath(path)}.tmp"
     with open(tmp, "w", encoding="ascii") as fh:

@@ -85,27 +85,46 @@ class JobOptions(BaseModel):
         description="lymph bc_tag of boundary edges without a boundary group (default 1)",
     )
     weld: float | None = Field(
-        None, ge=0, **Finite, description="merge points closer than this distance first (duplicate points that split the mesh)"
+        None,
+        ge=0,
+        **Finite,
+        description="merge points closer than this distance first (duplicate points that split the mesh)",
     )
     size_measure: str | None = Field(
         None,
         max_length=40,
         description="part size for target-size / mult-factor: centroids (default) | vertices",
     )
-    threshold: int | None = Field(None, ge=2, le=10**6, description="coarsest graph size, mode multilevel (200)")
-    hierarchy: bool | None = Field(None, description="also keep every nested level (GET /v1/jobs/{id}/hierarchy)")
-    ratio: float | None = Field(None, ge=2, le=1e6, **Finite, description="with hierarchy: nested levels of their own, "
-                                "this many times fewer elements per level, any model (as `magnet hierarchy`)")
-    coarsest: int | None = Field(None, ge=1, le=10**9, description="with ratio: at most this many elements on the coarsest level (10)")
+    threshold: int | None = Field(
+        None, ge=2, le=10**6, description="coarsest graph size, mode multilevel (200)"
+    )
+    hierarchy: bool | None = Field(
+        None, description="also keep every nested level (GET /v1/jobs/{id}/hierarchy)"
+    )
+    ratio: float | None = Field(
+        None,
+        ge=2,
+        le=1e6,
+        **Finite,
+        description="with hierarchy: nested levels of their own, "
+        "this many times fewer elements per level, any model (as `magnet hierarchy`)",
+    )
+    coarsest: int | None = Field(
+        None, ge=1, le=10**9, description="with ratio: at most this many elements on the coarsest level (10)"
+    )
 
 
 class JobParams(BaseModel):
     """Agglomeration parameters, as for `magnet agglomerate`; the library validates their meaning."""
 
     model_config = ConfigDict(extra="forbid")
-    model: str | None = Field(None, max_length=40, description="metis | kmeans | rtree | sage-base | sage-hetero | rl-partitioner")
+    model: str | None = Field(
+        None, max_length=40, description="metis | kmeans | rtree | sage-base | sage-hetero | rl-partitioner"
+    )
     mode: str | None = Field(
-        None, max_length=40, description="kway | nref | target-size | mult-factor | segregated | coarsen | multilevel"
+        None,
+        max_length=40,
+        description="kway | nref | target-size | mult-factor | segregated | coarsen | multilevel",
     )
     k: int | None = Field(None, ge=1, le=10**8, description="number of elements (kway)")
     nref: int | None = Field(None, ge=0, le=64, description="number of refinements: 2^nref elements")

@@ -140,30 +140,93 @@ def test_cli_same_flags_same_result_as_local(server, tmp_path, capsys):
 def test_cli_weld_and_size_measure_as_local(server, tmp_path, capsys):
     """--weld and --size-measure reach the server and give the local CLI's labels."""
     mesh = square_mesh(tmp_path / "square.vtu", 12)
-    flags = ["--model", "metis", "--mode", "mult-factor", "--mult-factor", "0.3", "--size-measure", "vertices",
-             "--weld", "1e-9"]
+    flags = [
+        "--model",
+        "metis",
+        "--mode",
+        "mult-factor",
+        "--mult-factor",
+        "0.3",
+        "--size-measure",
+        "vertices",
+        "--weld",
+        "1e-9",
+    ]
     remote, local = tmp_path / "remote.json", tmp_path / "local.json"
     out = subprocess.run(
-        [sys.executable, "-m", "magnet_client.cli", "agglomerate", str(mesh), "--server", server, "--token", TOKEN,
-         "-o", str(tmp_path / "r.vtu"), "--labels", str(remote), *flags],
-        cwd=CLIENT, env=client_env(), capture_output=True, text=True, timeout=300,
+        [
+            sys.executable,
+            "-m",
+            "magnet_client.cli",
+            "agglomerate",
+            str(mesh),
+            "--server",
+            server,
+            "--token",
+            TOKEN,
+            "-o",
+            str(tmp_path / "r.vtu"),
+            "--labels",
+            str(remote),
+            *flags,
+        ],
+        cwd=CLIENT,
+        env=client_env(),
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
     assert out.returncode == 0, out.stderr
-    assert magnet(["agglomerate", str(mesh), "-o", str(tmp_path / "l.vtu"), "--labels", str(local), *flags]) == 0
+    assert (
+        magnet(["agglomerate", str(mesh), "-o", str(tmp_path / "l.vtu"), "--labels", str(local), *flags]) == 0
+    )
     labels = json.loads(remote.read_text())
     assert labels == json.loads(local.read_text())
-    centroids = magnet(["agglomerate", str(mesh), "-o", str(tmp_path / "c.vtu"), "--labels", str(tmp_path / "c.json"),
-                        *flags[:-4], "--weld", "1e-9"])  # the default measure (centroids) gives fewer, larger elements here
+    centroids = magnet(
+        [
+            "agglomerate",
+            str(mesh),
+            "-o",
+            str(tmp_path / "c.vtu"),
+            "--labels",
+            str(tmp_path / "c.json"),
+            *flags[:-4],
+            "--weld",
+            "1e-9",
+        ]
+    )  # the default measure (centroids) gives fewer, larger elements here
     assert centroids == 0 and max(json.loads((tmp_path / "c.json").read_text())) < max(labels)
     # --weld joins a mesh split along a seam of duplicate points: one element for k=1 instead of two
     seam = Path(__file__).parent / "data" / "defects" / "duplicate_seam.vtu"
     for weld, elements in ((["--weld", "1e-9"], 1), ([], 2)):
         out = subprocess.run(
-            [sys.executable, "-m", "magnet_client.cli", "agglomerate", str(seam), "--server", server, "--token", TOKEN,
-             "-o", str(tmp_path / "seam.vtu"), "--k", "1", *weld],
-            cwd=CLIENT, env=client_env(), capture_output=True, text=True, timeout=300,
+            [
+                sys.executable,
+                "-m",
+                "magnet_client.cli",
+                "agglomerate",
+                str(seam),
+                "--server",
+                server,
+                "--token",
+                TOKEN,
+                "-o",
+                str(tmp_path / "seam.vtu"),
+                "--k",
+                "1",
+                *weld,
+            ],
+            cwd=CLIENT,
+            env=client_env(),
+            capture_output=True,
+            text=True,
+            timeout=300,
         )
-        assert out.returncode == 0 and out.stdout.startswith(f"{elements} elements"), (weld, out.stdout, out.stderr)
+        assert out.returncode == 0 and out.stdout.startswith(f"{elements} elements"), (
+            weld,
+            out.stdout,
+            out.stderr,
+        )
 
 
 def test_cli_clear_errors(server, tmp_path):

@@ -99,8 +99,9 @@ def test_pair_mincut_bands_stop_at_max_hops():
     b, lab = zigzag(16, 8)
     caps = np.ones(b.indices.size, dtype=np.int32)
     big = np.array([1e9])
-    _, _, band = pair_mincut(b.indptr, b.indices, caps, b.measures, lab, np.array([0]), np.array([1]), big, big,
-                             big, 3)
+    _, _, band = pair_mincut(
+        b.indptr, b.indices, caps, b.measures, lab, np.array([0]), np.array([1]), big, big, big, 3
+    )
     rows = np.repeat(np.arange(b.n_nodes), np.diff(b.indptr))
     hop = np.where(np.isin(np.arange(b.n_nodes), rows[lab[rows] != lab[b.indices]]), 0, -1)
     for d in range(1, b.n_nodes):  # BFS layers inside each side
@@ -204,7 +205,6 @@ def test_flow_bisections_on_metis_never_worse_and_within_tolerance(brain):
         part_components(rows, b.indices, 2 * gi + out, 4)
         <= part_components(rows, b.indices, 2 * gi + side, 4)
     )
-
 
 
 def test_flow_kway_never_swallows_a_part():

@@ -30,8 +30,10 @@ def grid_graph(nx: int, ny: int, nz: int = 1, x0=(0.0, 0.0, 0.0)):
     """Structured grid of nx*ny(*nz) square/cube cells: centroids, measures, CSR adjacency."""
     dim = 2 if nz == 1 else 3
     idx = np.arange(nx * ny * nz).reshape(nz, ny, nx)
-    pairs = [np.stack([idx[:, :, :-1].ravel(), idx[:, :, 1:].ravel()], 1),
-             np.stack([idx[:, :-1, :].ravel(), idx[:, 1:, :].ravel()], 1)]
+    pairs = [
+        np.stack([idx[:, :, :-1].ravel(), idx[:, :, 1:].ravel()], 1),
+        np.stack([idx[:, :-1, :].ravel(), idx[:, 1:, :].ravel()], 1),
+    ]
     if dim == 3:
         pairs.append(np.stack([idx[:-1].ravel(), idx[1:].ravel()], 1))
     e = np.concatenate(pairs)
@@ -56,9 +58,14 @@ def make_batch(graphs, tags=None) -> GraphBatch:
         ptr.append(off)
     indices = np.concatenate(ixs)
     return GraphBatch(
-        indptr=np.concatenate(ips), indices=indices, weights=np.ones(len(indices)),
-        graph_ptr=np.array(ptr), centroids=np.concatenate([g[0] for g in graphs]),
-        measures=np.concatenate([g[1] for g in graphs]), tags=tags, node_ids=np.arange(off),
+        indptr=np.concatenate(ips),
+        indices=indices,
+        weights=np.ones(len(indices)),
+        graph_ptr=np.array(ptr),
+        centroids=np.concatenate([g[0] for g in graphs]),
+        measures=np.concatenate([g[1] for g in graphs]),
+        tags=tags,
+        node_ids=np.arange(off),
     )
 
 
@@ -192,7 +199,9 @@ def test_fused_inference_matches_forward():
 @pytest.mark.parametrize("dim", [2, 3])
 def test_bisect_batch_contract(weights_dir, cls, dim):
     shape = (6, 5) if dim == 2 else (4, 3, 3)
-    graphs = [grid_graph(*shape, x0=(10.0 * i, 0, 0)) for i in range(3)] + [grid_graph(*(s * 2 for s in shape))]
+    graphs = [grid_graph(*shape, x0=(10.0 * i, 0, 0)) for i in range(3)] + [
+        grid_graph(*(s * 2 for s in shape))
+    ]
     tags = None
     if cls is SageHeteroPartitioner:
         tags = np.concatenate([(g[0][:, 0] % 10 > 3).astype(int) + 5 for g in graphs])
@@ -270,8 +279,13 @@ def test_shipped_weights(stem):
 @pytest.mark.parametrize("model", ["sage-base", "sage-hetero"])
 @pytest.mark.parametrize(
     "mode,kw",
-    [("nref", dict(nref=4)), ("target-size", dict(target_size=0.3)), ("mult-factor", dict(mult_factor=0.25)),
-     ("segregated", dict(mult_factor=0.3)), ("coarsen", dict(nref=3, subset=np.arange(0, 300)))],
+    [
+        ("nref", dict(nref=4)),
+        ("target-size", dict(target_size=0.3)),
+        ("mult-factor", dict(mult_factor=0.25)),
+        ("segregated", dict(mult_factor=0.3)),
+        ("coarsen", dict(nref=3, subset=np.arange(0, 300))),
+    ],
 )
 def test_every_mode_runs_with_sage(weights_dir, model, mode, kw):
     from models.agglomerate import agglomerate
@@ -379,7 +393,9 @@ def test_inference_does_not_import_torch_geometric(weights_dir):
         "print(sorted(m for m in sys.modules if m.startswith(('torch_geometric', 'torch._dynamo'))))\n"
     )
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=root, env=env)
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=root, env=env
+    )
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[]", out.stdout
 
@@ -394,13 +410,22 @@ def test_numpy_inference_matches_torch(weights_dir, dim, hetero):
     from models.partitioners.sage import batch_features
 
     shape = (6, 5) if dim == 2 else (4, 3, 3)
-    graphs = [grid_graph(*shape, x0=(10.0 * i, 0, 0)) for i in range(2)] + [grid_graph(*(s * 2 for s in shape))]
+    graphs = [grid_graph(*shape, x0=(10.0 * i, 0, 0)) for i in range(2)] + [
+        grid_graph(*(s * 2 for s in shape))
+    ]
     cen, m, ip, ix = graphs[-1]
     graphs[-1] = (np.vstack([cen, cen[:1] + 0.3]), np.r_[m, m[0] * 1.5], np.r_[ip, ip[-1]], ix)
     # distinct principal axes (a square grid's are not unique: any two solvers may pick different ones)
     rng = np.random.default_rng(dim)
-    graphs = [(c * [1.0, 1.37, 0.71][:dim] + rng.normal(0, 0.05, c.shape), mm * rng.uniform(0.5, 1.5, len(mm)), p, q)
-              for c, mm, p, q in graphs]
+    graphs = [
+        (
+            c * [1.0, 1.37, 0.71][:dim] + rng.normal(0, 0.05, c.shape),
+            mm * rng.uniform(0.5, 1.5, len(mm)),
+            p,
+            q,
+        )
+        for c, mm, p, q in graphs
+    ]
     tags = np.concatenate([(g[0][:, 0] % 10 > 3).astype(int) for g in graphs]) if hetero else None
     batch = make_batch(graphs, tags)
     stem = "sage-hetero" if hetero else "sage-base"

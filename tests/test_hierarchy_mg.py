@@ -24,7 +24,9 @@ ENV = {**os.environ, "PYTHONPATH": f"{ROOT}:{ROOT}/client", "MPLBACKEND": "Agg"}
 
 
 def magnet(*args):
-    return subprocess.run([sys.executable, "-m", "models.cli", *args], capture_output=True, text=True, env=ENV, cwd=ROOT)
+    return subprocess.run(
+        [sys.executable, "-m", "models.cli", *args], capture_output=True, text=True, env=ENV, cwd=ROOT
+    )
 
 
 @pytest.mark.parametrize("model", ["rtree", "metis", "kmeans", "sage-base"])
@@ -47,7 +49,9 @@ def test_tpfa_is_the_five_point_stencil_on_a_grid():
     A = A.toarray()
     assert np.allclose(A, A.T) and np.all(np.linalg.eigvalsh(A) > 0)
     inner = 1 * 6 + 1  # cell (1, 1): four neighbours, no boundary face
-    assert A[inner, inner] == pytest.approx(4) and sorted(A[inner][A[inner] != 0])[:4] == pytest.approx([-1] * 4)
+    assert A[inner, inner] == pytest.approx(4) and sorted(A[inner][A[inner] != 0])[:4] == pytest.approx(
+        [-1] * 4
+    )
     assert A[0, 0] == pytest.approx(2 + 2 * 2)  # corner: two neighbours, two Dirichlet faces at half distance
     assert b == pytest.approx(np.full(36, 1 / 36))
 
@@ -81,7 +85,11 @@ def test_cli_hierarchy_layout_operators_and_mgcheck(tmp_path):
     assert index["nested"] and index["model"] == "rtree" and index["ratio"] == 4
     assert index["multigrid"]["unsmoothed"]["converged"]
     levels = [np.asarray(json.loads((out / lv["labels"]).read_text())) for lv in index["levels"]]
-    assert [lv["elements"] for lv in index["levels"]] == [int(x.max()) + 1 for x in levels] == [15, 57, 225, 899, 3593]
+    assert (
+        [lv["elements"] for lv in index["levels"]]
+        == [int(x.max()) + 1 for x in levels]
+        == [15, 57, 225, 899, 3593]
+    )
     # the operators: P_L maps level L+1 (or the cells) onto level L; their product maps cells to level 0
     prod = None
     for lv in reversed(index["levels"]):
@@ -89,7 +97,9 @@ def test_cli_hierarchy_layout_operators_and_mgcheck(tmp_path):
         M = scipy.io.mmread(out / lv["aggregation"]["mtx"]).tocsr()
         assert (P != M).nnz == 0 and np.all(P.sum(axis=1) == 1)
         prod = P if prod is None else prod @ P
-    assert np.array_equal(prod.indices[np.argsort(np.repeat(np.arange(prod.shape[0]), np.diff(prod.indptr)))], levels[0])
+    assert np.array_equal(
+        prod.indices[np.argsort(np.repeat(np.arange(prod.shape[0]), np.diff(prod.indptr)))], levels[0]
+    )
     for L in range(1, len(levels)):
         parent = json.loads((out / f"level_{L}.parent.json").read_text())
         assert np.array_equal(np.asarray(parent)[levels[L]], levels[L - 1])
@@ -119,8 +129,13 @@ def test_readme_snippet_our_levels_in_pyamg(tmp_path):
     levels, _ = build_hierarchy(m, d, model="rtree", ratio=8, coarsest=4)
     ops = list(reversed(aggregation_operators(levels)))
     A, b = tpfa_poisson(m, d)
-    ml = pyamg.smoothed_aggregation_solver(A, aggregate=[("predefined", {"AggOp": P}) for P in ops],
-                                           smooth=None, max_levels=len(ops) + 1, max_coarse=1)
+    ml = pyamg.smoothed_aggregation_solver(
+        A,
+        aggregate=[("predefined", {"AggOp": P}) for P in ops],
+        smooth=None,
+        max_levels=len(ops) + 1,
+        max_coarse=1,
+    )
     res = []
     x = ml.solve(b, tol=1e-8, accel="cg", residuals=res)
     assert np.linalg.norm(b - A @ x) <= 1e-7 * np.linalg.norm(b)
@@ -143,19 +158,30 @@ def test_api_job_with_a_hierarchy_of_its_own(tmp_path):
     with client:
         h = auth("alice")
         mesh = upload(client, square_mesh(tmp_path / "square.vtu", n=24))
-        body = {"mesh_id": mesh["id"], "model": "rtree", "mode": "kway", "k": 9,
-                "options": {"hierarchy": True, "ratio": 4, "coarsest": 8}}
+        body = {
+            "mesh_id": mesh["id"],
+            "model": "rtree",
+            "mode": "kway",
+            "k": 9,
+            "options": {"hierarchy": True, "ratio": 4, "coarsest": 8},
+        }
         job = client.post("/v1/jobs", json=body, headers=h).json()
         assert execute_job(job["id"], settings) == "succeeded"
         assert client.get(f"/v1/jobs/{job['id']}", headers=h).json()["result"]["elements"] == 9
         zf = zipfile.ZipFile(io.BytesIO(client.get(f"/v1/jobs/{job['id']}/hierarchy", headers=h).content))
         index = json.loads(zf.read("hierarchy.json"))
         n = 2 * 24 * 24
-        assert index["nested"] and index["ratio"] == 4 and [lv["elements"] for lv in index["levels"]] == [5, 18, 72, 288]
+        assert (
+            index["nested"]
+            and index["ratio"] == 4
+            and [lv["elements"] for lv in index["levels"]] == [5, 18, 72, 288]
+        )
         P = sp.load_npz(io.BytesIO(zf.read(index["levels"][-1]["aggregation"]["npz"])))
         assert P.shape == (n, 288)
-        for bad in ({"mode": "kway", "k": 4, "options": {"ratio": 4}},
-                    {"mode": "kway", "k": 4, "options": {"hierarchy": True, "ratio": 1.5}},
-                    {"mode": "kway", "k": 4, "options": {"hierarchy": True, "ratio": 4, "coarsest": 0}}):
+        for bad in (
+            {"mode": "kway", "k": 4, "options": {"ratio": 4}},
+            {"mode": "kway", "k": 4, "options": {"hierarchy": True, "ratio": 1.5}},
+            {"mode": "kway", "k": 4, "options": {"hierarchy": True, "ratio": 4, "coarsest": 0}},
+        ):
             r = client.post("/v1/jobs", json={"mesh_id": mesh["id"], **bad}, headers=h)
             assert r.status_code == 422, r.text

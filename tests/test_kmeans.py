@@ -59,9 +59,16 @@ def test_two_means_batch_is_per_graph():
     x = np.vstack(pts)
     ptr = np.r_[0, np.cumsum(sizes)]
     n = len(x)
-    batch = GraphBatch(indptr=np.zeros(n + 1, dtype=np.int64), indices=np.zeros(0, dtype=np.int64),
-                       weights=np.zeros(0), graph_ptr=ptr, centroids=x, measures=np.ones(n), tags=None,
-                       node_ids=np.arange(n))
+    batch = GraphBatch(
+        indptr=np.zeros(n + 1, dtype=np.int64),
+        indices=np.zeros(0, dtype=np.int64),
+        weights=np.zeros(0),
+        graph_ptr=ptr,
+        centroids=x,
+        measures=np.ones(n),
+        tags=None,
+        node_ids=np.arange(n),
+    )
     lab = two_means_batch(batch, seed=3)
     assert np.array_equal(lab, two_means_batch(batch, seed=3))
     assert lab[0] == 0

@@ -55,9 +55,15 @@ def poly2d(elements, offsets=None) -> PolyMesh:
         elem_off.append(len(loop_off) - 1)
         measure.append(sum(shoelace(lp) for lp in loops))
     n = len(elements)
-    return PolyMesh(points=np.vstack(pts), elem_offsets=np.array(elem_off), loop_offsets=np.array(loop_off),
-                    loop_nodes=np.array(nodes), measure=np.array(measure), n_fine=np.ones(n, int),
-                    labels=np.arange(n))
+    return PolyMesh(
+        points=np.vstack(pts),
+        elem_offsets=np.array(elem_off),
+        loop_offsets=np.array(loop_off),
+        loop_nodes=np.array(nodes),
+        measure=np.array(measure),
+        n_fine=np.ones(n, int),
+        labels=np.arange(n),
+    )
 
 
 def poly3d(elements, offsets=None) -> PolyMesh:
@@ -77,9 +83,15 @@ def poly3d(elements, offsets=None) -> PolyMesh:
         elem_off.append(len(loop_off) - 1)
         measure.append(vol)
     n = len(elements)
-    return PolyMesh(points=np.vstack(pts), elem_offsets=np.array(elem_off), loop_offsets=np.array(loop_off),
-                    loop_nodes=np.array(nodes), measure=np.array(measure), n_fine=np.ones(n, int),
-                    labels=np.arange(n))
+    return PolyMesh(
+        points=np.vstack(pts),
+        elem_offsets=np.array(elem_off),
+        loop_offsets=np.array(loop_off),
+        loop_nodes=np.array(nodes),
+        measure=np.array(measure),
+        n_fine=np.ones(n, int),
+        labels=np.arange(n),
+    )
 
 
 def ngon(n, r=1.0, phase=0.0):
@@ -91,8 +103,24 @@ SQUARE = [(0, 0), (1, 0), (1, 1), (0, 1)]
 TRIANGLE = [(0, 0), (1, 0), (0.5, math.sqrt(3) / 2)]
 L_SHAPE = [(0, 0), (2, 0), (2, 1), (1, 1), (1, 2), (0, 2)]
 # the same L with collinear points on every edge, as an agglomerate of fine cells would have
-L_FINE = [(0, 0), (0.5, 0), (1, 0), (1.5, 0), (2, 0), (2, 0.5), (2, 1), (1.5, 1), (1, 1), (1, 1.5), (1, 2),
-          (0.5, 2), (0, 2), (0, 1.5), (0, 1), (0, 0.5)]
+L_FINE = [
+    (0, 0),
+    (0.5, 0),
+    (1, 0),
+    (1.5, 0),
+    (2, 0),
+    (2, 0.5),
+    (2, 1),
+    (1.5, 1),
+    (1, 1),
+    (1, 1.5),
+    (1, 2),
+    (0.5, 2),
+    (0, 2),
+    (0, 1.5),
+    (0, 1),
+    (0, 0.5),
+]
 FRAME = [[(0, 0), (3, 0), (3, 3), (0, 3)], [(1, 1), (1, 2), (2, 2), (2, 1)]]  # hole clockwise
 
 
@@ -489,8 +517,14 @@ def test_inside_tests_2d_pinch_and_hole():
     rng = np.random.default_rng(5)
     pinch = [(0, 0), (1, 0), (1, 1), (2, 1), (2, 2), (1, 2), (1, 1), (0, 1)]
     for loops, truth in (
-        ([pinch], lambda x, y: ((x > 0) & (x < 1) & (y > 0) & (y < 1)) | ((x > 1) & (x < 2) & (y > 1) & (y < 2))),
-        (FRAME, lambda x, y: (x > 0) & (x < 3) & (y > 0) & (y < 3) & ~((x > 1) & (x < 2) & (y > 1) & (y < 2))),
+        (
+            [pinch],
+            lambda x, y: ((x > 0) & (x < 1) & (y > 0) & (y < 1)) | ((x > 1) & (x < 2) & (y > 1) & (y < 2)),
+        ),
+        (
+            FRAME,
+            lambda x, y: (x > 0) & (x < 3) & (y > 0) & (y < 3) & ~((x > 1) & (x < 2) & (y > 1) & (y < 2)),
+        ),
         ([L_FINE], lambda x, y: (x > 0) & (y > 0) & (((x < 2) & (y < 1)) | ((x < 1) & (y < 2)))),
     ):
         q = _probe(rng, -0.5, 3.5, 1500, 2)
@@ -506,9 +540,20 @@ def test_inside_tests_3d_l_prism_and_nonmanifold_edge():
     v2, f2 = cube()
     two = (np.vstack([v1, v2 + [1.0, 1.0, 0.0]]), f1 + [[k + 8 for k in f] for f in f2])
     for shape, truth in (
-        (l_prism(1.5), lambda x, y, z: (z > 0) & (z < 1.5) & (x > 0) & (y > 0) & (((x < 2) & (y < 1)) | ((x < 1) & (y < 2)))),
-        (two, lambda x, y, z: (z > 0) & (z < 1) & (((x > 0) & (x < 1) & (y > 0) & (y < 1))
-                                                   | ((x > 1) & (x < 2) & (y > 1) & (y < 2)))),
+        (
+            l_prism(1.5),
+            lambda x, y, z: (
+                (z > 0) & (z < 1.5) & (x > 0) & (y > 0) & (((x < 2) & (y < 1)) | ((x < 1) & (y < 2)))
+            ),
+        ),
+        (
+            two,
+            lambda x, y, z: (
+                (z > 0)
+                & (z < 1)
+                & (((x > 0) & (x < 1) & (y > 0) & (y < 1)) | ((x > 1) & (x < 2) & (y > 1) & (y < 2)))
+            ),
+        ),
     ):
         q = _probe(rng, -0.5, 2.5, 1200, 3)
         fast, brute = _classify_points(poly3d([shape]), q)
@@ -553,7 +598,6 @@ def point_tri_dist(p, tri):
     return np.where(inside, np.abs(h), edges)
 
 
-
 def grid_inscribed_radius(x: np.ndarray, tri: np.ndarray, chunks: int) -> float:
     """Reference for the 3D inscribed radius: the largest distance to the surface `tri` (T, 3, 3)
     over the grid points x inside it (winding number), in `chunks` batches."""
@@ -567,6 +611,7 @@ def grid_inscribed_radius(x: np.ndarray, tri: np.ndarray, chunks: int) -> float:
         if inside.any():
             best = max(best, point_tri_dist(xc[inside], tri).min(1).max())
     return best
+
 
 def seg_dist1(p, a, b):
     ab = b - a
@@ -606,8 +651,10 @@ def test_smallest_enclosing_ball_degenerate_sets():
 
 
 def test_uniformity_and_volume_difference():
-    pm = poly2d([[SQUARE], [[(2 * x, 2 * y) for x, y in SQUARE]], [[(3 * x, 3 * y) for x, y in SQUARE]]],
-                offsets=[(0, 0), (5, 0), (10, 0)])
+    pm = poly2d(
+        [[SQUARE], [[(2 * x, 2 * y) for x, y in SQUARE]], [[(3 * x, 3 * y) for x, y in SQUARE]]],
+        offsets=[(0, 0), (5, 0), (10, 0)],
+    )
     assert uniformity_factor(pm) == pytest.approx([1 / 3, 2 / 3, 1.0])
     vd = volume_difference(pm.measure)  # areas 1, 4, 9: mean 14/3
     m = 14 / 3
@@ -641,8 +688,13 @@ TWO_TRIANGLES = [(0, 1), (1, 2), (0, 2), (3, 4), (4, 5), (3, 5), (2, 3)]
 def test_partition_statistics_hand_graph():
     indptr, indices = _csr(6, TWO_TRIANGLES)
     s = partition_statistics(indptr, indices, np.array([0, 0, 0, 1, 1, 1]))
-    assert s == {"cut": 1, "normalized_cut": pytest.approx(2 / 7), "volume_imbalance": 1.0, "parts": 2,
-                 "connected": True}
+    assert s == {
+        "cut": 1,
+        "normalized_cut": pytest.approx(2 / 7),
+        "volume_imbalance": 1.0,
+        "parts": 2,
+        "connected": True,
+    }
     s = partition_statistics(indptr, indices, np.array([0, 1, 1, 0, 1, 1]))
     assert s["cut"] == 5
     assert s["normalized_cut"] == pytest.approx(5 / 5 + 5 / 9)
@@ -674,8 +726,14 @@ def test_metrics_report_2d_json():
     rep = metrics_report(pm, indptr, indices)
     json.dumps(rep, allow_nan=False)
     assert rep["elements"] == 2 and rep["dim"] == 2
-    keys = ["circle_ratio", "area_perimeter_ratio", "uniformity_factor", "volume_difference", "box_ratio",
-            "box_circle_ratio"]
+    keys = [
+        "circle_ratio",
+        "area_perimeter_ratio",
+        "uniformity_factor",
+        "volume_difference",
+        "box_ratio",
+        "box_circle_ratio",
+    ]
     assert list(rep["per_element"]) == keys and list(rep["summary"]) == keys
     assert rep["per_element"]["circle_ratio"][0] == pytest.approx(1 / SQ2)
     # boxes (R3MG's measures): the square fills its box, the L three quarters of its 2 x 2 box
@@ -683,8 +741,13 @@ def test_metrics_report_2d_json():
     assert rep["coverage"] == pytest.approx((1 + 4) / (1 + 3))
     assert rep["per_element"]["box_circle_ratio"][0] == pytest.approx(0.5 / (SQ2 / 2))
     assert rep["per_element"]["uniformity_factor"] == pytest.approx([0.5, 1.0])
-    assert rep["partition"] == {"cut": 1, "normalized_cut": pytest.approx(1 / 3 + 1 / 5),
-                                "volume_imbalance": pytest.approx(1.2), "parts": 2, "connected": True}
+    assert rep["partition"] == {
+        "cut": 1,
+        "normalized_cut": pytest.approx(1 / 3 + 1 / 5),
+        "volume_imbalance": pytest.approx(1.2),
+        "parts": 2,
+        "connected": True,
+    }
     tagged = metrics_report(pm, indptr, indices, fine_tags=np.array([1, 1, 0, 0, 1]))
     json.dumps(tagged, allow_nan=False)
     assert tagged["per_element"]["heterogeneity_preservation"] == pytest.approx([1.0, 2 / 3])
@@ -699,8 +762,14 @@ def test_metrics_report_3d_keys():
     rep = metrics_report(pm, indptr, indices)
     json.dumps(rep, allow_nan=False)
     assert rep["dim"] == 3
-    assert list(rep["per_element"]) == ["circle_ratio", "sphericity", "uniformity_factor", "volume_difference",
-                                        "box_ratio", "box_circle_ratio"]
+    assert list(rep["per_element"]) == [
+        "circle_ratio",
+        "sphericity",
+        "uniformity_factor",
+        "volume_difference",
+        "box_ratio",
+        "box_circle_ratio",
+    ]
     assert rep["per_element"]["box_ratio"] == pytest.approx([1.0, 1 / 3])  # regular tetra in its cube
     assert rep["coverage"] == pytest.approx(9 / (1 + 8 / 3))
     assert rep["per_element"]["circle_ratio"] == pytest.approx([1 / math.sqrt(3), 1 / 3])
@@ -731,8 +800,10 @@ def test_agglomerated_tets_bnb_within_eps_of_reference():
     m = mesh_from_arrays(p, [("tetra", t)])
     g, d = prepare(m)
     c = p[t].mean(axis=1)
-    labels = (np.floor(3 * (c[:, 0] + 0.12 * np.sin(7 * c[:, 1]) + 0.1 * np.cos(5 * c[:, 2])) + 0.5)
-              + 4 * (c[:, 2] > 0.5 + 0.15 * np.sin(6 * c[:, 0]))).astype(np.int64)
+    labels = (
+        np.floor(3 * (c[:, 0] + 0.12 * np.sin(7 * c[:, 1]) + 0.1 * np.cos(5 * c[:, 2])) + 0.5)
+        + 4 * (c[:, 2] > 0.5 + 0.15 * np.sin(6 * c[:, 0]))
+    ).astype(np.int64)
     labels = np.unique(labels, return_inverse=True)[1]
     poly, _ = merge(m, g, labels, d.measures)
     diam = element_diameters(poly)

@@ -181,14 +181,26 @@ def test_bad_multilevel_parameters(brain):
 def test_api_accepts_refiners_and_multilevel():
     from models.api import list_models, validate_params
 
-    p = validate_params({"model": "sage-base", "mode": "multilevel", "nref": 3, "refiner": "rl-refiner",
-                         "options": {"threshold": 100}})
+    p = validate_params(
+        {
+            "model": "sage-base",
+            "mode": "multilevel",
+            "nref": 3,
+            "refiner": "rl-refiner",
+            "options": {"threshold": 100},
+        }
+    )
     assert p["refiner"] == "rl-refiner" and p["options"]["threshold"] == 100
     assert validate_params({"model": "metis", "mode": "kway", "k": 4, "refiner": "fm"})["refiner"] == "fm"
-    assert validate_params({"model": "metis", "mode": "nref", "nref": 2, "refiner": "none"})["refiner"] is None
+    assert (
+        validate_params({"model": "metis", "mode": "nref", "nref": 2, "refiner": "none"})["refiner"] is None
+    )
     for bad, msg in [
         ({"model": "metis", "mode": "nref", "nref": 2, "refiner": "magic"}, "refiner must be one of"),
-        ({"model": "metis", "mode": "kway", "k": 4, "refiner": "rl-refiner"}, "k-way mode takes refiner 'fm'"),
+        (
+            {"model": "metis", "mode": "kway", "k": 4, "refiner": "rl-refiner"},
+            "k-way mode takes refiner 'fm'",
+        ),
         ({"model": "metis", "mode": "multilevel"}, "multilevel"),
         ({"model": "rl-partitioner", "mode": "kway", "k": 4}, "no direct k-way"),
         ({"model": "metis", "mode": "multilevel", "nref": 2, "options": {"threshold": 1}}, "threshold"),
@@ -196,7 +208,9 @@ def test_api_accepts_refiners_and_multilevel():
         with pytest.raises(ParameterError, match=msg):
             validate_params(bad)
     # 3D meshes are accepted (rl-partitioner-3d.pt, picked by the mesh's dimension)
-    p3 = validate_params({"model": "rl-partitioner", "mode": "multilevel", "nref": 2}, {"cells": 100, "dim": 3})
+    p3 = validate_params(
+        {"model": "rl-partitioner", "mode": "multilevel", "nref": 2}, {"cells": 100, "dim": 3}
+    )
     assert p3["model"] == "rl-partitioner" and p3["mode"] == "multilevel"
     cards = {c["name"]: c for c in list_models()}
     assert "multilevel" in cards["sage-base"]["modes"] and cards["rl-partitioner"]["dimension"] == [2, 3]
@@ -208,8 +222,26 @@ def test_cli_multilevel_and_hierarchy(tmp_path):
     from models.cli import main
 
     out = tmp_path / "h"
-    rc = main(["agglomerate", BRAIN, "-o", str(tmp_path / "a.vtu"), "--model", "metis", "--mode", "multilevel",
-               "--nref", "3", "--refiner", "fm", "--threshold", "100", "--hierarchy", str(out)])
+    rc = main(
+        [
+            "agglomerate",
+            BRAIN,
+            "-o",
+            str(tmp_path / "a.vtu"),
+            "--model",
+            "metis",
+            "--mode",
+            "multilevel",
+            "--nref",
+            "3",
+            "--refiner",
+            "fm",
+            "--threshold",
+            "100",
+            "--hierarchy",
+            str(out),
+        ]
+    )
     assert rc == 0
     import json
 

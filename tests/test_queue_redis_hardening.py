@@ -42,7 +42,9 @@ def test_a_worker_that_cannot_see_the_jobs_says_so(tmp_path):
 
         body = wait_until(readyz_explains, 60, 0.5, "/readyz to name the mismatch")
         assert "MAGNET_DATABASE_URL" in body["checks"]["workers"]
-        wait_until(lambda: "not in this worker's job store" in worker.tail(200), 60, 0.5, "the worker's warning")
+        wait_until(
+            lambda: "not in this worker's job store" in worker.tail(200), 60, 0.5, "the worker's warning"
+        )
         assert "WARNING" in worker.tail(200) and job["id"] in worker.tail(200)
         assert api.job(job["id"])["status"] == "queued"
     finally:

@@ -70,9 +70,18 @@ def test_rl_partitioner_bisects_coarse_graphs(brain_batch):
 
 def test_train_is_reproducible_and_resumable(tmp_path):
     def cfg(name, episodes, resume=False):
-        return RLTrainConfig(agent="rl-partitioner", out=str(tmp_path / f"{name}.pt"), workdir=str(tmp_path / name),
-                             n_meshes=5, episodes=episodes, graphs_per_episode=2, max_steps=12, eval_every=2,
-                             resume=resume, seed=3)
+        return RLTrainConfig(
+            agent="rl-partitioner",
+            out=str(tmp_path / f"{name}.pt"),
+            workdir=str(tmp_path / name),
+            n_meshes=5,
+            episodes=episodes,
+            graphs_per_episode=2,
+            max_steps=12,
+            eval_every=2,
+            resume=resume,
+            seed=3,
+        )
 
     train(cfg("a", 2))
     train(cfg("b", 2))
@@ -124,7 +133,9 @@ def test_rl_partitioner_3d_multilevel_real_mesh(cube3d):
     nref = 4
     a = agglomerate(m, d, model="rl-partitioner", mode="multilevel", nref=nref, refiner="rl-refiner")
     st = partition_statistics(g.indptr, g.indices, a.labels)
-    base = partition_statistics(g.indptr, g.indices, agglomerate(m, d, model="metis", mode="nref", nref=nref).labels)
+    base = partition_statistics(
+        g.indptr, g.indices, agglomerate(m, d, model="metis", mode="nref", nref=nref).labels
+    )
     assert a.n_elements == 2**nref and st["connected"] and a.parts_split == 0
     assert st["normalized_cut"] <= 1.2 * base["normalized_cut"]
 
@@ -156,12 +167,24 @@ def test_rl_partitioner_3d_without_weights_is_a_clear_error(cube3d, tmp_path):
         agglomerate(m, d, model=part, mode="multilevel", nref=2)
     shutil.copy(WEIGHTS_DIR / "rl-partitioner-2d.pt", tmp_path / "rl-partitioner-3d.pt")  # wrong dimension
     with pytest.raises(ModelError, match="wrong dimension"):
-        agglomerate(m, d, model=get_partitioner("rl-partitioner", weights_dir=tmp_path), mode="multilevel", nref=2)
+        agglomerate(
+            m, d, model=get_partitioner("rl-partitioner", weights_dir=tmp_path), mode="multilevel", nref=2
+        )
 
 
 def test_train_3d_data_are_coarse_3d_graphs(tmp_path):
-    cfg = RLTrainConfig(agent="rl-partitioner", out=str(tmp_path / "p.pt"), workdir=str(tmp_path / "w"), dim=3,
-                        n_meshes=2, episodes=1, graphs_per_episode=2, max_steps=4, eval_every=1, seed=1)
+    cfg = RLTrainConfig(
+        agent="rl-partitioner",
+        out=str(tmp_path / "p.pt"),
+        workdir=str(tmp_path / "w"),
+        dim=3,
+        n_meshes=2,
+        episodes=1,
+        graphs_per_episode=2,
+        max_steps=4,
+        eval_every=1,
+        seed=1,
+    )
     graphs = training_graphs(cfg, log=lambda *a: None)
     assert len(graphs) == 2 and all(b.dim == 3 and b.n_nodes <= 200 and s is None for b, s in graphs)
 
@@ -215,7 +238,9 @@ def test_fast_refiner_episode_takes_the_plain_loops_moves(per_pass):
     # one window (same logits, same set); anything more is a real difference
     assert np.mean(ma == mb) > 0.98
     for w in range(0, steps, per_pass):
-        np.testing.assert_array_equal(np.sort(ma[w : w + per_pass], axis=0), np.sort(mb[w : w + per_pass], axis=0))
+        np.testing.assert_array_equal(
+            np.sort(ma[w : w + per_pass], axis=0), np.sort(mb[w : w + per_pass], axis=0)
+        )
     same = np.all(ma == mb, axis=0)
     np.testing.assert_allclose(ha[:, same], hb[:, same])
     np.testing.assert_array_equal(env_a.st.side, env_b.st.side)

@@ -129,6 +129,8 @@ def test_box_shape_bar_on_refined_unstructured_quads():
         assert s["box_ratio"]["mean"] >= 0.88, s["box_ratio"]
         assert rep["coverage"] <= 1.15
         bm = box_measures(m.points, m.offsets, m.connectivity, r.labels, d.measures)  # same numbers, no merge
-        assert np.isclose(bm["coverage"], rep["coverage"]) and np.isclose(bm["box_ratio"].mean(), s["box_ratio"]["mean"])
+        assert np.isclose(bm["coverage"], rep["coverage"]) and np.isclose(
+            bm["box_ratio"].mean(), s["box_ratio"]["mean"]
+        )
     lo, hi = cell_boxes(m.points, m.offsets, m.connectivity)
     assert np.all(hi >= lo)

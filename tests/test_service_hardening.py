@@ -149,7 +149,9 @@ def test_physical_tag_of_the_job_is_checked_at_submission(app, tmp_path):
     assert client.get(f"/v1/jobs/{r.json()['id']}", headers=auth("alice")).json()["status"] == "succeeded"
     # the groups under that tag are kept with the mesh: the second submission reads nothing
     r = client.post(
-        "/v1/jobs", json={**seg, "mult_factor": 0.4, "options": {"physical_tag": "phys"}}, headers=auth("alice")
+        "/v1/jobs",
+        json={**seg, "mult_factor": 0.4, "options": {"physical_tag": "phys"}},
+        headers=auth("alice"),
     )
     assert r.status_code == 202, r.text
 
@@ -167,7 +169,9 @@ def test_dedup_across_users_does_not_say_cached(app, square):
     assert other["status"] == "queued" and other["cached"] is False
     assert execute_job(other["id"], settings) == "reused"
     done = client.get(f"/v1/jobs/{other['id']}", headers=auth("bob")).json()
-    assert done["status"] == "succeeded" and done["cached"] is False and done["result"]["elements"] == elements
+    assert (
+        done["status"] == "succeeded" and done["cached"] is False and done["result"]["elements"] == elements
+    )
     # alice's own repeat is still answered at once, and says so
     mine = client.post("/v1/jobs", json=job, headers=auth("alice")).json()
     assert mine["status"] == "succeeded" and mine["cached"] is True

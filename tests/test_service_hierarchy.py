@@ -25,8 +25,14 @@ def test_multilevel_fm_job_with_hierarchy_zip(tmp_path, square):
     with client:
         h = auth("alice")
         mesh = upload(client, square)
-        body = {"mesh_id": mesh["id"], "model": "metis", "mode": "multilevel", "nref": 3, "refiner": "fm",
-                "options": {"threshold": 40, "hierarchy": True}}
+        body = {
+            "mesh_id": mesh["id"],
+            "model": "metis",
+            "mode": "multilevel",
+            "nref": 3,
+            "refiner": "fm",
+            "options": {"threshold": 40, "hierarchy": True},
+        }
         job = client.post("/v1/jobs", json=body, headers=h).json()
         assert job["params"]["refiner"] == "fm"
         assert execute_job(job["id"], settings) == "succeeded"
@@ -47,14 +53,17 @@ def test_multilevel_fm_job_with_hierarchy_zip(tmp_path, square):
             assert lymph["region"]["ne"] == index["levels"][L]["elements"]
 
         # a job without the option has no hierarchy: 404 that says how to get one
-        plain = client.post("/v1/jobs", json={"mesh_id": mesh["id"], "model": "metis", "mode": "nref", "nref": 2},
-                            headers=h).json()
+        plain = client.post(
+            "/v1/jobs", json={"mesh_id": mesh["id"], "model": "metis", "mode": "nref", "nref": 2}, headers=h
+        ).json()
         assert execute_job(plain["id"], settings) == "succeeded"
         r = client.get(f"/v1/jobs/{plain['id']}/hierarchy", headers=h)
         assert r.status_code == 404 and "options.hierarchy" in r.text
         # bad combinations are 422 at submission
-        for bad in ({"mode": "kway", "k": 4, "options": {"hierarchy": True}},
-                    {"mode": "kway", "k": 4, "refiner": "rl-refiner"},
-                    {"mode": "nref", "nref": 2, "refiner": "nope"}):
+        for bad in (
+            {"mode": "kway", "k": 4, "options": {"hierarchy": True}},
+            {"mode": "kway", "k": 4, "refiner": "rl-refiner"},
+            {"mode": "nref", "nref": 2, "refiner": "nope"},
+        ):
             r = client.post("/v1/jobs", json={"mesh_id": mesh["id"], **bad}, headers=h)
             assert r.status_code == 422, r.text

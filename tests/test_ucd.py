@@ -81,27 +81,35 @@ def test_3d_mixed_ucd_with_pyramid_apex_first(tmp_path):
     from models.pipeline import prepare
 
     g, d = prepare(m)
-    assert d.measures == pytest.approx([1.0, 1 / 6, 1 / 12])  # hex; pyramid of height 0.5 on the unit square; tet
+    assert d.measures == pytest.approx(
+        [1.0, 1 / 6, 1 / 12]
+    )  # hex; pyramid of height 0.5 on the unit square; tet
     assert g.n_edges == 1  # the pyramid shares the hex's top face; the tet only half a face (no neighbour)
 
 
 def test_abaqus_inp_still_goes_to_meshio(tmp_path):
-    path = _write(tmp_path, "a.inp", "*HEADING\nabaqus\n*NODE\n1, 0, 0, 0\n2, 1, 0, 0\n3, 0, 1, 0\n"
-                  "*ELEMENT, TYPE=CPS3\n1, 1, 2, 3\n")
+    path = _write(
+        tmp_path,
+        "a.inp",
+        "*HEADING\nabaqus\n*NODE\n1, 0, 0, 0\n2, 1, 0, 0\n3, 0, 1, 0\n*ELEMENT, TYPE=CPS3\n1, 1, 2, 3\n",
+    )
     assert not is_ucd(path)
     m = read_mesh(path)
     assert m.n_cells == 1
 
 
-@pytest.mark.parametrize("text, msg", [
-    ("3 1 0 0 0\n1 0 0 0\n2 1 0 0\n", "announces 3 points"),
-    ("3 1 0 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n1 0 blob 1 2 3\n", "unknown UCD cell type 'blob'"),
-    ("3 1 0 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n1 0 tri 1 2\n", "as many vertices"),
-    ("3 1 0 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n1 0 tri 1 2 9\n", "point ids that are not in the file"),
-    ("3 1 0 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n1 0 tri 1 2 3 4\n", "as many vertices"),
-    ("3 1 1 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n1 0 tri 1 2 3\n", "node or cell data"),
-    ("3 1 0 0 0\n1 0 0 0\n2 1 x0 0\n3 0 1 0\n1 0 tri 1 2 3\n", "non-numeric|point lines"),
-])
+@pytest.mark.parametrize(
+    "text, msg",
+    [
+        ("3 1 0 0 0\n1 0 0 0\n2 1 0 0\n", "announces 3 points"),
+        ("3 1 0 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n1 0 blob 1 2 3\n", "unknown UCD cell type 'blob'"),
+        ("3 1 0 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n1 0 tri 1 2\n", "as many vertices"),
+        ("3 1 0 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n1 0 tri 1 2 9\n", "point ids that are not in the file"),
+        ("3 1 0 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n1 0 tri 1 2 3 4\n", "as many vertices"),
+        ("3 1 1 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n1 0 tri 1 2 3\n", "node or cell data"),
+        ("3 1 0 0 0\n1 0 0 0\n2 1 x0 0\n3 0 1 0\n1 0 tri 1 2 3\n", "non-numeric|point lines"),
+    ],
+)
 def test_malformed_ucd_one_line_error(tmp_path, text, msg):
     with pytest.raises(MeshError, match=msg) as exc:
         read_mesh(_write(tmp_path, "bad.ucd", text))
@@ -120,19 +128,42 @@ def test_write_read_roundtrip_with_element_ids(tmp_path):
     assert np.allclose(back.points[:, :2], m.points[:, :2])
     assert np.array_equal(back.connectivity, m.connectivity)
     raw = read_ucd(out)
-    assert raw.cells[0].type == "triangle" and raw.cells[0].data.max() == len(raw.points) - 1  # back to 0-based
+    assert (
+        raw.cells[0].type == "triangle" and raw.cells[0].data.max() == len(raw.points) - 1
+    )  # back to 0-based
 
 
 def test_cli_agglomerate_to_ucd_and_info_on_inp(tmp_path):
     env = {**os.environ, "PYTHONPATH": f"{ROOT}:{ROOT}/client"}
     out = tmp_path / "res.ucd"
-    r = subprocess.run([sys.executable, "-m", "models.cli", "agglomerate", BRAIN, "--model", "rtree", "--mode", "kway",
-                        "--k", "20", "-o", str(out)], capture_output=True, text=True, env=env, cwd=ROOT)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "models.cli",
+            "agglomerate",
+            BRAIN,
+            "--model",
+            "rtree",
+            "--mode",
+            "kway",
+            "--k",
+            "20",
+            "-o",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=ROOT,
+    )
     assert r.returncode == 0, r.stderr
     back = read_mesh(out)
     assert sorted(set(back.tags.tolist())) == list(range(20))
     inp = _write(tmp_path, "squares.inp", SQUARES)
-    r = subprocess.run([sys.executable, "-m", "models.cli", "info", inp], capture_output=True, text=True, env=env, cwd=ROOT)
+    r = subprocess.run(
+        [sys.executable, "-m", "models.cli", "info", inp], capture_output=True, text=True, env=env, cwd=ROOT
+    )
     assert r.returncode == 0 and "2" in r.stdout and "no points" not in r.stdout + r.stderr
 
 
@@ -149,7 +180,9 @@ def test_boundary_groups_written_as_boundary_cells_and_read_back(tmp_path, name)
     def facets(mesh):  # boundary cells as (tag, sorted point coordinates) rows, order-free
         pts = np.asarray(mesh.points)
         rows = []
-        for t, a, b in zip(mesh.boundary_tags, mesh.boundary_offsets[:-1], mesh.boundary_offsets[1:], strict=True):
+        for t, a, b in zip(
+            mesh.boundary_tags, mesh.boundary_offsets[:-1], mesh.boundary_offsets[1:], strict=True
+        ):
             xyz = np.round(pts[mesh.boundary_connectivity[a:b]], 12)
             rows.append((int(t), tuple(sorted(map(tuple, xyz.tolist())))))
         return sorted(rows)

@@ -47,17 +47,29 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("mesh")
     p.add_argument("-o", "--output", required=True, help="agglomerated mesh (.vtu)")
     p.add_argument(
-        "--model", default="metis", help="metis | kmeans | sage-base | sage-hetero | rl-partitioner (default metis)"
+        "--model",
+        default="metis",
+        help="metis | kmeans | sage-base | sage-hetero | rl-partitioner (default metis)",
     )
     p.add_argument(
-        "--mode", default="kway", help="kway | nref | target-size | mult-factor | segregated | coarsen | multilevel"
+        "--mode",
+        default="kway",
+        help="kway | nref | target-size | mult-factor | segregated | coarsen | multilevel",
     )
     p.add_argument("--refiner", help="fm | rl-refiner: refine every bisection (k-way mode: fm)")
-    p.add_argument("--threshold", type=int, help="multilevel: coarsen to at most this many nodes (default 200)")
+    p.add_argument(
+        "--threshold", type=int, help="multilevel: coarsen to at most this many nodes (default 200)"
+    )
     p.add_argument("--hierarchy", metavar="DIR", help="unpack every nested level of a recursive mode here")
-    p.add_argument("--ratio", type=float, help="with --hierarchy: nested levels of their own, R times fewer elements "
-                   "per level, any model (as `magnet hierarchy`)")
-    p.add_argument("--coarsest", type=int, help="with --ratio: at most N elements on the coarsest level (default 10)")
+    p.add_argument(
+        "--ratio",
+        type=float,
+        help="with --hierarchy: nested levels of their own, R times fewer elements "
+        "per level, any model (as `magnet hierarchy`)",
+    )
+    p.add_argument(
+        "--coarsest", type=int, help="with --ratio: at most N elements on the coarsest level (default 10)"
+    )
     p.add_argument("--k", type=int, help="number of elements (kway)")
     p.add_argument("--nref", type=int, help="number of refinements: 2^nref elements")
     p.add_argument("--target-size", type=float, help="bisect until every element's diameter is below this")
@@ -75,10 +87,17 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--method", default="kway", choices=["kway", "recursive"], help="METIS k-way or recursive")
     p.add_argument("--hole-policy", default="split", choices=["split", "error"])
-    p.add_argument("--weld", type=float, metavar="TOL", help="merge points closer than TOL first (duplicate points)")
-    p.add_argument("--size-measure", choices=["centroids", "vertices"],
-                   help="part size for size modes: cell centroids (server default) or vertices")
-    p.add_argument("--boundary-tag", type=int, help="lymph bc_tag of boundary edges without a boundary group (default 1)")
+    p.add_argument(
+        "--weld", type=float, metavar="TOL", help="merge points closer than TOL first (duplicate points)"
+    )
+    p.add_argument(
+        "--size-measure",
+        choices=["centroids", "vertices"],
+        help="part size for size modes: cell centroids (server default) or vertices",
+    )
+    p.add_argument(
+        "--boundary-tag", type=int, help="lymph bc_tag of boundary edges without a boundary group (default 1)"
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--metrics", help="write the metrics JSON here")
     p.add_argument("--labels", help="write the fine-cell -> element labels (JSON list) here")
@@ -97,8 +116,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=lambda client, args: print(json.dumps(client.cancel(args.job_id), indent=1)) or 0)
     # --server / --token also after the sub-command: `magnet-client agglomerate MESH --server URL`
     for action in sub.choices.values():
-        action.add_argument("--server", default=argparse.SUPPRESS, help="server URL (also accepted before the sub-command)")
-        action.add_argument("--token", default=argparse.SUPPRESS, help="API key (also accepted before the sub-command)")
+        action.add_argument(
+            "--server", default=argparse.SUPPRESS, help="server URL (also accepted before the sub-command)"
+        )
+        action.add_argument(
+            "--token", default=argparse.SUPPRESS, help="API key (also accepted before the sub-command)"
+        )
     return parser
 
 

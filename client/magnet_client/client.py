@@ -10,8 +10,20 @@ from pathlib import Path
 
 import httpx
 
-OPTION_NAMES = ("seed", "absorb_fraction", "hole_policy", "physical_tag", "method", "boundary_tag", "threshold",
-                "hierarchy", "ratio", "coarsest", "weld", "size_measure")
+OPTION_NAMES = (
+    "seed",
+    "absorb_fraction",
+    "hole_policy",
+    "physical_tag",
+    "method",
+    "boundary_tag",
+    "threshold",
+    "hierarchy",
+    "ratio",
+    "coarsest",
+    "weld",
+    "size_measure",
+)
 PARAM_NAMES = ("model", "mode", "k", "nref", "target_size", "mult_factor", "subset", "refiner")
 FINAL = ("succeeded", "failed", "cancelled")
 

@@ -63,11 +63,19 @@ class GraphBatch:
 
     def edge_counts(self) -> np.ndarray:
         """(nnz,) fine edges per edge (ones on a fine graph)."""
-        return np.ones(self.indices.size) if self.edge_count is None else np.asarray(self.edge_count, dtype=np.float64)
+        return (
+            np.ones(self.indices.size)
+            if self.edge_count is None
+            else np.asarray(self.edge_count, dtype=np.float64)
+        )
 
     def volumes(self) -> np.ndarray:
         """(N,) degree volume of each node (its degree on a fine graph)."""
-        return self.degrees().astype(np.float64) if self.volume is None else np.asarray(self.volume, dtype=np.float64)
+        return (
+            self.degrees().astype(np.float64)
+            if self.volume is None
+            else np.asarray(self.volume, dtype=np.float64)
+        )
 
     def subgraph(self, b: int) -> GraphBatch:
         """Graph b alone, as a batch of one (local ids)."""

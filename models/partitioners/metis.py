@@ -37,7 +37,9 @@ class MetisPartitioner(Partitioner):
     supports_kway = True
     description = "METIS multilevel graph partitioning (pymetis): k-way or recursive, cell measures as node weights, contiguous parts."
 
-    def __init__(self, method: str = "kway", seed: int = 0, use_weights: bool = True, contiguous: bool = True):
+    def __init__(
+        self, method: str = "kway", seed: int = 0, use_weights: bool = True, contiguous: bool = True
+    ):
         if method not in ("kway", "recursive"):
             raise ParameterError(f"METIS method must be 'kway' or 'recursive', not {method!r}")
         self.method = method
@@ -49,9 +51,13 @@ class MetisPartitioner(Partitioner):
         import pymetis
 
         dt = pymetis.zero_copy_dtype()
-        adj = pymetis.CSRAdjacency(np.ascontiguousarray(indptr, dtype=dt), np.ascontiguousarray(indices, dtype=dt))
+        adj = pymetis.CSRAdjacency(
+            np.ascontiguousarray(indptr, dtype=dt), np.ascontiguousarray(indices, dtype=dt)
+        )
         vw = integer_weights(measures).astype(dt) if self.use_weights else None
-        contiguous = self.contiguous and _connected(indptr, indices)  # METIS rejects contig on a disconnected graph
+        contiguous = self.contiguous and _connected(
+            indptr, indices
+        )  # METIS rejects contig on a disconnected graph
         attempts = [(vw, contiguous)]
         if vw is not None:
             attempts.append((None, self.contiguous))
@@ -67,7 +73,11 @@ class MetisPartitioner(Partitioner):
                 if i > 0:
                     what = "unit node weights" if w is None and vw is not None else "weights"
                     what += "" if contig else ", without the contiguity option"
-                    warnings.warn(f"METIS rejected the first attempt ({last}); retried with {what}", RuntimeWarning, stacklevel=3)
+                    warnings.warn(
+                        f"METIS rejected the first attempt ({last}); retried with {what}",
+                        RuntimeWarning,
+                        stacklevel=3,
+                    )
                 return np.asarray(res.vertex_part, dtype=np.int64)
             except Exception as exc:  # pymetis raises RuntimeError on METIS_ERROR_INPUT etc.
                 last = str(exc) or type(exc).__name__
@@ -77,7 +87,9 @@ class MetisPartitioner(Partitioner):
         n = batch.n_nodes
         if k == 1 or n == 0:
             return np.zeros(n, dtype=np.int64)
-        return self._call(k, batch.indptr, batch.indices, batch.measures, recursive=self.method == "recursive")
+        return self._call(
+            k, batch.indptr, batch.indices, batch.measures, recursive=self.method == "recursive"
+        )
 
     def bisect_batch(self, batch: GraphBatch) -> np.ndarray:
         out = np.zeros(batch.n_nodes, dtype=np.int64)

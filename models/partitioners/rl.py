@@ -27,7 +27,9 @@ def _load(path: Path):
             if not path.is_file():
                 stem = path.stem.rsplit("-", 1)[0] if path.stem.endswith(("-2d", "-3d")) else path.stem
                 dim = " --dim 3" if path.stem.endswith("-3d") else ""
-                raise ModelError(f"weights file {path} is missing: train it with `magnet train {stem}{dim} -o {path}`")
+                raise ModelError(
+                    f"weights file {path} is missing: train it with `magnet train {stem}{dim} -o {path}`"
+                )
             from ..rl import load
 
             try:
@@ -42,11 +44,18 @@ class RLPartitioner(Partitioner):
 
     name = "rl-partitioner"
     dims = (2, 3)
-    description = ("RL partitioner (A2C): grows one side from a minimum-degree seed, one node per action, "
-                   "keeps the least normalized cut within +-1% of half; for the coarsest graphs of mode multilevel")
+    description = (
+        "RL partitioner (A2C): grows one side from a minimum-degree seed, one node per action, "
+        "keeps the least normalized cut within +-1% of half; for the coarsest graphs of mode multilevel"
+    )
 
-    def __init__(self, weights_dir: str | Path | None = None, actions_per_pass: int = 4, seed: int | None = None,
-                 contiguous: bool = True):
+    def __init__(
+        self,
+        weights_dir: str | Path | None = None,
+        actions_per_pass: int = 4,
+        seed: int | None = None,
+        contiguous: bool = True,
+    ):
         self.weights_dir = weights_dir
         self.actions_per_pass = int(actions_per_pass)
         self.seed = seed
@@ -61,8 +70,10 @@ class RLPartitioner(Partitioner):
             return np.zeros(0, dtype=np.int64)
         model = _load(Path(self.weights_dir or WEIGHTS_DIR) / f"rl-partitioner-{batch.dim}d.pt")
         if model.cfg.in_features != batch.dim + 2:
-            raise ModelError(f"weights of {self.name} for {batch.dim}D meshes have {model.cfg.in_features} input "
-                             f"features, not {batch.dim + 2}: a file of the wrong dimension?")
+            raise ModelError(
+                f"weights of {self.name} for {batch.dim}D meshes have {model.cfg.in_features} input "
+                f"features, not {batch.dim + 2}: a file of the wrong dimension?"
+            )
         side = partition_with_policy(model, batch, self.actions_per_pass)
         if self.contiguous:
             from .sage import contiguous_sides
@@ -75,11 +86,21 @@ class RLRefiner(Refiner):
     """A2C refiner: greedy policy moves on the band around the cut, rollback to the best prefix."""
 
     name = "rl-refiner"
-    description = ("RL refiner (A2C): moves nodes either way on the 3-hop band around the cut, greedy policy for "
-                   "at most cut + 1 steps, rollback to the best prefix; sides kept connected, never worse than its input")
+    description = (
+        "RL refiner (A2C): moves nodes either way on the 3-hop band around the cut, greedy policy for "
+        "at most cut + 1 steps, rollback to the best prefix; sides kept connected, never worse than its input"
+    )
 
-    def __init__(self, weights_dir: str | Path | None = None, hops: int = 3, tolerance: float = 0.05,
-                 passes: int = 2, actions_per_pass: int = 1, max_forwards: int | None = 128, seed: int | None = None):
+    def __init__(
+        self,
+        weights_dir: str | Path | None = None,
+        hops: int = 3,
+        tolerance: float = 0.05,
+        passes: int = 2,
+        actions_per_pass: int = 1,
+        max_forwards: int | None = 128,
+        seed: int | None = None,
+    ):
         self.weights_dir = weights_dir
         self.actions_per_pass = int(actions_per_pass)
         self.max_forwards = max_forwards
@@ -95,5 +116,13 @@ class RLRefiner(Refiner):
         if batch.n_nodes == 0:
             return labels.copy()
         model = _load(Path(self.weights_dir or WEIGHTS_DIR) / "rl-refiner.pt")
-        return refine_with_policy(model, batch, labels, self.hops, self.tolerance, self.passes, self.actions_per_pass,
-                                  self.max_forwards)
+        return refine_with_policy(
+            model,
+            batch,
+            labels,
+            self.hops,
+            self.tolerance,
+            self.passes,
+            self.actions_per_pass,
+            self.max_forwards,
+        )

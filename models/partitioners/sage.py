@@ -110,8 +110,13 @@ class _SagePartitioner(Partitioner):
     min_side = 0.05  # fraction of a graph's nodes below which a side counts as a failed bisection
 
     def __init__(
-        self, device: str | None = None, weights_dir: str | Path | None = None, contiguous: bool = True,
-        smooth: int = 2, seed: int | None = None, model=None,
+        self,
+        device: str | None = None,
+        weights_dir: str | Path | None = None,
+        contiguous: bool = True,
+        smooth: int = 2,
+        seed: int | None = None,
+        model=None,
     ):
         self.model = model  # an in-memory BisectionGNN instead of the weights files (training checks)
         self.smooth = int(smooth)
@@ -142,7 +147,9 @@ class _SagePartitioner(Partitioner):
 
             weights = _load_numpy(self.weights_path(batch.dim))
             gi = batch.graph_index()
-            x = gnn_numpy.normalize_features(batch_features(batch, self.hetero), gi, batch.n_graphs, batch.dim)
+            x = gnn_numpy.normalize_features(
+                batch_features(batch, self.hetero), gi, batch.n_graphs, batch.dim
+            )
             return gnn_numpy.probabilities(weights, x, batch.indptr, batch.indices)
         import torch
 
@@ -274,8 +281,10 @@ class SageBasePartitioner(_SagePartitioner):
     name = "sage-base"
     stem = "sage-base"
     hetero = False
-    description = ("SAGE-Base: graph neural network bisection (4 SAGEConv + 4 dense), trained to minimize "
-                   "the expected normalized cut; recursive bisection, batched level by level")
+    description = (
+        "SAGE-Base: graph neural network bisection (4 SAGEConv + 4 dense), trained to minimize "
+        "the expected normalized cut; recursive bisection, batched level by level"
+    )
 
 
 class SageHeteroPartitioner(_SagePartitioner):
@@ -283,5 +292,7 @@ class SageHeteroPartitioner(_SagePartitioner):
     stem = "sage-hetero"
     hetero = True
     min_side = 0.0  # a small inclusion may rightly be cut off alone
-    description = ("SAGE-Heterogeneous: SAGE-Base with the physical group as a feature and a penalty for "
-                   "mixing two groups in one part; at most two groups per subgraph")
+    description = (
+        "SAGE-Heterogeneous: SAGE-Base with the physical group as a feature and a penalty for "
+        "mixing two groups in one part; at most two groups per subgraph"
+    )

@@ -101,12 +101,26 @@ FORM_FIELDS = {
     "boundary_tag": {"type": "integer"},
     "threshold": {"type": "integer"},
     "hierarchy": {"type": "boolean"},
-    "ratio": {"type": "number", "description": "with hierarchy: nested levels of their own, this coarsening ratio"},
-    "coarsest": {"type": "integer", "description": "with ratio: at most this many elements on the coarsest level"},
+    "ratio": {
+        "type": "number",
+        "description": "with hierarchy: nested levels of their own, this coarsening ratio",
+    },
+    "coarsest": {
+        "type": "integer",
+        "description": "with ratio: at most this many elements on the coarsest level",
+    },
 }
 OPTION_FIELDS = (
-    "seed", "absorb_fraction", "hole_policy", "physical_tag", "method", "boundary_tag", "threshold", "hierarchy",
-    "ratio", "coarsest",
+    "seed",
+    "absorb_fraction",
+    "hole_policy",
+    "physical_tag",
+    "method",
+    "boundary_tag",
+    "threshold",
+    "hierarchy",
+    "ratio",
+    "coarsest",
 )
 
 
@@ -346,9 +360,14 @@ for _path, _file, _media, _doc, _name in (
         "job_labels",
     ),
     ("preview.png", "preview.png", "image/png", "A picture of the agglomerated mesh.", "job_preview"),
-    ("hierarchy", "hierarchy.zip", "application/zip",
-     "Every nested level (zip: hierarchy.json, level_L.vtu/.labels.json/.parent.json/.metrics.json, 2D "
-     "level_L.lymph.json) of a job run with options.hierarchy = true.", "job_hierarchy"),
+    (
+        "hierarchy",
+        "hierarchy.zip",
+        "application/zip",
+        "Every nested level (zip: hierarchy.json, level_L.vtu/.labels.json/.parent.json/.metrics.json, 2D "
+        "level_L.lymph.json) of a job run with options.hierarchy = true.",
+        "job_hierarchy",
+    ),
 ):
     router.add_api_route(
         f"/jobs/{{job_id}}/{_path}",
