@@ -30,9 +30,9 @@ import importlib
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
 
 from .errors import ParameterError
+from .flow import part_components
 from .partitioners.base import GraphBatch
 
 REFINERS: dict[str, str] = {
@@ -457,16 +457,6 @@ def keep_better(batch: GraphBatch, before: np.ndarray, after: np.ndarray) -> np.
     return np.where(better[batch.graph_index()], after, before)
 
 
-def _components_per_part(indptr, indices, rows, labels, k):
-    n = labels.size
-    same = labels[rows] == labels[indices]
-    m = sp.csr_matrix((np.ones(int(same.sum()), dtype=np.int8), (rows[same], indices[same])), shape=(n, n))
-    nc, comp = connected_components(m, directed=False)
-    first = np.full(nc, -1, dtype=np.int64)
-    first[comp] = labels  # any node of the component gives its part
-    return np.bincount(first, minlength=k)
-
-
 def kway_refine(
     batch: GraphBatch, labels: np.ndarray, tolerance: float = 0.03, rounds: int = 30
 ) -> np.ndarray:
@@ -482,7 +472,7 @@ def kway_refine(
     m = batch.measures
     w_part = np.bincount(labels, weights=m, minlength=k)
     cap = (1 + tolerance) * w_part.sum() / k
-    comps0 = _components_per_part(batch.indptr, cols, rows, labels, k)
+    comps0 = part_components(rows, cols, labels, k)
     prio_jitter = np.random.default_rng(0).random(n) * 1e-3
     for _ in range(rounds):
         lr, lc = labels[rows], labels[cols]
@@ -527,7 +517,7 @@ def kway_refine(
         labels[v] = q
         # undo the moves out of parts that lost their connectivity
         for _ in range(5):
-            comps = _components_per_part(batch.indptr, cols, rows, labels, k)
+            comps = part_components(rows, cols, labels, k)
             broken = comps > comps0
             bad = broken[src]
             if not bad.any():
