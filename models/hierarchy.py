@@ -153,7 +153,7 @@ def write_hierarchy(
         **(extra or {}),
     }
     if not metrics and nested:
-        stats = level_statistics(mesh, g, levels, data.measures)  # all levels at once (no metrics import)
+        stats = level_statistics(mesh, g, levels, data.measures)  # all levels at once
     for L, (labels, poly) in enumerate(zip(levels, polys, strict=True)):
         entry = {
             "level": L,
@@ -206,18 +206,6 @@ def write_hierarchy(
     return index
 
 
-def _summary(values: np.ndarray) -> dict:
-    """min, q1, median, q3, max, mean of the finite values (models.metrics.summarize's numbers; kept
-    here so that writing a hierarchy does not import the metrics module and its scipy.spatial)."""
-    v = np.asarray(values, dtype=np.float64).ravel()
-    v = v[np.isfinite(v)]
-    keys = ("min", "q1", "median", "q3", "max", "mean")
-    if v.size == 0:
-        return dict.fromkeys(keys)
-    q = np.percentile(v, [0, 25, 50, 75, 100])
-    return dict(zip(keys, [float(x) for x in q] + [float(v.mean())], strict=True))
-
-
 def _components_count(indptr: np.ndarray, indices: np.ndarray, labels: np.ndarray) -> int:
     """Connected pieces of the parts `labels` of a symmetric CSR graph (edges inside a part only)."""
     import scipy.sparse as sp
@@ -240,6 +228,7 @@ def level_statistics(mesh: Mesh, graph, levels: list[np.ndarray], measures: np.n
     level's connectedness is decided on the graph of the finer level's elements."""
     import scipy.sparse as sp
 
+    from .metrics import summarize
     from .partitioners.rtree import _small_int, cell_boxes
 
     indptr, indices = np.asarray(graph.indptr, dtype=np.int64), np.asarray(graph.indices, dtype=np.int64)
@@ -308,7 +297,7 @@ def level_statistics(mesh: Mesh, graph, levels: list[np.ndarray], measures: np.n
             "elements": k,
             "dim": int(mesh.dim),
             "coverage": cov,
-            "summary": {"box_ratio": _summary(br)},
+            "summary": {"box_ratio": summarize(br)},
             "partition": {
                 "cut": n_cut,
                 "normalized_cut": ncut,

@@ -18,7 +18,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import ConvexHull
 
 from models.errors import ParameterError
 from models.mesh import PolyMesh
@@ -138,6 +137,8 @@ def _farthest_first(p: np.ndarray) -> tuple[np.ndarray, float]:
 def _hulls_qhull(vpts: np.ndarray, v_ptr: np.ndarray, dim: int):
     """Convex hull (vertices, facet equations, measure) and diameter of each element: one qhull call
     per element."""
+    from scipy.spatial import ConvexHull  # here, not at import: the hierarchy writer imports this module
+
     n = v_ptr.size - 1
     hull_pts, hull_eq = [], []
     hull_measure = np.zeros(n)
@@ -469,6 +470,8 @@ def smallest_enclosing_ball(pts: np.ndarray) -> tuple[np.ndarray, float]:
         raise ParameterError("smallest_enclosing_ball needs a non-empty (n, d) array")
     dim = pts.shape[1]
     if pts.shape[0] > dim + 1:
+        from scipy.spatial import ConvexHull
+
         try:
             pts = pts[ConvexHull(pts).vertices]
         except Exception:  # degenerate (collinear / coplanar): use every point
