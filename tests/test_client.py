@@ -312,3 +312,14 @@ def test_progress_bar_and_event_stream(server, tmp_path):
         with pytest.raises(MagnetHTTPError) as err:  # the stream's 404 falls back to the job: 404 too
             list(client.follow("0" * 32))
         assert err.value.status == 404
+
+
+def test_client_knows_exactly_the_api_fields():
+    """The client keeps its own lists of job fields (it imports nothing from the server side): they
+    must name exactly the API's parameters and options, so a new option is not silently dropped."""
+    from magnet_client.client import OPTION_NAMES, PARAM_NAMES
+
+    from service.schemas import JobOptions, JobParams
+
+    assert set(OPTION_NAMES) == set(JobOptions.model_fields)
+    assert set(PARAM_NAMES) == set(JobParams.model_fields) - {"options"}
