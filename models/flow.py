@@ -52,23 +52,33 @@ def grow_bands(indptr, cols, labels, seed_grp, n_grp, budget, m, max_hops):
     grp = np.full(n, -1, dtype=np.int64)
     used = np.zeros(n_grp)
     full = np.zeros(n_grp, dtype=bool)
+    cap = budget * (1 + 1e-12)
+    reach = np.full(n, -1, dtype=np.int64)  # scratch: the largest group reaching a node
     layer = np.flatnonzero(seed_grp >= 0)
     lg = seed_grp[layer]
     for _ in range(max_hops):
         keep = ~full[lg]
-        layer, lg = layer[keep], lg[keep]
+        if not keep.all():
+            layer, lg = layer[keep], lg[keep]
         if layer.size == 0:
             break
-        o = np.argsort(lg, kind="stable")
-        layer, lg = layer[o], lg[o]
-        cum = np.cumsum(m[layer])
-        start = np.r_[True, lg[1:] != lg[:-1]]
-        base = np.maximum.accumulate(np.where(start, cum - m[layer], 0.0))
-        take = used[lg] + (cum - base) <= budget[lg] * (1 + 1e-12)
-        full[lg[~take]] = True
+        ml = m[layer]
+        # a group whose whole layer fits takes it; the others take the prefix that fits (in node
+        # order) and are full
+        over = used + np.bincount(lg, weights=ml, minlength=n_grp) > cap
+        take = ~over[lg]
+        if not take.all():
+            s = np.flatnonzero(~take)
+            s = s[np.argsort(lg[s], kind="stable")]
+            gs = lg[s]
+            cum = np.cumsum(ml[s])
+            start = np.r_[True, gs[1:] != gs[:-1]]
+            base = np.maximum.accumulate(np.where(start, cum - ml[s], 0.0))
+            take[s] = used[gs] + (cum - base) <= cap[gs]
+            full[gs] = True
         added, ag = layer[take], lg[take]
         grp[added] = ag
-        used += np.bincount(ag, weights=m[added], minlength=n_grp)
+        used += np.bincount(ag, weights=ml[take], minlength=n_grp)
         grow = added[~full[ag]]
         src, e = edges_of(indptr, grow)
         u = cols[e]
@@ -76,10 +86,11 @@ def grow_bands(indptr, cols, labels, seed_grp, n_grp, budget, m, max_hops):
         if not nxt.any():
             break
         u, gu = u[nxt], grp[src[nxt]]
-        o = np.lexsort((-gu, u))  # a node reached by two groups joins the larger id (any rule works)
-        u, gu = u[o], gu[o]
-        first = np.r_[True, u[1:] != u[:-1]]
-        layer, lg = u[first], gu[first]
+        np.maximum.at(reach, u, gu)  # a node reached by two groups joins the larger id (any rule works)
+        u.sort()
+        layer = u[np.r_[True, u[1:] != u[:-1]]]
+        lg = reach[layer]
+        reach[layer] = -1
     return grp
 
 
@@ -103,14 +114,24 @@ def pair_mincut(
     if ce is None:
         ce = np.flatnonzero(labels[rows] != labels[cols])
     lr, lc = labels[rows[ce]], labels[cols[ce]]
-    ck = np.minimum(lr, lc) * k + np.maximum(lr, lc)
-    pos = np.minimum(np.searchsorted(pkey, ck), P - 1)
-    inpair = pkey[pos] == ck
-    # each boundary node seeds one of its pairs (random choice among its cross edges)
-    ev = np.flatnonzero(inpair)
-    ev = ev[np.random.default_rng(seed).permutation(ev.size)]
-    seed_pair = np.full(n, -1, dtype=np.int64)
-    seed_pair[rows[ce[ev]]] = pos[ev]
+    if np.bincount(np.r_[pa, pb], minlength=k).max(initial=0) <= 1:
+        # a matching: each part in one pair, so a boundary node has one pair (no choice to make)
+        which = np.full(k, -1, dtype=np.int64)
+        which[pa] = which[pb] = np.arange(P)
+        partner = np.full(k, -1, dtype=np.int64)
+        partner[pa], partner[pb] = pb, pa
+        ev = np.flatnonzero(partner[lr] == lc)
+        seed_pair = np.full(n, -1, dtype=np.int64)
+        seed_pair[rows[ce[ev]]] = which[lr[ev]]
+    else:
+        ck = np.minimum(lr, lc) * k + np.maximum(lr, lc)
+        pos = np.minimum(np.searchsorted(pkey, ck), P - 1)
+        inpair = pkey[pos] == ck
+        # each boundary node seeds one of its pairs (random choice among its cross edges)
+        ev = np.flatnonzero(inpair)
+        ev = ev[np.random.default_rng(seed).permutation(ev.size)]
+        seed_pair = np.full(n, -1, dtype=np.int64)
+        seed_pair[rows[ce[ev]]] = pos[ev]
     sv = np.flatnonzero(seed_pair >= 0)
     seed_grp = np.full(n, -1, dtype=np.int64)
     seed_grp[sv] = 2 * seed_pair[sv] + (labels[sv] == pb[seed_pair[sv]])
@@ -136,13 +157,35 @@ def pair_mincut(
     rv = grp[v] & 1
     own = ~internal & (labels[u] == labels[v])
     other = ~internal & (labels[u] == np.where(rv == 0, pb[pv], pa[pv]))
-    term = np.where(own, np.where(rv == 0, S, T), np.where(rv == 0, T, S))
-    tv = own | other
-    src = np.r_[idx[v[internal]], idx[v[tv]], term[tv]]
-    dst = np.r_[idx[u[internal]], term[tv], idx[v[tv]]]
-    cap = np.r_[caps[ev[internal]], caps[ev[tv]], caps[ev[tv]]]
-    M = sp.csr_matrix((cap, (src, dst)), shape=(nb + 2, nb + 2))
-    M.sum_duplicates()
+    to_s = (own & (rv == 0)) | (other & (rv == 1))
+    to_t = (own & (rv == 1)) | (other & (rv == 0))
+    iv = idx[v]  # ascending: bn is sorted and edges_of keeps its order
+    cs = np.bincount(iv[to_s], weights=caps[ev[to_s]], minlength=nb).astype(np.int32)
+    ct = np.bincount(iv[to_t], weights=caps[ev[to_t]], minlength=nb).astype(np.int32)
+    rs, rt = np.flatnonzero(cs), np.flatnonzero(ct)
+    hs, ht = cs > 0, ct > 0
+    # the CSR straight away: each band row its band neighbours (in the graph's order), then S, then T;
+    # the rows of S and T their band nodes
+    ri = iv[internal]
+    ic = np.bincount(ri, minlength=nb)
+    ptr = np.zeros(nb + 3, dtype=np.int64)
+    np.cumsum(ic + hs + ht, out=ptr[1 : nb + 1])
+    ptr[nb + 1] = ptr[nb] + rs.size
+    ptr[nb + 2] = ptr[nb + 1] + rt.size
+    ind = np.empty(int(ptr[-1]), dtype=np.int32)
+    dat = np.empty(int(ptr[-1]), dtype=np.int32)
+    at = ptr[ri] + np.arange(ri.size) - (np.cumsum(ic) - ic)[ri]
+    ind[at] = idx[u[internal]]
+    dat[at] = caps[ev[internal]]
+    at = ptr[rs + 1] - ht[rs] - 1
+    ind[at], dat[at] = S, cs[rs]
+    at = ptr[rt + 1] - 1
+    ind[at], dat[at] = T, ct[rt]
+    ind[ptr[nb] : ptr[nb + 1]], dat[ptr[nb] : ptr[nb + 1]] = rs, cs[rs]
+    ind[ptr[nb + 1] :], dat[ptr[nb + 1] :] = rt, ct[rt]
+    M = sp.csr_matrix((dat, ind, ptr), shape=(nb + 2, nb + 2))
+    if not M.has_sorted_indices:  # a graph whose rows are not sorted (coarse graphs may not be)
+        M.sort_indices()
     flow = maximum_flow(M, S, T, method="dinic").flow
     if np.array_equal(flow.indptr, M.indptr) and np.array_equal(flow.indices, M.indices):
         # the network holds every edge both ways, so the flow comes on M's own structure: the
