@@ -472,8 +472,8 @@ def kway_refine(
     m = batch.measures
     w_part = np.bincount(labels, weights=m, minlength=k)
     cap = (1 + tolerance) * w_part.sum() / k
-    comps0 = part_components(rows, cols, labels, k)
-    prio_jitter = np.random.default_rng(0).random(n) * 1e-3
+    comps0 = None  # components per part before any move: computed at the first move
+    prio_jitter = None
     for _ in range(rounds):
         lr, lc = labels[rows], labels[cols]
         ext = lr != lc
@@ -497,6 +497,8 @@ def kway_refine(
         if v.size == 0:
             break
         # independent set: a candidate moves only if no adjacent candidate has a higher priority
+        if prio_jitter is None:
+            prio_jitter = np.random.default_rng(0).random(n) * 1e-3
         prio = np.full(n, -np.inf)
         prio[v] = gain + prio_jitter[v]
         nb_max = np.full(n, -np.inf)
@@ -513,6 +515,8 @@ def kway_refine(
         v, q = v[fit], q[fit]
         if v.size == 0:
             break
+        if comps0 is None:
+            comps0 = part_components(rows, cols, labels, k)
         src = labels[v]
         labels[v] = q
         # undo the moves out of parts that lost their connectivity
