@@ -310,7 +310,7 @@ class FMRefiner(Refiner):
         flow_rounds: int = 40,
         fm_max_nodes: int = 1_000,
         flow_hops: int | None = None,
-        kway_flow_rounds: int | None = None,
+        kway_flow_rounds: int | None = 12,
     ):
         if not 0 <= tolerance < 1:
             raise ParameterError(f"fm tolerance must be in [0, 1), got {tolerance}")
@@ -334,7 +334,8 @@ class FMRefiner(Refiner):
         # measure; wider bands only cost time where parts are small: brain k = 128, 112 cells a
         # part: 4 hops, the same cut per round as 12 and ~15% cheaper rounds; 200 x 200 square
         # k = 64, 1250 a part: 12 hops, where 4 loses 0.5% of the cut); rounds = kway_flow_rounds,
-        # or flow_rounds when None
+        # or flow_rounds when None. 12 by default: on the brain at k = 128 that keeps the k-way
+        # refinement within METIS k-way's own time (-4.2% cut; 40 rounds: -4.8% at ~2.3x the time)
         self.flow_hops = None if flow_hops is None else int(flow_hops)
         self.kway_flow_rounds = None if kway_flow_rounds is None else int(kway_flow_rounds)
 
