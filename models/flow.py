@@ -240,12 +240,14 @@ def pair_mincut(
     if f.size:
         free = np.full(nb + 2, -1, dtype=np.int64)
         free[f] = np.arange(f.size)
-        rr = free[np.repeat(np.arange(nb + 2), np.diff(R.indptr))]
-        cc = free[R.indices]
-        keep = (rr >= 0) & (cc >= 0)
-        sub = sp.coo_matrix((R.data[keep], (rr[keep], cc[keep])), shape=(f.size, f.size))
+        v, e = edges_of(R.indptr, f)  # the residual graph among the free nodes (R's data are ones)
+        cc = free[R.indices[e]]
+        keep = cc >= 0
+        rr, cc = free[v[keep]], cc[keep]
+        ptr = row_pointers(np.bincount(rr, minlength=f.size))
+        sub = sp.csr_matrix((np.ones(rr.size), cc, ptr), shape=(f.size, f.size))
         n_scc, scc = connected_components(sub, directed=True, connection="strong")
-        cu, cv = scc[sub.row], scc[sub.col]
+        cu, cv = scc[rr], scc[cc]
         dag = cu != cv
         cu, cv = cu[dag], cv[dag]
         # scipy labels the strong components in the order its (Pearce's) search completes them,
@@ -291,8 +293,8 @@ def part_components(rows, cols, labels, k, parts=None, indptr=None):
     """(k,) connected components of each part (only of the parts where `parts` (k,) bool is set,
     if given; 0 for the others: with the CSR indptr too, only their nodes' edges are read)."""
     n = labels.size
-    if parts is not None and indptr is not None:
-        nodes = np.flatnonzero(parts[labels])
+    nodes = None if parts is None or indptr is None else np.flatnonzero(parts[labels])
+    if nodes is not None and 2 * nodes.size < n:  # a few parts: read only their nodes' edges
         loc = np.full(n, -1, dtype=np.int64)
         loc[nodes] = np.arange(nodes.size)
         v, e = edges_of(indptr, nodes)
@@ -307,8 +309,14 @@ def part_components(rows, cols, labels, k, parts=None, indptr=None):
     same = labels[rows] == labels[cols]  # rows sorted (CSR order): the kept edges are a CSR already
     if parts is not None:
         same &= parts[labels[rows]]
-    ptr = row_pointers(np.bincount(rows[same], minlength=n))
-    g = sp.csr_matrix((np.ones(int(ptr[-1]), dtype=np.int8), cols[same], ptr), shape=(n, n))
+    if indptr is not None:  # kept entries per row from one running count
+        kept = np.zeros(same.size + 1, dtype=np.int64)
+        np.cumsum(same, out=kept[1:])
+        ptr = kept[indptr]
+    else:
+        ptr = row_pointers(np.bincount(rows[same], minlength=n))
+    # float64 ones: csgraph converts other data types to float64 first
+    g = sp.csr_matrix((np.ones(int(ptr[-1])), cols[same], ptr), shape=(n, n))
     nc, comp = connected_components(g, directed=False)
     first = np.zeros(nc, dtype=np.int64)
     first[comp] = labels
@@ -389,9 +397,14 @@ def flow_kway(
     for r in range(1, rounds + 1):
         lr, lc = labels[rows], labels[cols]
         ce = np.flatnonzero(lr != lc)  # the edges between parts (both directions)
-        x = ce[lr[ce] < lc[ce]]
-        qk, inv = np.unique(lr[x] * k + lc[x], return_inverse=True)  # the quotient graph, sorted
-        qw = np.bincount(inv, weights=ec[x], minlength=qk.size)
+        ca, cb = lr[ce], lc[ce]
+        x = ca < cb
+        key = ca[x] * k + cb[x]
+        o = np.argsort(key)
+        key = key[o]
+        st = np.flatnonzero(run_starts(key))
+        qk = key[st]  # the quotient graph, sorted
+        qw = np.add.reduceat(ec[ce[x][o]], st) if st.size else np.zeros(0)
         qa, qb = qk // k, qk % k
         f = np.full(qk.size, alpha)
         t = np.zeros(qk.size, dtype=np.int64)
