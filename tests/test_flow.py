@@ -115,8 +115,9 @@ def test_pair_mincut_bands_stop_at_max_hops():
 
 def test_fm_refiner_kway_band_hops_follow_the_part_size(brain_kway):
     g, b, lab = brain_kway
-    auto = FMRefiner(flow_rounds=6).refine_kway(b, lab)  # 64 parts of ~225 cells: 5 hops
-    assert np.array_equal(auto, FMRefiner(flow_rounds=6, flow_hops=5).refine_kway(b, lab))
+    auto = FMRefiner(kway_flow_rounds=6).refine_kway(b, lab)  # 64 parts of ~225 cells: 4 hops
+    assert np.array_equal(auto, FMRefiner(kway_flow_rounds=6, flow_hops=4).refine_kway(b, lab))
+    assert not np.array_equal(auto, FMRefiner(kway_flow_rounds=6, flow_hops=6).refine_kway(b, lab))
     assert stats(g, b, auto)["connected"] and stats(g, b, auto)["cut"] < stats(g, b, lab)["cut"]
 
 
@@ -157,7 +158,7 @@ def test_flow_kway_never_worse_and_ncut_objective(brain_kway, schedule):
 
 def test_fm_refiner_kway_and_polish_use_the_flows(brain_kway):
     g, b, lab = brain_kway
-    with_flow = FMRefiner(flow_rounds=15).refine_kway(b, lab)
+    with_flow = FMRefiner(kway_flow_rounds=15).refine_kway(b, lab)
     without = FMRefiner(flow_rounds=0).refine_kway(b, lab)
     assert stats(g, b, with_flow)["cut"] < stats(g, b, without)["cut"]
     assert stats(g, b, with_flow)["connected"]
