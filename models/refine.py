@@ -475,7 +475,8 @@ def kway_refine(
     m = batch.measures
     w_part = np.bincount(labels, weights=m, minlength=k)
     cap = (1 + tolerance) * w_part.sum() / k
-    comps0 = None  # components per part before any move: computed at the first move
+    start_labels = labels.copy()
+    comps0 = np.full(k, -1, dtype=np.int64)  # components per part at the start: read as parts lose nodes
     prio_jitter = None
     for _ in range(rounds):
         lr, lc = labels[rows], labels[cols]
@@ -518,14 +519,18 @@ def kway_refine(
         v, q = v[fit], q[fit]
         if v.size == 0:
             break
-        if comps0 is None:
-            comps0 = part_components(rows, cols, labels, k)
         src = labels[v]
+        lost = np.zeros(k, dtype=bool)
+        lost[src] = True
+        need = lost & (comps0 < 0)
+        if need.any():
+            comps0[need] = part_components(rows, cols, start_labels, k, need, batch.indptr)[need]
         labels[v] = q
-        # undo the moves out of parts that lost their connectivity
+        # undo the moves out of parts that lost their connectivity (only those parts are read)
         for _ in range(5):
-            comps = part_components(rows, cols, labels, k)
-            broken = comps > comps0
+            lost = np.zeros(k, dtype=bool)
+            lost[src] = True
+            broken = lost & (part_components(rows, cols, labels, k, lost, batch.indptr) > comps0)
             bad = broken[src]
             if not bad.any():
                 break
