@@ -521,11 +521,11 @@ def _keep_faces(mesh: Mesh, flip: np.ndarray, faces, pairing: dict, areas=None) 
     sort and one gather of every face: the costliest steps of reading, not done twice).
     They were made before the flips: a flipped tetrahedron lists the same faces in another local
     order and direction, so its faces are rebuilt in place and face ids in the pairing renumbered
-    (the keys, hence `same`, do not change). Other meshes keep them only when nothing was flipped.
+    (the keys, hence the pairs, do not change). Other meshes keep them only when nothing was flipped.
     areas: all tetrahedra, every face's area (face id 4 * cell + local face) after the flips."""
     from .geometry import FACE_TEMPLATES, _all_tetrahedra
 
-    order = pairing.get("order")
+    order, pairs = pairing.get("order"), pairing.get("pairs")
     if flip.any():
         if not _all_tetrahedra(mesh):
             return
@@ -534,18 +534,23 @@ def _keep_faces(mesh: Mesh, flip: np.ndarray, faces, pairing: dict, areas=None) 
         faces.nodes.reshape(-1, 12)[sel] = np.take(
             mesh.connectivity.reshape(-1, 4)[sel], np.array(tmpl).reshape(-1), axis=1
         )
-        if order is not None:
-            m = MIRROR[VTK_TETRA]
-            # new local face k has the nodes of old local face m[tmpl[k]]: old j -> new k
-            mirrored = [frozenset(m[list(f)].tolist()) for f in tmpl]
-            new_of_old = np.array([mirrored.index(frozenset(f)) for f in tmpl])
-            local = order & 3  # face id = 4 * cell + local face
-            order = np.where(flip[order >> 2], order - local + new_of_old[local], order)
+        m = MIRROR[VTK_TETRA]
+        # new local face k has the nodes of old local face m[tmpl[k]]: old j -> new k
+        mirrored = [frozenset(m[list(f)].tolist()) for f in tmpl]
+        new_of_old = np.array([mirrored.index(frozenset(f)) for f in tmpl])
+
+        def renumber(ids: np.ndarray) -> np.ndarray:
+            local = ids & 3  # face id = 4 * cell + local face
+            return np.where(flip[ids >> 2], ids - local + new_of_old[local], ids)
+
+        order = None if order is None else renumber(order)
+        pairs = None if pairs is None else (renumber(pairs[0]), renumber(pairs[1]))
     mesh.meta["cell_faces"] = {
         "connectivity": mesh.connectivity,
         "faces": faces,
         "order": order,
         "same": pairing.get("same"),
+        "pairs": pairs,
         "areas": areas,
     }
 
