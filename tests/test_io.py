@@ -139,6 +139,30 @@ def test_clockwise_and_inverted_cells_are_reoriented():
     assert np.all(signed_measures(m3) > 0)
 
 
+def test_reading_orients_its_own_arrays_in_place_but_never_the_callers(tmp_path):
+    """read_mesh gives its freshly read connectivity to the Mesh (mirrored in place, no copy);
+    mesh_from_arrays / mesh_from_meshio must leave the caller's arrays as they were."""
+    from models.io import mesh_from_meshio
+
+    hp, h = tets(3)
+    h = h.copy()
+    h[::3] = h[::3][:, [0, 2, 1, 3]]  # a third of the cells inverted: orienting edits them
+    before = h.copy()
+    m1 = mesh_from_arrays(hp, [("tetra", h)])
+    mm = meshio.Mesh(hp, [("tetra", h)])
+    m2 = mesh_from_meshio(mm)
+    assert m1.meta["orientation"]["flipped"] > 0
+    assert np.array_equal(h, before) and np.array_equal(mm.cells[0].data, before)
+    assert not np.shares_memory(m1.connectivity, h) and not np.shares_memory(m2.connectivity, h)
+    for name in ("cube.vtu", "cube.msh"):
+        m3 = read_mesh(write(tmp_path, name, hp, [("tetra", h)]))
+        assert np.array_equal(h, before)
+        for a in ("connectivity", "offsets", "cell_types", "points"):
+            assert np.array_equal(getattr(m3, a), getattr(m1, a)), (name, a)
+            assert getattr(m3, a).dtype == getattr(m1, a).dtype, (name, a)
+        assert np.array_equal(m3.meta["signed_measures"], m1.meta["signed_measures"])
+
+
 def test_named_physical_tag(tmp_path):
     p, t = triangles(3)
     path = write(
