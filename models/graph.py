@@ -153,6 +153,7 @@ def dual_graph(mesh: Mesh, faces: Faces | None = None, measures: bool = True) ->
     pairs = _cached_pairs(mesh, faces)  # reading paired the faces (every face met at most twice)
     if pairs is not None:
         fa, fb = pairs
+        del pairs  # dropped with fa and fb once used
     else:
         order, same = _cached_pairing(mesh, faces) or sort_keys(face_keys(faces, mesh.n_points))
         if same.size > 1 and np.any(same[1:] & same[:-1]):
@@ -164,9 +165,8 @@ def dual_graph(mesh: Mesh, faces: Faces | None = None, measures: bool = True) ->
             )
         # temporaries are dropped as soon as they are used: at millions of cells the stage's peak
         # memory is what costs (fresh pages), more than the arithmetic
-        i = np.flatnonzero(same)
-        fa, fb = order[i], order[i + 1]
-        del i, order, same
+        fa, fb = order[:-1][same], order[1:][same]
+        del order, same
     if fixed:  # the cells by shifts, not gathers: faces.cell[f] == f // k
         self_loop = (fa >> 2) == (fb >> 2) if k == 4 else (fa // k) == (fb // k)
     else:
@@ -289,11 +289,13 @@ def _cached_pairing(mesh: Mesh, faces: Faces) -> tuple[np.ndarray, np.ndarray] |
 
 def _cached_pairs(mesh: Mesh, faces: Faces) -> tuple[np.ndarray, np.ndarray] | None:
     """The (fa, fb) face pairs reading made for the orientation (models.orientation._shared_pairs:
-    no face met 3+ times), when they are still this mesh's and `faces` are the faces reading kept."""
+    no face met 3+ times), when they are still this mesh's and `faces` are the faces reading kept.
+    Taken from the cache (held until the graph is built, not for the mesh's life: a later graph of
+    the mesh sorts the face keys again, to the same pairs)."""
     c = cached_faces(mesh)
     if c is None or c["faces"] is not faces:
         return None
-    return c.get("pairs")
+    return c.pop("pairs", None)
 
 
 def _cached_areas(mesh: Mesh, faces: Faces, take: bool = False) -> np.ndarray | None:

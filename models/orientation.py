@@ -141,8 +141,7 @@ def _shared_pairs(order: np.ndarray, same: np.ndarray) -> tuple[np.ndarray, np.n
     for a stable sort), or None when a key is met 3+ times (a non-manifold seam)."""
     if same.size > 1 and np.any(same[1:] & same[:-1]):
         return None
-    i = np.flatnonzero(same)
-    return order[i], order[i + 1]
+    return order[:-1][same], order[1:][same]  # by the mask: no index array of the pairs
 
 
 def _consistent_paired(faces: Faces, flip: np.ndarray, fa: np.ndarray, fb: np.ndarray, bit=None) -> bool:

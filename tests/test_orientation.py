@@ -155,9 +155,9 @@ def test_faces_kept_by_reading_give_the_same_graph(n):
     _assert_kept_pairs_are_fresh_pairs(mesh, kept, fresh)
     g1 = dual_graph(mesh)
     assert g1.faces is kept["faces"]
-    assert "areas" not in kept  # the graph took the kept face areas as its per-face measures
+    assert "areas" not in kept and "pairs" not in kept  # the graph took them (areas: its per-face measures)
     g2 = dual_graph(mesh, fresh)
-    g3 = dual_graph(mesh)  # the kept pairs again, the areas measured anew
+    g3 = dual_graph(mesh)  # the kept faces again: pairs sorted and areas measured anew
     for a in ("indptr", "indices", "weights", "partner"):
         assert np.array_equal(getattr(g1, a), getattr(g2, a)), a
         assert np.array_equal(getattr(g1, a), getattr(g3, a)), a
