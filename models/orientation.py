@@ -123,9 +123,9 @@ def _consistent(faces: Faces, flip: np.ndarray, n_points: int) -> bool | None:
 
 
 def _pairing(faces: Faces, n_points: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """(order, same) of models.graph.sort_keys for all-triangle faces whose key fits in int64 (the
-    pairing the dual graph needs too) and the faces' _face_direction bits (from the same pass over
-    the nodes as the keys), else None."""
+    """(order, same) of models.graph.sort_keys (not stable: see _shared_pairs) for all-triangle
+    faces whose key fits in int64 (the pairing the dual graph needs too) and the faces'
+    _face_direction bits (from the same pass over the nodes as the keys), else None."""
     from .graph import _triangle_keys, sort_keys
 
     bits = max(int(n_points - 1).bit_length(), 1)
@@ -133,15 +133,17 @@ def _pairing(faces: Faces, n_points: int) -> tuple[np.ndarray, np.ndarray, np.nd
         return None
     direction = np.empty(faces.n, dtype=bool)
     keys = _triangle_keys(faces.nodes.reshape(-1, 3), bits, direction=direction)
-    return (*sort_keys(keys), direction)
+    return (*sort_keys(keys, stable=False), direction)
 
 
 def _shared_pairs(order: np.ndarray, same: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """(fa, fb): the two faces of every key of a sorted pairing (fa before fb in the sort, so fa < fb
-    for a stable sort), or None when a key is met 3+ times (a non-manifold seam)."""
+    """(fa, fb): the two faces of every key of a sorted pairing, fa < fb (stable or not), or None
+    when a key is met 3+ times (a non-manifold seam)."""
     if same.size > 1 and np.any(same[1:] & same[:-1]):
         return None
-    return order[:-1][same], order[1:][same]  # by the mask: no index array of the pairs
+    from .graph import shared_pairs
+
+    return shared_pairs(order[:-1][same], order[1:][same])  # by the mask: no index array of the pairs
 
 
 def _consistent_paired(faces: Faces, flip: np.ndarray, fa: np.ndarray, fb: np.ndarray, bit=None) -> bool:
@@ -158,8 +160,10 @@ def _pairs_of(order: np.ndarray, same: np.ndarray) -> tuple[np.ndarray, np.ndarr
     """Pairs (fa, fb) from a sorted pairing, only where exactly two faces have the key."""
     before = np.r_[False, same[:-1]] if same.size else same
     after = np.r_[same[1:], False] if same.size else same
+    from .graph import shared_pairs
+
     i = np.flatnonzero(same & ~before & ~after)
-    return order[i], order[i + 1]
+    return shared_pairs(order[i], order[i + 1])
 
 
 def orientation_flips(
