@@ -146,7 +146,8 @@ def sort_keys(keys: np.ndarray, stable: bool = True) -> tuple[np.ndarray, np.nda
 
 def shared_pairs(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The faces (a[i], b[i]) of each shared key as (smaller id, larger id): the pairs a stable
-    sort gives, whatever the order of equal keys (each key held by exactly these two faces)."""
+    sort gives, whatever the order of equal keys (each key held by exactly these two faces).
+    `b` is overwritten (the larger ids): pass arrays of your own, e.g. order[1:][same]."""
     lo = np.minimum(a, b)
     np.maximum(a, b, out=b)
     return lo, b
