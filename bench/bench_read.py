@@ -10,6 +10,7 @@ Ours does more (orientation by topology, checks, measures, centroids, face areas
   python bench/bench_read.py            # 998,250 tetrahedra (55^3 cubes x 6)
   python bench/bench_read.py --n 30     # 162,000 tetrahedra
   python bench/bench_read.py --fresh    # every run in a new process, as a `magnet` run reads
+  python bench/bench_read.py --shuffle  # cells and points renumbered at random (keys not nearly sorted)
 
 --fresh: in one process the later runs reuse memory the earlier ones touched; a new process pays
 for every page it touches (in this VM ~0.5-3 s/GB), so the peak memory of each side counts too.
@@ -87,6 +88,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--format", default="vtu", choices=["vtu", "msh"])
     ap.add_argument("--fresh", action="store_true", help="every run in a new process")
+    ap.add_argument("--shuffle", action="store_true", help="renumber cells and points at random (seed 1)")
     args = ap.parse_args()
     run_floor, run_ours = (
         ((lambda p: in_child("floor", p)), (lambda p: in_child("ours", p))) if args.fresh else (floor, ours)
@@ -96,6 +98,10 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, f"cube.{args.format}")
         p, t = structured.cube(args.n)
+        if args.shuffle:  # an unstructured numbering: the face keys come in no particular order
+            rng = np.random.default_rng(1)
+            perm = rng.permutation(len(p))
+            p, t = p[perm], np.argsort(perm)[t[rng.permutation(len(t))]]
         structured.write(path, p, t)
         rf, rg, of, og, cf, co = [], [], [], [], [], []
         for _ in range(args.repeat):  # alternate, so that drifting load hits both alike
@@ -109,7 +115,10 @@ def main() -> None:
             co.append(c)
     med = statistics.median
     where = "each in a new process" if args.fresh else "in this process"
-    print(f"# read + graph, {len(t):,} tetrahedra ({args.format}), {args.repeat} alternating runs {where}")
+    what = "renumbered " if args.shuffle else ""
+    print(
+        f"# read + graph, {len(t):,} {what}tetrahedra ({args.format}), {args.repeat} alternating runs {where}"
+    )
     print("| | read s | graph / pairing s | total s (median) | total s (best) |")
     print("|---|---|---|---|---|")
     tf = [a + b for a, b in zip(rf, rg, strict=True)]
