@@ -274,15 +274,16 @@ def _tetra_measures(mesh: Mesh, face_areas: bool = False):
     values as the face-based formula (a tetrahedron with outward faces (0,2,1), (0,1,3), (1,2,3),
     (0,3,2) has volume det(p1 - p0, p2 - p0, p3 - p0) / 6 and its vertex mean as centroid).
 
-    face_areas: also return (5, C) face areas from the same gathered corners, bit for bit what
-    face_measures gives for these faces: rows 0-3 the faces of FACE_TEMPLATES[VTK_TETRA] in the
-    current node order, row 4 face 2 as it is after the cell is mirrored (see tetra_face_areas).
+    face_areas: also return face areas from the same gathered corners, bit for bit what
+    face_measures gives for these faces: ((C, 4) the faces of FACE_TEMPLATES[VTK_TETRA] in the
+    current node order, (C,) face 2 as it is after the cell is mirrored); see tetra_face_areas.
     Coordinates are gathered per component (contiguous columns: every operation below is a plain
     elementwise pass over a chunk that stays in cache)."""
     t = mesh.connectivity.reshape(-1, 4)
     n = t.shape[0]
     vol, cen = np.empty(n), np.empty((n, 3))
-    areas = np.empty((5, n)) if face_areas else None
+    areas = np.empty((n, 4)) if face_areas else None  # already the layout of face ids 4 * cell + j
+    mirrored = np.empty(n) if face_areas else None
     xyz = [np.ascontiguousarray(mesh.points[:, d]) for d in range(3)]
     chunk = 1 << 14  # temporaries stay in cache and are reused (elementwise: the same values)
     for s in range(0, n, chunk):
@@ -309,27 +310,27 @@ def _tetra_measures(mesh: Mesh, face_areas: bool = False):
                 _cross3(*e, *[p[3][d] - p[2][d] for d in range(3)]),
             )
             for k, cr in enumerate(crosses):
-                np.sqrt(_dot3(*cr, *cr), out=areas[k, s : s + chunk])
+                np.sqrt(_dot3(*cr, *cr), out=areas[s : s + chunk, k] if k < 4 else mirrored[s : s + chunk])
     if face_areas:
         areas *= 0.5
-        return vol, cen, areas
+        mirrored *= 0.5
+        return vol, cen, (areas, mirrored)
     return vol, cen
 
 
-def tetra_face_areas(areas: np.ndarray, flip: np.ndarray) -> np.ndarray:
+def tetra_face_areas(areas: tuple[np.ndarray, np.ndarray], flip: np.ndarray) -> np.ndarray:
     """(4 C,) the area of every face (face id 4 * cell + local face) of an all-tetrahedra mesh from
-    _tetra_measures' (5, C) areas, after the cells in `flip` were mirrored (nodes 1 and 2 swapped).
-    A mirrored cell's faces (0,2,1), (0,1,3), (1,2,3), (0,3,2) are its old faces 0, 3, 2 and 1 with
-    their nodes in another order: faces 0, 1 and 3 keep their first node (the cross product only
-    changes sign), face 2 starts at another node (row 4)."""
-    out = np.empty((areas.shape[1], 4))
-    out[:, 0] = areas[0]
+    _tetra_measures' areas, after the cells in `flip` were mirrored (nodes 1 and 2 swapped); made
+    in the (C, 4) array of those areas (overwritten). A mirrored cell's faces (0,2,1), (0,1,3),
+    (1,2,3), (0,3,2) are its old faces 0, 3, 2 and 1 with their nodes in another order: faces 0, 1
+    and 3 keep their first node (the cross product only changes sign), face 2 starts at another
+    node (the mirrored face 2's area)."""
+    out, mirrored = areas
     if flip.any():
-        np.copyto(out[:, 1], np.where(flip, areas[3], areas[1]))
-        np.copyto(out[:, 2], np.where(flip, areas[4], areas[2]))
-        np.copyto(out[:, 3], np.where(flip, areas[1], areas[3]))
-    else:
-        out[:, 1:] = areas[1:4].T
+        old1 = out[:, 1].copy()
+        np.copyto(out[:, 1], out[:, 3], where=flip)
+        np.copyto(out[:, 3], old1, where=flip)
+        np.copyto(out[:, 2], mirrored, where=flip)
     return out.reshape(-1)
 
 

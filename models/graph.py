@@ -125,11 +125,14 @@ def _triangle_keys(
     return out
 
 
-def sort_keys(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def sort_keys(keys: np.ndarray, stable: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """(order, same): a stable sort of face keys (1D, or rows of a key table) and, for each sorted
-    position but the last, whether its key equals the next one (the two faces are one face)."""
+    position but the last, whether its key equals the next one (the two faces are one face).
+    stable=False: equal 1D keys in any order (numpy's quicksort: 2-3x timsort's speed on keys of an
+    unstructured mesh, slower only on nearly sorted ones), for callers that order each pair
+    themselves (shared_pairs)."""
     if keys.ndim == 1:
-        order = np.argsort(keys, kind="stable")
+        order = np.argsort(keys, kind="stable" if stable else None)
         same = np.empty(max(keys.size - 1, 0), dtype=bool)
         chunk = 1 << 16  # the sorted keys a chunk at a time (no sorted copy of every key)
         for s in range(0, same.size, chunk):
@@ -141,29 +144,48 @@ def sort_keys(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return order, np.all(sk[1:] == sk[:-1], axis=1)
 
 
+def shared_pairs(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The faces (a[i], b[i]) of each shared key as (smaller id, larger id): the pairs a stable
+    sort gives, whatever the order of equal keys (each key held by exactly these two faces).
+    `b` is overwritten (the larger ids): pass arrays of your own, e.g. order[1:][same]."""
+    lo = np.minimum(a, b)
+    np.maximum(a, b, out=b)
+    return lo, b
+
+
 def dual_graph(mesh: Mesh, faces: Faces | None = None, measures: bool = True) -> DualGraph:
     """Build the dual graph (linear after one sort of the face keys). measures=False: unit edge
     weights instead of shared edge lengths / face areas (for callers that need the topology only)."""
     if faces is None:
         c = cached_faces(mesh)
         faces = c["faces"] if c is not None else cell_faces(mesh)
-    order, same = _cached_pairing(mesh, faces) or sort_keys(face_keys(faces, mesh.n_points))
-    if same.size > 1 and np.any(same[1:] & same[:-1]):
-        j = np.flatnonzero(same[1:] & same[:-1])
-        cells = sorted_unique(faces.cell[order[np.concatenate([j, j + 1, j + 2])]])
-        raise MeshError(
-            f"the mesh is not a manifold: {j.size} edges/faces are shared by more than two cells, "
-            f"e.g. by cells {cells[:6].tolist()}; remove the overlapping cells or split the mesh there"
-        )
-    # temporaries are dropped as soon as they are used: at millions of cells the stage's peak memory
-    # is what costs (fresh pages), more than the arithmetic
-    i = np.flatnonzero(same)
-    fa, fb = order[i], order[i + 1]
-    del i, order, same
-    ca, cb = faces.cell[fa], faces.cell[fb]
-    self_loop = ca == cb
+    n = mesh.n_cells
+    fixed = _fixed_layout(faces, n)  # face id k * cell + local face
+    k = faces.n // n if fixed else 0
+    pairs = _cached_pairs(mesh, faces)  # reading paired the faces (every face met at most twice)
+    if pairs is not None:
+        fa, fb = pairs
+        del pairs  # dropped with fa and fb once used
+    else:
+        order, same = _cached_pairing(mesh, faces) or sort_keys(face_keys(faces, mesh.n_points), stable=False)
+        if same.size > 1 and np.any(same[1:] & same[:-1]):
+            j = np.flatnonzero(same[1:] & same[:-1])
+            cells = sorted_unique(faces.cell[order[np.concatenate([j, j + 1, j + 2])]])
+            raise MeshError(
+                f"the mesh is not a manifold: {j.size} edges/faces are shared by more than two cells, "
+                f"e.g. by cells {cells[:6].tolist()}; remove the overlapping cells or split the mesh there"
+            )
+        # temporaries are dropped as soon as they are used: at millions of cells the stage's peak
+        # memory is what costs (fresh pages), more than the arithmetic
+        fa, fb = shared_pairs(order[:-1][same], order[1:][same])
+        del order, same
+    if fixed:  # the cells by shifts, not gathers: faces.cell[f] == f // k
+        self_loop = (fa >> 2) == (fb >> 2) if k == 4 else (fa // k) == (fb // k)
+    else:
+        ca, cb = faces.cell[fa], faces.cell[fb]
+        self_loop = ca == cb
     if self_loop.any():
-        bad = sorted_unique(ca[self_loop])
+        bad = sorted_unique(faces.cell[fa[self_loop]])
         raise MeshError(
             f"{bad.size} cells have the same edge/face twice (duplicated nodes in a cell), e.g. cells "
             f"{bad[:6].tolist()}; fix their connectivity"
@@ -172,18 +194,22 @@ def dual_graph(mesh: Mesh, faces: Faces | None = None, measures: bool = True) ->
     partner = np.full(faces.n, -1, dtype=np.int64)
     partner[fa] = fb
     partner[fb] = fa
+    kept = None
     if not measures:
         fm = np.ones(fa.size)
     else:  # only the shared faces; reading computed every tetrahedron's face areas with its volume
-        kept = _cached_areas(mesh, faces)
+        kept = _cached_areas(mesh, faces, take=fixed)
         fm = kept[fa] if kept is not None else face_measures(mesh.points, faces, fa)
-    n = mesh.n_cells
-    if _fixed_layout(faces, n):
-        w = np.empty(faces.n)  # per face: the measure of the face it is shared with
-        w[fa] = fm
+    if fixed:
+        # per face: the measure of the face it is shared with (the kept areas, taken from the cache,
+        # already hold it on the side fa: no array of every face's measure made anew)
+        w = kept if kept is not None else np.empty(faces.n)
+        if kept is None:
+            w[fa] = fm
         w[fb] = fm
-        del fa, fb, ca, cb, fm
-        direct = _fixed_csr(faces.n // n, partner, w)
+        nnz = 2 * fa.size
+        del fa, fb, fm, kept
+        direct = _fixed_csr(k, partner, w, nnz)
         if direct is not None:
             indptr, indices, weights = direct
             return DualGraph(indptr=indptr, indices=indices, weights=weights, faces=faces, partner=partner)
@@ -221,18 +247,22 @@ def _fixed_layout(faces: Faces, n: int) -> bool:
     )
 
 
-def _fixed_csr(k: int, partner: np.ndarray, w: np.ndarray):
+def _fixed_csr(k: int, partner: np.ndarray, w: np.ndarray, nnz: int):
     """The canonical CSR straight from `partner` for the _fixed_layout (k faces per cell): each row
-    sorted among its own k entries by a sorting network of elementwise min / max, in chunks (no
-    COO conversion, no temporaries of the size of the mesh but the outputs). w: (F,) the measure
-    of every face. None when a row has a neighbour twice (the general path sums the measures)."""
+    sorted among its own k entries by a sorting network of elementwise min / max, in chunks written
+    straight into the outputs (no COO conversion, no temporaries of the size of the mesh). w: (F,)
+    the measure of every shared face; nnz: the number of shared faces (partner >= 0). None when a
+    row has a neighbour twice (the general path sums the measures)."""
     n = partner.size // k
     big = np.iinfo(np.int64).max
-    q = partner.reshape(n, k).copy()  # face id k * neighbour + local face: the neighbours' order
-    counts = np.empty(n, dtype=np.int64)
+    p = partner.reshape(n, k)  # face id k * neighbour + local face: the neighbours' order
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    indices = np.empty(nnz, dtype=np.int64)
+    weights = np.empty(nnz)
+    pos = 0
     chunk = 1 << 15
     for s in range(0, n, chunk):
-        c = [np.ascontiguousarray(q[s : s + chunk, j]) for j in range(k)]
+        c = [np.ascontiguousarray(p[s : s + chunk, j]) for j in range(k)]
         has = [x >= 0 for x in c]
         for j in range(k):
             c[j][~has[j]] = big  # the domain boundary sorts last
@@ -240,21 +270,24 @@ def _fixed_csr(k: int, partner: np.ndarray, w: np.ndarray):
             lo = np.minimum(c[i], c[j])
             np.maximum(c[i], c[j], out=c[j])
             c[i] = lo
+        cell = [x >> 2 for x in c] if k == 4 else [x // k for x in c]  # entries are >= 0
         for j in range(1, k):
-            if np.any((c[j] // k == c[j - 1] // k) & (c[j] != big)):
+            if np.any((cell[j] == cell[j - 1]) & (c[j] != big)):
                 return None
-        counts[s : s + chunk] = sum(has)
-        for j in range(k):
-            q[s : s + chunk, j] = c[j]
-    indptr = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(counts, out=indptr[1:])
-    q = q[q != big]  # row by row, the boundary (last in each row) left out
-    weights = w[q]  # a shared face's two sides have the same measure
-    if k == 4:
-        q >>= 2
-    else:
-        q //= k
-    return indptr, q, weights
+        indptr[s + 1 : s + 1 + c[0].size] = sum(has)
+        q = np.stack(c, axis=1)
+        q = q[q != big]  # row by row, the boundary (last in each row) left out
+        end = pos + q.size
+        np.take(w, q, out=weights[pos:end])  # a shared face's two sides have the same measure
+        if k == 4:
+            np.right_shift(q, 2, out=indices[pos:end])
+        else:
+            np.floor_divide(q, k, out=indices[pos:end])
+        pos = end
+    if pos != nnz:
+        raise AssertionError(f"_fixed_csr: {pos} neighbours for {nnz} shared faces")
+    np.cumsum(indptr[1:], out=indptr[1:])
+    return indptr, indices, weights
 
 
 def _cached_pairing(mesh: Mesh, faces: Faces) -> tuple[np.ndarray, np.ndarray] | None:
@@ -266,12 +299,25 @@ def _cached_pairing(mesh: Mesh, faces: Faces) -> tuple[np.ndarray, np.ndarray] |
     return c["order"], c["same"]
 
 
-def _cached_areas(mesh: Mesh, faces: Faces) -> np.ndarray | None:
-    """(F,) the area of every face of `faces` when reading computed them (all tetrahedra), else None."""
+def _cached_pairs(mesh: Mesh, faces: Faces) -> tuple[np.ndarray, np.ndarray] | None:
+    """The (fa, fb) face pairs reading made for the orientation (models.orientation._shared_pairs:
+    no face met 3+ times), when they are still this mesh's and `faces` are the faces reading kept.
+    Taken from the cache (held until the graph is built, not for the mesh's life: a later graph of
+    the mesh sorts the face keys again, to the same pairs)."""
     c = cached_faces(mesh)
     if c is None or c["faces"] is not faces:
         return None
-    return c.get("areas")
+    return c.pop("pairs", None)
+
+
+def _cached_areas(mesh: Mesh, faces: Faces, take: bool = False) -> np.ndarray | None:
+    """(F,) the area of every face of `faces` when reading computed them (all tetrahedra), else None.
+    take: the caller gets the array to overwrite, and the cache drops it (a later graph of the mesh
+    measures the faces again: face_measures gives these areas bit for bit)."""
+    c = cached_faces(mesh)
+    if c is None or c["faces"] is not faces:
+        return None
+    return c.pop("areas", None) if take else c.get("areas")
 
 
 def cached_faces(mesh: Mesh) -> dict | None:

@@ -120,7 +120,7 @@ def read_mesh(
 
         # .inp is Abaqus unless it looks like UCD
         if ext == ".ucd" or file_format is not None or is_ucd(path):
-            return mesh_from_meshio(read_ucd(path), physical_tag=physical_tag, weld=weld)
+            return mesh_from_meshio(read_ucd(path), physical_tag=physical_tag, weld=weld, owned=True)
     if file_format is None and ext not in meshio.extension_to_filetypes:
         raise MeshError(
             f"unknown mesh format {ext or '(no extension)'!r}; use one of: " + ", ".join(SUPPORTED_EXTENSIONS)
@@ -130,7 +130,7 @@ def read_mesh(
 
         simple = read_vtu_simple(path)  # the common layout without meshio's XML tree; else None
         if simple is not None:
-            return mesh_from_meshio(simple, physical_tag=physical_tag, weld=weld)
+            return mesh_from_meshio(simple, physical_tag=physical_tag, weld=weld, owned=True)
     try:
         with (
             warnings.catch_warnings(),
@@ -149,17 +149,20 @@ def read_mesh(
             # e.g. our own 3D output with its boundary faces, or polyhedra not sorted by vertex count
             from .vtu import read_vtu_mixed
 
-            return mesh_from_meshio(read_vtu_mixed(path), physical_tag=physical_tag, weld=weld)
+            return mesh_from_meshio(read_vtu_mixed(path), physical_tag=physical_tag, weld=weld, owned=True)
         msg = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
         if not any(ch.isalpha() for ch in msg):  # e.g. meshio's SystemExit(1) on a garbled file
             what = ext.lstrip(".") or file_format or "mesh"
             msg = f"not a valid {what} file ({' '.join([type(exc).__name__, msg]).strip()})"
         raise MeshError(f"cannot read {os.path.basename(path)} as a mesh: {msg}") from None
-    return mesh_from_meshio(m, physical_tag=physical_tag, weld=weld)
+    return mesh_from_meshio(m, physical_tag=physical_tag, weld=weld, owned=True)
 
 
-def mesh_from_meshio(m, physical_tag: str | None = None, weld: float | None = None) -> Mesh:
-    """Convert a meshio.Mesh (blocks of cells) into our CSR `Mesh`."""
+def mesh_from_meshio(
+    m, physical_tag: str | None = None, weld: float | None = None, owned: bool = False
+) -> Mesh:
+    """Convert a meshio.Mesh (blocks of cells) into our CSR `Mesh`. owned: `m` is ours to consume
+    (read here, dropped after): the mesh may keep and edit its arrays in place instead of a copy."""
     blocks = []
     for i, block in enumerate(m.cells):
         name = block.type
@@ -178,7 +181,9 @@ def mesh_from_meshio(m, physical_tag: str | None = None, weld: float | None = No
         key = tag_key if tdim == top else bnd_key
         tags = None if key is None else np.asarray(m.cell_data[key][i]).reshape(-1)
         cells.append((name, data, tags, tdim))
-    mesh = mesh_from_blocks(np.asarray(m.points, dtype=np.float64), cells, tag_name=tag_key, weld=weld)
+    mesh = mesh_from_blocks(
+        np.asarray(m.points, dtype=np.float64), cells, tag_name=tag_key, weld=weld, owned=owned
+    )
     from .boundary import group_names
 
     mesh.meta["group_names"], mesh.meta["boundary_names"] = group_names(
@@ -216,9 +221,16 @@ def _find_tag_key(cell_data: dict, physical_tag: str | None) -> str | None:
     return None
 
 
-def _csr_from_blocks(blocks):
+def _csr_from_blocks(blocks, owned: bool = False):
     """Concatenate blocks into CSR (a loop over blocks, not cells): fixed-width (n, w) arrays, or
-    (sizes, nodes) pairs of variable-width cells (polyhedra)."""
+    (sizes, nodes) pairs of variable-width cells (polyhedra). owned: the blocks are ours to keep, so
+    one contiguous int64 (n, w) block becomes the connectivity as it is (no copy)."""
+    if owned and len(blocks) == 1 and not isinstance(blocks[0], tuple):
+        d = np.asarray(blocks[0], dtype=np.int64)
+        if not d.flags.writeable:  # e.g. np.frombuffer of the file's bytes: orienting edits it in place
+            d = d.copy()
+        n, w = d.shape
+        return np.arange(0, n * w + 1, w, dtype=np.int64) if w else np.zeros(n + 1, np.int64), d.reshape(-1)
     sizes = (
         np.concatenate(
             [d[0] if isinstance(d, tuple) else np.full(len(d), d.shape[1], dtype=np.int64) for d in blocks]
@@ -239,11 +251,12 @@ def _csr_from_blocks(blocks):
 
 
 def mesh_from_blocks(
-    points: np.ndarray, blocks, tag_name: str | None = None, weld: float | None = None
+    points: np.ndarray, blocks, tag_name: str | None = None, weld: float | None = None, owned: bool = False
 ) -> Mesh:
     """Core builder: split elements from boundary cells, check, orient, project 2D meshes.
 
-    weld: merge points closer than this (see weld_points) before anything else is checked."""
+    weld: merge points closer than this (see weld_points) before anything else is checked.
+    owned: the blocks' arrays are the caller's to give away (see mesh_from_meshio)."""
     if points.ndim != 2 or len(points) == 0:
         raise MeshError("the mesh has no points")
     if points.shape[1] == 1:
@@ -298,7 +311,7 @@ def mesh_from_blocks(
             n_so_far += len(arr)
         if tags is not None:
             tag_list.append(tags)
-    offsets, conn = _csr_from_blocks(data_list)
+    offsets, conn = _csr_from_blocks(data_list, owned=owned)
     cell_types = np.concatenate(types_list)
     tags = np.concatenate(tag_list).astype(np.int64) if tag_list and len(tag_list) == len(elem) else None
     if tags is not None and len(tags) != len(cell_types):
@@ -474,7 +487,8 @@ def _orient_and_check(mesh: Mesh) -> None:
         vol, cen = _measures_and_centroids(mesh, faces)
     mesh.meta["measures"] = np.abs(vol)  # orientation does not change measure or centroid
     mesh.meta["centroids"] = cen
-    bbox = mesh.points.max(axis=0) - mesh.points.min(axis=0)
+    lo, hi = _bounds(mesh.points)
+    bbox = hi - lo
     scale = float(np.linalg.norm(bbox)) ** mesh.dim
     if scale == 0:
         raise MeshError("the mesh is degenerate: all points coincide")
@@ -516,16 +530,23 @@ def _orient_and_check(mesh: Mesh) -> None:
     }
 
 
+def _bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(min, max) per coordinate, one column at a time: the same values as points.min(axis=0) /
+    max(axis=0), a reduction numpy does slowly over rows of 2 or 3 (~30x at a million points)."""
+    cols = range(points.shape[1])
+    return np.array([points[:, d].min() for d in cols]), np.array([points[:, d].max() for d in cols])
+
+
 def _keep_faces(mesh: Mesh, flip: np.ndarray, faces, pairing: dict, areas=None) -> None:
     """Keep the faces and the face pairing the orientation sorted, for prepare / dual_graph (one
     sort and one gather of every face: the costliest steps of reading, not done twice).
     They were made before the flips: a flipped tetrahedron lists the same faces in another local
     order and direction, so its faces are rebuilt in place and face ids in the pairing renumbered
-    (the keys, hence `same`, do not change). Other meshes keep them only when nothing was flipped.
+    (the keys, hence the pairs, do not change). Other meshes keep them only when nothing was flipped.
     areas: all tetrahedra, every face's area (face id 4 * cell + local face) after the flips."""
     from .geometry import FACE_TEMPLATES, _all_tetrahedra
 
-    order = pairing.get("order")
+    order, pairs = pairing.get("order"), pairing.get("pairs")
     if flip.any():
         if not _all_tetrahedra(mesh):
             return
@@ -534,18 +555,23 @@ def _keep_faces(mesh: Mesh, flip: np.ndarray, faces, pairing: dict, areas=None) 
         faces.nodes.reshape(-1, 12)[sel] = np.take(
             mesh.connectivity.reshape(-1, 4)[sel], np.array(tmpl).reshape(-1), axis=1
         )
-        if order is not None:
-            m = MIRROR[VTK_TETRA]
-            # new local face k has the nodes of old local face m[tmpl[k]]: old j -> new k
-            mirrored = [frozenset(m[list(f)].tolist()) for f in tmpl]
-            new_of_old = np.array([mirrored.index(frozenset(f)) for f in tmpl])
-            local = order & 3  # face id = 4 * cell + local face
-            order = np.where(flip[order >> 2], order - local + new_of_old[local], order)
+        m = MIRROR[VTK_TETRA]
+        # new local face k has the nodes of old local face m[tmpl[k]]: old j -> new k
+        mirrored = [frozenset(m[list(f)].tolist()) for f in tmpl]
+        new_of_old = np.array([mirrored.index(frozenset(f)) for f in tmpl])
+
+        def renumber(ids: np.ndarray) -> np.ndarray:
+            local = ids & 3  # face id = 4 * cell + local face
+            return np.where(flip[ids >> 2], ids - local + new_of_old[local], ids)
+
+        order = None if order is None else renumber(order)
+        pairs = None if pairs is None else (renumber(pairs[0]), renumber(pairs[1]))
     mesh.meta["cell_faces"] = {
         "connectivity": mesh.connectivity,
         "faces": faces,
         "order": order,
         "same": pairing.get("same"),
+        "pairs": pairs,
         "areas": areas,
     }
 
@@ -587,7 +613,7 @@ def describe(mesh: Mesh) -> dict:
         "cell_types": mesh.cell_type_counts(),
         "lower_dim_cells": dict(mesh.meta.get("lower_dim_cells", {})),
         "physical_groups": mesh.physical_groups(),
-        "bbox": [p.min(axis=0).tolist(), p.max(axis=0).tolist()],
+        "bbox": [x.tolist() for x in _bounds(p)],
         **_boundary_summary(mesh),
     }
 

@@ -123,9 +123,9 @@ def _consistent(faces: Faces, flip: np.ndarray, n_points: int) -> bool | None:
 
 
 def _pairing(faces: Faces, n_points: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """(order, same) of models.graph.sort_keys for all-triangle faces whose key fits in int64 (the
-    pairing the dual graph needs too) and the faces' _face_direction bits (from the same pass over
-    the nodes as the keys), else None."""
+    """(order, same) of models.graph.sort_keys (not stable: see _shared_pairs) for all-triangle
+    faces whose key fits in int64 (the pairing the dual graph needs too) and the faces'
+    _face_direction bits (from the same pass over the nodes as the keys), else None."""
     from .graph import _triangle_keys, sort_keys
 
     bits = max(int(n_points - 1).bit_length(), 1)
@@ -133,17 +133,23 @@ def _pairing(faces: Faces, n_points: int) -> tuple[np.ndarray, np.ndarray, np.nd
         return None
     direction = np.empty(faces.n, dtype=bool)
     keys = _triangle_keys(faces.nodes.reshape(-1, 3), bits, direction=direction)
-    return (*sort_keys(keys), direction)
+    return (*sort_keys(keys, stable=False), direction)
 
 
-def _consistent_paired(faces: Faces, flip: np.ndarray, order: np.ndarray, same: np.ndarray, bit=None) -> bool:
-    """_consistent for all-triangle faces from the undirected pairing: no face is met twice in the
-    same direction. Two triangles with the same nodes have the same directed key exactly when their
-    direction bits (after the flips) agree; a face met 3+ times repeats a direction."""
+def _shared_pairs(order: np.ndarray, same: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(fa, fb): the two faces of every key of a sorted pairing, fa < fb (stable or not), or None
+    when a key is met 3+ times (a non-manifold seam)."""
     if same.size > 1 and np.any(same[1:] & same[:-1]):
-        return False
-    i = np.flatnonzero(same)
-    fa, fb = order[i], order[i + 1]
+        return None
+    from .graph import shared_pairs
+
+    return shared_pairs(order[:-1][same], order[1:][same])  # by the mask: no index array of the pairs
+
+
+def _consistent_paired(faces: Faces, flip: np.ndarray, fa: np.ndarray, fb: np.ndarray, bit=None) -> bool:
+    """_consistent for all-triangle faces from the undirected pairs (_shared_pairs: every key met
+    at most twice): no face is met twice in the same direction. Two triangles with the same nodes
+    have the same directed key exactly when their direction bits (after the flips) agree."""
     bit = _face_direction(faces) if bit is None else bit
     if not flip.any():  # e.g. tetrahedra already mirrored by their own sign
         return not np.any(bit[fa] == bit[fb])
@@ -154,8 +160,10 @@ def _pairs_of(order: np.ndarray, same: np.ndarray) -> tuple[np.ndarray, np.ndarr
     """Pairs (fa, fb) from a sorted pairing, only where exactly two faces have the key."""
     before = np.r_[False, same[:-1]] if same.size else same
     after = np.r_[same[1:], False] if same.size else same
+    from .graph import shared_pairs
+
     i = np.flatnonzero(same & ~before & ~after)
-    return order[i], order[i + 1]
+    return shared_pairs(order[i], order[i + 1])
 
 
 def orientation_flips(
@@ -164,8 +172,9 @@ def orientation_flips(
     """(C,) bool: the cells to flip so that neighbours agree and every piece is positive overall.
 
     `measures` are the signed measures in the cells' current node order. Raises MeshError when no
-    consistent orientation exists. `pairing`: a dict that receives "order" and "same" (the sorted
-    face-key pairing of `faces`, before any flip) when they were computed, for the dual graph.
+    consistent orientation exists. `pairing`: a dict that receives, when the faces were paired here
+    (before any flip), for the dual graph: "pairs", the (fa, fb) of _shared_pairs, or "order" and
+    "same" (models.graph.sort_keys) when a face is met 3+ times (the graph reports it).
     """
     n = mesh.n_cells
     own = measures < 0
@@ -173,14 +182,22 @@ def orientation_flips(
         return own  # fast path (one plain sort): flipping each cell by its own sign is consistent
     faces = faces or cell_faces(mesh)
     paired = _pairing(faces, mesh.n_points) if mesh.dim == 3 else None
+    pairs = None
     if paired is not None:
+        pairs = _shared_pairs(*paired[:2])
         if pairing is not None:
-            pairing["order"], pairing["same"] = paired[:2]
-        if _consistent_paired(faces, own, *paired):
+            if pairs is not None:  # the graph needs these pairs only, not the sorted order
+                pairing["pairs"] = pairs
+            else:
+                pairing["order"], pairing["same"] = paired[:2]
+        if pairs is not None and _consistent_paired(faces, own, *pairs, paired[2]):
             return own
     elif mesh.dim == 3 and _consistent(faces, own, mesh.n_points):
         return own
-    fa, fb = _pairs_of(*paired[:2]) if paired is not None else _face_pairs(faces, mesh.n_points)
+    if pairs is not None:  # every key met at most twice: _pairs_of would give these
+        fa, fb = pairs
+    else:
+        fa, fb = _pairs_of(*paired[:2]) if paired is not None else _face_pairs(faces, mesh.n_points)
     ca, cb = faces.cell[fa], faces.cell[fb]
     keep = ca != cb
     fa, fb, ca, cb = fa[keep], fb[keep], ca[keep], cb[keep]

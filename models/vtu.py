@@ -465,10 +465,16 @@ def _decode_zlib(text: bytes, dtype: np.dtype, header: np.dtype) -> np.ndarray:
     h = header.itemsize
     n_blocks = int(np.frombuffer(base64.b64decode(text[: -(-h // 3) * 4])[:h], header)[0])
     n_chars = -(-(h * (3 + n_blocks)) // 3) * 4
-    sizes = np.frombuffer(base64.b64decode(text[:n_chars]), header)[3 : 3 + n_blocks].astype(np.int64)
+    head = np.frombuffer(base64.b64decode(text[:n_chars]), header)
+    sizes = head[3 : 3 + n_blocks].astype(np.int64)
     raw = memoryview(base64.b64decode(text[n_chars:]))
     ends = np.cumsum(sizes).tolist()
     starts = [0, *ends[:-1]]
+    if n_blocks:  # the blocks inflated straight into the array the header announces
+        full, last = int(head[1]), int(head[2])
+        out = _inflate_into(raw, starts, ends, (n_blocks - 1) * full + (last or full), dtype.itemsize)
+        if out is not None:
+            return out.view(dtype)
     seen: dict[bytes, bytes] = {}  # equal blocks (a types array of one cell type) are inflated once
     blocks = []
     for s, e in zip(starts, ends, strict=True):
@@ -480,3 +486,34 @@ def _decode_zlib(text: bytes, dtype: np.dtype, header: np.dtype) -> np.ndarray:
     if any(len(b) % dtype.itemsize for b in blocks):
         raise ValueError("a block does not hold whole items")
     return np.frombuffer(bytearray().join(blocks), dtype=dtype)  # writable, as meshio's concatenate
+
+
+def _inflate_into(raw: memoryview, starts: list, ends: list, total: int, itemsize: int) -> np.ndarray | None:
+    """The zlib blocks raw[start:end] inflated one after the other into one new (total,) uint8 array
+    (no list of inflated blocks joined into a copy: half the memory), or None when they do not fill
+    exactly `total` bytes (the caller then concatenates them as meshio does). Equal compressed blocks
+    are inflated once. ValueError when a block does not hold whole items (meshio's frombuffer)."""
+    import zlib
+
+    out = np.empty(total, dtype=np.uint8)
+    seen: dict[memoryview, tuple[int, int]] = {}  # compressed block -> where its bytes went
+    pos = 0
+    for s, e in zip(starts, ends, strict=True):
+        b = raw[s:e]
+        done = seen.get(b)
+        n = done[1] - done[0] if done is not None else None
+        if done is None:
+            d = zlib.decompress(b)
+            n = len(d)
+            if n % itemsize:
+                raise ValueError("a block does not hold whole items")
+            if pos + n > total:
+                return None
+            out[pos : pos + n] = np.frombuffer(d, dtype=np.uint8)
+            seen[b] = (pos, pos + n)
+        else:
+            if pos + n > total:
+                return None
+            out[pos : pos + n] = out[done[0] : done[1]]
+        pos += n
+    return out if pos == total else None

@@ -139,6 +139,30 @@ def test_clockwise_and_inverted_cells_are_reoriented():
     assert np.all(signed_measures(m3) > 0)
 
 
+def test_reading_orients_its_own_arrays_in_place_but_never_the_callers(tmp_path):
+    """read_mesh gives its freshly read connectivity to the Mesh (mirrored in place, no copy);
+    mesh_from_arrays / mesh_from_meshio must leave the caller's arrays as they were."""
+    from models.io import mesh_from_meshio
+
+    hp, h = tets(3)
+    h = h.copy()
+    h[::3] = h[::3][:, [0, 2, 1, 3]]  # a third of the cells inverted: orienting edits them
+    before = h.copy()
+    m1 = mesh_from_arrays(hp, [("tetra", h)])
+    mm = meshio.Mesh(hp, [("tetra", h)])
+    m2 = mesh_from_meshio(mm)
+    assert m1.meta["orientation"]["flipped"] > 0
+    assert np.array_equal(h, before) and np.array_equal(mm.cells[0].data, before)
+    assert not np.shares_memory(m1.connectivity, h) and not np.shares_memory(m2.connectivity, h)
+    for name in ("cube.vtu", "cube.msh"):
+        m3 = read_mesh(write(tmp_path, name, hp, [("tetra", h)]))
+        assert np.array_equal(h, before)
+        for a in ("connectivity", "offsets", "cell_types", "points"):
+            assert np.array_equal(getattr(m3, a), getattr(m1, a)), (name, a)
+            assert getattr(m3, a).dtype == getattr(m1, a).dtype, (name, a)
+        assert np.array_equal(m3.meta["signed_measures"], m1.meta["signed_measures"])
+
+
 def test_named_physical_tag(tmp_path):
     p, t = triangles(3)
     path = write(
@@ -361,3 +385,34 @@ def test_simple_vtu_reader_gives_meshio_arrays_or_leaves_the_file_to_meshio(tmp_
     assert read_vtu_simple(broken) is None
     with pytest.raises(MeshError):
         read_mesh(broken)
+
+
+def test_zlib_blocks_inflate_to_meshio_concatenation_whatever_the_header_says():
+    """_decode_zlib inflates the blocks straight into the array the header announces; equal blocks
+    are inflated once; a header whose sizes disagree with the blocks gives meshio's answer (the
+    inflated blocks concatenated), and a block of partial items is refused as meshio refuses it."""
+    import base64
+    import zlib
+
+    from models.vtu import _decode_zlib
+
+    rng = np.random.default_rng(3)
+    u4 = np.dtype("<u4")
+    a = rng.integers(0, 1000, 4096 * 3 + 1000, dtype=np.int64)
+    a[4096 : 2 * 4096] = a[:4096]  # two equal blocks (compressed alike)
+    raw = a.tobytes()
+    blocks = [raw[i : i + 32768] for i in range(0, len(raw), 32768)]
+    comp = [zlib.compress(b) for b in blocks]
+
+    def encode(full: int, last: int) -> bytes:
+        head = np.array([len(comp), full, last, *map(len, comp)], dtype=u4).tobytes()
+        return base64.b64encode(head) + base64.b64encode(b"".join(comp))
+
+    honest = _decode_zlib(encode(32768, len(blocks[-1])), np.dtype("<i8"), u4)
+    assert np.array_equal(honest, a) and honest.flags.writeable and honest.dtype == np.dtype("<i8")
+    for full, last in ((32768, 0), (32768, 8), (40000, 123), (8, 8)):  # headers that lie
+        out = _decode_zlib(encode(full, last), np.dtype("<i8"), u4)
+        assert np.array_equal(out, a) and out.flags.writeable
+    comp[1] = zlib.compress(blocks[1][:-4])  # 4 bytes short of whole int64 items
+    with pytest.raises(ValueError):
+        _decode_zlib(encode(32768, len(blocks[-1])), np.dtype("<i8"), u4)

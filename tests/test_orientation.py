@@ -148,15 +148,19 @@ def test_faces_kept_by_reading_give_the_same_graph(n):
     mesh = mesh_from_arrays(pts, [("tetra", t)])
     assert mesh.meta["orientation"]["flipped"] > 0
     kept = cached_faces(mesh)
-    assert kept is not None and kept["order"] is not None
+    assert kept is not None and kept["pairs"] is not None and kept["order"] is None
     fresh = cell_faces(mesh)
     for a in ("cell", "offsets", "nodes"):
         assert np.array_equal(getattr(kept["faces"], a), getattr(fresh, a))
+    _assert_kept_pairs_are_fresh_pairs(mesh, kept, fresh)
     g1 = dual_graph(mesh)
     assert g1.faces is kept["faces"]
+    assert "areas" not in kept and "pairs" not in kept  # the graph took them (areas: its per-face measures)
     g2 = dual_graph(mesh, fresh)
+    g3 = dual_graph(mesh)  # the kept faces again: pairs sorted and areas measured anew
     for a in ("indptr", "indices", "weights", "partner"):
         assert np.array_equal(getattr(g1, a), getattr(g2, a)), a
+        assert np.array_equal(getattr(g1, a), getattr(g3, a)), a
     assert g1.n_edges == 2 * 6 * n**3 - 6 * n * n  # every inner face once (4 faces per tetrahedron)
     # the all-tetrahedra CSR (built from partner) is scipy's canonical CSR of the shared faces
     import scipy.sparse as sp
@@ -172,6 +176,39 @@ def test_faces_kept_by_reading_give_the_same_graph(n):
     assert np.array_equal(g1.weights, a.data)
     mesh.connectivity = mesh.connectivity.copy()  # another connectivity: the kept faces are not used
     assert cached_faces(mesh) is None
+
+
+def _assert_kept_pairs_are_fresh_pairs(mesh, kept, fresh):
+    """The face pairs reading kept (renumbered for cells flipped after the pairing) are the pairs
+    of a fresh stable sort of the fresh faces' keys."""
+    from models.graph import face_keys, sort_keys
+
+    order, same = sort_keys(face_keys(fresh, mesh.n_points))
+    i = np.flatnonzero(same)
+    fa, fb = kept["pairs"]
+    assert np.array_equal(fa, order[i]) and np.array_equal(fb, order[i + 1])
+
+
+def test_faces_kept_by_reading_of_a_folded_tetrahedron_give_the_same_graph():
+    """A folded tetrahedron is flipped again after the faces were paired: its faces and their ids
+    in the kept pairs are renumbered; the graph must be the one built from fresh faces."""
+    from models.geometry import cell_faces
+    from models.graph import cached_faces, dual_graph
+
+    p, t, cell = folded_tet()
+    t = t.copy()
+    t[::3] = t[::3][:, [0, 2, 1, 3]]  # mixed orientation in the input
+    mesh = mesh_from_arrays(p, [("tetra", t)])
+    assert mesh.meta["orientation"]["folded_cells"] == [cell]
+    kept = cached_faces(mesh)
+    assert kept is not None and kept["pairs"] is not None
+    fresh = cell_faces(mesh)
+    for a in ("cell", "offsets", "nodes"):
+        assert np.array_equal(getattr(kept["faces"], a), getattr(fresh, a))
+    _assert_kept_pairs_are_fresh_pairs(mesh, kept, fresh)
+    g1, g2 = dual_graph(mesh), dual_graph(mesh, fresh)
+    for a in ("indptr", "indices", "weights", "partner"):
+        assert np.array_equal(getattr(g1, a), getattr(g2, a)), a
 
 
 def test_face_areas_kept_by_reading_are_face_measures_bit_for_bit():
@@ -209,3 +246,21 @@ def test_face_areas_kept_by_reading_are_face_measures_bit_for_bit():
     g1, g2 = dual_graph(mesh), dual_graph(mesh, fresh)
     for a in ("indptr", "indices", "weights", "partner"):
         assert np.array_equal(getattr(g1, a), getattr(g2, a)), a
+    # the reference: a stable sort of the keys, each shared face measured on its lower face id (the
+    # pairing sorts without stability and orders each pair itself: the same pairs, the same bits)
+    import scipy.sparse as sp
+
+    from models.graph import face_keys
+
+    keys = face_keys(fresh, mesh.n_points)
+    order = np.argsort(keys, kind="stable")
+    i = np.flatnonzero(keys[order][1:] == keys[order][:-1])
+    fa, fb = order[i], order[i + 1]
+    assert np.all(fa < fb)
+    fm = face_measures(mesh.points, fresh, fa)
+    assert not np.array_equal(fm, face_measures(mesh.points, fresh, fb))  # the sides differ by bits
+    ca, cb = fresh.cell[fa], fresh.cell[fb]
+    ref = sp.csr_matrix((np.r_[fm, fm], (np.r_[ca, cb], np.r_[cb, ca])), shape=(mesh.n_cells,) * 2)
+    ref.sort_indices()
+    assert np.array_equal(g1.indptr, ref.indptr) and np.array_equal(g1.indices, ref.indices)
+    assert np.array_equal(g1.weights, ref.data)
