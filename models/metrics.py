@@ -100,10 +100,17 @@ def _triangle_neighbours(tri: np.ndarray, elem: np.ndarray, n_points: int) -> np
     fwd = np.where(u < v, fwd, -fwd)
     key = np.minimum(u, v) * np.int64(n_points) + np.maximum(u, v)
     el = np.repeat(elem, 3)
-    order = np.lexsort((key, el))
-    ks, es = key[order], el[order]
-    first = np.ones(order.size, dtype=bool)
-    first[1:] = (ks[1:] != ks[:-1]) | (es[1:] != es[:-1])
+    if (int(elem.max()) + 1) * float(n_points) ** 2 < 2.0**62:  # one int64 key: one sort
+        ks = el * np.int64(n_points) ** 2 + key
+        order = np.argsort(ks)
+        ks = ks[order]
+        first = np.ones(order.size, dtype=bool)
+        first[1:] = ks[1:] != ks[:-1]
+    else:
+        order = np.lexsort((key, el))
+        ks, es = key[order], el[order]
+        first = np.ones(order.size, dtype=bool)
+        first[1:] = (ks[1:] != ks[:-1]) | (es[1:] != es[:-1])
     start = np.flatnonzero(first)
     cnt = np.diff(np.r_[start, order.size])
     pair = start[cnt == 2]
@@ -331,11 +338,15 @@ def _prepare(poly: PolyMesh) -> _Geometry:
         ic = np.clip(
             ((cen - bbox_lo[prim_elem]) / span * ((1 << bits) - 1)).astype(np.int64), 0, (1 << bits) - 1
         )
-        code = np.zeros(prim.shape[0], dtype=np.int64)
+        # interleave the bits with one table lookup per axis (bit b of axis k -> bit b * dim + k)
+        v = np.arange(1 << bits, dtype=np.int64)
+        spread = np.zeros(1 << bits, dtype=np.int64)
         for b in range(bits):
-            for k in range(dim):
-                code |= ((ic[:, k] >> b) & 1) << (b * dim + k)
-        perm = np.lexsort((code, prim_elem))
+            spread |= ((v >> b) & 1) << (b * dim)
+        code = prim_elem.astype(np.int64) << (bits * dim)  # elements first (fits: bits * dim <= 32)
+        for k in range(dim):
+            code |= spread[ic[:, k]] << k
+        perm = np.argsort(code, kind="stable")
         inv = np.empty_like(perm)
         inv[perm] = np.arange(perm.size)
         prim, prim_elem, cen = prim[perm], prim_elem[perm], cen[perm]

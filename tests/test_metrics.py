@@ -863,3 +863,29 @@ def test_vectorized_2d_hulls_match_qhull():
         assert got == {tuple(x) for x in p[ref.vertices]}
         assert np.all(p @ hull_eq[e][:, :2].T + hull_eq[e][:, 2] <= 1e-12)
         assert np.allclose(np.linalg.norm(hull_eq[e][:, :2], axis=1), 1.0)
+
+
+def test_triangle_neighbours_one_key_sort_matches_lexsort_and_brute_force():
+    """_triangle_neighbours sorts one int64 key when (elements x points^2) fits, else two keys
+    (lexsort): both give the same neighbours, equal to a brute-force edge match (two elements)."""
+    from models.metrics import _triangle_neighbours
+
+    v, faces = l_prism(1.5)
+    tri = np.array([[f[0], f[j], f[j + 1]] for f in faces for j in range(1, len(f) - 1)])
+    tri = np.vstack([tri, tri + len(v)])  # a second element on its own points
+    elem = np.repeat([0, 1], len(tri) // 2)
+    npts = 2 * len(v)
+    fast = _triangle_neighbours(tri, elem, npts)
+    slow = _triangle_neighbours(tri, elem, 1 << 31)  # elements x points^2 >= 2^62: the lexsort path
+    assert np.array_equal(fast, slow)
+    want = np.full_like(fast, -1)
+    for i, t in enumerate(tri):
+        for k, (a, b) in enumerate(((t[0], t[1]), (t[0], t[2]), (t[1], t[2]))):
+            hits = [
+                j for j, s in enumerate(tri) if j != i and elem[j] == elem[i] and {a, b} <= set(s.tolist())
+            ]
+            if len(hits) == 1:
+                want[i, k] = hits[0]
+    # the brute force ignores orientation: compare where the fast one found a pair (nearly all)
+    assert (fast >= 0).sum() > 0.9 * fast.size
+    assert np.array_equal(fast[fast >= 0], want[fast >= 0])
