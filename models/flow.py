@@ -26,6 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import breadth_first_order, connected_components, maximum_flow
 
+from .csr import kept_pointers, row_pointers, run_starts
 from .partitioners.base import GraphBatch
 
 
@@ -34,22 +35,6 @@ def integer_capacities(ec: np.ndarray) -> np.ndarray:
     ec = np.asarray(ec, dtype=np.float64)
     scale = 1.0 if np.allclose(ec, np.rint(ec)) else 1000.0 / max(float(ec.mean()), 1e-300)
     return np.clip(np.rint(ec * scale), 1, 2**20).astype(np.int32)
-
-
-def run_starts(a: np.ndarray) -> np.ndarray:
-    """(len(a),) bool: where a run of equal values of `a` starts (np.r_ costs ~10 us a call)."""
-    out = np.empty(a.size, dtype=bool)
-    if a.size:
-        out[0] = True
-        np.not_equal(a[1:], a[:-1], out=out[1:])
-    return out
-
-
-def row_pointers(counts: np.ndarray) -> np.ndarray:
-    """CSR row pointers (len(counts) + 1,) of rows with these entry counts."""
-    ptr = np.zeros(counts.size + 1, dtype=np.int64)
-    np.cumsum(counts, out=ptr[1:])
-    return ptr
 
 
 def edges_of(indptr, v):
@@ -310,9 +295,7 @@ def part_components(rows, cols, labels, k, parts=None, indptr=None):
     if parts is not None:
         same &= parts[labels[rows]]
     if indptr is not None:  # kept entries per row from one running count
-        kept = np.zeros(same.size + 1, dtype=np.int64)
-        np.cumsum(same, out=kept[1:])
-        ptr = kept[indptr]
+        ptr = kept_pointers(same, indptr)
     else:
         ptr = row_pointers(np.bincount(rows[same], minlength=n))
     # float64 ones: csgraph converts other data types to float64 first

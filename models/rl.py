@@ -29,6 +29,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from .csr import run_starts
 from .partitioners.base import GraphBatch
 from .refine import CutState, _segment_first_argmax, bisection_ncut, cut_band
 
@@ -363,14 +364,6 @@ def _actor_logits(weights, x: np.ndarray, adj) -> np.ndarray:
     return (h @ wo + bo)[:, 0].astype(np.float64)
 
 
-def _run_starts(seg: np.ndarray) -> np.ndarray:
-    """Positions where a run of equal values starts (seg non-empty)."""
-    first = np.empty(seg.size, dtype=bool)
-    first[0] = True
-    np.not_equal(seg[1:], seg[:-1], out=first[1:])
-    return first
-
-
 def _policy_pass(model: ActorCritic, env: RefinerEnv, steps: int, per_pass: int, slack: int = 8):
     """One greedy episode of the policy on `env` (the moves and the normalized cut after each).
 
@@ -438,7 +431,7 @@ def _policy_pass(model: ActorCritic, env: RefinerEnv, steps: int, per_pass: int,
             hit = np.flatnonzero(ok)
             if hit.size:
                 hg = cand_g[hit]
-                first = hit[_run_starts(hg)]
+                first = hit[run_starts(hg)]
                 pick[cand_g[first]] = cand[first]
                 taken[first] = True
             need = truncated & (pick < 0) & (env.budget > s)
@@ -449,7 +442,7 @@ def _policy_pass(model: ActorCritic, env: RefinerEnv, steps: int, per_pass: int,
                 h2 = np.flatnonzero(ok2)
                 if h2.size:
                     g2 = gi[fo[h2]]
-                    f2 = h2[_run_starts(g2)]
+                    f2 = h2[run_starts(g2)]
                     pick[gi[fo[f2]]] = fo[f2]
             got = pick >= 0
             if not got.any():
