@@ -122,7 +122,7 @@ def write_hierarchy(
     merged: the polytopes models.merge.merge already made of each level (build_hierarchy's), not
     merged again."""
     from .merge import merge, sort_by_vertex_count
-    from .vtu import write_vtu
+    from .vtu import points_xml, write_vtu
 
     out_dir = os.fspath(out_dir)
     os.makedirs(out_dir, exist_ok=True)
@@ -154,6 +154,10 @@ def write_hierarchy(
     }
     if not metrics and nested:
         stats = level_statistics(mesh, g, levels, data.measures)  # all levels at once
+    pts_xml = [None] * len(polys)  # the Points array, encoded once for the levels that share it
+    for L, poly in enumerate(polys):
+        same = next((j for j in range(L) if _same_points(polys[j], poly)), None)
+        pts_xml[L] = points_xml(poly) if same is None else pts_xml[same]
     for L, (labels, poly) in enumerate(zip(levels, polys, strict=True)):
         entry = {
             "level": L,
@@ -185,7 +189,7 @@ def write_hierarchy(
         _write_json(os.path.join(out_dir, f"level_{L}.metrics.json"), rep)
         entry["metrics"] = f"level_{L}.metrics.json"
         entry["normalized_cut"] = rep["partition"]["normalized_cut"]
-        write_vtu(os.path.join(out_dir, entry["mesh"]), poly, cell_data)
+        write_vtu(os.path.join(out_dir, entry["mesh"]), poly, cell_data, points_xml=pts_xml[L])
         _write_json(os.path.join(out_dir, entry["labels"]), labels)
         if L > 0:
             entry["parent"] = f"level_{L}.parent.json"
@@ -204,6 +208,15 @@ def write_hierarchy(
             entry["aggregation"] = op
     _write_json(os.path.join(out_dir, "hierarchy.json"), index)
     return index
+
+
+def _same_points(a, b) -> bool:
+    """Do two polytope meshes write the same Points array (the same points, the same 2D frame)?"""
+    if a.dim != b.dim or not (a.points is b.points or np.array_equal(a.points, b.points)):
+        return False
+    if a.dim != 2 or (a.frame is None and b.frame is None):
+        return True
+    return a.frame is not None and b.frame is not None and np.array_equal(a.frame, b.frame)
 
 
 def _components_count(indptr: np.ndarray, indices: np.ndarray, labels: np.ndarray) -> int:
@@ -228,8 +241,8 @@ def level_statistics(mesh: Mesh, graph, levels: list[np.ndarray], measures: np.n
     level's connectedness is decided on the graph of the finer level's elements."""
     import scipy.sparse as sp
 
-    from .metrics import summarize
     from .partitioners.rtree import _small_int, cell_boxes
+    from .summary import summarize
 
     indptr, indices = np.asarray(graph.indptr, dtype=np.int64), np.asarray(graph.indices, dtype=np.int64)
     n = indptr.size - 1
