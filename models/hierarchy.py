@@ -20,7 +20,7 @@ import os
 
 import numpy as np
 
-from .agglomerate import CellData, compact_labels, connected_parts
+from .celldata import CellData, compact_labels
 from .mesh import Mesh
 
 
@@ -58,6 +58,8 @@ def nested_levels(
         base = int(rec.max()) + 1 if rec.size else 0
         full[outside] = base + np.arange(int(outside.sum()))
         coarse = _majority(finer, full)[finer]
+        from .agglomerate import connected_parts
+
         coarse, _ = connected_parts(data, coarse, all_nodes)
         coarse = compact_labels(coarse)
         if mesh is not None:
@@ -435,7 +437,6 @@ def build_hierarchy(
     holds each level's polytopes (pass them to write_hierarchy as `merged`)."""
     import time
 
-    from .agglomerate import agglomerate
     from .errors import ParameterError
     from .partitioners import get_partitioner
     from .partitioners.rtree import cell_boxes, level_counts, make_connected, rtree_levels
@@ -472,6 +473,8 @@ def build_hierarchy(
         levels = rtree_levels(batch, counts, groups=tags, **opts)
         how = "native"
     else:
+        from .agglomerate import agglomerate
+
         part = get_partitioner(model, seed=seed, **(model_options or {}))
         if part.supports_kway:
             fine = agglomerate(mesh, data, model=part, mode="kway", k=counts[-1], seed=seed).labels
