@@ -17,8 +17,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
+from .celldata import CellData, compact_labels  # here too: models.agglomerate.CellData
 from .errors import ParameterError
-from .graph import DualGraph, kept_edges, sorted_unique, subgraph_by_labels
+from .graph import kept_edges, sorted_unique, subgraph_by_labels
 from .mesh import Mesh
 from .partitioners import Partitioner, get_partitioner
 from .partitioners.base import GraphBatch
@@ -51,28 +52,6 @@ class Agglomeration:
             "parts_split": int(self.parts_split),
             "fragments_absorbed": int(self.fragments_absorbed),
         }
-
-
-@dataclass
-class CellData:
-    """What partitioners need about the cells: graph + geometry (+ tags)."""
-
-    graph: DualGraph
-    measures: np.ndarray
-    centroids: np.ndarray
-    points: np.ndarray
-    offsets: np.ndarray
-    connectivity: np.ndarray
-    tags: np.ndarray | None
-
-
-def compact_labels(labels: np.ndarray) -> np.ndarray:
-    """Renumber labels to 0..K-1 keeping their order (linear, no sort)."""
-    if labels.size == 0:
-        return labels
-    present = np.zeros(int(labels.max()) + 1, dtype=bool)
-    present[labels] = True
-    return (np.cumsum(present) - 1)[labels]
 
 
 def make_batch(data: CellData, labels: np.ndarray, nodes: np.ndarray | None = None) -> GraphBatch:

@@ -20,7 +20,7 @@ import os
 
 import numpy as np
 
-from .agglomerate import CellData, compact_labels, connected_parts
+from .celldata import CellData, compact_labels
 from .mesh import Mesh
 
 
@@ -58,6 +58,8 @@ def nested_levels(
         base = int(rec.max()) + 1 if rec.size else 0
         full[outside] = base + np.arange(int(outside.sum()))
         coarse = _majority(finer, full)[finer]
+        from .agglomerate import connected_parts
+
         coarse, _ = connected_parts(data, coarse, all_nodes)
         coarse = compact_labels(coarse)
         if mesh is not None:
@@ -122,7 +124,7 @@ def write_hierarchy(
     merged: the polytopes models.merge.merge already made of each level (build_hierarchy's), not
     merged again."""
     from .merge import merge, sort_by_vertex_count
-    from .vtu import write_vtu
+    from .vtu import points_xml, write_vtu
 
     out_dir = os.fspath(out_dir)
     os.makedirs(out_dir, exist_ok=True)
@@ -154,6 +156,10 @@ def write_hierarchy(
     }
     if not metrics and nested:
         stats = level_statistics(mesh, g, levels, data.measures)  # all levels at once
+    pts_xml = [None] * len(polys)  # the Points array, encoded once for the levels that share it
+    for L, poly in enumerate(polys):
+        same = next((j for j in range(L) if _same_points(polys[j], poly)), None)
+        pts_xml[L] = points_xml(poly) if same is None else pts_xml[same]
     for L, (labels, poly) in enumerate(zip(levels, polys, strict=True)):
         entry = {
             "level": L,
@@ -185,7 +191,7 @@ def write_hierarchy(
         _write_json(os.path.join(out_dir, f"level_{L}.metrics.json"), rep)
         entry["metrics"] = f"level_{L}.metrics.json"
         entry["normalized_cut"] = rep["partition"]["normalized_cut"]
-        write_vtu(os.path.join(out_dir, entry["mesh"]), poly, cell_data)
+        write_vtu(os.path.join(out_dir, entry["mesh"]), poly, cell_data, points_xml=pts_xml[L])
         _write_json(os.path.join(out_dir, entry["labels"]), labels)
         if L > 0:
             entry["parent"] = f"level_{L}.parent.json"
@@ -204,6 +210,15 @@ def write_hierarchy(
             entry["aggregation"] = op
     _write_json(os.path.join(out_dir, "hierarchy.json"), index)
     return index
+
+
+def _same_points(a, b) -> bool:
+    """Do two polytope meshes write the same Points array (the same points, the same 2D frame)?"""
+    if a.dim != b.dim or not (a.points is b.points or np.array_equal(a.points, b.points)):
+        return False
+    if a.dim != 2 or (a.frame is None and b.frame is None):
+        return True
+    return a.frame is not None and b.frame is not None and np.array_equal(a.frame, b.frame)
 
 
 def _components_count(indptr: np.ndarray, indices: np.ndarray, labels: np.ndarray) -> int:
@@ -228,8 +243,8 @@ def level_statistics(mesh: Mesh, graph, levels: list[np.ndarray], measures: np.n
     level's connectedness is decided on the graph of the finer level's elements."""
     import scipy.sparse as sp
 
-    from .metrics import summarize
     from .partitioners.rtree import _small_int, cell_boxes
+    from .summary import summarize
 
     indptr, indices = np.asarray(graph.indptr, dtype=np.int64), np.asarray(graph.indices, dtype=np.int64)
     n = indptr.size - 1
@@ -422,7 +437,6 @@ def build_hierarchy(
     holds each level's polytopes (pass them to write_hierarchy as `merged`)."""
     import time
 
-    from .agglomerate import agglomerate
     from .errors import ParameterError
     from .partitioners import get_partitioner
     from .partitioners.rtree import cell_boxes, level_counts, make_connected, rtree_levels
@@ -459,6 +473,8 @@ def build_hierarchy(
         levels = rtree_levels(batch, counts, groups=tags, **opts)
         how = "native"
     else:
+        from .agglomerate import agglomerate
+
         part = get_partitioner(model, seed=seed, **(model_options or {}))
         if part.supports_kway:
             fine = agglomerate(mesh, data, model=part, mode="kway", k=counts[-1], seed=seed).labels

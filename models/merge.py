@@ -71,6 +71,38 @@ def _list_rank(nxt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return cyc, pos
 
 
+def _pair_edges(key_start: np.ndarray, want: np.ndarray) -> np.ndarray | None:
+    """merge_2d's successor of every boundary edge when one edge leaves every (element, vertex) and
+    one arrives there: the edges sorted by where they end meet, rank for rank, the edges sorted by
+    where they start (two sorts, no search; the keys are distinct, so no sort need be stable).
+    None where a key repeats (an element touching itself at a vertex) or the boundary is open."""
+    order = np.argsort(key_start)
+    sk = key_start[order]
+    if sk.size == 0 or bool((sk[1:] == sk[:-1]).any()):
+        return None
+    qo = np.argsort(want)
+    if not np.array_equal(want[qo], sk):
+        return None
+    nxt = np.empty_like(order)
+    nxt[qo] = order
+    return nxt
+
+
+def _next_edges(key_start: np.ndarray, want: np.ndarray):
+    """merge_2d's successor of every boundary edge by a search (first match in a stable order), with
+    the edges that have more than one candidate (an element touching itself at a vertex)."""
+    order = np.argsort(key_start, kind="stable")
+    sk = key_start[order]
+    lo = np.minimum(np.searchsorted(sk, want, "left"), sk.size - 1)
+    if sk.size == 0 or not np.array_equal(sk[lo], want):
+        raise MeshError("an element boundary is not closed (the mesh is not a valid 2D manifold)")
+    nxt = order[lo]
+    # more than one edge leaving the vertex in the element (one searchsorted, not two)
+    pinch = np.flatnonzero(sk[np.minimum(lo + 1, sk.size - 1)] == want)
+    pinch = pinch[lo[pinch] + 1 < sk.size]
+    return nxt, pinch, lo, order, sk
+
+
 def merge_2d(
     mesh: Mesh, graph: DualGraph, labels: np.ndarray, measures: np.ndarray, faces: np.ndarray | None = None
 ) -> tuple[PolyMesh, Holes]:
@@ -83,16 +115,12 @@ def merge_2d(
     e = labels[f.cell[bf]]
     P = np.int64(mesh.n_points)
     key_start = e * P + a
-    order = np.argsort(key_start, kind="stable")
-    sk = key_start[order]
     want = e * P + b
-    lo = np.minimum(np.searchsorted(sk, want, "left"), sk.size - 1)
-    if sk.size == 0 or not np.array_equal(sk[lo], want):
-        raise MeshError("an element boundary is not closed (the mesh is not a valid 2D manifold)")
-    nxt = order[lo]
-    # more than one edge leaving the vertex in the element (one searchsorted, not two)
-    pinch = np.flatnonzero(sk[np.minimum(lo + 1, sk.size - 1)] == want)
-    pinch = pinch[lo[pinch] + 1 < sk.size]
+    nxt = _pair_edges(key_start, want)
+    if nxt is None:  # an element touching itself at a vertex, or an open boundary
+        nxt, pinch, lo, order, sk = _next_edges(key_start, want)
+    else:
+        pinch = np.zeros(0, dtype=np.int64)
     if pinch.size:
         pts = mesh.points
         hi = lo.copy()
@@ -112,7 +140,7 @@ def merge_2d(
     # signed area of each loop
     p = mesh.points
     pa = p[a]
-    ref = pa.min(axis=0)
+    ref = np.array([pa[:, 0].min(), pa[:, 1].min()])  # = pa.min(axis=0), 30x faster on (N, 2)
     xa, ya = (pa - ref).T
     xb, yb = (p[b] - ref).T
     area = 0.5 * np.bincount(cyc, weights=xa * yb - xb * ya)

@@ -21,6 +21,7 @@ from scipy.sparse.csgraph import connected_components
 
 from models.errors import ParameterError
 from models.mesh import PolyMesh
+from models.summary import summarize  # callers import it from here too
 
 DEFAULT_REL_TOL = 1e-3
 _PAIR_CHUNK = 1 << 21  # point/primitive pairs evaluated per numpy batch
@@ -1548,17 +1549,6 @@ def heterogeneity_preservation(
     total = counts.sum(1)
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(total > 0, counts.max(1) / np.maximum(total, 1), np.nan)
-
-
-def summarize(values) -> dict:
-    """Five-number summary plus mean of the finite values: min, q1, median, q3, max, mean."""
-    v = np.asarray(values, dtype=np.float64).ravel()
-    v = v[np.isfinite(v)]
-    keys = ("min", "q1", "median", "q3", "max", "mean")
-    if v.size == 0:
-        return dict.fromkeys(keys)
-    q = np.percentile(v, [0, 25, 50, 75, 100])
-    return dict(zip(keys, [float(x) for x in q] + [float(v.mean())], strict=True))
 
 
 # --------------------------------------------------------------------------------------------------

@@ -15,7 +15,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from .agglomerate import CellData
+from .celldata import CellData
 from .errors import ParameterError
 from .mesh import Mesh
 

@@ -15,16 +15,20 @@ import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .agglomerate import Agglomeration, CellData, agglomerate, compact_labels, connected_parts
 from .boundary import FineBoundary, annotate, fine_boundary, has_groups
+from .celldata import CellData, compact_labels
 from .errors import MeshError, ParameterError
 from .geometry import cell_faces, measures_and_centroids
 from .graph import DualGraph, cached_faces, dual_graph
 from .merge import merge, sort_by_vertex_count
 from .mesh import Mesh, PolyMesh
+
+if TYPE_CHECKING:  # models.agglomerate is imported where partitioning runs (not by prepare alone)
+    from .agglomerate import Agglomeration
 
 HOLE_POLICIES = ("split", "error")
 
@@ -99,6 +103,8 @@ def split_holes(
                 side = (x - c) @ vt[1] > 0
             new_label[cells[side]] = nxt
             nxt += 1
+        from .agglomerate import connected_parts
+
         labels, _s = connected_parts(data, new_label, all_nodes)
         labels = compact_labels(labels)
         n_split += elems.size
@@ -147,6 +153,8 @@ def run(
 
     def part_progress(frac: float, stage: str) -> None:
         report(0.1 + 0.6 * frac, stage)
+
+    from .agglomerate import agglomerate
 
     agg = agglomerate(
         mesh,

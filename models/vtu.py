@@ -41,6 +41,7 @@ def write_vtu(
     cell_data: dict[str, np.ndarray] | None = None,
     boundary=None,
     group_names: dict[str, tuple[int, int]] | None = None,
+    points_xml: str | None = None,
 ) -> None:
     """Write the agglomerated mesh; `cell_data` adds per-element arrays (e.g. metrics).
 
@@ -48,6 +49,7 @@ def write_vtu(
     output_cells), written after the elements as their own cells with a `boundary_tag` array
     (-1 on elements; element arrays are -1 / NaN on them), which models.io reads back as groups.
     group_names: {name: (tag, dim)} written as FieldData the way meshio keeps gmsh's physical names.
+    points_xml: points_xml(poly), when the caller already has it (levels of one mesh share their points).
     """
     e = poly.n_elements
     if poly.dim == 2:
@@ -61,7 +63,7 @@ def write_vtu(
         offsets = lo[1:].astype(np.int64)
         types = np.full(e, VTK_POLYGON, dtype=np.uint8)
         faces_xml = ""
-        pts = _points3d(poly)
+        pts = None if points_xml is not None else _points3d(poly)
     else:
         fo = poly.loop_offsets
         fsz = np.diff(fo)
@@ -106,9 +108,9 @@ def write_vtu(
         '<VTKFile type="UnstructuredGrid" version="1.0" byte_order="LittleEndian" header_type="UInt64">\n',
         "<UnstructuredGrid>\n",
         _field_data(group_names),
-        f'<Piece NumberOfPoints="{pts.shape[0]}" NumberOfCells="{e + nb}">\n',
+        f'<Piece NumberOfPoints="{poly.points.shape[0]}" NumberOfCells="{e + nb}">\n',
         "<Points>\n",
-        _data_array("Points", np.asarray(pts, dtype=np.float64), 3),
+        points_xml if points_xml is not None else _data_array("Points", np.asarray(pts, dtype=np.float64), 3),
         "</Points>\n<Cells>\n",
         _data_array("connectivity", conn),
         _data_array("offsets", offsets),
@@ -152,6 +154,12 @@ def _field_data(names: dict[str, tuple[int, int]] | None) -> str:
         for n, (t, d) in names.items()
     ]
     return "<FieldData>\n" + "".join(rows) + "</FieldData>\n"
+
+
+def points_xml(poly: PolyMesh) -> str:
+    """The Points DataArray write_vtu writes for `poly` (pass it back as write_vtu's points_xml)."""
+    pts = _points3d(poly) if poly.dim == 2 else poly.points
+    return _data_array("Points", np.asarray(pts, dtype=np.float64), 3)
 
 
 def _points3d(poly: PolyMesh) -> np.ndarray:

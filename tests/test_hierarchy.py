@@ -164,3 +164,34 @@ def test_mtx_written_by_numpy_reads_back(tmp_path):
     _write_mtx(str(tmp_path / "p.mtx"), P.indices, P.shape[1], " test")
     M = scipy.io.mmread(tmp_path / "p.mtx")
     assert M.shape == P.shape and (abs(M.tocsr() - P) != 0).nnz == 0 and M.dtype.kind == "i"
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_level_vtus_with_the_shared_points_are_write_vtus_own(tmp_path, dim):
+    """write_hierarchy encodes the Points array once for the levels that share it: every level's file
+    is byte for byte what write_vtu writes for that level on its own."""
+    import dataclasses
+
+    from models.hierarchy import _same_points, build_hierarchy
+    from models.hierarchy import write_hierarchy as write_levels
+    from models.merge import merge, sort_by_vertex_count
+    from models.pipeline import prepare
+    from models.vtu import points_xml, write_vtu
+
+    if dim == 2:
+        mesh = read_mesh(BRAIN)
+    else:
+        p, t = tets(5)
+        mesh = mesh_from_arrays(p, [("tetra", t)])
+    graph, data = prepare(mesh)
+    levels, _ = build_hierarchy(mesh, data, model="rtree", ratio=8, coarsest=4)
+    index = write_levels(tmp_path / "h", mesh, data, levels, metrics=False)
+    assert len(index["levels"]) == len(levels) >= 2
+    polys = [sort_by_vertex_count(merge(mesh, graph, lab, data.measures)[0]) for lab in levels]
+    for poly, lv in zip(polys, index["levels"], strict=True):
+        write_vtu(tmp_path / "own.vtu", poly)
+        assert (tmp_path / "h" / lv["mesh"]).read_bytes() == (tmp_path / "own.vtu").read_bytes()
+        write_vtu(tmp_path / "given.vtu", poly, points_xml=points_xml(poly))
+        assert (tmp_path / "given.vtu").read_bytes() == (tmp_path / "own.vtu").read_bytes()
+    assert _same_points(polys[0], polys[-1])
+    assert not _same_points(polys[0], dataclasses.replace(polys[-1], points=polys[-1].points + 1.0))

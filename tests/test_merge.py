@@ -177,3 +177,29 @@ def test_vtu_tilted_2d_keeps_its_plane(tmp_path):
     z = vtk_to_numpy(grid.GetPoints().GetData())
     assert np.allclose(z, pts)
     assert np.isclose(vtk_total_area(grid), 1.0)
+
+
+@pytest.mark.parametrize("pinched", [False, True])
+def test_merge_2d_pairs_edges_by_sorting_as_the_search_did(pinched):
+    """merge_2d pairs the boundary edges by two sorts when every (element, vertex) has one edge out;
+    the search it replaced (kept for elements that touch themselves at a vertex) finds the same."""
+    import models.merge as M
+
+    m = read_mesh(BRAIN)
+    g, d = prepare(m)
+    if pinched:  # random labels: elements touching themselves at vertices, holes
+        labels = np.random.default_rng(3).integers(0, 40, m.n_cells)
+    else:
+        labels = run(m, mode="kway", k=200, compute_metrics=False).poly.labels
+    f = g.faces
+    bf = M.boundary_faces(g, labels)
+    key = labels[f.cell[bf]] * np.int64(m.n_points)
+    start, end = key + f.nodes[2 * bf], key + f.nodes[2 * bf + 1]
+    nxt, pinch = M._next_edges(start, end)[:2]
+    paired = M._pair_edges(start, end)
+    if pinched:
+        assert paired is None and pinch.size
+    else:
+        assert pinch.size == 0 and np.array_equal(paired, nxt)
+    poly, _ = M.merge_2d(m, g, labels, d.measures)
+    assert poly.n_elements == int(labels.max()) + 1

@@ -134,3 +134,16 @@ def test_box_shape_bar_on_refined_unstructured_quads():
         )
     lo, hi = cell_boxes(m.points, m.offsets, m.connectivity)
     assert np.all(hi >= lo)
+
+
+def test_stable_argsort_is_the_stable_sort():
+    from models.partitioners.rtree import _stable_argsort
+
+    rng = np.random.default_rng(0)
+    for v in (
+        rng.random(1000),
+        rng.integers(0, 20, 1000).astype(np.float64),  # ties: the stable order, ascending index
+        np.r_[rng.random(50), np.nan, rng.random(50), np.nan],
+        np.zeros(0),
+    ):
+        assert np.array_equal(_stable_argsort(v), np.argsort(v, kind="stable"))

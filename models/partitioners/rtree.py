@@ -74,6 +74,16 @@ def _stable_by(keys: np.ndarray, k: int, order: np.ndarray) -> np.ndarray:
     return order[np.argsort(_small_int(keys[order], k), kind="stable")]
 
 
+def _stable_argsort(v: np.ndarray) -> np.ndarray:
+    """np.argsort(v, kind="stable"): without ties (and NaNs) that is the quicksort's order, which is
+    4x faster on floats; with ties, the stable sort."""
+    o = np.argsort(v)
+    vs = v[o]
+    if vs.size and (bool((vs[1:] == vs[:-1]).any()) or np.isnan(vs[-1])):
+        return np.argsort(v, kind="stable")
+    return o
+
+
 class _Segments:
     """Cells kept, for every axis, in the order (part, coordinate along the axis, cell index): each part
     is the same contiguous range [start, start + size) of all `dim` orders. Splitting a part is a
@@ -83,7 +93,7 @@ class _Segments:
         n, dim = x.shape
         idx = np.int32 if n < 2**31 else np.int64
         if axis_orders is None:
-            axis_orders = [np.argsort(x[:, d], kind="stable") for d in range(dim)]
+            axis_orders = [_stable_argsort(x[:, d]) for d in range(dim)]
         self.axis_orders = axis_orders
         self.P = np.empty((dim, n), dtype=idx)
         for d in range(dim):
