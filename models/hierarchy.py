@@ -226,11 +226,11 @@ def _components_count(indptr: np.ndarray, indices: np.ndarray, labels: np.ndarra
     import scipy.sparse as sp
     from scipy.sparse.csgraph import connected_components
 
-    from .partitioners.rtree import _kept_ptr
+    from .csr import kept_pointers
 
     n = labels.size
     same = np.repeat(labels, np.diff(indptr)) == labels[indices]
-    ptr = _kept_ptr(same, indptr)
+    ptr = kept_pointers(same, indptr)
     g = sp.csr_matrix((np.ones(int(ptr[-1]), dtype=np.int8), indices[same], ptr), shape=(n, n))
     return int(connected_components(g, directed=False)[0]) if n else 0
 

@@ -19,6 +19,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
+from ..csr import kept_pointers
 from ..errors import ParameterError
 from .base import GraphBatch, Partitioner
 
@@ -282,13 +283,6 @@ def _grow_from_mains(
     return out
 
 
-def _kept_ptr(keep: np.ndarray, indptr: np.ndarray) -> np.ndarray:
-    """The row pointers of a CSR (indptr[0] = 0) after keeping only the entries `keep` (bool)."""
-    ptr = np.zeros(keep.size + 1, dtype=np.int64)
-    np.cumsum(keep, out=ptr[1:])
-    return ptr[indptr]
-
-
 def make_connected(
     indptr: np.ndarray,
     indices: np.ndarray,
@@ -313,7 +307,7 @@ def make_connected(
     while rnd < max_rounds:  # in practice 1 to 3 rounds
         same = labels[rows] == labels[indices]
         # the rows stay sorted: the same-label graph as CSR without a COO conversion
-        sp_ptr = _kept_ptr(same, indptr)
+        sp_ptr = kept_pointers(same, indptr)
         g = sp.csr_matrix((np.ones(sp_ptr[-1], dtype=np.int8), indices[same], sp_ptr), shape=(n, n))
         nc, comp = connected_components(g, directed=False)
         k = int(labels.max()) + 1
@@ -412,7 +406,7 @@ def components(batch: GraphBatch, within: np.ndarray | None = None) -> np.ndarra
     indptr, indices = batch.indptr, batch.indices
     if within is not None:  # keep the CSR rows: the filtered graph without a COO conversion
         keep = np.repeat(within, np.diff(indptr)) == within[indices]
-        indptr = _kept_ptr(keep, indptr)
+        indptr = kept_pointers(keep, indptr)
         indices = indices[keep]
     g = sp.csr_matrix((np.ones(indices.size, dtype=np.int8), indices, indptr), shape=(n, n))
     return connected_components(g, directed=False)[1].astype(np.int64)
