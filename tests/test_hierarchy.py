@@ -84,6 +84,14 @@ def test_kway_has_no_hierarchy(tmp_path):
         write_hierarchy(res, str(tmp_path))
 
 
+def brain_or_cube(dim: int, n: int):
+    """The brain (dim 2) or a structured cube of n^3 x 6 tetrahedra (dim 3)."""
+    if dim == 2:
+        return read_mesh(BRAIN)
+    p, t = tets(n)
+    return mesh_from_arrays(p, [("tetra", t)])
+
+
 @pytest.mark.parametrize("dim", [2, 3])
 def test_level_statistics_equal_the_per_level_metrics(dim):
     """The batched statistics write_hierarchy writes without --metrics are metrics' own numbers."""
@@ -91,11 +99,7 @@ def test_level_statistics_equal_the_per_level_metrics(dim):
     from models.metrics import box_measures, partition_statistics, summarize
     from models.pipeline import prepare
 
-    if dim == 2:
-        mesh = read_mesh(BRAIN)
-    else:
-        p, t = tets(6)
-        mesh = mesh_from_arrays(p, [("tetra", t)])
+    mesh = brain_or_cube(dim, 6)
     graph, data = prepare(mesh)
     levels, _ = build_hierarchy(mesh, data, model="rtree", ratio=4, coarsest=4)
     # the finest level with two non-adjacent children of one parent merged: nested, one element
@@ -178,11 +182,7 @@ def test_level_vtus_with_the_shared_points_are_write_vtus_own(tmp_path, dim):
     from models.pipeline import prepare
     from models.vtu import points_xml, write_vtu
 
-    if dim == 2:
-        mesh = read_mesh(BRAIN)
-    else:
-        p, t = tets(5)
-        mesh = mesh_from_arrays(p, [("tetra", t)])
+    mesh = brain_or_cube(dim, 5)
     graph, data = prepare(mesh)
     levels, _ = build_hierarchy(mesh, data, model="rtree", ratio=8, coarsest=4)
     index = write_levels(tmp_path / "h", mesh, data, levels, metrics=False)
