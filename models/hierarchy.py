@@ -46,6 +46,8 @@ def nested_levels(
     recorded: labels over `nodes` after each recursion level (Agglomeration.levels, coarsest
     first); cells outside `nodes` (coarsen mode) are their own element on every level. With
     `mesh`, coarse elements that would enclose a hole are replaced by their children."""
+    from .agglomerate import connected_parts
+
     n = final.size
     all_nodes = np.arange(n)
     levels = [compact_labels(np.asarray(final, dtype=np.int64))]
@@ -58,8 +60,6 @@ def nested_levels(
         base = int(rec.max()) + 1 if rec.size else 0
         full[outside] = base + np.arange(int(outside.sum()))
         coarse = _majority(finer, full)[finer]
-        from .agglomerate import connected_parts
-
         coarse, _ = connected_parts(data, coarse, all_nodes)
         coarse = compact_labels(coarse)
         if mesh is not None:
@@ -482,8 +482,6 @@ def build_hierarchy(
             for c in reversed(counts[:-1]):
                 cg = coarse_graph(data, levels[0])
                 raw = np.asarray(part.kway(cg, int(c)), dtype=np.int64)
-                from .agglomerate import compact_labels
-
                 raw, _ = make_connected(
                     cg.indptr, cg.indices, cg.weights, compact_labels(raw), measures=cg.measures
                 )

@@ -76,6 +76,8 @@ def split_holes(
     """Merge, and split elements that enclose holes until none does. Returns (poly, labels, n_split)."""
     if policy not in HOLE_POLICIES:
         raise ParameterError(f"hole_policy must be one of {list(HOLE_POLICIES)}, got {policy!r}")
+    from .agglomerate import connected_parts
+
     n_split = 0
     all_nodes = np.arange(mesh.n_cells)
     for _ in range(max_rounds + 1):
@@ -103,8 +105,6 @@ def split_holes(
                 side = (x - c) @ vt[1] > 0
             new_label[cells[side]] = nxt
             nxt += 1
-        from .agglomerate import connected_parts
-
         labels, _s = connected_parts(data, new_label, all_nodes)
         labels = compact_labels(labels)
         n_split += elems.size
