@@ -6,13 +6,15 @@ hull per element) or over refinement levels / pivot steps; never over fine cells
 Boundary of an element: 2D, its segments (outer loop CCW, holes CW: the element is on the left of
 every segment); 3D, its faces fan-triangulated (outward normals). The largest inscribed ball is exact
 (linear program) for convex elements and certified to `rel_tol * diameter` otherwise; see
-`largest_inscribed_ball`.
+`largest_inscribed_ball` (in 3D the search runs in the compiled models/_inscribed3d.c where it was
+built, numpy otherwise).
 """
 
 from __future__ import annotations
 
 import itertools
 import math
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -1391,12 +1393,58 @@ def _check_tol(rel_tol: float) -> float:
     return rel_tol
 
 
+_INSCRIBED_METHODS = ("auto", "bnb", "bnb-numpy")
+_EXT_MAX_CELLS = 4_000_000  # cells per element before the compiled search hands it to the numpy one
+
+
+def _compiled():
+    """The compiled 3D search (models/_inscribed3d.c), or None where it was not built (or
+    MAGNET_NO_COMPILED=1)."""
+    if os.environ.get("MAGNET_NO_COMPILED", "") not in ("", "0"):
+        return None
+    try:
+        from models import _inscribed3d
+    except ImportError:
+        return None
+    return _inscribed3d
+
+
+def _inscribed_compiled(ext, g: _Geometry, elems: np.ndarray, rel_tol: float):
+    """Compiled best-first search over `elems` (3D). Returns centres, radii and the elements it
+    gave up on (cell budget spent; none on any mesh measured)."""
+    centres = np.full((g.n, 3), np.nan)
+    radius = np.zeros(g.n)
+    evals = np.zeros(g.n, dtype=np.int64)
+    elems = np.ascontiguousarray(elems, dtype=np.int64)
+    ext.inscribed(
+        np.ascontiguousarray(g.table, dtype=np.float64),
+        np.ascontiguousarray(g.tri_adj, dtype=np.int64),
+        np.ascontiguousarray(g.prim_ptr, dtype=np.int64),
+        elems,
+        np.ascontiguousarray(g.diameter, dtype=np.float64),
+        np.ascontiguousarray(g.bbox_lo, dtype=np.float64),
+        np.ascontiguousarray(g.bbox_hi, dtype=np.float64),
+        (g.signed_measure >= 0).astype(np.uint8),
+        float(rel_tol),
+        _EXT_MAX_CELLS,
+        centres,
+        radius,
+        evals,
+    )
+    return centres, radius, elems[evals[elems] < 0]
+
+
 def _inscribed(g: _Geometry, rel_tol: float, method: str = "auto"):
-    if method not in ("auto", "bnb"):
-        raise ParameterError(f"unknown inscribed-ball method {method!r} (auto, bnb)")
+    if method not in _INSCRIBED_METHODS:
+        raise ParameterError(f"unknown inscribed-ball method {method!r} ({', '.join(_INSCRIBED_METHODS)})")
     convex = g.convex if method == "auto" else np.zeros(g.n, dtype=bool)
     centres, radius = _inscribed_lp(g, np.flatnonzero(convex))
     rest = np.flatnonzero(~convex)
+    ext = _compiled() if g.dim == 3 and method != "bnb-numpy" else None
+    if rest.size and ext is not None:
+        c2, r2, rest = _inscribed_compiled(ext, g, rest, rel_tol)
+        done = np.flatnonzero(~convex)
+        centres[done], radius[done] = c2[done], r2[done]
     if rest.size:
         # elements in batches of about _BNB_BATCH_PRIMS boundary primitives: the search's per-level
         # arrays (cells x candidate nodes) stay bounded, so memory does not grow with the mesh; the
@@ -1420,8 +1468,11 @@ def largest_inscribed_ball(
     from a linear program over the element's facet half-spaces (scipy linprog / HiGHS); the radius
     is re-measured from the returned centre, so it never exceeds the true one beyond rounding.
 
-    Other elements (or all, with method="bnb"): branch and bound on a quadtree (2D) / octree (3D)
-    over the element's bounding cube, all elements at once, with exact point-to-segment /
+    Other elements (or all, with method="bnb"): in 3D, the compiled best-first search of
+    models/_inscribed3d.c (same certificate, octree cells, bounds from the closest triangles and
+    a small LP over each cell's corners; see that file); method="bnb-numpy", 2D, or where the
+    module was not built (MAGNET_NO_COMPILED=1 switches it off): branch and bound on a quadtree
+    (2D) / octree (3D) over the element's bounding cube, all elements at once, with exact point-to-segment /
     point-to-triangle distances (bounding-ball tree, candidate lists passed from parent to child
     cells) and exact inside tests (side of the closest facet, vertex wedge / edge pseudo-normal,
     else crossing number (2D) / winding number (3D)). best is the largest exact distance found at

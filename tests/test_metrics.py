@@ -484,9 +484,9 @@ def test_polish_off_gives_the_same_certified_radii(monkeypatch):
     labels = np.unique(labels, return_inverse=True)[1]
     poly, _ = merge(m, g, labels, d.measures)
     eps = 1e-3 * element_diameters(poly)
-    _, r_on = largest_inscribed_ball(poly, method="bnb")
+    _, r_on = largest_inscribed_ball(poly, method="bnb-numpy")
     monkeypatch.setitem(mm._POLISH_STEPS, 3, 0)
-    _, r_off = largest_inscribed_ball(poly, method="bnb")
+    _, r_off = largest_inscribed_ball(poly, method="bnb-numpy")
     assert np.all(np.abs(r_on - r_off) <= eps + 1e-12)
     assert np.all(r_on > 0)
 

@@ -1,0 +1,583 @@
+/* Largest inscribed balls of 3D polyhedral elements: certified best-first branch and bound.
+ *
+ * The compiled kernel of models/metrics.py's inscribed-ball search in 3D (the numpy search stays
+ * the fallback and the reference). Each element's boundary is a closed set of triangles (outward
+ * normals when the element is positively oriented); its largest inscribed ball is centred at the
+ * maximum over the element of f(x) = distance from x to the boundary.
+ *
+ * Per element: an AABB tree over its (Morton-ordered) triangles, then best-first branch and bound
+ * over an octree of its bounding cube. Every evaluated cell centre gets its exact distance to the
+ * boundary and, when it matters, an exact inside/outside status (side of the closest triangle,
+ * edge pseudo-normal, else winding number). A cell's upper bound U of max f over (cell n element):
+ *   - 1-Lipschitz: (+-centre distance) + half-diagonal;
+ *   - convex combination: for any weights mu on triangles t_i, f <= sum mu_i dist(., t_i), which is
+ *     convex, so its maximum over the cell is at a corner; the best mu for the K triangles nearest
+ *     to the centre comes from a small linear program (a matrix game: corners x triangles) solved
+ *     by dense simplex. Exact for planar contacts (ridges, plateaus between parallel walls),
+ *     second order at edges and corners.
+ * The LP's dual (corner weights) points at the maximiser of that bound; its exact distance, when
+ * it is certified inside, raises the lower bound early. A cell is dropped when U <= best + eps,
+ * eps = rel_tol * diameter; the search ends when the largest U in the queue is below that, so
+ *   r_true - eps <= r <= r_true
+ * with r an exact distance from a certified interior point (0 and NaN centre if none was needed).
+ *
+ * Arrays come through the buffer protocol (no numpy headers at build time).
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#ifndef K_NEAR
+#define K_NEAR 32 /* triangles in the LP bound */
+#endif
+#define N_CORNER 8
+#ifndef LEAF_SIZE
+#define LEAF_SIZE 4
+#endif
+#define INTERIOR_MARGIN 1e-9
+#define MAX_PIVOTS 60
+
+typedef struct {
+    double lo[3], hi[3];
+    int64_t i0, i1;   /* triangle range (local) */
+    int64_t c1, c2;   /* children, -1 for a leaf */
+} Node;
+
+typedef struct {
+    double U, c[3], half;
+    int64_t near;  /* closest triangle of the centre (local id) */
+} Cell;
+
+typedef struct {
+    const double *T;     /* (S, 16): a, e0, e1, n, d00, d01, d11, inv */
+    const int64_t *adj;  /* (S, 3) */
+    int64_t p0, m;       /* first triangle, count */
+    Node *nodes;
+    int64_t n_nodes, cap_nodes;
+    int orient;          /* 1: outward normals */
+} Elem;
+
+/* ---------------------------------------------------------------------------------------------- */
+/* point - triangle */
+
+static inline double dot3(const double *a, const double *b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+
+/* squared distance from q to the segment s0 + t e, t in [0, 1] (ee = e.e) */
+static inline double seg_d2(const double *q, const double *s0, const double *e, double ee) {
+    double w0 = q[0] - s0[0], w1 = q[1] - s0[1], w2 = q[2] - s0[2];
+    double t = (w0 * e[0] + w1 * e[1] + w2 * e[2]) / (ee > 1e-300 ? ee : 1e-300);
+    t = t < 0 ? 0 : (t > 1 ? 1 : t);
+    w0 -= t * e[0]; w1 -= t * e[1]; w2 -= t * e[2];
+    return w0 * w0 + w1 * w1 + w2 * w2;
+}
+
+/* squared distance only. Outside the triangle's projection, the closest point lies on an edge
+ * that faces the projected point (negative barycentric coordinate opposite it); a degenerate
+ * triangle (inv = 0) tries all three edges. */
+static double tri_d2(const double *T, const double *q) {
+    double v[3] = {q[0] - T[0], q[1] - T[1], q[2] - T[2]};
+    double d20 = dot3(v, T + 3), d21 = dot3(v, T + 6);
+    double d00 = T[12], d01 = T[13], d11 = T[14], inv = T[15];
+    double bv = (d11 * d20 - d01 * d21) * inv;
+    double bw = (d00 * d21 - d01 * d20) * inv;
+    double bu = 1.0 - bv - bw;
+    if (inv > 0 && bv >= 0 && bw >= 0 && bu >= 0) {
+        double h = dot3(v, T + 9);
+        return h * h;
+    }
+    int all = !(inv > 0);
+    double best = INFINITY, dd;
+    if (all || bw < 0) { dd = seg_d2(q, T, T + 3, d00); if (dd < best) best = dd; }
+    if (all || bv < 0) { dd = seg_d2(q, T, T + 6, d11); if (dd < best) best = dd; }
+    if (all || bu < 0) {
+        double b[3] = {T[0] + T[3], T[1] + T[4], T[2] + T[5]};
+        double e[3] = {T[6] - T[3], T[7] - T[4], T[8] - T[5]};
+        dd = seg_d2(q, b, e, d00 - 2 * d01 + d11);
+        if (dd < best) best = dd;
+    }
+    return best;
+}
+
+/* squared distance with flags: loc 0 interior / 1 rim; edge index on the rim (-1 at a corner);
+ * vec = q - closest point; side = q below the plane (h < 0). Same rules as metrics._prim_distance /
+ * _rim_closest. */
+static double tri_d2_full(const double *T, const double *q, int *loc, int *edge, double *vec, int *side) {
+    double v[3] = {q[0] - T[0], q[1] - T[1], q[2] - T[2]};
+    double d20 = dot3(v, T + 3), d21 = dot3(v, T + 6);
+    double d00 = T[12], d01 = T[13], d11 = T[14], inv = T[15];
+    double bv = (d11 * d20 - d01 * d21) * inv;
+    double bw = (d00 * d21 - d01 * d20) * inv;
+    double h = dot3(v, T + 9);
+    *side = h < 0;
+    *edge = -1;
+    vec[0] = vec[1] = vec[2] = 0.0;
+    const double m = INTERIOR_MARGIN;
+    if (inv > 0 && bv >= 0 && bw >= 0 && bv + bw <= 1) {
+        double bu = 1.0 - bv - bw;
+        *loc = (bu > m && bv > m && bw > m) ? 0 : 1;
+        *edge = -1;
+        for (int i = 0; i < 3; i++) vec[i] = h * T[9 + i];
+        if (*loc == 1) {  /* on the rim within the margin: the rim's closest point decides */
+            int e2 = -1; double w2[3] = {0, 0, 0};
+            double best = INFINITY;
+            for (int k = 0; k < 3; k++) {
+                double s0[3], e[3], w[3];
+                if (k == 0) { memcpy(s0, T, 24); memcpy(e, T + 3, 24); }
+                else if (k == 1) { memcpy(s0, T, 24); memcpy(e, T + 6, 24); }
+                else { for (int i = 0; i < 3; i++) { s0[i] = T[i] + T[3 + i]; e[i] = T[6 + i] - T[3 + i]; } }
+                for (int i = 0; i < 3; i++) w[i] = q[i] - s0[i];
+                double ee = dot3(e, e);
+                double t = dot3(w, e) / (ee > 1e-300 ? ee : 1e-300);
+                double tc = t < 0 ? 0 : (t > 1 ? 1 : t);
+                for (int i = 0; i < 3; i++) w[i] -= tc * e[i];
+                double dd = dot3(w, w);
+                if (dd < best) { best = dd; e2 = (t > m && t < 1 - m) ? k : -1; memcpy(w2, w, 24); }
+            }
+            *edge = e2;
+            memcpy(vec, w2, 24);
+        }
+        return h * h;
+    }
+    *loc = 1;
+    double best = INFINITY;
+    for (int k = 0; k < 3; k++) {
+        double s0[3], e[3], w[3];
+        if (k == 0) { memcpy(s0, T, 24); memcpy(e, T + 3, 24); }
+        else if (k == 1) { memcpy(s0, T, 24); memcpy(e, T + 6, 24); }
+        else { for (int i = 0; i < 3; i++) { s0[i] = T[i] + T[3 + i]; e[i] = T[6 + i] - T[3 + i]; } }
+        for (int i = 0; i < 3; i++) w[i] = q[i] - s0[i];
+        double ee = dot3(e, e);
+        double t = dot3(w, e) / (ee > 1e-300 ? ee : 1e-300);
+        double tc = t < 0 ? 0 : (t > 1 ? 1 : t);
+        for (int i = 0; i < 3; i++) w[i] -= tc * e[i];
+        double dd = dot3(w, w);
+        if (dd < best) { best = dd; *edge = (t > m && t < 1 - m) ? k : -1; memcpy(vec, w, 24); }
+    }
+    return best;
+}
+
+/* ---------------------------------------------------------------------------------------------- */
+/* per-element AABB tree over consecutive (Morton-ordered) triangles */
+
+static int64_t build_node(Elem *E, int64_t i0, int64_t i1) {
+    if (E->n_nodes >= E->cap_nodes) {
+        int64_t cap = E->cap_nodes ? 2 * E->cap_nodes : 64;
+        Node *nn = (Node *)realloc(E->nodes, (size_t)cap * sizeof(Node));
+        if (!nn) return -1;
+        E->nodes = nn;
+        E->cap_nodes = cap;
+    }
+    int64_t id = E->n_nodes++;
+    Node *N = &E->nodes[id];
+    for (int k = 0; k < 3; k++) { N->lo[k] = INFINITY; N->hi[k] = -INFINITY; }
+    for (int64_t t = i0; t < i1; t++) {
+        const double *T = E->T + 16 * (E->p0 + t);
+        for (int k = 0; k < 3; k++) {
+            double a = T[k], b = T[k] + T[3 + k], c = T[k] + T[6 + k];
+            double lo = a < b ? a : b, hi = a > b ? a : b;
+            lo = lo < c ? lo : c; hi = hi > c ? hi : c;
+            if (lo < N->lo[k]) N->lo[k] = lo;
+            if (hi > N->hi[k]) N->hi[k] = hi;
+        }
+    }
+    N->i0 = i0; N->i1 = i1; N->c1 = N->c2 = -1;
+    if (i1 - i0 > LEAF_SIZE) {
+        int64_t mid = (i0 + i1) / 2;
+        int64_t a = build_node(E, i0, mid);
+        if (a < 0) return -1;
+        int64_t b = build_node(E, mid, i1);
+        if (b < 0) return -1;
+        E->nodes[id].c1 = a;  /* E->nodes may have moved: index, not the old pointer */
+        E->nodes[id].c2 = b;
+    }
+    return id;
+}
+
+static inline double box_d2(const Node *N, const double *q) {
+    double s = 0;
+    for (int k = 0; k < 3; k++) {
+        double d = 0;
+        if (q[k] < N->lo[k]) d = N->lo[k] - q[k];
+        else if (q[k] > N->hi[k]) d = q[k] - N->hi[k];
+        s += d * d;
+    }
+    return s;
+}
+
+typedef struct {
+    int n;
+    double d2[K_NEAR];
+    int64_t t[K_NEAR];
+} KBest;
+
+static inline void kbest_push(KBest *B, int k, double d2, int64_t t) {
+    if (B->n == k && d2 >= B->d2[k - 1]) return;
+    int i = B->n < k ? B->n++ : k - 1;
+    while (i > 0 && B->d2[i - 1] > d2) { B->d2[i] = B->d2[i - 1]; B->t[i] = B->t[i - 1]; i--; }
+    B->d2[i] = d2; B->t[i] = t;
+}
+
+/* the k nearest triangles (local ids) of q, by squared distance */
+static void knearest(const Elem *E, const double *q, int k, KBest *B) {
+    int64_t stack[128];
+    int sp = 0;
+    stack[sp++] = 0;
+    while (sp) {
+        const Node *N = &E->nodes[stack[--sp]];
+        double lim = B->n == k ? B->d2[k - 1] : INFINITY;
+        if (box_d2(N, q) > lim) continue;
+        if (N->c1 < 0) {
+            for (int64_t t = N->i0; t < N->i1; t++) {
+                double d2 = tri_d2(E->T + 16 * (E->p0 + t), q);
+                kbest_push(B, k, d2, t);
+            }
+        } else {
+            int64_t a = N->c1, b = N->c2;
+            double da = box_d2(&E->nodes[a], q), db = box_d2(&E->nodes[b], q);
+            if (sp + 2 > 128) continue; /* cannot happen for depth < 64 */
+            if (da < db) { stack[sp++] = b; stack[sp++] = a; }
+            else { stack[sp++] = a; stack[sp++] = b; }
+        }
+    }
+}
+
+/* ---------------------------------------------------------------------------------------------- */
+/* inside / outside */
+
+static int winding_inside(const Elem *E, const double *q) {
+    double w = 0;
+    for (int64_t t = 0; t < E->m; t++) {
+        const double *T = E->T + 16 * (E->p0 + t);
+        double A[3], B[3], C[3];
+        for (int i = 0; i < 3; i++) {
+            A[i] = T[i] - q[i];
+            B[i] = T[i] + T[3 + i] - q[i];
+            C[i] = T[i] + T[6 + i] - q[i];
+        }
+        double la = sqrt(dot3(A, A)), lb = sqrt(dot3(B, B)), lc = sqrt(dot3(C, C));
+        double bc[3] = {B[1] * C[2] - B[2] * C[1], B[2] * C[0] - B[0] * C[2], B[0] * C[1] - B[1] * C[0]};
+        double num = dot3(A, bc);
+        double den = la * lb * lc + dot3(A, B) * lc + dot3(A, C) * lb + dot3(B, C) * la;
+        w += 2.0 * atan2(num, den);
+    }
+    return fabs(w) > 2.0 * M_PI;
+}
+
+/* +1 inside / -1 outside for q whose closest triangle is t (local id), see metrics._classify */
+static int classify(const Elem *E, const double *q, int64_t t) {
+    const double *T = E->T + 16 * (E->p0 + t);
+    int loc, edge, side;
+    double vec[3];
+    double d2 = tri_d2_full(T, q, &loc, &edge, vec, &side);
+    if (loc == 0) return (side == E->orient) ? 1 : -1;
+    if (edge >= 0) {
+        int64_t other = E->adj[3 * (E->p0 + t) + edge];
+        if (other >= 0) {
+            const double *T2 = E->T + 16 * other;
+            double ns[3] = {T[9] + T2[9], T[10] + T2[10], T[11] + T2[11]};
+            double s = dot3(vec, ns);
+            if (fabs(s) > 1e-9 * sqrt(d2) * sqrt(dot3(ns, ns))) {
+                int e = s < 0 ? 1 : -1;
+                return E->orient ? e : -e;
+            }
+        }
+    }
+    return winding_inside(E, q) ? 1 : -1;
+}
+
+/* ---------------------------------------------------------------------------------------------- */
+/* LP bound: min over mu in the simplex of max_j sum_i mu_i A[j][i] (corners j, triangles i) */
+
+/* A (nc x k) with positive entries; returns the bound (already valid: recomputed from mu) and the
+ * corner weights lambda (dual) in lam[nc]. */
+static double game_bound(const double *A, int nc, int k, double *lam) {
+    /* maximise sum y s.t. A y <= 1, y >= 0; tableau rows nc, columns k + nc + 1 */
+    double tab[N_CORNER + 1][K_NEAR + N_CORNER + 1];
+    int basis[N_CORNER];
+    int ncol = k + nc;
+    for (int j = 0; j < nc; j++) {
+        for (int i = 0; i < k; i++) tab[j][i] = A[j * k + i];
+        for (int s = 0; s < nc; s++) tab[j][k + s] = (s == j);
+        tab[j][ncol] = 1.0;
+        basis[j] = k + j;
+    }
+    for (int i = 0; i < ncol; i++) tab[nc][i] = i < k ? -1.0 : 0.0;
+    tab[nc][ncol] = 0.0;
+    for (int it = 0; it < MAX_PIVOTS; it++) {
+        int pc = -1;
+        double most = -1e-12;
+        for (int i = 0; i < ncol; i++)
+            if (tab[nc][i] < most) { most = tab[nc][i]; pc = i; }
+        if (pc < 0) break;
+        int pr = -1;
+        double ratio = INFINITY;
+        for (int j = 0; j < nc; j++)
+            if (tab[j][pc] > 1e-12) {
+                double r = tab[j][ncol] / tab[j][pc];
+                if (r < ratio) { ratio = r; pr = j; }
+            }
+        if (pr < 0) break; /* unbounded cannot happen with positive A */
+        double p = tab[pr][pc];
+        for (int i = 0; i <= ncol; i++) tab[pr][i] /= p;
+        for (int j = 0; j <= nc; j++) {
+            if (j == pr) continue;
+            double f = tab[j][pc];
+            if (f != 0.0)
+                for (int i = 0; i <= ncol; i++) tab[j][i] -= f * tab[pr][i];
+        }
+        basis[pr] = pc;
+    }
+    double y[K_NEAR] = {0};
+    double sy = 0;
+    for (int j = 0; j < nc; j++)
+        if (basis[j] < k && tab[j][ncol] > 0) y[basis[j]] = tab[j][ncol];
+    for (int i = 0; i < k; i++) sy += y[i];
+    double sl = 0;
+    for (int j = 0; j < nc; j++) { lam[j] = tab[nc][k + j] > 0 ? tab[nc][k + j] : 0; sl += lam[j]; }
+    for (int j = 0; j < nc; j++) lam[j] = sl > 0 ? lam[j] / sl : 1.0 / nc;
+    if (sy <= 0) return INFINITY;
+    double bound = 0;
+    for (int j = 0; j < nc; j++) {
+        double s = 0;
+        for (int i = 0; i < k; i++) s += A[j * k + i] * y[i];
+        s /= sy;
+        if (s > bound) bound = s;
+    }
+    return bound;
+}
+
+/* ---------------------------------------------------------------------------------------------- */
+/* best-first branch and bound for one element */
+
+typedef struct {
+    Cell *a;
+    int64_t n, cap;
+} Heap;
+
+static int heap_push(Heap *H, Cell c) {
+    if (H->n >= H->cap) {
+        int64_t cap = H->cap ? 2 * H->cap : 256;
+        Cell *na = (Cell *)realloc(H->a, (size_t)cap * sizeof(Cell));
+        if (!na) return -1;
+        H->a = na;
+        H->cap = cap;
+    }
+    int64_t i = H->n++;
+    while (i > 0) {
+        int64_t p = (i - 1) / 2;
+        if (H->a[p].U >= c.U) break;
+        H->a[i] = H->a[p];
+        i = p;
+    }
+    H->a[i] = c;
+    return 0;
+}
+
+static Cell heap_pop(Heap *H) {
+    Cell top = H->a[0];
+    Cell last = H->a[--H->n];
+    int64_t i = 0;
+    for (;;) {
+        int64_t l = 2 * i + 1, r = l + 1, b = i;
+        double bu = last.U;
+        if (l < H->n && H->a[l].U > bu) { b = l; bu = H->a[l].U; }
+        if (r < H->n && H->a[r].U > bu) b = r;
+        if (b == i) break;
+        H->a[i] = H->a[b];
+        i = b;
+    }
+    if (H->n) H->a[i] = last;
+    return top;
+}
+
+typedef struct {
+    double best, best_pt[3], eps, diam;
+    int64_t evals, max_cells, lps;
+    int failed;
+} State;
+
+/* exact distance and status at q; updates the best interior point */
+static double probe(const Elem *E, State *S, const double *q, KBest *B, int k, int *status) {
+    knearest(E, q, k, B);  /* B may come seeded (B->n = 1: a triangle and its distance) */
+    double d = sqrt(B->d2[0]);
+    S->evals++;
+    *status = 0;
+    return d;
+}
+
+static void take(const Elem *E, State *S, const double *q, double d, const KBest *B, int *status) {
+    if (*status == 0) *status = classify(E, q, B->t[0]);
+    if (*status == 1 && d > S->best) {
+        S->best = d;
+        memcpy(S->best_pt, q, 24);
+    }
+}
+
+static const double CORNERS[8][3] = {{-1, -1, -1}, {-1, -1, 1}, {-1, 1, -1}, {-1, 1, 1},
+                                     {1, -1, -1},  {1, -1, 1},  {1, 1, -1},  {1, 1, 1}};
+
+/* upper bound of the cell from the LP over its corners; may raise the best via the dual point */
+static double lp_bound(const Elem *E, State *S, const double *c, double half, const KBest *B) {
+    int k = B->n;
+    double A[N_CORNER * K_NEAR], lam[N_CORNER];
+    double shift = 1e-6 * S->diam + 1e-300;
+    for (int j = 0; j < N_CORNER; j++) {
+        double q[3] = {c[0] + half * CORNERS[j][0], c[1] + half * CORNERS[j][1], c[2] + half * CORNERS[j][2]};
+        for (int i = 0; i < k; i++) A[j * k + i] = sqrt(tri_d2(E->T + 16 * (E->p0 + B->t[i]), q)) + shift;
+    }
+    double U = game_bound(A, N_CORNER, k, lam) - shift;
+    U += 1e-12 * S->diam;  /* rounding */
+    if (U > S->best + S->eps) {
+        /* the maximiser of the bound's game: a candidate interior point */
+        double x[3] = {0, 0, 0};
+        for (int j = 0; j < N_CORNER; j++)
+            for (int a = 0; a < 3; a++) x[a] += lam[j] * (c[a] + half * CORNERS[j][a]);
+        KBest B2;
+        int st;
+        B2.n = 0;
+        double d = probe(E, S, x, &B2, 1, &st);
+        if (d > S->best) take(E, S, x, d, &B2, &st);
+    }
+    return U;
+}
+
+static int search(Elem *E, State *S, const double *lo, const double *hi, Heap *H) {
+    double c0[3], side = 0;
+    for (int a = 0; a < 3; a++) {
+        c0[a] = 0.5 * (lo[a] + hi[a]);
+        double s = hi[a] - lo[a];
+        if (s > side) side = s;
+    }
+    side *= 1 + 1e-9;
+    H->n = 0;
+    Cell root = {INFINITY, {c0[0], c0[1], c0[2]}, 0.5 * side, -1};
+    if (heap_push(H, root)) return -1;
+    const double sq3 = sqrt(3.0);
+    int64_t cells = 0;
+    while (H->n) {
+        Cell cur = heap_pop(H);
+        if (cur.U <= S->best + S->eps) break;
+        double h = 0.5 * cur.half;
+        double rho = sq3 * h;
+        for (int ch = 0; ch < 8; ch++) {
+            double q[3] = {cur.c[0] + h * CORNERS[ch][0], cur.c[1] + h * CORNERS[ch][1], cur.c[2] + h * CORNERS[ch][2]};
+            KBest B;
+            int st;
+            B.n = 0;
+            if (cur.near >= 0) {  /* the parent's closest triangle bounds the distance from above */
+                double dh2 = tri_d2(E->T + 16 * (E->p0 + cur.near), q);
+                if (sqrt(dh2) + rho <= S->best + S->eps) continue;
+                B.n = 1; B.d2[0] = dh2; B.t[0] = cur.near;
+            }
+            double d = probe(E, S, q, &B, 1, &st);
+            if (d + rho <= S->best + S->eps) continue;
+            take(E, S, q, d, &B, &st);
+            double U = (st == 1 ? d : -d) + rho;
+            if (U <= S->best + S->eps) continue;
+            if (rho < d) {
+                B.n = 0;
+                knearest(E, q, K_NEAR, &B);
+                S->lps++;
+                double U2 = lp_bound(E, S, q, h, &B);
+                if (U2 < U) U = U2;
+                if (U <= S->best + S->eps) continue;
+            }
+            Cell c = {U, {q[0], q[1], q[2]}, h, B.t[0]};
+            if (heap_push(H, c)) return -1;
+            if (++cells > S->max_cells) { S->failed = 1; return 0; }
+        }
+    }
+    return 0;
+}
+
+/* ---------------------------------------------------------------------------------------------- */
+/* Python entry */
+
+static int get_buf(PyObject *o, Py_buffer *b, int writable, const char *name, Py_ssize_t itemsize) {
+    int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
+    if (PyObject_GetBuffer(o, b, flags) < 0) return -1;
+    if (b->itemsize != itemsize) {
+        PyErr_Format(PyExc_TypeError, "%s: wrong item size", name);
+        PyBuffer_Release(b);
+        return -1;
+    }
+    return 0;
+}
+
+static PyObject *py_inscribed(PyObject *self, PyObject *args) {
+    PyObject *oT, *oadj, *optr, *oel, *odiam, *olo, *ohi, *oor, *ocen, *orad, *oev;
+    double rel_tol;
+    long long max_cells;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOdLOOO", &oT, &oadj, &optr, &oel, &odiam, &olo, &ohi, &oor,
+                          &rel_tol, &max_cells, &ocen, &orad, &oev))
+        return NULL;
+    Py_buffer bT, badj, bptr, bel, bdiam, blo, bhi, bor, bcen, brad, bev;
+    Py_buffer *all[11] = {&bT, &badj, &bptr, &bel, &bdiam, &blo, &bhi, &bor, &bcen, &brad, &bev};
+    PyObject *objs[11] = {oT, oadj, optr, oel, odiam, olo, ohi, oor, ocen, orad, oev};
+    const char *names[11] = {"table", "tri_adj", "prim_ptr", "elems", "diameter", "bbox_lo", "bbox_hi",
+                             "orient", "centres", "radius", "evals"};
+    Py_ssize_t sizes[11] = {8, 8, 8, 8, 8, 8, 8, 1, 8, 8, 8};
+    int wr[11] = {0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1};
+    int got = 0;
+    for (; got < 11; got++)
+        if (get_buf(objs[got], all[got], wr[got], names[got], sizes[got]) < 0) break;
+    if (got < 11) {
+        for (int i = 0; i < got; i++) PyBuffer_Release(all[i]);
+        return NULL;
+    }
+    const double *T = (const double *)bT.buf;
+    const int64_t *adj = (const int64_t *)badj.buf;
+    const int64_t *ptr = (const int64_t *)bptr.buf;
+    const int64_t *el = (const int64_t *)bel.buf;
+    const double *diam = (const double *)bdiam.buf;
+    const double *lo = (const double *)blo.buf, *hi = (const double *)bhi.buf;
+    const uint8_t *orient = (const uint8_t *)bor.buf;
+    double *cen = (double *)bcen.buf, *rad = (double *)brad.buf;
+    int64_t *ev = (int64_t *)bev.buf;
+    Py_ssize_t n = bel.len / 8;
+    int err = 0;
+    Elem E = {T, adj, 0, 0, NULL, 0, 0, 1};
+    Heap H = {NULL, 0, 0};
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t i = 0; i < n && !err; i++) {
+        int64_t e = el[i];
+        E.p0 = ptr[e];
+        E.m = ptr[e + 1] - ptr[e];
+        E.orient = orient[e] != 0;
+        E.n_nodes = 0;
+        State S = {0.0, {NAN, NAN, NAN}, rel_tol * diam[e], diam[e], 0, max_cells, 0, 0};
+        if (E.m > 0 && diam[e] > 0) {
+            if (build_node(&E, 0, E.m) < 0) { err = 1; break; }
+            if (search(&E, &S, lo + 3 * e, hi + 3 * e, &H) < 0) { err = 1; break; }
+        }
+        if (S.failed) {
+            ev[e] = -1;
+            continue;
+        }
+        rad[e] = S.best;
+        for (int a = 0; a < 3; a++) cen[3 * e + a] = S.best_pt[a];
+        ev[e] = S.evals + (S.lps << 32);
+    }
+    Py_END_ALLOW_THREADS
+    free(E.nodes);
+    free(H.a);
+    for (int i = 0; i < 11; i++) PyBuffer_Release(all[i]);
+    if (err) return PyErr_NoMemory();
+    Py_RETURN_NONE;
+}
+
+static PyMethodDef methods[] = {
+    {"inscribed", py_inscribed, METH_VARARGS,
+     "inscribed(table, tri_adj, prim_ptr, elems, diameter, bbox_lo, bbox_hi, orient, rel_tol, "
+     "max_cells, centres, radius, evals): largest inscribed balls of the 3D elements `elems` "
+     "(written into centres / radius; evals[e] = -1 where the cell budget ran out)."},
+    {NULL, NULL, 0, NULL}};
+
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_inscribed3d",
+                                    "Compiled 3D inscribed-ball branch and bound (models.metrics).", -1,
+                                    methods};
+
+PyMODINIT_FUNC PyInit__inscribed3d(void) { return PyModule_Create(&module); }

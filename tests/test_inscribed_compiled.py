@@ -1,0 +1,118 @@
+"""The compiled 3D inscribed-ball search (models/_inscribed3d.c) against closed forms, against the
+numpy search it replaces (both certified to rel_tol x diameter), and its fallbacks."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from test_metrics import R_L, SQ2, cube, l_prism, point_tri_dist, poly3d, tetra
+
+import models.metrics as mm
+from models.metrics import element_diameters, largest_inscribed_ball
+
+
+def test_the_compiled_search_is_built():
+    """setup.py builds it with every install; metrics would still work without it, only slower."""
+    assert mm._compiled() is not None, "models/_inscribed3d.c was not compiled: reinstall (pip install -e .)"
+
+
+@pytest.mark.parametrize("method", ["bnb", "bnb-numpy"])
+@pytest.mark.parametrize("rel_tol", [1e-3, 1e-5])
+def test_closed_forms(method, rel_tol):
+    """Cube (r = 1/2), regular tetrahedron (r = sqrt(3)/3), the L prism (two walls and the reflex
+    edge: r = 2 - sqrt(2)), the L prism with its faces reversed, and a cube scaled by 1e-6 and
+    moved far from the origin; every radius within rel_tol x diameter below the true one."""
+    v, f = l_prism(1.5)
+    vc, fc = cube(1e-6)
+    pm = poly3d(
+        [cube(), tetra(), (v, f), (v, [x[::-1] for x in f]), (vc + 1e3, fc)],
+        offsets=[(0, 0, 0), (5, 0, 0), (10, 0, 0), (15, 0, 0), (0, 0, 0)],
+    )
+    _, r = largest_inscribed_ball(pm, rel_tol=rel_tol, method=method)
+    true = np.array([0.5, math.sqrt(3) / 3, R_L, R_L, 0.5e-6])
+    eps = rel_tol * element_diameters(pm)
+    assert np.all(r <= true * (1 + 1e-12))
+    assert np.all(r >= true - eps - 1e-15)
+    assert element_diameters(pm)[1] == pytest.approx(2 * SQ2)
+
+
+def _jagged(n=8, seed=0, parts=12):
+    """Agglomerates of a tetrahedral cube with staircase (reflex) boundaries: random seeds, each
+    fine cell to its nearest seed under a wavy metric."""
+    from meshes import tets
+
+    from models.io import mesh_from_arrays
+    from models.merge import merge
+    from models.pipeline import prepare
+
+    p, t = tets(n)
+    m = mesh_from_arrays(p, [("tetra", t)])
+    g, d = prepare(m)
+    c = p[t].mean(axis=1)
+    rng = np.random.default_rng(seed)
+    seeds = rng.random((parts, 3))
+    w = c + 0.08 * np.sin(9 * c[:, [1, 2, 0]])
+    labels = np.argmin(((w[:, None, :] - seeds[None]) ** 2).sum(-1), axis=1)
+    labels = np.unique(labels, return_inverse=True)[1]
+    poly, _ = merge(m, g, labels, d.measures)
+    return poly
+
+
+def _certify(poly, centres, radii):
+    """Each centre is inside its element (winding number) and its exact distance to the element's
+    boundary triangles is the radius."""
+    g = mm._prepare(poly)
+    for e in range(g.n):
+        tri = g.prim[g.prim_ptr[e] : g.prim_ptr[e + 1]]
+        x = centres[e]
+        assert np.isfinite(x).all()
+        assert point_tri_dist(x[None], tri).min() == pytest.approx(radii[e], rel=1e-9, abs=1e-15)
+    assert mm._inside_bruteforce(g, centres, np.arange(g.n)).all()
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_compiled_and_numpy_searches_agree_on_jagged_agglomerates(seed):
+    poly = _jagged(seed=seed)
+    eps = 1e-3 * element_diameters(poly)
+    c1, r1 = largest_inscribed_ball(poly, method="bnb")
+    c2, r2 = largest_inscribed_ball(poly, method="bnb-numpy")
+    assert np.all(r1 > 0)
+    # both certified: each within eps below the true radius, hence within eps of each other
+    assert np.all(np.abs(r1 - r2) <= eps + 1e-12)
+    _certify(poly, c1, r1)
+    # a tighter tolerance only raises a radius, and by less than the looser eps
+    _, r3 = largest_inscribed_ball(poly, rel_tol=1e-5, method="bnb")
+    assert np.all(r3 >= r1 - 1e-5 * element_diameters(poly) - 1e-12)
+    assert np.all(r3 <= r1 + eps + 1e-12)
+
+
+def test_cell_budget_hands_elements_to_the_numpy_search(monkeypatch):
+    """An element whose compiled search runs out of cells is searched again by numpy: same
+    guarantee."""
+    poly = _jagged(seed=3)
+    _, ref = largest_inscribed_ball(poly, method="bnb")
+    monkeypatch.setattr(mm, "_EXT_MAX_CELLS", 1)
+    c, r = largest_inscribed_ball(poly, method="bnb")
+    eps = 1e-3 * element_diameters(poly)
+    assert np.all(np.abs(r - ref) <= eps + 1e-12)
+    _certify(poly, c, r)
+
+
+def test_without_the_compiled_module(monkeypatch):
+    """MAGNET_NO_COMPILED=1 (or a failed build): the numpy search, same guarantee."""
+    monkeypatch.setenv("MAGNET_NO_COMPILED", "1")
+    assert mm._compiled() is None
+    poly = _jagged(seed=4)
+    c, r = largest_inscribed_ball(poly)
+    monkeypatch.delenv("MAGNET_NO_COMPILED")
+    _, ref = largest_inscribed_ball(poly)
+    assert np.all(np.abs(r - ref) <= 1e-3 * element_diameters(poly) + 1e-12)
+
+
+def test_bad_buffers_are_refused():
+    ext = mm._compiled()
+    z = np.zeros(1)
+    with pytest.raises(TypeError):
+        ext.inscribed(*([np.zeros(3, dtype=np.int32)] * 8), 1e-3, 10, z, z, z)
