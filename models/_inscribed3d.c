@@ -569,11 +569,108 @@ static PyObject *py_inscribed(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+/* farthest pair of each point set (rows v_ptr[e]..v_ptr[e+1] of pts (n, 3)): brute force over
+ * pairs, which the hot loop does in a few ns each (a few hundred boundary points per element) */
+static PyObject *py_farthest_pairs(PyObject *self, PyObject *args) {
+    PyObject *op, *optr, *oi, *oj, *od;
+    if (!PyArg_ParseTuple(args, "OOOOO", &op, &optr, &oi, &oj, &od)) return NULL;
+    Py_buffer bp, bptr, bi, bj, bd;
+    Py_buffer *all[5] = {&bp, &bptr, &bi, &bj, &bd};
+    PyObject *objs[5] = {op, optr, oi, oj, od};
+    const char *names[5] = {"points", "v_ptr", "first", "second", "diameter"};
+    int wr[5] = {0, 0, 1, 1, 1};
+    int got = 0;
+    for (; got < 5; got++)
+        if (get_buf(objs[got], all[got], wr[got], names[got], 8) < 0) break;
+    if (got < 5) {
+        for (int i = 0; i < got; i++) PyBuffer_Release(all[i]);
+        return NULL;
+    }
+    const double *P = (const double *)bp.buf;
+    const int64_t *ptr = (const int64_t *)bptr.buf;
+    int64_t *fi = (int64_t *)bi.buf, *fj = (int64_t *)bj.buf;
+    double *dd = (double *)bd.buf;
+    Py_ssize_t n = bptr.len / 8 - 1;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t e = 0; e < n; e++) {
+        int64_t a = ptr[e], b = ptr[e + 1], bi_ = a, bj_ = a;
+        double best = -1.0;
+        for (int64_t i = a; i < b; i++) {
+            double x = P[3 * i], y = P[3 * i + 1], z = P[3 * i + 2];
+            for (int64_t j = i + 1; j < b; j++) {
+                double dx = P[3 * j] - x, dy = P[3 * j + 1] - y, dz = P[3 * j + 2] - z;
+                double d2 = dx * dx + dy * dy + dz * dz;
+                if (d2 > best) { best = d2; bi_ = i; bj_ = j; }
+            }
+        }
+        fi[e] = bi_ - a;
+        fj[e] = bj_ - a;
+        dd[e] = best > 0 ? sqrt(best) : 0.0;
+    }
+    Py_END_ALLOW_THREADS
+    for (int i = 0; i < 5; i++) PyBuffer_Release(all[i]);
+    Py_RETURN_NONE;
+}
+
+/* locally convex elements: every edge shared (tri_adj >= 0) and the neighbour's corners on the
+ * inner side of each triangle's plane (outward = sign * normal), to tol[e] */
+static PyObject *py_locally_convex(PyObject *self, PyObject *args) {
+    PyObject *oT, *oadj, *optr, *osg, *otol, *oout;
+    if (!PyArg_ParseTuple(args, "OOOOOO", &oT, &oadj, &optr, &osg, &otol, &oout)) return NULL;
+    Py_buffer bT, badj, bptr, bsg, btol, bout;
+    Py_buffer *all[6] = {&bT, &badj, &bptr, &bsg, &btol, &bout};
+    PyObject *objs[6] = {oT, oadj, optr, osg, otol, oout};
+    const char *names[6] = {"table", "tri_adj", "prim_ptr", "sign", "tol", "out"};
+    Py_ssize_t sizes[6] = {8, 8, 8, 8, 8, 1};
+    int wr[6] = {0, 0, 0, 0, 0, 1};
+    int got = 0;
+    for (; got < 6; got++)
+        if (get_buf(objs[got], all[got], wr[got], names[got], sizes[got]) < 0) break;
+    if (got < 6) {
+        for (int i = 0; i < got; i++) PyBuffer_Release(all[i]);
+        return NULL;
+    }
+    const double *T = (const double *)bT.buf;
+    const int64_t *adj = (const int64_t *)badj.buf, *ptr = (const int64_t *)bptr.buf;
+    const double *sg = (const double *)bsg.buf, *tol = (const double *)btol.buf;
+    uint8_t *out = (uint8_t *)bout.buf;
+    Py_ssize_t n = bptr.len / 8 - 1;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t e = 0; e < n; e++) {
+        int ok = ptr[e + 1] > ptr[e];
+        for (int64_t t = ptr[e]; t < ptr[e + 1] && ok; t++) {
+            const double *A = T + 16 * t;
+            double nx = sg[e] * A[9], ny = sg[e] * A[10], nz = sg[e] * A[11];
+            double off = nx * A[0] + ny * A[1] + nz * A[2];
+            for (int k = 0; k < 3 && ok; k++) {
+                int64_t o = adj[3 * t + k];
+                if (o < 0) { ok = 0; break; }
+                const double *B = T + 16 * o;
+                for (int c = 0; c < 3; c++) {
+                    double x = B[0], y = B[1], z = B[2];
+                    if (c > 0) { x += B[3 * c]; y += B[3 * c + 1]; z += B[3 * c + 2]; }
+                    if (nx * x + ny * y + nz * z - off > tol[e]) { ok = 0; break; }
+                }
+            }
+        }
+        out[e] = (uint8_t)ok;
+    }
+    Py_END_ALLOW_THREADS
+    for (int i = 0; i < 6; i++) PyBuffer_Release(all[i]);
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"inscribed", py_inscribed, METH_VARARGS,
      "inscribed(table, tri_adj, prim_ptr, elems, diameter, bbox_lo, bbox_hi, orient, rel_tol, "
      "max_cells, centres, radius, evals): largest inscribed balls of the 3D elements `elems` "
      "(written into centres / radius; evals[e] = -1 where the cell budget ran out)."},
+    {"farthest_pairs", py_farthest_pairs, METH_VARARGS,
+     "farthest_pairs(points, v_ptr, first, second, diameter): the farthest pair (positions within "
+     "each set) and its distance, per point set."},
+    {"locally_convex", py_locally_convex, METH_VARARGS,
+     "locally_convex(table, tri_adj, prim_ptr, sign, tol, out): 1 where every edge of the element is "
+     "shared and convex (to tol), else 0."},
     {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_inscribed3d",

@@ -169,6 +169,60 @@ def _hulls_qhull(vpts: np.ndarray, v_ptr: np.ndarray, dim: int):
     return hull_pts, hull_eq, hull_measure, diameter
 
 
+def _farthest_pairs(ext, vpts: np.ndarray, v_ptr: np.ndarray):
+    """3D without hulls: every element's boundary vertices with its farthest pair first (the
+    enclosing-ball pivoting starts from it) and the diameter, the pair found by the compiled
+    brute force (the same pair and distance as over the hull's vertices)."""
+    n = v_ptr.size - 1
+    i = np.zeros(n, dtype=np.int64)
+    j = np.zeros(n, dtype=np.int64)
+    diameter = np.zeros(n)
+    ext.farthest_pairs(
+        np.ascontiguousarray(vpts, dtype=np.float64), np.ascontiguousarray(v_ptr), i, j, diameter
+    )
+    # the pair to positions 0 and 1 of each set: two swaps of a permutation (sets are disjoint)
+    perm = np.arange(vpts.shape[0])
+    two = np.flatnonzero(np.diff(v_ptr) >= 2)
+    s0 = v_ptr[two]
+    a, b = s0 + i[two], s0 + j[two]
+    tmp = perm[s0].copy()
+    perm[s0] = perm[a]
+    perm[a] = tmp
+    b = np.where(b == s0, a, b)  # the second point moved if it sat in position 0
+    tmp = perm[s0 + 1].copy()
+    perm[s0 + 1] = perm[b]
+    perm[b] = tmp
+    p = vpts[perm]
+    pts = [p[v_ptr[e] : v_ptr[e + 1]] for e in range(n)]
+    return pts, diameter
+
+
+def _convex_3d(ext, prim_ptr, table, adj, signed, v_ptr, diameter):
+    """Convex 3D elements without hulls: a closed, consistently oriented triangulated surface (every
+    edge shared by two triangles) of a sphere's topology (V - E + F = 2) whose every edge is
+    convex (the neighbour's corners on the inner side of each triangle's plane, to 1e-10 x the
+    diameter; compiled) bounds a convex body. Returns hull_eq (the element's own triangle planes,
+    outward, for the Chebyshev-centre LP; None where not convex) and hull_measure (|volume| where
+    convex, 0 elsewhere), as _hulls_qhull gives them for _Geometry.convex."""
+    n = prim_ptr.size - 1
+    out_sign = np.where(signed >= 0, 1.0, -1.0)
+    local = np.zeros(n, dtype=np.uint8)
+    ext.locally_convex(
+        np.ascontiguousarray(table), np.ascontiguousarray(adj), prim_ptr, out_sign, 1e-10 * diameter, local
+    )
+    F = np.diff(prim_ptr)
+    V = np.diff(v_ptr)
+    convex = (local == 1) & (2 * V - F == 4) & (signed != 0)
+    hull_measure = np.where(convex, np.abs(signed), 0.0)
+    hull_eq = [None] * n
+    for e in np.flatnonzero(convex):  # convex 3D elements are rare (a Python loop over those only)
+        rows = table[prim_ptr[e] : prim_ptr[e + 1]]
+        nrm = out_sign[e] * rows[:, 9:12]
+        eq = np.column_stack([nrm, -np.einsum("ij,ij->i", nrm, rows[:, 0:3])])
+        hull_eq[e] = eq[np.linalg.norm(nrm, axis=1) > 0.5]  # degenerate triangles have no plane
+    return hull_eq, hull_measure
+
+
 def _chains_2d(pts: np.ndarray, grp: np.ndarray) -> np.ndarray:
     """Indices (into pts) of the lower convex chain of every group, in order. pts are sorted by
     group, then lexicographically (x, y). A point on or above the segment joining its two current
@@ -328,10 +382,13 @@ def _prepare(poly: PolyMesh) -> _Geometry:
         bbox_lo[has] = np.minimum.reduceat(vpts, v_ptr[:-1][has], axis=0)
         bbox_hi[has] = np.maximum.reduceat(vpts, v_ptr[:-1][has], axis=0)
 
+    ext = _compiled() if dim == 3 else None
     if dim == 2:
         hull_pts, hull_eq, hull_measure, diameter = _hulls_2d(vpts, v_ptr)
-    else:
+    elif ext is None:
         hull_pts, hull_eq, hull_measure, diameter = _hulls_qhull(vpts, v_ptr, dim)
+    else:  # no hulls: the farthest pair compiled, convexity from the edges (below)
+        hull_pts, diameter = _farthest_pairs(ext, vpts, v_ptr)
     cen = prim.mean(axis=1)
     # order the primitives of each element along a Morton curve (spatially coherent runs for the
     # bounding-ball hierarchy used by the inscribed-ball search)
@@ -362,6 +419,9 @@ def _prepare(poly: PolyMesh) -> _Geometry:
         else:
             extra = {"tri_adj": _triangle_neighbours(extra["tri_nodes"][perm], prim_elem, pts.shape[0])}
     rad = np.linalg.norm(prim - cen[:, None], axis=2).max(1) if prim.size else np.zeros(0)
+    table = _prim_table(prim)
+    if ext is not None:
+        hull_eq, hull_measure = _convex_3d(ext, prim_ptr, table, extra["tri_adj"], signed, v_ptr, diameter)
     return _Geometry(
         dim,
         n,
@@ -377,7 +437,7 @@ def _prepare(poly: PolyMesh) -> _Geometry:
         hull_eq,
         hull_measure,
         diameter,
-        table=_prim_table(prim),
+        table=table,
         cen=cen,
         rad=rad,
         **extra,

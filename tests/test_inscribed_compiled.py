@@ -116,3 +116,64 @@ def test_bad_buffers_are_refused():
     z = np.zeros(1)
     with pytest.raises(TypeError):
         ext.inscribed(*([np.zeros(3, dtype=np.int32)] * 8), 1e-3, 10, z, z, z)
+
+
+def _two_cubes(shift):
+    v1, f1 = cube()
+    v2, f2 = cube()
+    v = np.vstack([v1, v2 + np.asarray(shift, float)])
+    return v, f1 + [[k + 8 for k in f] for f in f2]
+
+
+def test_hull_free_geometry_matches_qhull(monkeypatch):
+    """The compiled path skips Qhull: the farthest pair (the diameter) by brute force and convexity
+    from the edges (closed, locally convex, V - E + F = 2). Same diameters and the same convex
+    elements as the hulls give: cube, tetrahedron and a cube made of 48 fine tetrahedra (flat
+    faces of many triangles) are convex; the L prism, two cubes sharing an edge (non-manifold)
+    or a vertex (pinched: locally convex everywhere, but not a sphere) and jagged agglomerates
+    are not."""
+    from meshes import tets
+
+    from models.io import mesh_from_arrays
+    from models.merge import merge
+    from models.pipeline import prepare
+
+    p, t = tets(2)
+    m = mesh_from_arrays(p, [("tetra", t)])
+    g, d = prepare(m)
+    one, _ = merge(m, g, np.zeros(len(t), dtype=np.int64), d.measures)
+
+    def faces_of(pm, e):
+        lo = pm.loop_offsets
+        return [
+            list(pm.loop_nodes[lo[k] : lo[k + 1]]) for k in range(pm.elem_offsets[e], pm.elem_offsets[e + 1])
+        ]
+
+    v1, faces = one.points, faces_of(one, 0)  # the 48-tet cube as one polyhedron (faces as merged)
+    jag = _jagged(n=5, seed=5, parts=6)
+    jag_elems = [(jag.points, faces_of(jag, e)) for e in range(jag.elem_offsets.size - 1)]
+    pm = poly3d(
+        [cube(), tetra(), (v1, faces), l_prism(1.5), _two_cubes((1, 1, 0)), _two_cubes((1, 1, 1))]
+        + jag_elems,
+        offsets=[(3 * i, 0, 0) for i in range(6 + len(jag_elems))],
+    )
+    g1 = mm._prepare(pm)
+    monkeypatch.setenv("MAGNET_NO_COMPILED", "1")
+    g0 = mm._prepare(pm)
+    assert np.array_equal(g1.convex, g0.convex)
+    assert list(g1.convex[:6]) == [True, True, True, False, False, False]
+    assert not g1.convex[6:].any()
+    np.testing.assert_allclose(g1.diameter, g0.diameter, rtol=1e-15)
+    for e in range(g1.n):
+        assert np.linalg.norm(g1.hull_pts[e][0] - g1.hull_pts[e][1]) == pytest.approx(
+            g1.diameter[e], rel=1e-15
+        )
+    # the enclosing balls from all boundary vertices equal those from the hull vertices
+    np.testing.assert_allclose(
+        mm._enclosing_balls(g1.hull_pts, 3)[1], mm._enclosing_balls(g0.hull_pts, 3)[1], rtol=1e-12
+    )
+    # convex elements keep their exact Chebyshev centres (LP over the triangle planes)
+    _, r1 = mm._inscribed(g1, 1e-3)
+    _, r0 = mm._inscribed(g0, 1e-3)
+    np.testing.assert_allclose(r1[:3], [0.5, math.sqrt(3) / 3, 0.5], rtol=1e-9)
+    np.testing.assert_allclose(r1[:3], r0[:3], rtol=1e-9)
