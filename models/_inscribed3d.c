@@ -31,7 +31,10 @@
 #include <string.h>
 
 #ifndef K_NEAR
-#define K_NEAR 32 /* triangles in the LP bound */
+#define K_NEAR 32 /* nearest triangles found for the LP bound */
+#endif
+#ifndef K_LP
+#define K_LP 32   /* ... of which the LP takes the nearest K_LP */
 #endif
 #define N_CORNER 8
 #ifndef LEAF_SIZE
@@ -49,7 +52,9 @@ typedef struct {
 typedef struct {
     double U, c[3], half;
     int64_t near;  /* closest triangle of the centre (local id) */
+    int64_t list;  /* its K_NEAR nearest triangles in the pool (cells with an LP bound), or -1 */
 } Cell;
+
 
 typedef struct {
     const double *T;     /* (S, 16): a, e0, e1, n, d00, d01, d11, inv */
@@ -213,6 +218,33 @@ typedef struct {
     int64_t t[K_NEAR];
 } KBest;
 
+/* the K_NEAR nearest triangles of a cell's centre; every other triangle lies at least R from it */
+typedef struct {
+    double R;
+    int n;
+    int64_t t[K_NEAR];
+} List;
+
+typedef struct {
+    List *a;
+    int64_t n, cap;
+} Pool;
+
+static int64_t pool_add(Pool *P, const KBest *B, double R) {
+    if (P->n >= P->cap) {
+        int64_t cap = P->cap ? 2 * P->cap : 256;
+        List *na = (List *)realloc(P->a, (size_t)cap * sizeof(List));
+        if (!na) return -1;
+        P->a = na;
+        P->cap = cap;
+    }
+    List *L = &P->a[P->n];
+    L->R = R;
+    L->n = B->n;
+    memcpy(L->t, B->t, (size_t)B->n * sizeof(int64_t));
+    return P->n++;
+}
+
 static inline void kbest_push(KBest *B, int k, double d2, int64_t t) {
     if (B->n == k && d2 >= B->d2[k - 1]) return;
     int i = B->n < k ? B->n++ : k - 1;
@@ -223,23 +255,37 @@ static inline void kbest_push(KBest *B, int k, double d2, int64_t t) {
 /* the k nearest triangles (local ids) of q, by squared distance */
 static void knearest(const Elem *E, const double *q, int k, KBest *B) {
     int64_t stack[128];
+    double sd[128];  /* the nodes' box distances (squared), computed once */
     int sp = 0;
-    stack[sp++] = 0;
+    stack[0] = 0;
+    sd[0] = box_d2(&E->nodes[0], q);
+    sp = 1;
     while (sp) {
-        const Node *N = &E->nodes[stack[--sp]];
+        sp--;
         double lim = B->n == k ? B->d2[k - 1] : INFINITY;
-        if (box_d2(N, q) > lim) continue;
+        if (sd[sp] > lim) continue;
+        const Node *N = &E->nodes[stack[sp]];
         if (N->c1 < 0) {
             for (int64_t t = N->i0; t < N->i1; t++) {
-                double d2 = tri_d2(E->T + 16 * (E->p0 + t), q);
+                const double *T = E->T + 16 * (E->p0 + t);
+                /* the distance to the triangle's plane bounds it from below */
+                double h = (q[0] - T[0]) * T[9] + (q[1] - T[1]) * T[10] + (q[2] - T[2]) * T[11];
+                if (h * h > lim) continue;
+                double d2 = tri_d2(T, q);
                 kbest_push(B, k, d2, t);
+                lim = B->n == k ? B->d2[k - 1] : INFINITY;
             }
         } else {
             int64_t a = N->c1, b = N->c2;
             double da = box_d2(&E->nodes[a], q), db = box_d2(&E->nodes[b], q);
             if (sp + 2 > 128) continue; /* cannot happen for depth < 64 */
-            if (da < db) { stack[sp++] = b; stack[sp++] = a; }
-            else { stack[sp++] = a; stack[sp++] = b; }
+            if (da < db) {
+                if (db <= lim) { stack[sp] = b; sd[sp++] = db; }
+                if (da <= lim) { stack[sp] = a; sd[sp++] = da; }
+            } else {
+                if (da <= lim) { stack[sp] = a; sd[sp++] = da; }
+                if (db <= lim) { stack[sp] = b; sd[sp++] = db; }
+            }
         }
     }
 }
@@ -295,7 +341,7 @@ static int classify(const Elem *E, const double *q, int64_t t) {
  * corner weights lambda (dual) in lam[nc]. */
 static double game_bound(const double *A, int nc, int k, double *lam) {
     /* maximise sum y s.t. A y <= 1, y >= 0; tableau rows nc, columns k + nc + 1 */
-    double tab[N_CORNER + 1][K_NEAR + N_CORNER + 1];
+    double tab[N_CORNER + 1][K_LP + N_CORNER + 1];
     int basis[N_CORNER];
     int ncol = k + nc;
     for (int j = 0; j < nc; j++) {
@@ -330,7 +376,7 @@ static double game_bound(const double *A, int nc, int k, double *lam) {
         }
         basis[pr] = pc;
     }
-    double y[K_NEAR] = {0};
+    double y[K_LP] = {0};
     double sy = 0;
     for (int j = 0; j < nc; j++)
         if (basis[j] < k && tab[j][ncol] > 0) y[basis[j]] = tab[j][ncol];
@@ -421,8 +467,8 @@ static const double CORNERS[8][3] = {{-1, -1, -1}, {-1, -1, 1}, {-1, 1, -1}, {-1
 
 /* upper bound of the cell from the LP over its corners; may raise the best via the dual point */
 static double lp_bound(const Elem *E, State *S, const double *c, double half, const KBest *B) {
-    int k = B->n;
-    double A[N_CORNER * K_NEAR], lam[N_CORNER];
+    int k = B->n < K_LP ? B->n : K_LP;
+    double A[N_CORNER * K_LP], lam[N_CORNER];
     double shift = 1e-6 * S->diam + 1e-300;
     for (int j = 0; j < N_CORNER; j++) {
         double q[3] = {c[0] + half * CORNERS[j][0], c[1] + half * CORNERS[j][1], c[2] + half * CORNERS[j][2]};
@@ -444,7 +490,7 @@ static double lp_bound(const Elem *E, State *S, const double *c, double half, co
     return U;
 }
 
-static int search(Elem *E, State *S, const double *lo, const double *hi, Heap *H) {
+static int search(Elem *E, State *S, const double *lo, const double *hi, Heap *H, Pool *P) {
     double c0[3], side = 0;
     for (int a = 0; a < 3; a++) {
         c0[a] = 0.5 * (lo[a] + hi[a]);
@@ -453,7 +499,8 @@ static int search(Elem *E, State *S, const double *lo, const double *hi, Heap *H
     }
     side *= 1 + 1e-9;
     H->n = 0;
-    Cell root = {INFINITY, {c0[0], c0[1], c0[2]}, 0.5 * side, -1};
+    P->n = 0;
+    Cell root = {INFINITY, {c0[0], c0[1], c0[2]}, 0.5 * side, -1, -1};
     if (heap_push(H, root)) return -1;
     const double sq3 = sqrt(3.0);
     int64_t cells = 0;
@@ -467,16 +514,38 @@ static int search(Elem *E, State *S, const double *lo, const double *hi, Heap *H
             KBest B;
             int st;
             B.n = 0;
-            if (cur.near >= 0) {  /* the parent's closest triangle bounds the distance from above */
-                double dh2 = tri_d2(E->T + 16 * (E->p0 + cur.near), q);
-                if (sqrt(dh2) + rho <= S->best + S->eps) continue;
-                B.n = 1; B.d2[0] = dh2; B.t[0] = cur.near;
+            double d;
+            if (cur.list >= 0) {
+                /* the parent's nearest triangles: the nearest of them bounds the distance from
+                 * above, and is the nearest of all when nothing unlisted can be nearer */
+                const List *L = &P->a[cur.list];
+                double best2 = INFINITY;
+                int64_t bt = L->t[0];
+                for (int i = 0; i < L->n; i++) {
+                    const double *T = E->T + 16 * (E->p0 + L->t[i]);
+                    double hh = (q[0] - T[0]) * T[9] + (q[1] - T[1]) * T[10] + (q[2] - T[2]) * T[11];
+                    if (hh * hh >= best2) continue;
+                    double d2 = tri_d2(T, q);
+                    if (d2 < best2) { best2 = d2; bt = L->t[i]; }
+                }
+                d = sqrt(best2);
+                if (d + rho <= S->best + S->eps) continue;
+                B.n = 1; B.d2[0] = best2; B.t[0] = bt;
+                if (!(d <= L->R - rho)) d = probe(E, S, q, &B, 1, &st);
+                else st = 0;
+            } else {
+                if (cur.near >= 0) {  /* the parent's closest triangle bounds the distance from above */
+                    double dh2 = tri_d2(E->T + 16 * (E->p0 + cur.near), q);
+                    if (sqrt(dh2) + rho <= S->best + S->eps) continue;
+                    B.n = 1; B.d2[0] = dh2; B.t[0] = cur.near;
+                }
+                d = probe(E, S, q, &B, 1, &st);
             }
-            double d = probe(E, S, q, &B, 1, &st);
             if (d + rho <= S->best + S->eps) continue;
             take(E, S, q, d, &B, &st);
             double U = (st == 1 ? d : -d) + rho;
             if (U <= S->best + S->eps) continue;
+            int64_t li = -1;
             if (rho < d) {
                 B.n = 0;
                 knearest(E, q, K_NEAR, &B);
@@ -484,8 +553,10 @@ static int search(Elem *E, State *S, const double *lo, const double *hi, Heap *H
                 double U2 = lp_bound(E, S, q, h, &B);
                 if (U2 < U) U = U2;
                 if (U <= S->best + S->eps) continue;
+                li = pool_add(P, &B, (B.n == K_NEAR && E->m > K_NEAR) ? sqrt(B.d2[K_NEAR - 1]) : INFINITY);
+                if (li < 0) return -1;
             }
-            Cell c = {U, {q[0], q[1], q[2]}, h, B.t[0]};
+            Cell c = {U, {q[0], q[1], q[2]}, h, B.t[0], li};
             if (heap_push(H, c)) return -1;
             if (++cells > S->max_cells) { S->failed = 1; return 0; }
         }
@@ -541,6 +612,7 @@ static PyObject *py_inscribed(PyObject *self, PyObject *args) {
     int err = 0;
     Elem E = {T, adj, 0, 0, NULL, 0, 0, 1};
     Heap H = {NULL, 0, 0};
+    Pool P = {NULL, 0, 0};
     Py_BEGIN_ALLOW_THREADS
     for (Py_ssize_t i = 0; i < n && !err; i++) {
         int64_t e = el[i];
@@ -551,7 +623,7 @@ static PyObject *py_inscribed(PyObject *self, PyObject *args) {
         State S = {0.0, {NAN, NAN, NAN}, rel_tol * diam[e], diam[e], 0, max_cells, 0, 0};
         if (E.m > 0 && diam[e] > 0) {
             if (build_node(&E, 0, E.m) < 0) { err = 1; break; }
-            if (search(&E, &S, lo + 3 * e, hi + 3 * e, &H) < 0) { err = 1; break; }
+            if (search(&E, &S, lo + 3 * e, hi + 3 * e, &H, &P) < 0) { err = 1; break; }
         }
         if (S.failed) {
             ev[e] = -1;
@@ -564,6 +636,7 @@ static PyObject *py_inscribed(PyObject *self, PyObject *args) {
     Py_END_ALLOW_THREADS
     free(E.nodes);
     free(H.a);
+    free(P.a);
     for (int i = 0; i < 11; i++) PyBuffer_Release(all[i]);
     if (err) return PyErr_NoMemory();
     Py_RETURN_NONE;

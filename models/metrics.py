@@ -1469,18 +1469,35 @@ def _compiled():
     return _inscribed3d
 
 
+def _threads() -> int:
+    """Threads for the compiled search: MAGNET_THREADS, else the cores this process may use."""
+    env = os.environ.get("MAGNET_THREADS", "")
+    if env.strip():
+        try:
+            return max(1, int(env))
+        except ValueError:
+            raise ParameterError(f"MAGNET_THREADS must be a whole number, got {env!r}") from None
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
 def _inscribed_compiled(ext, g: _Geometry, elems: np.ndarray, rel_tol: float):
-    """Compiled best-first search over `elems` (3D). Returns centres, radii and the elements it
-    gave up on (cell budget spent; none on any mesh measured)."""
+    """Compiled best-first search over `elems` (3D), in threads (the module releases the GIL;
+    each element is searched by one thread, so the result does not depend on their number).
+    Returns centres, radii and the elements it gave up on (cell budget spent; none on any mesh
+    measured)."""
     centres = np.full((g.n, 3), np.nan)
     radius = np.zeros(g.n)
     evals = np.zeros(g.n, dtype=np.int64)
     elems = np.ascontiguousarray(elems, dtype=np.int64)
-    ext.inscribed(
+    args = (
         np.ascontiguousarray(g.table, dtype=np.float64),
         np.ascontiguousarray(g.tri_adj, dtype=np.int64),
         np.ascontiguousarray(g.prim_ptr, dtype=np.int64),
-        elems,
+    )
+    rest = (
         np.ascontiguousarray(g.diameter, dtype=np.float64),
         np.ascontiguousarray(g.bbox_lo, dtype=np.float64),
         np.ascontiguousarray(g.bbox_hi, dtype=np.float64),
@@ -1491,6 +1508,14 @@ def _inscribed_compiled(ext, g: _Geometry, elems: np.ndarray, rel_tol: float):
         radius,
         evals,
     )
+    nt = min(_threads(), max(1, elems.size // 16))
+    if nt == 1:
+        ext.inscribed(*args, elems, *rest)
+    else:  # interleaved shares (neighbouring elements cost alike); outputs are disjoint rows
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(nt) as pool:
+            list(pool.map(lambda k: ext.inscribed(*args, elems[k::nt].copy(), *rest), range(nt)))
     return centres, radius, elems[evals[elems] < 0]
 
 
@@ -1666,6 +1691,19 @@ def heterogeneity_preservation(
 # partition statistics on the fine dual graph
 
 
+def _symmetric_simple(indptr: np.ndarray, indices: np.ndarray, rows: np.ndarray) -> bool:
+    """Whether a CSR pattern is symmetric with strictly increasing indices in every row (no
+    duplicates): then it equals its transpose (scipy's O(nnz) counting transpose) array for array."""
+    if indices.size == 0:
+        return True
+    inc = indices[1:] > indices[:-1]
+    if not np.all(inc | (rows[1:] != rows[:-1])):
+        return False
+    n = indptr.size - 1
+    t = sparse.csr_matrix((np.ones(indices.size, dtype=bool), indices, indptr), shape=(n, n)).T.tocsr()
+    return np.array_equal(t.indptr, indptr) and np.array_equal(t.indices, indices)
+
+
 def partition_statistics(indptr: np.ndarray, indices: np.ndarray, labels: np.ndarray) -> dict:
     """Cut, normalized cut, volume imbalance, part count and connectivity of a partition.
 
@@ -1681,26 +1719,48 @@ def partition_statistics(indptr: np.ndarray, indices: np.ndarray, labels: np.nda
         raise ParameterError(f"indptr has {indptr.size} entries for {nc} labels")
     if indices.size and (indices.min() < 0 or indices.max() >= nc):
         raise ParameterError("graph indices out of range")
-    u = np.repeat(np.arange(nc, dtype=np.int64), np.diff(indptr))
-    lo, hi = np.minimum(u, indices), np.maximum(u, indices)
-    off = lo != hi
-    # upper-triangular pattern; the COO -> CSR conversion merges duplicate (and mirrored) entries
-    up = sparse.csr_matrix((np.ones(int(off.sum()), dtype=bool), (lo[off], hi[off])), shape=(nc, nc))
-    a = np.repeat(np.arange(nc, dtype=np.int64), np.diff(up.indptr))
-    b = up.indices.astype(np.int64)
-    deg = np.bincount(a, minlength=nc) + np.bincount(b, minlength=nc)
     part, parts = _compact(labels)
-    cut_mask = part[a] != part[b]
-    cut_i = np.bincount(part[a][cut_mask], minlength=parts) + np.bincount(part[b][cut_mask], minlength=parts)
+    sizes = np.bincount(part, minlength=parts)
+    u = np.repeat(np.arange(nc, dtype=np.int64), np.diff(indptr))
+    if _symmetric_simple(indptr, indices, u):
+        # the usual dual graph: every undirected edge twice, once per direction, no duplicates;
+        # no COO -> CSR sort needed
+        off = u != indices
+        deg = np.bincount(u[off], minlength=nc)
+        cross = off & (part[u] != part[indices])
+        cut = int(cross.sum()) // 2
+        cut_i = np.bincount(part[u[cross]], minlength=parts)
+        keep = off & ~cross
+        kept_ptr = np.zeros(nc + 1, dtype=np.int64)
+        np.cumsum(np.bincount(u[keep], minlength=nc), out=kept_ptr[1:])
+        # float64 data and int32 indices, as csgraph wants them (no conversion copies); the
+        # pattern is symmetric, so weak components of the directed graph are the components
+        idx = indices[keep].astype(np.int32) if nc < 2**31 else indices[keep]
+        ptr = kept_ptr.astype(np.int32) if kept_ptr[-1] < 2**31 and nc < 2**31 else kept_ptr
+        g = sparse.csr_matrix((np.ones(int(kept_ptr[-1])), idx, ptr), shape=(nc, nc))
+        directed = True
+    else:
+        lo, hi = np.minimum(u, indices), np.maximum(u, indices)
+        off = lo != hi
+        # upper-triangular pattern; the COO -> CSR conversion merges duplicate (and mirrored) entries
+        up = sparse.csr_matrix((np.ones(int(off.sum()), dtype=bool), (lo[off], hi[off])), shape=(nc, nc))
+        a = np.repeat(np.arange(nc, dtype=np.int64), np.diff(up.indptr))
+        b = up.indices.astype(np.int64)
+        deg = np.bincount(a, minlength=nc) + np.bincount(b, minlength=nc)
+        cut_mask = part[a] != part[b]
+        cut = int(cut_mask.sum())
+        cut_i = np.bincount(part[a][cut_mask], minlength=parts) + np.bincount(
+            part[b][cut_mask], minlength=parts
+        )
+        inner = ~cut_mask
+        g = sparse.csr_matrix((np.ones(int(inner.sum()), dtype=bool), (a[inner], b[inner])), shape=(nc, nc))
+        directed = False
     vol = np.bincount(part, weights=deg, minlength=parts)
     with np.errstate(divide="ignore", invalid="ignore"):
         ncut = float(np.where(vol > 0, cut_i / np.where(vol > 0, vol, 1), 0.0).sum())
-    sizes = np.bincount(part, minlength=parts)
-    inner = ~cut_mask
-    g = sparse.csr_matrix((np.ones(int(inner.sum()), dtype=bool), (a[inner], b[inner])), shape=(nc, nc))
-    ncomp = connected_components(g, directed=False)[0] if nc else 0
+    ncomp = connected_components(g, directed=directed, connection="weak")[0] if nc else 0
     return {
-        "cut": int(cut_mask.sum()),
+        "cut": cut,
         "normalized_cut": ncut,
         "volume_imbalance": float(sizes.max() / sizes.mean()) if parts else 0.0,
         "parts": parts,
