@@ -546,14 +546,16 @@ static int search(Elem *E, State *S, const double *lo, const double *hi, Heap *H
             double U = (st == 1 ? d : -d) + rho;
             if (U <= S->best + S->eps) continue;
             int64_t li = -1;
+            double listR = INFINITY;
             if (rho < d) {
                 B.n = 0;
                 knearest(E, q, K_NEAR, &B);
+                listR = (B.n == K_NEAR && E->m > K_NEAR) ? sqrt(B.d2[K_NEAR - 1]) : INFINITY;
                 S->lps++;
                 double U2 = lp_bound(E, S, q, h, &B);
                 if (U2 < U) U = U2;
                 if (U <= S->best + S->eps) continue;
-                li = pool_add(P, &B, (B.n == K_NEAR && E->m > K_NEAR) ? sqrt(B.d2[K_NEAR - 1]) : INFINITY);
+                li = pool_add(P, &B, listR);
                 if (li < 0) return -1;
             }
             Cell c = {U, {q[0], q[1], q[2]}, h, B.t[0], li};
@@ -733,6 +735,133 @@ static PyObject *py_locally_convex(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+/* per-triangle constants (metrics._prim_table's layout) and bounding balls (centroid, farthest
+ * corner) of prim (S, 3, 3) */
+static PyObject *py_tri_table(PyObject *self, PyObject *args) {
+    PyObject *op, *ot, *oc, *orad;
+    if (!PyArg_ParseTuple(args, "OOOO", &op, &ot, &oc, &orad)) return NULL;
+    Py_buffer bp, bt, bc, br;
+    Py_buffer *all[4] = {&bp, &bt, &bc, &br};
+    PyObject *objs[4] = {op, ot, oc, orad};
+    const char *names[4] = {"prim", "table", "centre", "radius"};
+    int wr[4] = {0, 1, 1, 1};
+    int got = 0;
+    for (; got < 4; got++)
+        if (get_buf(objs[got], all[got], wr[got], names[got], 8) < 0) break;
+    if (got < 4) {
+        for (int i = 0; i < got; i++) PyBuffer_Release(all[i]);
+        return NULL;
+    }
+    const double *P = (const double *)bp.buf;
+    double *T = (double *)bt.buf, *C = (double *)bc.buf, *R = (double *)br.buf;
+    Py_ssize_t S = bp.len / 72;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t t = 0; t < S; t++) {
+        const double *a = P + 9 * t, *b = a + 3, *c = a + 6;
+        double *o = T + 16 * t;
+        double e0[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+        double e1[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+        double nx = e0[1] * e1[2] - e0[2] * e1[1], ny = e0[2] * e1[0] - e0[0] * e1[2], nz = e0[0] * e1[1] - e0[1] * e1[0];
+        double nn = sqrt(nx * nx + ny * ny + nz * nz);
+        double inv_n = nn > 0 ? 1.0 / nn : 1.0;
+        double d00 = dot3(e0, e0), d01 = dot3(e0, e1), d11 = dot3(e1, e1);
+        double det = d00 * d11 - d01 * d01;
+        memcpy(o, a, 24);
+        memcpy(o + 3, e0, 24);
+        memcpy(o + 6, e1, 24);
+        o[9] = nx * inv_n; o[10] = ny * inv_n; o[11] = nz * inv_n;
+        o[12] = d00; o[13] = d01; o[14] = d11;
+        o[15] = det > 1e-14 * d00 * d11 ? 1.0 / det : 0.0;
+        double m[3];
+        for (int k = 0; k < 3; k++) m[k] = (a[k] + b[k] + c[k]) / 3.0;
+        memcpy(C + 3 * t, m, 24);
+        double r = 0;
+        for (int v = 0; v < 3; v++) {
+            const double *x = a + 3 * v;
+            double dx = x[0] - m[0], dy = x[1] - m[1], dz = x[2] - m[2];
+            double d = sqrt(dx * dx + dy * dy + dz * dz);
+            if (d > r) r = d;
+        }
+        R[t] = r;
+    }
+    Py_END_ALLOW_THREADS
+    for (int i = 0; i < 4; i++) PyBuffer_Release(all[i]);
+    Py_RETURN_NONE;
+}
+
+typedef struct {
+    int64_t lo, hi, slot; /* slot = 3 * triangle + edge */
+    int fwd;
+} EdgeRec;
+
+static int edge_cmp(const void *x, const void *y) {
+    const EdgeRec *a = (const EdgeRec *)x, *b = (const EdgeRec *)y;
+    if (a->lo != b->lo) return a->lo < b->lo ? -1 : 1;
+    if (a->hi != b->hi) return a->hi < b->hi ? -1 : 1;
+    return a->slot < b->slot ? -1 : (a->slot > b->slot);
+}
+
+/* metrics._triangle_neighbours per element: the triangle across edge k (0: corners 0-1, 1: 0-2,
+ * 2: 1-2) when exactly two consistently oriented triangles of the element share it, else -1 */
+static PyObject *py_tri_neighbours(PyObject *self, PyObject *args) {
+    PyObject *on, *optr, *oadj;
+    if (!PyArg_ParseTuple(args, "OOO", &on, &optr, &oadj)) return NULL;
+    Py_buffer bn, bptr, badj;
+    Py_buffer *all[3] = {&bn, &bptr, &badj};
+    PyObject *objs[3] = {on, optr, oadj};
+    const char *names[3] = {"tri_nodes", "prim_ptr", "tri_adj"};
+    int wr[3] = {0, 0, 1};
+    int got = 0;
+    for (; got < 3; got++)
+        if (get_buf(objs[got], all[got], wr[got], names[got], 8) < 0) break;
+    if (got < 3) {
+        for (int i = 0; i < got; i++) PyBuffer_Release(all[i]);
+        return NULL;
+    }
+    const int64_t *N = (const int64_t *)bn.buf, *ptr = (const int64_t *)bptr.buf;
+    int64_t *adj = (int64_t *)badj.buf;
+    Py_ssize_t ne = bptr.len / 8 - 1;
+    int err = 0;
+    Py_BEGIN_ALLOW_THREADS
+    EdgeRec *rec = NULL;
+    int64_t cap = 0;
+    static const int EU[3] = {0, 0, 1}, EV[3] = {1, 2, 2}, FWD[3] = {1, -1, 1};
+    for (Py_ssize_t e = 0; e < ne && !err; e++) {
+        int64_t t0 = ptr[e], t1 = ptr[e + 1], m = 3 * (t1 - t0);
+        if (m > cap) {
+            EdgeRec *nr = (EdgeRec *)realloc(rec, (size_t)m * sizeof(EdgeRec));
+            if (!nr) { err = 1; break; }
+            rec = nr;
+            cap = m;
+        }
+        for (int64_t t = t0; t < t1; t++)
+            for (int k = 0; k < 3; k++) {
+                int64_t u = N[3 * t + EU[k]], v = N[3 * t + EV[k]];
+                EdgeRec *r = &rec[3 * (t - t0) + k];
+                r->lo = u < v ? u : v;
+                r->hi = u < v ? v : u;
+                r->slot = 3 * t + k;
+                r->fwd = u < v ? FWD[k] : -FWD[k];
+                adj[3 * t + k] = -1;
+            }
+        qsort(rec, (size_t)m, sizeof(EdgeRec), edge_cmp);
+        for (int64_t i = 0; i < m;) {
+            int64_t j = i + 1;
+            while (j < m && rec[j].lo == rec[i].lo && rec[j].hi == rec[i].hi) j++;
+            if (j - i == 2 && rec[i].fwd != rec[i + 1].fwd) {
+                adj[rec[i].slot] = rec[i + 1].slot / 3;
+                adj[rec[i + 1].slot] = rec[i].slot / 3;
+            }
+            i = j;
+        }
+    }
+    free(rec);
+    Py_END_ALLOW_THREADS
+    for (int i = 0; i < 3; i++) PyBuffer_Release(all[i]);
+    if (err) return PyErr_NoMemory();
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"inscribed", py_inscribed, METH_VARARGS,
      "inscribed(table, tri_adj, prim_ptr, elems, diameter, bbox_lo, bbox_hi, orient, rel_tol, "
@@ -744,6 +873,11 @@ static PyMethodDef methods[] = {
     {"locally_convex", py_locally_convex, METH_VARARGS,
      "locally_convex(table, tri_adj, prim_ptr, sign, tol, out): 1 where every edge of the element is "
      "shared and convex (to tol), else 0."},
+    {"tri_table", py_tri_table, METH_VARARGS,
+     "tri_table(prim, table, centre, radius): per-triangle constants and bounding balls."},
+    {"tri_neighbours", py_tri_neighbours, METH_VARARGS,
+     "tri_neighbours(tri_nodes, prim_ptr, tri_adj): the neighbouring triangle of the same element "
+     "across each edge, or -1."},
     {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_inscribed3d",

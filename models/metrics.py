@@ -389,7 +389,7 @@ def _prepare(poly: PolyMesh) -> _Geometry:
         hull_pts, hull_eq, hull_measure, diameter = _hulls_qhull(vpts, v_ptr, dim)
     else:  # no hulls: the farthest pair compiled, convexity from the edges (below)
         hull_pts, diameter = _farthest_pairs(ext, vpts, v_ptr)
-    cen = prim.mean(axis=1)
+    cen = (prim[:, 0] + prim[:, 1] + prim[:, 2]) / 3.0 if ext is not None else prim.mean(axis=1)
     # order the primitives of each element along a Morton curve (spatially coherent runs for the
     # bounding-ball hierarchy used by the inscribed-ball search)
     if prim.shape[0]:
@@ -416,10 +416,23 @@ def _prepare(poly: PolyMesh) -> _Geometry:
                 "prim_prev": inv[extra["prim_prev"][perm]],
                 "start_unsafe": extra["start_unsafe"][perm],
             }
-        else:
+        elif ext is None:
             extra = {"tri_adj": _triangle_neighbours(extra["tri_nodes"][perm], prim_elem, pts.shape[0])}
-    rad = np.linalg.norm(prim - cen[:, None], axis=2).max(1) if prim.size else np.zeros(0)
-    table = _prim_table(prim)
+        else:  # the same neighbours, element by element (compiled)
+            adj = np.empty((prim.shape[0], 3), dtype=np.int64)
+            ext.tri_neighbours(np.ascontiguousarray(extra["tri_nodes"][perm]), prim_ptr, adj)
+            extra = {"tri_adj": adj}
+    elif dim == 3:
+        extra = {"tri_adj": np.zeros((0, 3), dtype=np.int64)}
+    if ext is not None and prim.shape[0]:  # table, centroids and ball radii in one compiled pass
+        prim = np.ascontiguousarray(prim)
+        table = np.empty((prim.shape[0], 16))
+        cen = np.empty((prim.shape[0], 3))
+        rad = np.empty(prim.shape[0])
+        ext.tri_table(prim, table, cen, rad)
+    else:
+        rad = np.linalg.norm(prim - cen[:, None], axis=2).max(1) if prim.size else np.zeros(0)
+        table = _prim_table(prim)
     if ext is not None:
         hull_eq, hull_measure = _convex_3d(ext, prim_ptr, table, extra["tri_adj"], signed, v_ptr, diameter)
     return _Geometry(
@@ -1524,11 +1537,13 @@ def _inscribed(g: _Geometry, rel_tol: float, method: str = "auto"):
         raise ParameterError(f"unknown inscribed-ball method {method!r} ({', '.join(_INSCRIBED_METHODS)})")
     convex = g.convex if method == "auto" else np.zeros(g.n, dtype=bool)
     centres, radius = _inscribed_lp(g, np.flatnonzero(convex))
-    rest = np.flatnonzero(~convex)
+    # an element of zero measure (faces back to back) has no interior: radius 0, no centre
+    flat = np.abs(g.signed_measure) <= 1e-12 * np.maximum(g.diameter, 1e-300) ** g.dim
+    rest = np.flatnonzero(~convex & ~flat)
     ext = _compiled() if g.dim == 3 and method != "bnb-numpy" else None
     if rest.size and ext is not None:
+        done = rest
         c2, r2, rest = _inscribed_compiled(ext, g, rest, rel_tol)
-        done = np.flatnonzero(~convex)
         centres[done], radius[done] = c2[done], r2[done]
     if rest.size:
         # elements in batches of about _BNB_BATCH_PRIMS boundary primitives: the search's per-level

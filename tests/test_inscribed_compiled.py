@@ -177,3 +177,63 @@ def test_hull_free_geometry_matches_qhull(monkeypatch):
     _, r0 = mm._inscribed(g0, 1e-3)
     np.testing.assert_allclose(r1[:3], [0.5, math.sqrt(3) / 3, 0.5], rtol=1e-9)
     np.testing.assert_allclose(r1[:3], r0[:3], rtol=1e-9)
+
+
+def test_compiled_geometry_tables_match_numpy(monkeypatch):
+    """Triangle constants, neighbours across edges (including non-manifold and inconsistently
+    oriented edges: -1) and bounding balls from the compiled pass equal numpy's."""
+    v, f = _two_cubes((1, 1, 0))
+    vf, ff = l_prism(1.5)
+    flipped = [ff[0][::-1]] + ff[1:]  # one face against the others: its edges get -1
+    pm = poly3d([(v, f), (vf, flipped), tetra()] + [(p, q) for p, q in [l_prism(0.7)]])
+    g1 = mm._prepare(pm)
+    monkeypatch.setenv("MAGNET_NO_COMPILED", "1")
+    g0 = mm._prepare(pm)
+    np.testing.assert_array_equal(g1.prim, g0.prim)
+    np.testing.assert_array_equal(g1.tri_adj, g0.tri_adj)
+    assert (g1.tri_adj < 0).any() and (g1.tri_adj >= 0).any()
+    np.testing.assert_allclose(g1.table, g0.table, rtol=1e-13, atol=1e-13)
+    np.testing.assert_allclose(g1.cen, g0.cen, rtol=1e-15, atol=1e-15)
+    np.testing.assert_allclose(g1.rad, g0.rad, rtol=1e-13)
+    # the jagged agglomerates (some edges non-manifold): the same neighbours
+    poly = _jagged(seed=6)
+    a = mm._prepare(poly).tri_adj
+    monkeypatch.delenv("MAGNET_NO_COMPILED")
+    b = mm._prepare(poly).tri_adj
+    np.testing.assert_array_equal(a, b)
+
+
+def test_empty_and_degenerate_3d_elements():
+    """No triangles at all, and a flat element (two faces back to back, zero volume): no crash,
+    radius 0 and no centre in both searches (it has no interior)."""
+    from models.mesh import PolyMesh
+
+    empty = PolyMesh(
+        points=np.zeros((0, 3)),
+        elem_offsets=np.array([0]),
+        loop_offsets=np.array([0]),
+        loop_nodes=np.zeros(0, dtype=np.int64),
+        measure=np.zeros(0),
+        n_fine=np.zeros(0, int),
+        labels=np.zeros(0, int),
+    )
+    c, r = largest_inscribed_ball(empty)
+    assert c.shape == (0, 3) and r.shape == (0,)
+    sq = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
+    flat = poly3d([(sq, [[0, 1, 2, 3], [3, 2, 1, 0]])])
+    for method in ("auto", "bnb", "bnb-numpy"):
+        c, r = largest_inscribed_ball(flat, method=method)
+        assert r[0] == 0.0 and np.isnan(c[0]).all()
+
+
+def test_certified_centres_on_a_larger_mesh():
+    """Deeper searches (about 700 tetrahedra per element): every centre is inside with its exact
+    distance as the radius, and no radius is above the true one, which a tighter search bounds
+    from below."""
+    poly = _jagged(n=14, seed=7, parts=24)
+    c, r = largest_inscribed_ball(poly, method="bnb")
+    _certify(poly, c, r)
+    _, fine = largest_inscribed_ball(poly, rel_tol=1e-6, method="bnb")
+    diam = element_diameters(poly)
+    assert np.all(r <= fine + 1e-6 * diam + 1e-12)  # r <= r_true <= fine + 1e-6 diam
+    assert np.all(r >= fine - 1e-3 * diam - 1e-12)  # r >= r_true - eps >= fine - eps
