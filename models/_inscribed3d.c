@@ -57,7 +57,8 @@ typedef struct {
 
 
 typedef struct {
-    const double *T;     /* (S, 16): a, e0, e1, n, d00, d01, d11, inv */
+    double *T;           /* (m, 16) this element's triangles: a, e0, e1, n, d00, d01, d11, inv */
+    int64_t capT;
     const int64_t *adj;  /* (S, 3) */
     int64_t p0, m;       /* first triangle, count */
     Node *nodes;
@@ -69,6 +70,36 @@ typedef struct {
 /* point - triangle */
 
 static inline double dot3(const double *a, const double *b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+
+/* constants of triangle P (3 corners) in metrics._prim_table's layout */
+static void fill_table(const double *P, double *o) {
+    const double *a = P, *b = P + 3, *c = P + 6;
+    double e0[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+    double e1[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+    double nx = e0[1] * e1[2] - e0[2] * e1[1], ny = e0[2] * e1[0] - e0[0] * e1[2], nz = e0[0] * e1[1] - e0[1] * e1[0];
+    double nn = sqrt(nx * nx + ny * ny + nz * nz);
+    double inv_n = nn > 0 ? 1.0 / nn : 1.0;
+    double d00 = dot3(e0, e0), d01 = dot3(e0, e1), d11 = dot3(e1, e1);
+    double det = d00 * d11 - d01 * d01;
+    memcpy(o, a, 24);
+    memcpy(o + 3, e0, 24);
+    memcpy(o + 6, e1, 24);
+    o[9] = nx * inv_n; o[10] = ny * inv_n; o[11] = nz * inv_n;
+    o[12] = d00; o[13] = d01; o[14] = d11;
+    o[15] = det > 1e-14 * d00 * d11 ? 1.0 / det : 0.0;
+}
+
+/* the element's table (grown as needed); -1 when out of memory */
+static int load_table(double **buf, int64_t *cap, const double *prim, int64_t p0, int64_t m) {
+    if (m > *cap) {
+        double *nb = (double *)realloc(*buf, (size_t)m * 16 * sizeof(double));
+        if (!nb) return -1;
+        *buf = nb;
+        *cap = m;
+    }
+    for (int64_t t = 0; t < m; t++) fill_table(prim + 9 * (p0 + t), *buf + 16 * t);
+    return 0;
+}
 
 /* squared distance from q to the segment s0 + t e, t in [0, 1] (ee = e.e) */
 static inline double seg_d2(const double *q, const double *s0, const double *e, double ee) {
@@ -179,7 +210,7 @@ static int64_t build_node(Elem *E, int64_t i0, int64_t i1) {
     Node *N = &E->nodes[id];
     for (int k = 0; k < 3; k++) { N->lo[k] = INFINITY; N->hi[k] = -INFINITY; }
     for (int64_t t = i0; t < i1; t++) {
-        const double *T = E->T + 16 * (E->p0 + t);
+        const double *T = E->T + 16 * (t);
         for (int k = 0; k < 3; k++) {
             double a = T[k], b = T[k] + T[3 + k], c = T[k] + T[6 + k];
             double lo = a < b ? a : b, hi = a > b ? a : b;
@@ -267,7 +298,7 @@ static void knearest(const Elem *E, const double *q, int k, KBest *B) {
         const Node *N = &E->nodes[stack[sp]];
         if (N->c1 < 0) {
             for (int64_t t = N->i0; t < N->i1; t++) {
-                const double *T = E->T + 16 * (E->p0 + t);
+                const double *T = E->T + 16 * (t);
                 /* the distance to the triangle's plane bounds it from below */
                 double h = (q[0] - T[0]) * T[9] + (q[1] - T[1]) * T[10] + (q[2] - T[2]) * T[11];
                 if (h * h > lim) continue;
@@ -296,7 +327,7 @@ static void knearest(const Elem *E, const double *q, int k, KBest *B) {
 static int winding_inside(const Elem *E, const double *q) {
     double w = 0;
     for (int64_t t = 0; t < E->m; t++) {
-        const double *T = E->T + 16 * (E->p0 + t);
+        const double *T = E->T + 16 * (t);
         double A[3], B[3], C[3];
         for (int i = 0; i < 3; i++) {
             A[i] = T[i] - q[i];
@@ -314,7 +345,7 @@ static int winding_inside(const Elem *E, const double *q) {
 
 /* +1 inside / -1 outside for q whose closest triangle is t (local id), see metrics._classify */
 static int classify(const Elem *E, const double *q, int64_t t) {
-    const double *T = E->T + 16 * (E->p0 + t);
+    const double *T = E->T + 16 * (t);
     int loc, edge, side;
     double vec[3];
     double d2 = tri_d2_full(T, q, &loc, &edge, vec, &side);
@@ -322,7 +353,7 @@ static int classify(const Elem *E, const double *q, int64_t t) {
     if (edge >= 0) {
         int64_t other = E->adj[3 * (E->p0 + t) + edge];
         if (other >= 0) {
-            const double *T2 = E->T + 16 * other;
+            const double *T2 = E->T + 16 * (other - E->p0);
             double ns[3] = {T[9] + T2[9], T[10] + T2[10], T[11] + T2[11]};
             double s = dot3(vec, ns);
             if (fabs(s) > 1e-9 * sqrt(d2) * sqrt(dot3(ns, ns))) {
@@ -472,7 +503,7 @@ static double lp_bound(const Elem *E, State *S, const double *c, double half, co
     double shift = 1e-6 * S->diam + 1e-300;
     for (int j = 0; j < N_CORNER; j++) {
         double q[3] = {c[0] + half * CORNERS[j][0], c[1] + half * CORNERS[j][1], c[2] + half * CORNERS[j][2]};
-        for (int i = 0; i < k; i++) A[j * k + i] = sqrt(tri_d2(E->T + 16 * (E->p0 + B->t[i]), q)) + shift;
+        for (int i = 0; i < k; i++) A[j * k + i] = sqrt(tri_d2(E->T + 16 * (B->t[i]), q)) + shift;
     }
     double U = game_bound(A, N_CORNER, k, lam) - shift;
     U += 1e-12 * S->diam;  /* rounding */
@@ -522,7 +553,7 @@ static int search(Elem *E, State *S, const double *lo, const double *hi, Heap *H
                 double best2 = INFINITY;
                 int64_t bt = L->t[0];
                 for (int i = 0; i < L->n; i++) {
-                    const double *T = E->T + 16 * (E->p0 + L->t[i]);
+                    const double *T = E->T + 16 * (L->t[i]);
                     double hh = (q[0] - T[0]) * T[9] + (q[1] - T[1]) * T[10] + (q[2] - T[2]) * T[11];
                     if (hh * hh >= best2) continue;
                     double d2 = tri_d2(T, q);
@@ -535,7 +566,7 @@ static int search(Elem *E, State *S, const double *lo, const double *hi, Heap *H
                 else st = 0;
             } else {
                 if (cur.near >= 0) {  /* the parent's closest triangle bounds the distance from above */
-                    double dh2 = tri_d2(E->T + 16 * (E->p0 + cur.near), q);
+                    double dh2 = tri_d2(E->T + 16 * (cur.near), q);
                     if (sqrt(dh2) + rho <= S->best + S->eps) continue;
                     B.n = 1; B.d2[0] = dh2; B.t[0] = cur.near;
                 }
@@ -590,7 +621,7 @@ static PyObject *py_inscribed(PyObject *self, PyObject *args) {
     Py_buffer bT, badj, bptr, bel, bdiam, blo, bhi, bor, bcen, brad, bev;
     Py_buffer *all[11] = {&bT, &badj, &bptr, &bel, &bdiam, &blo, &bhi, &bor, &bcen, &brad, &bev};
     PyObject *objs[11] = {oT, oadj, optr, oel, odiam, olo, ohi, oor, ocen, orad, oev};
-    const char *names[11] = {"table", "tri_adj", "prim_ptr", "elems", "diameter", "bbox_lo", "bbox_hi",
+    const char *names[11] = {"prim", "tri_adj", "prim_ptr", "elems", "diameter", "bbox_lo", "bbox_hi",
                              "orient", "centres", "radius", "evals"};
     Py_ssize_t sizes[11] = {8, 8, 8, 8, 8, 8, 8, 1, 8, 8, 8};
     int wr[11] = {0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1};
@@ -601,7 +632,7 @@ static PyObject *py_inscribed(PyObject *self, PyObject *args) {
         for (int i = 0; i < got; i++) PyBuffer_Release(all[i]);
         return NULL;
     }
-    const double *T = (const double *)bT.buf;
+    const double *prim = (const double *)bT.buf;
     const int64_t *adj = (const int64_t *)badj.buf;
     const int64_t *ptr = (const int64_t *)bptr.buf;
     const int64_t *el = (const int64_t *)bel.buf;
@@ -612,7 +643,7 @@ static PyObject *py_inscribed(PyObject *self, PyObject *args) {
     int64_t *ev = (int64_t *)bev.buf;
     Py_ssize_t n = bel.len / 8;
     int err = 0;
-    Elem E = {T, adj, 0, 0, NULL, 0, 0, 1};
+    Elem E = {NULL, 0, adj, 0, 0, NULL, 0, 0, 1};
     Heap H = {NULL, 0, 0};
     Pool P = {NULL, 0, 0};
     Py_BEGIN_ALLOW_THREADS
@@ -624,6 +655,7 @@ static PyObject *py_inscribed(PyObject *self, PyObject *args) {
         E.n_nodes = 0;
         State S = {0.0, {NAN, NAN, NAN}, rel_tol * diam[e], diam[e], 0, max_cells, 0, 0};
         if (E.m > 0 && diam[e] > 0) {
+            if (load_table(&E.T, &E.capT, prim, E.p0, E.m) < 0) { err = 1; break; }
             if (build_node(&E, 0, E.m) < 0) { err = 1; break; }
             if (search(&E, &S, lo + 3 * e, hi + 3 * e, &H, &P) < 0) { err = 1; break; }
         }
@@ -637,6 +669,7 @@ static PyObject *py_inscribed(PyObject *self, PyObject *args) {
     }
     Py_END_ALLOW_THREADS
     free(E.nodes);
+    free(E.T);
     free(H.a);
     free(P.a);
     for (int i = 0; i < 11; i++) PyBuffer_Release(all[i]);
@@ -695,7 +728,7 @@ static PyObject *py_locally_convex(PyObject *self, PyObject *args) {
     Py_buffer bT, badj, bptr, bsg, btol, bout;
     Py_buffer *all[6] = {&bT, &badj, &bptr, &bsg, &btol, &bout};
     PyObject *objs[6] = {oT, oadj, optr, osg, otol, oout};
-    const char *names[6] = {"table", "tri_adj", "prim_ptr", "sign", "tol", "out"};
+    const char *names[6] = {"prim", "tri_adj", "prim_ptr", "sign", "tol", "out"};
     Py_ssize_t sizes[6] = {8, 8, 8, 8, 8, 1};
     int wr[6] = {0, 0, 0, 0, 0, 1};
     int got = 0;
@@ -714,18 +747,16 @@ static PyObject *py_locally_convex(PyObject *self, PyObject *args) {
     for (Py_ssize_t e = 0; e < n; e++) {
         int ok = ptr[e + 1] > ptr[e];
         for (int64_t t = ptr[e]; t < ptr[e + 1] && ok; t++) {
-            const double *A = T + 16 * t;
+            double A[16];
+            fill_table(T + 9 * t, A);
             double nx = sg[e] * A[9], ny = sg[e] * A[10], nz = sg[e] * A[11];
             double off = nx * A[0] + ny * A[1] + nz * A[2];
             for (int k = 0; k < 3 && ok; k++) {
                 int64_t o = adj[3 * t + k];
                 if (o < 0) { ok = 0; break; }
-                const double *B = T + 16 * o;
-                for (int c = 0; c < 3; c++) {
-                    double x = B[0], y = B[1], z = B[2];
-                    if (c > 0) { x += B[3 * c]; y += B[3 * c + 1]; z += B[3 * c + 2]; }
-                    if (nx * x + ny * y + nz * z - off > tol[e]) { ok = 0; break; }
-                }
+                const double *B = T + 9 * o;  /* the neighbour's corners */
+                for (int c = 0; c < 3; c++)
+                    if (nx * B[3 * c] + ny * B[3 * c + 1] + nz * B[3 * c + 2] - off > tol[e]) { ok = 0; break; }
             }
         }
         out[e] = (uint8_t)ok;
@@ -758,20 +789,7 @@ static PyObject *py_tri_table(PyObject *self, PyObject *args) {
     Py_BEGIN_ALLOW_THREADS
     for (Py_ssize_t t = 0; t < S; t++) {
         const double *a = P + 9 * t, *b = a + 3, *c = a + 6;
-        double *o = T + 16 * t;
-        double e0[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
-        double e1[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
-        double nx = e0[1] * e1[2] - e0[2] * e1[1], ny = e0[2] * e1[0] - e0[0] * e1[2], nz = e0[0] * e1[1] - e0[1] * e1[0];
-        double nn = sqrt(nx * nx + ny * ny + nz * nz);
-        double inv_n = nn > 0 ? 1.0 / nn : 1.0;
-        double d00 = dot3(e0, e0), d01 = dot3(e0, e1), d11 = dot3(e1, e1);
-        double det = d00 * d11 - d01 * d01;
-        memcpy(o, a, 24);
-        memcpy(o + 3, e0, 24);
-        memcpy(o + 6, e1, 24);
-        o[9] = nx * inv_n; o[10] = ny * inv_n; o[11] = nz * inv_n;
-        o[12] = d00; o[13] = d01; o[14] = d11;
-        o[15] = det > 1e-14 * d00 * d11 ? 1.0 / det : 0.0;
+        fill_table(a, T + 16 * t);
         double m[3];
         for (int k = 0; k < 3; k++) m[k] = (a[k] + b[k] + c[k]) / 3.0;
         memcpy(C + 3 * t, m, 24);
@@ -790,19 +808,14 @@ static PyObject *py_tri_table(PyObject *self, PyObject *args) {
 }
 
 typedef struct {
-    int64_t lo, hi, slot; /* slot = 3 * triangle + edge */
-    int fwd;
-} EdgeRec;
-
-static int edge_cmp(const void *x, const void *y) {
-    const EdgeRec *a = (const EdgeRec *)x, *b = (const EdgeRec *)y;
-    if (a->lo != b->lo) return a->lo < b->lo ? -1 : 1;
-    if (a->hi != b->hi) return a->hi < b->hi ? -1 : 1;
-    return a->slot < b->slot ? -1 : (a->slot > b->slot);
-}
+    int64_t lo, hi;  /* the edge's node ids (lo < hi), lo = -1: empty */
+    int64_t s1, s2;  /* the first two half-edges (3 * triangle + edge) */
+    int count, f1, f2;
+} EdgeSlot;
 
 /* metrics._triangle_neighbours per element: the triangle across edge k (0: corners 0-1, 1: 0-2,
- * 2: 1-2) when exactly two consistently oriented triangles of the element share it, else -1 */
+ * 2: 1-2) when exactly two consistently oriented triangles of the element share it, else -1.
+ * The element's edges go into an open-addressing hash table (linear probing). */
 static PyObject *py_tri_neighbours(PyObject *self, PyObject *args) {
     PyObject *on, *optr, *oadj;
     if (!PyArg_ParseTuple(args, "OOO", &on, &optr, &oadj)) return NULL;
@@ -823,39 +836,48 @@ static PyObject *py_tri_neighbours(PyObject *self, PyObject *args) {
     Py_ssize_t ne = bptr.len / 8 - 1;
     int err = 0;
     Py_BEGIN_ALLOW_THREADS
-    EdgeRec *rec = NULL;
+    EdgeSlot *tab = NULL;
     int64_t cap = 0;
     static const int EU[3] = {0, 0, 1}, EV[3] = {1, 2, 2}, FWD[3] = {1, -1, 1};
     for (Py_ssize_t e = 0; e < ne && !err; e++) {
-        int64_t t0 = ptr[e], t1 = ptr[e + 1], m = 3 * (t1 - t0);
-        if (m > cap) {
-            EdgeRec *nr = (EdgeRec *)realloc(rec, (size_t)m * sizeof(EdgeRec));
-            if (!nr) { err = 1; break; }
-            rec = nr;
-            cap = m;
+        int64_t t0 = ptr[e], t1 = ptr[e + 1];
+        int64_t size = 16;
+        while (size < 4 * (t1 - t0)) size *= 2;  /* ~1.5 edges a triangle: load below 0.4 */
+        if (size > cap) {
+            EdgeSlot *nt = (EdgeSlot *)realloc(tab, (size_t)size * sizeof(EdgeSlot));
+            if (!nt) { err = 1; break; }
+            tab = nt;
+            cap = size;
         }
+        for (int64_t i = 0; i < size; i++) tab[i].lo = -1;
+        uint64_t mask = (uint64_t)size - 1;
         for (int64_t t = t0; t < t1; t++)
             for (int k = 0; k < 3; k++) {
                 int64_t u = N[3 * t + EU[k]], v = N[3 * t + EV[k]];
-                EdgeRec *r = &rec[3 * (t - t0) + k];
-                r->lo = u < v ? u : v;
-                r->hi = u < v ? v : u;
-                r->slot = 3 * t + k;
-                r->fwd = u < v ? FWD[k] : -FWD[k];
+                int64_t lo = u < v ? u : v, hi = u < v ? v : u;
+                int f = u < v ? FWD[k] : -FWD[k];
                 adj[3 * t + k] = -1;
+                uint64_t h = ((uint64_t)lo * 0x9E3779B97F4A7C15ULL) ^ ((uint64_t)hi * 0xC2B2AE3D27D4EB4FULL);
+                h ^= h >> 29;
+                uint64_t j = h & mask;
+                while (tab[j].lo >= 0 && (tab[j].lo != lo || tab[j].hi != hi)) j = (j + 1) & mask;
+                EdgeSlot *E = &tab[j];
+                if (E->lo < 0) {
+                    E->lo = lo; E->hi = hi; E->count = 1; E->s1 = 3 * t + k; E->f1 = f;
+                } else {
+                    if (E->count == 1) { E->s2 = 3 * t + k; E->f2 = f; }
+                    E->count++;
+                }
             }
-        qsort(rec, (size_t)m, sizeof(EdgeRec), edge_cmp);
-        for (int64_t i = 0; i < m;) {
-            int64_t j = i + 1;
-            while (j < m && rec[j].lo == rec[i].lo && rec[j].hi == rec[i].hi) j++;
-            if (j - i == 2 && rec[i].fwd != rec[i + 1].fwd) {
-                adj[rec[i].slot] = rec[i + 1].slot / 3;
-                adj[rec[i + 1].slot] = rec[i].slot / 3;
+        for (int64_t i = 0; i < size; i++) {
+            EdgeSlot *E = &tab[i];
+            if (E->lo >= 0 && E->count == 2 && E->f1 != E->f2) {
+                adj[E->s1] = E->s2 / 3;
+                adj[E->s2] = E->s1 / 3;
             }
-            i = j;
         }
     }
-    free(rec);
+    free(tab);
     Py_END_ALLOW_THREADS
     for (int i = 0; i < 3; i++) PyBuffer_Release(all[i]);
     if (err) return PyErr_NoMemory();

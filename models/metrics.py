@@ -55,9 +55,39 @@ class _Geometry:
     prim_prev: np.ndarray | None = None  # 2D: previous segment of the same loop
     start_unsafe: np.ndarray | None = None  # 2D: start vertex repeated in the element or degenerate
     tri_adj: np.ndarray | None = None  # 3D: neighbouring triangle across each edge (see _triangle_neighbours)
-    table: np.ndarray | None = None  # per-primitive constants (see _prim_table)
+    table_: np.ndarray | None = None  # per-primitive constants (see _prim_table); see .table
     cen: np.ndarray | None = None  # (S, dim) primitive centroid
-    rad: np.ndarray | None = None  # (S,) primitive within ball(cen, rad)
+    rad_: np.ndarray | None = None  # (S,) primitive within ball(cen, rad); see .rad
+
+    # the compiled 3D search builds its per-element tables itself: the numpy paths (and the
+    # fallbacks) get them on first use
+    @property
+    def table(self) -> np.ndarray:
+        if self.table_ is None:
+            self._tables()
+        return self.table_
+
+    @property
+    def rad(self) -> np.ndarray:
+        if self.rad_ is None:
+            self._tables()
+        return self.rad_
+
+    def _tables(self) -> None:
+        ext = _compiled() if self.dim == 3 and self.prim.shape[0] else None
+        if ext is None:
+            self.table_ = _prim_table(self.prim)
+        else:
+            self.table_ = np.empty((self.prim.shape[0], 16))
+            ext.tri_table(
+                np.ascontiguousarray(self.prim),
+                self.table_,
+                np.empty((self.prim.shape[0], 3)),
+                np.empty(self.prim.shape[0]),
+            )
+        self.rad_ = (
+            np.linalg.norm(self.prim - self.cen[:, None], axis=2).max(1) if self.prim.size else np.zeros(0)
+        )
 
     @property
     def convex(self) -> np.ndarray:
@@ -197,7 +227,7 @@ def _farthest_pairs(ext, vpts: np.ndarray, v_ptr: np.ndarray):
     return pts, diameter
 
 
-def _convex_3d(ext, prim_ptr, table, adj, signed, v_ptr, diameter):
+def _convex_3d(ext, prim_ptr, prim, adj, signed, v_ptr, diameter):
     """Convex 3D elements without hulls: a closed, consistently oriented triangulated surface (every
     edge shared by two triangles) of a sphere's topology (V - E + F = 2) whose every edge is
     convex (the neighbour's corners on the inner side of each triangle's plane, to 1e-10 x the
@@ -207,16 +237,14 @@ def _convex_3d(ext, prim_ptr, table, adj, signed, v_ptr, diameter):
     n = prim_ptr.size - 1
     out_sign = np.where(signed >= 0, 1.0, -1.0)
     local = np.zeros(n, dtype=np.uint8)
-    ext.locally_convex(
-        np.ascontiguousarray(table), np.ascontiguousarray(adj), prim_ptr, out_sign, 1e-10 * diameter, local
-    )
+    ext.locally_convex(prim, np.ascontiguousarray(adj), prim_ptr, out_sign, 1e-10 * diameter, local)
     F = np.diff(prim_ptr)
     V = np.diff(v_ptr)
     convex = (local == 1) & (2 * V - F == 4) & (signed != 0)
     hull_measure = np.where(convex, np.abs(signed), 0.0)
     hull_eq = [None] * n
     for e in np.flatnonzero(convex):  # convex 3D elements are rare (a Python loop over those only)
-        rows = table[prim_ptr[e] : prim_ptr[e + 1]]
+        rows = _prim_table(prim[prim_ptr[e] : prim_ptr[e + 1]])
         nrm = out_sign[e] * rows[:, 9:12]
         eq = np.column_stack([nrm, -np.einsum("ij,ij->i", nrm, rows[:, 0:3])])
         hull_eq[e] = eq[np.linalg.norm(nrm, axis=1) > 0.5]  # degenerate triangles have no plane
@@ -424,17 +452,13 @@ def _prepare(poly: PolyMesh) -> _Geometry:
             extra = {"tri_adj": adj}
     elif dim == 3:
         extra = {"tri_adj": np.zeros((0, 3), dtype=np.int64)}
-    if ext is not None and prim.shape[0]:  # table, centroids and ball radii in one compiled pass
-        prim = np.ascontiguousarray(prim)
-        table = np.empty((prim.shape[0], 16))
-        cen = np.empty((prim.shape[0], 3))
-        rad = np.empty(prim.shape[0])
-        ext.tri_table(prim, table, cen, rad)
-    else:
+    table = rad = None  # the compiled path makes them when a numpy path asks (_Geometry.table)
+    if ext is None:
         rad = np.linalg.norm(prim - cen[:, None], axis=2).max(1) if prim.size else np.zeros(0)
         table = _prim_table(prim)
-    if ext is not None:
-        hull_eq, hull_measure = _convex_3d(ext, prim_ptr, table, extra["tri_adj"], signed, v_ptr, diameter)
+    else:
+        prim = np.ascontiguousarray(prim)
+        hull_eq, hull_measure = _convex_3d(ext, prim_ptr, prim, extra["tri_adj"], signed, v_ptr, diameter)
     return _Geometry(
         dim,
         n,
@@ -450,9 +474,9 @@ def _prepare(poly: PolyMesh) -> _Geometry:
         hull_eq,
         hull_measure,
         diameter,
-        table=table,
+        table_=table,
         cen=cen,
-        rad=rad,
+        rad_=rad,
         **extra,
     )
 
@@ -1506,7 +1530,7 @@ def _inscribed_compiled(ext, g: _Geometry, elems: np.ndarray, rel_tol: float):
     evals = np.zeros(g.n, dtype=np.int64)
     elems = np.ascontiguousarray(elems, dtype=np.int64)
     args = (
-        np.ascontiguousarray(g.table, dtype=np.float64),
+        np.ascontiguousarray(g.prim, dtype=np.float64),
         np.ascontiguousarray(g.tri_adj, dtype=np.int64),
         np.ascontiguousarray(g.prim_ptr, dtype=np.int64),
     )
