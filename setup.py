@@ -12,7 +12,7 @@ setup(
         Extension(
             "models._inscribed3d",
             ["models/_inscribed3d.c"],
-            extra_compile_args=["-O3"],
+            extra_compile_args=["-O3", "-fno-math-errno"],
             optional=True,
         )
     ]

@@ -284,7 +284,8 @@ static inline void kbest_push(KBest *B, int k, double d2, int64_t t) {
 }
 
 /* the k nearest triangles (local ids) of q, by squared distance */
-static void knearest(const Elem *E, const double *q, int k, KBest *B) {
+/* the k nearest triangles (local ids) of q within sqrt(r2max), by squared distance */
+static void knearest(const Elem *E, const double *q, int k, KBest *B, double r2max) {
     int64_t stack[128];
     double sd[128];  /* the nodes' box distances (squared), computed once */
     int sp = 0;
@@ -293,7 +294,7 @@ static void knearest(const Elem *E, const double *q, int k, KBest *B) {
     sp = 1;
     while (sp) {
         sp--;
-        double lim = B->n == k ? B->d2[k - 1] : INFINITY;
+        double lim = B->n == k ? B->d2[k - 1] : r2max;
         if (sd[sp] > lim) continue;
         const Node *N = &E->nodes[stack[sp]];
         if (N->c1 < 0) {
@@ -303,8 +304,8 @@ static void knearest(const Elem *E, const double *q, int k, KBest *B) {
                 double h = (q[0] - T[0]) * T[9] + (q[1] - T[1]) * T[10] + (q[2] - T[2]) * T[11];
                 if (h * h > lim) continue;
                 double d2 = tri_d2(T, q);
-                kbest_push(B, k, d2, t);
-                lim = B->n == k ? B->d2[k - 1] : INFINITY;
+                if (d2 <= r2max) kbest_push(B, k, d2, t);
+                lim = B->n == k ? B->d2[k - 1] : r2max;
             }
         } else {
             int64_t a = N->c1, b = N->c2;
@@ -478,7 +479,7 @@ typedef struct {
 
 /* exact distance and status at q; updates the best interior point */
 static double probe(const Elem *E, State *S, const double *q, KBest *B, int k, int *status) {
-    knearest(E, q, k, B);  /* B may come seeded (B->n = 1: a triangle and its distance) */
+    knearest(E, q, k, B, INFINITY);  /* B may come seeded (B->n = 1: a triangle and its distance) */
     double d = sqrt(B->d2[0]);
     S->evals++;
     *status = 0;
@@ -579,9 +580,13 @@ static int search(Elem *E, State *S, const double *lo, const double *hi, Heap *H
             int64_t li = -1;
             double listR = INFINITY;
             if (rho < d) {
+                /* the triangles that can be the nearest somewhere in the cell (within d + 2 rho
+                 * of its centre): the others never help the bound */
+                double reach = d + 2.0 * rho;
+                reach *= 1 + 1e-12;
                 B.n = 0;
-                knearest(E, q, K_NEAR, &B);
-                listR = (B.n == K_NEAR && E->m > K_NEAR) ? sqrt(B.d2[K_NEAR - 1]) : INFINITY;
+                knearest(E, q, K_NEAR, &B, reach * reach);
+                listR = B.n == K_NEAR ? sqrt(B.d2[K_NEAR - 1]) : reach;
                 S->lps++;
                 double U2 = lp_bound(E, S, q, h, &B);
                 if (U2 < U) U = U2;
