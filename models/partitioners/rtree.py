@@ -10,7 +10,8 @@ parent with which they share the longest interface, so counts stay exact and lev
 
 Levels of a hierarchy go top-down: the coarsest level is cut from the whole domain (one group per
 connected component of the mesh, or per physical group), then every element of level l is cut
-into its share of level l+1's count (proportional to its measure, at least 1).
+into its share of level l+1's count (proportional to its measure, at least 1). The elements of a
+hierarchy's levels are numbered along the domain's principal axis, for Gauss-Seidel smoothers.
 """
 
 from __future__ import annotations
@@ -448,7 +449,9 @@ def rtree_levels(
     share, from one sort of the cells per axis). Then the levels are made connected bottom-up: the
     finest on the mesh's graph (pieces join a part of the same parent), every coarser one on the
     graph of the finer level's (connected) elements, which is ratio times smaller, so the elements
-    of each level are unions of the finer level's: exactly nested, every element connected.
+    of each level are unions of the finer level's: exactly nested, every element connected. With
+    more than one level, every level's elements are numbered along the domain's principal axis
+    (_sweep_key); a single level keeps the cuts' tree order.
     groups: optional (N,) labels (e.g. physical groups) no element may cross."""
     w = batch.measures if balance == "measure" else np.ones(batch.n_nodes)
     w = np.asarray(w, dtype=np.float64)
