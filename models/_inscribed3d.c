@@ -889,6 +889,145 @@ static PyObject *py_tri_neighbours(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+/* ball through the k+1 points q[0..k] (k <= 3) with its centre in their affine hull: metrics.
+ * _circumballs for one set; returns 0 when they are affinely dependent */
+static int circumball(const double (*q)[3], int k, double *c, double *r2) {
+    if (k == 0) { memcpy(c, q[0], 24); *r2 = 0; return 1; }
+    double A[3][3], G[3][3], rhs[3], lam[3] = {0, 0, 0};
+    for (int i = 0; i < k; i++)
+        for (int a = 0; a < 3; a++) A[i][a] = q[i + 1][a] - q[0][a];
+    double scale = 1;
+    for (int i = 0; i < k; i++) {
+        for (int j = 0; j < k; j++) G[i][j] = dot3(A[i], A[j]);
+        rhs[i] = 0.5 * G[i][i];
+        scale *= G[i][i];
+    }
+    double det;
+    if (k == 1) {
+        det = G[0][0];
+        if (!(fabs(det) > 1e-12 * scale)) return 0;
+        lam[0] = rhs[0] / G[0][0];
+    } else if (k == 2) {
+        det = G[0][0] * G[1][1] - G[0][1] * G[1][0];
+        if (!(fabs(det) > 1e-12 * scale)) return 0;
+        lam[0] = (rhs[0] * G[1][1] - G[0][1] * rhs[1]) / det;
+        lam[1] = (G[0][0] * rhs[1] - G[1][0] * rhs[0]) / det;
+    } else {
+        double c00 = G[1][1] * G[2][2] - G[1][2] * G[2][1];
+        double c01 = G[1][2] * G[2][0] - G[1][0] * G[2][2];
+        double c02 = G[1][0] * G[2][1] - G[1][1] * G[2][0];
+        det = G[0][0] * c00 + G[0][1] * c01 + G[0][2] * c02;
+        if (!(fabs(det) > 1e-12 * scale)) return 0;
+        /* Cramer's rule */
+        double M[3][3];
+        for (int col = 0; col < 3; col++) {
+            memcpy(M, G, sizeof(M));
+            for (int r = 0; r < 3; r++) M[r][col] = rhs[r];
+            double d = M[0][0] * (M[1][1] * M[2][2] - M[1][2] * M[2][1]) -
+                       M[0][1] * (M[1][0] * M[2][2] - M[1][2] * M[2][0]) +
+                       M[0][2] * (M[1][0] * M[2][1] - M[1][1] * M[2][0]);
+            lam[col] = d / det;
+        }
+    }
+    double off[3] = {0, 0, 0};
+    for (int i = 0; i < k; i++)
+        for (int a = 0; a < 3; a++) off[a] += lam[i] * A[i][a];
+    for (int a = 0; a < 3; a++) c[a] = q[0][a] + off[a];
+    *r2 = dot3(off, off);
+    return 1;
+}
+
+/* exact smallest enclosing balls (metrics._enclosing_balls: pivoting from the first two points,
+ * each step the smallest ball of the support and the farthest point outside, found by
+ * enumerating supports of the <= 5 points), then the radius as the farthest point's distance */
+static PyObject *py_enclosing_balls(PyObject *self, PyObject *args) {
+    PyObject *op, *optr, *oc, *or_;
+    if (!PyArg_ParseTuple(args, "OOOO", &op, &optr, &oc, &or_)) return NULL;
+    Py_buffer bp, bptr, bc, br;
+    Py_buffer *all[4] = {&bp, &bptr, &bc, &br};
+    PyObject *objs[4] = {op, optr, oc, or_};
+    const char *names[4] = {"points", "ptr", "centre", "radius"};
+    int wr[4] = {0, 0, 1, 1};
+    int got = 0;
+    for (; got < 4; got++)
+        if (get_buf(objs[got], all[got], wr[got], names[got], 8) < 0) break;
+    if (got < 4) {
+        for (int i = 0; i < got; i++) PyBuffer_Release(all[i]);
+        return NULL;
+    }
+    const double *P = (const double *)bp.buf;
+    const int64_t *ptr = (const int64_t *)bptr.buf;
+    double *C = (double *)bc.buf, *R = (double *)br.buf;
+    Py_ssize_t ne = bptr.len / 8 - 1;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t e = 0; e < ne; e++) {
+        int64_t a = ptr[e], n = ptr[e + 1] - ptr[e];
+        const double (*X)[3] = (const double (*)[3])(P + 3 * a);
+        if (n == 0) { C[3 * e] = C[3 * e + 1] = C[3 * e + 2] = 0; R[e] = 0; continue; }
+        double sup[4][3], c[3], rr;
+        int ns;
+        if (n > 1) {
+            memcpy(sup[0], X[0], 24); memcpy(sup[1], X[1], 24); ns = 2;
+            for (int k = 0; k < 3; k++) c[k] = 0.5 * (X[0][k] + X[1][k]);
+        } else {
+            memcpy(sup[0], X[0], 24); ns = 1;
+            memcpy(c, X[0], 24);
+        }
+        double d0[3] = {X[0][0] - c[0], X[0][1] - c[1], X[0][2] - c[2]};
+        rr = dot3(d0, d0);
+        for (int it = 0; it < 1000; it++) {
+            int64_t j = -1;
+            double far = -1;
+            for (int64_t i = 0; i < n; i++) {
+                double v[3] = {X[i][0] - c[0], X[i][1] - c[1], X[i][2] - c[2]};
+                double dd = dot3(v, v);
+                if (dd > far) { far = dd; j = i; }
+            }
+            if (!(far > rr * (1 + 1e-10) + 1e-300)) break;
+            /* smallest ball of T = support + the new point, over all supports (subsets of T) */
+            double T[5][3];
+            int nt = ns + 1;
+            for (int i = 0; i < ns; i++) memcpy(T[i], sup[i], 24);
+            memcpy(T[ns], X[j], 24);
+            double bc_[3] = {0, 0, 0}, br2 = INFINITY;
+            int bmask = 0;
+            for (int mask = 1; mask < (1 << nt); mask++) {
+                int cnt = __builtin_popcount(mask);
+                if (cnt > 4) continue;
+                double q[4][3], cc[3], r2;
+                int w = 0;
+                for (int i = 0; i < nt; i++)
+                    if (mask & (1 << i)) memcpy(q[w++], T[i], 24);
+                if (!circumball((const double (*)[3])q, cnt - 1, cc, &r2)) continue;
+                if (!(r2 < br2)) continue;
+                int valid = 1;
+                for (int i = 0; i < nt && valid; i++) {
+                    double v[3] = {T[i][0] - cc[0], T[i][1] - cc[1], T[i][2] - cc[2]};
+                    if (dot3(v, v) > r2 * (1 + 1e-12) + 1e-300) valid = 0;
+                }
+                if (valid) { memcpy(bc_, cc, 24); br2 = r2; bmask = mask; }
+            }
+            if (!(br2 < INFINITY)) break; /* cannot happen: a single point is always a ball */
+            ns = 0;
+            for (int i = 0; i < nt; i++)
+                if (bmask & (1 << i)) memcpy(sup[ns++], T[i], 24);
+            memcpy(c, bc_, 24);
+            rr = br2;
+        }
+        double far = 0;
+        for (int64_t i = 0; i < n; i++) {
+            double v[3] = {X[i][0] - c[0], X[i][1] - c[1], X[i][2] - c[2]};
+            double dd = dot3(v, v);
+            if (dd > far) far = dd;
+        }
+        memcpy(C + 3 * e, c, 24);
+        R[e] = sqrt(far);
+    }
+    Py_END_ALLOW_THREADS
+    for (int i = 0; i < 4; i++) PyBuffer_Release(all[i]);
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"inscribed", py_inscribed, METH_VARARGS,
      "inscribed(table, tri_adj, prim_ptr, elems, diameter, bbox_lo, bbox_hi, orient, rel_tol, "
@@ -905,6 +1044,8 @@ static PyMethodDef methods[] = {
     {"tri_neighbours", py_tri_neighbours, METH_VARARGS,
      "tri_neighbours(tri_nodes, prim_ptr, tri_adj): the neighbouring triangle of the same element "
      "across each edge, or -1."},
+    {"enclosing_balls", py_enclosing_balls, METH_VARARGS,
+     "enclosing_balls(points, ptr, centre, radius): the smallest enclosing ball of each point set."},
     {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_inscribed3d",

@@ -58,6 +58,8 @@ class _Geometry:
     table_: np.ndarray | None = None  # per-primitive constants (see _prim_table); see .table
     cen: np.ndarray | None = None  # (S, dim) primitive centroid
     rad_: np.ndarray | None = None  # (S,) primitive within ball(cen, rad); see .rad
+    hull_cat: np.ndarray | None = None  # 3D compiled path: hull_pts concatenated ...
+    hull_ptr: np.ndarray | None = None  # ... and their offsets per element
 
     # the compiled 3D search builds its per-element tables itself: the numpy paths (and the
     # fallbacks) get them on first use
@@ -224,7 +226,7 @@ def _farthest_pairs(ext, vpts: np.ndarray, v_ptr: np.ndarray):
     perm[b] = tmp
     p = vpts[perm]
     pts = [p[v_ptr[e] : v_ptr[e + 1]] for e in range(n)]
-    return pts, diameter
+    return pts, diameter, p
 
 
 def _convex_3d(ext, prim_ptr, prim, adj, signed, v_ptr, diameter):
@@ -416,7 +418,7 @@ def _prepare(poly: PolyMesh) -> _Geometry:
     elif ext is None:
         hull_pts, hull_eq, hull_measure, diameter = _hulls_qhull(vpts, v_ptr, dim)
     else:  # no hulls: the farthest pair compiled, convexity from the edges (below)
-        hull_pts, diameter = _farthest_pairs(ext, vpts, v_ptr)
+        hull_pts, diameter, hull_cat = _farthest_pairs(ext, vpts, v_ptr)
     cen = (prim[:, 0] + prim[:, 1] + prim[:, 2]) / 3.0 if ext is not None else prim.mean(axis=1)
     # order the primitives of each element along a Morton curve (spatially coherent runs for the
     # bounding-ball hierarchy used by the inscribed-ball search)
@@ -477,6 +479,8 @@ def _prepare(poly: PolyMesh) -> _Geometry:
         table_=table,
         cen=cen,
         rad_=rad,
+        hull_cat=hull_cat if ext is not None else None,
+        hull_ptr=v_ptr if ext is not None else None,
         **extra,
     )
 
@@ -1623,7 +1627,13 @@ def largest_inscribed_ball(
 
 
 def _enclosing_radius(g: _Geometry) -> np.ndarray:
-    return _enclosing_balls(g.hull_pts, g.dim)[1]
+    ext = _compiled() if g.hull_cat is not None else None
+    if ext is None:
+        return _enclosing_balls(g.hull_pts, g.dim)[1]
+    centre = np.zeros((g.n, 3))
+    radius = np.zeros(g.n)
+    ext.enclosing_balls(np.ascontiguousarray(g.hull_cat), np.ascontiguousarray(g.hull_ptr), centre, radius)
+    return radius
 
 
 def _ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
