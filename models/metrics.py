@@ -336,6 +336,64 @@ def _hulls_2d(vpts: np.ndarray, v_ptr: np.ndarray):
     return hull_pts, hull_eq, hull_measure, diameter
 
 
+def _prepare_3d_compiled(ext, pts, eo, lo, nodes) -> _Geometry:
+    """_prepare in 3D with the compiled module: the same geometry (triangles in the same Morton
+    order, the same neighbours, vertices, boxes and diameters), without hulls (see _farthest_pairs
+    and _convex_3d) and with the triangle table left to first use."""
+    n = eo.size - 1
+    pts = np.ascontiguousarray(pts, dtype=np.float64)
+    S = int(np.maximum(np.diff(lo) - 2, 0).sum())
+    prim = np.empty((S, 3, 3))
+    cen = np.empty((S, 3))
+    prim_ptr = np.zeros(n + 1, dtype=np.int64)
+    adj = np.empty((S, 3), dtype=np.int64)
+    size = np.zeros(n)
+    signed = np.zeros(n)
+    vpts = np.empty((nodes.size, 3))
+    v_ptr = np.zeros(n + 1, dtype=np.int64)
+    bbox_lo = np.full((n, 3), np.nan)
+    bbox_hi = np.full((n, 3), np.nan)
+    nv = ext.fan3d(
+        pts,
+        eo,
+        lo,
+        np.ascontiguousarray(nodes),
+        prim,
+        cen,
+        prim_ptr,
+        adj,
+        size,
+        signed,
+        vpts,
+        v_ptr,
+        bbox_lo,
+        bbox_hi,
+    )
+    vpts = vpts[:nv]
+    hull_pts, diameter, hull_cat = _farthest_pairs(ext, vpts, v_ptr)
+    hull_eq, hull_measure = _convex_3d(ext, prim_ptr, prim, adj, signed, v_ptr, diameter)
+    return _Geometry(
+        3,
+        n,
+        prim,
+        np.repeat(np.arange(n), np.diff(prim_ptr)),
+        prim_ptr,
+        size,
+        signed,
+        np.diff(eo),
+        bbox_lo,
+        bbox_hi,
+        hull_pts,
+        hull_eq,
+        hull_measure,
+        diameter,
+        tri_adj=adj,
+        cen=cen,
+        hull_cat=hull_cat,
+        hull_ptr=v_ptr,
+    )
+
+
 def _prepare(poly: PolyMesh) -> _Geometry:
     pts = np.asarray(poly.points, dtype=np.float64)
     dim = pts.shape[1]
@@ -386,6 +444,9 @@ def _prepare(poly: PolyMesh) -> _Geometry:
         unsafe = pinch[kept] | (klen == 0) | (klen[kprev] == 0)
         extra = {"prim_next": knext, "prim_prev": kprev, "start_unsafe": unsafe}
     else:
+        ext = _compiled()
+        if ext is not None:
+            return _prepare_3d_compiled(ext, pts, eo, lo, nodes)
         ntri = np.maximum(loop_len - 2, 0)
         face, j = _ragged_arange(ntri)
         base = lo[:-1][face]
@@ -412,14 +473,11 @@ def _prepare(poly: PolyMesh) -> _Geometry:
         bbox_lo[has] = np.minimum.reduceat(vpts, v_ptr[:-1][has], axis=0)
         bbox_hi[has] = np.maximum.reduceat(vpts, v_ptr[:-1][has], axis=0)
 
-    ext = _compiled() if dim == 3 else None
     if dim == 2:
         hull_pts, hull_eq, hull_measure, diameter = _hulls_2d(vpts, v_ptr)
-    elif ext is None:
+    else:
         hull_pts, hull_eq, hull_measure, diameter = _hulls_qhull(vpts, v_ptr, dim)
-    else:  # no hulls: the farthest pair compiled, convexity from the edges (below)
-        hull_pts, diameter, hull_cat = _farthest_pairs(ext, vpts, v_ptr)
-    cen = (prim[:, 0] + prim[:, 1] + prim[:, 2]) / 3.0 if ext is not None else prim.mean(axis=1)
+    cen = prim.mean(axis=1)
     # order the primitives of each element along a Morton curve (spatially coherent runs for the
     # bounding-ball hierarchy used by the inscribed-ball search)
     if prim.shape[0]:
@@ -446,21 +504,12 @@ def _prepare(poly: PolyMesh) -> _Geometry:
                 "prim_prev": inv[extra["prim_prev"][perm]],
                 "start_unsafe": extra["start_unsafe"][perm],
             }
-        elif ext is None:
+        else:
             extra = {"tri_adj": _triangle_neighbours(extra["tri_nodes"][perm], prim_elem, pts.shape[0])}
-        else:  # the same neighbours, element by element (compiled)
-            adj = np.empty((prim.shape[0], 3), dtype=np.int64)
-            ext.tri_neighbours(np.ascontiguousarray(extra["tri_nodes"][perm]), prim_ptr, adj)
-            extra = {"tri_adj": adj}
     elif dim == 3:
         extra = {"tri_adj": np.zeros((0, 3), dtype=np.int64)}
-    table = rad = None  # the compiled path makes them when a numpy path asks (_Geometry.table)
-    if ext is None:
-        rad = np.linalg.norm(prim - cen[:, None], axis=2).max(1) if prim.size else np.zeros(0)
-        table = _prim_table(prim)
-    else:
-        prim = np.ascontiguousarray(prim)
-        hull_eq, hull_measure = _convex_3d(ext, prim_ptr, prim, extra["tri_adj"], signed, v_ptr, diameter)
+    rad = np.linalg.norm(prim - cen[:, None], axis=2).max(1) if prim.size else np.zeros(0)
+    table = _prim_table(prim)
     return _Geometry(
         dim,
         n,
@@ -479,8 +528,6 @@ def _prepare(poly: PolyMesh) -> _Geometry:
         table_=table,
         cen=cen,
         rad_=rad,
-        hull_cat=hull_cat if ext is not None else None,
-        hull_ptr=v_ptr if ext is not None else None,
         **extra,
     )
 
