@@ -1167,6 +1167,68 @@ static PyObject *py_fan3d(PyObject *self, PyObject *args) {
     return PyLong_FromLongLong((long long)nv);
 }
 
+static int64_t uf_find(int64_t *par, int64_t x) {
+    while (par[x] != x) {
+        par[x] = par[par[x]];
+        x = par[x];
+    }
+    return x;
+}
+
+/* metrics.partition_statistics of a symmetric CSR pattern with strictly increasing rows (every
+ * undirected edge twice, no duplicates): per part the volume (sum of degrees, self loops left out)
+ * and the cut edges; returns (cut, connected components of the graph without the cut edges), the
+ * components by union-find. Returns None when a row is not strictly increasing. */
+static PyObject *py_partition_stats(PyObject *self, PyObject *args) {
+    PyObject *o[5];
+    if (!PyArg_ParseTuple(args, "OOOOO", &o[0], &o[1], &o[2], &o[3], &o[4])) return NULL;
+    const char *names[5] = {"indptr", "indices", "part", "volume", "cut_per_part"};
+    int wr[5] = {0, 0, 0, 1, 1};
+    Py_buffer b[5];
+    int got = 0;
+    for (; got < 5; got++)
+        if (get_buf(o[got], &b[got], wr[got], names[got], 8) < 0) break;
+    if (got < 5) {
+        for (int i = 0; i < got; i++) PyBuffer_Release(&b[i]);
+        return NULL;
+    }
+    const int64_t *ip = (const int64_t *)b[0].buf, *ix = (const int64_t *)b[1].buf, *part = (const int64_t *)b[2].buf;
+    double *vol = (double *)b[3].buf, *cuti = (double *)b[4].buf;
+    Py_ssize_t n = b[0].len / 8 - 1;
+    int64_t cut2 = 0, comps = 0;
+    int err = 0, sorted = 1;
+    Py_BEGIN_ALLOW_THREADS
+    int64_t *par = (int64_t *)malloc((size_t)(n > 0 ? n : 1) * sizeof(int64_t));
+    if (!par) err = 1;
+    for (Py_ssize_t u = 0; u < n && !err; u++) par[u] = u;
+    for (Py_ssize_t u = 0; u < n && !err && sorted; u++) {
+        int64_t pu = part[u], deg = 0;
+        for (int64_t k = ip[u]; k < ip[u + 1]; k++) {
+            int64_t v = ix[k];
+            if (k > ip[u] && v <= ix[k - 1]) { sorted = 0; break; }
+            if (v == u) continue;
+            deg++;
+            if (part[v] != pu) {
+                cut2++;
+                cuti[pu] += 1;
+            } else if (v > u) {
+                int64_t a = uf_find(par, u), c = uf_find(par, v);
+                if (a != c) par[a < c ? c : a] = a < c ? a : c;
+            }
+        }
+        vol[pu] += (double)deg;
+    }
+    if (!err && sorted)
+        for (Py_ssize_t u = 0; u < n; u++)
+            if (uf_find(par, u) == u) comps++;
+    free(par);
+    Py_END_ALLOW_THREADS
+    for (int i = 0; i < 5; i++) PyBuffer_Release(&b[i]);
+    if (err) return PyErr_NoMemory();
+    if (!sorted) Py_RETURN_NONE;
+    return Py_BuildValue("(LL)", (long long)(cut2 / 2), (long long)comps);
+}
+
 static PyMethodDef methods[] = {
     {"inscribed", py_inscribed, METH_VARARGS,
      "inscribed(table, tri_adj, prim_ptr, elems, diameter, bbox_lo, bbox_hi, orient, rel_tol, "
@@ -1185,6 +1247,9 @@ static PyMethodDef methods[] = {
     {"fan3d", py_fan3d, METH_VARARGS,
      "fan3d(points, elem_offsets, loop_offsets, loop_nodes, prim, centre, prim_ptr, tri_adj, size, "
      "signed, vpts, v_ptr, bbox_lo, bbox_hi): metrics._prepare's 3D geometry; returns the vertex rows."},
+    {"partition_stats", py_partition_stats, METH_VARARGS,
+     "partition_stats(indptr, indices, part, volume, cut_per_part): (cut, components) of a symmetric "
+     "CSR with strictly increasing rows, or None when a row is not."},
     {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_inscribed3d",

@@ -1787,6 +1787,16 @@ def heterogeneity_preservation(
 # partition statistics on the fine dual graph
 
 
+def _equals_transpose(indptr: np.ndarray, indices: np.ndarray) -> bool:
+    """Whether a CSR pattern equals its transpose array for array (scipy's O(nnz) counting
+    transpose has rows in increasing order, so then the rows are sorted and the pattern symmetric)."""
+    if indices.size == 0:
+        return True
+    n = indptr.size - 1
+    t = sparse.csr_matrix((np.ones(indices.size, dtype=bool), indices, indptr), shape=(n, n)).T.tocsr()
+    return np.array_equal(t.indptr, indptr) and np.array_equal(t.indices, indices)
+
+
 def _symmetric_simple(indptr: np.ndarray, indices: np.ndarray, rows: np.ndarray) -> bool:
     """Whether a CSR pattern is symmetric with strictly increasing indices in every row (no
     duplicates): then it equals its transpose (scipy's O(nnz) counting transpose) array for array."""
@@ -1817,6 +1827,15 @@ def partition_statistics(indptr: np.ndarray, indices: np.ndarray, labels: np.nda
         raise ParameterError("graph indices out of range")
     part, parts = _compact(labels)
     sizes = np.bincount(part, minlength=parts)
+    ext = _compiled()
+    if ext is not None and _equals_transpose(indptr, indices):
+        # one compiled pass (union-find for the components) where the pattern is symmetric with
+        # strictly increasing rows, the usual dual graph; None if a row is not strictly increasing
+        vol = np.zeros(parts)
+        cut_i = np.zeros(parts)
+        r = ext.partition_stats(indptr, np.ascontiguousarray(indices), np.ascontiguousarray(part), vol, cut_i)
+        if r is not None:
+            return _partition_summary(r[0], cut_i, vol, sizes, parts, r[1])
     u = np.repeat(np.arange(nc, dtype=np.int64), np.diff(indptr))
     if _symmetric_simple(indptr, indices, u):
         # the usual dual graph: every undirected edge twice, once per direction, no duplicates;
@@ -1852,9 +1871,13 @@ def partition_statistics(indptr: np.ndarray, indices: np.ndarray, labels: np.nda
         g = sparse.csr_matrix((np.ones(int(inner.sum()), dtype=bool), (a[inner], b[inner])), shape=(nc, nc))
         directed = False
     vol = np.bincount(part, weights=deg, minlength=parts)
+    ncomp = connected_components(g, directed=directed, connection="weak")[0] if nc else 0
+    return _partition_summary(cut, cut_i, vol, sizes, parts, ncomp)
+
+
+def _partition_summary(cut, cut_i, vol, sizes, parts, ncomp) -> dict:
     with np.errstate(divide="ignore", invalid="ignore"):
         ncut = float(np.where(vol > 0, cut_i / np.where(vol > 0, vol, 1), 0.0).sum())
-    ncomp = connected_components(g, directed=directed, connection="weak")[0] if nc else 0
     return {
         "cut": cut,
         "normalized_cut": ncut,
