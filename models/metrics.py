@@ -6,8 +6,9 @@ hull per element) or over refinement levels / pivot steps; never over fine cells
 Boundary of an element: 2D, its segments (outer loop CCW, holes CW: the element is on the left of
 every segment); 3D, its faces fan-triangulated (outward normals). The largest inscribed ball is exact
 (linear program) for convex elements and certified to `rel_tol * diameter` otherwise; see
-`largest_inscribed_ball` (in 3D the search runs in the compiled models/_inscribed3d.c where it was
-built, numpy otherwise).
+`largest_inscribed_ball`. The 3D search and geometry, the enclosing balls and the partition
+statistics run in the compiled models/_fastmetrics.c where it was built; their numpy versions here
+are the fallback (MAGNET_NO_COMPILED=1) and the reference of the tests.
 """
 
 from __future__ import annotations
@@ -1546,15 +1547,15 @@ _EXT_MAX_CELLS = 4_000_000  # cells per element before the compiled search hands
 
 
 def _compiled():
-    """The compiled 3D search (models/_inscribed3d.c), or None where it was not built (or
+    """The compiled helpers (models/_fastmetrics.c), or None where they were not built (or
     MAGNET_NO_COMPILED=1)."""
     if os.environ.get("MAGNET_NO_COMPILED", "") not in ("", "0"):
         return None
     try:
-        from models import _inscribed3d
+        from models import _fastmetrics
     except ImportError:
         return None
-    return _inscribed3d
+    return _fastmetrics
 
 
 def _threads() -> int:
@@ -1644,7 +1645,7 @@ def largest_inscribed_ball(
     is re-measured from the returned centre, so it never exceeds the true one beyond rounding.
 
     Other elements (or all, with method="bnb"): in 3D, the compiled best-first search of
-    models/_inscribed3d.c (same certificate, octree cells, bounds from the closest triangles and
+    models/_fastmetrics.c (same certificate, octree cells, bounds from the closest triangles and
     a small LP over each cell's corners; see that file); method="bnb-numpy", 2D, or where the
     module was not built (MAGNET_NO_COMPILED=1 switches it off): branch and bound on a quadtree
     (2D) / octree (3D) over the element's bounding cube, all elements at once, with exact point-to-segment /

@@ -1,4 +1,4 @@
-"""The compiled 3D inscribed-ball search (models/_inscribed3d.c) against closed forms, against the
+"""The compiled 3D inscribed-ball search (models/_fastmetrics.c) against closed forms, against the
 numpy search it replaces (both certified to rel_tol x diameter), and its fallbacks."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from models.metrics import element_diameters, largest_inscribed_ball
 
 def test_the_compiled_search_is_built():
     """setup.py builds it with every install; metrics would still work without it, only slower."""
-    assert mm._compiled() is not None, "models/_inscribed3d.c was not compiled: reinstall (pip install -e .)"
+    assert mm._compiled() is not None, "models/_fastmetrics.c was not compiled: reinstall (pip install -e .)"
 
 
 @pytest.mark.parametrize("method", ["bnb", "bnb-numpy"])

@@ -1,9 +1,16 @@
-/* Largest inscribed balls of 3D polyhedral elements: certified best-first branch and bound.
+/* Compiled helpers of models/metrics.py (each has a numpy twin there: the fallback and the
+ * reference in the tests; MAGNET_NO_COMPILED=1 switches them off):
+ *   inscribed        the 3D largest-inscribed-ball search (below);
+ *   fan3d            _prepare's 3D geometry in one pass per element (triangles in Morton order,
+ *                    neighbours across edges, distinct vertices, boxes, area, volume);
+ *   farthest_pairs   diameters; locally_convex: convex elements without hulls; tri_table: the
+ *                    per-triangle constants; enclosing_balls: exact smallest enclosing balls;
+ *   partition_stats  cut, volumes and components of a symmetric CSR (union-find).
  *
- * The compiled kernel of models/metrics.py's inscribed-ball search in 3D (the numpy search stays
- * the fallback and the reference). Each element's boundary is a closed set of triangles (outward
- * normals when the element is positively oriented); its largest inscribed ball is centred at the
- * maximum over the element of f(x) = distance from x to the boundary.
+ * Largest inscribed balls of 3D polyhedral elements: certified best-first branch and bound. Each
+ * element's boundary is a closed set of triangles (outward normals when the element is positively
+ * oriented); its largest inscribed ball is centred at the maximum over the element of f(x) =
+ * distance from x to the boundary.
  *
  * Per element: an AABB tree over its (Morton-ordered) triangles, then best-first branch and bound
  * over an octree of its bounding cube. Every evaluated cell centre gets its exact distance to the
@@ -11,10 +18,11 @@
  * edge pseudo-normal, else winding number). A cell's upper bound U of max f over (cell n element):
  *   - 1-Lipschitz: (+-centre distance) + half-diagonal;
  *   - convex combination: for any weights mu on triangles t_i, f <= sum mu_i dist(., t_i), which is
- *     convex, so its maximum over the cell is at a corner; the best mu for the K triangles nearest
- *     to the centre comes from a small linear program (a matrix game: corners x triangles) solved
- *     by dense simplex. Exact for planar contacts (ridges, plateaus between parallel walls),
- *     second order at edges and corners.
+ *     convex, so its maximum over the cell is at a corner; the best mu over the triangles that can
+ *     be the nearest somewhere in the cell (within d + 2 rho of its centre, the K_NEAR nearest of
+ *     them) comes from a small linear program (a matrix game: corners x triangles) solved by dense
+ *     simplex. Exact for planar contacts (ridges, plateaus between parallel walls), second order at
+ *     edges and corners.
  * The LP's dual (corner weights) points at the maximiser of that bound; its exact distance, when
  * it is certified inside, raises the lower bound early. A cell is dropped when U <= best + eps,
  * eps = rel_tol * diameter; the search ends when the largest U in the queue is below that, so
@@ -1252,8 +1260,8 @@ static PyMethodDef methods[] = {
      "CSR with strictly increasing rows, or None when a row is not."},
     {NULL, NULL, 0, NULL}};
 
-static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_inscribed3d",
-                                    "Compiled 3D inscribed-ball branch and bound (models.metrics).", -1,
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_fastmetrics",
+                                    "Compiled helpers of models.metrics (see models/_fastmetrics.c).", -1,
                                     methods};
 
-PyMODINIT_FUNC PyInit__inscribed3d(void) { return PyModule_Create(&module); }
+PyMODINIT_FUNC PyInit__fastmetrics(void) { return PyModule_Create(&module); }
