@@ -1543,7 +1543,7 @@ def _check_tol(rel_tol: float) -> float:
 
 
 _INSCRIBED_METHODS = ("auto", "bnb", "bnb-numpy")
-_EXT_MAX_CELLS = 4_000_000  # cells per element before the compiled search hands it to the numpy one
+_EXT_MAX_CELLS = 1_000_000  # cells per element before the compiled search hands it to numpy (~100 needed)
 
 
 def _compiled():
