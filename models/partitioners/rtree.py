@@ -102,6 +102,18 @@ class _Segments:
         self.size = np.bincount(grp, minlength=k).astype(np.int64)
         self.start = np.zeros(k, dtype=np.int64)
         np.cumsum(self.size[:-1], out=self.start[1:])
+        self._bounds = None
+
+    def bounds(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The cells' boxes (N, dim) as (dim * N,) arrays, axis by axis (made once per pair of arrays)."""
+        if self._bounds is None or self._bounds[0] is not lo or self._bounds[1] is not hi:
+            self._bounds = (
+                lo,
+                hi,
+                np.ascontiguousarray(lo.T).reshape(-1),
+                np.ascontiguousarray(hi.T).reshape(-1),
+            )
+        return self._bounds[2], self._bounds[3]
 
 
 def split_counts(
@@ -131,8 +143,8 @@ def split_counts(
     root = np.arange(k0)
     need = np.minimum(need, np.maximum(size, 1))
     tight = cell_lo is not None and slack > 0
-    if tight:
-        lo_f, hi_f = np.ascontiguousarray(cell_lo).reshape(-1), np.ascontiguousarray(cell_hi).reshape(-1)
+    if tight:  # the boxes' bounds axis by axis: (dim * N,), axis d at d * N
+        lo_t, hi_t = seg.bounds(cell_lo, cell_hi)
     side = np.zeros(n, dtype=bool)
     while True:
         act = np.flatnonzero(need > 1)
@@ -144,14 +156,15 @@ def split_counts(
         np.cumsum(a_size, out=a_off[1:])
         tot = int(a_off[-1])
         s0, e1 = a_off[:-1], a_off[1:] - 1
-        r = np.arange(tot) - np.repeat(s0, a_size)  # rank inside the part
-        pos = np.repeat(a_start, a_size) + r  # position in the orders
         first, last = a_start, a_start + a_size - 1
         ext = np.column_stack([x[P[d, last], d] - x[P[d, first], d] for d in range(dim)])
         axis = np.argmax(ext, axis=1)
         length = ext[np.arange(na), axis]
-        ax_pos = np.repeat(axis, a_size)
-        chosen = Pf[ax_pos * n + pos]  # cells of the active parts, sorted along their part's axis
+        ar = np.arange(tot)
+        pos = np.repeat(a_start - s0, a_size)  # position in the orders of each cell of the active parts
+        pos += ar
+        ax_n = np.repeat(axis * n, a_size)
+        chosen = Pf[ax_n + pos]  # cells of the active parts, sorted along their part's axis
         ws = w[chosen]
         cum = np.cumsum(ws)
         base = cum[s0] - ws[s0]  # measure before each part
@@ -164,34 +177,22 @@ def split_counts(
         target = base + m1 / np.maximum(m, 1) * vol
         cut = np.searchsorted(mid, target) - s0  # cells whose middle lies below the quantile
         if tight:
+            ax_n += chosen
             cut = _tight_cut(
-                chosen,
-                ax_pos,
-                dim,
-                lo_f,
-                hi_f,
-                mid,
-                target,
-                vol / np.maximum(m, 1) * slack,
-                s0,
-                e1,
-                cut,
-                slack,
+                ax_n, lo_t, hi_t, mid, target, vol / np.maximum(m, 1) * slack, s0, e1, cut, slack
             )
         n0 = np.clip(cut, m1, a_size - (m - m1))  # both sides keep at least as many cells as parts
-        n0_rep = np.repeat(n0, a_size)
-        side[chosen[r >= n0_rep]] = True
+        mask1 = ar >= np.repeat(s0 + n0, a_size)  # side 1: ranks n0 onwards along the part's axis
+        side[chosen[mask1]] = True
+        pos0, pos1 = pos[~mask1], pos[mask1]
         # stable partition of every axis order inside each active range: side 0 first, then side 1
-        it = np.int32 if n < 2**31 else np.int64
-        r_i, n0_i, pr = r.astype(it), n0_rep.astype(it), (pos - r).astype(it)
         for d in range(dim):  # a loop over the axes
             V = P[d, pos]
             S = side[V]
-            ex = np.cumsum(S, dtype=it)
-            ex -= S  # side-1 cells before, from the first active position
-            before1 = ex - np.repeat(ex[s0], a_size)
-            P[d, pr + np.where(S, n0_i + before1, r_i - before1)] = V
-        side[V] = False
+            P[d, pos1] = V[S]
+            np.logical_not(S, out=S)
+            P[d, pos0] = V[S]
+        side.fill(False)
         start = np.concatenate([start, a_start + n0])
         size = np.concatenate([size, a_size - n0])
         size[act] = n0
@@ -209,11 +210,12 @@ def split_counts(
     return labels
 
 
-def _tight_cut(chosen, ax_pos, dim, lo_f, hi_f, mid, target, window, s0, e1, cut, slack):
-    """Per part (positions s0..e1 of `chosen`, sorted along the cut axis), the cut (cells before it go
-    to side 0) whose middle measure lies within `window` of the quantile `target`, minimising the
-    overlap of the two sides' extents along the axis (first of the smallest; `cut` where none).
-    Only the window's positions are looked at one by one; the rest of a part by one reduceat each side."""
+def _tight_cut(idx, lo_t, hi_t, mid, target, window, s0, e1, cut, slack):
+    """Per part (positions s0..e1 of the active cells, sorted along the part's cut axis), the cut
+    (cells before it go to side 0) whose middle measure lies within `window` of the quantile `target`,
+    minimising the overlap of the two sides' extents along the axis (first of the smallest; `cut`
+    where none). idx: each active cell's bounds in lo_t / hi_t (axis * N + cell). Only the window's
+    positions are looked at one by one; the rest of a part by one reduceat each side."""
     na = s0.size
     wl = np.maximum(np.searchsorted(mid, target - window, side="left"), s0)
     wh = np.minimum(np.searchsorted(mid, target + window, side="right"), e1)  # the cut after e1 is no cut
@@ -221,12 +223,11 @@ def _tight_cut(chosen, ax_pos, dim, lo_f, hi_f, mid, target, window, s0, e1, cut
     W = int(wlen.sum())
     if W == 0:
         return cut
-    idx = chosen * dim + ax_pos
     # the cells' extents along their part's axis, each padded with one empty bound for the reduceats
     hi_pad = np.empty(idx.size + 1)
     lo_pad = np.empty(idx.size + 1)
-    np.take(hi_f, idx, out=hi_pad[:-1])
-    np.take(lo_f, idx, out=lo_pad[:-1])
+    np.take(hi_t, idx, out=hi_pad[:-1])
+    np.take(lo_t, idx, out=lo_pad[:-1])
     hi_pad[-1], lo_pad[-1] = -np.inf, np.inf
     vhi, vlo = hi_pad[:-1], lo_pad[:-1]
     span = float(max(vhi.max() - vlo.min(), 1e-300))
