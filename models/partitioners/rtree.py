@@ -19,7 +19,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from ..csr import kept_pointers
+from ..csr import kept_pointers, row_pointers, run_starts
 from ..errors import ParameterError
 from .base import GraphBatch, Partitioner
 
@@ -270,11 +270,14 @@ def _grow_from_mains(
     from scipy.sparse.csgraph import dijkstra
 
     n = labels.size
-    e = frag[cols] & (par[rows] == par[cols])  # into fragment cells only, inside one parent
-    src = np.unique(rows[e & ~frag[rows]])
+    e = np.flatnonzero(frag[cols])  # into fragment cells only (few), inside one parent
+    a, b = rows[e], cols[e]
+    keep = par[a] == par[b]
+    a, b = a[keep], b[keep]
+    src = np.unique(a[~frag[a]])
     if src.size == 0:
         return labels
-    g = sp.csr_matrix((np.ones(int(e.sum())), (rows[e], cols[e])), shape=(n, n))
+    g = sp.csr_matrix((np.ones(a.size), (a, b)), shape=(n, n))
     _, _, source = dijkstra(
         g, directed=True, indices=src, unweighted=True, min_only=True, return_predecessors=True
     )
@@ -282,6 +285,56 @@ def _grow_from_mains(
     hit = frag & (source >= 0)
     out[hit] = labels[source[hit]]
     return out
+
+
+def _label_pieces(
+    indptr: np.ndarray, indices: np.ndarray, labels: np.ndarray, cells: np.ndarray | None = None
+) -> tuple[int, np.ndarray]:
+    """Connected pieces of the parts `labels` (edges inside a part only) over all cells, or over
+    `cells` (increasing ids, whole parts only): (number, piece of each cell). Pieces are numbered
+    in the order of their first cell (scipy's numbering: one scan over the nodes)."""
+    if cells is None:
+        ptr, nb = indptr, indices
+        same = np.repeat(labels, np.diff(indptr)) == labels[indices]
+        m = labels.size
+    else:  # the rows of `cells` only, renumbered 0..len(cells)-1
+        deg = indptr[cells + 1] - indptr[cells]
+        ptr = row_pointers(deg)
+        nb = indices[np.repeat(indptr[cells] - ptr[:-1], deg) + np.arange(ptr[-1])]
+        same = np.repeat(labels[cells], deg) == labels[nb]
+        m = cells.size
+    ptr = kept_pointers(same, ptr)
+    nb = nb[same]
+    if cells is not None:
+        loc = np.empty(labels.size, dtype=np.int64)
+        loc[cells] = np.arange(m)
+        nb = loc[nb]
+    g = sp.csr_matrix((np.ones(nb.size, dtype=np.int8), nb, ptr), shape=(m, m))
+    return connected_components(g, directed=False)
+
+
+def _update_pieces(indptr, indices, labels, before, comp, clab, first_cell):
+    """The pieces after `before` became `labels`: those of parts that gained or lost cells found
+    again, the others kept; all numbered by their first cell as one pass over all cells would
+    (_label_pieces). Returns (number, piece of each cell, first cell of each piece)."""
+    changed = before != labels
+    if not changed.any():
+        return first_cell.size, comp, first_cell
+    dirty = np.zeros(int(max(before.max(), labels.max())) + 1, dtype=bool)
+    dirty[before[changed]] = True
+    dirty[labels[changed]] = True
+    cells = np.flatnonzero(dirty[labels])
+    nd, cd = _label_pieces(indptr, indices, labels, cells)
+    keep = np.flatnonzero(~dirty[clab])  # pieces of untouched parts, unchanged
+    firsts = np.concatenate([first_cell[keep], cells[np.flatnonzero(run_starts(np.maximum.accumulate(cd)))]])
+    order = np.argsort(firsts)
+    rank = np.empty(order.size, dtype=np.int64)
+    rank[order] = np.arange(order.size)
+    renum = np.full(clab.size, -1, dtype=np.int64)
+    renum[keep] = rank[: keep.size]
+    out = renum[comp]
+    out[cells] = rank[keep.size + cd]
+    return order.size, out, firsts[order]
 
 
 def make_connected(
@@ -305,23 +358,26 @@ def make_connected(
     moved_total = 0
     free = parent is None
     rnd = 0
+    comp = clab = first_cell = None  # the last round's pieces (numbered by their first cell), their labels
+    before = labels  # the labels those pieces were found for
     while rnd < max_rounds:  # in practice 1 to 3 rounds
-        same = labels[rows] == labels[indices]
-        # the rows stay sorted: the same-label graph as CSR without a COO conversion
-        sp_ptr = kept_pointers(same, indptr)
-        g = sp.csr_matrix((np.ones(sp_ptr[-1], dtype=np.int8), indices[same], sp_ptr), shape=(n, n))
-        nc, comp = connected_components(g, directed=False)
+        if comp is None:
+            nc, comp = _label_pieces(indptr, indices, labels)
+            first_cell = np.flatnonzero(run_starts(np.maximum.accumulate(comp)))
+        elif before is not labels:  # only parts that gained or lost cells have new pieces
+            nc, comp, first_cell = _update_pieces(indptr, indices, labels, before, comp, clab, first_cell)
+        before = labels
         k = int(labels.max()) + 1
         if nc == k:
             break
         cm = np.bincount(comp, weights=mes, minlength=nc)
         clab = np.empty(nc, dtype=np.int64)
         clab[comp] = labels
-        # main piece of each part: largest measure (ties: lowest piece id)
-        o = np.lexsort((-cm, clab))  # stable: ties keep the lowest piece id
-        first = o[np.r_[True, clab[o][1:] != clab[o][:-1]]]
-        main = np.zeros(nc, dtype=bool)
-        main[first] = True
+        # main piece of each part: largest measure (ties: lowest piece id); parts of one piece: it
+        main = np.bincount(clab, minlength=k)[clab] == 1
+        multi = np.flatnonzero(~main)
+        o = multi[np.lexsort((-cm[multi], clab[multi]))]  # stable: ties keep the lowest piece id
+        main[o[run_starts(clab[o])]] = True
         frag_cell = ~main[comp]
         # edges leaving fragment cells into another part of the same parent (as indices: fragments are few)
         e = np.flatnonzero(frag_cell[rows])
@@ -367,6 +423,7 @@ def make_connected(
             free, par, rnd = True, np.zeros(n, dtype=np.int64), 0
             continue
         mv = go[comp]
+        labels = labels.copy()
         labels[mv] = target[comp[mv]]
         moved_total += int(go.sum())
         rnd += 1
