@@ -470,7 +470,9 @@ def build_hierarchy(
             "boxes": batch.cell_boxes,
             **(model_options or {}),
         }  # the tight cuts, as the flat modes make them
-        levels = rtree_levels(batch, counts, groups=tags, **opts)
+        graphs = []  # the graph of the finest level's elements, for the cavity check
+        levels = rtree_levels(batch, counts, groups=tags, graphs=graphs, **opts)
+        fine_graph = graphs[0] if graphs else None
         how = "native"
     else:
         from .agglomerate import agglomerate
@@ -504,7 +506,7 @@ def build_hierarchy(
             levels = [cand[i] for i in pick]
             how = "top-down recursive bisection, recorded"
     levels = [np.asarray(lv, dtype=np.int64) for lv in levels]
-    levels, polys = _fix_holes(mesh, data, levels)
+    levels, polys = _fix_holes(mesh, data, levels, fine_graph if model == "rtree" else None)
     info = {
         "model": model,
         "ratio": float(ratio),
@@ -545,6 +547,28 @@ def _element_graph(graph, labels: np.ndarray):
     G = sp.csr_matrix((np.ones(ea.size, dtype=np.int8), (ea, eb)), shape=(k + 1, k + 1))
     G.sum_duplicates()
     return G
+
+
+def _with_outside(graph, labels: np.ndarray, qptr: np.ndarray, qind: np.ndarray):
+    """_element_graph from the elements' own graph (canonical CSR (qptr, qind), as rtree_levels gives
+    it): the outside node k is appended to the rows of the elements with a boundary face (the last
+    column of a sorted row) and gets their row; no pass over the fine graph's edges."""
+    import scipy.sparse as sp
+
+    from .csr import row_pointers
+
+    labels = np.asarray(labels, dtype=np.int64)
+    k = qptr.size - 1
+    on_bnd = np.unique(labels[graph.faces.cell[graph.partner < 0]])
+    touch = np.zeros(k, dtype=bool)
+    touch[on_bnd] = True
+    deg = np.diff(qptr)
+    ptr = row_pointers(np.r_[deg + touch, on_bnd.size])
+    ind = np.empty(int(ptr[-1]), dtype=np.int64)
+    ind[np.repeat(ptr[:k] - qptr[:-1], deg) + np.arange(qind.size)] = qind
+    ind[ptr[1 : k + 1][touch] - 1] = k
+    ind[ptr[k] :] = on_bnd
+    return sp.csr_matrix((np.ones(ind.size, dtype=np.int8), ind, ptr), shape=(k + 1, k + 1))
 
 
 def _coarser_graph(G, node_to: np.ndarray, k: int):
@@ -623,19 +647,24 @@ def cavity_elements(graph, labels: np.ndarray, G=None) -> np.ndarray | None:
 
 
 def _has_voids(mesh: Mesh, graph) -> bool:
-    """3D: does the domain's boundary have more than one shell (a void, or several bodies)?"""
-    from .merge import merge_3d
+    """3D: does the domain's boundary have more than one shell (a void, or several bodies)? The
+    shells of merge_3d's one element, without building the polyhedron."""
+    from .merge import _shells, face_nodes
 
-    _, holes = merge_3d(mesh, graph, np.zeros(mesh.n_cells, dtype=np.int64), np.ones(mesh.n_cells))
-    return bool(holes.elements.size)
+    bf = np.flatnonzero(graph.partner < 0)
+    fo, nodes = face_nodes(graph.faces, bf)
+    return bool(_shells(mesh.points, np.zeros(bf.size, dtype=np.int64), fo, nodes).elements.size)
 
 
-def _fix_holes(mesh: Mesh, data: CellData, levels: list[np.ndarray]) -> tuple[list[np.ndarray], list]:
+def _fix_holes(
+    mesh: Mesh, data: CellData, levels: list[np.ndarray], fine_graph: tuple | None = None
+) -> tuple[list[np.ndarray], list]:
     """Elements that would enclose a hole are replaced by their children (finest: by cells),
     finest level first, so the levels stay nested and every written polygon has one loop.
     Returns the levels and their merged polytopes (for write_hierarchy's `merged`; None where a
     level was checked without merging: 3D domains without voids are checked on the elements' graph
-    (cavity_elements), and the writer merges)."""
+    (cavity_elements), and the writer merges). fine_graph: the CSR (indptr, indices) of the graph of
+    the finest level's elements when known (rtree_levels'), canonical."""
     from .merge import boundary_faces, merge, merge_2d
 
     out = list(levels)
@@ -648,7 +677,10 @@ def _fix_holes(mesh: Mesh, data: CellData, levels: list[np.ndarray]) -> tuple[li
         if by_graph:
             for _ in range(int(out[L].max()) + 2):
                 k = int(out[L].max()) + 1
-                if G_finer is None:
+                if G_finer is None and fine_graph is not None and fine_graph[0].size == k + 1:
+                    G = _with_outside(data.graph, out[L], *fine_graph)
+                    fine_graph = None  # the labels it was made for, not those of a split
+                elif G_finer is None:
                     G = _element_graph(data.graph, out[L])
                 else:
                     node_to = np.zeros(G_finer.shape[0] - 1, dtype=np.int64)

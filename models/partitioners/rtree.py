@@ -460,33 +460,43 @@ def _quotient(indptr: np.ndarray, indices: np.ndarray, weights: np.ndarray, labe
 
 def components(batch: GraphBatch, within: np.ndarray | None = None) -> np.ndarray:
     """Connected components of the batch graph (only edges inside equal `within` labels)."""
+    from scipy.sparse.csgraph import breadth_first_order
+
     n = batch.n_nodes
     indptr, indices = batch.indptr, batch.indices
     if within is not None:  # keep the CSR rows: the filtered graph without a COO conversion
         keep = np.repeat(within, np.diff(indptr)) == within[indices]
         indptr = kept_pointers(keep, indptr)
         indices = indices[keep]
-    g = sp.csr_matrix((np.ones(indices.size, dtype=np.int8), indices, indptr), shape=(n, n))
+    g = sp.csr_matrix((np.ones(indices.size), indices, indptr), shape=(n, n))
+    if n == 0 or breadth_first_order(g, 0, directed=True, return_predecessors=False).size == n:
+        return np.zeros(n, dtype=np.int64)  # cell 0 reaches every cell: one component (no transpose)
     return connected_components(g, directed=False)[1].astype(np.int64)
 
 
 def cell_boxes(
     points: np.ndarray, offsets: np.ndarray, connectivity: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(C, dim) lower and upper corners of every cell's vertices (vectorized reduceat)."""
+    """(C, dim) lower and upper corners of every cell's vertices (vectorized reduceat). One cell type:
+    made axis by axis, so the arrays are column-major ((dim, C) contiguous, as the cuts read them)."""
     pts = np.asarray(points, dtype=np.float64)
     sizes = np.diff(offsets)
     if (
         sizes.size and sizes.min() == sizes.max() and offsets[0] == 0 and connectivity.size == offsets[-1]
-    ):  # one cell type: a (C, nv, dim) block, no reduceat
+    ):  # one cell type: the vertices' coordinates one axis at a time, no reduceat
         nv = int(sizes[0])
-        lo = pts[connectivity[0::nv]].copy()
-        hi = lo.copy()
-        for j in range(1, nv):  # a loop over the cell's vertices
-            q = pts[connectivity[j::nv]]
-            np.minimum(lo, q, out=lo)
-            np.maximum(hi, q, out=hi)
-        return lo, hi
+        dim = pts.shape[1]
+        lo = np.empty((dim, sizes.size))
+        hi = np.empty((dim, sizes.size))
+        for d in range(dim):  # a loop over the axes
+            col = np.ascontiguousarray(pts[:, d])
+            np.take(col, connectivity[0::nv], out=lo[d])
+            hi[d] = lo[d]
+            for j in range(1, nv):  # a loop over the cell's vertices
+                q = col[connectivity[j::nv]]
+                np.minimum(lo[d], q, out=lo[d])
+                np.maximum(hi[d], q, out=hi[d])
+        return lo.T, hi.T
     p = pts[connectivity]
     starts = np.asarray(offsets[:-1], dtype=np.int64)
     return np.minimum.reduceat(p, starts, axis=0), np.maximum.reduceat(p, starts, axis=0)
@@ -499,6 +509,7 @@ def rtree_levels(
     balance: str = "measure",
     boxes: tuple | None = None,
     slack: float = SLACK,
+    graphs: list | None = None,
 ) -> list[np.ndarray]:
     """Nested labels for the element counts `counts` (coarsest first), each level connected.
 
@@ -507,7 +518,9 @@ def rtree_levels(
     finest on the mesh's graph (pieces join a part of the same parent), every coarser one on the
     graph of the finer level's (connected) elements, which is ratio times smaller, so the elements
     of each level are unions of the finer level's: exactly nested, every element connected.
-    groups: optional (N,) labels (e.g. physical groups) no element may cross."""
+    groups: optional (N,) labels (e.g. physical groups) no element may cross.
+    graphs: a list that receives the CSR (indptr, indices) of the graph of each level's elements
+    (finest first, all levels but the coarsest; canonical: sorted rows, no repeats, no self loops)."""
     w = batch.measures if balance == "measure" else np.ones(batch.n_nodes)
     w = np.asarray(w, dtype=np.float64)
     wp = np.maximum(w, 1e-300)
@@ -539,6 +552,8 @@ def rtree_levels(
     for L in range(len(raw) - 2, -1, -1):
         k_f = up[L + 1].size
         qp, qi, qw = _quotient(qp, qi, qw, node_lab, k_f)  # graph of level L+1's elements
+        if graphs is not None:
+            graphs.append((qp, qi))
         node_w = np.bincount(node_lab, weights=node_w, minlength=k_f)
         init = up[L + 1]  # raw level-L part of each level-(L+1) element
         lab, _ = make_connected(qp, qi, qw, init, parent=up[L][init], measures=node_w)
