@@ -725,31 +725,28 @@ def _split_elements(coarse: np.ndarray, bad: np.ndarray, finer: np.ndarray) -> n
     return compact_labels(coarse)
 
 
-_TRIPLES = None  # (1000, 3) ASCII codes of 000..999
+_TRIPLES = None  # (3000,) three-character codes: 0..999 blank-led ("  0" for 0), zero-padded, blank-led ("   " for 0)
 
 
 def _digits(v: np.ndarray, width: int) -> np.ndarray:
-    """(N, width) ASCII codes of the non-negative integers v, right-aligned with blanks (three digits
-    at a time from a table, then the leading zeros blanked)."""
+    """(N, width) ASCII codes of the non-negative integers v, right-aligned with blanks: three digits
+    at a time from a table, the block holding a number's leading digit (and blocks above it) from the
+    table with leading blanks, the blocks below it zero-padded (no pass to blank leading zeros)."""
     global _TRIPLES
     if _TRIPLES is None:
-        _TRIPLES = np.frombuffer("".join(f"{i:03d}" for i in range(1000)).encode("ascii"), np.uint8).reshape(
-            1000, 3
-        )
+        text = "".join(f"{i:3d}" for i in range(1000)) + "".join(f"{i:03d}" for i in range(1000))
+        text += "   " + "".join(f"{i:3d}" for i in range(1, 1000))
+        _TRIPLES = np.frombuffer(text.encode("ascii"), np.uint8).view("V3")
     v = np.asarray(v, dtype=np.int64)
     nb = -(-width // 3)
     chars = np.empty((v.size, nb), dtype="V3")
-    table = _TRIPLES.view("V3").ravel()
     rest = v
-    for j in range(nb - 1, -1, -1):  # a loop over blocks of three digits
+    for j in range(nb - 1, -1, -1):  # a loop over blocks of three digits, lowest first
         rest, blk = np.divmod(rest, 1000)
-        chars[:, j] = table[blk]
-    chars = chars.view(np.uint8).reshape(v.size, 3 * nb)[:, 3 * nb - width :]
-    nd = np.ones(v.size, dtype=np.int64)  # digits of each number
-    for e in range(1, width):  # a loop over powers of ten
-        nd += v >= 10**e
-    chars = np.where(np.arange(width)[None, :] < (width - nd)[:, None], np.uint8(ord(" ")), chars)
-    return chars
+        # digits above this block: zero-padded; none: blank-led (the lowest block writes 0 as "  0")
+        blk += np.where(rest > 0, 1000, 0 if j == nb - 1 else 2000)
+        chars[:, j] = _TRIPLES[blk]
+    return chars.view(np.uint8).reshape(v.size, 3 * nb)[:, 3 * nb - width :]
 
 
 def _int_list_json(values: np.ndarray) -> str:

@@ -229,3 +229,12 @@ def test_element_graph_from_the_rtree_quotient_is_the_cells_one():
     inner = np.all(np.abs(data.centroids - 0.5) < 1 / 6, axis=1)
     hollow = mesh_from_arrays(p, [("tetra", t[~inner])])
     assert _has_voids(hollow, prepare(hollow)[0]) and not _has_voids(mesh, graph)
+
+
+def test_digits_are_pythons_right_aligned_format():
+    from models.hierarchy import _digits
+
+    rng = np.random.default_rng(3)
+    for v in (np.array([0, 7, 10, 99, 100, 999, 1000, 1001, 123456, 10**6]), rng.integers(0, 10**10, 5000)):
+        for width in range(len(str(int(v.max()))), len(str(int(v.max()))) + 4):
+            assert _digits(v, width).tobytes().decode("ascii") == "".join(f"{x:{width}d}" for x in v)
