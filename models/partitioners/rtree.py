@@ -266,7 +266,7 @@ def _tight_cut(idx, lo_t, hi_t, mid, target, window, s0, e1, cut, slack):
 
 
 def _grow_from_mains(
-    rows: np.ndarray, cols: np.ndarray, labels: np.ndarray, frag: np.ndarray, par: np.ndarray
+    indptr: np.ndarray, cols: np.ndarray, labels: np.ndarray, frag: np.ndarray, par: np.ndarray
 ) -> np.ndarray:
     """Labels where every fragment cell takes the label of the nearest main-piece cell (hops through
     fragment cells of the same parent; the shortest-path tree keeps each region connected to its
@@ -275,7 +275,7 @@ def _grow_from_mains(
 
     n = labels.size
     e = np.flatnonzero(frag[cols])  # into fragment cells only (few), inside one parent
-    a, b = rows[e], cols[e]
+    a, b = _edge_rows(indptr, e), cols[e]
     keep = par[a] == par[b]
     a, b = a[keep], b[keep]
     src = np.unique(a[~frag[a]])
@@ -291,6 +291,16 @@ def _grow_from_mains(
     return out
 
 
+def _edge_rows(indptr: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """The row of each entry `e` of a CSR (a search per entry: no (nnz,) array of rows)."""
+    return np.searchsorted(indptr, e, side="right") - 1
+
+
+def _small_labels(labels: np.ndarray) -> np.ndarray:
+    """labels as int32 when they fit (half the memory traffic of the (nnz,) arrays made from them)."""
+    return labels.astype(np.int32) if labels.size and labels.max() < 2**31 else labels
+
+
 def _label_pieces(
     indptr: np.ndarray, indices: np.ndarray, labels: np.ndarray, cells: np.ndarray | None = None
 ) -> tuple[int, np.ndarray]:
@@ -299,7 +309,8 @@ def _label_pieces(
     in the order of their first cell (scipy's numbering: one scan over the nodes)."""
     if cells is None:
         ptr, nb = indptr, indices
-        same = np.repeat(labels, np.diff(indptr)) == labels[indices]
+        lab = _small_labels(labels)
+        same = np.repeat(lab, np.diff(indptr)) == lab[indices]
         m = labels.size
     else:  # the rows of `cells` only, renumbered 0..len(cells)-1
         deg = indptr[cells + 1] - indptr[cells]
@@ -358,7 +369,7 @@ def make_connected(
     labels = np.asarray(labels, dtype=np.int64).copy()
     mes = np.ones(n) if measures is None else np.asarray(measures, dtype=np.float64)
     par = np.zeros(n, dtype=np.int64) if parent is None else np.asarray(parent, dtype=np.int64)
-    rows = np.repeat(np.arange(n), np.diff(indptr))
+    deg = np.diff(indptr)
     moved_total = 0
     free = parent is None
     rnd = 0
@@ -384,10 +395,10 @@ def make_connected(
         main[o[run_starts(clab[o])]] = True
         frag_cell = ~main[comp]
         # edges leaving fragment cells into another part of the same parent (as indices: fragments are few)
-        e = np.flatnonzero(frag_cell[rows])
-        a, b = rows[e], indices[e]
-        e = e[(labels[a] != labels[b]) & (par[a] == par[b])]
-        a, b = rows, indices
+        e = np.flatnonzero(np.repeat(frag_cell, deg))
+        a, b = _edge_rows(indptr, e), indices[e]
+        keep = (labels[a] != labels[b]) & (par[a] == par[b])
+        e, a, b = e[keep], a[keep], b[keep]  # the edges' rows and columns
         if e.size == 0:
             if free:
                 break
@@ -396,7 +407,7 @@ def make_connected(
         if rnd >= 1:
             # what is left after one round: every fragment cell joins the main piece it reaches first
             # through fragment cells of its parent (one multi-source BFS), so one pass connects all
-            new = _grow_from_mains(rows, indices, labels, frag_cell, par)
+            new = _grow_from_mains(indptr, indices, labels, frag_cell, par)
             if np.array_equal(new, labels):
                 if free:
                     break
@@ -407,8 +418,9 @@ def make_connected(
             rnd += 1
             continue
         # interface weight per (fragment piece, neighbour label); main pieces of neighbours count double
-        bonus = np.where(main[comp[b[e]]], 2.0, 1.0)
-        key_p, key_l = comp[a[e]], labels[b[e]]
+        to_main = main[comp[b]]
+        bonus = np.where(to_main, 2.0, 1.0)
+        key_p, key_l = comp[a], labels[b]
         m = sp.coo_matrix((weights[e] * bonus + 1e-12, (key_p, key_l)), shape=(nc, k)).tocsr()
         m.sum_duplicates()
         r = np.repeat(np.arange(nc), np.diff(m.indptr))
@@ -418,8 +430,7 @@ def make_connected(
         target[r[best]] = m.indices[best]
         # only pieces touching a main piece move this round (they then join a connected part)
         touches_main = np.zeros(nc, dtype=bool)
-        em = e[main[comp[b[e]]]]
-        touches_main[comp[a[em]]] = True
+        touches_main[comp[a[to_main]]] = True
         go = (target >= 0) & ~main & (touches_main | ~touches_main.any())
         if not go.any():
             if free:
@@ -454,8 +465,9 @@ def cut_and_connect(
 
 def _quotient(indptr: np.ndarray, indices: np.ndarray, weights: np.ndarray, labels: np.ndarray, k: int):
     """CSR (indptr, indices, summed weights) of the graph of the parts `labels` (0..k-1)."""
-    rows = np.repeat(labels, np.diff(indptr))
-    cols = labels[indices]
+    lab = _small_labels(labels)
+    rows = np.repeat(lab, np.diff(indptr))
+    cols = lab[indices]
     off = rows != cols
     q = sp.csr_matrix((weights[off], (rows[off], cols[off])), shape=(k, k))
     q.sum_duplicates()
