@@ -470,9 +470,9 @@ def build_hierarchy(
             "boxes": batch.cell_boxes,
             **(model_options or {}),
         }  # the tight cuts, as the flat modes make them
-        graphs = []  # the graph of the finest level's elements, for the cavity check
+        graphs = []  # the graphs of the levels' elements, for the cavity check
         levels = rtree_levels(batch, counts, groups=tags, graphs=graphs, **opts)
-        fine_graph = graphs[0] if graphs else None
+        level_graphs = {len(levels) - 1 - j: q for j, q in enumerate(graphs)}
         how = "native"
     else:
         from .agglomerate import agglomerate
@@ -506,7 +506,7 @@ def build_hierarchy(
             levels = [cand[i] for i in pick]
             how = "top-down recursive bisection, recorded"
     levels = [np.asarray(lv, dtype=np.int64) for lv in levels]
-    levels, polys = _fix_holes(mesh, data, levels, fine_graph if model == "rtree" else None)
+    levels, polys = _fix_holes(mesh, data, levels, level_graphs if model == "rtree" else None)
     info = {
         "model": model,
         "ratio": float(ratio),
@@ -549,17 +549,20 @@ def _element_graph(graph, labels: np.ndarray):
     return G
 
 
-def _with_outside(graph, labels: np.ndarray, qptr: np.ndarray, qind: np.ndarray):
+def _with_outside(graph, labels: np.ndarray, qptr: np.ndarray, qind: np.ndarray, boundary_cells=None):
     """_element_graph from the elements' own graph (canonical CSR (qptr, qind), as rtree_levels gives
     it): the outside node k is appended to the rows of the elements with a boundary face (the last
-    column of a sorted row) and gets their row; no pass over the fine graph's edges."""
+    column of a sorted row) and gets their row; no pass over the fine graph's edges. boundary_cells:
+    graph.faces.cell[graph.partner < 0] when already known."""
     import scipy.sparse as sp
 
     from .csr import row_pointers
 
     labels = np.asarray(labels, dtype=np.int64)
     k = qptr.size - 1
-    on_bnd = np.unique(labels[graph.faces.cell[graph.partner < 0]])
+    if boundary_cells is None:  # the cells with a face on the domain's boundary
+        boundary_cells = graph.faces.cell[graph.partner < 0]
+    on_bnd = np.unique(labels[boundary_cells])
     touch = np.zeros(k, dtype=bool)
     touch[on_bnd] = True
     deg = np.diff(qptr)
@@ -657,29 +660,33 @@ def _has_voids(mesh: Mesh, graph) -> bool:
 
 
 def _fix_holes(
-    mesh: Mesh, data: CellData, levels: list[np.ndarray], fine_graph: tuple | None = None
+    mesh: Mesh, data: CellData, levels: list[np.ndarray], graphs: dict | None = None
 ) -> tuple[list[np.ndarray], list]:
     """Elements that would enclose a hole are replaced by their children (finest: by cells),
     finest level first, so the levels stay nested and every written polygon has one loop.
     Returns the levels and their merged polytopes (for write_hierarchy's `merged`; None where a
     level was checked without merging: 3D domains without voids are checked on the elements' graph
-    (cavity_elements), and the writer merges). fine_graph: the CSR (indptr, indices) of the graph of
-    the finest level's elements when known (rtree_levels'), canonical."""
+    (cavity_elements), and the writer merges). graphs: level -> the CSR (indptr, indices) of the graph
+    of that level's elements where known (rtree_levels'), canonical."""
     from .merge import boundary_faces, merge, merge_2d
 
     out = list(levels)
+    graphs = dict(graphs or {})
     polys = [None] * len(out)
     bf = None  # 2D: the finer level's boundary faces (None: all faces)
     finer = np.arange(mesh.n_cells)
     by_graph = mesh.dim == 3 and not _has_voids(mesh, data.graph)
     G_finer = None  # the finer level's element graph (each level's comes from it, not from the cells)
+    bcells = None  # the cells on the domain's boundary
     for L in range(len(out) - 1, -1, -1):
         if by_graph:
             for _ in range(int(out[L].max()) + 2):
                 k = int(out[L].max()) + 1
-                if G_finer is None and fine_graph is not None and fine_graph[0].size == k + 1:
-                    G = _with_outside(data.graph, out[L], *fine_graph)
-                    fine_graph = None  # the labels it was made for, not those of a split
+                q = graphs.pop(L, None)  # made for the level's labels as given, not a split's
+                if q is not None and q[0].size == k + 1:
+                    if bcells is None:
+                        bcells = data.graph.faces.cell[data.graph.partner < 0]
+                    G = _with_outside(data.graph, out[L], *q, boundary_cells=bcells)
                 elif G_finer is None:
                     G = _element_graph(data.graph, out[L])
                 else:
