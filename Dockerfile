@@ -25,12 +25,18 @@ RUN if ! command -v python3 >/dev/null 2>&1 || ! python3 -c "import venv, ensure
     && pip install "torch==${TORCH_VERSION}" --index-url "${TORCH_INDEX}"
 
 WORKDIR /src
-COPY pyproject.toml ./
+COPY pyproject.toml setup.py ./
 COPY models ./models
 COPY jobqueue ./jobqueue
 COPY service ./service
 COPY worker ./worker
-RUN pip install ".[neural,service]" \
+# a C compiler only while installing: setup.py builds the 3D inscribed-ball search (models/_inscribed3d.c)
+RUN apt-get update && apt-get install -y --no-install-recommends gcc libc6-dev \
+    && (python -c "import os, sys, sysconfig; sys.exit(not os.path.exists(sysconfig.get_paths()['include'] + '/Python.h'))" \
+        || apt-get install -y --no-install-recommends python3-dev) \
+    && pip install ".[neural,service]" \
+    && (cd / && python -c "import models._inscribed3d") \
+    && apt-get purge -y gcc libc6-dev && apt-get autoremove -y && rm -rf /var/lib/apt/lists/* \
     && useradd --system --create-home --uid 10001 magnet \
     && mkdir -p /data && chown magnet /data
 

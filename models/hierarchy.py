@@ -550,9 +550,11 @@ def _element_graph(graph, labels: np.ndarray):
 
 
 def _with_outside(graph, labels: np.ndarray, qptr: np.ndarray, qind: np.ndarray, boundary_cells=None):
-    """_element_graph from the elements' own graph (canonical CSR (qptr, qind), as rtree_levels gives
-    it): the outside node k is appended to the rows of the elements with a boundary face (the last
-    column of a sorted row) and gets their row; no pass over the fine graph's edges. boundary_cells:
+    """_element_graph from the elements' own graph (CSR (qptr, qind) without repeats or self loops,
+    as rtree_levels gives it): the outside node k is appended to the rows of the elements with a
+    boundary face and gets their row; no pass over the fine graph's edges. The same entries as
+    _element_graph's, in the given order within rows (sorted rows give the same CSR; the cavity
+    check's articulation points do not depend on the order). boundary_cells:
     graph.faces.cell[graph.partner < 0] when already known."""
     import scipy.sparse as sp
 
@@ -667,7 +669,7 @@ def _fix_holes(
     Returns the levels and their merged polytopes (for write_hierarchy's `merged`; None where a
     level was checked without merging: 3D domains without voids are checked on the elements' graph
     (cavity_elements), and the writer merges). graphs: level -> the CSR (indptr, indices) of the graph
-    of that level's elements where known (rtree_levels'), canonical."""
+    of that level's elements where known (rtree_levels'), no repeats or self loops."""
     from .merge import boundary_faces, merge, merge_2d
 
     out = list(levels)

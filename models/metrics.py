@@ -6,13 +6,15 @@ hull per element) or over refinement levels / pivot steps; never over fine cells
 Boundary of an element: 2D, its segments (outer loop CCW, holes CW: the element is on the left of
 every segment); 3D, its faces fan-triangulated (outward normals). The largest inscribed ball is exact
 (linear program) for convex elements and certified to `rel_tol * diameter` otherwise; see
-`largest_inscribed_ball`.
+`largest_inscribed_ball` (in 3D the search runs in the compiled models/_inscribed3d.c where it was
+built, numpy otherwise).
 """
 
 from __future__ import annotations
 
 import itertools
 import math
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -53,9 +55,39 @@ class _Geometry:
     prim_prev: np.ndarray | None = None  # 2D: previous segment of the same loop
     start_unsafe: np.ndarray | None = None  # 2D: start vertex repeated in the element or degenerate
     tri_adj: np.ndarray | None = None  # 3D: neighbouring triangle across each edge (see _triangle_neighbours)
-    table: np.ndarray | None = None  # per-primitive constants (see _prim_table)
+    table_: np.ndarray | None = None  # per-primitive constants (see _prim_table); see .table
     cen: np.ndarray | None = None  # (S, dim) primitive centroid
-    rad: np.ndarray | None = None  # (S,) primitive within ball(cen, rad)
+    rad_: np.ndarray | None = None  # (S,) primitive within ball(cen, rad); see .rad
+
+    # the compiled 3D search builds its per-element tables itself: the numpy paths (and the
+    # fallbacks) get them on first use
+    @property
+    def table(self) -> np.ndarray:
+        if self.table_ is None:
+            self._tables()
+        return self.table_
+
+    @property
+    def rad(self) -> np.ndarray:
+        if self.rad_ is None:
+            self._tables()
+        return self.rad_
+
+    def _tables(self) -> None:
+        ext = _compiled() if self.dim == 3 and self.prim.shape[0] else None
+        if ext is None:
+            self.table_ = _prim_table(self.prim)
+        else:
+            self.table_ = np.empty((self.prim.shape[0], 16))
+            ext.tri_table(
+                np.ascontiguousarray(self.prim),
+                self.table_,
+                np.empty((self.prim.shape[0], 3)),
+                np.empty(self.prim.shape[0]),
+            )
+        self.rad_ = (
+            np.linalg.norm(self.prim - self.cen[:, None], axis=2).max(1) if self.prim.size else np.zeros(0)
+        )
 
     @property
     def convex(self) -> np.ndarray:
@@ -165,6 +197,58 @@ def _hulls_qhull(vpts: np.ndarray, v_ptr: np.ndarray, dim: int):
         hull_pts.append(p)
         hull_eq.append(eq)
     return hull_pts, hull_eq, hull_measure, diameter
+
+
+def _farthest_pairs(ext, vpts: np.ndarray, v_ptr: np.ndarray):
+    """3D without hulls: every element's boundary vertices with its farthest pair first (the
+    enclosing-ball pivoting starts from it) and the diameter, the pair found by the compiled
+    brute force (the same pair and distance as over the hull's vertices)."""
+    n = v_ptr.size - 1
+    i = np.zeros(n, dtype=np.int64)
+    j = np.zeros(n, dtype=np.int64)
+    diameter = np.zeros(n)
+    ext.farthest_pairs(
+        np.ascontiguousarray(vpts, dtype=np.float64), np.ascontiguousarray(v_ptr), i, j, diameter
+    )
+    # the pair to positions 0 and 1 of each set: two swaps of a permutation (sets are disjoint)
+    perm = np.arange(vpts.shape[0])
+    two = np.flatnonzero(np.diff(v_ptr) >= 2)
+    s0 = v_ptr[two]
+    a, b = s0 + i[two], s0 + j[two]
+    tmp = perm[s0].copy()
+    perm[s0] = perm[a]
+    perm[a] = tmp
+    b = np.where(b == s0, a, b)  # the second point moved if it sat in position 0
+    tmp = perm[s0 + 1].copy()
+    perm[s0 + 1] = perm[b]
+    perm[b] = tmp
+    p = vpts[perm]
+    pts = [p[v_ptr[e] : v_ptr[e + 1]] for e in range(n)]
+    return pts, diameter
+
+
+def _convex_3d(ext, prim_ptr, prim, adj, signed, v_ptr, diameter):
+    """Convex 3D elements without hulls: a closed, consistently oriented triangulated surface (every
+    edge shared by two triangles) of a sphere's topology (V - E + F = 2) whose every edge is
+    convex (the neighbour's corners on the inner side of each triangle's plane, to 1e-10 x the
+    diameter; compiled) bounds a convex body. Returns hull_eq (the element's own triangle planes,
+    outward, for the Chebyshev-centre LP; None where not convex) and hull_measure (|volume| where
+    convex, 0 elsewhere), as _hulls_qhull gives them for _Geometry.convex."""
+    n = prim_ptr.size - 1
+    out_sign = np.where(signed >= 0, 1.0, -1.0)
+    local = np.zeros(n, dtype=np.uint8)
+    ext.locally_convex(prim, np.ascontiguousarray(adj), prim_ptr, out_sign, 1e-10 * diameter, local)
+    F = np.diff(prim_ptr)
+    V = np.diff(v_ptr)
+    convex = (local == 1) & (2 * V - F == 4) & (signed != 0)
+    hull_measure = np.where(convex, np.abs(signed), 0.0)
+    hull_eq = [None] * n
+    for e in np.flatnonzero(convex):  # convex 3D elements are rare (a Python loop over those only)
+        rows = _prim_table(prim[prim_ptr[e] : prim_ptr[e + 1]])
+        nrm = out_sign[e] * rows[:, 9:12]
+        eq = np.column_stack([nrm, -np.einsum("ij,ij->i", nrm, rows[:, 0:3])])
+        hull_eq[e] = eq[np.linalg.norm(nrm, axis=1) > 0.5]  # degenerate triangles have no plane
+    return hull_eq, hull_measure
 
 
 def _chains_2d(pts: np.ndarray, grp: np.ndarray) -> np.ndarray:
@@ -326,11 +410,14 @@ def _prepare(poly: PolyMesh) -> _Geometry:
         bbox_lo[has] = np.minimum.reduceat(vpts, v_ptr[:-1][has], axis=0)
         bbox_hi[has] = np.maximum.reduceat(vpts, v_ptr[:-1][has], axis=0)
 
+    ext = _compiled() if dim == 3 else None
     if dim == 2:
         hull_pts, hull_eq, hull_measure, diameter = _hulls_2d(vpts, v_ptr)
-    else:
+    elif ext is None:
         hull_pts, hull_eq, hull_measure, diameter = _hulls_qhull(vpts, v_ptr, dim)
-    cen = prim.mean(axis=1)
+    else:  # no hulls: the farthest pair compiled, convexity from the edges (below)
+        hull_pts, diameter = _farthest_pairs(ext, vpts, v_ptr)
+    cen = (prim[:, 0] + prim[:, 1] + prim[:, 2]) / 3.0 if ext is not None else prim.mean(axis=1)
     # order the primitives of each element along a Morton curve (spatially coherent runs for the
     # bounding-ball hierarchy used by the inscribed-ball search)
     if prim.shape[0]:
@@ -357,9 +444,21 @@ def _prepare(poly: PolyMesh) -> _Geometry:
                 "prim_prev": inv[extra["prim_prev"][perm]],
                 "start_unsafe": extra["start_unsafe"][perm],
             }
-        else:
+        elif ext is None:
             extra = {"tri_adj": _triangle_neighbours(extra["tri_nodes"][perm], prim_elem, pts.shape[0])}
-    rad = np.linalg.norm(prim - cen[:, None], axis=2).max(1) if prim.size else np.zeros(0)
+        else:  # the same neighbours, element by element (compiled)
+            adj = np.empty((prim.shape[0], 3), dtype=np.int64)
+            ext.tri_neighbours(np.ascontiguousarray(extra["tri_nodes"][perm]), prim_ptr, adj)
+            extra = {"tri_adj": adj}
+    elif dim == 3:
+        extra = {"tri_adj": np.zeros((0, 3), dtype=np.int64)}
+    table = rad = None  # the compiled path makes them when a numpy path asks (_Geometry.table)
+    if ext is None:
+        rad = np.linalg.norm(prim - cen[:, None], axis=2).max(1) if prim.size else np.zeros(0)
+        table = _prim_table(prim)
+    else:
+        prim = np.ascontiguousarray(prim)
+        hull_eq, hull_measure = _convex_3d(ext, prim_ptr, prim, extra["tri_adj"], signed, v_ptr, diameter)
     return _Geometry(
         dim,
         n,
@@ -375,9 +474,9 @@ def _prepare(poly: PolyMesh) -> _Geometry:
         hull_eq,
         hull_measure,
         diameter,
-        table=_prim_table(prim),
+        table_=table,
         cen=cen,
-        rad=rad,
+        rad_=rad,
         **extra,
     )
 
@@ -1391,12 +1490,85 @@ def _check_tol(rel_tol: float) -> float:
     return rel_tol
 
 
+_INSCRIBED_METHODS = ("auto", "bnb", "bnb-numpy")
+_EXT_MAX_CELLS = 4_000_000  # cells per element before the compiled search hands it to the numpy one
+
+
+def _compiled():
+    """The compiled 3D search (models/_inscribed3d.c), or None where it was not built (or
+    MAGNET_NO_COMPILED=1)."""
+    if os.environ.get("MAGNET_NO_COMPILED", "") not in ("", "0"):
+        return None
+    try:
+        from models import _inscribed3d
+    except ImportError:
+        return None
+    return _inscribed3d
+
+
+def _threads() -> int:
+    """Threads for the compiled search: MAGNET_THREADS, else the cores this process may use."""
+    env = os.environ.get("MAGNET_THREADS", "")
+    if env.strip():
+        try:
+            return max(1, int(env))
+        except ValueError:
+            raise ParameterError(f"MAGNET_THREADS must be a whole number, got {env!r}") from None
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def _inscribed_compiled(ext, g: _Geometry, elems: np.ndarray, rel_tol: float):
+    """Compiled best-first search over `elems` (3D), in threads (the module releases the GIL;
+    each element is searched by one thread, so the result does not depend on their number).
+    Returns centres, radii and the elements it gave up on (cell budget spent; none on any mesh
+    measured)."""
+    centres = np.full((g.n, 3), np.nan)
+    radius = np.zeros(g.n)
+    evals = np.zeros(g.n, dtype=np.int64)
+    elems = np.ascontiguousarray(elems, dtype=np.int64)
+    args = (
+        np.ascontiguousarray(g.prim, dtype=np.float64),
+        np.ascontiguousarray(g.tri_adj, dtype=np.int64),
+        np.ascontiguousarray(g.prim_ptr, dtype=np.int64),
+    )
+    rest = (
+        np.ascontiguousarray(g.diameter, dtype=np.float64),
+        np.ascontiguousarray(g.bbox_lo, dtype=np.float64),
+        np.ascontiguousarray(g.bbox_hi, dtype=np.float64),
+        (g.signed_measure >= 0).astype(np.uint8),
+        float(rel_tol),
+        _EXT_MAX_CELLS,
+        centres,
+        radius,
+        evals,
+    )
+    nt = min(_threads(), max(1, elems.size // 16))
+    if nt == 1:
+        ext.inscribed(*args, elems, *rest)
+    else:  # interleaved shares (neighbouring elements cost alike); outputs are disjoint rows
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(nt) as pool:
+            list(pool.map(lambda k: ext.inscribed(*args, elems[k::nt].copy(), *rest), range(nt)))
+    return centres, radius, elems[evals[elems] < 0]
+
+
 def _inscribed(g: _Geometry, rel_tol: float, method: str = "auto"):
-    if method not in ("auto", "bnb"):
-        raise ParameterError(f"unknown inscribed-ball method {method!r} (auto, bnb)")
+    if method not in _INSCRIBED_METHODS:
+        raise ParameterError(f"unknown inscribed-ball method {method!r} ({', '.join(_INSCRIBED_METHODS)})")
     convex = g.convex if method == "auto" else np.zeros(g.n, dtype=bool)
     centres, radius = _inscribed_lp(g, np.flatnonzero(convex))
-    rest = np.flatnonzero(~convex)
+    # an element of zero measure (faces back to back) has no interior: radius 0, no centre
+    flat = np.abs(g.signed_measure) <= 1e-12 * np.maximum(g.diameter, 1e-300) ** g.dim
+    rest = np.flatnonzero(~convex & ~flat)
+    ext = _compiled() if g.dim == 3 and method != "bnb-numpy" else None
+    if rest.size and ext is not None:
+        done = rest
+        c2, r2, rest = _inscribed_compiled(ext, g, rest, rel_tol)
+        centres[done], radius[done] = c2[done], r2[done]
     if rest.size:
         # elements in batches of about _BNB_BATCH_PRIMS boundary primitives: the search's per-level
         # arrays (cells x candidate nodes) stay bounded, so memory does not grow with the mesh; the
@@ -1420,8 +1592,11 @@ def largest_inscribed_ball(
     from a linear program over the element's facet half-spaces (scipy linprog / HiGHS); the radius
     is re-measured from the returned centre, so it never exceeds the true one beyond rounding.
 
-    Other elements (or all, with method="bnb"): branch and bound on a quadtree (2D) / octree (3D)
-    over the element's bounding cube, all elements at once, with exact point-to-segment /
+    Other elements (or all, with method="bnb"): in 3D, the compiled best-first search of
+    models/_inscribed3d.c (same certificate, octree cells, bounds from the closest triangles and
+    a small LP over each cell's corners; see that file); method="bnb-numpy", 2D, or where the
+    module was not built (MAGNET_NO_COMPILED=1 switches it off): branch and bound on a quadtree
+    (2D) / octree (3D) over the element's bounding cube, all elements at once, with exact point-to-segment /
     point-to-triangle distances (bounding-ball tree, candidate lists passed from parent to child
     cells) and exact inside tests (side of the closest facet, vertex wedge / edge pseudo-normal,
     else crossing number (2D) / winding number (3D)). best is the largest exact distance found at
@@ -1555,6 +1730,19 @@ def heterogeneity_preservation(
 # partition statistics on the fine dual graph
 
 
+def _symmetric_simple(indptr: np.ndarray, indices: np.ndarray, rows: np.ndarray) -> bool:
+    """Whether a CSR pattern is symmetric with strictly increasing indices in every row (no
+    duplicates): then it equals its transpose (scipy's O(nnz) counting transpose) array for array."""
+    if indices.size == 0:
+        return True
+    inc = indices[1:] > indices[:-1]
+    if not np.all(inc | (rows[1:] != rows[:-1])):
+        return False
+    n = indptr.size - 1
+    t = sparse.csr_matrix((np.ones(indices.size, dtype=bool), indices, indptr), shape=(n, n)).T.tocsr()
+    return np.array_equal(t.indptr, indptr) and np.array_equal(t.indices, indices)
+
+
 def partition_statistics(indptr: np.ndarray, indices: np.ndarray, labels: np.ndarray) -> dict:
     """Cut, normalized cut, volume imbalance, part count and connectivity of a partition.
 
@@ -1570,26 +1758,48 @@ def partition_statistics(indptr: np.ndarray, indices: np.ndarray, labels: np.nda
         raise ParameterError(f"indptr has {indptr.size} entries for {nc} labels")
     if indices.size and (indices.min() < 0 or indices.max() >= nc):
         raise ParameterError("graph indices out of range")
-    u = np.repeat(np.arange(nc, dtype=np.int64), np.diff(indptr))
-    lo, hi = np.minimum(u, indices), np.maximum(u, indices)
-    off = lo != hi
-    # upper-triangular pattern; the COO -> CSR conversion merges duplicate (and mirrored) entries
-    up = sparse.csr_matrix((np.ones(int(off.sum()), dtype=bool), (lo[off], hi[off])), shape=(nc, nc))
-    a = np.repeat(np.arange(nc, dtype=np.int64), np.diff(up.indptr))
-    b = up.indices.astype(np.int64)
-    deg = np.bincount(a, minlength=nc) + np.bincount(b, minlength=nc)
     part, parts = _compact(labels)
-    cut_mask = part[a] != part[b]
-    cut_i = np.bincount(part[a][cut_mask], minlength=parts) + np.bincount(part[b][cut_mask], minlength=parts)
+    sizes = np.bincount(part, minlength=parts)
+    u = np.repeat(np.arange(nc, dtype=np.int64), np.diff(indptr))
+    if _symmetric_simple(indptr, indices, u):
+        # the usual dual graph: every undirected edge twice, once per direction, no duplicates;
+        # no COO -> CSR sort needed
+        off = u != indices
+        deg = np.bincount(u[off], minlength=nc)
+        cross = off & (part[u] != part[indices])
+        cut = int(cross.sum()) // 2
+        cut_i = np.bincount(part[u[cross]], minlength=parts)
+        keep = off & ~cross
+        kept_ptr = np.zeros(nc + 1, dtype=np.int64)
+        np.cumsum(np.bincount(u[keep], minlength=nc), out=kept_ptr[1:])
+        # float64 data and int32 indices, as csgraph wants them (no conversion copies); the
+        # pattern is symmetric, so weak components of the directed graph are the components
+        idx = indices[keep].astype(np.int32) if nc < 2**31 else indices[keep]
+        ptr = kept_ptr.astype(np.int32) if kept_ptr[-1] < 2**31 and nc < 2**31 else kept_ptr
+        g = sparse.csr_matrix((np.ones(int(kept_ptr[-1])), idx, ptr), shape=(nc, nc))
+        directed = True
+    else:
+        lo, hi = np.minimum(u, indices), np.maximum(u, indices)
+        off = lo != hi
+        # upper-triangular pattern; the COO -> CSR conversion merges duplicate (and mirrored) entries
+        up = sparse.csr_matrix((np.ones(int(off.sum()), dtype=bool), (lo[off], hi[off])), shape=(nc, nc))
+        a = np.repeat(np.arange(nc, dtype=np.int64), np.diff(up.indptr))
+        b = up.indices.astype(np.int64)
+        deg = np.bincount(a, minlength=nc) + np.bincount(b, minlength=nc)
+        cut_mask = part[a] != part[b]
+        cut = int(cut_mask.sum())
+        cut_i = np.bincount(part[a][cut_mask], minlength=parts) + np.bincount(
+            part[b][cut_mask], minlength=parts
+        )
+        inner = ~cut_mask
+        g = sparse.csr_matrix((np.ones(int(inner.sum()), dtype=bool), (a[inner], b[inner])), shape=(nc, nc))
+        directed = False
     vol = np.bincount(part, weights=deg, minlength=parts)
     with np.errstate(divide="ignore", invalid="ignore"):
         ncut = float(np.where(vol > 0, cut_i / np.where(vol > 0, vol, 1), 0.0).sum())
-    sizes = np.bincount(part, minlength=parts)
-    inner = ~cut_mask
-    g = sparse.csr_matrix((np.ones(int(inner.sum()), dtype=bool), (a[inner], b[inner])), shape=(nc, nc))
-    ncomp = connected_components(g, directed=False)[0] if nc else 0
+    ncomp = connected_components(g, directed=directed, connection="weak")[0] if nc else 0
     return {
-        "cut": int(cut_mask.sum()),
+        "cut": cut,
         "normalized_cut": ncut,
         "volume_imbalance": float(sizes.max() / sizes.mean()) if parts else 0.0,
         "parts": parts,

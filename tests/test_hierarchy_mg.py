@@ -62,8 +62,9 @@ def test_mgcheck_on_the_brain_beats_pyamg_unsmoothed(brain):
     rep = mgcheck(m, d, levels)
     assert rep["unsmoothed"]["converged"] and rep["smoothed"]["converged"] and rep["pyamg_sa"]["converged"]
     assert rep["level_sizes"] == [14372, 1797, 225, 29, 4][1:]
-    # measured: 36 vs 39 iterations at 1.21 vs 1.31 operator complexity (the issue asks 0.85x: not reached here)
-    assert rep["unsmoothed"]["iterations"] <= rep["pyamg_ua"]["iterations"]
+    # the issue's goal in 2D: at most 0.85x pyamg's unsmoothed standard aggregation (measured: 33 vs 39
+    # iterations at 1.21 vs 1.31 operator complexity; 34 before the levels were numbered along a sweep)
+    assert rep["unsmoothed"]["iterations"] <= 0.85 * rep["pyamg_ua"]["iterations"]
     assert rep["ratios"]["unsmoothed_complexity_vs_pyamg"] <= 1.1
     assert rep["smoothed"]["iterations"] <= rep["pyamg_sa"]["iterations"] + 1
 

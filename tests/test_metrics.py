@@ -484,9 +484,9 @@ def test_polish_off_gives_the_same_certified_radii(monkeypatch):
     labels = np.unique(labels, return_inverse=True)[1]
     poly, _ = merge(m, g, labels, d.measures)
     eps = 1e-3 * element_diameters(poly)
-    _, r_on = largest_inscribed_ball(poly, method="bnb")
+    _, r_on = largest_inscribed_ball(poly, method="bnb-numpy")
     monkeypatch.setitem(mm._POLISH_STEPS, 3, 0)
-    _, r_off = largest_inscribed_ball(poly, method="bnb")
+    _, r_off = largest_inscribed_ball(poly, method="bnb-numpy")
     assert np.all(np.abs(r_on - r_off) <= eps + 1e-12)
     assert np.all(r_on > 0)
 
@@ -889,3 +889,36 @@ def test_triangle_neighbours_one_key_sort_matches_lexsort_and_brute_force():
     # the brute force ignores orientation: compare where the fast one found a pair (nearly all)
     assert (fast >= 0).sum() > 0.9 * fast.size
     assert np.array_equal(fast[fast >= 0], want[fast >= 0])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_partition_statistics_symmetric_fast_path_matches_the_general_one(seed):
+    """A symmetric CSR with sorted rows takes the sort-free path; the same graph given one way
+    only (with a self loop and a duplicate thrown in) takes the general one: same statistics."""
+    from scipy import sparse
+
+    import models.metrics as mm
+
+    rng = np.random.default_rng(seed)
+    n = 300
+    u, v = rng.integers(0, n, 900), rng.integers(0, n, 900)
+    keep = u != v
+    A = sparse.csr_matrix((np.ones(keep.sum()), (u[keep], v[keep])), shape=(n, n))
+    A = ((A + A.T) > 0).astype(np.float64).tocsr()
+    A.sort_indices()
+    labels = rng.integers(0, 7, n) * (rng.random(n) < 0.9)  # a few cells in part 0 scattered
+    assert mm._symmetric_simple(
+        A.indptr.astype(np.int64), A.indices.astype(np.int64), np.repeat(np.arange(n), np.diff(A.indptr))
+    )
+    fast = partition_statistics(A.indptr, A.indices, labels)
+    U = sparse.triu(A, k=1).tocoo()
+    rows = np.r_[U.row, 5, U.row[:1]]
+    cols = np.r_[U.col, 5, U.col[:1]]  # a self loop and one duplicated edge
+    order = np.argsort(rows, kind="stable")
+    indptr = np.r_[0, np.cumsum(np.bincount(rows, minlength=n))]
+    assert not mm._symmetric_simple(indptr, cols[order], rows[order])
+    slow = partition_statistics(indptr, cols[order], labels)
+    assert fast["cut"] == slow["cut"] and fast["parts"] == slow["parts"]
+    assert fast["connected"] == slow["connected"]
+    assert fast["normalized_cut"] == pytest.approx(slow["normalized_cut"], rel=1e-12)
+    assert fast["volume_imbalance"] == slow["volume_imbalance"]

@@ -61,6 +61,29 @@ def test_levels_3d_tets():
     assert all(pieces(g, lab) == c for lab, c in zip(levels, counts, strict=True))
 
 
+def test_hierarchy_elements_numbered_along_the_principal_axis(brain):
+    """Every level of a hierarchy is numbered along one sweep of the domain (its measure-weighted
+    principal axis); a single level (the flat k-way mode) keeps the tree's numbering."""
+    m, g, d = brain
+    batch = make_batch(d, np.zeros(m.n_cells, dtype=np.int64))
+    counts = level_counts(m.n_cells, 8, coarsest=10)
+    levels = rtree_levels(batch, counts)
+    x, w = d.centroids, d.measures
+    xc = x - np.average(x, axis=0, weights=w)
+    axis = np.linalg.eigh((xc * w[:, None]).T @ xc)[1][:, -1]
+    for lab in levels:
+        k = lab.max() + 1
+        pos = np.bincount(lab, weights=w * (xc @ axis), minlength=k) / np.bincount(
+            lab, weights=w, minlength=k
+        )
+        step = np.diff(pos)
+        assert np.all(step >= -1e-9 * np.abs(pos).max()) or np.all(step <= 1e-9 * np.abs(pos).max())
+    flat = rtree_levels(batch, [counts[-1]])[0]
+    k = flat.max() + 1
+    pos = np.bincount(flat, weights=w * (xc @ axis), minlength=k) / np.bincount(flat, weights=w, minlength=k)
+    assert not np.all(np.diff(pos) >= 0) and not np.all(np.diff(pos) <= 0)
+
+
 def test_levels_respect_groups():
     m = read_mesh(EMILIA)
     g, d = prepare(m)

@@ -10,7 +10,8 @@ parent with which they share the longest interface, so counts stay exact and lev
 
 Levels of a hierarchy go top-down: the coarsest level is cut from the whole domain (one group per
 connected component of the mesh, or per physical group), then every element of level l is cut
-into its share of level l+1's count (proportional to its measure, at least 1).
+into its share of level l+1's count (proportional to its measure, at least 1). The elements of a
+hierarchy's levels are numbered along the domain's principal axis, for Gauss-Seidel smoothers.
 """
 
 from __future__ import annotations
@@ -535,10 +536,13 @@ def rtree_levels(
     share, from one sort of the cells per axis). Then the levels are made connected bottom-up: the
     finest on the mesh's graph (pieces join a part of the same parent), every coarser one on the
     graph of the finer level's (connected) elements, which is ratio times smaller, so the elements
-    of each level are unions of the finer level's: exactly nested, every element connected.
+    of each level are unions of the finer level's: exactly nested, every element connected. With
+    more than one level, every level's elements are numbered along the domain's principal axis
+    (_sweep_key); a single level keeps the cuts' tree order.
     groups: optional (N,) labels (e.g. physical groups) no element may cross.
-    graphs: a list that receives the CSR (indptr, indices) of the graph of each level's elements
-    (finest first, all levels but the coarsest; canonical: sorted rows, no repeats, no self loops)."""
+    graphs: a list that receives the CSR (indptr, indices) of the graph of each level's elements in
+    the numbering of the returned labels (finest first, all levels but the coarsest; no repeats, no
+    self loops; rows sorted where no sweep renumbered them)."""
     w = batch.measures if balance == "measure" else np.ones(batch.n_nodes)
     w = np.asarray(w, dtype=np.float64)
     wp = np.maximum(w, 1e-300)
@@ -553,7 +557,6 @@ def rtree_levels(
         need = apportion(np.bincount(parent, weights=w, minlength=k_par), int(c), seg.size)
         parent = split_counts(parent, need, batch.centroids, wp, lo, hi, slack, segments=seg)
         raw.append(parent)
-    out = [None] * len(raw)
     # element ids stay the raw part ids, so raw parent maps give each element's parents
     up = []  # up[L]: raw part of level L -> its raw part at level L-1 (root group for L = 0)
     for L, lab in enumerate(raw):
@@ -564,20 +567,73 @@ def rtree_levels(
     fine, _ = make_connected(
         batch.indptr, batch.indices, batch.weights, raw[-1], parent=up[-1][raw[-1]], measures=w
     )
-    out[-1] = fine
-    qp, qi, qw = batch.indptr, batch.indices, batch.weights
+    sweep = len(raw) > 1  # a hierarchy: every level's elements numbered along one sweep (_sweep_key)
     node_lab, node_w = fine, w  # nodes of the graph at hand: cells, then elements of the finer level
+    node_s = w * _sweep_key(batch.centroids, w) if sweep else None
+    qp, qi, qw = batch.indptr, batch.indices, batch.weights
+    maps = [None] * len(raw)  # maps[L]: raw element of level L+1 -> its raw element of level L
+    rank = [None] * len(raw)  # rank[L]: raw element of level L -> its number along the sweep
     for L in range(len(raw) - 2, -1, -1):
         k_f = up[L + 1].size
         qp, qi, qw = _quotient(qp, qi, qw, node_lab, k_f)  # graph of level L+1's elements
-        if graphs is not None:
-            graphs.append((qp, qi))
         node_w = np.bincount(node_lab, weights=node_w, minlength=k_f)
         init = up[L + 1]  # raw level-L part of each level-(L+1) element
         lab, _ = make_connected(qp, qi, qw, init, parent=up[L][init], measures=node_w)
-        out[L] = lab[out[L + 1]]
+        if sweep:
+            node_s = np.bincount(node_lab, weights=node_s, minlength=k_f)
+            rank[L + 1] = _sweep_rank(node_s / np.maximum(node_w, 1e-300))
+        if graphs is not None:  # in the numbering of the returned labels
+            graphs.append((qp, qi) if not sweep else _renamed(qp, qi, rank[L + 1]))
+        maps[L] = lab
         node_lab = lab
+    if sweep:
+        k0 = int(node_lab.max()) + 1
+        rank[0] = _sweep_rank(
+            np.bincount(node_lab, weights=node_s, minlength=k0)
+            / np.maximum(np.bincount(node_lab, weights=node_w, minlength=k0), 1e-300)
+        )
+    out = [None] * len(raw)
+    out[-1] = fine if not sweep else rank[-1][fine]
+    for L in range(len(raw) - 2, -1, -1):
+        m = maps[L]
+        if sweep:  # numbered element of level L+1 -> numbered element of level L
+            m = np.empty_like(maps[L])
+            m[rank[L + 1]] = rank[L][maps[L]]
+        out[L] = m[out[L + 1]]
     return out
+
+
+def _renamed(indptr: np.ndarray, indices: np.ndarray, rank: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The CSR graph with node i renamed rank[i]: rows moved, columns renamed (each row's entries
+    keep their order, so rows are not sorted)."""
+    inv = np.empty_like(rank)
+    inv[rank] = np.arange(rank.size)
+    deg = np.diff(indptr)[inv]
+    ptr = row_pointers(deg)
+    src = np.repeat(indptr[:-1][inv] - ptr[:-1], deg) + np.arange(ptr[-1])
+    return ptr, rank[indices[src]]
+
+
+def _sweep_key(x: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(N,) position of every cell along the principal axis of the whole domain (measure-weighted).
+
+    A hierarchy's elements are numbered in this order, level by level: a Gauss-Seidel smoother then
+    sweeps every level across the domain once, as a lexicographic sweep does, instead of zig-zagging
+    through the tree order of the cuts (PCG iterations with pyamg's V-cycle at ratio 8, averaged over
+    twelve rotations of the brain: 34.0 -> 33.3; six of the refined quads: 63.7 -> 62.3)."""
+    W = max(float(w.sum()), 1e-300)
+    mean = (w @ x) / W
+    cov = (x.T * w) @ x / W - np.outer(mean, mean)
+    v = np.linalg.eigh(cov)[1][:, -1]
+    v = v if v[np.argmax(np.abs(v))] > 0 else -v  # a fixed sign: the same numbering everywhere
+    return x @ v
+
+
+def _sweep_rank(key: np.ndarray) -> np.ndarray:
+    """rank[e]: the number of element e when the elements are sorted by key (ties: lower id first)."""
+    rank = np.empty(key.size, dtype=np.int64)
+    rank[np.argsort(key, kind="stable")] = np.arange(key.size)
+    return rank
 
 
 def level_counts(n: int, ratio: float, coarsest: int = 1) -> list[int]:
