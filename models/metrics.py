@@ -6,8 +6,9 @@ hull per element) or over refinement levels / pivot steps; never over fine cells
 Boundary of an element: 2D, its segments (outer loop CCW, holes CW: the element is on the left of
 every segment); 3D, its faces fan-triangulated (outward normals). The largest inscribed ball is exact
 (linear program) for convex elements and certified to `rel_tol * diameter` otherwise; see
-`largest_inscribed_ball` (in 3D the search runs in the compiled models/_inscribed3d.c where it was
-built, numpy otherwise).
+`largest_inscribed_ball`. The 3D search and geometry, the enclosing balls and the partition
+statistics run in the compiled models/_fastmetrics.c where it was built; their numpy versions here
+are the fallback (MAGNET_NO_COMPILED=1) and the reference of the tests.
 """
 
 from __future__ import annotations
@@ -58,6 +59,8 @@ class _Geometry:
     table_: np.ndarray | None = None  # per-primitive constants (see _prim_table); see .table
     cen: np.ndarray | None = None  # (S, dim) primitive centroid
     rad_: np.ndarray | None = None  # (S,) primitive within ball(cen, rad); see .rad
+    hull_cat: np.ndarray | None = None  # 3D compiled path: hull_pts concatenated ...
+    hull_ptr: np.ndarray | None = None  # ... and their offsets per element
 
     # the compiled 3D search builds its per-element tables itself: the numpy paths (and the
     # fallbacks) get them on first use
@@ -224,7 +227,7 @@ def _farthest_pairs(ext, vpts: np.ndarray, v_ptr: np.ndarray):
     perm[b] = tmp
     p = vpts[perm]
     pts = [p[v_ptr[e] : v_ptr[e + 1]] for e in range(n)]
-    return pts, diameter
+    return pts, diameter, p
 
 
 def _convex_3d(ext, prim_ptr, prim, adj, signed, v_ptr, diameter):
@@ -334,6 +337,64 @@ def _hulls_2d(vpts: np.ndarray, v_ptr: np.ndarray):
     return hull_pts, hull_eq, hull_measure, diameter
 
 
+def _prepare_3d_compiled(ext, pts, eo, lo, nodes) -> _Geometry:
+    """_prepare in 3D with the compiled module: the same geometry (triangles in the same Morton
+    order, the same neighbours, vertices, boxes and diameters), without hulls (see _farthest_pairs
+    and _convex_3d) and with the triangle table left to first use."""
+    n = eo.size - 1
+    pts = np.ascontiguousarray(pts, dtype=np.float64)
+    S = int(np.maximum(np.diff(lo) - 2, 0).sum())
+    prim = np.empty((S, 3, 3))
+    cen = np.empty((S, 3))
+    prim_ptr = np.zeros(n + 1, dtype=np.int64)
+    adj = np.empty((S, 3), dtype=np.int64)
+    size = np.zeros(n)
+    signed = np.zeros(n)
+    vpts = np.empty((nodes.size, 3))
+    v_ptr = np.zeros(n + 1, dtype=np.int64)
+    bbox_lo = np.full((n, 3), np.nan)
+    bbox_hi = np.full((n, 3), np.nan)
+    nv = ext.fan3d(
+        pts,
+        eo,
+        lo,
+        np.ascontiguousarray(nodes),
+        prim,
+        cen,
+        prim_ptr,
+        adj,
+        size,
+        signed,
+        vpts,
+        v_ptr,
+        bbox_lo,
+        bbox_hi,
+    )
+    vpts = vpts[:nv]
+    hull_pts, diameter, hull_cat = _farthest_pairs(ext, vpts, v_ptr)
+    hull_eq, hull_measure = _convex_3d(ext, prim_ptr, prim, adj, signed, v_ptr, diameter)
+    return _Geometry(
+        3,
+        n,
+        prim,
+        np.repeat(np.arange(n), np.diff(prim_ptr)),
+        prim_ptr,
+        size,
+        signed,
+        np.diff(eo),
+        bbox_lo,
+        bbox_hi,
+        hull_pts,
+        hull_eq,
+        hull_measure,
+        diameter,
+        tri_adj=adj,
+        cen=cen,
+        hull_cat=hull_cat,
+        hull_ptr=v_ptr,
+    )
+
+
 def _prepare(poly: PolyMesh) -> _Geometry:
     pts = np.asarray(poly.points, dtype=np.float64)
     dim = pts.shape[1]
@@ -384,6 +445,9 @@ def _prepare(poly: PolyMesh) -> _Geometry:
         unsafe = pinch[kept] | (klen == 0) | (klen[kprev] == 0)
         extra = {"prim_next": knext, "prim_prev": kprev, "start_unsafe": unsafe}
     else:
+        ext = _compiled()
+        if ext is not None:
+            return _prepare_3d_compiled(ext, pts, eo, lo, nodes)
         ntri = np.maximum(loop_len - 2, 0)
         face, j = _ragged_arange(ntri)
         base = lo[:-1][face]
@@ -410,14 +474,11 @@ def _prepare(poly: PolyMesh) -> _Geometry:
         bbox_lo[has] = np.minimum.reduceat(vpts, v_ptr[:-1][has], axis=0)
         bbox_hi[has] = np.maximum.reduceat(vpts, v_ptr[:-1][has], axis=0)
 
-    ext = _compiled() if dim == 3 else None
     if dim == 2:
         hull_pts, hull_eq, hull_measure, diameter = _hulls_2d(vpts, v_ptr)
-    elif ext is None:
+    else:
         hull_pts, hull_eq, hull_measure, diameter = _hulls_qhull(vpts, v_ptr, dim)
-    else:  # no hulls: the farthest pair compiled, convexity from the edges (below)
-        hull_pts, diameter = _farthest_pairs(ext, vpts, v_ptr)
-    cen = (prim[:, 0] + prim[:, 1] + prim[:, 2]) / 3.0 if ext is not None else prim.mean(axis=1)
+    cen = prim.mean(axis=1)
     # order the primitives of each element along a Morton curve (spatially coherent runs for the
     # bounding-ball hierarchy used by the inscribed-ball search)
     if prim.shape[0]:
@@ -444,21 +505,12 @@ def _prepare(poly: PolyMesh) -> _Geometry:
                 "prim_prev": inv[extra["prim_prev"][perm]],
                 "start_unsafe": extra["start_unsafe"][perm],
             }
-        elif ext is None:
+        else:
             extra = {"tri_adj": _triangle_neighbours(extra["tri_nodes"][perm], prim_elem, pts.shape[0])}
-        else:  # the same neighbours, element by element (compiled)
-            adj = np.empty((prim.shape[0], 3), dtype=np.int64)
-            ext.tri_neighbours(np.ascontiguousarray(extra["tri_nodes"][perm]), prim_ptr, adj)
-            extra = {"tri_adj": adj}
     elif dim == 3:
         extra = {"tri_adj": np.zeros((0, 3), dtype=np.int64)}
-    table = rad = None  # the compiled path makes them when a numpy path asks (_Geometry.table)
-    if ext is None:
-        rad = np.linalg.norm(prim - cen[:, None], axis=2).max(1) if prim.size else np.zeros(0)
-        table = _prim_table(prim)
-    else:
-        prim = np.ascontiguousarray(prim)
-        hull_eq, hull_measure = _convex_3d(ext, prim_ptr, prim, extra["tri_adj"], signed, v_ptr, diameter)
+    rad = np.linalg.norm(prim - cen[:, None], axis=2).max(1) if prim.size else np.zeros(0)
+    table = _prim_table(prim)
     return _Geometry(
         dim,
         n,
@@ -1495,15 +1547,15 @@ _EXT_MAX_CELLS = 4_000_000  # cells per element before the compiled search hands
 
 
 def _compiled():
-    """The compiled 3D search (models/_inscribed3d.c), or None where it was not built (or
+    """The compiled helpers (models/_fastmetrics.c), or None where they were not built (or
     MAGNET_NO_COMPILED=1)."""
     if os.environ.get("MAGNET_NO_COMPILED", "") not in ("", "0"):
         return None
     try:
-        from models import _inscribed3d
+        from models import _fastmetrics
     except ImportError:
         return None
-    return _inscribed3d
+    return _fastmetrics
 
 
 def _threads() -> int:
@@ -1593,7 +1645,7 @@ def largest_inscribed_ball(
     is re-measured from the returned centre, so it never exceeds the true one beyond rounding.
 
     Other elements (or all, with method="bnb"): in 3D, the compiled best-first search of
-    models/_inscribed3d.c (same certificate, octree cells, bounds from the closest triangles and
+    models/_fastmetrics.c (same certificate, octree cells, bounds from the closest triangles and
     a small LP over each cell's corners; see that file); method="bnb-numpy", 2D, or where the
     module was not built (MAGNET_NO_COMPILED=1 switches it off): branch and bound on a quadtree
     (2D) / octree (3D) over the element's bounding cube, all elements at once, with exact point-to-segment /
@@ -1623,7 +1675,13 @@ def largest_inscribed_ball(
 
 
 def _enclosing_radius(g: _Geometry) -> np.ndarray:
-    return _enclosing_balls(g.hull_pts, g.dim)[1]
+    ext = _compiled() if g.hull_cat is not None else None
+    if ext is None:
+        return _enclosing_balls(g.hull_pts, g.dim)[1]
+    centre = np.zeros((g.n, 3))
+    radius = np.zeros(g.n)
+    ext.enclosing_balls(np.ascontiguousarray(g.hull_cat), np.ascontiguousarray(g.hull_ptr), centre, radius)
+    return radius
 
 
 def _ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
@@ -1730,6 +1788,16 @@ def heterogeneity_preservation(
 # partition statistics on the fine dual graph
 
 
+def _equals_transpose(indptr: np.ndarray, indices: np.ndarray) -> bool:
+    """Whether a CSR pattern equals its transpose array for array (scipy's O(nnz) counting
+    transpose has rows in increasing order, so then the rows are sorted and the pattern symmetric)."""
+    if indices.size == 0:
+        return True
+    n = indptr.size - 1
+    t = sparse.csr_matrix((np.ones(indices.size, dtype=bool), indices, indptr), shape=(n, n)).T.tocsr()
+    return np.array_equal(t.indptr, indptr) and np.array_equal(t.indices, indices)
+
+
 def _symmetric_simple(indptr: np.ndarray, indices: np.ndarray, rows: np.ndarray) -> bool:
     """Whether a CSR pattern is symmetric with strictly increasing indices in every row (no
     duplicates): then it equals its transpose (scipy's O(nnz) counting transpose) array for array."""
@@ -1760,6 +1828,15 @@ def partition_statistics(indptr: np.ndarray, indices: np.ndarray, labels: np.nda
         raise ParameterError("graph indices out of range")
     part, parts = _compact(labels)
     sizes = np.bincount(part, minlength=parts)
+    ext = _compiled()
+    if ext is not None and _equals_transpose(indptr, indices):
+        # one compiled pass (union-find for the components) where the pattern is symmetric with
+        # strictly increasing rows, the usual dual graph; None if a row is not strictly increasing
+        vol = np.zeros(parts)
+        cut_i = np.zeros(parts)
+        r = ext.partition_stats(indptr, np.ascontiguousarray(indices), np.ascontiguousarray(part), vol, cut_i)
+        if r is not None:
+            return _partition_summary(r[0], cut_i, vol, sizes, parts, r[1])
     u = np.repeat(np.arange(nc, dtype=np.int64), np.diff(indptr))
     if _symmetric_simple(indptr, indices, u):
         # the usual dual graph: every undirected edge twice, once per direction, no duplicates;
@@ -1795,9 +1872,13 @@ def partition_statistics(indptr: np.ndarray, indices: np.ndarray, labels: np.nda
         g = sparse.csr_matrix((np.ones(int(inner.sum()), dtype=bool), (a[inner], b[inner])), shape=(nc, nc))
         directed = False
     vol = np.bincount(part, weights=deg, minlength=parts)
+    ncomp = connected_components(g, directed=directed, connection="weak")[0] if nc else 0
+    return _partition_summary(cut, cut_i, vol, sizes, parts, ncomp)
+
+
+def _partition_summary(cut, cut_i, vol, sizes, parts, ncomp) -> dict:
     with np.errstate(divide="ignore", invalid="ignore"):
         ncut = float(np.where(vol > 0, cut_i / np.where(vol > 0, vol, 1), 0.0).sum())
-    ncomp = connected_components(g, directed=directed, connection="weak")[0] if nc else 0
     return {
         "cut": cut,
         "normalized_cut": ncut,

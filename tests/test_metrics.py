@@ -891,34 +891,45 @@ def test_triangle_neighbours_one_key_sort_matches_lexsort_and_brute_force():
     assert np.array_equal(fast[fast >= 0], want[fast >= 0])
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_partition_statistics_symmetric_fast_path_matches_the_general_one(seed):
-    """A symmetric CSR with sorted rows takes the sort-free path; the same graph given one way
-    only (with a self loop and a duplicate thrown in) takes the general one: same statistics."""
+def _partition_paths(seed, monkeypatch):
+    """A symmetric CSR with sorted rows (a self loop included) takes the compiled path, or without
+    it numpy's sort-free one; the same graph given one way only (with a duplicate thrown in) takes
+    the general one: the same statistics, connected or not."""
     from scipy import sparse
 
     import models.metrics as mm
 
     rng = np.random.default_rng(seed)
     n = 300
-    u, v = rng.integers(0, n, 900), rng.integers(0, n, 900)
+    u, v = rng.integers(0, n, 900 + 300 * seed), rng.integers(0, n, 900 + 300 * seed)
+    u, v = np.r_[u, np.arange(n - 1)], np.r_[v, np.arange(1, n)]  # and a path through the numbering
     keep = u != v
     A = sparse.csr_matrix((np.ones(keep.sum()), (u[keep], v[keep])), shape=(n, n))
-    A = ((A + A.T) > 0).astype(np.float64).tocsr()
+    A = ((A + A.T + sparse.diags((np.arange(n) == 5).astype(float))) > 0).astype(np.float64).tocsr()
     A.sort_indices()
-    labels = rng.integers(0, 7, n) * (rng.random(n) < 0.9)  # a few cells in part 0 scattered
-    assert mm._symmetric_simple(
-        A.indptr.astype(np.int64), A.indices.astype(np.int64), np.repeat(np.arange(n), np.diff(A.indptr))
-    )
-    fast = partition_statistics(A.indptr, A.indices, labels)
-    U = sparse.triu(A, k=1).tocoo()
-    rows = np.r_[U.row, 5, U.row[:1]]
-    cols = np.r_[U.col, 5, U.col[:1]]  # a self loop and one duplicated edge
+    # parts: stripes of the numbering (connected along the path); odd seeds scatter a few cells
+    labels = (np.arange(n) * 7 // n + 1) * (rng.random(n) < 0.9 + 0.1 * (seed % 2))
+    indptr, indices = A.indptr.astype(np.int64), A.indices.astype(np.int64)
+    assert mm._equals_transpose(indptr, indices)
+    compiled = partition_statistics(indptr, indices, labels)
+    monkeypatch.setenv("MAGNET_NO_COMPILED", "1")
+    fast = partition_statistics(indptr, indices, labels)
+    monkeypatch.delenv("MAGNET_NO_COMPILED")
+    U = sparse.triu(A, k=0).tocoo()
+    rows = np.r_[U.row, U.row[:1]]
+    cols = np.r_[U.col, U.col[:1]]  # one duplicated edge
     order = np.argsort(rows, kind="stable")
-    indptr = np.r_[0, np.cumsum(np.bincount(rows, minlength=n))]
-    assert not mm._symmetric_simple(indptr, cols[order], rows[order])
-    slow = partition_statistics(indptr, cols[order], labels)
-    assert fast["cut"] == slow["cut"] and fast["parts"] == slow["parts"]
-    assert fast["connected"] == slow["connected"]
-    assert fast["normalized_cut"] == pytest.approx(slow["normalized_cut"], rel=1e-12)
-    assert fast["volume_imbalance"] == slow["volume_imbalance"]
+    indptr1 = np.r_[0, np.cumsum(np.bincount(rows, minlength=n))]
+    assert not mm._equals_transpose(indptr1, cols[order])
+    slow = partition_statistics(indptr1, cols[order], labels)
+    for r in (compiled, fast):
+        assert r["cut"] == slow["cut"] and r["parts"] == slow["parts"]
+        assert r["connected"] == slow["connected"]
+        assert r["normalized_cut"] == pytest.approx(slow["normalized_cut"], rel=1e-12)
+        assert r["volume_imbalance"] == slow["volume_imbalance"]
+    return slow["connected"]
+
+
+def test_partition_statistics_fast_paths_match_the_general_one(monkeypatch):
+    seen = {_partition_paths(seed, monkeypatch) for seed in range(4)}
+    assert seen == {True, False}  # connected and disconnected partitions both compared

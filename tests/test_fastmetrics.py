@@ -1,4 +1,4 @@
-"""The compiled 3D inscribed-ball search (models/_inscribed3d.c) against closed forms, against the
+"""The compiled 3D inscribed-ball search (models/_fastmetrics.c) against closed forms, against the
 numpy search it replaces (both certified to rel_tol x diameter), and its fallbacks."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from models.metrics import element_diameters, largest_inscribed_ball
 
 def test_the_compiled_search_is_built():
     """setup.py builds it with every install; metrics would still work without it, only slower."""
-    assert mm._compiled() is not None, "models/_inscribed3d.c was not compiled: reinstall (pip install -e .)"
+    assert mm._compiled() is not None, "models/_fastmetrics.c was not compiled: reinstall (pip install -e .)"
 
 
 @pytest.mark.parametrize("method", ["bnb", "bnb-numpy"])
@@ -237,3 +237,36 @@ def test_certified_centres_on_a_larger_mesh():
     diam = element_diameters(poly)
     assert np.all(r <= fine + 1e-6 * diam + 1e-12)  # r <= r_true <= fine + 1e-6 diam
     assert np.all(r >= fine - 1e-3 * diam - 1e-12)  # r >= r_true - eps >= fine - eps
+
+
+def test_compiled_enclosing_balls_match_numpy():
+    """The compiled pivoting gives numpy's exact enclosing balls: random clouds, co-spherical and
+    co-planar points (a cube's corners, a flat grid), one and two points, and the jagged elements."""
+    ext = mm._compiled()
+    rng = np.random.default_rng(0)
+    sets = [rng.random((n, 3)) for n in (1, 2, 3, 5, 40, 300)]
+    sets.append(np.array(list(__import__("itertools").product((0.0, 1.0), repeat=3))))
+    g = np.stack(np.meshgrid(np.arange(5.0), np.arange(4.0), [0.0]), -1).reshape(-1, 3)
+    sets.append(g)
+    sets.append(rng.normal(size=(200, 3)) / np.linalg.norm(rng.normal(size=(200, 3)), axis=1)[:, None])
+    gj = mm._prepare(_jagged(seed=8))
+    sets += list(gj.hull_pts)
+    # the farthest pair first, as _prepare hands them over
+    ordered = []
+    for p in sets:
+        if len(p) > 1:
+            d = np.linalg.norm(p[:, None] - p[None], axis=2)
+            i, j = np.unravel_index(d.argmax(), d.shape)
+            rest = [k for k in range(len(p)) if k not in (i, j)]
+            p = p[[i, j] + rest]
+        ordered.append(np.ascontiguousarray(p, dtype=np.float64))
+    ptr = np.r_[0, np.cumsum([len(p) for p in ordered])].astype(np.int64)
+    c = np.zeros((len(ordered), 3))
+    r = np.zeros(len(ordered))
+    ext.enclosing_balls(np.concatenate(ordered), ptr, c, r)
+    c0, r0 = mm._enclosing_balls(ordered, 3)
+    np.testing.assert_allclose(r, r0, rtol=1e-12, atol=1e-15)
+    assert r[6] == pytest.approx(math.sqrt(3) / 2, rel=1e-12)  # the cube
+    assert r[7] == pytest.approx(math.hypot(2, 1.5), rel=1e-12)  # the 5 x 4 grid
+    for p, ci, ri in zip(ordered, c, r, strict=True):  # every point inside
+        assert np.linalg.norm(p - ci, axis=1).max() <= ri * (1 + 1e-12) + 1e-15

@@ -1,9 +1,16 @@
-/* Largest inscribed balls of 3D polyhedral elements: certified best-first branch and bound.
+/* Compiled helpers of models/metrics.py (each has a numpy twin there: the fallback and the
+ * reference in the tests; MAGNET_NO_COMPILED=1 switches them off):
+ *   inscribed        the 3D largest-inscribed-ball search (below);
+ *   fan3d            _prepare's 3D geometry in one pass per element (triangles in Morton order,
+ *                    neighbours across edges, distinct vertices, boxes, area, volume);
+ *   farthest_pairs   diameters; locally_convex: convex elements without hulls; tri_table: the
+ *                    per-triangle constants; enclosing_balls: exact smallest enclosing balls;
+ *   partition_stats  cut, volumes and components of a symmetric CSR (union-find).
  *
- * The compiled kernel of models/metrics.py's inscribed-ball search in 3D (the numpy search stays
- * the fallback and the reference). Each element's boundary is a closed set of triangles (outward
- * normals when the element is positively oriented); its largest inscribed ball is centred at the
- * maximum over the element of f(x) = distance from x to the boundary.
+ * Largest inscribed balls of 3D polyhedral elements: certified best-first branch and bound. Each
+ * element's boundary is a closed set of triangles (outward normals when the element is positively
+ * oriented); its largest inscribed ball is centred at the maximum over the element of f(x) =
+ * distance from x to the boundary.
  *
  * Per element: an AABB tree over its (Morton-ordered) triangles, then best-first branch and bound
  * over an octree of its bounding cube. Every evaluated cell centre gets its exact distance to the
@@ -11,10 +18,11 @@
  * edge pseudo-normal, else winding number). A cell's upper bound U of max f over (cell n element):
  *   - 1-Lipschitz: (+-centre distance) + half-diagonal;
  *   - convex combination: for any weights mu on triangles t_i, f <= sum mu_i dist(., t_i), which is
- *     convex, so its maximum over the cell is at a corner; the best mu for the K triangles nearest
- *     to the centre comes from a small linear program (a matrix game: corners x triangles) solved
- *     by dense simplex. Exact for planar contacts (ridges, plateaus between parallel walls),
- *     second order at edges and corners.
+ *     convex, so its maximum over the cell is at a corner; the best mu over the triangles that can
+ *     be the nearest somewhere in the cell (within d + 2 rho of its centre, the K_NEAR nearest of
+ *     them) comes from a small linear program (a matrix game: corners x triangles) solved by dense
+ *     simplex. Exact for planar contacts (ridges, plateaus between parallel walls), second order at
+ *     edges and corners.
  * The LP's dual (corner weights) points at the maximiser of that bound; its exact distance, when
  * it is certified inside, raises the lower bound early. A cell is dropped when U <= best + eps,
  * eps = rel_tol * diameter; the search ends when the largest U in the queue is below that, so
@@ -818,75 +826,415 @@ typedef struct {
     int count, f1, f2;
 } EdgeSlot;
 
-/* metrics._triangle_neighbours per element: the triangle across edge k (0: corners 0-1, 1: 0-2,
- * 2: 1-2) when exactly two consistently oriented triangles of the element share it, else -1.
- * The element's edges go into an open-addressing hash table (linear probing). */
-static PyObject *py_tri_neighbours(PyObject *self, PyObject *args) {
-    PyObject *on, *optr, *oadj;
-    if (!PyArg_ParseTuple(args, "OOO", &on, &optr, &oadj)) return NULL;
-    Py_buffer bn, bptr, badj;
-    Py_buffer *all[3] = {&bn, &bptr, &badj};
-    PyObject *objs[3] = {on, optr, oadj};
-    const char *names[3] = {"tri_nodes", "prim_ptr", "tri_adj"};
-    int wr[3] = {0, 0, 1};
+/* metrics._triangle_neighbours for one element: the triangle across edge k (0: corners 0-1, 1:
+ * 0-2, 2: 1-2) when exactly two consistently oriented triangles of the element share it, else -1.
+ * tn (m, 3): the element's triangles' node ids, written to adj rows s0.. with global ids s0 + r.
+ * The edges go into an open-addressing hash table (linear probing), grown as needed. */
+static int edge_neighbours(const int64_t *tn, int64_t m, int64_t s0, int64_t *adj, EdgeSlot **tab, int64_t *cap) {
+    static const int EU[3] = {0, 0, 1}, EV[3] = {1, 2, 2}, FWD[3] = {1, -1, 1};
+    int64_t hs = 16;
+    while (hs < 4 * m) hs *= 2;  /* ~1.5 edges a triangle: load below 0.4 */
+    if (hs > *cap) {
+        EdgeSlot *nt = (EdgeSlot *)realloc(*tab, (size_t)hs * sizeof(EdgeSlot));
+        if (!nt) return -1;
+        *tab = nt;
+        *cap = hs;
+    }
+    EdgeSlot *T = *tab;
+    for (int64_t i = 0; i < hs; i++) T[i].lo = -1;
+    uint64_t mask = (uint64_t)hs - 1;
+    for (int64_t r = 0; r < m; r++) {
+        int64_t tg = s0 + r;
+        for (int k = 0; k < 3; k++) {
+            int64_t u = tn[3 * r + EU[k]], v = tn[3 * r + EV[k]];
+            int64_t lo = u < v ? u : v, hi = u < v ? v : u;
+            int f = u < v ? FWD[k] : -FWD[k];
+            adj[3 * tg + k] = -1;
+            uint64_t h = ((uint64_t)lo * 0x9E3779B97F4A7C15ULL) ^ ((uint64_t)hi * 0xC2B2AE3D27D4EB4FULL);
+            h ^= h >> 29;
+            uint64_t j = h & mask;
+            while (T[j].lo >= 0 && (T[j].lo != lo || T[j].hi != hi)) j = (j + 1) & mask;
+            EdgeSlot *E = &T[j];
+            if (E->lo < 0) {
+                E->lo = lo; E->hi = hi; E->count = 1; E->s1 = 3 * tg + k; E->f1 = f;
+            } else {
+                if (E->count == 1) { E->s2 = 3 * tg + k; E->f2 = f; }
+                E->count++;
+            }
+        }
+    }
+    for (int64_t i = 0; i < hs; i++) {
+        EdgeSlot *E = &T[i];
+        if (E->lo >= 0 && E->count == 2 && E->f1 != E->f2) {
+            adj[E->s1] = E->s2 / 3;
+            adj[E->s2] = E->s1 / 3;
+        }
+    }
+    return 0;
+}
+
+/* ball through the k+1 points q[0..k] (k <= 3) with its centre in their affine hull: metrics.
+ * _circumballs for one set; returns 0 when they are affinely dependent */
+static int circumball(const double (*q)[3], int k, double *c, double *r2) {
+    if (k == 0) { memcpy(c, q[0], 24); *r2 = 0; return 1; }
+    double A[3][3], G[3][3], rhs[3], lam[3] = {0, 0, 0};
+    for (int i = 0; i < k; i++)
+        for (int a = 0; a < 3; a++) A[i][a] = q[i + 1][a] - q[0][a];
+    double scale = 1;
+    for (int i = 0; i < k; i++) {
+        for (int j = 0; j < k; j++) G[i][j] = dot3(A[i], A[j]);
+        rhs[i] = 0.5 * G[i][i];
+        scale *= G[i][i];
+    }
+    double det;
+    if (k == 1) {
+        det = G[0][0];
+        if (!(fabs(det) > 1e-12 * scale)) return 0;
+        lam[0] = rhs[0] / G[0][0];
+    } else if (k == 2) {
+        det = G[0][0] * G[1][1] - G[0][1] * G[1][0];
+        if (!(fabs(det) > 1e-12 * scale)) return 0;
+        lam[0] = (rhs[0] * G[1][1] - G[0][1] * rhs[1]) / det;
+        lam[1] = (G[0][0] * rhs[1] - G[1][0] * rhs[0]) / det;
+    } else {
+        double c00 = G[1][1] * G[2][2] - G[1][2] * G[2][1];
+        double c01 = G[1][2] * G[2][0] - G[1][0] * G[2][2];
+        double c02 = G[1][0] * G[2][1] - G[1][1] * G[2][0];
+        det = G[0][0] * c00 + G[0][1] * c01 + G[0][2] * c02;
+        if (!(fabs(det) > 1e-12 * scale)) return 0;
+        /* Cramer's rule */
+        double M[3][3];
+        for (int col = 0; col < 3; col++) {
+            memcpy(M, G, sizeof(M));
+            for (int r = 0; r < 3; r++) M[r][col] = rhs[r];
+            double d = M[0][0] * (M[1][1] * M[2][2] - M[1][2] * M[2][1]) -
+                       M[0][1] * (M[1][0] * M[2][2] - M[1][2] * M[2][0]) +
+                       M[0][2] * (M[1][0] * M[2][1] - M[1][1] * M[2][0]);
+            lam[col] = d / det;
+        }
+    }
+    double off[3] = {0, 0, 0};
+    for (int i = 0; i < k; i++)
+        for (int a = 0; a < 3; a++) off[a] += lam[i] * A[i][a];
+    for (int a = 0; a < 3; a++) c[a] = q[0][a] + off[a];
+    *r2 = dot3(off, off);
+    return 1;
+}
+
+/* exact smallest enclosing balls (metrics._enclosing_balls: pivoting from the first two points,
+ * each step the smallest ball of the support and the farthest point outside, found by
+ * enumerating supports of the <= 5 points), then the radius as the farthest point's distance */
+static PyObject *py_enclosing_balls(PyObject *self, PyObject *args) {
+    PyObject *op, *optr, *oc, *or_;
+    if (!PyArg_ParseTuple(args, "OOOO", &op, &optr, &oc, &or_)) return NULL;
+    Py_buffer bp, bptr, bc, br;
+    Py_buffer *all[4] = {&bp, &bptr, &bc, &br};
+    PyObject *objs[4] = {op, optr, oc, or_};
+    const char *names[4] = {"points", "ptr", "centre", "radius"};
+    int wr[4] = {0, 0, 1, 1};
     int got = 0;
-    for (; got < 3; got++)
+    for (; got < 4; got++)
         if (get_buf(objs[got], all[got], wr[got], names[got], 8) < 0) break;
-    if (got < 3) {
+    if (got < 4) {
         for (int i = 0; i < got; i++) PyBuffer_Release(all[i]);
         return NULL;
     }
-    const int64_t *N = (const int64_t *)bn.buf, *ptr = (const int64_t *)bptr.buf;
-    int64_t *adj = (int64_t *)badj.buf;
+    const double *P = (const double *)bp.buf;
+    const int64_t *ptr = (const int64_t *)bptr.buf;
+    double *C = (double *)bc.buf, *R = (double *)br.buf;
     Py_ssize_t ne = bptr.len / 8 - 1;
-    int err = 0;
     Py_BEGIN_ALLOW_THREADS
-    EdgeSlot *tab = NULL;
-    int64_t cap = 0;
-    static const int EU[3] = {0, 0, 1}, EV[3] = {1, 2, 2}, FWD[3] = {1, -1, 1};
-    for (Py_ssize_t e = 0; e < ne && !err; e++) {
-        int64_t t0 = ptr[e], t1 = ptr[e + 1];
-        int64_t size = 16;
-        while (size < 4 * (t1 - t0)) size *= 2;  /* ~1.5 edges a triangle: load below 0.4 */
-        if (size > cap) {
-            EdgeSlot *nt = (EdgeSlot *)realloc(tab, (size_t)size * sizeof(EdgeSlot));
-            if (!nt) { err = 1; break; }
-            tab = nt;
-            cap = size;
+    for (Py_ssize_t e = 0; e < ne; e++) {
+        int64_t a = ptr[e], n = ptr[e + 1] - ptr[e];
+        const double (*X)[3] = (const double (*)[3])(P + 3 * a);
+        if (n == 0) { C[3 * e] = C[3 * e + 1] = C[3 * e + 2] = 0; R[e] = 0; continue; }
+        double sup[4][3], c[3], rr;
+        int ns;
+        if (n > 1) {
+            memcpy(sup[0], X[0], 24); memcpy(sup[1], X[1], 24); ns = 2;
+            for (int k = 0; k < 3; k++) c[k] = 0.5 * (X[0][k] + X[1][k]);
+        } else {
+            memcpy(sup[0], X[0], 24); ns = 1;
+            memcpy(c, X[0], 24);
         }
-        for (int64_t i = 0; i < size; i++) tab[i].lo = -1;
-        uint64_t mask = (uint64_t)size - 1;
-        for (int64_t t = t0; t < t1; t++)
-            for (int k = 0; k < 3; k++) {
-                int64_t u = N[3 * t + EU[k]], v = N[3 * t + EV[k]];
-                int64_t lo = u < v ? u : v, hi = u < v ? v : u;
-                int f = u < v ? FWD[k] : -FWD[k];
-                adj[3 * t + k] = -1;
-                uint64_t h = ((uint64_t)lo * 0x9E3779B97F4A7C15ULL) ^ ((uint64_t)hi * 0xC2B2AE3D27D4EB4FULL);
-                h ^= h >> 29;
-                uint64_t j = h & mask;
-                while (tab[j].lo >= 0 && (tab[j].lo != lo || tab[j].hi != hi)) j = (j + 1) & mask;
-                EdgeSlot *E = &tab[j];
-                if (E->lo < 0) {
-                    E->lo = lo; E->hi = hi; E->count = 1; E->s1 = 3 * t + k; E->f1 = f;
-                } else {
-                    if (E->count == 1) { E->s2 = 3 * t + k; E->f2 = f; }
-                    E->count++;
+        double d0[3] = {X[0][0] - c[0], X[0][1] - c[1], X[0][2] - c[2]};
+        rr = dot3(d0, d0);
+        for (int it = 0; it < 1000; it++) {
+            int64_t j = -1;
+            double far = -1;
+            for (int64_t i = 0; i < n; i++) {
+                double v[3] = {X[i][0] - c[0], X[i][1] - c[1], X[i][2] - c[2]};
+                double dd = dot3(v, v);
+                if (dd > far) { far = dd; j = i; }
+            }
+            if (!(far > rr * (1 + 1e-10) + 1e-300)) break;
+            /* smallest ball of T = support + the new point, over all supports (subsets of T) */
+            double T[5][3];
+            int nt = ns + 1;
+            for (int i = 0; i < ns; i++) memcpy(T[i], sup[i], 24);
+            memcpy(T[ns], X[j], 24);
+            double bc_[3] = {0, 0, 0}, br2 = INFINITY;
+            int bmask = 0;
+            for (int mask = 1; mask < (1 << nt); mask++) {
+                int cnt = __builtin_popcount(mask);
+                if (cnt > 4) continue;
+                double q[4][3], cc[3], r2;
+                int w = 0;
+                for (int i = 0; i < nt; i++)
+                    if (mask & (1 << i)) memcpy(q[w++], T[i], 24);
+                if (!circumball((const double (*)[3])q, cnt - 1, cc, &r2)) continue;
+                if (!(r2 < br2)) continue;
+                int valid = 1;
+                for (int i = 0; i < nt && valid; i++) {
+                    double v[3] = {T[i][0] - cc[0], T[i][1] - cc[1], T[i][2] - cc[2]};
+                    if (dot3(v, v) > r2 * (1 + 1e-12) + 1e-300) valid = 0;
                 }
+                if (valid) { memcpy(bc_, cc, 24); br2 = r2; bmask = mask; }
             }
-        for (int64_t i = 0; i < size; i++) {
-            EdgeSlot *E = &tab[i];
-            if (E->lo >= 0 && E->count == 2 && E->f1 != E->f2) {
-                adj[E->s1] = E->s2 / 3;
-                adj[E->s2] = E->s1 / 3;
+            if (!(br2 < INFINITY)) break; /* cannot happen: a single point is always a ball */
+            ns = 0;
+            for (int i = 0; i < nt; i++)
+                if (bmask & (1 << i)) memcpy(sup[ns++], T[i], 24);
+            memcpy(c, bc_, 24);
+            rr = br2;
+        }
+        double far = 0;
+        for (int64_t i = 0; i < n; i++) {
+            double v[3] = {X[i][0] - c[0], X[i][1] - c[1], X[i][2] - c[2]};
+            double dd = dot3(v, v);
+            if (dd > far) far = dd;
+        }
+        memcpy(C + 3 * e, c, 24);
+        R[e] = sqrt(far);
+    }
+    Py_END_ALLOW_THREADS
+    for (int i = 0; i < 4; i++) PyBuffer_Release(all[i]);
+    Py_RETURN_NONE;
+}
+
+static int cmp_i64(const void *x, const void *y) {
+    int64_t a = *(const int64_t *)x, b = *(const int64_t *)y;
+    return (a > b) - (a < b);
+}
+
+typedef struct {
+    int64_t code, idx;
+} CodeIdx;
+
+static int cmp_code(const void *x, const void *y) {
+    const CodeIdx *a = (const CodeIdx *)x, *b = (const CodeIdx *)y;
+    if (a->code != b->code) return a->code < b->code ? -1 : 1;
+    return (a->idx > b->idx) - (a->idx < b->idx);
+}
+
+static int64_t spread3(int64_t v) { /* bit b of v -> bit 3 b */
+    int64_t r = 0;
+    for (int b = 0; b < 10; b++) r |= ((v >> b) & 1) << (3 * b);
+    return r;
+}
+
+/* metrics._prepare's 3D geometry in one pass per element: the faces fanned into triangles,
+ * ordered along a Morton curve of the element's box (stable, as numpy's argsort), their corners,
+ * centroids and edge neighbours; surface area and signed volume; the element's distinct boundary
+ * vertices (sorted by node id) and box. Returns the number of vertex rows written. */
+static PyObject *py_fan3d(PyObject *self, PyObject *args) {
+    PyObject *o[14];
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOOOO", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6], &o[7],
+                          &o[8], &o[9], &o[10], &o[11], &o[12], &o[13]))
+        return NULL;
+    const char *names[14] = {"points", "elem_offsets", "loop_offsets", "loop_nodes", "prim", "centre",
+                             "prim_ptr", "tri_adj", "size", "signed", "vpts", "v_ptr", "bbox_lo", "bbox_hi"};
+    int wr[14] = {0, 0, 0, 0, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1};
+    Py_buffer b[14];
+    int got = 0;
+    for (; got < 14; got++)
+        if (get_buf(o[got], &b[got], wr[got], names[got], 8) < 0) break;
+    if (got < 14) {
+        for (int i = 0; i < got; i++) PyBuffer_Release(&b[i]);
+        return NULL;
+    }
+    const double *pts = (const double *)b[0].buf;
+    const int64_t *eo = (const int64_t *)b[1].buf, *lo = (const int64_t *)b[2].buf, *nodes = (const int64_t *)b[3].buf;
+    double *prim = (double *)b[4].buf, *cen = (double *)b[5].buf;
+    int64_t *pptr = (int64_t *)b[6].buf, *adj = (int64_t *)b[7].buf;
+    double *size = (double *)b[8].buf, *sgn = (double *)b[9].buf, *vp = (double *)b[10].buf;
+    int64_t *vptr = (int64_t *)b[11].buf;
+    double *blo = (double *)b[12].buf, *bhi = (double *)b[13].buf;
+    Py_ssize_t ne = b[1].len / 8 - 1, np_ = b[0].len / 24;
+    int err = 0;
+    int64_t nv = 0;
+    Py_BEGIN_ALLOW_THREADS
+    int64_t *stamp = (int64_t *)malloc((size_t)(np_ > 0 ? np_ : 1) * sizeof(int64_t));
+    int64_t *vb = NULL, *tn = NULL, *tn2 = NULL;
+    CodeIdx *ci = NULL;
+    EdgeSlot *tab = NULL;
+    int64_t capv = 0, capt = 0, cape = 0;
+    if (!stamp) err = 1;
+    for (Py_ssize_t i = 0; i < np_ && !err; i++) stamp[i] = -1;
+    int64_t S = 0;
+    pptr[0] = 0;
+    for (Py_ssize_t e = 0; e < ne && !err; e++) {
+        /* distinct vertices and the triangle count */
+        int64_t k0 = nv, m = 0;
+        for (int64_t l = eo[e]; l < eo[e + 1]; l++) {
+            int64_t len = lo[l + 1] - lo[l];
+            if (len > 2) m += len - 2;
+            for (int64_t q = lo[l]; q < lo[l + 1]; q++) {
+                int64_t v = nodes[q];
+                if (stamp[v] == e) continue;
+                stamp[v] = e;
+                if (nv - k0 >= capv) {
+                    int64_t cap = capv ? 2 * capv : 256;
+                    int64_t *nb = (int64_t *)realloc(vb, (size_t)cap * sizeof(int64_t));
+                    if (!nb) { err = 1; break; }
+                    vb = nb;
+                    capv = cap;
+                }
+                vb[nv - k0] = v;
+                nv++;
+            }
+            if (err) break;
+        }
+        if (err) break;
+        int64_t cnt = nv - k0;
+        qsort(vb, (size_t)cnt, sizeof(int64_t), cmp_i64);
+        double L[3] = {NAN, NAN, NAN}, H[3] = {NAN, NAN, NAN};
+        for (int64_t i = 0; i < cnt; i++) {
+            const double *x = pts + 3 * vb[i];
+            memcpy(vp + 3 * (k0 + i), x, 24);
+            for (int a = 0; a < 3; a++) {
+                if (i == 0 || x[a] < L[a]) L[a] = x[a];
+                if (i == 0 || x[a] > H[a]) H[a] = x[a];
             }
         }
+        vptr[e] = k0;
+        vptr[e + 1] = nv;
+        memcpy(blo + 3 * e, L, 24);
+        memcpy(bhi + 3 * e, H, 24);
+        /* triangles in face order: codes, area, volume */
+        if (m > capt) {
+            CodeIdx *nc = (CodeIdx *)realloc(ci, (size_t)m * sizeof(CodeIdx));
+            if (nc) ci = nc;
+            int64_t *nt = (int64_t *)realloc(tn, (size_t)m * 3 * sizeof(int64_t));
+            if (nt) tn = nt;
+            int64_t *nt2 = (int64_t *)realloc(tn2, (size_t)m * 3 * sizeof(int64_t));
+            if (nt2) tn2 = nt2;
+            if (!nc || !nt || !nt2) { err = 1; break; }
+            capt = m;
+        }
+        double span[3];
+        for (int a = 0; a < 3; a++) {
+            span[a] = H[a] - L[a];
+            if (!(span[a] > 1e-300)) span[a] = 1e-300;
+        }
+        double area = 0, vol = 0;
+        int64_t t = 0;
+        for (int64_t l = eo[e]; l < eo[e + 1]; l++) {
+            int64_t base = lo[l], len = lo[l + 1] - lo[l];
+            for (int64_t j = 0; j + 2 < len; j++, t++) {
+                int64_t n0 = nodes[base], n1 = nodes[base + j + 1], n2 = nodes[base + j + 2];
+                tn[3 * t] = n0; tn[3 * t + 1] = n1; tn[3 * t + 2] = n2;
+                const double *A = pts + 3 * n0, *B = pts + 3 * n1, *C = pts + 3 * n2;
+                double u[3] = {B[0] - A[0], B[1] - A[1], B[2] - A[2]}, w[3] = {C[0] - A[0], C[1] - A[1], C[2] - A[2]};
+                double cr[3] = {u[1] * w[2] - u[2] * w[1], u[2] * w[0] - u[0] * w[2], u[0] * w[1] - u[1] * w[0]};
+                area += 0.5 * sqrt(cr[0] * cr[0] + cr[1] * cr[1] + cr[2] * cr[2]);
+                double bc[3] = {B[1] * C[2] - B[2] * C[1], B[2] * C[0] - B[0] * C[2], B[0] * C[1] - B[1] * C[0]};
+                vol += A[0] * bc[0] + A[1] * bc[1] + A[2] * bc[2];
+                int64_t code = 0;
+                for (int a = 0; a < 3; a++) {
+                    double c = (A[a] + B[a] + C[a]) / 3.0;
+                    double x = (c - L[a]) / span[a] * 1023.0;
+                    int64_t ic = (int64_t)x;
+                    if (ic < 0) ic = 0;
+                    if (ic > 1023) ic = 1023;
+                    code |= spread3(ic) << a;
+                }
+                ci[t].code = code;
+                ci[t].idx = t;
+            }
+        }
+        size[e] = area;
+        sgn[e] = vol / 6.0;
+        qsort(ci, (size_t)m, sizeof(CodeIdx), cmp_code);
+        for (int64_t r = 0; r < m; r++) {
+            int64_t src = ci[r].idx;
+            double *P = prim + 9 * (S + r);
+            for (int v = 0; v < 3; v++) memcpy(P + 3 * v, pts + 3 * tn[3 * src + v], 24);
+            for (int a = 0; a < 3; a++) cen[3 * (S + r) + a] = (P[a] + P[3 + a] + P[6 + a]) / 3.0;
+        }
+        /* edge neighbours (global triangle ids), the triangles' nodes in the sorted order */
+        for (int64_t r = 0; r < m; r++) memcpy(tn2 + 3 * r, tn + 3 * ci[r].idx, 3 * sizeof(int64_t));
+        if (edge_neighbours(tn2, m, S, adj, &tab, &cape) < 0) { err = 1; break; }
+        S += m;
+        pptr[e + 1] = S;
     }
-    free(tab);
+    free(stamp); free(vb); free(tn); free(tn2); free(ci); free(tab);
     Py_END_ALLOW_THREADS
-    for (int i = 0; i < 3; i++) PyBuffer_Release(all[i]);
+    for (int i = 0; i < 14; i++) PyBuffer_Release(&b[i]);
     if (err) return PyErr_NoMemory();
-    Py_RETURN_NONE;
+    return PyLong_FromLongLong((long long)nv);
+}
+
+static int64_t uf_find(int64_t *par, int64_t x) {
+    while (par[x] != x) {
+        par[x] = par[par[x]];
+        x = par[x];
+    }
+    return x;
+}
+
+/* metrics.partition_statistics of a symmetric CSR pattern with strictly increasing rows (every
+ * undirected edge twice, no duplicates): per part the volume (sum of degrees, self loops left out)
+ * and the cut edges; returns (cut, connected components of the graph without the cut edges), the
+ * components by union-find. Returns None when a row is not strictly increasing. */
+static PyObject *py_partition_stats(PyObject *self, PyObject *args) {
+    PyObject *o[5];
+    if (!PyArg_ParseTuple(args, "OOOOO", &o[0], &o[1], &o[2], &o[3], &o[4])) return NULL;
+    const char *names[5] = {"indptr", "indices", "part", "volume", "cut_per_part"};
+    int wr[5] = {0, 0, 0, 1, 1};
+    Py_buffer b[5];
+    int got = 0;
+    for (; got < 5; got++)
+        if (get_buf(o[got], &b[got], wr[got], names[got], 8) < 0) break;
+    if (got < 5) {
+        for (int i = 0; i < got; i++) PyBuffer_Release(&b[i]);
+        return NULL;
+    }
+    const int64_t *ip = (const int64_t *)b[0].buf, *ix = (const int64_t *)b[1].buf, *part = (const int64_t *)b[2].buf;
+    double *vol = (double *)b[3].buf, *cuti = (double *)b[4].buf;
+    Py_ssize_t n = b[0].len / 8 - 1;
+    int64_t cut2 = 0, comps = 0;
+    int err = 0, sorted = 1;
+    Py_BEGIN_ALLOW_THREADS
+    int64_t *par = (int64_t *)malloc((size_t)(n > 0 ? n : 1) * sizeof(int64_t));
+    if (!par) err = 1;
+    for (Py_ssize_t u = 0; u < n && !err; u++) par[u] = u;
+    for (Py_ssize_t u = 0; u < n && !err && sorted; u++) {
+        int64_t pu = part[u], deg = 0;
+        for (int64_t k = ip[u]; k < ip[u + 1]; k++) {
+            int64_t v = ix[k];
+            if (k > ip[u] && v <= ix[k - 1]) { sorted = 0; break; }
+            if (v == u) continue;
+            deg++;
+            if (part[v] != pu) {
+                cut2++;
+                cuti[pu] += 1;
+            } else if (v > u) {
+                int64_t a = uf_find(par, u), c = uf_find(par, v);
+                if (a != c) par[a < c ? c : a] = a < c ? a : c;
+            }
+        }
+        vol[pu] += (double)deg;
+    }
+    if (!err && sorted)
+        for (Py_ssize_t u = 0; u < n; u++)
+            if (uf_find(par, u) == u) comps++;
+    free(par);
+    Py_END_ALLOW_THREADS
+    for (int i = 0; i < 5; i++) PyBuffer_Release(&b[i]);
+    if (err) return PyErr_NoMemory();
+    if (!sorted) Py_RETURN_NONE;
+    return Py_BuildValue("(LL)", (long long)(cut2 / 2), (long long)comps);
 }
 
 static PyMethodDef methods[] = {
@@ -902,13 +1250,18 @@ static PyMethodDef methods[] = {
      "shared and convex (to tol), else 0."},
     {"tri_table", py_tri_table, METH_VARARGS,
      "tri_table(prim, table, centre, radius): per-triangle constants and bounding balls."},
-    {"tri_neighbours", py_tri_neighbours, METH_VARARGS,
-     "tri_neighbours(tri_nodes, prim_ptr, tri_adj): the neighbouring triangle of the same element "
-     "across each edge, or -1."},
+    {"enclosing_balls", py_enclosing_balls, METH_VARARGS,
+     "enclosing_balls(points, ptr, centre, radius): the smallest enclosing ball of each point set."},
+    {"fan3d", py_fan3d, METH_VARARGS,
+     "fan3d(points, elem_offsets, loop_offsets, loop_nodes, prim, centre, prim_ptr, tri_adj, size, "
+     "signed, vpts, v_ptr, bbox_lo, bbox_hi): metrics._prepare's 3D geometry; returns the vertex rows."},
+    {"partition_stats", py_partition_stats, METH_VARARGS,
+     "partition_stats(indptr, indices, part, volume, cut_per_part): (cut, components) of a symmetric "
+     "CSR with strictly increasing rows, or None when a row is not."},
     {NULL, NULL, 0, NULL}};
 
-static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_inscribed3d",
-                                    "Compiled 3D inscribed-ball branch and bound (models.metrics).", -1,
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_fastmetrics",
+                                    "Compiled helpers of models.metrics (see models/_fastmetrics.c).", -1,
                                     methods};
 
-PyMODINIT_FUNC PyInit__inscribed3d(void) { return PyModule_Create(&module); }
+PyMODINIT_FUNC PyInit__fastmetrics(void) { return PyModule_Create(&module); }
