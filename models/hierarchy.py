@@ -470,7 +470,9 @@ def build_hierarchy(
             "boxes": batch.cell_boxes,
             **(model_options or {}),
         }  # the tight cuts, as the flat modes make them
-        levels = rtree_levels(batch, counts, groups=tags, **opts)
+        graphs = []  # the graphs of the levels' elements, for the cavity check
+        levels = rtree_levels(batch, counts, groups=tags, graphs=graphs, **opts)
+        level_graphs = {len(levels) - 1 - j: q for j, q in enumerate(graphs)}
         how = "native"
     else:
         from .agglomerate import agglomerate
@@ -504,7 +506,7 @@ def build_hierarchy(
             levels = [cand[i] for i in pick]
             how = "top-down recursive bisection, recorded"
     levels = [np.asarray(lv, dtype=np.int64) for lv in levels]
-    levels, polys = _fix_holes(mesh, data, levels)
+    levels, polys = _fix_holes(mesh, data, levels, level_graphs if model == "rtree" else None)
     info = {
         "model": model,
         "ratio": float(ratio),
@@ -545,6 +547,33 @@ def _element_graph(graph, labels: np.ndarray):
     G = sp.csr_matrix((np.ones(ea.size, dtype=np.int8), (ea, eb)), shape=(k + 1, k + 1))
     G.sum_duplicates()
     return G
+
+
+def _with_outside(graph, labels: np.ndarray, qptr: np.ndarray, qind: np.ndarray, boundary_cells=None):
+    """_element_graph from the elements' own graph (CSR (qptr, qind) without repeats or self loops,
+    as rtree_levels gives it): the outside node k is appended to the rows of the elements with a
+    boundary face and gets their row; no pass over the fine graph's edges. The same entries as
+    _element_graph's, in the given order within rows (sorted rows give the same CSR; the cavity
+    check's articulation points do not depend on the order). boundary_cells:
+    graph.faces.cell[graph.partner < 0] when already known."""
+    import scipy.sparse as sp
+
+    from .csr import row_pointers
+
+    labels = np.asarray(labels, dtype=np.int64)
+    k = qptr.size - 1
+    if boundary_cells is None:  # the cells with a face on the domain's boundary
+        boundary_cells = graph.faces.cell[graph.partner < 0]
+    on_bnd = np.unique(labels[boundary_cells])
+    touch = np.zeros(k, dtype=bool)
+    touch[on_bnd] = True
+    deg = np.diff(qptr)
+    ptr = row_pointers(np.r_[deg + touch, on_bnd.size])
+    ind = np.empty(int(ptr[-1]), dtype=np.int64)
+    ind[np.repeat(ptr[:k] - qptr[:-1], deg) + np.arange(qind.size)] = qind
+    ind[ptr[1 : k + 1][touch] - 1] = k
+    ind[ptr[k] :] = on_bnd
+    return sp.csr_matrix((np.ones(ind.size, dtype=np.int8), ind, ptr), shape=(k + 1, k + 1))
 
 
 def _coarser_graph(G, node_to: np.ndarray, k: int):
@@ -623,32 +652,44 @@ def cavity_elements(graph, labels: np.ndarray, G=None) -> np.ndarray | None:
 
 
 def _has_voids(mesh: Mesh, graph) -> bool:
-    """3D: does the domain's boundary have more than one shell (a void, or several bodies)?"""
-    from .merge import merge_3d
+    """3D: does the domain's boundary have more than one shell (a void, or several bodies)? The
+    shells of merge_3d's one element, without building the polyhedron."""
+    from .merge import _shells, face_nodes
 
-    _, holes = merge_3d(mesh, graph, np.zeros(mesh.n_cells, dtype=np.int64), np.ones(mesh.n_cells))
-    return bool(holes.elements.size)
+    bf = np.flatnonzero(graph.partner < 0)
+    fo, nodes = face_nodes(graph.faces, bf)
+    return bool(_shells(mesh.points, np.zeros(bf.size, dtype=np.int64), fo, nodes).elements.size)
 
 
-def _fix_holes(mesh: Mesh, data: CellData, levels: list[np.ndarray]) -> tuple[list[np.ndarray], list]:
+def _fix_holes(
+    mesh: Mesh, data: CellData, levels: list[np.ndarray], graphs: dict | None = None
+) -> tuple[list[np.ndarray], list]:
     """Elements that would enclose a hole are replaced by their children (finest: by cells),
     finest level first, so the levels stay nested and every written polygon has one loop.
     Returns the levels and their merged polytopes (for write_hierarchy's `merged`; None where a
     level was checked without merging: 3D domains without voids are checked on the elements' graph
-    (cavity_elements), and the writer merges)."""
+    (cavity_elements), and the writer merges). graphs: level -> the CSR (indptr, indices) of the graph
+    of that level's elements where known (rtree_levels'), no repeats or self loops."""
     from .merge import boundary_faces, merge, merge_2d
 
     out = list(levels)
+    graphs = dict(graphs or {})
     polys = [None] * len(out)
     bf = None  # 2D: the finer level's boundary faces (None: all faces)
     finer = np.arange(mesh.n_cells)
     by_graph = mesh.dim == 3 and not _has_voids(mesh, data.graph)
     G_finer = None  # the finer level's element graph (each level's comes from it, not from the cells)
+    bcells = None  # the cells on the domain's boundary
     for L in range(len(out) - 1, -1, -1):
         if by_graph:
             for _ in range(int(out[L].max()) + 2):
                 k = int(out[L].max()) + 1
-                if G_finer is None:
+                q = graphs.pop(L, None)  # made for the level's labels as given, not a split's
+                if q is not None and q[0].size == k + 1:
+                    if bcells is None:
+                        bcells = data.graph.faces.cell[data.graph.partner < 0]
+                    G = _with_outside(data.graph, out[L], *q, boundary_cells=bcells)
+                elif G_finer is None:
                     G = _element_graph(data.graph, out[L])
                 else:
                     node_to = np.zeros(G_finer.shape[0] - 1, dtype=np.int64)
@@ -693,31 +734,28 @@ def _split_elements(coarse: np.ndarray, bad: np.ndarray, finer: np.ndarray) -> n
     return compact_labels(coarse)
 
 
-_TRIPLES = None  # (1000, 3) ASCII codes of 000..999
+_TRIPLES = None  # (3000,) three-character codes: 0..999 blank-led ("  0" for 0), zero-padded, blank-led ("   " for 0)
 
 
 def _digits(v: np.ndarray, width: int) -> np.ndarray:
-    """(N, width) ASCII codes of the non-negative integers v, right-aligned with blanks (three digits
-    at a time from a table, then the leading zeros blanked)."""
+    """(N, width) ASCII codes of the non-negative integers v, right-aligned with blanks: three digits
+    at a time from a table, the block holding a number's leading digit (and blocks above it) from the
+    table with leading blanks, the blocks below it zero-padded (no pass to blank leading zeros)."""
     global _TRIPLES
     if _TRIPLES is None:
-        _TRIPLES = np.frombuffer("".join(f"{i:03d}" for i in range(1000)).encode("ascii"), np.uint8).reshape(
-            1000, 3
-        )
+        text = "".join(f"{i:3d}" for i in range(1000)) + "".join(f"{i:03d}" for i in range(1000))
+        text += "   " + "".join(f"{i:3d}" for i in range(1, 1000))
+        _TRIPLES = np.frombuffer(text.encode("ascii"), np.uint8).view("V3")
     v = np.asarray(v, dtype=np.int64)
     nb = -(-width // 3)
     chars = np.empty((v.size, nb), dtype="V3")
-    table = _TRIPLES.view("V3").ravel()
     rest = v
-    for j in range(nb - 1, -1, -1):  # a loop over blocks of three digits
+    for j in range(nb - 1, -1, -1):  # a loop over blocks of three digits, lowest first
         rest, blk = np.divmod(rest, 1000)
-        chars[:, j] = table[blk]
-    chars = chars.view(np.uint8).reshape(v.size, 3 * nb)[:, 3 * nb - width :]
-    nd = np.ones(v.size, dtype=np.int64)  # digits of each number
-    for e in range(1, width):  # a loop over powers of ten
-        nd += v >= 10**e
-    chars = np.where(np.arange(width)[None, :] < (width - nd)[:, None], np.uint8(ord(" ")), chars)
-    return chars
+        # digits above this block: zero-padded; none: blank-led (the lowest block writes 0 as "  0")
+        blk += np.where(rest > 0, 1000, 0 if j == nb - 1 else 2000)
+        chars[:, j] = _TRIPLES[blk]
+    return chars.view(np.uint8).reshape(v.size, 3 * nb)[:, 3 * nb - width :]
 
 
 def _int_list_json(values: np.ndarray) -> str:

@@ -186,17 +186,22 @@ def merge_3d(
     e = labels[f.cell[bf]]
     order = np.argsort(e, kind="stable")
     bf, e = bf[order], e[order]
-    sizes = np.diff(f.offsets)[bf]
-    fo = np.zeros(bf.size + 1, dtype=np.int64)
-    np.cumsum(sizes, out=fo[1:])
-    src = np.repeat(f.offsets[bf] - fo[:-1], sizes) + np.arange(fo[-1])
-    nodes = f.nodes[src]
+    fo, nodes = face_nodes(f, bf)
     n_elem = int(labels.max()) + 1
     per_elem = np.bincount(e, minlength=n_elem)
     elem_offsets = np.zeros(n_elem + 1, dtype=np.int64)
     np.cumsum(per_elem, out=elem_offsets[1:])
     holes = _shells(mesh.points, e, fo, nodes)
     return _polymesh(mesh, elem_offsets, fo, nodes, labels, measures), holes
+
+
+def face_nodes(faces, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(offsets, nodes) of the faces `ids`, in that order (a CSR of their vertex lists)."""
+    sizes = np.diff(faces.offsets)[ids]
+    fo = np.zeros(ids.size + 1, dtype=np.int64)
+    np.cumsum(sizes, out=fo[1:])
+    src = np.repeat(faces.offsets[ids] - fo[:-1], sizes) + np.arange(fo[-1])
+    return fo, faces.nodes[src]
 
 
 def _shells(points, face_elem, fo, nodes) -> Holes:

@@ -195,3 +195,47 @@ def test_level_vtus_with_the_shared_points_are_write_vtus_own(tmp_path, dim):
         assert (tmp_path / "given.vtu").read_bytes() == (tmp_path / "own.vtu").read_bytes()
     assert _same_points(polys[0], polys[-1])
     assert not _same_points(polys[0], dataclasses.replace(polys[-1], points=polys[-1].points + 1.0))
+
+
+def test_element_graph_from_the_rtree_quotient_is_the_cells_one():
+    """_fix_holes takes the levels' element graphs from rtree_levels (outside node appended, in the
+    numbering of the returned levels) instead of a pass over the cells' graph: the same entries row
+    by row. And _has_voids finds a void (cells removed inside the cube) as merging does."""
+    from models.hierarchy import _element_graph, _has_voids, _with_outside
+    from models.partitioners.base import GraphBatch
+    from models.partitioners.rtree import level_counts, rtree_levels
+    from models.pipeline import prepare
+
+    p, t = tets(6)
+    mesh = mesh_from_arrays(p, [("tetra", t)])
+    graph, data = prepare(mesh)
+    n = mesh.n_cells
+    batch = GraphBatch(
+        indptr=graph.indptr,
+        indices=graph.indices,
+        weights=graph.weights,
+        graph_ptr=np.array([0, n]),
+        centroids=data.centroids,
+        measures=data.measures,
+        tags=data.tags,
+        node_ids=np.arange(n),
+    )
+    graphs = []
+    levels = rtree_levels(batch, level_counts(n, 4, 4), graphs=graphs)
+    assert len(graphs) == len(levels) - 1
+    for lab, (qp, qi) in zip(levels[::-1], graphs, strict=False):
+        a, b = _element_graph(graph, lab), _with_outside(graph, lab, qp, qi)
+        b.sort_indices()  # rows renumbered along the sweep keep their entries' order
+        assert np.array_equal(a.indptr, b.indptr) and np.array_equal(a.indices, b.indices)
+    inner = np.all(np.abs(data.centroids - 0.5) < 1 / 6, axis=1)
+    hollow = mesh_from_arrays(p, [("tetra", t[~inner])])
+    assert _has_voids(hollow, prepare(hollow)[0]) and not _has_voids(mesh, graph)
+
+
+def test_digits_are_pythons_right_aligned_format():
+    from models.hierarchy import _digits
+
+    rng = np.random.default_rng(3)
+    for v in (np.array([0, 7, 10, 99, 100, 999, 1000, 1001, 123456, 10**6]), rng.integers(0, 10**10, 5000)):
+        for width in range(len(str(int(v.max()))), len(str(int(v.max()))) + 4):
+            assert _digits(v, width).tobytes().decode("ascii") == "".join(f"{x:{width}d}" for x in v)

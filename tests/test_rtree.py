@@ -170,3 +170,54 @@ def test_stable_argsort_is_the_stable_sort():
         np.zeros(0),
     ):
         assert np.array_equal(_stable_argsort(v), np.argsort(v, kind="stable"))
+
+
+def test_split_counts_keeps_every_part_sorted_along_each_axis():
+    """The halving steps partition the per-axis orders in place (no sort per step): afterwards every
+    part's range of each order is exactly the stable sort of its cells along that axis, and the
+    labels are the parts' cells (checked with ties: coordinates on a coarse grid)."""
+    from models.partitioners.rtree import _Segments
+
+    rng = np.random.default_rng(1)
+    x = np.round(rng.random((3000, 3)) * 12) / 12  # many ties per axis
+    lo, hi = x - rng.random((3000, 3)) * 0.05, x + rng.random((3000, 3)) * 0.05
+    grp = (x[:, 2] > 0.5).astype(np.int64)
+    seg = _Segments(x, grp, 2)
+    lab = split_counts(grp, np.array([23, 14]), x, rng.random(3000) + 0.5, lo, hi, segments=seg)
+    assert lab.max() + 1 == 37 and np.bincount(lab).min() >= 1
+    for p in range(37):
+        cells = seg.P[0, seg.start[p] : seg.start[p] + seg.size[p]]
+        assert np.array_equal(np.sort(cells), np.flatnonzero(lab == p))
+        for d in range(3):
+            rng_d = seg.P[d, seg.start[p] : seg.start[p] + seg.size[p]]
+            ref = np.flatnonzero(lab == p)
+            ref = ref[np.lexsort((ref, x[ref, d]))]  # by coordinate, ties by cell id (the stable order)
+            assert np.array_equal(rng_d, ref)
+
+
+def test_updated_pieces_equal_a_fresh_pass(brain):
+    """make_connected finds pieces again only in the parts that gained or lost cells; that must give
+    the numbering one pass over all cells gives (main pieces are chosen by it on ties)."""
+    from models.partitioners.rtree import _label_pieces, _update_pieces
+
+    m, g, d = brain
+    rng = np.random.default_rng(2)
+    lab = split_counts(np.zeros(m.n_cells, dtype=np.int64), np.array([300]), d.centroids, d.measures)
+    nc, comp = _label_pieces(g.indptr, g.indices, lab)
+    assert nc == pieces(g, lab)
+    first = np.array([np.flatnonzero(comp == c)[0] for c in range(nc)])
+    assert np.all(np.diff(first) > 0)  # numbered by first cell
+    clab = np.empty(nc, dtype=np.int64)
+    clab[comp] = lab
+    for _ in range(3):
+        new = lab.copy()
+        moved = rng.choice(m.n_cells, 200, replace=False)
+        new[moved] = lab[rng.choice(m.n_cells, 200)]  # cells jump into other parts: pieces appear
+        n2, comp2, first2 = _update_pieces(g.indptr, g.indices, new, lab, comp, clab, first)
+        n_ref, comp_ref = _label_pieces(g.indptr, g.indices, new)
+        assert n2 == n_ref and n2 > nc and np.array_equal(comp2, comp_ref)
+        assert np.array_equal(
+            first2, np.flatnonzero(np.r_[True, np.diff(np.maximum.accumulate(comp_ref)) > 0])
+        )
+    same = _update_pieces(g.indptr, g.indices, lab, lab.copy(), comp, clab, first)
+    assert same[0] == nc and same[1] is comp

@@ -20,7 +20,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from ..csr import kept_pointers
+from ..csr import kept_pointers, row_pointers, run_starts
 from ..errors import ParameterError
 from .base import GraphBatch, Partitioner
 
@@ -78,7 +78,11 @@ def _stable_by(keys: np.ndarray, k: int, order: np.ndarray) -> np.ndarray:
 
 def _stable_argsort(v: np.ndarray) -> np.ndarray:
     """np.argsort(v, kind="stable"): without ties (and NaNs) that is the quicksort's order, which is
-    4x faster on floats; with ties, the stable sort."""
+    4x faster on floats; with ties, the stable sort (straight away when a sample of ~2000 values
+    already has ties, as structured meshes' coordinates do)."""
+    sample = v[:: max(1, v.size // 2048)]
+    if np.unique(sample).size < sample.size:  # ties among a sample of the values: no quicksort first
+        return np.argsort(v, kind="stable")
     o = np.argsort(v)
     vs = v[o]
     if vs.size and (bool((vs[1:] == vs[:-1]).any()) or np.isnan(vs[-1])):
@@ -93,16 +97,30 @@ class _Segments:
 
     def __init__(self, x: np.ndarray, grp: np.ndarray, k: int, axis_orders: list[np.ndarray] | None = None):
         n, dim = x.shape
-        idx = np.int32 if n < 2**31 else np.int64
         if axis_orders is None:
             axis_orders = [_stable_argsort(x[:, d]) for d in range(dim)]
         self.axis_orders = axis_orders
-        self.P = np.empty((dim, n), dtype=idx)
+        # int64, not int32: the cell ids are used as indices, and numpy converts int32 index arrays
+        # on every gather and scatter (the cuts of the 1M cube 0.9x the CPU with int64)
+        self.P = np.empty((dim, n), dtype=np.int64)
         for d in range(dim):
             self.P[d] = _stable_by(grp, k, axis_orders[d])
         self.size = np.bincount(grp, minlength=k).astype(np.int64)
         self.start = np.zeros(k, dtype=np.int64)
         np.cumsum(self.size[:-1], out=self.start[1:])
+        self._bounds = None
+
+    def bounds(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """The cells' boxes (N, dim) as one (dim * N,) complex array, axis by axis (cell c's bounds
+        along axis d at d * N + c: lower bound real, upper imaginary), so that one gather fetches both
+        (made once per pair of arrays)."""
+        if self._bounds is None or self._bounds[0] is not lo or self._bounds[1] is not hi:
+            n, dim = lo.shape
+            lh = np.empty((dim, n), dtype=np.complex128)
+            lh.real = lo.T
+            lh.imag = hi.T
+            self._bounds = (lo, hi, lh.reshape(-1))
+        return self._bounds[2]
 
 
 def split_counts(
@@ -132,8 +150,8 @@ def split_counts(
     root = np.arange(k0)
     need = np.minimum(need, np.maximum(size, 1))
     tight = cell_lo is not None and slack > 0
-    if tight:
-        lo_f, hi_f = np.ascontiguousarray(cell_lo).reshape(-1), np.ascontiguousarray(cell_hi).reshape(-1)
+    if tight:  # the boxes' bounds axis by axis: (dim * N,), axis d at d * N
+        lh_t = seg.bounds(cell_lo, cell_hi)
     side = np.zeros(n, dtype=bool)
     while True:
         act = np.flatnonzero(need > 1)
@@ -145,14 +163,15 @@ def split_counts(
         np.cumsum(a_size, out=a_off[1:])
         tot = int(a_off[-1])
         s0, e1 = a_off[:-1], a_off[1:] - 1
-        r = np.arange(tot) - np.repeat(s0, a_size)  # rank inside the part
-        pos = np.repeat(a_start, a_size) + r  # position in the orders
         first, last = a_start, a_start + a_size - 1
         ext = np.column_stack([x[P[d, last], d] - x[P[d, first], d] for d in range(dim)])
         axis = np.argmax(ext, axis=1)
         length = ext[np.arange(na), axis]
-        ax_pos = np.repeat(axis, a_size)
-        chosen = Pf[ax_pos * n + pos]  # cells of the active parts, sorted along their part's axis
+        ar = np.arange(tot)
+        pos = np.repeat(a_start - s0, a_size)  # position in the orders of each cell of the active parts
+        pos += ar
+        ax_n = np.repeat(axis * n, a_size)
+        chosen = Pf[ax_n + pos]  # cells of the active parts, sorted along their part's axis
         ws = w[chosen]
         cum = np.cumsum(ws)
         base = cum[s0] - ws[s0]  # measure before each part
@@ -165,34 +184,20 @@ def split_counts(
         target = base + m1 / np.maximum(m, 1) * vol
         cut = np.searchsorted(mid, target) - s0  # cells whose middle lies below the quantile
         if tight:
-            cut = _tight_cut(
-                chosen,
-                ax_pos,
-                dim,
-                lo_f,
-                hi_f,
-                mid,
-                target,
-                vol / np.maximum(m, 1) * slack,
-                s0,
-                e1,
-                cut,
-                slack,
-            )
+            ax_n += chosen
+            cut = _tight_cut(ax_n, lh_t, mid, target, vol / np.maximum(m, 1) * slack, s0, e1, cut, slack)
         n0 = np.clip(cut, m1, a_size - (m - m1))  # both sides keep at least as many cells as parts
-        n0_rep = np.repeat(n0, a_size)
-        side[chosen[r >= n0_rep]] = True
+        mask1 = ar >= np.repeat(s0 + n0, a_size)  # side 1: ranks n0 onwards along the part's axis
+        side[chosen[mask1]] = True
+        pos0, pos1 = pos[~mask1], pos[mask1]
         # stable partition of every axis order inside each active range: side 0 first, then side 1
-        it = np.int32 if n < 2**31 else np.int64
-        r_i, n0_i, pr = r.astype(it), n0_rep.astype(it), (pos - r).astype(it)
         for d in range(dim):  # a loop over the axes
             V = P[d, pos]
             S = side[V]
-            ex = np.cumsum(S, dtype=it)
-            ex -= S  # side-1 cells before, from the first active position
-            before1 = ex - np.repeat(ex[s0], a_size)
-            P[d, pr + np.where(S, n0_i + before1, r_i - before1)] = V
-        side[V] = False
+            P[d, pos1] = V[S]
+            np.logical_not(S, out=S)
+            P[d, pos0] = V[S]
+        side.fill(False)
         start = np.concatenate([start, a_start + n0])
         size = np.concatenate([size, a_size - n0])
         size[act] = n0
@@ -210,11 +215,13 @@ def split_counts(
     return labels
 
 
-def _tight_cut(chosen, ax_pos, dim, lo_f, hi_f, mid, target, window, s0, e1, cut, slack):
-    """Per part (positions s0..e1 of `chosen`, sorted along the cut axis), the cut (cells before it go
-    to side 0) whose middle measure lies within `window` of the quantile `target`, minimising the
-    overlap of the two sides' extents along the axis (first of the smallest; `cut` where none).
-    Only the window's positions are looked at one by one; the rest of a part by one reduceat each side."""
+def _tight_cut(idx, lh_t, mid, target, window, s0, e1, cut, slack):
+    """Per part (positions s0..e1 of the active cells, sorted along the part's cut axis), the cut
+    (cells before it go to side 0) whose middle measure lies within `window` of the quantile `target`,
+    minimising the overlap of the two sides' extents along the axis (first of the smallest; `cut`
+    where none). idx: each active cell's bounds in lh_t (axis * N + cell; lower bound real, upper
+    imaginary). Only the window's
+    positions are looked at one by one; the rest of a part by one reduceat each side."""
     na = s0.size
     wl = np.maximum(np.searchsorted(mid, target - window, side="left"), s0)
     wh = np.minimum(np.searchsorted(mid, target + window, side="right"), e1)  # the cut after e1 is no cut
@@ -222,12 +229,12 @@ def _tight_cut(chosen, ax_pos, dim, lo_f, hi_f, mid, target, window, s0, e1, cut
     W = int(wlen.sum())
     if W == 0:
         return cut
-    idx = chosen * dim + ax_pos
     # the cells' extents along their part's axis, each padded with one empty bound for the reduceats
     hi_pad = np.empty(idx.size + 1)
     lo_pad = np.empty(idx.size + 1)
-    np.take(hi_f, idx, out=hi_pad[:-1])
-    np.take(lo_f, idx, out=lo_pad[:-1])
+    both = np.take(lh_t, idx)  # one gather of both bounds (16 bytes), then two contiguous copies
+    hi_pad[:-1] = both.imag
+    lo_pad[:-1] = both.real
     hi_pad[-1], lo_pad[-1] = -np.inf, np.inf
     vhi, vlo = hi_pad[:-1], lo_pad[:-1]
     span = float(max(vhi.max() - vlo.min(), 1e-300))
@@ -262,7 +269,7 @@ def _tight_cut(chosen, ax_pos, dim, lo_f, hi_f, mid, target, window, s0, e1, cut
 
 
 def _grow_from_mains(
-    rows: np.ndarray, cols: np.ndarray, labels: np.ndarray, frag: np.ndarray, par: np.ndarray
+    indptr: np.ndarray, cols: np.ndarray, labels: np.ndarray, frag: np.ndarray, par: np.ndarray
 ) -> np.ndarray:
     """Labels where every fragment cell takes the label of the nearest main-piece cell (hops through
     fragment cells of the same parent; the shortest-path tree keeps each region connected to its
@@ -270,11 +277,14 @@ def _grow_from_mains(
     from scipy.sparse.csgraph import dijkstra
 
     n = labels.size
-    e = frag[cols] & (par[rows] == par[cols])  # into fragment cells only, inside one parent
-    src = np.unique(rows[e & ~frag[rows]])
+    e = np.flatnonzero(frag[cols])  # into fragment cells only (few), inside one parent
+    a, b = _edge_rows(indptr, e), cols[e]
+    keep = par[a] == par[b]
+    a, b = a[keep], b[keep]
+    src = np.unique(a[~frag[a]])
     if src.size == 0:
         return labels
-    g = sp.csr_matrix((np.ones(int(e.sum())), (rows[e], cols[e])), shape=(n, n))
+    g = sp.csr_matrix((np.ones(a.size), (a, b)), shape=(n, n))
     _, _, source = dijkstra(
         g, directed=True, indices=src, unweighted=True, min_only=True, return_predecessors=True
     )
@@ -282,6 +292,67 @@ def _grow_from_mains(
     hit = frag & (source >= 0)
     out[hit] = labels[source[hit]]
     return out
+
+
+def _edge_rows(indptr: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """The row of each entry `e` of a CSR (a search per entry: no (nnz,) array of rows)."""
+    return np.searchsorted(indptr, e, side="right") - 1
+
+
+def _small_labels(labels: np.ndarray) -> np.ndarray:
+    """labels as int32 when they fit (half the memory traffic of the (nnz,) arrays made from them)."""
+    return labels.astype(np.int32) if labels.size and labels.max() < 2**31 else labels
+
+
+def _label_pieces(
+    indptr: np.ndarray, indices: np.ndarray, labels: np.ndarray, cells: np.ndarray | None = None
+) -> tuple[int, np.ndarray]:
+    """Connected pieces of the parts `labels` (edges inside a part only) over all cells, or over
+    `cells` (increasing ids, whole parts only): (number, piece of each cell). Pieces are numbered
+    in the order of their first cell (scipy's numbering: one scan over the nodes)."""
+    if cells is None:
+        ptr, nb = indptr, indices
+        lab = _small_labels(labels)
+        same = np.repeat(lab, np.diff(indptr)) == lab[indices]
+        m = labels.size
+    else:  # the rows of `cells` only, renumbered 0..len(cells)-1
+        deg = indptr[cells + 1] - indptr[cells]
+        ptr = row_pointers(deg)
+        nb = indices[np.repeat(indptr[cells] - ptr[:-1], deg) + np.arange(ptr[-1])]
+        same = np.repeat(labels[cells], deg) == labels[nb]
+        m = cells.size
+    ptr = kept_pointers(same, ptr)
+    nb = nb[same]
+    if cells is not None:
+        loc = np.empty(labels.size, dtype=np.int64)
+        loc[cells] = np.arange(m)
+        nb = loc[nb]
+    g = sp.csr_matrix((np.ones(nb.size, dtype=np.int8), nb, ptr), shape=(m, m))
+    return connected_components(g, directed=False)
+
+
+def _update_pieces(indptr, indices, labels, before, comp, clab, first_cell):
+    """The pieces after `before` became `labels`: those of parts that gained or lost cells found
+    again, the others kept; all numbered by their first cell as one pass over all cells would
+    (_label_pieces). Returns (number, piece of each cell, first cell of each piece)."""
+    changed = before != labels
+    if not changed.any():
+        return first_cell.size, comp, first_cell
+    dirty = np.zeros(int(max(before.max(), labels.max())) + 1, dtype=bool)
+    dirty[before[changed]] = True
+    dirty[labels[changed]] = True
+    cells = np.flatnonzero(dirty[labels])
+    nd, cd = _label_pieces(indptr, indices, labels, cells)
+    keep = np.flatnonzero(~dirty[clab])  # pieces of untouched parts, unchanged
+    firsts = np.concatenate([first_cell[keep], cells[np.flatnonzero(run_starts(np.maximum.accumulate(cd)))]])
+    order = np.argsort(firsts)
+    rank = np.empty(order.size, dtype=np.int64)
+    rank[order] = np.arange(order.size)
+    renum = np.full(clab.size, -1, dtype=np.int64)
+    renum[keep] = rank[: keep.size]
+    out = renum[comp]
+    out[cells] = rank[keep.size + cd]
+    return order.size, out, firsts[order]
 
 
 def make_connected(
@@ -301,33 +372,36 @@ def make_connected(
     labels = np.asarray(labels, dtype=np.int64).copy()
     mes = np.ones(n) if measures is None else np.asarray(measures, dtype=np.float64)
     par = np.zeros(n, dtype=np.int64) if parent is None else np.asarray(parent, dtype=np.int64)
-    rows = np.repeat(np.arange(n), np.diff(indptr))
+    deg = np.diff(indptr)
     moved_total = 0
     free = parent is None
     rnd = 0
+    comp = clab = first_cell = None  # the last round's pieces (numbered by their first cell), their labels
+    before = labels  # the labels those pieces were found for
     while rnd < max_rounds:  # in practice 1 to 3 rounds
-        same = labels[rows] == labels[indices]
-        # the rows stay sorted: the same-label graph as CSR without a COO conversion
-        sp_ptr = kept_pointers(same, indptr)
-        g = sp.csr_matrix((np.ones(sp_ptr[-1], dtype=np.int8), indices[same], sp_ptr), shape=(n, n))
-        nc, comp = connected_components(g, directed=False)
+        if comp is None:
+            nc, comp = _label_pieces(indptr, indices, labels)
+            first_cell = np.flatnonzero(run_starts(np.maximum.accumulate(comp)))
+        elif before is not labels:  # only parts that gained or lost cells have new pieces
+            nc, comp, first_cell = _update_pieces(indptr, indices, labels, before, comp, clab, first_cell)
+        before = labels
         k = int(labels.max()) + 1
         if nc == k:
             break
         cm = np.bincount(comp, weights=mes, minlength=nc)
         clab = np.empty(nc, dtype=np.int64)
         clab[comp] = labels
-        # main piece of each part: largest measure (ties: lowest piece id)
-        o = np.lexsort((-cm, clab))  # stable: ties keep the lowest piece id
-        first = o[np.r_[True, clab[o][1:] != clab[o][:-1]]]
-        main = np.zeros(nc, dtype=bool)
-        main[first] = True
+        # main piece of each part: largest measure (ties: lowest piece id); parts of one piece: it
+        main = np.bincount(clab, minlength=k)[clab] == 1
+        multi = np.flatnonzero(~main)
+        o = multi[np.lexsort((-cm[multi], clab[multi]))]  # stable: ties keep the lowest piece id
+        main[o[run_starts(clab[o])]] = True
         frag_cell = ~main[comp]
         # edges leaving fragment cells into another part of the same parent (as indices: fragments are few)
-        e = np.flatnonzero(frag_cell[rows])
-        a, b = rows[e], indices[e]
-        e = e[(labels[a] != labels[b]) & (par[a] == par[b])]
-        a, b = rows, indices
+        e = np.flatnonzero(np.repeat(frag_cell, deg))
+        a, b = _edge_rows(indptr, e), indices[e]
+        keep = (labels[a] != labels[b]) & (par[a] == par[b])
+        e, a, b = e[keep], a[keep], b[keep]  # the edges' rows and columns
         if e.size == 0:
             if free:
                 break
@@ -336,7 +410,7 @@ def make_connected(
         if rnd >= 1:
             # what is left after one round: every fragment cell joins the main piece it reaches first
             # through fragment cells of its parent (one multi-source BFS), so one pass connects all
-            new = _grow_from_mains(rows, indices, labels, frag_cell, par)
+            new = _grow_from_mains(indptr, indices, labels, frag_cell, par)
             if np.array_equal(new, labels):
                 if free:
                     break
@@ -347,8 +421,9 @@ def make_connected(
             rnd += 1
             continue
         # interface weight per (fragment piece, neighbour label); main pieces of neighbours count double
-        bonus = np.where(main[comp[b[e]]], 2.0, 1.0)
-        key_p, key_l = comp[a[e]], labels[b[e]]
+        to_main = main[comp[b]]
+        bonus = np.where(to_main, 2.0, 1.0)
+        key_p, key_l = comp[a], labels[b]
         m = sp.coo_matrix((weights[e] * bonus + 1e-12, (key_p, key_l)), shape=(nc, k)).tocsr()
         m.sum_duplicates()
         r = np.repeat(np.arange(nc), np.diff(m.indptr))
@@ -358,8 +433,7 @@ def make_connected(
         target[r[best]] = m.indices[best]
         # only pieces touching a main piece move this round (they then join a connected part)
         touches_main = np.zeros(nc, dtype=bool)
-        em = e[main[comp[b[e]]]]
-        touches_main[comp[a[em]]] = True
+        touches_main[comp[a[to_main]]] = True
         go = (target >= 0) & ~main & (touches_main | ~touches_main.any())
         if not go.any():
             if free:
@@ -367,6 +441,7 @@ def make_connected(
             free, par, rnd = True, np.zeros(n, dtype=np.int64), 0
             continue
         mv = go[comp]
+        labels = labels.copy()
         labels[mv] = target[comp[mv]]
         moved_total += int(go.sum())
         rnd += 1
@@ -393,8 +468,9 @@ def cut_and_connect(
 
 def _quotient(indptr: np.ndarray, indices: np.ndarray, weights: np.ndarray, labels: np.ndarray, k: int):
     """CSR (indptr, indices, summed weights) of the graph of the parts `labels` (0..k-1)."""
-    rows = np.repeat(labels, np.diff(indptr))
-    cols = labels[indices]
+    lab = _small_labels(labels)
+    rows = np.repeat(lab, np.diff(indptr))
+    cols = lab[indices]
     off = rows != cols
     q = sp.csr_matrix((weights[off], (rows[off], cols[off])), shape=(k, k))
     q.sum_duplicates()
@@ -403,33 +479,43 @@ def _quotient(indptr: np.ndarray, indices: np.ndarray, weights: np.ndarray, labe
 
 def components(batch: GraphBatch, within: np.ndarray | None = None) -> np.ndarray:
     """Connected components of the batch graph (only edges inside equal `within` labels)."""
+    from scipy.sparse.csgraph import breadth_first_order
+
     n = batch.n_nodes
     indptr, indices = batch.indptr, batch.indices
     if within is not None:  # keep the CSR rows: the filtered graph without a COO conversion
         keep = np.repeat(within, np.diff(indptr)) == within[indices]
         indptr = kept_pointers(keep, indptr)
         indices = indices[keep]
-    g = sp.csr_matrix((np.ones(indices.size, dtype=np.int8), indices, indptr), shape=(n, n))
+    g = sp.csr_matrix((np.ones(indices.size), indices, indptr), shape=(n, n))
+    if n == 0 or breadth_first_order(g, 0, directed=True, return_predecessors=False).size == n:
+        return np.zeros(n, dtype=np.int64)  # cell 0 reaches every cell: one component (no transpose)
     return connected_components(g, directed=False)[1].astype(np.int64)
 
 
 def cell_boxes(
     points: np.ndarray, offsets: np.ndarray, connectivity: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(C, dim) lower and upper corners of every cell's vertices (vectorized reduceat)."""
+    """(C, dim) lower and upper corners of every cell's vertices (vectorized reduceat). One cell type:
+    made axis by axis, so the arrays are column-major ((dim, C) contiguous, as the cuts read them)."""
     pts = np.asarray(points, dtype=np.float64)
     sizes = np.diff(offsets)
     if (
         sizes.size and sizes.min() == sizes.max() and offsets[0] == 0 and connectivity.size == offsets[-1]
-    ):  # one cell type: a (C, nv, dim) block, no reduceat
+    ):  # one cell type: the vertices' coordinates one axis at a time, no reduceat
         nv = int(sizes[0])
-        lo = pts[connectivity[0::nv]].copy()
-        hi = lo.copy()
-        for j in range(1, nv):  # a loop over the cell's vertices
-            q = pts[connectivity[j::nv]]
-            np.minimum(lo, q, out=lo)
-            np.maximum(hi, q, out=hi)
-        return lo, hi
+        dim = pts.shape[1]
+        lo = np.empty((dim, sizes.size))
+        hi = np.empty((dim, sizes.size))
+        for d in range(dim):  # a loop over the axes
+            col = np.ascontiguousarray(pts[:, d])
+            np.take(col, connectivity[0::nv], out=lo[d])
+            hi[d] = lo[d]
+            for j in range(1, nv):  # a loop over the cell's vertices
+                q = col[connectivity[j::nv]]
+                np.minimum(lo[d], q, out=lo[d])
+                np.maximum(hi[d], q, out=hi[d])
+        return lo.T, hi.T
     p = pts[connectivity]
     starts = np.asarray(offsets[:-1], dtype=np.int64)
     return np.minimum.reduceat(p, starts, axis=0), np.maximum.reduceat(p, starts, axis=0)
@@ -442,6 +528,7 @@ def rtree_levels(
     balance: str = "measure",
     boxes: tuple | None = None,
     slack: float = SLACK,
+    graphs: list | None = None,
 ) -> list[np.ndarray]:
     """Nested labels for the element counts `counts` (coarsest first), each level connected.
 
@@ -452,7 +539,10 @@ def rtree_levels(
     of each level are unions of the finer level's: exactly nested, every element connected. With
     more than one level, every level's elements are numbered along the domain's principal axis
     (_sweep_key); a single level keeps the cuts' tree order.
-    groups: optional (N,) labels (e.g. physical groups) no element may cross."""
+    groups: optional (N,) labels (e.g. physical groups) no element may cross.
+    graphs: a list that receives the CSR (indptr, indices) of the graph of each level's elements in
+    the numbering of the returned labels (finest first, all levels but the coarsest; no repeats, no
+    self loops; rows sorted where no sweep renumbered them)."""
     w = batch.measures if balance == "measure" else np.ones(batch.n_nodes)
     w = np.asarray(w, dtype=np.float64)
     wp = np.maximum(w, 1e-300)
@@ -492,6 +582,8 @@ def rtree_levels(
         if sweep:
             node_s = np.bincount(node_lab, weights=node_s, minlength=k_f)
             rank[L + 1] = _sweep_rank(node_s / np.maximum(node_w, 1e-300))
+        if graphs is not None:  # in the numbering of the returned labels
+            graphs.append((qp, qi) if not sweep else _renamed(qp, qi, rank[L + 1]))
         maps[L] = lab
         node_lab = lab
     if sweep:
@@ -509,6 +601,17 @@ def rtree_levels(
             m[rank[L + 1]] = rank[L][maps[L]]
         out[L] = m[out[L + 1]]
     return out
+
+
+def _renamed(indptr: np.ndarray, indices: np.ndarray, rank: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The CSR graph with node i renamed rank[i]: rows moved, columns renamed (each row's entries
+    keep their order, so rows are not sorted)."""
+    inv = np.empty_like(rank)
+    inv[rank] = np.arange(rank.size)
+    deg = np.diff(indptr)[inv]
+    ptr = row_pointers(deg)
+    src = np.repeat(indptr[:-1][inv] - ptr[:-1], deg) + np.arange(ptr[-1])
+    return ptr, rank[indices[src]]
 
 
 def _sweep_key(x: np.ndarray, w: np.ndarray) -> np.ndarray:
