@@ -624,6 +624,22 @@ static int get_buf(PyObject *o, Py_buffer *b, int writable, const char *name, Py
     return 0;
 }
 
+/* all n buffers (item size sizes[i], or 8 without sizes; writable where wr[i]), or none: on a
+ * failure the ones taken are released and -1 returned with the exception set */
+static int get_bufs(PyObject *const *objs, Py_buffer *const *all, int n, const char *const *names,
+                    const Py_ssize_t *sizes, const int *wr) {
+    for (int got = 0; got < n; got++)
+        if (get_buf(objs[got], all[got], wr[got], names[got], sizes ? sizes[got] : 8) < 0) {
+            for (int i = 0; i < got; i++) PyBuffer_Release(all[i]);
+            return -1;
+        }
+    return 0;
+}
+
+static void release_bufs(Py_buffer *const *all, int n) {
+    for (int i = 0; i < n; i++) PyBuffer_Release(all[i]);
+}
+
 static PyObject *py_inscribed(PyObject *self, PyObject *args) {
     PyObject *oT, *oadj, *optr, *oel, *odiam, *olo, *ohi, *oor, *ocen, *orad, *oev;
     double rel_tol;
@@ -638,13 +654,7 @@ static PyObject *py_inscribed(PyObject *self, PyObject *args) {
                              "orient", "centres", "radius", "evals"};
     Py_ssize_t sizes[11] = {8, 8, 8, 8, 8, 8, 8, 1, 8, 8, 8};
     int wr[11] = {0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1};
-    int got = 0;
-    for (; got < 11; got++)
-        if (get_buf(objs[got], all[got], wr[got], names[got], sizes[got]) < 0) break;
-    if (got < 11) {
-        for (int i = 0; i < got; i++) PyBuffer_Release(all[i]);
-        return NULL;
-    }
+    if (get_bufs(objs, all, 11, names, sizes, wr) < 0) return NULL;
     const double *prim = (const double *)bT.buf;
     const int64_t *adj = (const int64_t *)badj.buf;
     const int64_t *ptr = (const int64_t *)bptr.buf;
@@ -685,7 +695,7 @@ static PyObject *py_inscribed(PyObject *self, PyObject *args) {
     free(E.T);
     free(H.a);
     free(P.a);
-    for (int i = 0; i < 11; i++) PyBuffer_Release(all[i]);
+    release_bufs(all, 11);
     if (err) return PyErr_NoMemory();
     Py_RETURN_NONE;
 }
@@ -700,13 +710,7 @@ static PyObject *py_farthest_pairs(PyObject *self, PyObject *args) {
     PyObject *objs[5] = {op, optr, oi, oj, od};
     const char *names[5] = {"points", "v_ptr", "first", "second", "diameter"};
     int wr[5] = {0, 0, 1, 1, 1};
-    int got = 0;
-    for (; got < 5; got++)
-        if (get_buf(objs[got], all[got], wr[got], names[got], 8) < 0) break;
-    if (got < 5) {
-        for (int i = 0; i < got; i++) PyBuffer_Release(all[i]);
-        return NULL;
-    }
+    if (get_bufs(objs, all, 5, names, NULL, wr) < 0) return NULL;
     const double *P = (const double *)bp.buf;
     const int64_t *ptr = (const int64_t *)bptr.buf;
     int64_t *fi = (int64_t *)bi.buf, *fj = (int64_t *)bj.buf;
@@ -729,7 +733,7 @@ static PyObject *py_farthest_pairs(PyObject *self, PyObject *args) {
         dd[e] = best > 0 ? sqrt(best) : 0.0;
     }
     Py_END_ALLOW_THREADS
-    for (int i = 0; i < 5; i++) PyBuffer_Release(all[i]);
+    release_bufs(all, 5);
     Py_RETURN_NONE;
 }
 
@@ -744,13 +748,7 @@ static PyObject *py_locally_convex(PyObject *self, PyObject *args) {
     const char *names[6] = {"prim", "tri_adj", "prim_ptr", "sign", "tol", "out"};
     Py_ssize_t sizes[6] = {8, 8, 8, 8, 8, 1};
     int wr[6] = {0, 0, 0, 0, 0, 1};
-    int got = 0;
-    for (; got < 6; got++)
-        if (get_buf(objs[got], all[got], wr[got], names[got], sizes[got]) < 0) break;
-    if (got < 6) {
-        for (int i = 0; i < got; i++) PyBuffer_Release(all[i]);
-        return NULL;
-    }
+    if (get_bufs(objs, all, 6, names, sizes, wr) < 0) return NULL;
     const double *T = (const double *)bT.buf;
     const int64_t *adj = (const int64_t *)badj.buf, *ptr = (const int64_t *)bptr.buf;
     const double *sg = (const double *)bsg.buf, *tol = (const double *)btol.buf;
@@ -775,48 +773,27 @@ static PyObject *py_locally_convex(PyObject *self, PyObject *args) {
         out[e] = (uint8_t)ok;
     }
     Py_END_ALLOW_THREADS
-    for (int i = 0; i < 6; i++) PyBuffer_Release(all[i]);
+    release_bufs(all, 6);
     Py_RETURN_NONE;
 }
 
-/* per-triangle constants (metrics._prim_table's layout) and bounding balls (centroid, farthest
- * corner) of prim (S, 3, 3) */
+/* per-triangle constants (metrics._prim_table's layout) of prim (S, 3, 3) */
 static PyObject *py_tri_table(PyObject *self, PyObject *args) {
-    PyObject *op, *ot, *oc, *orad;
-    if (!PyArg_ParseTuple(args, "OOOO", &op, &ot, &oc, &orad)) return NULL;
-    Py_buffer bp, bt, bc, br;
-    Py_buffer *all[4] = {&bp, &bt, &bc, &br};
-    PyObject *objs[4] = {op, ot, oc, orad};
-    const char *names[4] = {"prim", "table", "centre", "radius"};
-    int wr[4] = {0, 1, 1, 1};
-    int got = 0;
-    for (; got < 4; got++)
-        if (get_buf(objs[got], all[got], wr[got], names[got], 8) < 0) break;
-    if (got < 4) {
-        for (int i = 0; i < got; i++) PyBuffer_Release(all[i]);
-        return NULL;
-    }
+    PyObject *op, *ot;
+    if (!PyArg_ParseTuple(args, "OO", &op, &ot)) return NULL;
+    Py_buffer bp, bt;
+    Py_buffer *all[2] = {&bp, &bt};
+    PyObject *objs[2] = {op, ot};
+    const char *names[2] = {"prim", "table"};
+    int wr[2] = {0, 1};
+    if (get_bufs(objs, all, 2, names, NULL, wr) < 0) return NULL;
     const double *P = (const double *)bp.buf;
-    double *T = (double *)bt.buf, *C = (double *)bc.buf, *R = (double *)br.buf;
+    double *T = (double *)bt.buf;
     Py_ssize_t S = bp.len / 72;
     Py_BEGIN_ALLOW_THREADS
-    for (Py_ssize_t t = 0; t < S; t++) {
-        const double *a = P + 9 * t, *b = a + 3, *c = a + 6;
-        fill_table(a, T + 16 * t);
-        double m[3];
-        for (int k = 0; k < 3; k++) m[k] = (a[k] + b[k] + c[k]) / 3.0;
-        memcpy(C + 3 * t, m, 24);
-        double r = 0;
-        for (int v = 0; v < 3; v++) {
-            const double *x = a + 3 * v;
-            double dx = x[0] - m[0], dy = x[1] - m[1], dz = x[2] - m[2];
-            double d = sqrt(dx * dx + dy * dy + dz * dz);
-            if (d > r) r = d;
-        }
-        R[t] = r;
-    }
+    for (Py_ssize_t t = 0; t < S; t++) fill_table(P + 9 * t, T + 16 * t);
     Py_END_ALLOW_THREADS
-    for (int i = 0; i < 4; i++) PyBuffer_Release(all[i]);
+    release_bufs(all, 2);
     Py_RETURN_NONE;
 }
 
@@ -932,13 +909,7 @@ static PyObject *py_enclosing_balls(PyObject *self, PyObject *args) {
     PyObject *objs[4] = {op, optr, oc, or_};
     const char *names[4] = {"points", "ptr", "centre", "radius"};
     int wr[4] = {0, 0, 1, 1};
-    int got = 0;
-    for (; got < 4; got++)
-        if (get_buf(objs[got], all[got], wr[got], names[got], 8) < 0) break;
-    if (got < 4) {
-        for (int i = 0; i < got; i++) PyBuffer_Release(all[i]);
-        return NULL;
-    }
+    if (get_bufs(objs, all, 4, names, NULL, wr) < 0) return NULL;
     const double *P = (const double *)bp.buf;
     const int64_t *ptr = (const int64_t *)bptr.buf;
     double *C = (double *)bc.buf, *R = (double *)br.buf;
@@ -1008,7 +979,7 @@ static PyObject *py_enclosing_balls(PyObject *self, PyObject *args) {
         R[e] = sqrt(far);
     }
     Py_END_ALLOW_THREADS
-    for (int i = 0; i < 4; i++) PyBuffer_Release(all[i]);
+    release_bufs(all, 4);
     Py_RETURN_NONE;
 }
 
@@ -1045,14 +1016,9 @@ static PyObject *py_fan3d(PyObject *self, PyObject *args) {
     const char *names[14] = {"points", "elem_offsets", "loop_offsets", "loop_nodes", "prim", "centre",
                              "prim_ptr", "tri_adj", "size", "signed", "vpts", "v_ptr", "bbox_lo", "bbox_hi"};
     int wr[14] = {0, 0, 0, 0, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1};
-    Py_buffer b[14];
-    int got = 0;
-    for (; got < 14; got++)
-        if (get_buf(o[got], &b[got], wr[got], names[got], 8) < 0) break;
-    if (got < 14) {
-        for (int i = 0; i < got; i++) PyBuffer_Release(&b[i]);
-        return NULL;
-    }
+    Py_buffer b[14], *all[14];
+    for (int i = 0; i < 14; i++) all[i] = &b[i];
+    if (get_bufs(o, all, 14, names, NULL, wr) < 0) return NULL;
     const double *pts = (const double *)b[0].buf;
     const int64_t *eo = (const int64_t *)b[1].buf, *lo = (const int64_t *)b[2].buf, *nodes = (const int64_t *)b[3].buf;
     double *prim = (double *)b[4].buf, *cen = (double *)b[5].buf;
@@ -1170,7 +1136,7 @@ static PyObject *py_fan3d(PyObject *self, PyObject *args) {
     }
     free(stamp); free(vb); free(tn); free(tn2); free(ci); free(tab);
     Py_END_ALLOW_THREADS
-    for (int i = 0; i < 14; i++) PyBuffer_Release(&b[i]);
+    release_bufs(all, 14);
     if (err) return PyErr_NoMemory();
     return PyLong_FromLongLong((long long)nv);
 }
@@ -1192,14 +1158,9 @@ static PyObject *py_partition_stats(PyObject *self, PyObject *args) {
     if (!PyArg_ParseTuple(args, "OOOOO", &o[0], &o[1], &o[2], &o[3], &o[4])) return NULL;
     const char *names[5] = {"indptr", "indices", "part", "volume", "cut_per_part"};
     int wr[5] = {0, 0, 0, 1, 1};
-    Py_buffer b[5];
-    int got = 0;
-    for (; got < 5; got++)
-        if (get_buf(o[got], &b[got], wr[got], names[got], 8) < 0) break;
-    if (got < 5) {
-        for (int i = 0; i < got; i++) PyBuffer_Release(&b[i]);
-        return NULL;
-    }
+    Py_buffer b[5], *all[5];
+    for (int i = 0; i < 5; i++) all[i] = &b[i];
+    if (get_bufs(o, all, 5, names, NULL, wr) < 0) return NULL;
     const int64_t *ip = (const int64_t *)b[0].buf, *ix = (const int64_t *)b[1].buf, *part = (const int64_t *)b[2].buf;
     double *vol = (double *)b[3].buf, *cuti = (double *)b[4].buf;
     Py_ssize_t n = b[0].len / 8 - 1;
@@ -1231,7 +1192,7 @@ static PyObject *py_partition_stats(PyObject *self, PyObject *args) {
             if (uf_find(par, u) == u) comps++;
     free(par);
     Py_END_ALLOW_THREADS
-    for (int i = 0; i < 5; i++) PyBuffer_Release(&b[i]);
+    release_bufs(all, 5);
     if (err) return PyErr_NoMemory();
     if (!sorted) Py_RETURN_NONE;
     return Py_BuildValue("(LL)", (long long)(cut2 / 2), (long long)comps);
@@ -1249,7 +1210,7 @@ static PyMethodDef methods[] = {
      "locally_convex(table, tri_adj, prim_ptr, sign, tol, out): 1 where every edge of the element is "
      "shared and convex (to tol), else 0."},
     {"tri_table", py_tri_table, METH_VARARGS,
-     "tri_table(prim, table, centre, radius): per-triangle constants and bounding balls."},
+     "tri_table(prim, table): per-triangle constants."},
     {"enclosing_balls", py_enclosing_balls, METH_VARARGS,
      "enclosing_balls(points, ptr, centre, radius): the smallest enclosing ball of each point set."},
     {"fan3d", py_fan3d, METH_VARARGS,

@@ -82,12 +82,7 @@ class _Geometry:
             self.table_ = _prim_table(self.prim)
         else:
             self.table_ = np.empty((self.prim.shape[0], 16))
-            ext.tri_table(
-                np.ascontiguousarray(self.prim),
-                self.table_,
-                np.empty((self.prim.shape[0], 3)),
-                np.empty(self.prim.shape[0]),
-            )
+            ext.tri_table(np.ascontiguousarray(self.prim), self.table_)
         self.rad_ = (
             np.linalg.norm(self.prim - self.cen[:, None], axis=2).max(1) if self.prim.size else np.zeros(0)
         )
@@ -1798,19 +1793,6 @@ def _equals_transpose(indptr: np.ndarray, indices: np.ndarray) -> bool:
     return np.array_equal(t.indptr, indptr) and np.array_equal(t.indices, indices)
 
 
-def _symmetric_simple(indptr: np.ndarray, indices: np.ndarray, rows: np.ndarray) -> bool:
-    """Whether a CSR pattern is symmetric with strictly increasing indices in every row (no
-    duplicates): then it equals its transpose (scipy's O(nnz) counting transpose) array for array."""
-    if indices.size == 0:
-        return True
-    inc = indices[1:] > indices[:-1]
-    if not np.all(inc | (rows[1:] != rows[:-1])):
-        return False
-    n = indptr.size - 1
-    t = sparse.csr_matrix((np.ones(indices.size, dtype=bool), indices, indptr), shape=(n, n)).T.tocsr()
-    return np.array_equal(t.indptr, indptr) and np.array_equal(t.indices, indices)
-
-
 def partition_statistics(indptr: np.ndarray, indices: np.ndarray, labels: np.ndarray) -> dict:
     """Cut, normalized cut, volume imbalance, part count and connectivity of a partition.
 
@@ -1829,7 +1811,8 @@ def partition_statistics(indptr: np.ndarray, indices: np.ndarray, labels: np.nda
     part, parts = _compact(labels)
     sizes = np.bincount(part, minlength=parts)
     ext = _compiled()
-    if ext is not None and _equals_transpose(indptr, indices):
+    symmetric = _equals_transpose(indptr, indices)  # and every row sorted (maybe with duplicates)
+    if ext is not None and symmetric:
         # one compiled pass (union-find for the components) where the pattern is symmetric with
         # strictly increasing rows, the usual dual graph; None if a row is not strictly increasing
         vol = np.zeros(parts)
@@ -1838,7 +1821,7 @@ def partition_statistics(indptr: np.ndarray, indices: np.ndarray, labels: np.nda
         if r is not None:
             return _partition_summary(r[0], cut_i, vol, sizes, parts, r[1])
     u = np.repeat(np.arange(nc, dtype=np.int64), np.diff(indptr))
-    if _symmetric_simple(indptr, indices, u):
+    if symmetric and np.all((indices[1:] > indices[:-1]) | (u[1:] != u[:-1])):  # no duplicates
         # the usual dual graph: every undirected edge twice, once per direction, no duplicates;
         # no COO -> CSR sort needed
         off = u != indices
