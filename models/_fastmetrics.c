@@ -148,45 +148,13 @@ static double tri_d2(const double *T, const double *q) {
 /* squared distance with flags: loc 0 interior / 1 rim; edge index on the rim (-1 at a corner);
  * vec = q - closest point; side = q below the plane (h < 0). Same rules as metrics._prim_distance /
  * _rim_closest. */
-static double tri_d2_full(const double *T, const double *q, int *loc, int *edge, double *vec, int *side) {
-    double v[3] = {q[0] - T[0], q[1] - T[1], q[2] - T[2]};
-    double d20 = dot3(v, T + 3), d21 = dot3(v, T + 6);
-    double d00 = T[12], d01 = T[13], d11 = T[14], inv = T[15];
-    double bv = (d11 * d20 - d01 * d21) * inv;
-    double bw = (d00 * d21 - d01 * d20) * inv;
-    double h = dot3(v, T + 9);
-    *side = h < 0;
-    *edge = -1;
-    vec[0] = vec[1] = vec[2] = 0.0;
+/* the closest point of the triangle's rim (its three edges, metrics._rim_closest): squared
+ * distance, vec = q minus that point, and the edge (0: corners 0-1, 1: 0-2, 2: 1-2) when the point
+ * lies strictly inside it (-1 at a corner); the first edge wins ties */
+static double rim_closest(const double *T, const double *q, int *edge, double *vec) {
     const double m = INTERIOR_MARGIN;
-    if (inv > 0 && bv >= 0 && bw >= 0 && bv + bw <= 1) {
-        double bu = 1.0 - bv - bw;
-        *loc = (bu > m && bv > m && bw > m) ? 0 : 1;
-        *edge = -1;
-        for (int i = 0; i < 3; i++) vec[i] = h * T[9 + i];
-        if (*loc == 1) {  /* on the rim within the margin: the rim's closest point decides */
-            int e2 = -1; double w2[3] = {0, 0, 0};
-            double best = INFINITY;
-            for (int k = 0; k < 3; k++) {
-                double s0[3], e[3], w[3];
-                if (k == 0) { memcpy(s0, T, 24); memcpy(e, T + 3, 24); }
-                else if (k == 1) { memcpy(s0, T, 24); memcpy(e, T + 6, 24); }
-                else { for (int i = 0; i < 3; i++) { s0[i] = T[i] + T[3 + i]; e[i] = T[6 + i] - T[3 + i]; } }
-                for (int i = 0; i < 3; i++) w[i] = q[i] - s0[i];
-                double ee = dot3(e, e);
-                double t = dot3(w, e) / (ee > 1e-300 ? ee : 1e-300);
-                double tc = t < 0 ? 0 : (t > 1 ? 1 : t);
-                for (int i = 0; i < 3; i++) w[i] -= tc * e[i];
-                double dd = dot3(w, w);
-                if (dd < best) { best = dd; e2 = (t > m && t < 1 - m) ? k : -1; memcpy(w2, w, 24); }
-            }
-            *edge = e2;
-            memcpy(vec, w2, 24);
-        }
-        return h * h;
-    }
-    *loc = 1;
     double best = INFINITY;
+    *edge = -1;
     for (int k = 0; k < 3; k++) {
         double s0[3], e[3], w[3];
         if (k == 0) { memcpy(s0, T, 24); memcpy(e, T + 3, 24); }
@@ -201,6 +169,29 @@ static double tri_d2_full(const double *T, const double *q, int *loc, int *edge,
         if (dd < best) { best = dd; *edge = (t > m && t < 1 - m) ? k : -1; memcpy(vec, w, 24); }
     }
     return best;
+}
+
+static double tri_d2_full(const double *T, const double *q, int *loc, int *edge, double *vec, int *side) {
+    double v[3] = {q[0] - T[0], q[1] - T[1], q[2] - T[2]};
+    double d20 = dot3(v, T + 3), d21 = dot3(v, T + 6);
+    double d00 = T[12], d01 = T[13], d11 = T[14], inv = T[15];
+    double bv = (d11 * d20 - d01 * d21) * inv;
+    double bw = (d00 * d21 - d01 * d20) * inv;
+    double h = dot3(v, T + 9);
+    *side = h < 0;
+    *edge = -1;
+    vec[0] = vec[1] = vec[2] = 0.0;
+    const double m = INTERIOR_MARGIN;
+    *loc = 1;
+    if (!(inv > 0 && bv >= 0 && bw >= 0 && bv + bw <= 1)) return rim_closest(T, q, edge, vec);
+    double bu = 1.0 - bv - bw;
+    if (bu > m && bv > m && bw > m) {
+        *loc = 0;
+        for (int i = 0; i < 3; i++) vec[i] = h * T[9 + i];
+    } else {  /* on the rim within the margin: the rim's closest point decides */
+        rim_closest(T, q, edge, vec);
+    }
+    return h * h;
 }
 
 /* ---------------------------------------------------------------------------------------------- */
