@@ -16,6 +16,8 @@ hierarchy's levels are numbered along the domain's principal axis, for Gauss-Sei
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
@@ -25,6 +27,18 @@ from ..errors import ParameterError
 from .base import GraphBatch, Partitioner
 
 SLACK = 0.3  # cut moves up to 0.3 x one final part's measure for tighter boxes (BR .881 at 364 on the refined quads; VD .94 -> .83)
+
+
+def _compiled():
+    """The compiled halving steps and piece labelling (models/_fastcuts.c), or None where they
+    were not built (or MAGNET_NO_COMPILED=1): then their numpy twins here run, with the same results."""
+    if os.environ.get("MAGNET_NO_COMPILED", "") not in ("", "0"):
+        return None
+    try:
+        from models import _fastcuts
+    except ImportError:
+        return None
+    return _fastcuts
 
 
 def _group_boxes(x: np.ndarray, grp: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -152,52 +166,35 @@ def split_counts(
     tight = cell_lo is not None and slack > 0
     if tight:  # the boxes' bounds axis by axis: (dim * N,), axis d at d * N
         lh_t = seg.bounds(cell_lo, cell_hi)
-    side = np.zeros(n, dtype=bool)
+    fc = _compiled()
+    if fc is not None:  # the per-cell work of every halving step in C (same operations, same results)
+        xc = np.ascontiguousarray(x, dtype=np.float64)
+        wc = np.ascontiguousarray(w, dtype=np.float64)
+        chosen_buf, mid_buf = np.empty(n, dtype=np.int64), np.empty(n)
+        side_u8, tmp = np.zeros(n, dtype=np.uint8), np.empty(n, dtype=np.int64)
+        lh_f = lh_t.view(np.float64) if tight else np.empty(0)
+        fscr = np.empty(3 * n if tight else 0)
+    else:
+        side = np.zeros(n, dtype=bool)
     while True:
         act = np.flatnonzero(need > 1)
         if act.size == 0:
             break
         a_start, a_size = start[act], size[act]
         na = act.size
-        a_off = np.zeros(na + 1, dtype=np.int64)
-        np.cumsum(a_size, out=a_off[1:])
-        tot = int(a_off[-1])
-        s0, e1 = a_off[:-1], a_off[1:] - 1
-        first, last = a_start, a_start + a_size - 1
-        ext = np.column_stack([x[P[d, last], d] - x[P[d, first], d] for d in range(dim)])
-        axis = np.argmax(ext, axis=1)
-        length = ext[np.arange(na), axis]
-        ar = np.arange(tot)
-        pos = np.repeat(a_start - s0, a_size)  # position in the orders of each cell of the active parts
-        pos += ar
-        ax_n = np.repeat(axis * n, a_size)
-        chosen = Pf[ax_n + pos]  # cells of the active parts, sorted along their part's axis
-        ws = w[chosen]
-        cum = np.cumsum(ws)
-        base = cum[s0] - ws[s0]  # measure before each part
-        vol = cum[e1] - base
-        mid = cum - 0.5 * ws  # measure before each cell's middle (increasing)
         m = need[act]
-        side_len = (np.maximum(vol, 1e-300) / np.maximum(m, 1)) ** (1.0 / dim)
-        cols = np.maximum(2, np.rint(length / np.maximum(side_len, 1e-300))).astype(np.int64)
-        m1 = np.clip(np.rint(m * (cols // 2) / cols).astype(np.int64), 1, np.maximum(m - 1, 1))
-        target = base + m1 / np.maximum(m, 1) * vol
-        cut = np.searchsorted(mid, target) - s0  # cells whose middle lies below the quantile
-        if tight:
-            ax_n += chosen
-            cut = _tight_cut(ax_n, lh_t, mid, target, vol / np.maximum(m, 1) * slack, s0, e1, cut, slack)
-        n0 = np.clip(cut, m1, a_size - (m - m1))  # both sides keep at least as many cells as parts
-        mask1 = ar >= np.repeat(s0 + n0, a_size)  # side 1: ranks n0 onwards along the part's axis
-        side[chosen[mask1]] = True
-        pos0, pos1 = pos[~mask1], pos[mask1]
-        # stable partition of every axis order inside each active range: side 0 first, then side 1
-        for d in range(dim):  # a loop over the axes
-            V = P[d, pos]
-            S = side[V]
-            P[d, pos1] = V[S]
-            np.logical_not(S, out=S)
-            P[d, pos0] = V[S]
-        side.fill(False)
+        if fc is not None:
+            axis, length = np.empty(na, dtype=np.int64), np.empty(na)
+            base, vol = np.empty(na), np.empty(na)
+            fc.cut_prepare(Pf, xc, wc, a_start, a_size, axis, length, chosen_buf, mid_buf, base, vol)
+            m1, target = _count_split(m, base, vol, length, dim)
+            window = vol / np.maximum(m, 1) * slack if tight else np.empty(0)
+            n0 = np.empty(na, dtype=np.int64)
+            fc.cut_apply(
+                Pf, lh_f, chosen_buf, mid_buf, a_start, a_size, axis, target, window, m1, m, slack, n0, side_u8, tmp, fscr
+            )
+        else:
+            n0, m1 = _halving_step(P, x, w, a_start, a_size, m, side, lh_t if tight else None, slack)
         start = np.concatenate([start, a_start + n0])
         size = np.concatenate([size, a_size - n0])
         size[act] = n0
@@ -213,6 +210,61 @@ def split_counts(
     labels[P[0]] = np.repeat(rank[by_pos], size[by_pos])
     seg.start, seg.size = start[part_order], size[part_order]  # ranges of the parts, in their new numbering
     return labels
+
+
+def _count_split(m, base, vol, length, dim):
+    """(m1, target): of each active part's m parts, m1 go to side 0, which ends at measure `target`
+    (base: the measure before the part in the step's running sum; vol: its own)."""
+    side_len = (np.maximum(vol, 1e-300) / np.maximum(m, 1)) ** (1.0 / dim)
+    cols = np.maximum(2, np.rint(length / np.maximum(side_len, 1e-300))).astype(np.int64)
+    m1 = np.clip(np.rint(m * (cols // 2) / cols).astype(np.int64), 1, np.maximum(m - 1, 1))
+    target = base + m1 / np.maximum(m, 1) * vol
+    return m1, target
+
+
+def _halving_step(P, x, w, a_start, a_size, m, side, lh_t, slack):
+    """One halving step of split_counts in numpy (the twin of _fastcuts.cut_prepare + cut_apply):
+    every active part (range a_start, a_size of the axis orders P, m parts to make) cut in two, P's
+    ranges partitioned stably (side 0 first). Returns (n0, m1): the cells and parts of each part's side 0."""
+    dim, n = P.shape
+    Pf = P.reshape(-1)
+    na = a_start.size
+    a_off = np.zeros(na + 1, dtype=np.int64)
+    np.cumsum(a_size, out=a_off[1:])
+    tot = int(a_off[-1])
+    s0, e1 = a_off[:-1], a_off[1:] - 1
+    first, last = a_start, a_start + a_size - 1
+    ext = np.column_stack([x[P[d, last], d] - x[P[d, first], d] for d in range(dim)])
+    axis = np.argmax(ext, axis=1)
+    length = ext[np.arange(na), axis]
+    ar = np.arange(tot)
+    pos = np.repeat(a_start - s0, a_size)  # position in the orders of each cell of the active parts
+    pos += ar
+    ax_n = np.repeat(axis * n, a_size)
+    chosen = Pf[ax_n + pos]  # cells of the active parts, sorted along their part's axis
+    ws = w[chosen]
+    cum = np.cumsum(ws)
+    base = cum[s0] - ws[s0]  # measure before each part
+    vol = cum[e1] - base
+    mid = cum - 0.5 * ws  # measure before each cell's middle (increasing)
+    m1, target = _count_split(m, base, vol, length, dim)
+    cut = np.searchsorted(mid, target) - s0  # cells whose middle lies below the quantile
+    if lh_t is not None:
+        ax_n += chosen
+        cut = _tight_cut(ax_n, lh_t, mid, target, vol / np.maximum(m, 1) * slack, s0, e1, cut, slack)
+    n0 = np.clip(cut, m1, a_size - (m - m1))  # both sides keep at least as many cells as parts
+    mask1 = ar >= np.repeat(s0 + n0, a_size)  # side 1: ranks n0 onwards along the part's axis
+    side[chosen[mask1]] = True
+    pos0, pos1 = pos[~mask1], pos[mask1]
+    # stable partition of every axis order inside each active range: side 0 first, then side 1
+    for d in range(dim):  # a loop over the axes
+        V = P[d, pos]
+        S = side[V]
+        P[d, pos1] = V[S]
+        np.logical_not(S, out=S)
+        P[d, pos0] = V[S]
+    side.fill(False)
+    return n0, m1
 
 
 def _tight_cut(idx, lh_t, mid, target, window, s0, e1, cut, slack):
@@ -294,6 +346,13 @@ def _grow_from_mains(
     return out
 
 
+def _rows_of(indptr: np.ndarray, deg: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(row, entry) of every CSR entry of the rows `cells` (increasing), in CSR order: no (nnz,) pass."""
+    dg = deg[cells]
+    ptr = row_pointers(dg)
+    return np.repeat(cells, dg), np.repeat(indptr[cells] - ptr[:-1], dg) + np.arange(ptr[-1])
+
+
 def _edge_rows(indptr: np.ndarray, e: np.ndarray) -> np.ndarray:
     """The row of each entry `e` of a CSR (a search per entry: no (nnz,) array of rows)."""
     return np.searchsorted(indptr, e, side="right") - 1
@@ -310,6 +369,13 @@ def _label_pieces(
     """Connected pieces of the parts `labels` (edges inside a part only) over all cells, or over
     `cells` (increasing ids, whole parts only): (number, piece of each cell). Pieces are numbered
     in the order of their first cell (scipy's numbering: one scan over the nodes)."""
+    fc = _compiled()
+    if fc is not None and indptr.dtype == np.int64 and indices.dtype == np.int64:  # union-find in C
+        lab = np.ascontiguousarray(labels, dtype=np.int64)
+        sub = np.empty(0, dtype=np.int64) if cells is None else np.ascontiguousarray(cells, dtype=np.int64)
+        comp = np.empty(labels.size if cells is None else sub.size, dtype=np.int32)
+        if comp.size:
+            return fc.pieces(np.ascontiguousarray(indptr), np.ascontiguousarray(indices), lab, sub, comp), comp
     if cells is None:
         ptr, nb = indptr, indices
         lab = _small_labels(labels)
@@ -398,8 +464,8 @@ def make_connected(
         main[o[run_starts(clab[o])]] = True
         frag_cell = ~main[comp]
         # edges leaving fragment cells into another part of the same parent (as indices: fragments are few)
-        e = np.flatnonzero(np.repeat(frag_cell, deg))
-        a, b = _edge_rows(indptr, e), indices[e]
+        a, e = _rows_of(indptr, deg, np.flatnonzero(frag_cell))
+        b = indices[e]
         keep = (labels[a] != labels[b]) & (par[a] == par[b])
         e, a, b = e[keep], a[keep], b[keep]  # the edges' rows and columns
         if e.size == 0:
@@ -468,11 +534,19 @@ def cut_and_connect(
 
 def _quotient(indptr: np.ndarray, indices: np.ndarray, weights: np.ndarray, labels: np.ndarray, k: int):
     """CSR (indptr, indices, summed weights) of the graph of the parts `labels` (0..k-1)."""
-    lab = _small_labels(labels)
-    rows = np.repeat(lab, np.diff(indptr))
-    cols = lab[indices]
-    off = rows != cols
-    q = sp.csr_matrix((weights[off], (rows[off], cols[off])), shape=(k, k))
+    fc = _compiled()
+    if fc is not None and k < 2**31 and indptr.dtype == indices.dtype == np.int64 and weights.dtype == np.float64:
+        m = indices.size  # the same entries, in the same order, in one pass
+        rows, cols, w = np.empty(m, dtype=np.int32), np.empty(m, dtype=np.int32), np.empty(m)
+        lab = np.ascontiguousarray(labels, dtype=np.int64)
+        c = fc.cross_edges(np.ascontiguousarray(indptr), np.ascontiguousarray(indices), weights, lab, rows, cols, w)
+        q = sp.csr_matrix((w[:c], (rows[:c], cols[:c])), shape=(k, k))
+    else:
+        lab = _small_labels(labels)
+        rows = np.repeat(lab, np.diff(indptr))
+        cols = lab[indices]
+        off = rows != cols
+        q = sp.csr_matrix((weights[off], (rows[off], cols[off])), shape=(k, k))
     q.sum_duplicates()
     return q.indptr.astype(np.int64), q.indices.astype(np.int64), q.data
 
@@ -483,6 +557,9 @@ def components(batch: GraphBatch, within: np.ndarray | None = None) -> np.ndarra
 
     n = batch.n_nodes
     indptr, indices = batch.indptr, batch.indices
+    if n and _compiled() is not None:  # one union-find pass in C (the same numbering)
+        lab = np.zeros(n, dtype=np.int64) if within is None else within
+        return _label_pieces(indptr, indices, lab)[1].astype(np.int64)
     if within is not None:  # keep the CSR rows: the filtered graph without a COO conversion
         keep = np.repeat(within, np.diff(indptr)) == within[indices]
         indptr = kept_pointers(keep, indptr)
@@ -621,12 +698,23 @@ def _sweep_key(x: np.ndarray, w: np.ndarray) -> np.ndarray:
     sweeps every level across the domain once, as a lexicographic sweep does, instead of zig-zagging
     through the tree order of the cuts (PCG iterations with pyamg's V-cycle at ratio 8, averaged over
     twelve rotations of the brain: 34.0 -> 33.3; six of the refined quads: 63.7 -> 62.3)."""
+    # no BLAS: a threaded BLAS sums in an order that depends on the thread count (the 1M cube's
+    # numbering differed between 1 and 2 threads) and leaves woken threads spinning for ~0.1 s of CPU
     W = max(float(w.sum()), 1e-300)
-    mean = (w @ x) / W
-    cov = (x.T * w) @ x / W - np.outer(mean, mean)
+    xw = x * w[:, None]
+    mean = xw.sum(axis=0) / W
+    dim = x.shape[1]
+    cov = np.empty((dim, dim))
+    for i in range(dim):  # a loop over pairs of axes
+        for j in range(i, dim):
+            cov[i, j] = cov[j, i] = (xw[:, i] * x[:, j]).sum()
+    cov = cov / W - np.outer(mean, mean)
     v = np.linalg.eigh(cov)[1][:, -1]
     v = v if v[np.argmax(np.abs(v))] > 0 else -v  # a fixed sign: the same numbering everywhere
-    return x @ v
+    key = x[:, 0] * v[0]
+    for d in range(1, dim):  # a loop over the axes
+        key += x[:, d] * v[d]
+    return key
 
 
 def _sweep_rank(key: np.ndarray) -> np.ndarray:
