@@ -171,9 +171,9 @@ def split_counts(
         xc = np.ascontiguousarray(x, dtype=np.float64)
         wc = np.ascontiguousarray(w, dtype=np.float64)
         chosen_buf, mid_buf = np.empty(n, dtype=np.int64), np.empty(n)
-        side_u8, tmp = np.zeros(n, dtype=np.uint8), np.empty(n, dtype=np.int64)
         lh_f = lh_t.view(np.float64) if tight else np.empty(0)
-        fscr = np.empty(3 * n if tight else 0)
+        # scratch made once (fresh memory costs page faults at every step): side flags, int64, float64
+        scratch = (np.zeros(n, dtype=np.uint8), np.empty(n, dtype=np.int64), np.empty(3 * n if tight else 0))
     else:
         side = np.zeros(n, dtype=bool)
     while True:
@@ -190,9 +190,8 @@ def split_counts(
             m1, target = _count_split(m, base, vol, length, dim)
             window = vol / np.maximum(m, 1) * slack if tight else np.empty(0)
             n0 = np.empty(na, dtype=np.int64)
-            fc.cut_apply(
-                Pf, lh_f, chosen_buf, mid_buf, a_start, a_size, axis, target, window, m1, m, slack, n0, side_u8, tmp, fscr
-            )
+            args = (Pf, lh_f, chosen_buf, mid_buf, a_start, a_size, axis, target, window, m1, m, slack, n0)
+            fc.cut_apply(*args, *scratch)
         else:
             n0, m1 = _halving_step(P, x, w, a_start, a_size, m, side, lh_t if tight else None, slack)
         start = np.concatenate([start, a_start + n0])
@@ -375,7 +374,9 @@ def _label_pieces(
         sub = np.empty(0, dtype=np.int64) if cells is None else np.ascontiguousarray(cells, dtype=np.int64)
         comp = np.empty(labels.size if cells is None else sub.size, dtype=np.int32)
         if comp.size:
-            return fc.pieces(np.ascontiguousarray(indptr), np.ascontiguousarray(indices), lab, sub, comp), comp
+            return fc.pieces(
+                np.ascontiguousarray(indptr), np.ascontiguousarray(indices), lab, sub, comp
+            ), comp
     if cells is None:
         ptr, nb = indptr, indices
         lab = _small_labels(labels)
@@ -535,11 +536,18 @@ def cut_and_connect(
 def _quotient(indptr: np.ndarray, indices: np.ndarray, weights: np.ndarray, labels: np.ndarray, k: int):
     """CSR (indptr, indices, summed weights) of the graph of the parts `labels` (0..k-1)."""
     fc = _compiled()
-    if fc is not None and k < 2**31 and indptr.dtype == indices.dtype == np.int64 and weights.dtype == np.float64:
+    if (
+        fc is not None
+        and k < 2**31
+        and indptr.dtype == indices.dtype == np.int64
+        and weights.dtype == np.float64
+    ):
         m = indices.size  # the same entries, in the same order, in one pass
         rows, cols, w = np.empty(m, dtype=np.int32), np.empty(m, dtype=np.int32), np.empty(m)
         lab = np.ascontiguousarray(labels, dtype=np.int64)
-        c = fc.cross_edges(np.ascontiguousarray(indptr), np.ascontiguousarray(indices), weights, lab, rows, cols, w)
+        c = fc.cross_edges(
+            np.ascontiguousarray(indptr), np.ascontiguousarray(indices), weights, lab, rows, cols, w
+        )
         q = sp.csr_matrix((w[:c], (rows[:c], cols[:c])), shape=(k, k))
     else:
         lab = _small_labels(labels)
