@@ -223,16 +223,9 @@ def _same_points(a, b) -> bool:
 
 def _components_count(indptr: np.ndarray, indices: np.ndarray, labels: np.ndarray) -> int:
     """Connected pieces of the parts `labels` of a symmetric CSR graph (edges inside a part only)."""
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import connected_components
+    from .partitioners.rtree import _label_pieces  # compiled union-find where built, else scipy
 
-    from .csr import kept_pointers
-
-    n = labels.size
-    same = np.repeat(labels, np.diff(indptr)) == labels[indices]
-    ptr = kept_pointers(same, indptr)
-    g = sp.csr_matrix((np.ones(int(ptr[-1]), dtype=np.int8), indices[same], ptr), shape=(n, n))
-    return int(connected_components(g, directed=False)[0]) if n else 0
+    return int(_label_pieces(indptr, indices, np.asarray(labels, dtype=np.int64))[0]) if labels.size else 0
 
 
 def level_statistics(mesh: Mesh, graph, levels: list[np.ndarray], measures: np.ndarray) -> list[dict]:

@@ -166,7 +166,7 @@ def split_counts(
     tight = cell_lo is not None and slack > 0
     if tight:  # the boxes' bounds axis by axis: (dim * N,), axis d at d * N
         lh_t = seg.bounds(cell_lo, cell_hi)
-    fc = _compiled()
+    fc = _compiled() if 0 < n and dim <= 3 else None
     if fc is not None:  # the per-cell work of every halving step in C (same operations, same results)
         xc = np.ascontiguousarray(x, dtype=np.float64)
         wc = np.ascontiguousarray(w, dtype=np.float64)
