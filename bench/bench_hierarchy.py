@@ -1,8 +1,8 @@
 """Hierarchies for multigrid, per mesh: rtree, metis, kmeans and sage-base hierarchies (ratio 8) and
 pyamg's standard aggregation on the same TPFA Poisson matrix. Prints levels and counts, connected
-pieces, box ratio / coverage, PCG iterations (unsmoothed / smoothed aggregation), operator complexity
-and build time; then the shape bar at 91 and 364 elements on the refined quad mesh, and the speed
-checks (ratios against METIS in the same run).
+pieces, circle ratio / box ratio / coverage, PCG iterations (unsmoothed / smoothed aggregation),
+operator complexity and build time; then the shape bar at 91 and 364 elements on the refined quad
+mesh, and the speed checks (ratios against METIS in the same run).
 
     python bench/bench_hierarchy.py [--quick] [--json out.json] [--skip-cube] [--models rtree,metis] [--meshes brain,torus]
 """
@@ -66,6 +66,23 @@ def pieces(graph, labels) -> int:
     return int(connected_components(m, directed=False)[0])
 
 
+def circle_ratio(mesh, graph, data, labels) -> float:
+    """Mean CR of the elements: inscribed radius / half the diagonal of the element's box (R3MG's CR)."""
+    from models.merge import merge
+    from models.metrics import largest_inscribed_ball
+
+    poly, _ = merge(mesh, graph, labels, data.measures)
+    _, r = largest_inscribed_ball(poly)
+    vl = np.repeat(poly.labels, np.diff(mesh.offsets))  # the element of every vertex slot
+    p = np.asarray(mesh.points, dtype=np.float64)[mesh.connectivity]
+    k = int(poly.labels.max()) + 1
+    lo = np.full((k, p.shape[1]), np.inf)
+    hi = np.full((k, p.shape[1]), -np.inf)
+    np.minimum.at(lo, vl, p)
+    np.maximum.at(hi, vl, p)
+    return float(np.mean(r / (0.5 * np.linalg.norm(hi - lo, axis=1))))
+
+
 def hierarchy_rows(name, mesh, graph, data, models, ratio=8.0) -> list[dict]:
     rows = []
     base = None
@@ -80,6 +97,8 @@ def hierarchy_rows(name, mesh, graph, data, models, ratio=8.0) -> list[dict]:
         sizes = [int(lv.max()) + 1 for lv in levels]
         extra_pieces = sum(pieces(graph, lv) - s for lv, s in zip(levels, sizes, strict=True))
         bm = [box_measures(mesh.points, mesh.offsets, mesh.connectivity, lv, data.measures) for lv in levels]
+        mid = len(levels) // 2
+        cr = [circle_ratio(mesh, graph, data, levels[-1]), circle_ratio(mesh, graph, data, levels[mid])]
         rep = mgcheck(mesh, data, levels)
         base = rep
         rows.append(
@@ -88,6 +107,7 @@ def hierarchy_rows(name, mesh, graph, data, models, ratio=8.0) -> list[dict]:
                 "model": model,
                 "levels": sizes,
                 "extra_pieces": extra_pieces,
+                "circle_ratio_fine_mid": cr,
                 "box_ratio": [float(b["box_ratio"].mean()) for b in bm],
                 "coverage": [b["coverage"] for b in bm],
                 "it_unsmoothed": rep["unsmoothed"]["iterations"],
@@ -116,7 +136,8 @@ def hierarchy_rows(name, mesh, graph, data, models, ratio=8.0) -> list[dict]:
 
 def print_rows(rows: list[dict]) -> None:
     print(
-        f"{'mesh':<10}{'model':<15}{'levels (coarse > fine)':<34}{'pieces+':>8}{'BR fine/mid':>13}{'cov fine':>9}"
+        f"{'mesh':<10}{'model':<15}{'levels (coarse > fine)':<34}{'pieces+':>8}{'CR fine/mid':>13}{'BR fine/mid':>13}"
+        f"{'cov fine':>9}"
         f"{'it U':>6}{'OC U':>7}{'it S':>6}{'OC S':>7}{'build s':>9}"
     )
     for r in rows:
@@ -127,9 +148,11 @@ def print_rows(rows: list[dict]) -> None:
         br = r.get("box_ratio")
         brs = f"{br[-1]:.2f}/{br[len(br) // 2]:.2f}" if br else "-"
         cov = f"{r['coverage'][-1]:.2f}" if r.get("coverage") else "-"
+        cr = r.get("circle_ratio_fine_mid")
+        crs = f"{cr[0]:.2f}/{cr[1]:.2f}" if cr else "-"
         f = lambda k, spec, r=r: format(r[k], spec) if r.get(k) is not None else "-"  # noqa: E731
         print(
-            f"{r['mesh']:<10}{r['model']:<15}{lv:<34}{f('extra_pieces', 'd'):>8}{brs:>13}{cov:>9}"
+            f"{r['mesh']:<10}{r['model']:<15}{lv:<34}{f('extra_pieces', 'd'):>8}{crs:>13}{brs:>13}{cov:>9}"
             f"{f('it_unsmoothed', 'd'):>6}{f('oc_unsmoothed', '.2f'):>7}{f('it_smoothed', 'd'):>6}"
             f"{f('oc_smoothed', '.2f'):>7}{r['build_time']:>9.2f}"
         )

@@ -329,11 +329,14 @@ static PyObject *py_pieces(PyObject *self, PyObject *args) {
     int sub = mc > 0;
     int64_t m = sub ? mc : n;
     int bad = N8(b[0]) != n + 1 || (int64_t)(b[4].len / 4) != m || (n > 0 && (ptr[0] != 0 || ptr[n] != nnz));
+    for (int64_t i = 0; i < n && !bad; i++)
+        if (ptr[i + 1] < ptr[i]) bad = 1;
     for (int64_t k = 0; k < mc && !bad; k++)
         if (cells[k] < 0 || cells[k] >= n || (k > 0 && cells[k] <= cells[k - 1])) bad = 1;
     if (bad) {
         release_bufs(all, 5);
-        PyErr_SetString(PyExc_ValueError, "pieces: inconsistent arrays (indptr n+1, comp n or len(cells), cells increasing)");
+        PyErr_SetString(PyExc_ValueError,
+                        "pieces: inconsistent arrays (indptr n+1 non-decreasing, comp n or len(cells), cells increasing)");
         return NULL;
     }
     int64_t nc = 0;
