@@ -412,7 +412,7 @@ def _update_pieces(indptr, indices, labels, before, comp, clab, first_cell):
     nd, cd = _label_pieces(indptr, indices, labels, cells)
     keep = np.flatnonzero(~dirty[clab])  # pieces of untouched parts, unchanged
     firsts = np.concatenate([first_cell[keep], cells[np.flatnonzero(run_starts(np.maximum.accumulate(cd)))]])
-    order = np.argsort(firsts)
+    order = np.argsort(firsts, kind="stable")  # two sorted runs of distinct cells: one merge
     rank = np.empty(order.size, dtype=np.int64)
     rank[order] = np.arange(order.size)
     renum = np.full(clab.size, -1, dtype=np.int64)
@@ -461,8 +461,13 @@ def make_connected(
         # main piece of each part: largest measure (ties: lowest piece id); parts of one piece: it
         main = np.bincount(clab, minlength=k)[clab] == 1
         multi = np.flatnonzero(~main)
-        o = multi[np.lexsort((-cm[multi], clab[multi]))]  # stable: ties keep the lowest piece id
-        main[o[run_starts(clab[o])]] = True
+        cl, cmm = clab[multi], cm[multi]
+        top = np.full(k, -np.inf)
+        np.maximum.at(top, cl, cmm)
+        cand = multi[cmm == top[cl]]  # the largest pieces of their parts, increasing ids
+        win = np.full(k, nc, dtype=np.int64)
+        np.minimum.at(win, clab[cand], cand)  # ties: the lowest piece id
+        main[win[win < nc]] = True
         frag_cell = ~main[comp]
         # edges leaving fragment cells into another part of the same parent (as indices: fragments are few)
         a, e = _rows_of(indptr, deg, np.flatnonzero(frag_cell))
@@ -493,11 +498,15 @@ def make_connected(
         key_p, key_l = comp[a], labels[b]
         m = sp.coo_matrix((weights[e] * bonus + 1e-12, (key_p, key_l)), shape=(nc, k)).tocsr()
         m.sum_duplicates()
-        r = np.repeat(np.arange(nc), np.diff(m.indptr))
-        oo = np.lexsort((-m.data, r))
-        best = oo[np.r_[True, r[oo][1:] != r[oo][:-1]]] if oo.size else oo
+        # per row the largest interface, ties: the lowest label (rows sorted by column); no sort
+        rows_nz = np.flatnonzero(np.diff(m.indptr))
         target = np.full(nc, -1, dtype=np.int64)
-        target[r[best]] = m.indices[best]
+        if rows_nz.size:
+            r = np.repeat(np.arange(nc), np.diff(m.indptr))
+            top = np.maximum.reduceat(m.data, m.indptr[rows_nz])
+            hit = np.flatnonzero(m.data == np.repeat(top, np.diff(m.indptr)[rows_nz]))
+            best = hit[run_starts(r[hit])]
+            target[r[best]] = m.indices[best]
         # only pieces touching a main piece move this round (they then join a connected part)
         touches_main = np.zeros(nc, dtype=bool)
         touches_main[comp[a[to_main]]] = True
