@@ -3,10 +3,13 @@
 A group that must become m parts is cut in two along the longest extent of its centroids' box, at
 the measure-weighted quantile m1/m, the two sides getting m1 and m - m1 parts; m1 is chosen so the
 pieces come out as close to cubes as the count allows (m1 = m x floor(c/2)/c for c, the number
-of cube-sized pieces along that extent). All groups of a level are cut at once (one lexsort per
-halving step, no loop over groups or cells). Afterwards every part is made connected: each part
-keeps its largest connected piece and the other pieces join the neighbouring part of the same
-parent with which they share the longest interface, so counts stay exact and levels stay nested.
+of cube-sized pieces along that extent). All groups of a level are cut at once: the cells are
+sorted once per axis, and a halving step partitions every part's range of those orders stably (no
+sort, no loop over groups or cells; the per-cell work in models/_fastcuts.c where it is built, the
+same operations as the numpy twins here, which tests/test_fastcuts.py holds bit for bit equal).
+Afterwards every part is made connected: each part keeps its largest connected piece and the other
+pieces join the neighbouring part of the same parent with which they share the longest interface,
+so counts stay exact and levels stay nested.
 
 Levels of a hierarchy go top-down: the coarsest level is cut from the whole domain (one group per
 connected component of the mesh, or per physical group), then every element of level l is cut
@@ -222,7 +225,8 @@ def _count_split(m, base, vol, length, dim):
 
 
 def _halving_step(P, x, w, a_start, a_size, m, side, lh_t, slack):
-    """One halving step of split_counts in numpy (the twin of _fastcuts.cut_prepare + cut_apply):
+    """One halving step of split_counts in numpy (the twin of _fastcuts.cut_prepare + cut_apply;
+    a change here needs the same change there, tests/test_fastcuts.py compares them bit for bit):
     every active part (range a_start, a_size of the axis orders P, m parts to make) cut in two, P's
     ranges partitioned stably (side 0 first). Returns (n0, m1): the cells and parts of each part's side 0."""
     dim, n = P.shape
