@@ -1,9 +1,10 @@
 """Build hook for the compiled modules (everything else is in pyproject.toml).
 
 models/_fastmetrics.c holds compiled helpers of models/metrics.py (the 3D inscribed-ball search,
-the 3D geometry, enclosing balls, partition statistics); models/_fastcuts.c those of the rtree
-partitioner (the halving steps of its cuts, connected pieces). Both are optional: where they cannot
-be compiled the install goes on and the numpy twins run (same results, slower).
+the 3D geometry, enclosing balls, partition statistics); models/_fastgraph.c graph helpers of the
+rtree partitioner and the 2D merge (the halving steps of the cuts, connected pieces, coarse-graph
+edges, boundary loops). Both are optional: where they cannot be compiled the install goes on and
+the numpy twins run (same results, slower; models/native.py finds them).
 """
 
 from setuptools import Extension, setup
@@ -17,8 +18,8 @@ setup(
             optional=True,
         ),
         Extension(
-            "models._fastcuts",
-            ["models/_fastcuts.c"],
+            "models._fastgraph",
+            ["models/_fastgraph.c"],
             # no -ffast-math or contraction: the same float operations as the numpy twins, bit for bit
             extra_compile_args=["-O3", "-fno-math-errno", "-ffp-contract=off"],
             optional=True,

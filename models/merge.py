@@ -88,6 +88,24 @@ def _pair_edges(key_start: np.ndarray, want: np.ndarray) -> np.ndarray | None:
     return nxt
 
 
+def _compiled_loops(key_start: np.ndarray, want: np.ndarray):
+    """(nxt, cyc, pos) of _pair_edges + _list_rank from models/_fastgraph.c's loops (a hash table of
+    the start keys, then one walk per loop), or None where it is not built or the boundary needs
+    the numpy path (a repeated start key: an element touching itself at a vertex; an open or
+    non-manifold boundary, which the numpy path reports)."""
+    from .native import compiled
+
+    fg = compiled("_fastgraph")
+    m = key_start.size
+    if fg is None or m == 0:
+        return None
+    nxt, cyc, pos = np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)
+    ks, wt = np.ascontiguousarray(key_start, dtype=np.int64), np.ascontiguousarray(want, dtype=np.int64)
+    if fg.loops(ks, wt, nxt, cyc, pos) < 0:
+        return None
+    return nxt, cyc, pos
+
+
 def _next_edges(key_start: np.ndarray, want: np.ndarray):
     """merge_2d's successor of every boundary edge by a search (first match in a stable order), with
     the edges that have more than one candidate (an element touching itself at a vertex)."""
@@ -116,11 +134,16 @@ def merge_2d(
     P = np.int64(mesh.n_points)
     key_start = e * P + a
     want = e * P + b
-    nxt = _pair_edges(key_start, want)
-    if nxt is None:  # an element touching itself at a vertex, or an open boundary
-        nxt, pinch, lo, order, sk = _next_edges(key_start, want)
-    else:
+    loops = _compiled_loops(key_start, want)
+    if loops is not None:  # one hash pass and one walk in C: the same successors and loops
+        nxt, cyc, pos = loops
         pinch = np.zeros(0, dtype=np.int64)
+    else:
+        nxt = _pair_edges(key_start, want)
+        if nxt is None:  # an element touching itself at a vertex, or an open boundary
+            nxt, pinch, lo, order, sk = _next_edges(key_start, want)
+        else:
+            pinch = np.zeros(0, dtype=np.int64)
     if pinch.size:
         pts = mesh.points
         hi = lo.copy()
@@ -134,9 +157,10 @@ def merge_2d(
             cw = np.mod(ang_back - ang, 2 * np.pi)  # clockwise turn from the way back
             cw[cw == 0] = 2 * np.pi
             nxt[i] = cands[np.argmin(cw)]
-    if np.bincount(nxt, minlength=nxt.size).max() > 1:
-        raise MeshError("element boundaries could not be ordered (non-manifold vertex)")
-    cyc, pos = _list_rank(nxt)
+    if loops is None:
+        if np.bincount(nxt, minlength=nxt.size).max() > 1:
+            raise MeshError("element boundaries could not be ordered (non-manifold vertex)")
+        cyc, pos = _list_rank(nxt)
     # signed area of each loop
     p = mesh.points
     pa = p[a]

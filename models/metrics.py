@@ -1544,13 +1544,9 @@ _EXT_MAX_CELLS = 1_000_000  # cells per element before the compiled search hands
 def _compiled():
     """The compiled helpers (models/_fastmetrics.c), or None where they were not built (or
     MAGNET_NO_COMPILED=1)."""
-    if os.environ.get("MAGNET_NO_COMPILED", "") not in ("", "0"):
-        return None
-    try:
-        from models import _fastmetrics
-    except ImportError:
-        return None
-    return _fastmetrics
+    from .native import compiled
+
+    return compiled("_fastmetrics")
 
 
 def _threads() -> int:

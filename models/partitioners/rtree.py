@@ -5,8 +5,8 @@ the measure-weighted quantile m1/m, the two sides getting m1 and m - m1 parts; m
 pieces come out as close to cubes as the count allows (m1 = m x floor(c/2)/c for c, the number
 of cube-sized pieces along that extent). All groups of a level are cut at once: the cells are
 sorted once per axis, and a halving step partitions every part's range of those orders stably (no
-sort, no loop over groups or cells; the per-cell work in models/_fastcuts.c where it is built, the
-same operations as the numpy twins here, which tests/test_fastcuts.py holds bit for bit equal).
+sort, no loop over groups or cells; the per-cell work in models/_fastgraph.c where it is built, the
+same operations as the numpy twins here, which tests/test_fastgraph.py holds bit for bit equal).
 Afterwards every part is made connected: each part keeps its largest connected piece and the other
 pieces join the neighbouring part of the same parent with which they share the longest interface,
 so counts stay exact and levels stay nested.
@@ -19,29 +19,22 @@ hierarchy's levels are numbered along the domain's principal axis, for Gauss-Sei
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from ..csr import kept_pointers, row_pointers, run_starts
 from ..errors import ParameterError
+from ..native import compiled
 from .base import GraphBatch, Partitioner
 
 SLACK = 0.3  # cut moves up to 0.3 x one final part's measure for tighter boxes (BR .881 at 364 on the refined quads; VD .94 -> .83)
 
 
 def _compiled():
-    """The compiled halving steps and piece labelling (models/_fastcuts.c), or None where they
+    """The compiled halving steps and piece labelling (models/_fastgraph.c), or None where they
     were not built (or MAGNET_NO_COMPILED=1): then their numpy twins here run, with the same results."""
-    if os.environ.get("MAGNET_NO_COMPILED", "") not in ("", "0"):
-        return None
-    try:
-        from models import _fastcuts
-    except ImportError:
-        return None
-    return _fastcuts
+    return compiled("_fastgraph")
 
 
 def _group_boxes(x: np.ndarray, grp: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -225,8 +218,8 @@ def _count_split(m, base, vol, length, dim):
 
 
 def _halving_step(P, x, w, a_start, a_size, m, side, lh_t, slack):
-    """One halving step of split_counts in numpy (the twin of _fastcuts.cut_prepare + cut_apply;
-    a change here needs the same change there, tests/test_fastcuts.py compares them bit for bit):
+    """One halving step of split_counts in numpy (the twin of _fastgraph.cut_prepare + cut_apply;
+    a change here needs the same change there, tests/test_fastgraph.py compares them bit for bit):
     every active part (range a_start, a_size of the axis orders P, m parts to make) cut in two, P's
     ranges partitioned stably (side 0 first). Returns (n0, m1): the cells and parts of each part's side 0."""
     dim, n = P.shape

@@ -1,4 +1,4 @@
-"""The compiled helpers of the rtree model (models/_fastcuts.c) against their numpy twins in
+"""The compiled helpers of the rtree model (models/_fastgraph.c) against their numpy twins in
 models/partitioners/rtree.py: the same cuts, pieces and coarse graphs bit for bit (the twins are the
 fallback where the module is not built, and the reference here)."""
 
@@ -17,7 +17,7 @@ from models.pipeline import prepare
 
 def test_the_compiled_cuts_are_built():
     """setup.py builds them with every install; rtree would still work without them, only slower."""
-    assert rt._compiled() is not None, "models/_fastcuts.c was not compiled: reinstall (pip install -e .)"
+    assert rt._compiled() is not None, "models/_fastgraph.c was not compiled: reinstall (pip install -e .)"
 
 
 def _both(monkeypatch, fn):
@@ -159,3 +159,57 @@ def test_bad_buffers_are_refused():
             np.zeros(1, dtype=np.int32),
             np.zeros(1),
         )
+
+
+@pytest.mark.parametrize("case", ["kway", "holes", "pinched"])
+def test_merge_2d_loops_same_polygons(monkeypatch, brain, case):
+    """merge_2d's boundary loops from the compiled hash-and-walk equal _pair_edges + _list_rank:
+    connected elements; elements with holes (a ring of cells around others); random labels, whose
+    elements touch themselves at vertices (the compiled pass declines, numpy decides)."""
+    import models.merge as M
+
+    m, g, d = brain
+    batch = make_batch(d, np.zeros(m.n_cells, dtype=np.int64))
+    labels = rt.rtree_levels(batch, [200])[0]  # connected elements
+    if case == "holes":  # the elements around a middle one (sharing a vertex with it) merged: a ring
+        c = labels[np.argmin(np.linalg.norm(d.centroids - d.centroids.mean(axis=0), axis=1))]
+        owner = np.repeat(np.arange(m.n_cells), np.diff(m.offsets))  # the cell of every vertex slot
+        verts = np.unique(m.connectivity[labels[owner] == c])
+        around = np.unique(labels[owner[np.isin(m.connectivity, verts)]])
+        ring = np.isin(labels, around[around != c])
+        labels = labels.copy()
+        labels[ring] = around[around != c].min()
+        labels = np.unique(labels, return_inverse=True)[1]
+    elif case == "pinched":
+        labels = np.random.default_rng(3).integers(0, 40, m.n_cells)
+    f = g.faces
+    bf = M.boundary_faces(g, labels)
+    key = labels[f.cell[bf]] * np.int64(m.n_points)
+    start, end = key + f.nodes[2 * bf], key + f.nodes[2 * bf + 1]
+    loops = M._compiled_loops(start, end)
+    if case == "pinched":
+        assert loops is None  # a repeated start key: the search with the turning rule decides
+    else:
+        nxt, cyc, pos = loops
+        ref = M._pair_edges(start, end)
+        rc, rp = M._list_rank(ref)
+        assert np.array_equal(nxt, ref) and np.array_equal(cyc, rc) and np.array_equal(pos, rp)
+    (pa, ha), (pb, hb) = _both(monkeypatch, lambda: M.merge_2d(m, g, labels, d.measures))
+    for name in ("elem_offsets", "loop_offsets", "loop_nodes", "measure", "n_fine", "labels"):
+        assert np.array_equal(getattr(pa, name), getattr(pb, name)), name
+    assert np.array_equal(ha.elements, hb.elements) and np.array_equal(ha.centers, hb.centers)
+    if case == "holes":
+        assert ha.elements.size > 0
+
+
+def test_loops_decline_what_numpy_must_judge():
+    ext = rt._compiled()
+    out = [np.empty(4, dtype=np.int64) for _ in range(3)]
+    ks = np.array([5, 7, 9, 11])
+    assert ext.loops(ks, np.array([7, 5, 11, 9]), *out) == 2  # two loops of two edges
+    assert np.array_equal(out[1], [0, 0, 1, 1]) and np.array_equal(out[2], [0, 1, 0, 1])
+    assert ext.loops(ks, np.array([7, 5, 11, 12]), *out) == -1  # open: 12 starts no edge
+    assert ext.loops(np.array([5, 5, 9, 11]), np.array([7, 5, 11, 9]), *out) == -1  # a repeated start
+    assert ext.loops(ks, np.array([7, 7, 11, 9]), *out) == -1  # two edges into one
+    with pytest.raises(ValueError):
+        ext.loops(ks, ks[:3], *out)

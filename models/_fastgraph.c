@@ -1,6 +1,6 @@
-/* Compiled helpers of models/partitioners/rtree.py (each has a numpy twin there: the fallback and
- * the reference in the tests; MAGNET_NO_COMPILED=1 switches them off). Same results bit for bit:
- * the same floating-point operations in the same order as the numpy code.
+/* Compiled graph helpers of models/partitioners/rtree.py and models/merge.py (each has a numpy twin
+ * there: the fallback and the reference in the tests; MAGNET_NO_COMPILED=1 switches them off). Same
+ * results bit for bit: the same floating-point operations in the same order as the numpy code.
  *
  *   cut_prepare  one halving step of split_counts, first half: per active part its cut axis (the
  *                longest extent of its centroids), its cells along that axis, their measures' running
@@ -12,9 +12,13 @@
  *                order of the part (side 0 first);
  *   pieces       connected pieces of the parts of a labelling (edges inside a part only), over all
  *                nodes or a subset of whole parts, numbered by their first node (scipy's numbering);
- *   cross_edges  the entries of a graph between different parts (_quotient's input to scipy).
+ *   cross_edges  the entries of a graph between different parts (_quotient's input to scipy);
+ *   loops        merge_2d's boundary loops: each edge's successor by a hash table, loops numbered by
+ *                their smallest edge (merge._pair_edges + merge._list_rank).
  *
- * Arrays come through the buffer protocol (no numpy headers at build time).
+ * Arrays come through the buffer protocol (no numpy headers at build time). The axis orders P that
+ * the cut functions take are trusted (rtree._Segments makes them: a permutation of 0..n-1 per axis);
+ * everything else is checked.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -428,6 +432,86 @@ static PyObject *py_cross_edges(PyObject *self, PyObject *args) {
     return PyLong_FromLongLong(c);
 }
 
+/* ---------------------------------------------------------------------------------------------- */
+/* loops(key_start, want, nxt, cyc, pos) -> number of loops, or -1
+ *   merge_2d's boundary loops: edge i goes on with the edge j whose key_start[j] == want[i] (keys:
+ *   element * n_points + vertex). Loops are numbered in the order of their smallest edge and pos
+ *   counts from that edge (merge._pair_edges + merge._list_rank). -1 when a start key repeats, a
+ *   wanted key is missing or two edges would go on with the same edge: the numpy path decides. */
+static PyObject *py_loops(PyObject *self, PyObject *args) {
+    PyObject *o[5];
+    if (!PyArg_ParseTuple(args, "OOOOO", o, o + 1, o + 2, o + 3, o + 4)) return NULL;
+    Py_buffer b[5];
+    Py_buffer *all[5];
+    for (int i = 0; i < 5; i++) all[i] = b + i;
+    const char *names[5] = {"key_start", "want", "nxt", "cyc", "pos"};
+    Py_ssize_t sizes[5] = {8, 8, 8, 8, 8};
+    int wr[5] = {0, 0, 1, 1, 1};
+    if (get_bufs(o, all, 5, names, sizes, wr) < 0) return NULL;
+    const int64_t *ks = b[0].buf, *want = b[1].buf;
+    int64_t *nxt = b[2].buf, *cyc = b[3].buf, *pos = b[4].buf;
+    int64_t m = N8(b[0]);
+    if (N8(b[1]) != m || N8(b[2]) != m || N8(b[3]) != m || N8(b[4]) != m) {
+        release_bufs(all, 5);
+        PyErr_SetString(PyExc_ValueError, "loops: arrays of different lengths");
+        return NULL;
+    }
+    int64_t nl = 0;
+    int err = 0;
+    Py_BEGIN_ALLOW_THREADS
+    int64_t cap = 16;
+    int bits = 4;
+    while (cap < 2 * m) { cap <<= 1; bits++; }
+    int64_t *tk = malloc((size_t)cap * 2 * sizeof(int64_t));
+    if (!tk) {
+        err = 1;
+    } else {
+        int64_t *tv = tk + cap, mask = cap - 1;
+        for (int64_t h = 0; h < cap; h++) tv[h] = -1;
+        /* a hash table key_start -> edge (open addressing, linear probing) */
+        for (int64_t i = 0; i < m && nl >= 0; i++) {
+            uint64_t h = ((uint64_t)ks[i] * 0x9E3779B97F4A7C15ull) >> (64 - bits);  /* the top bits */
+            for (;; h++) {
+                int64_t s = (int64_t)(h & (uint64_t)mask);
+                if (tv[s] < 0) { tk[s] = ks[i]; tv[s] = i; break; }
+                if (tk[s] == ks[i]) { nl = -1; break; }  /* a start key repeats */
+            }
+        }
+        for (int64_t i = 0; i < m && nl >= 0; i++) {
+            uint64_t h = ((uint64_t)want[i] * 0x9E3779B97F4A7C15ull) >> (64 - bits);
+            int64_t j = -1;
+            for (;; h++) {
+                int64_t s = (int64_t)(h & (uint64_t)mask);
+                if (tv[s] < 0) break;
+                if (tk[s] == want[i]) { j = tv[s]; break; }
+            }
+            if (j < 0) nl = -1;  /* an open boundary */
+            nxt[i] = j;
+            cyc[i] = -1;
+        }
+        /* every edge the successor of exactly one: a permutation (tv reused as the counts) */
+        for (int64_t i = 0; i < m && nl >= 0; i++) tv[i] = 0;
+        for (int64_t i = 0; i < m && nl >= 0; i++)
+            if (tv[nxt[i]]++) nl = -1;
+        for (int64_t i = 0; i < m && nl >= 0; i++) {
+            if (cyc[i] >= 0) continue;
+            /* i is the smallest edge not yet in a loop, so the smallest of its own loop */
+            int64_t j = i, p = 0;
+            do {
+                cyc[j] = nl;
+                pos[j] = p++;
+                j = nxt[j];
+            } while (j != i);
+            nl++;
+        }
+        free(tk);
+    }
+    Py_END_ALLOW_THREADS
+    release_bufs(all, 5);
+    if (err) return PyErr_NoMemory();
+    return PyLong_FromLongLong(nl);
+}
+
 static PyMethodDef methods[] = {
     {"cut_prepare", py_cut_prepare, METH_VARARGS,
      "cut_prepare(P, x, w, a_start, a_size, axis, length, chosen, mid, base, vol) -> active cells: "
@@ -441,10 +525,12 @@ static PyMethodDef methods[] = {
     {"cross_edges", py_cross_edges, METH_VARARGS,
      "cross_edges(indptr, indices, weights, labels, rows, cols, w) -> count: the entries between "
      "different parts, with their parts and weights."},
+    {"loops", py_loops, METH_VARARGS,
+     "loops(key_start, want, nxt, cyc, pos) -> number of loops, or -1: merge_2d's boundary loops."},
     {NULL, NULL, 0, NULL}};
 
-static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_fastcuts",
-                                    "Compiled helpers of models.partitioners.rtree (see models/_fastcuts.c).",
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_fastgraph",
+                                    "Compiled helpers of models.partitioners.rtree (see models/_fastgraph.c).",
                                     -1, methods};
 
-PyMODINIT_FUNC PyInit__fastcuts(void) { return PyModule_Create(&module); }
+PyMODINIT_FUNC PyInit__fastgraph(void) { return PyModule_Create(&module); }
