@@ -14,12 +14,14 @@ setup(
         Extension(
             "models._fastmetrics",
             ["models/_fastmetrics.c"],
+            depends=["models/_buffers.h"],
             extra_compile_args=["-O3", "-fno-math-errno"],
             optional=True,
         ),
         Extension(
             "models._fastgraph",
             ["models/_fastgraph.c"],
+            depends=["models/_buffers.h"],
             # no -ffast-math or contraction: the same float operations as the numpy twins, bit for bit
             extra_compile_args=["-O3", "-fno-math-errno", "-ffp-contract=off"],
             optional=True,

@@ -22,39 +22,12 @@
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include "_buffers.h"
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
 
-static int get_buf(PyObject *o, Py_buffer *b, int writable, const char *name, Py_ssize_t itemsize) {
-    int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
-    if (PyObject_GetBuffer(o, b, flags) < 0) return -1;
-    if (b->itemsize != itemsize) {
-        PyErr_Format(PyExc_TypeError, "%s: wrong item size", name);
-        PyBuffer_Release(b);
-        return -1;
-    }
-    return 0;
-}
-
-/* all n buffers (item size sizes[i]; writable where wr[i]), or none: on a failure the ones taken
- * are released and -1 returned with the exception set */
-static int get_bufs(PyObject *const *objs, Py_buffer *const *all, int n, const char *const *names,
-                    const Py_ssize_t *sizes, const int *wr) {
-    for (int got = 0; got < n; got++)
-        if (get_buf(objs[got], all[got], wr[got], names[got], sizes[got]) < 0) {
-            for (int i = 0; i < got; i++) PyBuffer_Release(all[i]);
-            return -1;
-        }
-    return 0;
-}
-
-static void release_bufs(Py_buffer *const *all, int n) {
-    for (int i = 0; i < n; i++) PyBuffer_Release(all[i]);
-}
-
-#define N8(b) ((int64_t)((b).len / 8))
 #define AHEAD 32 /* gathers prefetch this many entries ahead (random reads into arrays of a few MB) */
 #define PREFETCH(p) __builtin_prefetch((p), 0, 1)
 #define PREFETCHW(p) __builtin_prefetch((p), 1, 1)
@@ -67,17 +40,10 @@ static void release_bufs(Py_buffer *const *all, int n) {
  * its length; chosen / mid (>= tot): the active parts' cells along their axis, one part after the
  * other, and each cell's middle measure (running sum - half its own); base / vol (na,). */
 static PyObject *py_cut_prepare(PyObject *self, PyObject *args) {
-    PyObject *o[11];
-    if (!PyArg_ParseTuple(args, "OOOOOOOOOOO", o, o + 1, o + 2, o + 3, o + 4, o + 5, o + 6, o + 7, o + 8,
-                          o + 9, o + 10))
-        return NULL;
     Py_buffer b[11];
-    Py_buffer *all[11];
-    for (int i = 0; i < 11; i++) all[i] = b + i;
     const char *names[11] = {"P", "x", "w", "a_start", "a_size", "axis", "length", "chosen", "mid", "base", "vol"};
-    Py_ssize_t sizes[11] = {8, 8, 8, 8, 8, 8, 8, 8, 8, 8, 8};
     int wr[11] = {0, 0, 0, 0, 0, 1, 1, 1, 1, 1, 1};
-    if (get_bufs(o, all, 11, names, sizes, wr) < 0) return NULL;
+    if (parse_bufs(args, 11, "cut_prepare", names, NULL, wr, b) < 0) return NULL;
     const int64_t *P = b[0].buf;
     const double *x = b[1].buf, *w = b[2].buf;
     const int64_t *a_start = b[3].buf, *a_size = b[4].buf;
@@ -95,7 +61,7 @@ static PyObject *py_cut_prepare(PyObject *self, PyObject *args) {
         tot += a_size[i];
     }
     if (bad || N8(b[7]) < tot || N8(b[8]) < tot) {
-        release_bufs(all, 11);
+        release_arr(b, 11);
         PyErr_SetString(PyExc_ValueError, "cut_prepare: inconsistent array sizes");
         return NULL;
     }
@@ -131,7 +97,7 @@ static PyObject *py_cut_prepare(PyObject *self, PyObject *args) {
         s += sz;
     }
     Py_END_ALLOW_THREADS
-    release_bufs(all, 11);
+    release_arr(b, 11);
     return PyLong_FromLongLong(tot);
 }
 
@@ -318,15 +284,11 @@ static inline int64_t find(int64_t *up, int64_t a) {
 }
 
 static PyObject *py_pieces(PyObject *self, PyObject *args) {
-    PyObject *o[5];
-    if (!PyArg_ParseTuple(args, "OOOOO", o, o + 1, o + 2, o + 3, o + 4)) return NULL;
     Py_buffer b[5];
-    Py_buffer *all[5];
-    for (int i = 0; i < 5; i++) all[i] = b + i;
     const char *names[5] = {"indptr", "indices", "labels", "cells", "comp"};
     Py_ssize_t sizes[5] = {8, 8, 8, 8, 4};
     int wr[5] = {0, 0, 0, 0, 1};
-    if (get_bufs(o, all, 5, names, sizes, wr) < 0) return NULL;
+    if (parse_bufs(args, 5, "pieces", names, sizes, wr, b) < 0) return NULL;
     const int64_t *ptr = b[0].buf, *nb = b[1].buf, *lab = b[2].buf, *cells = b[3].buf;
     int32_t *comp = b[4].buf;
     int64_t n = N8(b[2]), nnz = N8(b[1]), mc = N8(b[3]);
@@ -338,7 +300,7 @@ static PyObject *py_pieces(PyObject *self, PyObject *args) {
     for (int64_t k = 0; k < mc && !bad; k++)
         if (cells[k] < 0 || cells[k] >= n || (k > 0 && cells[k] <= cells[k - 1])) bad = 1;
     if (bad) {
-        release_bufs(all, 5);
+        release_arr(b, 5);
         PyErr_SetString(PyExc_ValueError,
                         "pieces: inconsistent arrays (indptr n+1 non-decreasing, comp n or len(cells), cells increasing)");
         return NULL;
@@ -380,7 +342,7 @@ static PyObject *py_pieces(PyObject *self, PyObject *args) {
     free(up);
     free(loc);
     Py_END_ALLOW_THREADS
-    release_bufs(all, 5);
+    release_arr(b, 5);
     if (err) return PyErr_NoMemory();
     return PyLong_FromLongLong(nc);
 }
@@ -390,15 +352,11 @@ static PyObject *py_pieces(PyObject *self, PyObject *args) {
  *   the entries of a CSR graph between different parts of `labels` (< 2^31), in CSR order: their
  *   parts (int32 rows / cols) and weights, written to the first `count` entries of the outputs. */
 static PyObject *py_cross_edges(PyObject *self, PyObject *args) {
-    PyObject *o[7];
-    if (!PyArg_ParseTuple(args, "OOOOOOO", o, o + 1, o + 2, o + 3, o + 4, o + 5, o + 6)) return NULL;
     Py_buffer b[7];
-    Py_buffer *all[7];
-    for (int i = 0; i < 7; i++) all[i] = b + i;
     const char *names[7] = {"indptr", "indices", "weights", "labels", "rows", "cols", "w"};
     Py_ssize_t sizes[7] = {8, 8, 8, 8, 4, 4, 8};
     int wr[7] = {0, 0, 0, 0, 1, 1, 1};
-    if (get_bufs(o, all, 7, names, sizes, wr) < 0) return NULL;
+    if (parse_bufs(args, 7, "cross_edges", names, sizes, wr, b) < 0) return NULL;
     const int64_t *ptr = b[0].buf, *nb = b[1].buf, *lab = b[3].buf;
     const double *wt = b[2].buf;
     int32_t *rows = b[4].buf, *cols = b[5].buf;
@@ -411,7 +369,7 @@ static PyObject *py_cross_edges(PyObject *self, PyObject *args) {
     for (int64_t e = 0; e < nnz && !bad; e++)
         if (nb[e] < 0 || nb[e] >= n) bad = 1;
     if (bad) {
-        release_bufs(all, 7);
+        release_arr(b, 7);
         PyErr_SetString(PyExc_ValueError, "cross_edges: inconsistent arrays");
         return NULL;
     }
@@ -428,7 +386,7 @@ static PyObject *py_cross_edges(PyObject *self, PyObject *args) {
         }
     }
     Py_END_ALLOW_THREADS
-    release_bufs(all, 7);
+    release_arr(b, 7);
     return PyLong_FromLongLong(c);
 }
 
@@ -439,20 +397,15 @@ static PyObject *py_cross_edges(PyObject *self, PyObject *args) {
  *   counts from that edge (merge._pair_edges + merge._list_rank). -1 when a start key repeats, a
  *   wanted key is missing or two edges would go on with the same edge: the numpy path decides. */
 static PyObject *py_loops(PyObject *self, PyObject *args) {
-    PyObject *o[5];
-    if (!PyArg_ParseTuple(args, "OOOOO", o, o + 1, o + 2, o + 3, o + 4)) return NULL;
     Py_buffer b[5];
-    Py_buffer *all[5];
-    for (int i = 0; i < 5; i++) all[i] = b + i;
     const char *names[5] = {"key_start", "want", "nxt", "cyc", "pos"};
-    Py_ssize_t sizes[5] = {8, 8, 8, 8, 8};
     int wr[5] = {0, 0, 1, 1, 1};
-    if (get_bufs(o, all, 5, names, sizes, wr) < 0) return NULL;
+    if (parse_bufs(args, 5, "loops", names, NULL, wr, b) < 0) return NULL;
     const int64_t *ks = b[0].buf, *want = b[1].buf;
     int64_t *nxt = b[2].buf, *cyc = b[3].buf, *pos = b[4].buf;
     int64_t m = N8(b[0]);
     if (N8(b[1]) != m || N8(b[2]) != m || N8(b[3]) != m || N8(b[4]) != m) {
-        release_bufs(all, 5);
+        release_arr(b, 5);
         PyErr_SetString(PyExc_ValueError, "loops: arrays of different lengths");
         return NULL;
     }
@@ -507,7 +460,7 @@ static PyObject *py_loops(PyObject *self, PyObject *args) {
         free(tk);
     }
     Py_END_ALLOW_THREADS
-    release_bufs(all, 5);
+    release_arr(b, 5);
     if (err) return PyErr_NoMemory();
     return PyLong_FromLongLong(nl);
 }

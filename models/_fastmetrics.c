@@ -33,6 +33,7 @@
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include "_buffers.h"
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
@@ -603,33 +604,6 @@ static int search(Elem *E, State *S, const double *lo, const double *hi, Heap *H
 
 /* ---------------------------------------------------------------------------------------------- */
 /* Python entry */
-
-static int get_buf(PyObject *o, Py_buffer *b, int writable, const char *name, Py_ssize_t itemsize) {
-    int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
-    if (PyObject_GetBuffer(o, b, flags) < 0) return -1;
-    if (b->itemsize != itemsize) {
-        PyErr_Format(PyExc_TypeError, "%s: wrong item size", name);
-        PyBuffer_Release(b);
-        return -1;
-    }
-    return 0;
-}
-
-/* all n buffers (item size sizes[i], or 8 without sizes; writable where wr[i]), or none: on a
- * failure the ones taken are released and -1 returned with the exception set */
-static int get_bufs(PyObject *const *objs, Py_buffer *const *all, int n, const char *const *names,
-                    const Py_ssize_t *sizes, const int *wr) {
-    for (int got = 0; got < n; got++)
-        if (get_buf(objs[got], all[got], wr[got], names[got], sizes ? sizes[got] : 8) < 0) {
-            for (int i = 0; i < got; i++) PyBuffer_Release(all[i]);
-            return -1;
-        }
-    return 0;
-}
-
-static void release_bufs(Py_buffer *const *all, int n) {
-    for (int i = 0; i < n; i++) PyBuffer_Release(all[i]);
-}
 
 static PyObject *py_inscribed(PyObject *self, PyObject *args) {
     PyObject *oT, *oadj, *optr, *oel, *odiam, *olo, *ohi, *oor, *ocen, *orad, *oev;

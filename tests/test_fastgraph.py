@@ -143,6 +143,8 @@ def test_quotient_same_graph(monkeypatch, brain):
 def test_bad_buffers_are_refused():
     ext = rt._compiled()
     z8, zi = np.zeros(4), np.zeros(4, dtype=np.int64)
+    with pytest.raises(TypeError):  # a missing array
+        ext.pieces(zi, zi, zi, zi[:0])
     with pytest.raises(TypeError):  # 4-byte items where 8-byte ones are expected
         ext.pieces(np.zeros(5, dtype=np.int32), zi, zi, zi[:0], np.zeros(4, dtype=np.int32))
     with pytest.raises(ValueError):  # indptr of the wrong length
