@@ -342,11 +342,12 @@ def _grow_from_mains(
     return out
 
 
-def _rows_of(indptr: np.ndarray, deg: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(row, entry) of every CSR entry of the rows `cells` (increasing), in CSR order: no (nnz,) pass."""
-    dg = deg[cells]
+def _rows_of(indptr: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(row, entry) of every CSR entry of the rows `cells`, row by row in that order (CSR order when
+    increasing), and the row pointers of those rows alone: no (nnz,) pass."""
+    dg = indptr[cells + 1] - indptr[cells]
     ptr = row_pointers(dg)
-    return np.repeat(cells, dg), np.repeat(indptr[cells] - ptr[:-1], dg) + np.arange(ptr[-1])
+    return np.repeat(cells, dg), np.repeat(indptr[cells] - ptr[:-1], dg) + np.arange(ptr[-1]), ptr
 
 
 def _edge_rows(indptr: np.ndarray, e: np.ndarray) -> np.ndarray:
@@ -380,10 +381,9 @@ def _label_pieces(
         same = np.repeat(lab, np.diff(indptr)) == lab[indices]
         m = labels.size
     else:  # the rows of `cells` only, renumbered 0..len(cells)-1
-        deg = indptr[cells + 1] - indptr[cells]
-        ptr = row_pointers(deg)
-        nb = indices[np.repeat(indptr[cells] - ptr[:-1], deg) + np.arange(ptr[-1])]
-        same = np.repeat(labels[cells], deg) == labels[nb]
+        rows, e, ptr = _rows_of(indptr, cells)
+        nb = indices[e]
+        same = labels[rows] == labels[nb]
         m = cells.size
     ptr = kept_pointers(same, ptr)
     nb = nb[same]
@@ -436,7 +436,6 @@ def make_connected(
     labels = np.asarray(labels, dtype=np.int64).copy()
     mes = np.ones(n) if measures is None else np.asarray(measures, dtype=np.float64)
     par = np.zeros(n, dtype=np.int64) if parent is None else np.asarray(parent, dtype=np.int64)
-    deg = np.diff(indptr)
     moved_total = 0
     free = parent is None
     rnd = 0
@@ -467,7 +466,7 @@ def make_connected(
         main[win[win < nc]] = True
         frag_cell = ~main[comp]
         # edges leaving fragment cells into another part of the same parent (as indices: fragments are few)
-        a, e = _rows_of(indptr, deg, np.flatnonzero(frag_cell))
+        a, e, _ = _rows_of(indptr, np.flatnonzero(frag_cell))
         b = indices[e]
         keep = (labels[a] != labels[b]) & (par[a] == par[b])
         e, a, b = e[keep], a[keep], b[keep]  # the edges' rows and columns
@@ -699,9 +698,7 @@ def _renamed(indptr: np.ndarray, indices: np.ndarray, rank: np.ndarray) -> tuple
     keep their order, so rows are not sorted)."""
     inv = np.empty_like(rank)
     inv[rank] = np.arange(rank.size)
-    deg = np.diff(indptr)[inv]
-    ptr = row_pointers(deg)
-    src = np.repeat(indptr[:-1][inv] - ptr[:-1], deg) + np.arange(ptr[-1])
+    _, src, ptr = _rows_of(indptr, inv)
     return ptr, rank[indices[src]]
 
 
