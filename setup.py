@@ -1,7 +1,7 @@
 """Build hook for the compiled modules (everything else is in pyproject.toml).
 
-models/_fastmetrics.c holds compiled helpers of models/metrics.py (the 3D inscribed-ball search,
-the 3D geometry, enclosing balls, partition statistics); models/_fastgraph.c graph helpers of the
+models/quality/_fastmetrics.c holds compiled helpers of models/quality/ (the 3D inscribed-ball search,
+the 3D geometry, enclosing balls, partition statistics); models/graph/_fastgraph.c graph helpers of the
 rtree partitioner and the 2D merge (the halving steps of the cuts, connected pieces, coarse-graph
 edges, boundary loops). Both are optional: where they cannot be compiled the install goes on and
 the numpy twins run (same results, slower; models/native.py finds them).
@@ -12,16 +12,18 @@ from setuptools import Extension, setup
 setup(
     ext_modules=[
         Extension(
-            "models._fastmetrics",
-            ["models/_fastmetrics.c"],
+            "models.quality._fastmetrics",
+            ["models/quality/_fastmetrics.c"],
             depends=["models/_buffers.h"],
+            include_dirs=["models"],
             extra_compile_args=["-O3", "-fno-math-errno"],
             optional=True,
         ),
         Extension(
-            "models._fastgraph",
-            ["models/_fastgraph.c"],
+            "models.graph._fastgraph",
+            ["models/graph/_fastgraph.c"],
             depends=["models/_buffers.h"],
+            include_dirs=["models"],
             # no -ffast-math or contraction: the same float operations as the numpy twins, bit for bit
             extra_compile_args=["-O3", "-fno-math-errno", "-ffp-contract=off"],
             optional=True,

@@ -22,7 +22,7 @@ import structured  # noqa: E402
 
 def grid_square(n: int):
     """n x n squares cut in two triangles, sides tagged 2 (y=0), 3 (x=1), 4 (y=1), 5 (x=0)."""
-    from models.io import mesh_from_arrays
+    from models.mesh.read import mesh_from_arrays
 
     p, t = structured.square(n)
     v = lambda a, b: a * (n + 1) + b  # noqa: E731
@@ -44,8 +44,8 @@ def grid_square(n: int):
 
 def grid_cube(n: int):
     """Kuhn tetrahedra of an n^3 grid, the six faces tagged 11..16."""
-    from models.geometry import cell_faces
-    from models.io import mesh_from_arrays
+    from models.mesh.geometry import cell_faces
+    from models.mesh.read import mesh_from_arrays
 
     p, t = structured.cube(n)
     bare = mesh_from_arrays(p, [("tetra", t)])
@@ -74,7 +74,7 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args()
     from models import pipeline
-    from models.io import describe
+    from models.mesh.read import describe
 
     cases = [("square", grid_square(160 if args.quick else 500), 64)]
     if not args.quick:

@@ -36,8 +36,8 @@ def main() -> None:
     import meshio
     from bench_library import make_square
 
-    from models.check import check_file
-    from models.io import read_mesh
+    from models.mesh.check import check_file
+    from models.mesh.read import read_mesh
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")

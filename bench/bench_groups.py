@@ -1,5 +1,5 @@
 """Refiners on meshes with physical groups: sage-hetero multilevel + fm / rl-refiner with the
-groups kept (keep_groups on, the default for sage-hetero: models.groups) against the group-blind
+groups kept (keep_groups on, the default for sage-hetero: models.partition.groups) against the group-blind
 refiners (keep_groups off) and against no refiner, all in the same run.
 
 Per row: mean heterogeneity preservation over the elements (models.metrics, the fraction of an
@@ -26,13 +26,13 @@ DATA = os.path.join(ROOT, "tests", "data")
 
 
 def meshes(quick: bool):
-    from models.io import read_mesh
+    from models.mesh.read import read_mesh
 
     yield "square_inclusion", read_mesh(os.path.join(DATA, "square_inclusion.msh")), 4
     yield "cube_inclusion", read_mesh(os.path.join(DATA, "cube_inclusion.msh")), 4
     if quick:
         return
-    from models.generate import generate
+    from models.learn.generate import generate
 
     yield "inclusions h=0.02", generate("inclusions", seed=0, size=0.02).to_mesh(), 6
     yield "cube-hetero h=0.08", generate("cube-hetero", seed=0, size=0.08, parts=2).to_mesh(), 6
@@ -46,9 +46,10 @@ def main() -> None:
 
     import numpy as np
 
-    from models.agglomerate import agglomerate
-    from models.metrics import heterogeneity_preservation, partition_statistics
+    from models.partition.agglomerate import agglomerate
     from models.pipeline import prepare
+    from models.quality.partition_stats import partition_statistics
+    from models.quality.shape import heterogeneity_preservation
 
     print(
         f"{'mesh':20s} {'mode':10s} {'refiner':10s} {'groups':6s} {'hetero':>7s} {'mixed':>5s} "

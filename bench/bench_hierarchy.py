@@ -23,12 +23,12 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 sys.path[:0] = [ROOT, HERE]
 
-from models.agglomerate import agglomerate  # noqa: E402
-from models.hierarchy import build_hierarchy  # noqa: E402
-from models.io import mesh_from_arrays, read_mesh  # noqa: E402
-from models.metrics import box_measures  # noqa: E402
-from models.multigrid import mgcheck  # noqa: E402
+from models.hierarchy.multigrid import mgcheck  # noqa: E402
+from models.hierarchy.nested import build_hierarchy  # noqa: E402
+from models.mesh.read import mesh_from_arrays, read_mesh  # noqa: E402
+from models.partition.agglomerate import agglomerate  # noqa: E402
 from models.pipeline import prepare  # noqa: E402
+from models.quality.report import box_measures  # noqa: E402
 
 BRAIN = os.path.join(ROOT, "tests", "data", "BrainCoronalNoHoles.vtu")
 MODELS = ("rtree", "metis", "kmeans", "sage-base")
@@ -68,8 +68,8 @@ def pieces(graph, labels) -> int:
 
 def circle_ratio(mesh, graph, data, labels) -> float:
     """Mean CR of the elements: inscribed radius / half the diagonal of the element's box (R3MG's CR)."""
-    from models.merge import merge
-    from models.metrics import largest_inscribed_ball
+    from models.polytope.merge import merge
+    from models.quality.inscribed import largest_inscribed_ball
 
     poly, _ = merge(mesh, graph, labels, data.measures)
     _, r = largest_inscribed_ball(poly)
@@ -160,8 +160,8 @@ def print_rows(rows: list[dict]) -> None:
 
 def shape_bar(mesh, graph, data) -> list[dict]:
     """R3MG's numbers at 91 and 364 elements (kway): CR (inscribed / half box diagonal), BR, coverage."""
-    from models.merge import merge
-    from models.metrics import metrics_report
+    from models.polytope.merge import merge
+    from models.quality.report import metrics_report
 
     out = []
     for model in ("rtree", "metis", "kmeans"):
@@ -287,8 +287,8 @@ def main() -> None:
         p, t = cube(55)
         mesh = mesh_from_arrays(p, [("tetra", t)])
         graph, data = prepare(mesh)
-        from models.agglomerate import make_batch
-        from models.partitioners import get_partitioner
+        from models.partition import get_partitioner
+        from models.partition.agglomerate import make_batch
 
         batch = make_batch(data, np.zeros(mesh.n_cells, dtype=np.int64))
         # one untimed run of each first (this VM's cost of memory touched for the first time falls on

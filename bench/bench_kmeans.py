@@ -22,7 +22,7 @@ sys.path.insert(0, ROOT)
 
 def square_mesh(n: int):
     """The unit square cut into n x n squares, each into two triangles (2 n^2 triangles)."""
-    from models.io import mesh_from_arrays
+    from models.mesh.read import mesh_from_arrays
 
     x, y = np.meshgrid(np.linspace(0, 1, n + 1), np.linspace(0, 1, n + 1), indexing="ij")
     p = np.column_stack([x.ravel(), y.ravel()])
@@ -51,8 +51,8 @@ def main() -> None:
     ap.add_argument("--no-sklearn", action="store_true", help="skip the scikit-learn baseline")
     args = ap.parse_args()
 
-    from models.agglomerate import agglomerate
-    from models.partitioners.kmeans import KMeansPartitioner
+    from models.partition.agglomerate import agglomerate
+    from models.partition.kmeans import KMeansPartitioner
     from models.pipeline import prepare
 
     mesh = square_mesh(args.n)

@@ -59,7 +59,7 @@ def floor(path: str, k: int, repeat: int = 1) -> dict:
     import meshio
     import pymetis
 
-    from models.io import read_mesh
+    from models.mesh.read import read_mesh
     from models.pipeline import prepare
 
     reads, parts = [], []
@@ -84,9 +84,9 @@ def ours(path: str, k: int, out: str, repeat: int = 1) -> dict:
 import json, resource, time, sys
 sys.path.insert(0, {ROOT!r})
 # import everything first: the floor's timings exclude importing meshio and pymetis too
-from models.io import read_mesh
+from models.mesh.read import read_mesh
 from models import pipeline, metrics, vtu
-from models.partitioners import metis
+from models.partition import metis
 import pymetis
 runs = []
 for _ in range({repeat}):

@@ -1,4 +1,4 @@
-"""The 3D quality metrics stage against a baseline version of models/metrics.py, same run.
+"""The 3D quality metrics stage against a baseline version of models/quality/, same run.
 
 Meshes (issue 11): the structured 1M-tet cube (bench/structured.py, 55^3 cubes x 6 tetrahedra) at
 METIS k-way k=1024, and a ~110k-tet gmsh unit cube (mesh size 0.035) at k=256. Each mesh is read,
@@ -7,7 +7,7 @@ its own process (CPU and wall seconds of the stage, peak resident memory above t
 alternating versions --repeat times. The radii of both versions are compared against the
 certified tolerance (rel_tol x diameter).
 
-  python bench/bench_metrics3d.py --baseline REV          # REV: a git revision of models/metrics.py
+  python bench/bench_metrics3d.py --baseline REV          # REV: a git revision of models/quality/
   python bench/bench_metrics3d.py --baseline REV --small  # the gmsh cube only
 """
 
@@ -58,8 +58,8 @@ def build(case: str, cache: str) -> str:
         return out
     import structured
 
-    from models.agglomerate import agglomerate
-    from models.io import read_mesh
+    from models.mesh.read import read_mesh
+    from models.partition.agglomerate import agglomerate
     from models.pipeline import prepare, split_holes
 
     src = os.path.join(cache, f"{case}.vtu")
@@ -115,7 +115,7 @@ def one(module_path: str, data_path: str, radii_out: str) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--baseline", required=True, help="git revision of models/metrics.py to compare with")
+    ap.add_argument("--baseline", required=True, help="git revision of models/quality/ to compare with")
     ap.add_argument("--cache", default="/tmp/bench_metrics3d")
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--small", action="store_true", help="the 110k gmsh cube only")
@@ -129,7 +129,7 @@ def main() -> None:
     with open(base, "w") as f:
         f.write(
             subprocess.run(
-                ["git", "-C", ROOT, "show", f"{a.baseline}:models/metrics.py"],
+                ["git", "-C", ROOT, "show", f"{a.baseline}:models/quality/"],
                 check=True,
                 capture_output=True,
                 text=True,

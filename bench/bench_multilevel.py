@@ -28,8 +28,8 @@ BRAIN = os.path.join(ROOT, "tests", "data", "BrainCoronalNoHoles.vtu")
 
 
 def run_row(mesh, g, data, model, mode, refiner=None, **kw):
-    from models.agglomerate import agglomerate
-    from models.metrics import partition_statistics
+    from models.partition.agglomerate import agglomerate
+    from models.quality.partition_stats import partition_statistics
 
     t = time.perf_counter()
     a = agglomerate(mesh, data, model=model, mode=mode, refiner=refiner, **kw)
@@ -58,8 +58,8 @@ def kahip_row(g, data, k: int):
         return None
     import numpy as np
 
-    from models.metrics import partition_statistics
-    from models.partitioners.metis import integer_weights
+    from models.partition.metis import integer_weights
+    from models.quality.partition_stats import partition_statistics
 
     vw = integer_weights(data.measures).tolist()
     t = time.perf_counter()
@@ -85,7 +85,7 @@ def kahip_row(g, data, k: int):
 def kway_times(mesh, data, k: int, repeats: int = 9) -> dict:
     """Median CPU and wall seconds of METIS k-way with and without `fm`, the two run alternately
     `repeats` times each (one run of ~0.05 s swings by 2x on a loaded machine)."""
-    from models.agglomerate import agglomerate
+    from models.partition.agglomerate import agglomerate
 
     out = {"metis kway": ([], []), "metis kway + fm": ([], [])}
     for _ in range(repeats):
@@ -100,8 +100,8 @@ def kway_times(mesh, data, k: int, repeats: int = 9) -> dict:
 
 def warm_up(mesh, data):
     """Load the neural weights once (not part of any timing)."""
-    from models.agglomerate import agglomerate
-    from models.partitioners.rl import WEIGHTS_DIR, _load
+    from models.partition.agglomerate import agglomerate
+    from models.partition.rl import WEIGHTS_DIR, _load
 
     _load(WEIGHTS_DIR / "rl-refiner.pt")
     for model in ("sage-base", "rl-partitioner"):
@@ -126,7 +126,7 @@ def bar(results, name, ok, detail):
 
 
 def brain(bars):
-    from models.io import read_mesh
+    from models.mesh.read import read_mesh
     from models.pipeline import prepare
 
     mesh = read_mesh(BRAIN)
@@ -234,7 +234,7 @@ def brain(bars):
 def cube(bars, cells: int):
     from bench_library import make_cube
 
-    from models.io import read_mesh
+    from models.mesh.read import read_mesh
     from models.pipeline import prepare
 
     with tempfile.TemporaryDirectory() as tmp:

@@ -26,9 +26,10 @@ from scipy.sparse.csgraph import connected_components
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from models.agglomerate import CellData, connected_parts, recursive_bisection  # noqa: E402
-from models.partitioners import get_partitioner  # noqa: E402
-from models.partitioners.base import GraphBatch, Partitioner  # noqa: E402
+from models.graph.batch import GraphBatch  # noqa: E402
+from models.partition import get_partitioner  # noqa: E402
+from models.partition.agglomerate import CellData, connected_parts, recursive_bisection  # noqa: E402
+from models.partition.base import Partitioner  # noqa: E402
 
 
 def cell_data(mesh) -> CellData:
@@ -143,8 +144,8 @@ def main(argv=None) -> int:
 
     import torch
 
-    from models.generate import generate
-    from models.io import read_mesh
+    from models.learn.generate import generate
+    from models.mesh.read import read_mesh
 
     torch.set_num_threads(args.threads)
     opts = {} if args.weights_dir is None else {"weights_dir": args.weights_dir}
@@ -270,7 +271,7 @@ def main(argv=None) -> int:
 
 def make_warmup(data: CellData) -> GraphBatch:
     """A one-graph batch of the whole mesh (first call loads the weights, outside the timings)."""
-    from models.agglomerate import make_batch
+    from models.partition.agglomerate import make_batch
 
     return make_batch(data, np.zeros(data.graph.n, dtype=np.int64))
 

@@ -54,7 +54,7 @@ def floor(path: str) -> tuple[float, float, float]:
 
 
 def ours(path: str) -> tuple[float, float, float]:
-    from models.io import read_mesh
+    from models.mesh.read import read_mesh
     from models.pipeline import prepare
 
     c = time.process_time()
@@ -70,7 +70,7 @@ def in_child(which: str, path: str) -> tuple[float, float, float]:
     """floor() or ours() in a new process (the modules imported before the clock starts)."""
     code = (
         "import json, sys; sys.path[:0] = [sys.argv[1], sys.argv[2]]; import bench_read, meshio, "
-        "models.io, models.pipeline, models.vtu; "
+        "models.mesh.read, models.pipeline, models.vtu; "
         "print(json.dumps(getattr(bench_read, sys.argv[3])(sys.argv[4])))"
     )
     out = subprocess.run(

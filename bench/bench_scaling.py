@@ -41,10 +41,10 @@ def one(dim: int, n: int) -> dict:
     """Every stage once on one mesh (run in a fresh process: peak memory is this mesh's)."""
     import structured
 
-    from models.agglomerate import agglomerate
-    from models.io import read_mesh
-    from models.metrics import metrics_report
+    from models.mesh.read import read_mesh
+    from models.partition.agglomerate import agglomerate
     from models.pipeline import Result, prepare, split_holes, write_outputs
+    from models.quality.report import metrics_report
 
     t, cpu = {}, {}
 

@@ -5,7 +5,7 @@ inspection) and must never import torch. Neural partitioners are loaded lazily b
 
 - inspect_mesh(path, physical_tag=None) -> {"cells", "points", "dim", "cell_types": {name: count},
   "physical_groups": [int], "bbox": [[min...], [max...]], "boundary_groups": [int], "boundary":
-  models.boundary.summary}; raises MeshError.
+  models.mesh.boundary.summary}; raises MeshError.
 - validate_params(params, mesh_info=None) -> normalized params dict; raises ParameterError whose
   message names the field. Keys: model, mode, k, nref, target_size, mult_factor, subset (list of
   cell ids), refiner (fm | rl-refiner | null), options {seed, absorb_fraction, hole_policy,
@@ -30,7 +30,7 @@ import os
 import time
 from collections.abc import Callable
 
-from .errors import ParameterError
+from models.errors import ParameterError
 
 MODEL_VERSION = "0.1.0"
 MODES = ("kway", "nref", "target-size", "mult-factor", "segregated", "coarsen", "multilevel")
@@ -95,13 +95,13 @@ def list_models() -> list[dict]:
 
 def inspect_mesh(path: str | os.PathLike, physical_tag: str | None = None, check: bool = False) -> dict:
     """Read and validate a mesh; return its summary (MeshError if it is not a valid mesh).
-    check: add the `magnet check` report (models.check.mesh_report) under "check"."""
-    from .io import describe, read_mesh
+    check: add the `magnet check` report (models.mesh.check.mesh_report) under "check"."""
+    from models.mesh.read import describe, read_mesh
 
     mesh = read_mesh(path, physical_tag=physical_tag)
     info = describe(mesh)
     if check:
-        from .check import mesh_report
+        from models.mesh.check import mesh_report
 
         info["check"] = mesh_report(mesh)
     return info
@@ -306,8 +306,8 @@ def run_job(
     should_cancel: Callable[[], bool] | None = None,
 ) -> dict:
     """Run one agglomeration job from a mesh file to the output files in out_dir."""
-    from . import pipeline
-    from .io import read_mesh
+    from models import pipeline
+    from models.mesh.read import read_mesh
 
     p = validate_params(params)
     out_dir = os.fspath(out_dir)
@@ -378,18 +378,18 @@ def _write_hierarchy_zip(
     res, out_dir: str, boundary_tag: int, model: str | None = None, o: dict | None = None
 ) -> None:
     """Every nested level into out_dir/hierarchy.zip (flat archive; lymph structs per level in 2D).
-    With options.ratio: a hierarchy of its own with the job's model (models.hierarchy.build_hierarchy,
+    With options.ratio: a hierarchy of its own with the job's model (models.hierarchy.nested.build_hierarchy,
     as `magnet hierarchy`), aggregation operators included."""
     import shutil
     import tempfile
     import zipfile
 
-    from . import pipeline
+    from models import pipeline
 
     tmp = tempfile.mkdtemp(prefix="hierarchy-", dir=out_dir)
     try:
         if o is not None and o.get("ratio") is not None:
-            from .hierarchy import build_hierarchy, write_hierarchy
+            from models.hierarchy.nested import build_hierarchy, write_hierarchy
 
             levels, info = build_hierarchy(
                 res.mesh,

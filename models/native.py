@@ -1,5 +1,5 @@
-"""The compiled helper modules, built by setup.py where a C compiler is found: models/_fastmetrics.c
-(the metrics' 3D geometry and inscribed balls) and models/_fastgraph.c (the rtree model's cuts,
+"""The compiled helper modules, built by setup.py where a C compiler is found: models/quality/_fastmetrics.c
+(the metrics' 3D geometry and inscribed balls) and models/graph/_fastgraph.c (the rtree model's cuts,
 connected pieces, coarse-graph edges, merge_2d's boundary loops). Each of their functions has a
 numpy twin next to its caller, which runs where the module was not built or MAGNET_NO_COMPILED=1
 (same results; the tests hold them equal)."""
@@ -11,7 +11,7 @@ import os
 
 
 def compiled(name: str):
-    """models.<name> (e.g. "_fastgraph"), or None where it was not built or MAGNET_NO_COMPILED=1."""
+    """models.<name> (e.g. "graph._fastgraph"), or None where it was not built or MAGNET_NO_COMPILED=1."""
     if os.environ.get("MAGNET_NO_COMPILED", "") not in ("", "0"):
         return None
     try:

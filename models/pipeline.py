@@ -19,16 +19,16 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .boundary import FineBoundary, annotate, fine_boundary, has_groups
-from .celldata import CellData, compact_labels
-from .errors import MeshError, ParameterError
-from .geometry import cell_faces, measures_and_centroids
-from .graph import DualGraph, cached_faces, dual_graph
-from .merge import merge, sort_by_vertex_count
-from .mesh import Mesh, PolyMesh
+from models.errors import MeshError, ParameterError
+from models.mesh.boundary import FineBoundary, annotate, fine_boundary, has_groups
+from models.mesh.celldata import CellData, compact_labels
+from models.mesh.container import Mesh, PolyMesh
+from models.mesh.dual import DualGraph, cached_faces, dual_graph
+from models.mesh.geometry import cell_faces, measures_and_centroids
+from models.polytope.merge import merge, sort_by_vertex_count
 
-if TYPE_CHECKING:  # models.agglomerate is imported where partitioning runs (not by prepare alone)
-    from .agglomerate import Agglomeration
+if TYPE_CHECKING:  # models.partition.agglomerate is imported where partitioning runs (not by prepare alone)
+    from models.partition.agglomerate import Agglomeration
 
 HOLE_POLICIES = ("split", "error")
 
@@ -76,7 +76,7 @@ def split_holes(
     """Merge, and split elements that enclose holes until none does. Returns (poly, labels, n_split)."""
     if policy not in HOLE_POLICIES:
         raise ParameterError(f"hole_policy must be one of {list(HOLE_POLICIES)}, got {policy!r}")
-    from .agglomerate import connected_parts
+    from models.partition.agglomerate import connected_parts
 
     n_split = 0
     all_nodes = np.arange(mesh.n_cells)
@@ -135,7 +135,7 @@ def run(
     keep_groups: bool | None = None,
 ) -> Result:
     """Agglomerate `mesh`; progress(fraction, stage) is called between stages. refiner, threshold,
-    record_levels, keep_groups: see models.agglomerate.agglomerate (multilevel mode, nested
+    record_levels, keep_groups: see models.partition.agglomerate.agglomerate (multilevel mode, nested
     hierarchy, refiners that keep physical groups apart)."""
 
     def report(frac: float, stage: str) -> None:
@@ -154,7 +154,7 @@ def run(
     def part_progress(frac: float, stage: str) -> None:
         report(0.1 + 0.6 * frac, stage)
 
-    from .agglomerate import agglomerate
+    from models.partition.agglomerate import agglomerate
 
     agg = agglomerate(
         mesh,
@@ -215,7 +215,7 @@ def run(
 
 def element_metrics(res: Result) -> dict:
     """The metrics report (models.metrics) for a result."""
-    from .metrics import metrics_report
+    from models.quality.report import metrics_report
 
     g = res.graph
     return metrics_report(res.poly, g.indptr, g.indices, fine_tags=res.mesh.tags)
@@ -236,13 +236,13 @@ def write_outputs(
     out: dict[str, str] = {}
     t = time.perf_counter()
     if vtu:
-        from .vtu import write_vtu
+        from models.export.vtu import write_vtu
 
         cell_data = {}
         if res.metrics is not None:
             for name, vals in res.metrics["per_element"].items():
                 cell_data[name] = np.asarray(vals, dtype=np.float64)
-        from .boundary import output_cells
+        from models.mesh.boundary import output_cells
 
         write_vtu(
             vtu, res.poly, cell_data, boundary=output_cells(res.poly), group_names=_group_names(res.mesh)
@@ -254,14 +254,14 @@ def write_outputs(
     if lymph:
         if res.mesh.dim != 2:
             raise ParameterError("lymph output exists for 2D meshes only")
-        from .lymph import lymph_structs, write_lymph_json, write_lymph_mat
+        from models.export.lymph import lymph_structs, write_lymph_json, write_lymph_mat
 
         region, neighbor = lymph_structs(res.poly, boundary_tag=boundary_tag)
         for i, path in enumerate([lymph] if isinstance(lymph, str) else lymph):
             (write_lymph_json if path.endswith(".json") else write_lymph_mat)(path, region, neighbor)
             out["lymph" if i == 0 else f"lymph{i}"] = path
     if plot:
-        from .plot import plot_agglomeration
+        from models.quality.plot import plot_agglomeration
 
         plot_agglomeration(res.poly, plot, fine_mesh=res.mesh if res.mesh.n_cells <= 200_000 else None)
         out["preview"] = plot
@@ -271,11 +271,11 @@ def write_outputs(
             res.metrics = element_metrics(res)
         report = dict(res.metrics)
         if res.boundary is not None:
-            from .boundary import measure_report
+            from models.mesh.boundary import measure_report
 
             report["boundary"] = measure_report(res.boundary, res.poly)
         report["run"] = {**res.summary(), **(extra or {})}
-        from .check import mesh_report
+        from models.mesh.check import mesh_report
 
         report["mesh_report"] = mesh_report(res.mesh, res.graph)  # what `magnet check` says of the input
         _atomic_write(metrics, json.dumps(report, indent=1))
@@ -308,9 +308,9 @@ def write_hierarchy(
     boundary_tag: int = 1,
 ) -> dict:
     """The nested hierarchy of a recursive run (pipeline.run(..., record_levels=True)) written to
-    out_dir (models.hierarchy); returns the hierarchy.json index."""
-    from .hierarchy import nested_levels
-    from .hierarchy import write_hierarchy as _write
+    out_dir (models.hierarchy.nested); returns the hierarchy.json index."""
+    from models.hierarchy.nested import nested_levels
+    from models.hierarchy.nested import write_hierarchy as _write
 
     agg = res.agglomeration
     if not agg.levels:

@@ -28,8 +28,8 @@ def main() -> None:
     import matplotlib.pyplot as plt
     from matplotlib.collections import LineCollection, PolyCollection
 
-    from models.hierarchy import build_hierarchy
-    from models.io import read_mesh
+    from models.hierarchy.nested import build_hierarchy
+    from models.mesh.read import read_mesh
     from models.pipeline import prepare
 
     mesh = read_mesh(a.mesh)

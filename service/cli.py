@@ -1,6 +1,6 @@
 """`magnet serve`: the HTTP API, plus (by default) a job worker on the embedded broker, in one command.
 
-Registered through the magnet.commands entry point, so models/cli.py never imports the service.
+Registered through the magnet.commands entry point, so models/cli/main.py never imports the service.
 """
 
 from __future__ import annotations

@@ -162,7 +162,7 @@ def polygons_of(path: Path, max_cells: int) -> dict:
 
     import numpy as np
 
-    from models.io import read_mesh
+    from models.mesh.read import read_mesh
 
     mesh = read_mesh(str(path))
     if mesh.dim != 2:
@@ -180,15 +180,15 @@ def polygons_of(path: Path, max_cells: int) -> dict:
 
 
 def draw_level(path: Path, archive: Path, level: int, out: Path) -> None:
-    """Merge a hierarchy level's elements (labels from the archive) and plot them (models.plot)."""
+    """Merge a hierarchy level's elements (labels from the archive) and plot them (models.quality.plot)."""
     import zipfile
 
     import numpy as np
 
-    from models.io import read_mesh
-    from models.merge import merge
+    from models.mesh.read import read_mesh
     from models.pipeline import prepare
-    from models.plot import plot_agglomeration
+    from models.polytope.merge import merge
+    from models.quality.plot import plot_agglomeration
 
     with zipfile.ZipFile(archive) as zf:
         index = json.loads(zf.read("hierarchy.json"))

@@ -37,7 +37,7 @@ def pieces(graph, labels) -> int:
 @pytest.fixture(scope="module")
 def brain():
     """The brain read and prepared once per module: (mesh, dual graph, cell data)."""
-    from models.io import read_mesh
+    from models.mesh.read import read_mesh
     from models.pipeline import prepare
 
     m = read_mesh(BRAIN)

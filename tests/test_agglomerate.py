@@ -7,11 +7,11 @@ from conftest import BRAIN, EMILIA
 from meshes import hexes, mixed_2d, mixed_3d, quads, tets, triangles, wedges
 from scipy.sparse.csgraph import connected_components
 
-from models.agglomerate import agglomerate
 from models.errors import ParameterError
-from models.geometry import mesh_diameter
-from models.graph import dual_graph
-from models.io import mesh_from_arrays, read_mesh
+from models.mesh.dual import dual_graph
+from models.mesh.geometry import mesh_diameter
+from models.mesh.read import mesh_from_arrays, read_mesh
+from models.partition.agglomerate import agglomerate
 from models.pipeline import prepare, run
 
 PARTITIONERS = ["metis", "kmeans", "rtree"]
@@ -179,7 +179,7 @@ def test_components_and_absorption(square):
 
 def test_absorb_tiny_fragments_gives_requested_count(square):
     m, g, d = square
-    from models.agglomerate import absorb_fragments, connected_parts
+    from models.partition.agglomerate import absorb_fragments, connected_parts
 
     labels = np.zeros(m.n_cells, dtype=np.int64)
     labels[d.centroids[:, 0] > 0.5] = 1

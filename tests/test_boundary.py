@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 
 from models import pipeline
-from models.boundary import NO_TAG, check_lines, fine_boundary, summary
-from models.check import mesh_report
-from models.io import describe, mesh_from_arrays, read_mesh
-from models.lymph import lymph_from_mat, lymph_structs
+from models.export.lymph import lymph_from_mat, lymph_structs
+from models.mesh.boundary import NO_TAG, check_lines, fine_boundary, summary
+from models.mesh.check import mesh_report
+from models.mesh.read import describe, mesh_from_arrays, read_mesh
 
 DATA = Path(__file__).parent / "data"
 ROOT = Path(__file__).parent.parent
@@ -117,7 +117,7 @@ def test_inclusion_materials_and_interface(tmp_path, model, mode, kw):
     # in lymph's neighbour struct, the interface edges have an element on the other side, of the other material
     conn = np.concatenate(region["connectivity"]) - 1
     nxt = np.concatenate([np.roll(c, -1) for c in region["connectivity"]]) - 1
-    from models.boundary import edge_tags
+    from models.mesh.boundary import edge_tags
 
     used = np.unique(poly.loop_nodes)  # lymph's compact numbering keeps the sorted used points
     t = edge_tags(poly, used[conn], used[nxt], default=0)
@@ -322,7 +322,7 @@ def test_cli_boundary_tag_and_summary(tmp_path):
 
 def test_match_with_wide_keys():
     """Meshes too big for one int64 face key use (F, 4) key rows; matching gives the same answer."""
-    from models.boundary import _match
+    from models.mesh.boundary import _match
 
     rng = np.random.default_rng(0)
     ref = rng.permutation(np.arange(50)) * 7
@@ -370,7 +370,7 @@ def test_cube_inclusion_interface_surface(tmp_path, model, mode, kw):
 
 
 def test_magnet_check_lists_the_groups(capsys):
-    from models.cli import main as magnet
+    from models.cli.main import main as magnet
 
     assert magnet(["check", str(INCLUSION)]) == 0
     text = capsys.readouterr().out

@@ -10,7 +10,7 @@ from conftest import BRAIN, EMILIA
 from defects import write_folded_brain
 from test_cli import magnet
 
-from models.check import check_file
+from models.mesh.check import check_file
 
 
 def test_brain_report():
@@ -112,8 +112,8 @@ def test_3d_cavity_and_2d_hole_are_counted():
     import numpy as np
     from meshes import hexes, quads
 
-    from models.check import mesh_report
-    from models.io import mesh_from_arrays
+    from models.mesh.check import mesh_report
+    from models.mesh.read import mesh_from_arrays
 
     p, h = hexes(3)
     inner = np.all(np.abs(p[h].mean(axis=1) - 0.5) < 0.2, axis=1)  # the middle hexahedron removed

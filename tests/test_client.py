@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 from service_fixtures import ROOT, embedded_server, square_mesh
 
-from models.cli import main as magnet
+from models.cli.main import main as magnet
 
 CLIENT = ROOT / "client"
 TOKEN = "client-test-key"

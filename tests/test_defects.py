@@ -13,8 +13,8 @@ from defects import OUT, corpus, normalized
 from test_cli import _bad, magnet
 
 from models import pipeline
-from models.check import check_file
-from models.io import mesh_from_arrays, read_mesh
+from models.mesh.check import check_file
+from models.mesh.read import mesh_from_arrays, read_mesh
 
 AREA = {  # exact total measure, where the construction fixes it
     "folded_sliver_2d": 1.0,

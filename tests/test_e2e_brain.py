@@ -14,7 +14,7 @@ from scipy.io import loadmat
 from service_fixtures import BRAIN, SHARED_REDIS, Api, service_env, start_api, start_worker
 from test_queue_redis import redis_up
 
-from models.cli import main as magnet
+from models.cli.main import main as magnet
 
 pytestmark = [pytest.mark.redis, pytest.mark.slow]
 JOBS = [

@@ -1,5 +1,5 @@
-"""The compiled helpers of the rtree model (models/_fastgraph.c) against their numpy twins in
-models/partitioners/rtree.py: the same cuts, pieces and coarse graphs bit for bit (the twins are the
+"""The compiled helpers of the rtree model (models/graph/_fastgraph.c) against their numpy twins in
+models/partition/rtree.py: the same cuts, pieces and coarse graphs bit for bit (the twins are the
 fallback where the module is not built, and the reference here)."""
 
 from __future__ import annotations
@@ -9,15 +9,17 @@ import pytest
 from conftest import pieces
 from meshes import mixed_2d, mixed_3d, tets
 
-import models.partitioners.rtree as rt
-from models.agglomerate import make_batch
-from models.io import mesh_from_arrays
+import models.partition.rtree as rt
+from models.mesh.read import mesh_from_arrays
+from models.partition.agglomerate import make_batch
 from models.pipeline import prepare
 
 
 def test_the_compiled_cuts_are_built():
     """setup.py builds them with every install; rtree would still work without them, only slower."""
-    assert rt._compiled() is not None, "models/_fastgraph.c was not compiled: reinstall (pip install -e .)"
+    assert rt._compiled() is not None, (
+        "models/graph/_fastgraph.c was not compiled: reinstall (pip install -e .)"
+    )
 
 
 def _both(monkeypatch, fn):
@@ -168,7 +170,7 @@ def test_merge_2d_loops_same_polygons(monkeypatch, brain, case):
     """merge_2d's boundary loops from the compiled hash-and-walk equal _pair_edges + _list_rank:
     connected elements; elements with holes (a ring of cells around others); random labels, whose
     elements touch themselves at vertices (the compiled pass declines, numpy decides)."""
-    import models.merge as M
+    import models.polytope.merge as M
 
     m, g, d = brain
     batch = make_batch(d, np.zeros(m.n_cells, dtype=np.int64))

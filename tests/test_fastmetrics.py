@@ -1,4 +1,4 @@
-"""The compiled 3D inscribed-ball search (models/_fastmetrics.c) against closed forms, against the
+"""The compiled 3D inscribed-ball search (models/quality/_fastmetrics.c) against closed forms, against the
 numpy search it replaces (both certified to rel_tol x diameter), and its fallbacks."""
 
 from __future__ import annotations
@@ -9,13 +9,18 @@ import numpy as np
 import pytest
 from test_metrics import R_L, SQ2, cube, l_prism, point_tri_dist, poly3d, tetra
 
-import models.metrics as mm
-from models.metrics import element_diameters, largest_inscribed_ball
+import models.quality.inscribed as _inscribed_module
+from models.quality.distance import _inside_bruteforce
+from models.quality.geometry import _compiled, _enclosing_balls, _prepare
+from models.quality.inscribed import _inscribed, largest_inscribed_ball
+from models.quality.shape import element_diameters
 
 
 def test_the_compiled_search_is_built():
     """setup.py builds it with every install; metrics would still work without it, only slower."""
-    assert mm._compiled() is not None, "models/_fastmetrics.c was not compiled: reinstall (pip install -e .)"
+    assert _compiled() is not None, (
+        "models/quality/_fastmetrics.c was not compiled: reinstall (pip install -e .)"
+    )
 
 
 @pytest.mark.parametrize("method", ["bnb", "bnb-numpy"])
@@ -43,9 +48,9 @@ def _jagged(n=8, seed=0, parts=12):
     fine cell to its nearest seed under a wavy metric."""
     from meshes import tets
 
-    from models.io import mesh_from_arrays
-    from models.merge import merge
+    from models.mesh.read import mesh_from_arrays
     from models.pipeline import prepare
+    from models.polytope.merge import merge
 
     p, t = tets(n)
     m = mesh_from_arrays(p, [("tetra", t)])
@@ -63,13 +68,13 @@ def _jagged(n=8, seed=0, parts=12):
 def _certify(poly, centres, radii):
     """Each centre is inside its element (winding number) and its exact distance to the element's
     boundary triangles is the radius."""
-    g = mm._prepare(poly)
+    g = _prepare(poly)
     for e in range(g.n):
         tri = g.prim[g.prim_ptr[e] : g.prim_ptr[e + 1]]
         x = centres[e]
         assert np.isfinite(x).all()
         assert point_tri_dist(x[None], tri).min() == pytest.approx(radii[e], rel=1e-9, abs=1e-15)
-    assert mm._inside_bruteforce(g, centres, np.arange(g.n)).all()
+    assert _inside_bruteforce(g, centres, np.arange(g.n)).all()
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -93,7 +98,7 @@ def test_cell_budget_hands_elements_to_the_numpy_search(monkeypatch):
     guarantee."""
     poly = _jagged(seed=3)
     _, ref = largest_inscribed_ball(poly, method="bnb")
-    monkeypatch.setattr(mm, "_EXT_MAX_CELLS", 1)
+    monkeypatch.setattr(_inscribed_module, "_EXT_MAX_CELLS", 1)
     c, r = largest_inscribed_ball(poly, method="bnb")
     eps = 1e-3 * element_diameters(poly)
     assert np.all(np.abs(r - ref) <= eps + 1e-12)
@@ -103,7 +108,7 @@ def test_cell_budget_hands_elements_to_the_numpy_search(monkeypatch):
 def test_without_the_compiled_module(monkeypatch):
     """MAGNET_NO_COMPILED=1 (or a failed build): the numpy search, same guarantee."""
     monkeypatch.setenv("MAGNET_NO_COMPILED", "1")
-    assert mm._compiled() is None
+    assert _compiled() is None
     poly = _jagged(seed=4)
     c, r = largest_inscribed_ball(poly)
     monkeypatch.delenv("MAGNET_NO_COMPILED")
@@ -112,7 +117,7 @@ def test_without_the_compiled_module(monkeypatch):
 
 
 def test_bad_buffers_are_refused():
-    ext = mm._compiled()
+    ext = _compiled()
     z = np.zeros(1)
     with pytest.raises(TypeError):
         ext.inscribed(*([np.zeros(3, dtype=np.int32)] * 8), 1e-3, 10, z, z, z)
@@ -134,9 +139,9 @@ def test_hull_free_geometry_matches_qhull(monkeypatch):
     are not."""
     from meshes import tets
 
-    from models.io import mesh_from_arrays
-    from models.merge import merge
+    from models.mesh.read import mesh_from_arrays
     from models.pipeline import prepare
+    from models.polytope.merge import merge
 
     p, t = tets(2)
     m = mesh_from_arrays(p, [("tetra", t)])
@@ -157,9 +162,9 @@ def test_hull_free_geometry_matches_qhull(monkeypatch):
         + jag_elems,
         offsets=[(3 * i, 0, 0) for i in range(6 + len(jag_elems))],
     )
-    g1 = mm._prepare(pm)
+    g1 = _prepare(pm)
     monkeypatch.setenv("MAGNET_NO_COMPILED", "1")
-    g0 = mm._prepare(pm)
+    g0 = _prepare(pm)
     assert np.array_equal(g1.convex, g0.convex)
     assert list(g1.convex[:6]) == [True, True, True, False, False, False]
     assert not g1.convex[6:].any()
@@ -170,11 +175,11 @@ def test_hull_free_geometry_matches_qhull(monkeypatch):
         )
     # the enclosing balls from all boundary vertices equal those from the hull vertices
     np.testing.assert_allclose(
-        mm._enclosing_balls(g1.hull_pts, 3)[1], mm._enclosing_balls(g0.hull_pts, 3)[1], rtol=1e-12
+        _enclosing_balls(g1.hull_pts, 3)[1], _enclosing_balls(g0.hull_pts, 3)[1], rtol=1e-12
     )
     # convex elements keep their exact Chebyshev centres (LP over the triangle planes)
-    _, r1 = mm._inscribed(g1, 1e-3)
-    _, r0 = mm._inscribed(g0, 1e-3)
+    _, r1 = _inscribed(g1, 1e-3)
+    _, r0 = _inscribed(g0, 1e-3)
     np.testing.assert_allclose(r1[:3], [0.5, math.sqrt(3) / 3, 0.5], rtol=1e-9)
     np.testing.assert_allclose(r1[:3], r0[:3], rtol=1e-9)
 
@@ -186,9 +191,9 @@ def test_compiled_geometry_tables_match_numpy(monkeypatch):
     vf, ff = l_prism(1.5)
     flipped = [ff[0][::-1]] + ff[1:]  # one face against the others: its edges get -1
     pm = poly3d([(v, f), (vf, flipped), tetra()] + [(p, q) for p, q in [l_prism(0.7)]])
-    g1 = mm._prepare(pm)
+    g1 = _prepare(pm)
     monkeypatch.setenv("MAGNET_NO_COMPILED", "1")
-    g0 = mm._prepare(pm)
+    g0 = _prepare(pm)
     np.testing.assert_array_equal(g1.prim, g0.prim)
     np.testing.assert_array_equal(g1.tri_adj, g0.tri_adj)
     assert (g1.tri_adj < 0).any() and (g1.tri_adj >= 0).any()
@@ -197,16 +202,16 @@ def test_compiled_geometry_tables_match_numpy(monkeypatch):
     np.testing.assert_allclose(g1.rad, g0.rad, rtol=1e-13)
     # the jagged agglomerates (some edges non-manifold): the same neighbours
     poly = _jagged(seed=6)
-    a = mm._prepare(poly).tri_adj
+    a = _prepare(poly).tri_adj
     monkeypatch.delenv("MAGNET_NO_COMPILED")
-    b = mm._prepare(poly).tri_adj
+    b = _prepare(poly).tri_adj
     np.testing.assert_array_equal(a, b)
 
 
 def test_empty_and_degenerate_3d_elements():
     """No triangles at all, and a flat element (two faces back to back, zero volume): no crash,
     radius 0 and no centre in both searches (it has no interior)."""
-    from models.mesh import PolyMesh
+    from models.mesh.container import PolyMesh
 
     empty = PolyMesh(
         points=np.zeros((0, 3)),
@@ -242,14 +247,14 @@ def test_certified_centres_on_a_larger_mesh():
 def test_compiled_enclosing_balls_match_numpy():
     """The compiled pivoting gives numpy's exact enclosing balls: random clouds, co-spherical and
     co-planar points (a cube's corners, a flat grid), one and two points, and the jagged elements."""
-    ext = mm._compiled()
+    ext = _compiled()
     rng = np.random.default_rng(0)
     sets = [rng.random((n, 3)) for n in (1, 2, 3, 5, 40, 300)]
     sets.append(np.array(list(__import__("itertools").product((0.0, 1.0), repeat=3))))
     g = np.stack(np.meshgrid(np.arange(5.0), np.arange(4.0), [0.0]), -1).reshape(-1, 3)
     sets.append(g)
     sets.append(rng.normal(size=(200, 3)) / np.linalg.norm(rng.normal(size=(200, 3)), axis=1)[:, None])
-    gj = mm._prepare(_jagged(seed=8))
+    gj = _prepare(_jagged(seed=8))
     sets += list(gj.hull_pts)
     # the farthest pair first, as _prepare hands them over
     ordered = []
@@ -264,7 +269,7 @@ def test_compiled_enclosing_balls_match_numpy():
     c = np.zeros((len(ordered), 3))
     r = np.zeros(len(ordered))
     ext.enclosing_balls(np.concatenate(ordered), ptr, c, r)
-    c0, r0 = mm._enclosing_balls(ordered, 3)
+    c0, r0 = _enclosing_balls(ordered, 3)
     np.testing.assert_allclose(r, r0, rtol=1e-12, atol=1e-15)
     assert r[6] == pytest.approx(math.sqrt(3) / 2, rel=1e-12)  # the cube
     assert r[7] == pytest.approx(math.hypot(2, 1.5), rel=1e-12)  # the 5 x 4 grid

@@ -1,16 +1,16 @@
-"""Flow refinement of pairs of parts (models.flow): known optima on grids, guarantees on the brain."""
+"""Flow refinement of pairs of parts (models.partition.flow): known optima on grids, guarantees on the brain."""
 
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from models.agglomerate import make_batch
-from models.flow import flow_bisections, flow_kway, pair_mincut, part_components
-from models.metrics import partition_statistics
-from models.partitioners import get_partitioner
-from models.partitioners.base import GraphBatch
-from models.refine import FMRefiner, bisection_ncut
+from models.graph.batch import GraphBatch
+from models.partition import get_partitioner
+from models.partition.agglomerate import make_batch
+from models.partition.flow import flow_bisections, flow_kway, pair_mincut, part_components
+from models.partition.refine import FMRefiner, bisection_ncut
+from models.quality.partition_stats import partition_statistics
 
 DATA = Path(__file__).parent / "data"
 
@@ -212,8 +212,8 @@ def test_flow_kway_never_swallows_a_part():
     """Unequal parts, as sage-hetero makes them on a mesh with an inclusion (sizes 7 to 89): under
     the k-way normalized cut an emptied part adds nothing, so taking a small part whole looked like
     a gain (14 of 16 parts were left); every part must keep a cell, whatever the objective."""
-    from models.agglomerate import agglomerate
-    from models.io import read_mesh
+    from models.mesh.read import read_mesh
+    from models.partition.agglomerate import agglomerate
     from models.pipeline import prepare
 
     mesh = read_mesh(DATA / "square_inclusion.msh")

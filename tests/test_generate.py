@@ -9,13 +9,13 @@ import pytest
 
 pytest.importorskip("gmsh")
 
-from models.dataset import GraphDataset, build_dataset, get_recipe  # noqa: E402
+from models.cli.generate import add_generate_args, generate_main  # noqa: E402
 from models.errors import ParameterError  # noqa: E402
-from models.generate import KINDS_2D, generate, sphere_stl  # noqa: E402
-from models.generate_cli import add_generate_args, generate_main  # noqa: E402
-from models.geometry import measures_and_centroids  # noqa: E402
-from models.graph import dual_graph  # noqa: E402
-from models.io import read_mesh  # noqa: E402
+from models.learn.dataset import GraphDataset, build_dataset, get_recipe  # noqa: E402
+from models.learn.generate import KINDS_2D, generate, sphere_stl  # noqa: E402
+from models.mesh.dual import dual_graph  # noqa: E402
+from models.mesh.geometry import measures_and_centroids  # noqa: E402
+from models.mesh.read import read_mesh  # noqa: E402
 
 SMALL = {
     "square-tri": dict(size=0.1),

@@ -1,4 +1,4 @@
-"""Closed-form fast paths of models.geometry against the general face-based formulas."""
+"""Closed-form fast paths of models.mesh.geometry against the general face-based formulas."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from models import geometry
-from models.mesh import VTK_TETRA, Mesh
+from models.mesh import geometry
+from models.mesh.container import VTK_TETRA, Mesh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 import structured  # noqa: E402
@@ -60,8 +60,8 @@ def test_cross_matches_numpy():
 def test_tetra_faces_keys_and_directions_equal_general_path(monkeypatch):
     """The all-tetrahedra / all-triangle fast paths of cell_faces, face_keys and the orientation
     bit give what the general (padded) code gives."""
-    from models import orientation
-    from models.graph import face_keys
+    from models.mesh import orientation
+    from models.mesh.dual import face_keys
 
     mesh = _tet_mesh(3)
     fast = geometry.cell_faces(mesh)
@@ -80,7 +80,7 @@ def test_tetra_faces_keys_and_directions_equal_general_path(monkeypatch):
 
 
 def test_triangle_rotation_matches_padded_argmin():
-    from models import orientation
+    from models.mesh import orientation
 
     rng = np.random.default_rng(2)
     t = np.array([rng.permutation(50)[:3] for _ in range(300)])
@@ -100,8 +100,8 @@ def test_direct_csr_and_2d_edges_equal_the_general_paths(monkeypatch):
     one-size cells equal the general next-in-cycle edges, bit for bit."""
     from meshes import quads, tets, triangles
 
-    from models import graph
-    from models.io import mesh_from_arrays
+    from models.mesh import dual as graph
+    from models.mesh.read import mesh_from_arrays
 
     rng = np.random.default_rng(11)
     for kind, (p, c) in (("triangle", triangles(9, 7)), ("quad", quads(8, 9)), ("tetra", tets(4))):

@@ -11,7 +11,8 @@ torch = pytest.importorskip("torch")
 pytest.importorskip("torch_geometric")
 
 from models.errors import ModelError  # noqa: E402
-from models.gnn import (  # noqa: E402
+from models.graph.batch import GraphBatch  # noqa: E402
+from models.nets.gnn import (  # noqa: E402
     BisectionGNN,
     GNNConfig,
     expected_normalized_cut,
@@ -21,9 +22,8 @@ from models.gnn import (  # noqa: E402
     random_rotation,
     save_model,
 )
-from models.partitioners import get_partitioner  # noqa: E402
-from models.partitioners.base import GraphBatch  # noqa: E402
-from models.partitioners.sage import WEIGHTS_DIR, SageBasePartitioner, SageHeteroPartitioner  # noqa: E402
+from models.partition import get_partitioner  # noqa: E402
+from models.partition.sage import WEIGHTS_DIR, SageBasePartitioner, SageHeteroPartitioner  # noqa: E402
 
 
 def grid_graph(nx: int, ny: int, nz: int = 1, x0=(0.0, 0.0, 0.0)):
@@ -160,7 +160,7 @@ def test_save_load_roundtrip_identical_outputs(tmp_path):
 
 
 def test_sparse_adjacency_matches_edge_index():
-    from models.gnn import csr_adjacency
+    from models.nets.gnn import csr_adjacency
 
     cen, m, ip, ix = grid_graph(7, 5)
     torch.manual_seed(1)
@@ -176,7 +176,7 @@ def test_sparse_adjacency_matches_edge_index():
 def test_fused_inference_matches_forward():
     """BisectionGNN.infer (the CPU inference path) is the same function as forward(), 2D and 3D,
     isolated nodes included."""
-    from models.gnn import neighbour_lists
+    from models.nets.gnn import neighbour_lists
 
     for dim, shape in ((2, (7, 5)), (3, (4, 3, 3))):
         cen, m, ip, ix = grid_graph(*shape)
@@ -231,7 +231,7 @@ def _assert_sides_connected(g: GraphBatch, labels):
 
 
 def test_contiguous_sides_removes_islands():
-    from models.partitioners.sage import contiguous_sides
+    from models.partition.sage import contiguous_sides
 
     cen, m, ip, ix = grid_graph(8, 8)
     batch = make_batch([(cen, m, ip, ix)])
@@ -288,8 +288,8 @@ def test_shipped_weights(stem):
     ],
 )
 def test_every_mode_runs_with_sage(weights_dir, model, mode, kw):
-    from models.agglomerate import agglomerate
-    from models.generate import generate
+    from models.learn.generate import generate
+    from models.partition.agglomerate import agglomerate
     from models.pipeline import prepare
 
     mesh = generate("split", seed=1, size=0.06).to_mesh()
@@ -306,7 +306,7 @@ def test_every_mode_runs_with_sage(weights_dir, model, mode, kw):
 
 
 def test_contiguous_sides_keeps_disconnected_inclusions_with_their_group():
-    from models.partitioners.sage import contiguous_sides
+    from models.partition.sage import contiguous_sides
 
     cen, m, ip, ix = grid_graph(9, 9)
     batch = make_batch([(cen, m, ip, ix)])
@@ -321,7 +321,7 @@ def test_contiguous_sides_keeps_disconnected_inclusions_with_their_group():
 
 
 def test_smooth_cut_straightens_a_jagged_boundary_but_not_group_interfaces():
-    from models.partitioners.sage import smooth_cut
+    from models.partition.sage import smooth_cut
 
     cen, m, ip, ix = grid_graph(8, 8)
     batch = make_batch([(cen, m, ip, ix)])
@@ -349,7 +349,7 @@ def test_sage_layer_matches_torch_geometric():
     outputs (edge list and sparse CSR adjacency, isolated node included), same gradients."""
     from torch_geometric.nn import SAGEConv
 
-    from models.gnn import SageConv, csr_adjacency
+    from models.nets.gnn import SageConv, csr_adjacency
 
     cen, m, ip, ix = grid_graph(5, 4)
     ip = np.r_[ip, ip[-1]]  # an isolated extra node
@@ -384,7 +384,7 @@ def test_inference_does_not_import_torch_geometric(weights_dir):
     root = Path(__file__).resolve().parents[1]
     code = (
         "import sys\n"
-        "from models.io import read_mesh\n"
+        "from models.mesh.read import read_mesh\n"
         "from models import pipeline\n"
         f"opts = dict(device='cpu', weights_dir={str(weights_dir)!r})\n"
         "res = pipeline.run(read_mesh('tests/data/BrainCoronalNoHoles.vtu'), model='sage-base', mode='nref', nref=2,\n"
@@ -405,9 +405,9 @@ def test_numpy_inference_matches_torch(weights_dir, dim, hetero):
     """gnn_numpy (the CPU path, no torch) reads the weight files and computes the same probabilities as
     the torch network, normalization included, on a batch of graphs with an isolated node; with the
     shipped weights as well."""
-    from models import gnn_numpy
-    from models.gnn import neighbour_lists
-    from models.partitioners.sage import batch_features
+    from models.nets import gnn_numpy
+    from models.nets.gnn import neighbour_lists
+    from models.partition.sage import batch_features
 
     shape = (6, 5) if dim == 2 else (4, 3, 3)
     graphs = [grid_graph(*shape, x0=(10.0 * i, 0, 0)) for i in range(2)] + [
@@ -448,7 +448,7 @@ def test_numpy_inference_matches_torch(weights_dir, dim, hetero):
 
 def test_numpy_weights_reader_refuses_foreign_pickles(tmp_path):
     """A weight file that pickles anything but tensors and plain types is refused, not run."""
-    from models import gnn_numpy
+    from models.nets import gnn_numpy
 
     path = tmp_path / "evil.pt"
     torch.save({"config": {}, "state_dict": {}, "meta": {"x": Path("x")}}, path)

@@ -1,4 +1,4 @@
-"""Refiners and coarsening keep physical groups apart (models.groups): on meshes with materials
+"""Refiners and coarsening keep physical groups apart (models.partition.groups): on meshes with materials
 (tests/data/square_inclusion.msh, cube_inclusion.msh: a matrix and an inclusion), sage-hetero
 multilevel + fm / rl-refiner must not make the heterogeneity preservation worse than the
 unrefined partition, where the group-blind refiners (keep_groups=False) do."""
@@ -9,13 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from models.agglomerate import agglomerate, make_batch
-from models.coarsen import coarsen
-from models.groups import group_weighted, impurity, keep_purer, kway_impurity
-from models.io import read_mesh
-from models.metrics import heterogeneity_preservation
+from models.mesh.read import read_mesh
+from models.partition.agglomerate import agglomerate, make_batch
+from models.partition.coarsen import coarsen
+from models.partition.groups import group_weighted, impurity, keep_purer, kway_impurity
+from models.partition.refine import bisection_ncut, pairwise_fm
 from models.pipeline import prepare
-from models.refine import bisection_ncut, pairwise_fm
+from models.quality.shape import heterogeneity_preservation
 
 DATA = Path(__file__).parent / "data"
 
@@ -73,7 +73,7 @@ def test_coarse_nodes_never_mix_groups_and_impurity_is_exact_on_every_level(cube
 
 
 def test_keep_purer_reverts_only_the_graphs_that_mix_more():
-    from models.partitioners.base import GraphBatch
+    from models.graph.batch import GraphBatch
 
     # two graphs, paths of 4 nodes: groups 0 0 1 1 each
     ip = np.array([0, 1, 3, 5, 6, 7, 9, 11, 12])

@@ -8,8 +8,8 @@ from conftest import BRAIN
 from meshes import tets
 
 from models.errors import ParameterError
-from models.hierarchy import is_nested, nested_levels
-from models.io import mesh_from_arrays, read_mesh
+from models.hierarchy.nested import is_nested, nested_levels
+from models.mesh.read import mesh_from_arrays, read_mesh
 from models.pipeline import run, write_hierarchy
 
 
@@ -95,9 +95,11 @@ def brain_or_cube(dim: int, n: int):
 @pytest.mark.parametrize("dim", [2, 3])
 def test_level_statistics_equal_the_per_level_metrics(dim):
     """The batched statistics write_hierarchy writes without --metrics are metrics' own numbers."""
-    from models.hierarchy import build_hierarchy, level_statistics
-    from models.metrics import box_measures, partition_statistics, summarize
+    from models.hierarchy.nested import build_hierarchy, level_statistics
     from models.pipeline import prepare
+    from models.quality.partition_stats import partition_statistics
+    from models.quality.report import box_measures
+    from models.quality.summary import summarize
 
     mesh = brain_or_cube(dim, 6)
     graph, data = prepare(mesh)
@@ -130,7 +132,7 @@ def test_level_statistics_equal_the_per_level_metrics(dim):
 
 
 def test_int_list_json_reads_back():
-    from models.hierarchy import _int_list_json
+    from models.hierarchy.nested import _int_list_json
 
     rng = np.random.default_rng(0)
     for v in (np.array([0]), np.array([7, 0, 10, 99, 100]), rng.integers(0, 10**7, 1000), np.zeros(0, int)):
@@ -139,9 +141,9 @@ def test_int_list_json_reads_back():
 
 def test_cavities_found_on_the_element_graph_as_merging_finds_them():
     """cavity_elements (3D, no merge) flags the elements merging finds with an inner shell."""
-    from models.hierarchy import _has_voids, build_hierarchy, cavity_elements
-    from models.merge import merge
+    from models.hierarchy.nested import _has_voids, build_hierarchy, cavity_elements
     from models.pipeline import prepare
+    from models.polytope.merge import merge
 
     p, t = tets(6)
     mesh = mesh_from_arrays(p, [("tetra", t)])
@@ -161,7 +163,7 @@ def test_cavities_found_on_the_element_graph_as_merging_finds_them():
 def test_mtx_written_by_numpy_reads_back(tmp_path):
     import scipy.io
 
-    from models.hierarchy import _write_mtx, aggregation_operators
+    from models.hierarchy.nested import _write_mtx, aggregation_operators
 
     lab = np.random.default_rng(1).permutation(np.arange(1234) % 97)
     P = aggregation_operators([lab], lab.size)[0]
@@ -176,11 +178,11 @@ def test_level_vtus_with_the_shared_points_are_write_vtus_own(tmp_path, dim):
     is byte for byte what write_vtu writes for that level on its own."""
     import dataclasses
 
-    from models.hierarchy import _same_points, build_hierarchy
-    from models.hierarchy import write_hierarchy as write_levels
-    from models.merge import merge, sort_by_vertex_count
+    from models.export.vtu import points_xml, write_vtu
+    from models.hierarchy.nested import _same_points, build_hierarchy
+    from models.hierarchy.nested import write_hierarchy as write_levels
     from models.pipeline import prepare
-    from models.vtu import points_xml, write_vtu
+    from models.polytope.merge import merge, sort_by_vertex_count
 
     mesh = brain_or_cube(dim, 5)
     graph, data = prepare(mesh)
@@ -201,9 +203,9 @@ def test_element_graph_from_the_rtree_quotient_is_the_cells_one():
     """_fix_holes takes the levels' element graphs from rtree_levels (outside node appended, in the
     numbering of the returned levels) instead of a pass over the cells' graph: the same entries row
     by row. And _has_voids finds a void (cells removed inside the cube) as merging does."""
-    from models.hierarchy import _element_graph, _has_voids, _with_outside
-    from models.partitioners.base import GraphBatch
-    from models.partitioners.rtree import level_counts, rtree_levels
+    from models.graph.batch import GraphBatch
+    from models.hierarchy.nested import _element_graph, _has_voids, _with_outside
+    from models.partition.rtree import level_counts, rtree_levels
     from models.pipeline import prepare
 
     p, t = tets(6)
@@ -233,7 +235,7 @@ def test_element_graph_from_the_rtree_quotient_is_the_cells_one():
 
 
 def test_digits_are_pythons_right_aligned_format():
-    from models.hierarchy import _digits
+    from models.hierarchy.nested import _digits
 
     rng = np.random.default_rng(3)
     for v in (np.array([0, 7, 10, 99, 100, 999, 1000, 1001, 123456, 10**6]), rng.integers(0, 10**10, 5000)):

@@ -14,9 +14,9 @@ from conftest import BRAIN, pieces
 from meshes import quads, tets
 
 from models.errors import ParameterError
-from models.hierarchy import aggregation_operators, build_hierarchy, is_nested
-from models.io import mesh_from_arrays
-from models.multigrid import mgcheck, tpfa_poisson, with_levels
+from models.hierarchy.multigrid import mgcheck, tpfa_poisson, with_levels
+from models.hierarchy.nested import aggregation_operators, build_hierarchy, is_nested
+from models.mesh.read import mesh_from_arrays
 from models.pipeline import prepare
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

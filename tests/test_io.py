@@ -9,9 +9,9 @@ from conftest import BRAIN, EMILIA
 from meshes import hexes, mixed_2d, mixed_3d, quads, tets, triangles, wedges
 
 from models.errors import MeshError, ParameterError
-from models.geometry import cell_measures
-from models.io import mesh_from_arrays, read_mesh
-from models.mesh import VTK_POLYGON
+from models.mesh.container import VTK_POLYGON
+from models.mesh.geometry import cell_measures
+from models.mesh.read import mesh_from_arrays, read_mesh
 
 
 def write(tmp_path, name, points, cells, **kw):
@@ -84,9 +84,9 @@ def test_polygons_and_polyhedra(tmp_path):
     m = mesh_from_arrays(p, [("polygon", np.array([[1, 2, 3, 4, 5, 6]]))])
     assert np.isclose(cell_measures(m)[0], 3 * np.sqrt(3) / 2)
     # VTK polyhedra, written by our own writer, read back
-    from models.merge import merge
+    from models.export.vtu import write_vtu
     from models.pipeline import prepare
-    from models.vtu import write_vtu
+    from models.polytope.merge import merge
 
     hp, h = hexes(3)
     fine = mesh_from_arrays(hp, [("hexahedron", h)])
@@ -129,7 +129,7 @@ def test_clockwise_and_inverted_cells_are_reoriented():
     t[::2] = t[::2, ::-1]
     m = mesh_from_arrays(p, [("triangle", t)])
     assert np.all(np.diff(m.offsets) == 3)
-    from models.geometry import signed_measures
+    from models.mesh.geometry import signed_measures
 
     assert np.all(signed_measures(m) > 0)
     hp, h = tets(2)
@@ -142,7 +142,7 @@ def test_clockwise_and_inverted_cells_are_reoriented():
 def test_reading_orients_its_own_arrays_in_place_but_never_the_callers(tmp_path):
     """read_mesh gives its freshly read connectivity to the Mesh (mirrored in place, no copy);
     mesh_from_arrays / mesh_from_meshio must leave the caller's arrays as they were."""
-    from models.io import mesh_from_meshio
+    from models.mesh.read import mesh_from_meshio
 
     hp, h = tets(3)
     h = h.copy()
@@ -297,7 +297,7 @@ def test_non_planar_surface_mesh():
 
 
 def _same_as_meshio(path):
-    from models.vtu import read_vtu_simple
+    from models.mesh.vtu import read_vtu_simple
 
     fast, ref = read_vtu_simple(path), meshio.read(path)
     if fast is None:
@@ -380,7 +380,7 @@ def test_simple_vtu_reader_gives_meshio_arrays_or_leaves_the_file_to_meshio(tmp_
         assert _same_as_meshio(path) is None, path
     broken = tmp_path / "broken.vtu"
     broken.write_bytes(open(fast["zlib"], "rb").read()[:-3000])
-    from models.vtu import read_vtu_simple
+    from models.mesh.vtu import read_vtu_simple
 
     assert read_vtu_simple(broken) is None
     with pytest.raises(MeshError):
@@ -394,7 +394,7 @@ def test_zlib_blocks_inflate_to_meshio_concatenation_whatever_the_header_says():
     import base64
     import zlib
 
-    from models.vtu import _decode_zlib
+    from models.mesh.vtu import _decode_zlib
 
     rng = np.random.default_rng(3)
     u4 = np.dtype("<u4")

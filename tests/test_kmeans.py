@@ -6,14 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from models.partitioners.base import GraphBatch
-from models.partitioners.kmeans import (
-    _brute_nearest,
-    bisection_seeds,
-    kmeans,
-    nearest_center,
-    two_means_batch,
-)
+from models.graph.batch import GraphBatch
+from models.partition.kmeans import _brute_nearest, bisection_seeds, kmeans, nearest_center, two_means_batch
 
 
 def _inertia(x, labels):
@@ -117,7 +111,7 @@ def test_lloyd_passes_do_not_grow_with_k():
     """The stopping test is relative to the inertia: on uniform 3D points with about 1000 points per
     cluster, k = 40 and k = 400 take comparable numbers of Lloyd passes (the summed-shift test took
     39 and 112)."""
-    from models.partitioners import kmeans as km
+    from models.partition import kmeans as km
 
     calls = []
     real = km.nearest_center
@@ -143,7 +137,7 @@ def test_lloyd_passes_do_not_grow_with_k():
 def test_lloyd_with_bounds_is_exact():
     """Lloyd's passes with Hamerly's bounds (many centres) give, pass for pass, the labels of the
     exact nearest-centre search: same centres, labels and inertia as the plain passes."""
-    from models.partitioners import kmeans as km
+    from models.partition import kmeans as km
 
     rng = np.random.default_rng(5)
     x = np.vstack([rng.random((30_000, 3)), rng.normal(0.3, 0.05, (10_000, 3))])
@@ -163,7 +157,7 @@ def test_lloyd_with_bounds_is_exact():
 def test_kmeans_bounds_carried_from_bins_are_exact():
     """With many centres on binned points, the bins' bounds start the passes on all the points; the
     labels are those of the plain exact search (bounds off)."""
-    from models.partitioners import kmeans as km
+    from models.partition import kmeans as km
 
     rng = np.random.default_rng(6)
     x = np.vstack([rng.random((90_000, 3)), rng.normal(0.3, 0.05, (30_000, 3))])

@@ -107,7 +107,7 @@ def test_cycle_finder_finds_a_circle():
 
 def test_no_import_circle_between_modules():
     graph = import_graph()
-    assert "models.dataset" in graph and "worker.tasks" in graph and "jobqueue.db" in graph
+    assert "models.learn.dataset" in graph and "worker.tasks" in graph and "jobqueue.db" in graph
     assert cycles(graph) == []
 
 
@@ -123,3 +123,43 @@ def test_packages_import_only_downstream():
     for name, targets in import_graph().items():
         package_graph[name.split(".")[0]].update(t.split(".")[0] for t in targets)
     assert cycles({p: t - {p} for p, t in package_graph.items()}) == []
+
+
+# models/ from the ground up: each subpackage (or top-level module) may import only those before it
+MODELS_FLOORS = [
+    "models.errors",
+    "models.native",
+    "models.graph",
+    "models.mesh",
+    "models.nets",
+    "models.partition",
+    "models.polytope",
+    "models.quality",
+    "models.export",
+    "models.hierarchy",
+    "models.pipeline",
+    "models.api",
+    "models.learn",
+    "models.cli",
+]
+
+
+def _floor(module: str) -> int | None:
+    for i, prefix in enumerate(MODELS_FLOORS):
+        if module == prefix or module.startswith(prefix + "."):
+            return i
+    return None
+
+
+def test_models_subpackages_import_only_downward():
+    graph = import_graph()
+    unplaced = sorted(m for m in graph if m.startswith("models.") and _floor(m) is None)
+    assert unplaced == [], f"modules in no floor of MODELS_FLOORS: {unplaced}"
+    upward = sorted(
+        f"{name} imports {target}"
+        for name, targets in graph.items()
+        if name.startswith("models.")
+        for target in targets
+        if target.startswith("models.") and _floor(target) > _floor(name)
+    )
+    assert upward == []

@@ -9,14 +9,8 @@ import pytest
 from scipy.io import loadmat
 
 from models.errors import ParameterError
-from models.lymph import (
-    lymph_from_mat,
-    lymph_structs,
-    max_kb,
-    write_lymph_json,
-    write_lymph_mat,
-)
-from models.mesh import PolyMesh
+from models.export.lymph import lymph_from_mat, lymph_structs, max_kb, write_lymph_json, write_lymph_mat
+from models.mesh.container import PolyMesh
 
 
 def poly_from_loops(points, loops, tags=None) -> PolyMesh:

@@ -6,10 +6,10 @@ from conftest import BRAIN
 from meshes import hexes, mixed_3d, quads, tets, triangles
 
 from models.errors import MeshError
-from models.io import mesh_from_arrays, read_mesh
-from models.merge import merge
+from models.export.vtu import write_vtu
+from models.mesh.read import mesh_from_arrays, read_mesh
 from models.pipeline import prepare, run, split_holes
-from models.vtu import write_vtu
+from models.polytope.merge import merge
 
 vtk = pytest.importorskip("vtk")
 from vtk.util.numpy_support import vtk_to_numpy  # noqa: E402
@@ -183,7 +183,7 @@ def test_vtu_tilted_2d_keeps_its_plane(tmp_path):
 def test_merge_2d_pairs_edges_by_sorting_as_the_search_did(pinched):
     """merge_2d pairs the boundary edges by two sorts when every (element, vertex) has one edge out;
     the search it replaced (kept for elements that touch themselves at a vertex) finds the same."""
-    import models.merge as M
+    import models.polytope.merge as M
 
     m = read_mesh(BRAIN)
     g, d = prepare(m)

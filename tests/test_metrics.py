@@ -11,21 +11,22 @@ import pytest
 from scipy.spatial import ConvexHull
 
 from models.errors import ParameterError
-from models.mesh import PolyMesh
-from models.metrics import (
+from models.mesh.container import PolyMesh
+from models.quality.distance import _POLISH_STEPS
+from models.quality.geometry import smallest_enclosing_ball
+from models.quality.inscribed import largest_inscribed_ball
+from models.quality.partition_stats import _equals_transpose, partition_statistics
+from models.quality.report import metrics_report
+from models.quality.shape import (
     area_perimeter_ratio,
     circle_ratio,
     element_diameters,
     heterogeneity_preservation,
-    largest_inscribed_ball,
-    metrics_report,
-    partition_statistics,
-    smallest_enclosing_ball,
     sphericity,
-    summarize,
     uniformity_factor,
     volume_difference,
 )
+from models.quality.summary import summarize
 
 SQ2 = math.sqrt(2.0)
 R_L = 2.0 - SQ2  # inscribed radius of the unit-width L-shape (touches x=0, y=0 and the reflex corner)
@@ -438,7 +439,8 @@ def test_polish_raises_the_lower_bound_to_certified_points_only():
     """The local ascent after the dive (3D): from a poor interior point of the L prism it reaches the
     closed-form radius (two walls and the reflex edge), never above it, at a point that is inside
     and whose distance is the exact one; an element without a start point is left alone."""
-    from models.metrics import _polish, _prepare
+    from models.quality.distance import _polish
+    from models.quality.geometry import _prepare
 
     pm = poly3d([l_prism(1.5), cube()], offsets=[(0, 0, 0), (5, 5, 5)])
     g = _prepare(pm)
@@ -471,10 +473,9 @@ def test_polish_off_gives_the_same_certified_radii(monkeypatch):
     each other (both certified to rel_tol x diameter)."""
     from meshes import tets
 
-    import models.metrics as mm
-    from models.io import mesh_from_arrays
-    from models.merge import merge
+    from models.mesh.read import mesh_from_arrays
     from models.pipeline import prepare
+    from models.polytope.merge import merge
 
     p, t = tets(8)
     m = mesh_from_arrays(p, [("tetra", t)])
@@ -485,7 +486,7 @@ def test_polish_off_gives_the_same_certified_radii(monkeypatch):
     poly, _ = merge(m, g, labels, d.measures)
     eps = 1e-3 * element_diameters(poly)
     _, r_on = largest_inscribed_ball(poly, method="bnb-numpy")
-    monkeypatch.setitem(mm._POLISH_STEPS, 3, 0)
+    monkeypatch.setitem(_POLISH_STEPS, 3, 0)
     _, r_off = largest_inscribed_ball(poly, method="bnb-numpy")
     assert np.all(np.abs(r_on - r_off) <= eps + 1e-12)
     assert np.all(r_on > 0)
@@ -493,7 +494,8 @@ def test_polish_off_gives_the_same_certified_radii(monkeypatch):
 
 def _classify_points(pm, q):
     """Fast (closest-feature) and brute-force inside tests of points q against element 0."""
-    from models.metrics import _classify, _inside_bruteforce, _prepare, _prim_distance
+    from models.quality.distance import _classify, _inside_bruteforce, _prim_distance
+    from models.quality.geometry import _prepare
 
     g = _prepare(pm)
     S = g.prim_ptr[1]
@@ -792,9 +794,9 @@ def test_agglomerated_tets_bnb_within_eps_of_reference():
     (rel_tol = 1e-4: r_ref >= r_true - 1e-4 diam) and of an independent grid search (lower bound of the true radius)."""
     from meshes import tets
 
-    from models.io import mesh_from_arrays
-    from models.merge import merge
+    from models.mesh.read import mesh_from_arrays
     from models.pipeline import prepare
+    from models.polytope.merge import merge
 
     p, t = tets(10)
     m = mesh_from_arrays(p, [("tetra", t)])
@@ -837,7 +839,7 @@ def test_vectorized_2d_hulls_match_qhull():
     farthest pair first; collinear runs, duplicates and degenerate sets included."""
     from scipy.spatial.distance import pdist
 
-    from models.metrics import _hulls_2d
+    from models.quality.geometry import _hulls_2d
 
     rng = np.random.default_rng(3)
     sets = [rng.random((int(rng.integers(3, 60)), 2)) for _ in range(40)]
@@ -868,7 +870,7 @@ def test_vectorized_2d_hulls_match_qhull():
 def test_triangle_neighbours_one_key_sort_matches_lexsort_and_brute_force():
     """_triangle_neighbours sorts one int64 key when (elements x points^2) fits, else two keys
     (lexsort): both give the same neighbours, equal to a brute-force edge match (two elements)."""
-    from models.metrics import _triangle_neighbours
+    from models.quality.geometry import _triangle_neighbours
 
     v, faces = l_prism(1.5)
     tri = np.array([[f[0], f[j], f[j + 1]] for f in faces for j in range(1, len(f) - 1)])
@@ -897,8 +899,6 @@ def _partition_paths(seed, monkeypatch):
     the general one: the same statistics, connected or not."""
     from scipy import sparse
 
-    import models.metrics as mm
-
     rng = np.random.default_rng(seed)
     n = 300
     u, v = rng.integers(0, n, 900 + 300 * seed), rng.integers(0, n, 900 + 300 * seed)
@@ -910,7 +910,7 @@ def _partition_paths(seed, monkeypatch):
     # parts: stripes of the numbering (connected along the path); odd seeds scatter a few cells
     labels = (np.arange(n) * 7 // n + 1) * (rng.random(n) < 0.9 + 0.1 * (seed % 2))
     indptr, indices = A.indptr.astype(np.int64), A.indices.astype(np.int64)
-    assert mm._equals_transpose(indptr, indices)
+    assert _equals_transpose(indptr, indices)
     compiled = partition_statistics(indptr, indices, labels)
     monkeypatch.setenv("MAGNET_NO_COMPILED", "1")
     fast = partition_statistics(indptr, indices, labels)
@@ -920,7 +920,7 @@ def _partition_paths(seed, monkeypatch):
     cols = np.r_[U.col, U.col[:1]]  # one duplicated edge
     order = np.argsort(rows, kind="stable")
     indptr1 = np.r_[0, np.cumsum(np.bincount(rows, minlength=n))]
-    assert not mm._equals_transpose(indptr1, cols[order])
+    assert not _equals_transpose(indptr1, cols[order])
     slow = partition_statistics(indptr1, cols[order], labels)
     for r in (compiled, fast):
         assert r["cut"] == slow["cut"] and r["parts"] == slow["parts"]

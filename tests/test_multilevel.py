@@ -7,14 +7,14 @@ from conftest import BRAIN
 from meshes import tets, triangles
 from scipy.sparse.csgraph import connected_components
 
-from models.agglomerate import agglomerate, make_batch
-from models.coarsen import coarsen, contract, heavy_edge_matching
 from models.errors import ParameterError
-from models.io import mesh_from_arrays, read_mesh
-from models.metrics import partition_statistics
-from models.partitioners import get_partitioner
+from models.mesh.read import mesh_from_arrays, read_mesh
+from models.partition import get_partitioner
+from models.partition.agglomerate import agglomerate, make_batch
+from models.partition.coarsen import coarsen, contract, heavy_edge_matching
+from models.partition.refine import FMRefiner, bisection_ncut, connected_sides, get_refiner, kway_refine
 from models.pipeline import prepare
-from models.refine import FMRefiner, bisection_ncut, connected_sides, get_refiner, kway_refine
+from models.quality.partition_stats import partition_statistics
 
 
 @pytest.fixture(scope="module")
@@ -134,7 +134,7 @@ def test_kway_fm_keeps_parts_connected_and_lowers_the_cut(brain):
     m, g, d = brain
     b = make_batch(d, np.zeros(m.n_cells, dtype=np.int64))
     lab = get_partitioner("kmeans").kway(b, 40)
-    from models.agglomerate import connected_parts
+    from models.partition.agglomerate import connected_parts
 
     lab, _ = connected_parts(d, lab, b.node_ids)
     out = kway_refine(b, lab, tolerance=0.05)
@@ -219,7 +219,7 @@ def test_api_accepts_refiners_and_multilevel():
 
 
 def test_cli_multilevel_and_hierarchy(tmp_path):
-    from models.cli import main
+    from models.cli.main import main
 
     out = tmp_path / "h"
     rc = main(
@@ -251,11 +251,11 @@ def test_cli_multilevel_and_hierarchy(tmp_path):
 
 
 def test_pairwise_fm_keeps_parts_connected_and_within_the_cap(brain):
-    from models.refine import pairwise_fm
+    from models.partition.refine import pairwise_fm
 
     m, g, d = brain
     b = make_batch(d, np.zeros(m.n_cells, dtype=np.int64))
-    from models.agglomerate import connected_parts
+    from models.partition.agglomerate import connected_parts
 
     lab, _ = connected_parts(d, get_partitioner("kmeans").kway(b, 24), b.node_ids)
     out = pairwise_fm(b, lab, tolerance=0.05, rounds=4)

@@ -9,9 +9,9 @@ from meshes import hexes
 
 from models import pipeline
 from models.errors import MeshError
-from models.geometry import FACE_TEMPLATES
-from models.io import mesh_from_arrays, read_mesh
-from models.mesh import VTK_HEXAHEDRON
+from models.mesh.container import VTK_HEXAHEDRON
+from models.mesh.geometry import FACE_TEMPLATES
+from models.mesh.read import mesh_from_arrays, read_mesh
 
 
 def _vtk_polygon_areas(path):
@@ -126,8 +126,8 @@ def test_inconsistent_polyhedra_are_refused_with_the_cells():
 def test_faces_kept_by_reading_give_the_same_graph(n):
     """Reading keeps its faces and face pairing for the dual graph (one sort, not two); with cells
     flipped by the orientation they must equal the faces and graph built from scratch."""
-    from models.geometry import cell_faces
-    from models.graph import cached_faces, dual_graph
+    from models.mesh.dual import cached_faces, dual_graph
+    from models.mesh.geometry import cell_faces
 
     g = np.linspace(0, 1, n + 1)
     x, y, z = np.meshgrid(g, g, g, indexing="ij")
@@ -165,7 +165,7 @@ def test_faces_kept_by_reading_give_the_same_graph(n):
     # the all-tetrahedra CSR (built from partner) is scipy's canonical CSR of the shared faces
     import scipy.sparse as sp
 
-    from models.geometry import face_measures
+    from models.mesh.geometry import face_measures
 
     f = np.flatnonzero(g1.partner >= 0)
     rows, cols = fresh.cell[f], fresh.cell[g1.partner[f]]
@@ -181,7 +181,7 @@ def test_faces_kept_by_reading_give_the_same_graph(n):
 def _assert_kept_pairs_are_fresh_pairs(mesh, kept, fresh):
     """The face pairs reading kept (renumbered for cells flipped after the pairing) are the pairs
     of a fresh stable sort of the fresh faces' keys."""
-    from models.graph import face_keys, sort_keys
+    from models.mesh.dual import face_keys, sort_keys
 
     order, same = sort_keys(face_keys(fresh, mesh.n_points))
     i = np.flatnonzero(same)
@@ -192,8 +192,8 @@ def _assert_kept_pairs_are_fresh_pairs(mesh, kept, fresh):
 def test_faces_kept_by_reading_of_a_folded_tetrahedron_give_the_same_graph():
     """A folded tetrahedron is flipped again after the faces were paired: its faces and their ids
     in the kept pairs are renumbered; the graph must be the one built from fresh faces."""
-    from models.geometry import cell_faces
-    from models.graph import cached_faces, dual_graph
+    from models.mesh.dual import cached_faces, dual_graph
+    from models.mesh.geometry import cell_faces
 
     p, t, cell = folded_tet()
     t = t.copy()
@@ -215,8 +215,8 @@ def test_face_areas_kept_by_reading_are_face_measures_bit_for_bit():
     """All tetrahedra: reading computes every face's area with the volumes (one gather of the
     corners); with generic coordinates and mirrored cells they must be face_measures' values exactly,
     and the graph built from them the graph built from fresh faces."""
-    from models.geometry import cell_faces, face_measures
-    from models.graph import cached_faces, dual_graph
+    from models.mesh.dual import cached_faces, dual_graph
+    from models.mesh.geometry import cell_faces, face_measures
 
     n = 5
     g = np.linspace(0, 1, n + 1)
@@ -250,7 +250,7 @@ def test_face_areas_kept_by_reading_are_face_measures_bit_for_bit():
     # pairing sorts without stability and orders each pair itself: the same pairs, the same bits)
     import scipy.sparse as sp
 
-    from models.graph import face_keys
+    from models.mesh.dual import face_keys
 
     keys = face_keys(fresh, mesh.n_points)
     order = np.argsort(keys, kind="stable")

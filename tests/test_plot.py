@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from models.errors import ParameterError
-from models.mesh import VTK_QUAD, Mesh, PolyMesh
-from models.plot import (
+from models.mesh.container import VTK_QUAD, Mesh, PolyMesh
+from models.quality.plot import (
     color_elements,
     element_adjacency,
     metrics_table,

@@ -11,8 +11,8 @@ import pytest
 from meshes import mixed_3d, quads, tets, triangles
 
 from models import pipeline
-from models.io import mesh_from_arrays, read_mesh
-from models.vtu import write_vtu
+from models.export.vtu import write_vtu
+from models.mesh.read import mesh_from_arrays, read_mesh
 
 CASES = {
     "triangles": lambda: triangles(10),
@@ -63,7 +63,7 @@ def test_unsorted_polyhedra_file_still_reads(tmp_path):
     res = pipeline.run(m, model="metis", mode="kway", k=12)
     poly = res.poly
     perm = np.arange(poly.n_elements)[::-1]  # the other order: decreasing vertex count
-    from models.geometry import reorder_csr
+    from models.mesh.geometry import reorder_csr
 
     eo, fids = reorder_csr(poly.elem_offsets, np.arange(poly.elem_offsets[-1]), perm)
     lo, ln = reorder_csr(poly.loop_offsets, poly.loop_nodes, fids)

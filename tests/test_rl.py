@@ -11,24 +11,18 @@ import pytest
 import torch
 from conftest import BRAIN, DATA
 
-from models.agglomerate import agglomerate, make_batch
-from models.coarsen import coarsen
 from models.errors import ModelError
-from models.io import read_mesh
-from models.metrics import partition_statistics
-from models.partitioners import get_partitioner
-from models.partitioners.rl import WEIGHTS_DIR
+from models.learn.rl_train import RLTrainConfig, train, training_graphs
+from models.mesh.read import read_mesh
+from models.nets.rl import load, masked_log_softmax
+from models.partition import get_partitioner
+from models.partition.agglomerate import agglomerate, make_batch
+from models.partition.coarsen import coarsen
+from models.partition.refine import bisection_ncut, get_refiner
+from models.partition.rl import WEIGHTS_DIR
+from models.partition.rl_policy import PartitionerEnv, _principal_coords
 from models.pipeline import prepare
-from models.refine import bisection_ncut, get_refiner
-from models.rl import (
-    PartitionerEnv,
-    RLTrainConfig,
-    _principal_coords,
-    load,
-    masked_log_softmax,
-    train,
-    training_graphs,
-)
+from models.quality.partition_stats import partition_statistics
 
 
 @pytest.fixture(scope="module")
@@ -192,7 +186,7 @@ def test_train_3d_data_are_coarse_3d_graphs(tmp_path):
 def _reference_episode(model, env, steps, per_pass):
     """The plain inference loop: torch forward on the whole band, the whole band's mask and the
     argmax logit of each graph at every step, logits refreshed every `per_pass` steps."""
-    from models.refine import _segment_first_argmax
+    from models.partition.refine import _segment_first_argmax
 
     moves = np.full((steps, env.B), -1, dtype=np.int64)
     hist = np.full((steps, env.B), np.inf)
@@ -218,7 +212,7 @@ def _reference_episode(model, env, steps, per_pass):
 def test_fast_refiner_episode_takes_the_plain_loops_moves(per_pass):
     """_policy_pass (forward on live graphs only, short lists, numpy actor) moves the same nodes in
     the same order as the plain loop, on a batch of 8 graphs with cuts of different lengths."""
-    from models.rl import RefinerEnv, _policy_pass
+    from models.partition.rl_policy import RefinerEnv, _policy_pass
 
     _, d = prepare(read_mesh(BRAIN))
     x = d.centroids[:, 0]

@@ -9,13 +9,13 @@ import pytest
 from conftest import EMILIA, pieces
 from meshes import mixed_3d, tets
 
-from models.agglomerate import agglomerate, make_batch
 from models.errors import ParameterError
-from models.io import mesh_from_arrays, read_mesh
-from models.merge import merge
-from models.metrics import box_measures, metrics_report
-from models.partitioners.rtree import apportion, cell_boxes, level_counts, rtree_levels, split_counts
+from models.mesh.read import mesh_from_arrays, read_mesh
+from models.partition.agglomerate import agglomerate, make_batch
+from models.partition.rtree import apportion, cell_boxes, level_counts, rtree_levels, split_counts
 from models.pipeline import prepare
+from models.polytope.merge import merge
+from models.quality.report import box_measures, metrics_report
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "bench"))
 
@@ -160,7 +160,7 @@ def test_box_shape_bar_on_refined_unstructured_quads():
 
 
 def test_stable_argsort_is_the_stable_sort():
-    from models.partitioners.rtree import _stable_argsort
+    from models.partition.rtree import _stable_argsort
 
     rng = np.random.default_rng(0)
     for v in (
@@ -176,7 +176,7 @@ def test_split_counts_keeps_every_part_sorted_along_each_axis():
     """The halving steps partition the per-axis orders in place (no sort per step): afterwards every
     part's range of each order is exactly the stable sort of its cells along that axis, and the
     labels are the parts' cells (checked with ties: coordinates on a coarse grid)."""
-    from models.partitioners.rtree import _Segments
+    from models.partition.rtree import _Segments
 
     rng = np.random.default_rng(1)
     x = np.round(rng.random((3000, 3)) * 12) / 12  # many ties per axis
@@ -198,7 +198,7 @@ def test_split_counts_keeps_every_part_sorted_along_each_axis():
 def test_updated_pieces_equal_a_fresh_pass(brain):
     """make_connected finds pieces again only in the parts that gained or lost cells; that must give
     the numbering one pass over all cells gives (main pieces are chosen by it on ties)."""
-    from models.partitioners.rtree import _label_pieces, _update_pieces
+    from models.partition.rtree import _label_pieces, _update_pieces
 
     m, g, d = brain
     rng = np.random.default_rng(2)

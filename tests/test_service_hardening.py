@@ -15,7 +15,7 @@ from service_fixtures import square_mesh
 
 from jobqueue.settings import Settings
 from models.errors import MeshError
-from models.io import read_mesh
+from models.mesh.read import read_mesh
 from service.app import create_app
 from worker.tasks import execute_job
 

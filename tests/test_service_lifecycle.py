@@ -218,7 +218,7 @@ def test_prometheus_metrics(tmp_path, meshes):
 
 
 def test_networks_stay_loaded_in_the_worker_process(monkeypatch):
-    from models.partitioners import sage
+    from models.partition import sage
     from worker.cli import apply_overrides, register_worker
     from worker.warmup import warm_up
 

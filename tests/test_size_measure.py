@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from conftest import EMILIA
 
-from models.agglomerate import agglomerate
 from models.api import validate_params
 from models.errors import ParameterError
-from models.geometry import mesh_diameter
-from models.io import read_mesh
+from models.mesh.geometry import mesh_diameter
+from models.mesh.read import read_mesh
+from models.partition.agglomerate import agglomerate
 from models.pipeline import prepare
 
 

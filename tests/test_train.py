@@ -12,10 +12,11 @@ torch = pytest.importorskip("torch")
 pytest.importorskip("torch_geometric")
 pytest.importorskip("gmsh")
 
-from models.dataset import build_dataset, get_recipe  # noqa: E402
+from models.cli.train import add_train_args, train_main  # noqa: E402
 from models.errors import ParameterError  # noqa: E402
-from models.gnn import load_model, normalize_features  # noqa: E402
-from models.train import TrainConfig, add_train_args, train, train_main  # noqa: E402
+from models.learn.dataset import build_dataset, get_recipe  # noqa: E402
+from models.learn.train import TrainConfig, train  # noqa: E402
+from models.nets.gnn import load_model, normalize_features  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -39,7 +40,7 @@ def _cfg(tmp_path, data, name="run", recipe="sage-base-2d", **kw) -> TrainConfig
 
 
 def _outputs(path, ds_path):
-    from models.dataset import GraphDataset
+    from models.learn.dataset import GraphDataset
 
     model, _ = load_model(path)
     batch = next(GraphDataset.load(ds_path).batches(4))

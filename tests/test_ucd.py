@@ -10,8 +10,9 @@ import pytest
 from conftest import BRAIN
 
 from models.errors import MeshError
-from models.io import read_mesh
-from models.ucd import is_ucd, read_ucd, write_ucd
+from models.export.ucd import write_ucd
+from models.mesh.read import read_mesh
+from models.mesh.ucd import is_ucd, read_ucd
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -69,7 +70,7 @@ def test_inp_read_as_ucd_by_content(tmp_path):
     assert m.n_cells == 2 and m.dim == 2
     assert m.tags.tolist() == [5, 7]  # material ids = physical groups
     assert sorted(m.boundary_tags.tolist()) == [0, 1, 2, 2, 3]  # boundary ids of the lines
-    from models.io import describe
+    from models.mesh.read import describe
 
     info = describe(m)
     assert info["cells"] == 2 and info["physical_groups"] == [5, 7]

@@ -1,5 +1,5 @@
 """`magnet worker`: a Celery worker for the MAGNET queues (registered through the magnet.commands
-entry point, so models/cli.py never imports Celery)."""
+entry point, so models/cli/main.py never imports Celery)."""
 
 from __future__ import annotations
 

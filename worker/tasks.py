@@ -29,10 +29,10 @@ from jobqueue.storage import Storage
 # Imported here, in the worker's parent process, so that every pool child inherits them: the first
 # job after start-up then does not pay for importing numpy, scipy, meshio, pymetis (~0.5 s) and matplotlib (~1 s).
 from models import api as _api  # noqa: E402, F401
-from models import metrics as _metrics  # noqa: E402, F401
 from models import pipeline as _pipeline  # noqa: E402, F401
-from models import plot as _plot  # noqa: E402, F401  (the preview picture: matplotlib)
-from models.partitioners import metis as _metis  # noqa: E402, F401
+from models.partition import metis as _metis  # noqa: E402, F401
+from models.quality import plot as _plot  # noqa: E402, F401  (the preview picture: matplotlib)
+from models.quality import report as _metrics  # noqa: E402, F401
 
 log = logging.getLogger("magnet.worker")
 PROGRESS_EVERY_S = 0.2  # at most one progress write per this many seconds within a stage

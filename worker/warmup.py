@@ -23,7 +23,7 @@ def warm_up() -> list[str]:
     import numpy as np
 
     from models import api
-    from models.partitioners.sage import warm_up as load_networks
+    from models.partition.sage import warm_up as load_networks
 
     loaded = load_networks()
     xs = np.linspace(0.0, 1.0, 5)

@@ -1,0 +1,174 @@
+"""`magnet hierarchy` (nested levels for multigrid, any model) and `magnet mgcheck` (judge them with
+a multigrid solve). Loaded only when one of them is asked for (pyamg stays out of other commands)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+
+import numpy as np
+
+from models.errors import MeshError, ParameterError
+
+
+def add_hierarchy_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("mesh")
+    p.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        metavar="DIR",
+        help="folder for level_L.vtu, level_L.labels.json, level_L.parent.json, level_L.metrics.json, "
+        "level_L.agg.npz/.mtx (aggregation operators) and hierarchy.json",
+    )
+    p.add_argument(
+        "--model",
+        default="rtree",
+        help="rtree (native, default) | metis | kmeans (agglomerates agglomerated) | "
+        "sage-base ... (recursive bisection)",
+    )
+    p.add_argument("--ratio", type=float, default=8.0, help="coarsening ratio per level, >= 2 (default 8)")
+    p.add_argument(
+        "--coarsest",
+        type=int,
+        default=10,
+        help="the coarsest level has at most this many elements (default 10)",
+    )
+    p.add_argument("--groups", action="store_true", help="no element crosses a physical group (rtree)")
+    p.add_argument(
+        "--metrics",
+        action="store_true",
+        help="shape metrics of every element of every level (slower); "
+        "without: partition statistics, box ratio and coverage per level",
+    )
+    p.add_argument("--lymph", action="store_true", help="also the lymph structs of every level (2D)")
+    p.add_argument(
+        "--mgcheck",
+        action="store_true",
+        help="judge the levels with a multigrid solve (see magnet mgcheck); "
+        "numbers in hierarchy.json under 'multigrid'",
+    )
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--physical-tag")
+    p.set_defaults(func=hierarchy_main)
+
+
+def add_mgcheck_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("mesh")
+    p.add_argument(
+        "hierarchy",
+        metavar="DIR",
+        help="a folder written by `magnet hierarchy` or `magnet agglomerate --hierarchy`",
+    )
+    p.add_argument("--json", action="store_true", help="print the report as JSON")
+    p.add_argument("--physical-tag")
+    p.set_defaults(func=mgcheck_main)
+
+
+def hierarchy_main(args) -> int:
+    from models.hierarchy.nested import build_hierarchy, write_hierarchy
+    from models.mesh.boundary import fine_boundary, has_groups
+    from models.mesh.read import read_mesh
+    from models.pipeline import prepare
+
+    out = args.output
+    parent = os.path.dirname(os.path.abspath(out))
+    if not os.path.isdir(parent):
+        raise ParameterError(f"cannot write the hierarchy to {out!r}: folder {parent!r} does not exist")
+    t0 = time.perf_counter()
+    mesh = read_mesh(args.mesh, physical_tag=args.physical_tag)
+    graph, data = prepare(mesh)
+    t_read = time.perf_counter() - t0
+    levels, info = build_hierarchy(
+        mesh,
+        data,
+        model=args.model,
+        ratio=args.ratio,
+        coarsest=args.coarsest,
+        seed=args.seed,
+        groups=args.groups,
+    )
+    t = time.perf_counter()
+    boundary = fine_boundary(mesh, graph.faces, graph.partner) if has_groups(mesh) else None
+    index = write_hierarchy(
+        out,
+        mesh,
+        data,
+        levels,
+        metrics=args.metrics,
+        lymph=args.lymph,
+        boundary=boundary,
+        merged=info.pop("merged"),
+        extra={
+            "model": args.model,
+            "ratio": info["ratio"],
+            "coarsest": info["coarsest"],
+            "method": info["method"],
+            "build_time": info["build_time"],
+        },
+    )
+    t_write = time.perf_counter() - t
+    mg = ""
+    if args.mgcheck:
+        from models.hierarchy.multigrid import format_report, mgcheck
+
+        written = [
+            np.asarray(json.load(open(os.path.join(out, lv["labels"]), encoding="utf-8")), dtype=np.int64)
+            for lv in index["levels"]
+        ]
+        rep = mgcheck(mesh, data, written)
+        index["multigrid"] = rep
+        from models.hierarchy.nested import _write_json
+
+        _write_json(os.path.join(out, "hierarchy.json"), index)
+        mg = "\n" + format_report(rep)
+    sizes = " > ".join(str(lv["elements"]) for lv in index["levels"])
+    print(
+        f"{len(index['levels'])} nested levels ({sizes} elements) from {mesh.n_cells} cells with {args.model} "
+        f"| read {t_read:.2f}s build {info['build_time']:.2f}s write {t_write:.2f}s | total {time.perf_counter() - t0:.2f}s"
+        f" -> {out}{mg}"
+    )
+    return 0
+
+
+def read_levels(folder: str) -> list[np.ndarray]:
+    """The labels of every level of a hierarchy folder (hierarchy.json order: coarsest first)."""
+    path = os.path.join(folder, "hierarchy.json")
+    try:
+        index = json.load(open(path, encoding="utf-8"))
+        files = [lv["labels"] for lv in index["levels"]]
+    except FileNotFoundError:
+        raise ParameterError(
+            f"{folder!r} holds no hierarchy.json (write one with `magnet hierarchy`)"
+        ) from None
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ParameterError(f"cannot read {path}: {exc}") from None
+    levels = []
+    for f in files:
+        try:
+            levels.append(
+                np.asarray(
+                    json.load(open(os.path.join(folder, os.path.basename(str(f))), encoding="utf-8")),
+                    dtype=np.int64,
+                )
+            )
+        except (OSError, ValueError, TypeError) as exc:
+            raise ParameterError(f"cannot read the labels {f!r} of the hierarchy: {exc}") from None
+    return levels
+
+
+def mgcheck_main(args) -> int:
+    from models.hierarchy.multigrid import format_report, mgcheck
+    from models.mesh.read import read_mesh
+    from models.pipeline import prepare
+
+    levels = read_levels(args.hierarchy)
+    mesh = read_mesh(args.mesh, physical_tag=args.physical_tag)
+    if any(lv.ndim != 1 or lv.size != mesh.n_cells for lv in levels):
+        raise MeshError(f"the hierarchy in {args.hierarchy!r} is not of this mesh ({mesh.n_cells} cells)")
+    _, data = prepare(mesh)
+    rep = mgcheck(mesh, data, levels)
+    print(json.dumps(rep, indent=1) if args.json else format_report(rep))
+    return 0

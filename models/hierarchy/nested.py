@@ -1,0 +1,801 @@
+"""Nested agglomeration hierarchies (what multigrid users need): every level of a recursive mode,
+each coarse element exactly a union of elements of the next finer level.
+
+nested_levels() turns the labels a recursive bisection recorded after each level into exactly
+nested partitions ending at the final agglomeration (whose elements may have been split into
+connected pieces, merged fragments or cut holes): going from the finest level up, each finer
+element joins the coarse part that holds most of its cells, then coarse parts are split into
+connected pieces. A coarse element that would enclose a hole is replaced by its children.
+
+write_hierarchy() writes one directory: level_L.vtu, level_L.labels.json (fine cell -> element),
+level_L.parent.json (element of level L -> its element at level L-1, 0-based, L >= 1),
+level_L.metrics.json, optionally level_L.lymph.json and .mat (2D), and hierarchy.json indexing them; level 0
+is the coarsest, the last level the final result (same element numbering as the job's outputs).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+
+from models.mesh.celldata import CellData, compact_labels
+from models.mesh.container import Mesh
+
+
+def _majority(child: np.ndarray, rec: np.ndarray) -> np.ndarray:
+    """For each child id, the rec label holding most of its cells (ties: the smallest label)."""
+    k = int(child.max()) + 1
+    key = child.astype(np.int64) * (int(rec.max()) + 1) + rec
+    uk, cnt = np.unique(key, return_counts=True)
+    c = uk // (int(rec.max()) + 1)
+    r = uk % (int(rec.max()) + 1)
+    order = np.lexsort((r, -cnt, c))
+    first = order[np.r_[True, c[order][1:] != c[order][:-1]]]
+    out = np.zeros(k, dtype=np.int64)
+    out[c[first]] = r[first]
+    return out
+
+
+def nested_levels(
+    data: CellData, final: np.ndarray, recorded: list[np.ndarray], nodes: np.ndarray, mesh: Mesh | None = None
+) -> list[np.ndarray]:
+    """Exactly nested labels over all cells, coarsest first, the last one = `final`.
+
+    recorded: labels over `nodes` after each recursion level (Agglomeration.levels, coarsest
+    first); cells outside `nodes` (coarsen mode) are their own element on every level. With
+    `mesh`, coarse elements that would enclose a hole are replaced by their children."""
+    from models.partition.agglomerate import connected_parts
+
+    n = final.size
+    all_nodes = np.arange(n)
+    levels = [compact_labels(np.asarray(final, dtype=np.int64))]
+    outside = np.ones(n, dtype=bool)
+    outside[nodes] = False
+    for rec in reversed(recorded[:-1] if len(recorded) > 1 else []):
+        finer = levels[0]
+        full = np.empty(n, dtype=np.int64)
+        full[nodes] = rec
+        base = int(rec.max()) + 1 if rec.size else 0
+        full[outside] = base + np.arange(int(outside.sum()))
+        coarse = _majority(finer, full)[finer]
+        coarse, _ = connected_parts(data, coarse, all_nodes)
+        coarse = compact_labels(coarse)
+        if mesh is not None:
+            coarse = _without_holes(mesh, data, coarse, finer)
+        if int(coarse.max()) + 1 == int(finer.max()) + 1:
+            continue  # nothing merged on this level
+        levels.insert(0, coarse)
+    return levels
+
+
+def _without_holes(mesh: Mesh, data: CellData, coarse: np.ndarray, finer: np.ndarray) -> np.ndarray:
+    """Replace every coarse element that encloses a hole (or a cavity) by its children."""
+    from models.polytope.merge import merge
+
+    for _ in range(int(coarse.max()) + 2):
+        _, holes = merge(mesh, data.graph, coarse, data.measures)
+        bad = np.unique(holes.elements)
+        if bad.size == 0:
+            return coarse
+        coarse = _split_elements(coarse, bad, finer)
+    return coarse
+
+
+def parent_maps(levels: list[np.ndarray]) -> list[np.ndarray]:
+    """For each level L >= 1: (elements of L,) -> its element at level L-1."""
+    out = []
+    for coarse, fine in zip(levels[:-1], levels[1:], strict=True):
+        p = np.empty(int(fine.max()) + 1, dtype=np.int64)
+        p[fine] = coarse
+        out.append(p)
+    return out
+
+
+def is_nested(levels: list[np.ndarray]) -> bool:
+    """True when every element of each level lies inside one element of the level above."""
+    for coarse, fine in zip(levels[:-1], levels[1:], strict=True):
+        p = np.full(int(fine.max()) + 1, -1, dtype=np.int64)
+        p[fine] = coarse
+        if not np.array_equal(p[fine], coarse):
+            return False
+    return True
+
+
+def write_hierarchy(
+    out_dir: str | os.PathLike,
+    mesh: Mesh,
+    data: CellData,
+    levels: list[np.ndarray],
+    metrics: bool = True,
+    extra: dict | None = None,
+    lymph: bool = False,
+    boundary=None,
+    boundary_tag: int = 1,
+    operators: bool = True,
+    merged: list | None = None,
+) -> dict:
+    """Write every level (see the module docstring); returns the hierarchy.json index.
+    lymph: also level_L.lymph.json (2D) with the lymph region/neighbor structs of each level;
+    boundary: the fine mesh's boundary groups (models.mesh.boundary.fine_boundary), kept on every level;
+    operators: also the aggregation operator into each level (write_operators). metrics=False still
+    gives the partition statistics and the box measures (box ratio, coverage) of each level.
+    merged: the polytopes models.polytope.merge.merge already made of each level (build_hierarchy's), not
+    merged again."""
+    from models.export.vtu import points_xml, write_vtu
+    from models.polytope.merge import merge, sort_by_vertex_count
+
+    out_dir = os.fspath(out_dir)
+    os.makedirs(out_dir, exist_ok=True)
+    g = data.graph
+    polys = []
+    if merged is not None and len(merged) != len(levels):
+        merged = None
+    for L, labels in enumerate(levels):
+        poly = (
+            merged[L]
+            if merged is not None and merged[L] is not None
+            else merge(mesh, g, labels, data.measures)[0]
+        )
+        poly = sort_by_vertex_count(poly)  # 3D: the element order meshio reads back; labels follow
+        if boundary is not None:
+            from models.mesh.boundary import annotate
+
+            annotate(poly, boundary)
+        polys.append(poly)
+    levels = [np.asarray(p.labels, dtype=np.int64) for p in polys]
+    parents = parent_maps(levels)
+    nested = is_nested(levels)
+    index = {
+        "levels": [],
+        "nested": nested,
+        "cells": int(mesh.n_cells),
+        "dim": int(mesh.dim),
+        **(extra or {}),
+    }
+    if not metrics and nested:
+        stats = level_statistics(mesh, g, levels, data.measures)  # all levels at once
+    pts_xml = [None] * len(polys)  # the Points array, encoded once for the levels that share it
+    for L, poly in enumerate(polys):
+        same = next((j for j in range(L) if _same_points(polys[j], poly)), None)
+        pts_xml[L] = points_xml(poly) if same is None else pts_xml[same]
+    for L, (labels, poly) in enumerate(zip(levels, polys, strict=True)):
+        entry = {
+            "level": L,
+            "elements": int(poly.n_elements),
+            "mesh": f"level_{L}.vtu",
+            "labels": f"level_{L}.labels.json",
+        }
+        cell_data = {}
+        if metrics:
+            from models.quality.report import metrics_report
+
+            rep = metrics_report(poly, g.indptr, g.indices, fine_tags=mesh.tags)
+            for name, vals in rep["per_element"].items():
+                cell_data[name] = np.asarray(vals, dtype=np.float64)
+            rep = {k: v for k, v in rep.items() if k != "per_element"}
+        elif nested:
+            rep = stats[L]
+        else:
+            from models.quality.partition_stats import partition_statistics
+            from models.quality.report import box_measures
+            from models.quality.summary import summarize
+
+            bm = box_measures(mesh.points, mesh.offsets, mesh.connectivity, labels, data.measures)
+            rep = {
+                "elements": int(poly.n_elements),
+                "dim": int(mesh.dim),
+                "coverage": bm["coverage"],
+                "summary": {"box_ratio": summarize(bm["box_ratio"])},
+                "partition": partition_statistics(g.indptr, g.indices, labels),
+            }
+        _write_json(os.path.join(out_dir, f"level_{L}.metrics.json"), rep)
+        entry["metrics"] = f"level_{L}.metrics.json"
+        entry["normalized_cut"] = rep["partition"]["normalized_cut"]
+        write_vtu(os.path.join(out_dir, entry["mesh"]), poly, cell_data, points_xml=pts_xml[L])
+        _write_json(os.path.join(out_dir, entry["labels"]), labels)
+        if L > 0:
+            entry["parent"] = f"level_{L}.parent.json"
+            _write_json(os.path.join(out_dir, entry["parent"]), parents[L - 1])
+        if lymph and mesh.dim == 2:
+            from models.export.lymph import lymph_structs, write_lymph_json, write_lymph_mat
+
+            region, neighbor = lymph_structs(poly, boundary_tag=boundary_tag)
+            entry["lymph"] = f"level_{L}.lymph.json"
+            entry["lymph_mat"] = f"level_{L}.lymph.mat"
+            write_lymph_json(os.path.join(out_dir, entry["lymph"]), region, neighbor)
+            write_lymph_mat(os.path.join(out_dir, entry["lymph_mat"]), region, neighbor)
+        index["levels"].append(entry)
+    if operators:
+        for entry, op in zip(index["levels"], write_operators(out_dir, levels, mesh.n_cells), strict=True):
+            entry["aggregation"] = op
+    _write_json(os.path.join(out_dir, "hierarchy.json"), index)
+    return index
+
+
+def _same_points(a, b) -> bool:
+    """Do two polytope meshes write the same Points array (the same points, the same 2D frame)?"""
+    if a.dim != b.dim or not (a.points is b.points or np.array_equal(a.points, b.points)):
+        return False
+    if a.dim != 2 or (a.frame is None and b.frame is None):
+        return True
+    return a.frame is not None and b.frame is not None and np.array_equal(a.frame, b.frame)
+
+
+def _components_count(indptr: np.ndarray, indices: np.ndarray, labels: np.ndarray) -> int:
+    """Connected pieces of the parts `labels` of a symmetric CSR graph (edges inside a part only)."""
+    from models.partition.rtree import _label_pieces  # compiled union-find where built, else scipy
+
+    return int(_label_pieces(indptr, indices, np.asarray(labels, dtype=np.int64))[0]) if labels.size else 0
+
+
+def level_statistics(mesh: Mesh, graph, levels: list[np.ndarray], measures: np.ndarray) -> list[dict]:
+    """Per level of exactly nested `levels` (coarsest first), what write_hierarchy writes without
+    --metrics: elements, coverage, box-ratio summary and the partition statistics, the same numbers
+    as models.metrics.box_measures / partition_statistics level by level, batched: the boxes of a
+    level are the union of its children's boxes, the undirected edge list is built once, and a
+    level's connectedness is decided on the graph of the finer level's elements."""
+    import scipy.sparse as sp
+
+    from models.partition.rtree import _small_int, cell_boxes
+    from models.quality.summary import summarize
+
+    indptr, indices = np.asarray(graph.indptr, dtype=np.int64), np.asarray(graph.indices, dtype=np.int64)
+    n = indptr.size - 1
+    rows = np.repeat(np.arange(n), np.diff(indptr))
+    # each undirected edge once (duplicates and self loops merged away, as partition_statistics does)
+    upper = rows < indices
+    later = np.r_[False, (indices[1:] > indices[:-1]) | (rows[1:] != rows[:-1])]  # sorted, no repeats
+    if 2 * int(upper.sum()) == indices.size and bool(later[1:][rows[1:] == rows[:-1]].all()):
+        a, b = rows[upper], indices[upper]  # a canonical symmetric CSR (the dual graph's): as it is
+    else:
+        off = rows != indices
+        up = sp.csr_matrix(
+            (
+                np.ones(int(off.sum()), dtype=bool),
+                (np.minimum(rows, indices)[off], np.maximum(rows, indices)[off]),
+            ),
+            shape=(n, n),
+        )
+        a = np.repeat(np.arange(n), np.diff(up.indptr))
+        b = up.indices.astype(np.int64)
+    deg = (np.bincount(a, minlength=n) + np.bincount(b, minlength=n)).astype(np.float64)
+    absm = np.abs(np.asarray(measures, dtype=np.float64))
+    lo, hi = cell_boxes(mesh.points, mesh.offsets, mesh.connectivity)
+    out: list[dict] = [None] * len(levels)
+    q_ptr, q_ind = indptr, indices  # graph of the finer nodes: cells, then the finer level's elements
+    ea, eb, ec = a, b, None  # its undirected edges, each once, with their number of fine edges (None: 1)
+    node_vol, node_n = deg, np.ones(n)  # fine degrees and cells summed over each finer node
+    connected_below = True
+    for L in range(len(levels) - 1, -1, -1):
+        lab = np.asarray(levels[L], dtype=np.int64)
+        k = int(lab.max()) + 1
+        if L < len(levels) - 1:  # element of this level of each element of the finer level
+            node_to = np.zeros(int(levels[L + 1].max()) + 1, dtype=np.int64)
+            node_to[levels[L + 1]] = lab
+        else:
+            node_to = lab
+        order = np.argsort(_small_int(node_to, k), kind="stable")  # a radix sort up to 16 bits
+        starts = np.flatnonzero(np.r_[True, node_to[order][1:] != node_to[order][:-1]])
+        lo = np.minimum.reduceat(lo[order], starts, axis=0)
+        hi = np.maximum.reduceat(hi[order], starts, axis=0)
+        box = np.prod(hi - lo, axis=1)
+        m = np.bincount(lab, weights=absm, minlength=k)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            br = np.clip(np.where(box > 0, m / np.where(box > 0, box, 1.0), 0.0), 0.0, 1.0)
+        total = float(m.sum())
+        cov = float(box.sum() / total) if total > 0 else float("nan")
+        # partition statistics: the fine edges cut by this level are the finer nodes' edges it cuts
+        ua, ub = node_to[ea], node_to[eb]
+        cut_mask = ua != ub
+        ua, ub = ua[cut_mask], ub[cut_mask]
+        c = None if ec is None else ec[cut_mask]
+        cut_i = np.bincount(ua, weights=c, minlength=k) + np.bincount(ub, weights=c, minlength=k)
+        n_cut = int(cut_mask.sum()) if c is None else int(c.sum())
+        node_vol = np.bincount(node_to, weights=node_vol, minlength=k)  # sums of integers: exact
+        node_n = np.bincount(node_to, weights=node_n, minlength=k)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ncut = float(np.where(node_vol > 0, cut_i / np.where(node_vol > 0, node_vol, 1), 0.0).sum())
+        # connected: every element's finer nodes connected through the finer level's element graph
+        if connected_below:  # the finer level's elements are connected: their graph decides
+            connected_below = _components_count(q_ptr, q_ind, node_to) == k
+            connected = connected_below
+        else:
+            connected = _components_count(indptr, indices, lab) == k
+        out[L] = {
+            "elements": k,
+            "dim": int(mesh.dim),
+            "coverage": cov,
+            "summary": {"box_ratio": summarize(br)},
+            "partition": {
+                "cut": n_cut,
+                "normalized_cut": ncut,
+                "volume_imbalance": float(node_n.max() / node_n.mean()) if k else 0.0,
+                "parts": k,
+                "connected": bool(connected),
+            },
+        }
+        if L == 0:
+            break
+        # the undirected edges of this level's elements (with multiplicities), for the next (coarser) level
+        key = np.minimum(ua, ub) * np.int64(k) + np.maximum(ua, ub)
+        uniq, inv = np.unique(key, return_inverse=True)
+        ec = np.bincount(inv, weights=c, minlength=uniq.size).astype(np.int64)
+        ea, eb = uniq // k, uniq % k
+        qm = sp.csr_matrix(
+            (np.ones(2 * uniq.size, dtype=np.int8), (np.r_[ea, eb], np.r_[eb, ea])), shape=(k, k)
+        )
+        q_ptr, q_ind = qm.indptr.astype(np.int64), qm.indices.astype(np.int64)
+    return out
+
+
+def aggregation_operators(levels: list[np.ndarray], n_cells: int | None = None) -> list:
+    """The aggregation operator into each level, coarsest first: P_L (rows x elements of level L), a
+    single 1 per row, rows = the elements of level L+1, or the fine cells for the finest level.
+    In multigrid order (fine to coarse) they are reversed(...): what pyamg's predefined
+    aggregation takes (`AggOp`)."""
+    import scipy.sparse as sp
+
+    ops = []
+    for L, labels in enumerate(levels):
+        if L + 1 < len(levels):
+            p = parent_maps(levels[L : L + 2])[0]  # elements of L+1 -> element of L
+        else:
+            p = np.asarray(labels, dtype=np.int64)
+        k = int(labels.max()) + 1
+        ops.append(sp.csr_matrix((np.ones(p.size), (np.arange(p.size), p)), shape=(p.size, k)))
+    return ops
+
+
+def write_operators(out_dir: str, levels: list[np.ndarray], n_cells: int) -> list[dict]:
+    """level_L.agg.npz (scipy.sparse.save_npz) and level_L.agg.mtx (MatrixMarket, for Matlab's
+    mmread) per level; returns their hierarchy.json entries."""
+    import scipy.sparse as sp
+
+    out = []
+    for L, P in enumerate(aggregation_operators(levels, n_cells)):
+        npz, mtx = f"level_{L}.agg.npz", f"level_{L}.agg.mtx"
+        sp.save_npz(os.path.join(out_dir, npz), P, compressed=False)  # zlib took 0.1 s of 5 levels of 92k
+        rows = "fine cells" if L + 1 == len(levels) else f"elements of level {L + 1}"
+        _write_mtx(
+            os.path.join(out_dir, mtx), P.indices, P.shape[1], f" aggregation into level {L}: rows = {rows}"
+        )
+        out.append(
+            {
+                "npz": npz,
+                "mtx": mtx,
+                "rows": "cells" if L + 1 == len(levels) else f"level_{L + 1}",
+                "shape": [int(P.shape[0]), int(P.shape[1])],
+            }
+        )
+    return out
+
+
+def coarse_graph(batch_or_data, labels: np.ndarray):
+    """The dual graph of the agglomerates (a GraphBatch of one graph): shared face measures summed,
+    measures summed, centroids measure-weighted, edge counts and volumes kept for cuts."""
+    import scipy.sparse as sp
+
+    from models.graph.batch import GraphBatch
+
+    g = batch_or_data.graph if hasattr(batch_or_data, "graph") else batch_or_data
+    indptr, indices, weights = g.indptr, g.indices, g.weights
+    meas, cen = batch_or_data.measures, batch_or_data.centroids
+    n = indptr.size - 1
+    k = int(labels.max()) + 1
+    rows = np.repeat(np.arange(n), np.diff(indptr))
+    a, b = labels[rows], labels[indices]
+    off = a != b
+    W = sp.csr_matrix((weights[off], (a[off], b[off])), shape=(k, k))
+    W.sum_duplicates()
+    C = sp.csr_matrix((np.ones(int(off.sum())), (a[off], b[off])), shape=(k, k))
+    C.sum_duplicates()
+    m = np.bincount(labels, weights=meas, minlength=k)
+    c = np.column_stack(
+        [np.bincount(labels, weights=meas * cen[:, d], minlength=k) for d in range(cen.shape[1])]
+    )
+    c /= np.maximum(m, 1e-300)[:, None]
+    vol = np.bincount(labels, weights=np.diff(indptr).astype(np.float64), minlength=k)
+    return GraphBatch(
+        indptr=W.indptr.astype(np.int64),
+        indices=W.indices.astype(np.int64),
+        weights=W.data,
+        graph_ptr=np.array([0, k], dtype=np.int64),
+        centroids=c,
+        measures=m,
+        tags=None,
+        node_ids=np.arange(k),
+        edge_count=C.data,
+        volume=vol,
+    )
+
+
+def build_hierarchy(
+    mesh: Mesh,
+    data: CellData,
+    model: str = "rtree",
+    ratio: float = 8.0,
+    coarsest: int = 10,
+    seed: int = 0,
+    groups: bool = False,
+    model_options: dict | None = None,
+) -> tuple[list[np.ndarray], dict]:
+    """Exactly nested levels (coarsest first) with about `ratio` times fewer elements per level, from
+    n_cells / ratio down to at most `coarsest` elements; every element connected.
+
+    rtree: natively (models.partition.rtree.rtree_levels). Models with a k-way mode (metis,
+    kmeans): the agglomerates are agglomerated (k-way on each level's coarse dual graph, pieces
+    then joined to a neighbour so counts stay exact). Bisection-only models (sage-base, ...): one
+    recursive bisection, recorded, and the levels nearest the wanted counts.
+    groups: no element crosses a physical group (rtree only). Returns (levels, info); info["merged"]
+    holds each level's polytopes (pass them to write_hierarchy as `merged`)."""
+    import time
+
+    from models.errors import ParameterError
+    from models.partition import get_partitioner
+    from models.partition.rtree import cell_boxes, level_counts, make_connected, rtree_levels
+
+    t0 = time.perf_counter()
+    n = mesh.n_cells
+    counts = level_counts(n, ratio, coarsest)
+    if not counts:
+        raise ParameterError(f"the mesh has {n} cells: nothing to coarsen with coarsest = {coarsest}")
+    if groups and mesh.tags is None:
+        raise ParameterError("respecting physical groups needs a mesh with physical groups")
+    if groups and model != "rtree":
+        raise ParameterError("physical groups in a hierarchy: model rtree only")
+    if model == "rtree":
+        from models.graph.batch import GraphBatch
+
+        G = data.graph  # the whole mesh as one graph: make_batch's batch of one label, without its sort
+        batch = GraphBatch(
+            indptr=G.indptr,
+            indices=G.indices,
+            weights=G.weights,
+            graph_ptr=np.array([0, n], dtype=np.int64),
+            centroids=data.centroids,
+            measures=data.measures,
+            tags=data.tags,
+            node_ids=np.arange(n),
+        )
+        batch.cell_boxes = cell_boxes(data.points, data.offsets, data.connectivity)
+        tags = None if not groups else np.unique(mesh.tags, return_inverse=True)[1].astype(np.int64)
+        opts = {
+            "boxes": batch.cell_boxes,
+            **(model_options or {}),
+        }  # the tight cuts, as the flat modes make them
+        graphs = []  # the graphs of the levels' elements, for the cavity check
+        levels = rtree_levels(batch, counts, groups=tags, graphs=graphs, **opts)
+        level_graphs = {len(levels) - 1 - j: q for j, q in enumerate(graphs)}
+        how = "native"
+    else:
+        from models.partition.agglomerate import agglomerate
+
+        part = get_partitioner(model, seed=seed, **(model_options or {}))
+        if part.supports_kway:
+            fine = agglomerate(mesh, data, model=part, mode="kway", k=counts[-1], seed=seed).labels
+            levels = [fine]
+            for c in reversed(counts[:-1]):
+                cg = coarse_graph(data, levels[0])
+                raw = np.asarray(part.kway(cg, int(c)), dtype=np.int64)
+                raw, _ = make_connected(
+                    cg.indptr, cg.indices, cg.weights, compact_labels(raw), measures=cg.measures
+                )
+                levels.insert(0, compact_labels(raw)[levels[0]])
+            how = "agglomerates agglomerated (k-way on each coarse dual graph)"
+        else:
+            depth = max(1, int(round(np.log2(max(counts[-1], 2)))))
+            agg = agglomerate(
+                mesh,
+                data,
+                model=part,
+                mode="nref",
+                nref=min(depth, int(np.log2(n))),
+                seed=seed,
+                record_levels=True,
+            )
+            cand = nested_levels(data, agg.labels, agg.levels, agg.nodes)
+            sizes = np.array([int(c.max()) + 1 for c in cand])
+            pick = sorted({int(np.argmin(np.abs(np.log(sizes) - np.log(c)))) for c in counts})
+            levels = [cand[i] for i in pick]
+            how = "top-down recursive bisection, recorded"
+    levels = [np.asarray(lv, dtype=np.int64) for lv in levels]
+    levels, polys = _fix_holes(mesh, data, levels, level_graphs if model == "rtree" else None)
+    info = {
+        "model": model,
+        "ratio": float(ratio),
+        "coarsest": int(coarsest),
+        "requested": counts,
+        "method": how,
+        "build_time": time.perf_counter() - t0,
+        "merged": polys,
+    }
+    return levels, info
+
+
+def _sparse_min(values: np.ndarray) -> list[np.ndarray]:
+    """Sparse table: tab[j][i] = min(values[i : i + 2**j])."""
+    tab = [values]
+    j = 1
+    while (1 << j) <= values.size:
+        prev = tab[-1]
+        h = 1 << (j - 1)
+        tab.append(np.minimum(prev[:-h], prev[h:]))
+        j += 1
+    return tab
+
+
+def _element_graph(graph, labels: np.ndarray):
+    """CSR graph of the elements `labels` of the fine graph plus one outside node (id k), joined to
+    every element with a boundary face."""
+    import scipy.sparse as sp
+
+    labels = np.asarray(labels, dtype=np.int64)
+    k = int(labels.max()) + 1
+    rows = np.repeat(np.arange(labels.size), np.diff(graph.indptr))
+    a, b = labels[rows], labels[graph.indices]
+    off = a != b
+    on_bnd = np.unique(labels[graph.faces.cell[graph.partner < 0]])
+    ea = np.concatenate([a[off], on_bnd, np.full(on_bnd.size, k)])
+    eb = np.concatenate([b[off], np.full(on_bnd.size, k), on_bnd])
+    G = sp.csr_matrix((np.ones(ea.size, dtype=np.int8), (ea, eb)), shape=(k + 1, k + 1))
+    G.sum_duplicates()
+    return G
+
+
+def _with_outside(graph, labels: np.ndarray, qptr: np.ndarray, qind: np.ndarray, boundary_cells=None):
+    """_element_graph from the elements' own graph (CSR (qptr, qind) without repeats or self loops,
+    as rtree_levels gives it): the outside node k is appended to the rows of the elements with a
+    boundary face and gets their row; no pass over the fine graph's edges. The same entries as
+    _element_graph's, in the given order within rows (sorted rows give the same CSR; the cavity
+    check's articulation points do not depend on the order). boundary_cells:
+    graph.faces.cell[graph.partner < 0] when already known."""
+    import scipy.sparse as sp
+
+    from models.graph.csr import row_pointers
+
+    labels = np.asarray(labels, dtype=np.int64)
+    k = qptr.size - 1
+    if boundary_cells is None:  # the cells with a face on the domain's boundary
+        boundary_cells = graph.faces.cell[graph.partner < 0]
+    on_bnd = np.unique(labels[boundary_cells])
+    touch = np.zeros(k, dtype=bool)
+    touch[on_bnd] = True
+    deg = np.diff(qptr)
+    ptr = row_pointers(np.r_[deg + touch, on_bnd.size])
+    ind = np.empty(int(ptr[-1]), dtype=np.int64)
+    ind[np.repeat(ptr[:k] - qptr[:-1], deg) + np.arange(qind.size)] = qind
+    ind[ptr[1 : k + 1][touch] - 1] = k
+    ind[ptr[k] :] = on_bnd
+    return sp.csr_matrix((np.ones(ind.size, dtype=np.int8), ind, ptr), shape=(k + 1, k + 1))
+
+
+def _coarser_graph(G, node_to: np.ndarray, k: int):
+    """The element graph (with the outside node) of a coarser level from a finer level's one:
+    node_to maps the finer elements to the coarser ones; the outside node stays the last."""
+    import scipy.sparse as sp
+
+    m = np.r_[node_to, k]
+    rows = np.repeat(np.arange(G.shape[0]), np.diff(G.indptr))
+    a, b = m[rows], m[G.indices]
+    off = a != b
+    Q = sp.csr_matrix((np.ones(int(off.sum()), dtype=np.int8), (a[off], b[off])), shape=(k + 1, k + 1))
+    Q.sum_duplicates()
+    return Q
+
+
+def cavity_elements(graph, labels: np.ndarray, G=None) -> np.ndarray | None:
+    """3D elements that enclose a cavity (other elements), found on the graph of the elements, not by
+    merging them: with one extra node for the outside (joined to every element with a boundary face),
+    an element encloses something exactly when removing it cuts part of the graph off the outside,
+    i.e. it is an articulation point of a depth-first tree rooted outside whose child's subtree has
+    no edge above it. One DFS (scipy) and sparse-table range minima, no loop over elements. Assumes
+    a domain without voids (see _has_voids); pinched contacts count as enclosing (conservative).
+    G: the elements' graph (_element_graph) when already known. None: some element never reaches
+    the boundary (let merging decide)."""
+    from scipy.sparse.csgraph import depth_first_order
+
+    if G is None:
+        G = _element_graph(graph, labels)
+    k = G.shape[0] - 1
+    out_node = k
+    order, pred = depth_first_order(G, out_node, directed=True, return_predecessors=True)  # G is symmetric
+    N = order.size
+    if N < k + 1:  # part of the graph never reaches the boundary (not a mesh we know): let merging decide
+        return None
+    pre = np.empty(k + 1, dtype=np.int64)
+    pre[order] = np.arange(N)
+    # depth in the DFS tree by pointer jumping (anc: an ancestor, d: the edges up to it)
+    par = np.where(pred < 0, out_node, pred).astype(np.int64)
+    anc = par.copy()
+    d = (np.arange(k + 1) != out_node).astype(np.int64)
+    for _ in range(70):
+        if np.all(anc == out_node):
+            break
+        d, anc = d + d[anc], anc[anc]
+    d_by_pos = d[order]
+    # end of every subtree: the first later position not deeper than the node
+    tab_d = _sparse_min(d_by_pos)
+    q = np.arange(1, N + 1)
+    dv = d_by_pos
+    for j in range(len(tab_d) - 1, -1, -1):
+        t = tab_d[j]
+        ok = q <= t.size - 1
+        step = np.zeros(N, dtype=bool)
+        step[ok] = t[q[ok]] > dv[ok]
+        q = np.where(step, q + (1 << j), q)
+    end = np.minimum(q, N)
+    # lowest preorder number any node of a subtree touches
+    nb_pre = pre[G.indices]
+    deg = np.diff(G.indptr)
+    nbmin = np.full(k + 1, N, dtype=np.int64)
+    has = deg > 0
+    nbmin[has] = np.minimum.reduceat(nb_pre, G.indptr[:-1][has])
+    tab = _sparse_min(nbmin[order])
+    start = np.arange(N)
+    length = end - start
+    lj = np.floor(np.log2(np.maximum(length, 1))).astype(np.int64)
+    low = np.empty(N, dtype=np.int64)
+    for j in np.unique(lj):  # a loop over the table's rows
+        s = lj == j
+        low[s] = np.minimum(tab[j][start[s]], tab[j][end[s] - (1 << j)])
+    child = order  # position i holds node order[i]
+    p = par[child]
+    cut = (child != out_node) & (p != out_node) & (low >= pre[p])
+    return np.unique(p[cut])
+
+
+def _has_voids(mesh: Mesh, graph) -> bool:
+    """3D: does the domain's boundary have more than one shell (a void, or several bodies)? The
+    shells of merge_3d's one element, without building the polyhedron."""
+    from models.polytope.merge import _shells, face_nodes
+
+    bf = np.flatnonzero(graph.partner < 0)
+    fo, nodes = face_nodes(graph.faces, bf)
+    return bool(_shells(mesh.points, np.zeros(bf.size, dtype=np.int64), fo, nodes).elements.size)
+
+
+def _fix_holes(
+    mesh: Mesh, data: CellData, levels: list[np.ndarray], graphs: dict | None = None
+) -> tuple[list[np.ndarray], list]:
+    """Elements that would enclose a hole are replaced by their children (finest: by cells),
+    finest level first, so the levels stay nested and every written polygon has one loop.
+    Returns the levels and their merged polytopes (for write_hierarchy's `merged`; None where a
+    level was checked without merging: 3D domains without voids are checked on the elements' graph
+    (cavity_elements), and the writer merges). graphs: level -> the CSR (indptr, indices) of the graph
+    of that level's elements where known (rtree_levels'), no repeats or self loops."""
+    from models.polytope.merge import boundary_faces, merge, merge_2d
+
+    out = list(levels)
+    graphs = dict(graphs or {})
+    polys = [None] * len(out)
+    bf = None  # 2D: the finer level's boundary faces (None: all faces)
+    finer = np.arange(mesh.n_cells)
+    by_graph = mesh.dim == 3 and not _has_voids(mesh, data.graph)
+    G_finer = None  # the finer level's element graph (each level's comes from it, not from the cells)
+    bcells = None  # the cells on the domain's boundary
+    for L in range(len(out) - 1, -1, -1):
+        if by_graph:
+            for _ in range(int(out[L].max()) + 2):
+                k = int(out[L].max()) + 1
+                q = graphs.pop(L, None)  # made for the level's labels as given, not a split's
+                if q is not None and q[0].size == k + 1:
+                    if bcells is None:
+                        bcells = data.graph.faces.cell[data.graph.partner < 0]
+                    G = _with_outside(data.graph, out[L], *q, boundary_cells=bcells)
+                elif G_finer is None:
+                    G = _element_graph(data.graph, out[L])
+                else:
+                    node_to = np.zeros(G_finer.shape[0] - 1, dtype=np.int64)
+                    node_to[finer] = out[L]
+                    G = _coarser_graph(G_finer, node_to, k)
+                bad = cavity_elements(data.graph, out[L], G)
+                if bad is None:
+                    by_graph = False
+                    break
+                if bad.size == 0:
+                    break
+                out[L] = _split_elements(out[L], bad, finer)
+            if by_graph:
+                finer, G_finer = out[L], G
+                continue
+        if mesh.dim == 2:  # a nested coarser level's boundary edges are among the finer level's
+            if bf is not None:
+                node_to = np.zeros(int(finer.max()) + 1, dtype=np.int64)
+                node_to[finer] = out[L]
+                if not np.array_equal(node_to[finer], out[L]):
+                    bf = None
+            bf = boundary_faces(data.graph, out[L], among=bf)
+            poly, holes = merge_2d(mesh, data.graph, out[L], data.measures, faces=bf)
+        else:
+            poly, holes = merge(mesh, data.graph, out[L], data.measures)
+        if np.unique(holes.elements).size:
+            out[L] = _without_holes(mesh, data, out[L], finer)
+            poly, _ = merge(mesh, data.graph, out[L], data.measures)
+            bf = None if mesh.dim != 2 else boundary_faces(data.graph, out[L])
+        polys[L] = poly
+        finer = out[L]
+    return out, polys
+
+
+def _split_elements(coarse: np.ndarray, bad: np.ndarray, finer: np.ndarray) -> np.ndarray:
+    """The elements `bad` of `coarse` replaced by their children in `finer` (labels compacted)."""
+    is_bad = np.zeros(int(coarse.max()) + 1, dtype=bool)
+    is_bad[bad] = True
+    sel = is_bad[coarse]
+    coarse = coarse.copy()
+    coarse[sel] = int(coarse.max()) + 1 + finer[sel]
+    return compact_labels(coarse)
+
+
+_TRIPLES = None  # (3000,) three-character codes: 0..999 blank-led ("  0" for 0), zero-padded, blank-led ("   " for 0)
+
+
+def _digits(v: np.ndarray, width: int) -> np.ndarray:
+    """(N, width) ASCII codes of the non-negative integers v, right-aligned with blanks: three digits
+    at a time from a table, the block holding a number's leading digit (and blocks above it) from the
+    table with leading blanks, the blocks below it zero-padded (no pass to blank leading zeros)."""
+    global _TRIPLES
+    if _TRIPLES is None:
+        text = "".join(f"{i:3d}" for i in range(1000)) + "".join(f"{i:03d}" for i in range(1000))
+        text += "   " + "".join(f"{i:3d}" for i in range(1, 1000))
+        _TRIPLES = np.frombuffer(text.encode("ascii"), np.uint8).view("V3")
+    v = np.asarray(v, dtype=np.int64)
+    nb = -(-width // 3)
+    chars = np.empty((v.size, nb), dtype="V3")
+    rest = v
+    for j in range(nb - 1, -1, -1):  # a loop over blocks of three digits, lowest first
+        rest, blk = np.divmod(rest, 1000)
+        # digits above this block: zero-padded; none: blank-led (the lowest block writes 0 as "  0")
+        blk += np.where(rest > 0, 1000, 0 if j == nb - 1 else 2000)
+        chars[:, j] = _TRIPLES[blk]
+    return chars.view(np.uint8).reshape(v.size, 3 * nb)[:, 3 * nb - width :]
+
+
+def _int_list_json(values: np.ndarray) -> str:
+    """A JSON list of non-negative integers, written vectorized: every number right-aligned in a
+    fixed width (JSON allows the blanks), so json.loads gives the same list as json.dumps'."""
+    v = np.asarray(values, dtype=np.int64).ravel()
+    if v.size == 0 or v.min() < 0:
+        return json.dumps(v.tolist())
+    chars = np.concatenate(
+        [_digits(v, len(str(int(v.max())))), np.full((v.size, 1), ord(","), np.uint8)], axis=1
+    )
+    chars[-1, -1] = ord("]")
+    return "[" + chars.tobytes().decode("ascii")
+
+
+def _write_mtx(path: str, cols: np.ndarray, k: int, comment: str) -> None:
+    """MatrixMarket coordinate integer file of the (rows x k) matrix with a single 1 in row i at
+    column cols[i] (an aggregation operator), written vectorized (scipy's and Matlab's mmread read it)."""
+    cols = np.asarray(cols, dtype=np.int64)
+    n = cols.size
+    head = f"%%MatrixMarket matrix coordinate integer general\n%{comment}\n{n} {k} {n}\n"
+    if n:
+        i = _digits(np.arange(1, n + 1), len(str(n)))
+        j = _digits(cols + 1, len(str(int(cols.max()) + 1)))
+        sep = np.full((n, 1), ord(" "), np.uint8)
+        body = np.concatenate(
+            [i, sep, j, sep, np.full((n, 1), ord("1"), np.uint8), np.full((n, 1), ord("\n"), np.uint8)],
+            axis=1,
+        ).tobytes()
+    else:
+        body = b""
+    tmp = f"{path}.tmp"
+    with open(tmp, "wb") as fh:
+        fh.write(head.encode("ascii") + body)
+    os.replace(tmp, path)
+
+
+def _write_json(path: str, obj) -> None:
+    tmp = f"{path}.tmp"
+    if isinstance(obj, np.ndarray):
+        text = _int_list_json(obj)
+    else:
+        text = json.dumps(
+            obj, indent=None if isinstance(obj, list) else 1
+        )  # dumps: the C encoder (dump is pure Python)
+    with open(tmp, "w", encoding="utf-8") as fh:
+        fh.write(text)
+    os.replace(tmp, path)

@@ -1,0 +1,369 @@
+"""VTU (VTK XML UnstructuredGrid) reading: mixed and polyhedral cells, and a fast path for simple
+single-piece files."""
+
+from __future__ import annotations
+
+import base64
+import os
+import re
+import sys
+
+import numpy as np
+
+from models.errors import MeshError
+
+# meshio's VTU reader refuses polyhedra mixed with other cells, which is what write_vtu writes for
+# a 3D result with boundary groups; this reads such files (inline ascii or uncompressed base64
+# binary DataArrays, as write_vtu and VTK's own writer without compression produce).
+_NP_TYPES = {
+    "Float64": np.float64,
+    "Float32": np.float32,
+    "Int64": np.int64,
+    "Int32": np.int32,
+    "UInt64": np.uint64,
+    "UInt32": np.uint32,
+    "Int8": np.int8,
+    "UInt8": np.uint8,
+    "Int16": np.int16,
+    "UInt16": np.uint16,
+}
+_MESHIO_NAMES = {
+    3: "line",
+    5: "triangle",
+    7: "polygon",
+    9: "quad",
+    10: "tetra",
+    12: "hexahedron",
+    13: "wedge",
+    14: "pyramid",
+}
+
+
+def _decode(el, header: type) -> np.ndarray:
+    kind = _NP_TYPES.get(el.get("type", ""))
+    if kind is None:
+        raise MeshError(f"unsupported VTU data type {el.get('type')!r}")
+    fmt = el.get("format", "ascii")
+    text = (el.text or "").strip()
+    if fmt == "ascii":
+        return np.array(text.split(), dtype=np.float64).astype(kind) if text else np.zeros(0, kind)
+    if fmt != "binary":
+        raise MeshError(f"unsupported VTU data format {fmt!r} (inline ascii or binary only)")
+    hsize = np.dtype(header).itemsize
+    raw = base64.b64decode(text)
+    n = int(np.frombuffer(raw[:hsize], dtype=header)[0])
+    if len(raw) < hsize + n:  # header and data encoded separately
+        hlen = 4 * ((hsize + 2) // 3)
+        raw = base64.b64decode(text[:hlen])[:hsize] + base64.b64decode(text[hlen:])
+    return np.frombuffer(raw[hsize : hsize + n], dtype=kind).copy()
+
+
+def read_vtu_mixed(path: str | os.PathLike):
+    """A VTU with VTK_POLYHEDRON cells next to other cells, as a meshio-like object
+    (points, cells [.type, .data], cell_data {name: [array per block]}, field_data)."""
+    import xml.etree.ElementTree as ET
+    from types import SimpleNamespace
+
+    root = ET.parse(os.fspath(path)).getroot()
+    if root.get("compressor"):
+        raise MeshError("compressed VTU files with polyhedra mixed with other cells are not supported")
+    header = np.uint64 if root.get("header_type") == "UInt64" else np.uint32
+    piece = root.find("UnstructuredGrid/Piece")
+    if piece is None:
+        raise MeshError("not a VTU UnstructuredGrid file")
+
+    def arrays(section: str) -> dict:
+        node = piece.find(section)
+        return (
+            {}
+            if node is None
+            else {
+                el.get("Name"): (_decode(el, header), int(el.get("NumberOfComponents", 1)))
+                for el in node.findall("DataArray")
+            }
+        )
+
+    pts, ncomp = next(iter(arrays("Points").values()))
+    cells = {k: v[0].astype(np.int64) for k, v in arrays("Cells").items()}
+    conn, offs, types = cells["connectivity"], cells["offsets"], cells["types"]
+    start = np.r_[0, offs[:-1]]
+    cuts = np.flatnonzero(types[1:] != types[:-1]) + 1
+    bounds = np.r_[0, cuts, types.size]
+    blocks, sel = [], []
+    for b0, b1 in zip(bounds[:-1], bounds[1:], strict=True):  # a loop over blocks of one type
+        t = int(types[b0])
+        if t == 42:
+            fs, fo = cells["faces"], cells["faceoffsets"]
+            # a cell's stream starts where the last earlier stream ended (faceoffsets = ends, -1 = none)
+            begins = np.r_[0, np.maximum.accumulate(np.where(fo >= 0, fo, 0))[:-1]]
+            data = []
+            for c in range(b0, b1):  # polyhedra are parsed one by one (their faces are lists)
+                begin = int(begins[c])
+                n_faces = int(fs[begin])
+                k, faces = begin + 1, []
+                for _ in range(n_faces):
+                    m = int(fs[k])
+                    faces.append(fs[k + 1 : k + 1 + m])
+                    k += m + 1
+                data.append(faces)
+            blocks.append(SimpleNamespace(type="polyhedron", data=data))
+            sel.append(np.arange(b0, b1))
+            continue
+        if t not in _MESHIO_NAMES:
+            raise MeshError(f"unsupported VTK cell type {t} in the VTU file")
+        size = offs[b0:b1] - start[b0:b1]
+        for s in np.unique(size):  # polygons of different sizes go to different blocks
+            ids = np.arange(b0, b1)[size == s]
+            data = conn[start[ids][:, None] + np.arange(s)[None, :]]
+            name = _MESHIO_NAMES[t] if t != 7 else {3: "triangle", 4: "quad"}.get(int(s), "polygon")
+            blocks.append(SimpleNamespace(type=name, data=data))
+            sel.append(ids)
+    cell_data = {
+        name: [a.reshape(-1, nc)[ids].reshape(-1) if nc == 1 else a.reshape(-1, nc)[ids] for ids in sel]
+        for name, (a, nc) in arrays("CellData").items()
+    }
+    fd = root.find("UnstructuredGrid/FieldData")
+    field_data = {} if fd is None else {el.get("Name"): _decode(el, header) for el in fd.findall("DataArray")}
+    return SimpleNamespace(
+        points=pts.reshape(-1, ncomp).astype(np.float64),
+        cells=blocks,
+        cell_data=cell_data,
+        field_data=field_data,
+    )
+
+
+# The common VTU layout, read without meshio's XML tree (what meshio.read of a large file spends
+# beside decoding): one Piece, inline base64 "binary" DataArrays, zlib-compressed or not, cells of
+# one fixed-size type that meshio keeps in VTK's node order, no point or field data. Any other file
+# (or anything unexpected) gives None, and meshio reads it. The arrays are those meshio.read gives.
+_SIMPLE_CELLS = {5: ("triangle", 3), 9: ("quad", 4), 10: ("tetra", 4), 12: ("hexahedron", 8)}
+_ATTR = re.compile(rb'([A-Za-z_][-\w.:]*)\s*=\s*"([^"<&]*)"')
+_SECTIONS = {b"Points", b"Cells", b"CellData", b"PointData"}
+
+
+def read_vtu_simple(path: str | os.PathLike):
+    """meshio.read of a VTU of the common layout above (a meshio-like object: points, cells
+    [.type, .data], cell_data {name: [array]}, field_data), or None for any other file."""
+    if sys.byteorder != "little":
+        return None
+    try:
+        with open(os.fspath(path), "rb") as fh:
+            data = fh.read()
+        return _simple_vtu(data)
+    except Exception:  # noqa: BLE001  (anything unexpected: meshio reads it, and says what is wrong)
+        return None
+
+
+def _simple_vtu(data: bytes):
+    from types import SimpleNamespace
+
+    root, arrays = _scan_vtu(data)
+    if root is None:
+        return None
+    a = {k.decode(): v.decode() for k, v in root.items()}
+    if a.get("type") != "UnstructuredGrid" or a.get("version", "0.1") not in ("0.1", "1.0"):
+        return None
+    if a.get("byte_order", "LittleEndian") != "LittleEndian":
+        return None
+    compressor = a.get("compressor")
+    if compressor not in (None, "vtkZLibDataCompressor"):
+        return None
+    header = {"UInt32": np.dtype("<u4"), "UInt64": np.dtype("<u8")}.get(a.get("header_type", "UInt32"))
+    if header is None:
+        return None
+    piece, sections = arrays
+    n_points, n_cells = int(piece[b"NumberOfPoints"]), int(piece[b"NumberOfCells"])
+    if sections.get(b"PointData") or set(sections) - _SECTIONS or len(sections.get(b"Points", ())) != 1:
+        return None
+    decode = _decode_zlib if compressor else _decode_raw
+
+    def array(attrs: dict, text: bytes) -> np.ndarray:
+        if attrs.get(b"format") != b"binary":
+            raise ValueError("not inline binary")
+        kind = _NP_TYPES[attrs[b"type"].decode()]
+        out = decode(text.strip(), np.dtype(kind).newbyteorder("<"), header)
+        if b"NumberOfComponents" in attrs:
+            out = out.reshape(-1, int(attrs[b"NumberOfComponents"]))
+        return out
+
+    p_attrs, p_text = sections[b"Points"][0]
+    points = array(p_attrs, p_text).reshape(n_points, int(p_attrs[b"NumberOfComponents"]))
+    cells = {attrs[b"Name"]: (attrs, text) for attrs, text in sections.get(b"Cells", ())}
+    if set(cells) != {b"connectivity", b"offsets", b"types"}:
+        return None
+    types = array(*cells[b"types"])
+    offsets = array(*cells[b"offsets"])
+    if types.shape != (n_cells,) or offsets.shape != (n_cells,) or n_cells == 0:
+        return None
+    t = int(types[0])
+    if t not in _SIMPLE_CELLS or not np.all(types == t):
+        return None
+    name, k = _SIMPLE_CELLS[t]
+    conn = array(*cells[b"connectivity"])
+    if conn.shape != (k * n_cells,) or not np.array_equal(offsets, np.arange(k, k * n_cells + 1, k)):
+        return None
+    cell_data = {}
+    for attrs, text in sections.get(b"CellData", ()):
+        d = array(attrs, text)
+        if d.shape[0] != n_cells:
+            return None
+        cell_data[attrs[b"Name"].decode()] = [d[np.arange(n_cells)]]  # a copy, as meshio's d[start + items]
+    return SimpleNamespace(
+        points=points,
+        # meshio adds the piece's point offset (a numpy int64 0): the same dtype promotion and values
+        # in a new array (inflated blocks already are one: kept as they are when int64)
+        cells=[
+            SimpleNamespace(
+                type=name,
+                data=(conn if compressor and conn.dtype == np.int64 else conn + np.cumsum([0])[0]).reshape(
+                    n_cells, k
+                ),
+            )
+        ],
+        cell_data=cell_data,
+        field_data={},
+    )
+
+
+def _scan_vtu(data: bytes):
+    """The VTKFile tag's attributes and the Piece's attributes and {section: [(attrs, text)]} of its
+    DataArrays, walking the tags with bytes.find (the base64 text between them is never parsed);
+    (None, None) for any layout but VTKFile/UnstructuredGrid/Piece/section/DataArray (with VTK's
+    InformationKey/Value children)."""
+    stack: list[bytes] = []
+    root = piece = None
+    sections: dict[bytes, list] = {}
+    pos = 0
+    while True:
+        lt = data.find(b"<", pos)
+        if lt < 0:
+            break
+        if data.startswith(b"<?", lt):
+            pos = data.index(b"?>", lt) + 2
+            continue
+        if data.startswith(b"<!--", lt):
+            end = data.index(b"-->", lt)
+            if b"<" in data[lt + 4 : end]:
+                return None, None
+            pos = end + 3
+            continue
+        if data.startswith(b"<!", lt):
+            return None, None  # CDATA, DOCTYPE
+        gt = data.index(b">", lt)
+        tag = data[lt + 1 : gt]
+        if b"<" in tag or b"&" in tag:
+            return None, None
+        if tag.startswith(b"/"):
+            if not stack or stack.pop() != tag[1:].strip():
+                return None, None
+            pos = gt + 1
+            continue
+        closed = tag.endswith(b"/")
+        name = tag.rstrip(b"/").split(None, 1)[0]
+        attrs = dict(_ATTR.findall(tag))
+        depth = len(stack)
+        expected = (
+            b"VTKFile",
+            b"UnstructuredGrid",
+            b"Piece",
+            None,
+            b"DataArray",
+            b"InformationKey",
+            b"Value",
+        )
+        if depth >= len(expected) or (expected[depth] is not None and name != expected[depth]):
+            return None, None
+        if depth == 0:
+            if root is not None:
+                return None, None
+            root = attrs
+        elif depth == 2:
+            if piece is not None:
+                return None, None  # more than one Piece
+            piece = attrs
+        elif depth == 3:
+            sections.setdefault(name, [])
+        elif depth == 4:  # its text runs to the next tag (VTK may add InformationKey children)
+            end = data.find(b"<", gt + 1)
+            if closed or end < 0:
+                return None, None
+            sections[stack[3]].append((attrs, data[gt + 1 : end]))
+        if not closed:
+            stack.append(name)
+        pos = gt + 1
+    if stack or root is None or piece is None:
+        return None, None
+    return root, (piece, sections)
+
+
+def _decode_raw(text: bytes, dtype: np.dtype, header: np.dtype) -> np.ndarray:
+    """meshio's read_uncompressed_binary."""
+    raw = base64.b64decode(text)
+    h = header.itemsize
+    total = int(np.frombuffer(raw[:h], header)[0])
+    if len(raw) == h:  # header and data encoded separately
+        raw = base64.b64decode(text[len(base64.b64encode(raw)) :])
+    else:
+        raw = raw[h:]
+    return np.frombuffer(raw[:total], dtype=dtype)
+
+
+def _decode_zlib(text: bytes, dtype: np.dtype, header: np.dtype) -> np.ndarray:
+    """meshio's read_compressed_binary (zlib): a header of block sizes, then the blocks."""
+    import zlib
+
+    h = header.itemsize
+    n_blocks = int(np.frombuffer(base64.b64decode(text[: -(-h // 3) * 4])[:h], header)[0])
+    n_chars = -(-(h * (3 + n_blocks)) // 3) * 4
+    head = np.frombuffer(base64.b64decode(text[:n_chars]), header)
+    sizes = head[3 : 3 + n_blocks].astype(np.int64)
+    raw = memoryview(base64.b64decode(text[n_chars:]))
+    ends = np.cumsum(sizes).tolist()
+    starts = [0, *ends[:-1]]
+    if n_blocks:  # the blocks inflated straight into the array the header announces
+        full, last = int(head[1]), int(head[2])
+        out = _inflate_into(raw, starts, ends, (n_blocks - 1) * full + (last or full), dtype.itemsize)
+        if out is not None:
+            return out.view(dtype)
+    seen: dict[bytes, bytes] = {}  # equal blocks (a types array of one cell type) are inflated once
+    blocks = []
+    for s, e in zip(starts, ends, strict=True):
+        b = raw[s:e].tobytes()
+        out = seen.get(b)
+        if out is None:
+            out = seen[b] = zlib.decompress(b)
+        blocks.append(out)
+    if any(len(b) % dtype.itemsize for b in blocks):
+        raise ValueError("a block does not hold whole items")
+    return np.frombuffer(bytearray().join(blocks), dtype=dtype)  # writable, as meshio's concatenate
+
+
+def _inflate_into(raw: memoryview, starts: list, ends: list, total: int, itemsize: int) -> np.ndarray | None:
+    """The zlib blocks raw[start:end] inflated one after the other into one new (total,) uint8 array
+    (no list of inflated blocks joined into a copy: half the memory), or None when they do not fill
+    exactly `total` bytes (the caller then concatenates them as meshio does). Equal compressed blocks
+    are inflated once. ValueError when a block does not hold whole items (meshio's frombuffer)."""
+    import zlib
+
+    out = np.empty(total, dtype=np.uint8)
+    seen: dict[memoryview, tuple[int, int]] = {}  # compressed block -> where its bytes went
+    pos = 0
+    for s, e in zip(starts, ends, strict=True):
+        b = raw[s:e]
+        done = seen.get(b)
+        n = done[1] - done[0] if done is not None else None
+        if done is None:
+            d = zlib.decompress(b)
+            n = len(d)
+            if n % itemsize:
+                raise ValueError("a block does not hold whole items")
+            if pos + n > total:
+                return None
+            out[pos : pos + n] = np.frombuffer(d, dtype=np.uint8)
+            seen[b] = (pos, pos + n)
+        else:
+            if pos + n > total:
+                return None
+            out[pos : pos + n] = out[done[0] : done[1]]
+        pos += n
+    return out if pos == total else None

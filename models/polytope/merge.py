@@ -1,0 +1,342 @@
+"""Merge each part into one element: 2D boundary loops, 3D boundary faces (vectorized).
+
+2D: the boundary edges of a part keep the counter-clockwise orientation of their cell, so
+chaining them gives counter-clockwise outer loops and clockwise hole loops. At a vertex where
+the part touches itself, the outgoing edge is the first one met turning clockwise from the
+incoming edge (each loop stays simple). Loops are ordered by pointer jumping, no Python loop.
+3D: the boundary faces of a part, outward; shells are found by edge connectivity.
+
+Holes. A VTK_POLYGON (and a lymph element) has one boundary loop, so a 2D element that encloses
+something (another element, or a hole of the domain) cannot be written as it is. A 3D element with
+an inner shell (a cavity) is likewise an object most polyhedral codes reject. `find_holes` reports
+them; the pipeline then splits such an element in two across the hole (see pipeline.py): we never
+write silently wrong geometry.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from models.errors import MeshError
+from models.mesh.container import Mesh, PolyMesh
+from models.mesh.dual import DualGraph, sorted_unique
+
+
+@dataclass
+class Holes:
+    """Elements with more than one boundary loop/shell, and a point inside each extra one."""
+
+    elements: np.ndarray  # (H,) element id per hole
+    centers: np.ndarray  # (H, dim) a point of the hole (mean of its boundary vertices)
+
+
+def boundary_faces(graph: DualGraph, labels: np.ndarray, among: np.ndarray | None = None) -> np.ndarray:
+    """Ids of the faces on the boundary of their part. among: only these face ids are looked at (a
+    superset of the answer, e.g. the boundary faces of finer parts nested in these), increasing."""
+    f = graph.faces
+    if among is None:
+        lab = labels[f.cell]
+        p = graph.partner
+        other = np.where(p >= 0, labels[f.cell[np.maximum(p, 0)]], -1)
+        return np.flatnonzero((p < 0) | (other != lab))
+    p = graph.partner[among]
+    other = np.where(p >= 0, labels[f.cell[np.maximum(p, 0)]], -1)
+    return among[(p < 0) | (other != labels[f.cell[among]])]
+
+
+def _list_rank(nxt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cycles of the permutation `nxt`: (cycle id, position in the cycle from its smallest edge)."""
+    n = nxt.size
+    g = sp.csr_matrix((np.ones(n), (np.arange(n), nxt)), shape=(n, n))
+    _, cyc = connected_components(g, directed=True, connection="weak")
+    head = np.full(cyc.max() + 1, n, dtype=np.int64)
+    np.minimum.at(head, cyc, np.arange(n))
+    is_head = np.zeros(n, dtype=bool)
+    is_head[head] = True
+    # distance from each edge to the end of its list (the edge before the head), pointer doubling
+    succ = np.where(is_head[nxt], np.arange(n), nxt)
+    dist = np.where(is_head[nxt], 0, 1).astype(np.int64)
+    for _ in range(64):
+        if np.all(succ[succ] == succ):
+            break
+        dist = dist + dist[succ]
+        succ = succ[succ]
+    length = np.bincount(cyc, minlength=cyc.max() + 1)
+    pos = length[cyc] - 1 - dist
+    return cyc, pos
+
+
+def _pair_edges(key_start: np.ndarray, want: np.ndarray) -> np.ndarray | None:
+    """merge_2d's successor of every boundary edge when one edge leaves every (element, vertex) and
+    one arrives there: the edges sorted by where they end meet, rank for rank, the edges sorted by
+    where they start (two sorts, no search; the keys are distinct, so no sort need be stable).
+    None where a key repeats (an element touching itself at a vertex) or the boundary is open."""
+    order = np.argsort(key_start)
+    sk = key_start[order]
+    if sk.size == 0 or bool((sk[1:] == sk[:-1]).any()):
+        return None
+    qo = np.argsort(want)
+    if not np.array_equal(want[qo], sk):
+        return None
+    nxt = np.empty_like(order)
+    nxt[qo] = order
+    return nxt
+
+
+def _compiled_loops(key_start: np.ndarray, want: np.ndarray):
+    """(nxt, cyc, pos) of _pair_edges + _list_rank from models/graph/_fastgraph.c's loops (a hash table of
+    the start keys, then one walk per loop), or None where it is not built or the boundary needs
+    the numpy path (a repeated start key: an element touching itself at a vertex; an open or
+    non-manifold boundary, which the numpy path reports)."""
+    from models.native import compiled
+
+    fg = compiled("graph._fastgraph")
+    m = key_start.size
+    if fg is None or m == 0:
+        return None
+    nxt, cyc, pos = np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)
+    ks, wt = np.ascontiguousarray(key_start, dtype=np.int64), np.ascontiguousarray(want, dtype=np.int64)
+    if fg.loops(ks, wt, nxt, cyc, pos) < 0:
+        return None
+    return nxt, cyc, pos
+
+
+def _next_edges(key_start: np.ndarray, want: np.ndarray):
+    """merge_2d's successor of every boundary edge by a search (first match in a stable order), with
+    the edges that have more than one candidate (an element touching itself at a vertex)."""
+    order = np.argsort(key_start, kind="stable")
+    sk = key_start[order]
+    lo = np.minimum(np.searchsorted(sk, want, "left"), sk.size - 1)
+    if sk.size == 0 or not np.array_equal(sk[lo], want):
+        raise MeshError("an element boundary is not closed (the mesh is not a valid 2D manifold)")
+    nxt = order[lo]
+    # more than one edge leaving the vertex in the element (one searchsorted, not two)
+    pinch = np.flatnonzero(sk[np.minimum(lo + 1, sk.size - 1)] == want)
+    pinch = pinch[lo[pinch] + 1 < sk.size]
+    return nxt, pinch, lo, order, sk
+
+
+def merge_2d(
+    mesh: Mesh, graph: DualGraph, labels: np.ndarray, measures: np.ndarray, faces: np.ndarray | None = None
+) -> tuple[PolyMesh, Holes]:
+    """Polygons (outer loop CCW first, then holes CW) for every element. faces: the boundary faces
+    of the parts when already known (boundary_faces; a coarser level's are among a finer one's)."""
+    f = graph.faces
+    bf = boundary_faces(graph, labels) if faces is None else faces
+    a = f.nodes[2 * bf]
+    b = f.nodes[2 * bf + 1]
+    e = labels[f.cell[bf]]
+    P = np.int64(mesh.n_points)
+    key_start = e * P + a
+    want = e * P + b
+    loops = _compiled_loops(key_start, want)
+    if loops is not None:  # one hash pass and one walk in C: the same successors and loops
+        nxt, cyc, pos = loops
+        pinch = np.zeros(0, dtype=np.int64)
+    else:
+        nxt = _pair_edges(key_start, want)
+        if nxt is None:  # an element touching itself at a vertex, or an open boundary
+            nxt, pinch, lo, order, sk = _next_edges(key_start, want)
+        else:
+            pinch = np.zeros(0, dtype=np.int64)
+    if pinch.size:
+        pts = mesh.points
+        hi = lo.copy()
+        hi[pinch] = np.searchsorted(sk, want[pinch], "right")
+        for i in pinch:  # rare: vertices where an element touches itself
+            cands = order[lo[i] : hi[i]]
+            back = pts[a[i]] - pts[b[i]]
+            out = pts[b[cands]] - pts[b[i]]
+            ang_back = np.arctan2(back[1], back[0])
+            ang = np.arctan2(out[:, 1], out[:, 0])
+            cw = np.mod(ang_back - ang, 2 * np.pi)  # clockwise turn from the way back
+            cw[cw == 0] = 2 * np.pi
+            nxt[i] = cands[np.argmin(cw)]
+    if loops is None:
+        if np.bincount(nxt, minlength=nxt.size).max() > 1:
+            raise MeshError("element boundaries could not be ordered (non-manifold vertex)")
+        cyc, pos = _list_rank(nxt)
+    # signed area of each loop
+    p = mesh.points
+    pa = p[a]
+    ref = np.array([pa[:, 0].min(), pa[:, 1].min()])  # = pa.min(axis=0), 30x faster on (N, 2)
+    xa, ya = (pa - ref).T
+    xb, yb = (p[b] - ref).T
+    area = 0.5 * np.bincount(cyc, weights=xa * yb - xb * ya)
+    loop_elem = np.zeros(area.size, dtype=np.int64)
+    loop_elem[cyc] = e
+    n_elem = int(labels.max()) + 1
+    # outer loop = the loop of largest signed area of the element; others are holes
+    order_l = np.lexsort((-area, loop_elem))
+    first = np.r_[True, loop_elem[order_l][1:] != loop_elem[order_l][:-1]]
+    is_outer = np.zeros(area.size, dtype=bool)
+    is_outer[order_l[first]] = True
+    loop_rank = np.empty(area.size, dtype=np.int64)
+    loop_rank[order_l] = np.arange(area.size)
+    loop_len = np.bincount(cyc, minlength=area.size)[order_l]
+    loop_offsets = np.zeros(area.size + 1, dtype=np.int64)
+    np.cumsum(loop_len, out=loop_offsets[1:])
+    loop_nodes = np.empty_like(a)  # edges by (loop rank, position in the loop): a scatter, no sort
+    loop_nodes[loop_offsets[loop_rank[cyc]] + pos] = a
+    per_elem = np.bincount(loop_elem, minlength=n_elem)
+    elem_offsets = np.zeros(n_elem + 1, dtype=np.int64)
+    np.cumsum(per_elem, out=elem_offsets[1:])
+    hole_loops = np.flatnonzero(~is_outer)
+    if hole_loops.size:
+        centers = np.column_stack(
+            [
+                np.bincount(cyc, weights=pa[:, d], minlength=area.size)
+                / np.bincount(cyc, minlength=area.size)
+                for d in range(2)
+            ]
+        )[hole_loops]
+    else:
+        centers = np.zeros((0, 2))
+    holes = Holes(elements=loop_elem[hole_loops], centers=centers)
+    return _polymesh(mesh, elem_offsets, loop_offsets, loop_nodes, labels, measures), holes
+
+
+def merge_3d(
+    mesh: Mesh, graph: DualGraph, labels: np.ndarray, measures: np.ndarray
+) -> tuple[PolyMesh, Holes]:
+    """Polyhedra as their outward boundary faces; inner shells (cavities) reported as holes."""
+    f = graph.faces
+    bf = boundary_faces(graph, labels)
+    e = labels[f.cell[bf]]
+    order = np.argsort(e, kind="stable")
+    bf, e = bf[order], e[order]
+    fo, nodes = face_nodes(f, bf)
+    n_elem = int(labels.max()) + 1
+    per_elem = np.bincount(e, minlength=n_elem)
+    elem_offsets = np.zeros(n_elem + 1, dtype=np.int64)
+    np.cumsum(per_elem, out=elem_offsets[1:])
+    holes = _shells(mesh.points, e, fo, nodes)
+    return _polymesh(mesh, elem_offsets, fo, nodes, labels, measures), holes
+
+
+def face_nodes(faces, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(offsets, nodes) of the faces `ids`, in that order (a CSR of their vertex lists)."""
+    sizes = np.diff(faces.offsets)[ids]
+    fo = np.zeros(ids.size + 1, dtype=np.int64)
+    np.cumsum(sizes, out=fo[1:])
+    src = np.repeat(faces.offsets[ids] - fo[:-1], sizes) + np.arange(fo[-1])
+    return fo, faces.nodes[src]
+
+
+def _shells(points, face_elem, fo, nodes) -> Holes:
+    """Connected face shells per element; every shell but the largest-volume one is a cavity."""
+    from models.mesh.geometry import cell_index, fan_triangles, next_in_cycle
+
+    nf = face_elem.size
+    face_of = cell_index(fo)
+    nx = next_in_cycle(fo)
+    u, v = nodes, nodes[nx]
+    lo, hi = np.minimum(u, v), np.maximum(u, v)
+    key_e = face_elem[face_of]
+    # sort edges by (element, lo, hi); equal neighbours link two faces
+    order = np.lexsort((hi, lo, key_e))
+    s = order
+    same = (key_e[s][1:] == key_e[s][:-1]) & (lo[s][1:] == lo[s][:-1]) & (hi[s][1:] == hi[s][:-1])
+    i = np.flatnonzero(same)
+    fa, fb = face_of[s[i]], face_of[s[i + 1]]
+    g = sp.csr_matrix((np.ones(fa.size), (fa, fb)), shape=(nf, nf))
+    nshell, shell = connected_components(g, directed=False)
+    if nf == 0 or nshell == np.count_nonzero(np.bincount(face_elem)):
+        return Holes(elements=np.zeros(0, np.int64), centers=np.zeros((0, points.shape[1])))
+    owner, tri = fan_triangles(fo, nodes)
+    sh = shell[owner]
+    ref = points.min(axis=0)
+    pa, pb, pc = points[tri[:, 0]] - ref, points[tri[:, 1]] - ref, points[tri[:, 2]] - ref
+    vol = np.bincount(sh, weights=np.einsum("ij,ij->i", pa, np.cross(pb, pc)) / 6.0, minlength=nshell)
+    shell_elem = np.zeros(nshell, dtype=np.int64)
+    shell_elem[shell] = face_elem
+    o = np.lexsort((-vol, shell_elem))
+    first = np.r_[True, shell_elem[o][1:] != shell_elem[o][:-1]]
+    inner = o[~first]
+    cnt = np.bincount(shell[face_of], minlength=nshell).astype(np.float64)
+    centers = np.column_stack(
+        [np.bincount(shell[face_of], weights=points[nodes, d], minlength=nshell) / cnt for d in range(3)]
+    )
+    return Holes(elements=shell_elem[inner], centers=centers[inner])
+
+
+def _polymesh(mesh: Mesh, elem_offsets, loop_offsets, loop_nodes, labels, measures) -> PolyMesh:
+    """The PolyMesh of merged elements, with per-element measure, fine-cell count and group."""
+    n_elem = elem_offsets.size - 1
+    # signed measures when the reader recorded them: a folded cell counts negatively, so that an
+    # element's measure is the area/volume its boundary encloses
+    signed = mesh.meta.get("signed_measures")
+    if signed is not None and signed.shape == measures.shape:
+        measures = signed
+    return PolyMesh(
+        points=mesh.points,
+        elem_offsets=elem_offsets,
+        loop_offsets=loop_offsets,
+        loop_nodes=loop_nodes,
+        measure=np.bincount(labels, weights=measures, minlength=n_elem),
+        n_fine=np.bincount(labels, minlength=n_elem),
+        labels=labels,
+        tags=_majority(labels, mesh.tags, n_elem),
+        frame=mesh.frame,
+    )
+
+
+def _majority(labels: np.ndarray, tags: np.ndarray | None, n_elem: int) -> np.ndarray | None:
+    """Physical group of each element: the group of most of its fine cells."""
+    if tags is None:
+        return None
+    groups, t = sorted_unique(tags, return_inverse=True)
+    counts = sp.csr_matrix((np.ones(labels.size), (labels, t)), shape=(n_elem, groups.size)).toarray()
+    return groups[counts.argmax(axis=1)]
+
+
+def sort_by_vertex_count(poly: PolyMesh) -> PolyMesh:
+    """3D: renumber the elements by their number of distinct vertices (stable).
+
+    meshio reads VTU polyhedra into blocks keyed by vertex count in order of first appearance, but
+    splits the cell data by sorted vertex count: the two agree only when the file lists the
+    elements sorted that way. Writing them so keeps every 3D result readable by meshio (and so by
+    our own reader)."""
+    if poly.dim != 3 or poly.n_elements < 2:
+        return poly
+    from models.mesh.geometry import cell_index, reorder_csr
+
+    e = poly.n_elements
+    face_elem = cell_index(poly.elem_offsets)
+    node_elem = face_elem[cell_index(poly.loop_offsets)]
+    pairs = sorted_unique(node_elem * np.int64(poly.points.shape[0]) + poly.loop_nodes)
+    nverts = np.bincount(pairs // poly.points.shape[0], minlength=e)
+    perm = np.argsort(nverts, kind="stable")
+    if np.array_equal(perm, np.arange(e)):
+        return poly
+    inv = np.empty(e, dtype=np.int64)
+    inv[perm] = np.arange(e)
+    elem_offsets, face_ids = reorder_csr(poly.elem_offsets, np.arange(face_elem.size), perm)
+    loop_offsets, loop_nodes = reorder_csr(poly.loop_offsets, poly.loop_nodes, face_ids)
+    per_face = {
+        k: None if getattr(poly, k) is None else getattr(poly, k)[face_ids]
+        for k in ("facet_tags", "facet_on_boundary")
+    }
+    return dataclasses.replace(
+        poly,
+        elem_offsets=elem_offsets,
+        loop_offsets=loop_offsets,
+        loop_nodes=loop_nodes,
+        measure=poly.measure[perm],
+        n_fine=poly.n_fine[perm],
+        labels=inv[poly.labels],
+        tags=None if poly.tags is None else poly.tags[perm],
+        **per_face,
+    )
+
+
+def merge(mesh: Mesh, graph: DualGraph, labels: np.ndarray, measures: np.ndarray) -> tuple[PolyMesh, Holes]:
+    """One polygon/polyhedron per element id in `labels` (ids 0..E-1, every part connected)."""
+    if mesh.dim == 2:
+        return merge_2d(mesh, graph, labels, measures)
+    return merge_3d(mesh, graph, labels, measures)
