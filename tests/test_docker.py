@@ -31,7 +31,7 @@ def magnet_parser() -> argparse.ArgumentParser:
         "keys": "service.cli:register_keys",
         "worker": "worker.cli:register_worker",
     }
-    assert pyproject["project"]["scripts"]["magnet"] == "models.cli:main"
+    assert pyproject["project"]["scripts"]["magnet"] == "models.cli.main:main"
     parser = argparse.ArgumentParser(prog="magnet", exit_on_error=False)
     sub = parser.add_subparsers(dest="command", required=True)
     register_serve(sub)
