@@ -249,8 +249,10 @@ def _wait(pid: int, r: int, timeout_s: float):
 def _child(fn, args, shm: int, w: int, memory_bytes: int, timeout_s: float) -> None:
     code = 1
     try:
+        import faulthandler
         import resource
 
+        faulthandler.disable()  # its dump would go to a copy of stderr kept apart (pytest, PYTHONFAULTHANDLER)
         devnull = os.open(os.devnull, os.O_RDWR)
         for fd in (0, 1, 2):  # a C++ reader's error text never reaches the user's terminal
             os.dup2(devnull, fd)
