@@ -22,7 +22,7 @@ from models.mesh import formats  # the list of formats, no reader imported (nump
 from models.mesh.sandbox import crash_sentence, timeout_sentence, wording
 
 # the readers' extensions (models.mesh.formats), without the dot; multi-file formats come in archives
-ALLOWED_EXTENSIONS = tuple(e.lstrip(".") for e in formats.UPLOAD_EXTENSIONS if e not in formats.ARCHIVES)
+ALLOWED_EXTENSIONS = tuple(e.lstrip(".") for e in formats.UPLOAD_EXTENSIONS)
 XML_EXTENSIONS = ("vtu",)
 PACKAGE_ROOT = Path(__file__).resolve().parents[1]
 _slots = threading.BoundedSemaphore(max(2, os.cpu_count() or 2))

@@ -32,7 +32,7 @@ import struct
 import time
 
 from models.errors import MagnetError, MeshError, ModelError, ParameterError
-from models.mesh.formats import format_name
+from models.mesh.formats import ARCHIVES, extension, format_name
 
 DEFAULT_TIMEOUT_S = 600.0
 _ALIGN = 64
@@ -160,6 +160,20 @@ def read_mesh_safe(
         raise MeshError(f"mesh file not found: {path}")
     if os.path.isdir(path):
         raise MeshError(f"{path} is a folder, not a mesh file")
+    if file_format is None and extension(path) in ARCHIVES:  # XDMF + .h5 and the like, in one upload
+        import shutil
+        import tempfile
+
+        from models.mesh.archive import unpack
+
+        folder = tempfile.mkdtemp(prefix="magnet-archive-")
+        try:
+            inner = unpack(path, folder)
+            return read_mesh_safe(
+                inner, physical_tag, None, weld, timeout_s=timeout_s, memory_bytes=memory_bytes
+            )
+        finally:
+            shutil.rmtree(folder, ignore_errors=True)
     kwargs = {"physical_tag": physical_tag, "file_format": file_format, "weld": weld}
     try:
         if not sandbox_enabled():
