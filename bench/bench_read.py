@@ -66,11 +66,32 @@ def ours(path: str) -> tuple[float, float, float]:
     return t_read, time.perf_counter() - t, time.process_time() - c
 
 
+def sandboxed(path: str) -> tuple[float, float, float]:
+    """ours(), the read in a forked child under limits (models.mesh.sandbox, as the CLI, the API and
+    the worker read); CPU counts the child's too."""
+    import resource
+
+    from models.mesh.sandbox import read_mesh_safe
+    from models.pipeline import prepare
+
+    def cpu() -> float:
+        ch = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return time.process_time() + ch.ru_utime + ch.ru_stime
+
+    c = cpu()
+    t = time.perf_counter()
+    mesh = read_mesh_safe(path)
+    t_read = time.perf_counter() - t
+    t = time.perf_counter()
+    prepare(mesh)
+    return t_read, time.perf_counter() - t, cpu() - c
+
+
 def in_child(which: str, path: str) -> tuple[float, float, float]:
     """floor() or ours() in a new process (the modules imported before the clock starts)."""
     code = (
         "import json, sys; sys.path[:0] = [sys.argv[1], sys.argv[2]]; import bench_read, meshio, "
-        "models.mesh.read, models.pipeline, models.vtu; "
+        "models.mesh.read, models.mesh.sandbox, models.pipeline, models.mesh.vtu; "
         "print(json.dumps(getattr(bench_read, sys.argv[3])(sys.argv[4])))"
     )
     out = subprocess.run(
@@ -90,8 +111,14 @@ def main() -> None:
     ap.add_argument("--fresh", action="store_true", help="every run in a new process")
     ap.add_argument("--shuffle", action="store_true", help="renumber cells and points at random (seed 1)")
     args = ap.parse_args()
-    run_floor, run_ours = (
-        ((lambda p: in_child("floor", p)), (lambda p: in_child("ours", p))) if args.fresh else (floor, ours)
+    run_floor, run_ours, run_safe = (
+        (
+            (lambda p: in_child("floor", p)),
+            (lambda p: in_child("ours", p)),
+            (lambda p: in_child("sandboxed", p)),
+        )
+        if args.fresh
+        else (floor, ours, sandboxed)
     )
     import structured
 
@@ -103,7 +130,7 @@ def main() -> None:
             perm = rng.permutation(len(p))
             p, t = p[perm], np.argsort(perm)[t[rng.permutation(len(t))]]
         structured.write(path, p, t)
-        rf, rg, of, og, cf, co = [], [], [], [], [], []
+        rf, rg, of, og, cf, co, sf, sg, cs = [], [], [], [], [], [], [], [], []
         for _ in range(args.repeat):  # alternate, so that drifting load hits both alike
             a, b, c = run_floor(path)
             rf.append(a)
@@ -113,6 +140,10 @@ def main() -> None:
             of.append(a)
             og.append(b)
             co.append(c)
+            a, b, c = run_safe(path)
+            sf.append(a)
+            sg.append(b)
+            cs.append(c)
     med = statistics.median
     where = "each in a new process" if args.fresh else "in this process"
     what = "renumbered " if args.shuffle else ""
@@ -127,10 +158,20 @@ def main() -> None:
         f"| floor: meshio.read + one argsort pairing | {med(rf):.2f} | {med(rg):.2f} | {med(tf):.2f} | {min(tf):.2f} |"
     )
     print(f"| ours: read_mesh + prepare | {med(of):.2f} | {med(og):.2f} | {med(to):.2f} | {min(to):.2f} |")
+    ts = [a + b for a, b in zip(sf, sg, strict=True)]
+    print(
+        f"| ours sandboxed: read_mesh_safe (forked child) + prepare | {med(sf):.2f} | {med(sg):.2f} | "
+        f"{med(ts):.2f} | {min(ts):.2f} |"
+    )
     print(f"| ratio ours / floor | | | {med(to) / med(tf):.2f} | {min(to) / min(tf):.2f} |")
+    print(f"| ratio sandboxed / floor | | | {med(ts) / med(tf):.2f} | {min(ts) / min(tf):.2f} |")
+    print(
+        f"| ratio sandboxed / ours (the child's cost) | {med(sf) / med(of):.2f} | | {med(ts) / med(to):.2f} | {min(ts) / min(to):.2f} |"
+    )
     print(
         f"\nprocess CPU s, best of {args.repeat}: floor {min(cf):.2f}, ours {min(co):.2f}, "
-        f"ratio {min(co) / min(cf):.2f} (median ratio {med(co) / med(cf):.2f})"
+        f"ratio {min(co) / min(cf):.2f} (median ratio {med(co) / med(cf):.2f}); sandboxed (parent + child) "
+        f"{min(cs):.2f}, ratio to ours {min(cs) / min(co):.2f}"
     )
 
 

@@ -96,7 +96,8 @@ def list_models() -> list[dict]:
 def inspect_mesh(path: str | os.PathLike, physical_tag: str | None = None, check: bool = False) -> dict:
     """Read and validate a mesh; return its summary (MeshError if it is not a valid mesh).
     check: add the `magnet check` report (models.mesh.check.mesh_report) under "check"."""
-    from models.mesh.read import describe, read_mesh
+    from models.mesh.read import describe
+    from models.mesh.sandbox import read_mesh_safe as read_mesh
 
     mesh = read_mesh(path, physical_tag=physical_tag)
     info = describe(mesh)
@@ -307,7 +308,7 @@ def run_job(
 ) -> dict:
     """Run one agglomeration job from a mesh file to the output files in out_dir."""
     from models import pipeline
-    from models.mesh.read import read_mesh
+    from models.mesh.sandbox import read_mesh_safe as read_mesh
 
     p = validate_params(params)
     out_dir = os.fspath(out_dir)

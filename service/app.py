@@ -85,7 +85,9 @@ def _error_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(UploadRejected)
     async def upload_rejected(_: Request, exc: UploadRejected):
-        return _error(exc.status, exc.message)
+        field = getattr(exc, "field", "file")
+        error = {"loc": ["body", field], "msg": exc.message, "type": "value_error.upload"}
+        return JSONResponse({"detail": exc.message, "field": field, "errors": [error]}, exc.status)
 
     @app.exception_handler(NotFound)
     async def not_found(_: Request, exc: NotFound):

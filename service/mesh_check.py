@@ -18,7 +18,11 @@ import sys
 import threading
 from pathlib import Path
 
-ALLOWED_EXTENSIONS = ("vtu", "vtk", "msh", "mesh", "off", "obj", "inp", "ply", "stl")
+from models.mesh import formats  # the list of formats, no reader imported (numpy, VTK stay out of the API)
+from models.mesh.sandbox import crash_sentence, timeout_sentence, wording
+
+# the readers' extensions (models.mesh.formats), without the dot; multi-file formats come in archives
+ALLOWED_EXTENSIONS = tuple(e.lstrip(".") for e in formats.UPLOAD_EXTENSIONS)
 XML_EXTENSIONS = ("vtu",)
 PACKAGE_ROOT = Path(__file__).resolve().parents[1]
 _slots = threading.BoundedSemaphore(max(2, os.cpu_count() or 2))
@@ -27,22 +31,28 @@ _slots = threading.BoundedSemaphore(max(2, os.cpu_count() or 2))
 class UploadRejected(Exception):
     """The upload is refused; `status` is the HTTP status to answer with."""
 
-    def __init__(self, status: int, message: str):
+    def __init__(self, status: int, message: str, field: str = "file"):
         super().__init__(message)
         self.status = status
         self.message = message
+        self.field = field
 
 
 def extension_of(filename: str | None) -> str:
     """The lower-case mesh format extension of `filename`; 422 if missing or unsupported."""
     if filename and any(ord(ch) < 32 or ord(ch) == 127 for ch in filename):
-        raise UploadRejected(422, "filename: control characters (e.g. NUL) are not allowed")
-    ext = Path(filename or "").suffix.lower().lstrip(".")
+        raise UploadRejected(422, "filename: control characters (e.g. NUL) are not allowed", "filename")
+    ext = formats.extension(filename or "").lstrip(".")
     if ext not in ALLOWED_EXTENSIONS:
+        shown = os.path.basename((filename or "").replace("\\", "/"))[:100]
+        what = f"the file name {shown}" if shown else "the upload has no file name: it"
+        multi = f" ({', '.join(formats.MULTI_FILE)} with its data files: a .zip or .tar.gz holding them)"
         raise UploadRejected(
             422,
-            f"unsupported or missing mesh file extension in filename {filename!r}; "
-            f"use one of: {', '.join('.' + e for e in ALLOWED_EXTENSIONS)}",
+            f"{what} has no mesh format extension we read; use one of: "
+            f"{', '.join('.' + e for e in ALLOWED_EXTENSIONS)}"
+            + (multi if "." + ext in formats.MULTI_FILE else ""),
+            "filename",
         )
     return ext
 
@@ -59,15 +69,18 @@ def child_env() -> dict[str, str]:
 def inspect_upload(
     path: Path, ext: str, max_cells: int, memory_bytes: int, timeout_s: float, physical_tag: str | None = None
 ) -> dict:
-    """models.api.inspect_mesh of an uploaded file, run in a limited child process."""
+    """models.api.inspect_mesh of an uploaded file, run in a limited child process (which reads it
+    in a forked child of its own: models.mesh.sandbox; a reader's crash is a sentence, not a 500)."""
     cmd = [str(path), ext, str(max_cells)] + ([physical_tag] if physical_tag is not None else [])
-    return _run_child(cmd, memory_bytes, timeout_s)["info"]
+    return _run_child(cmd, memory_bytes, timeout_s, path)["info"]
 
 
 def upload_polygons(path: Path, ext: str, max_cells: int, memory_bytes: int, timeout_s: float) -> dict:
     """The cells of a stored 2D upload as polygons (points, connectivity cut by offsets), read in the
     same limited child process as the upload check; 404 for a 3D mesh, 413 above max_cells."""
-    return _run_child(["--polygons", str(path), ext, str(max_cells)], memory_bytes, timeout_s)["polygons"]
+    return _run_child(["--polygons", str(path), ext, str(max_cells)], memory_bytes, timeout_s, path)[
+        "polygons"
+    ]
 
 
 def level_picture(
@@ -77,11 +90,11 @@ def level_picture(
     written to `out`: the level's labels from the job's hierarchy.zip, the elements merged again from
     the stored upload, in the same limited child process as the upload check."""
     _run_child(
-        ["--level-picture", str(path), ext, str(archive), str(level), str(out)], memory_bytes, timeout_s
+        ["--level-picture", str(path), ext, str(archive), str(level), str(out)], memory_bytes, timeout_s, path
     )
 
 
-def _run_child(args: list[str], memory_bytes: int, timeout_s: float) -> dict:
+def _run_child(args: list[str], memory_bytes: int, timeout_s: float, path: Path) -> dict:
     """Run `python -m service.mesh_check ARGS` under the limits; its answer, or UploadRejected."""
 
     def limit() -> None:
@@ -90,6 +103,10 @@ def _run_child(args: list[str], memory_bytes: int, timeout_s: float) -> dict:
         resource.setrlimit(resource.RLIMIT_CPU, (cpu, cpu))
 
     cmd = [sys.executable, "-m", "service.mesh_check", *args]
+    env = child_env()
+    # the read inside the child: its own deadline before ours (so the sentence says which reader)
+    env["MAGNET_READ_TIMEOUT_S"] = f"{max(1.0, 0.8 * timeout_s):g}"
+    env["MAGNET_READ_MEMORY_MB"] = str(max(1, memory_bytes >> 20))
     with _slots:
         try:
             proc = subprocess.run(
@@ -97,23 +114,26 @@ def _run_child(args: list[str], memory_bytes: int, timeout_s: float) -> dict:
                 capture_output=True,
                 timeout=timeout_s,
                 preexec_fn=limit,
-                env=child_env(),
+                env=env,
                 cwd=str(PACKAGE_ROOT),
             )
         except subprocess.TimeoutExpired:
-            raise UploadRejected(
-                422, f"reading the mesh took longer than {timeout_s:g} s; rejected"
-            ) from None
+            raise UploadRejected(422, timeout_sentence(path, timeout_s)) from None
     lines = proc.stdout.decode(errors="replace").strip().splitlines()
     try:
         answer = json.loads(lines[-1])
     except (IndexError, ValueError):
         answer = None
+    if proc.returncode < 0 and not isinstance(answer, dict):  # killed by a signal: a crash, or the CPU limit
+        raise UploadRejected(422, crash_sentence(path))
     if proc.returncode != 0 or not isinstance(answer, dict):
         raise UploadRejected(
             422,
-            f"the mesh could not be read within the limits ({memory_bytes / 2**30:.1f} GiB memory, "
-            f"{timeout_s:g} s); rejected",
+            wording(
+                f"it could not be read and checked within the limits ({memory_bytes / 2**30:.1f} GiB memory, "
+                f"{timeout_s:g} s)",
+                path,
+            ),
         )
     if "error" in answer:
         raise UploadRejected(int(answer.get("status", 422)), answer["error"])
@@ -136,23 +156,28 @@ def check_xml(path: Path, max_cells: int) -> None:
             if tag == "Piece":
                 declared = elem.attrib.get("NumberOfCells", "0")
                 if not declared.strip().isdigit():
+                    shown = declared.strip()[:40]
                     raise UploadRejected(
-                        422, f"invalid NumberOfCells={declared[:40]!r} in a VTU piece: expected a count >= 0"
+                        422, wording(f"a piece declares NumberOfCells={shown}: expected a count >= 0", path)
                     )
                 cells += int(declared)
                 pieces += 1
                 if cells > max_cells:
                     raise UploadRejected(
-                        413, f"the mesh declares {cells} cells or more; the limit is {max_cells}"
+                        413, f"{path.name} declares {cells} cells or more; the limit is {max_cells}"
                     )
             elif tag == "AppendedData":
                 break  # raw binary follows: not XML, and no DTD can come after the root element
         if pieces and cells == 0:
-            raise UploadRejected(422, "the mesh has no cells (every VTU piece declares NumberOfCells=0)")
+            raise UploadRejected(
+                422, wording("the mesh has no cells (every piece declares NumberOfCells=0)", path)
+            )
     except DefusedXmlException:
-        raise UploadRejected(422, "XML with a DOCTYPE or entity declarations is not accepted") from None
-    except ParseError as exc:
-        raise UploadRejected(422, f"malformed XML: {exc}") from None
+        raise UploadRejected(
+            422, wording("XML with a DOCTYPE or entity declarations is not accepted", path)
+        ) from None
+    except ParseError:
+        return  # malformed XML: the reader refuses it, in the same words as the CLI
 
 
 def polygons_of(path: Path, max_cells: int) -> dict:
@@ -162,7 +187,7 @@ def polygons_of(path: Path, max_cells: int) -> dict:
 
     import numpy as np
 
-    from models.mesh.read import read_mesh
+    from models.mesh.sandbox import read_mesh_safe as read_mesh
 
     mesh = read_mesh(str(path))
     if mesh.dim != 2:
@@ -185,7 +210,7 @@ def draw_level(path: Path, archive: Path, level: int, out: Path) -> None:
 
     import numpy as np
 
-    from models.mesh.read import read_mesh
+    from models.mesh.sandbox import read_mesh_safe as read_mesh
     from models.pipeline import prepare
     from models.polytope.merge import merge
     from models.quality.plot import plot_agglomeration
@@ -202,6 +227,13 @@ def draw_level(path: Path, archive: Path, level: int, out: Path) -> None:
     plot_agglomeration(poly, out, fine_mesh=fine, title=f"level {level}: {poly.n_elements} elements", dpi=100)
 
 
+def _message(exc: Exception, path: Path, what: str) -> str:
+    """Our own message (read_mesh_safe's words), or a sentence: never a library's raw text."""
+    from models.errors import MagnetError
+
+    return (str(exc) if isinstance(exc, MagnetError) else wording(what, path))[:2000]
+
+
 def _child_main(argv: list[str]) -> int:
     if argv and argv[0] == "--level-picture":
         try:
@@ -212,7 +244,7 @@ def _child_main(argv: list[str]) -> int:
         except MemoryError:
             out = {"status": 422, "error": "the level could not be drawn within the memory limit"}
         except Exception as exc:
-            out = {"status": 422, "error": f"cannot draw the level: {type(exc).__name__}: {exc}"[:2000]}
+            out = {"status": 422, "error": _message(exc, Path(argv[1]), "the level could not be drawn")}
         print(json.dumps(out))
         return 0
     if argv and argv[0] == "--polygons":
@@ -223,7 +255,7 @@ def _child_main(argv: list[str]) -> int:
         except MemoryError:
             out = {"status": 422, "error": "the mesh could not be read within the memory limit"}
         except Exception as exc:
-            out = {"status": 422, "error": f"cannot read mesh: {type(exc).__name__}: {exc}"[:2000]}
+            out = {"status": 422, "error": _message(exc, Path(argv[1]), "its polygons could not be drawn")}
         print(json.dumps(out))
         return 0
     path, ext, max_cells = Path(argv[0]), argv[1], int(argv[2])
@@ -246,12 +278,7 @@ def _child_main(argv: list[str]) -> int:
     except MemoryError:
         out = {"status": 422, "error": "the mesh could not be read within the memory limit; rejected"}
     except Exception as exc:  # any failure to read an untrusted file is the file's fault
-        from models.errors import MagnetError
-
-        message = (
-            str(exc) if isinstance(exc, MagnetError) else f"cannot read mesh: {type(exc).__name__}: {exc}"
-        )
-        out = {"status": 422, "error": message[:2000]}
+        out = {"status": 422, "error": _message(exc, path, "it was read but could not be checked")}
     from jobqueue.storage import _plain
 
     print(json.dumps(out, default=_plain))

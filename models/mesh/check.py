@@ -26,10 +26,10 @@ N_IDS = 10  # ids listed per finding
 
 def check_file(path: str | os.PathLike, physical_tag: str | None = None, weld: float | None = None) -> dict:
     """Read `path` and report on it; a mesh that cannot be read gets the reader's message and verdict 'error'."""
-    from models.mesh.read import read_mesh
+    from models.mesh.sandbox import read_mesh_safe
 
     try:
-        mesh = read_mesh(path, physical_tag=physical_tag, weld=weld)
+        mesh = read_mesh_safe(path, physical_tag=physical_tag, weld=weld)
     except MagnetError as exc:
         return {
             "file": os.path.basename(os.fspath(path)),

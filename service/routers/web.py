@@ -4,6 +4,7 @@ a hierarchy job its levels (numbers, and each 2D level's polygons) and the fine 
 
 from __future__ import annotations
 
+import html
 import json
 import math
 import os
@@ -15,7 +16,7 @@ from pathlib import Path
 import numpy as np
 from fastapi import APIRouter, Depends, FastAPI
 from fastapi import Path as PathParam
-from fastapi.responses import FileResponse
+from fastapi.responses import FileResponse, HTMLResponse
 from fastapi.staticfiles import StaticFiles
 
 from jobqueue.db import MeshRecord
@@ -44,11 +45,18 @@ def mount_page(app: FastAPI) -> None:
 
 
 @router.get("/", include_in_schema=False)
-def index() -> FileResponse:
-    """The web page (no auth: the page itself asks for the API key and sends it with every call)."""
-    return FileResponse(
-        WEB_DIR / "index.html",
-        media_type="text/html",
+def index() -> HTMLResponse:
+    """The web page (no auth: the page itself asks for the API key and sends it with every call),
+    its list of accepted extensions the readers' (models.mesh.formats, as the upload check)."""
+    from models.mesh.formats import MULTI_FILE
+    from service.mesh_check import ALLOWED_EXTENSIONS
+
+    shown = " ".join("." + e for e in ALLOWED_EXTENSIONS)
+    shown += f" ({' '.join(MULTI_FILE)} with its data files: in a .zip or .tar.gz)"
+    page = (WEB_DIR / "index.html").read_text()
+    page = page.replace("{{EXTENSIONS}}", html.escape(shown))
+    return HTMLResponse(
+        page,
         headers={"Cache-Control": "no-cache", "Content-Security-Policy": PAGE_POLICY},
     )
 

@@ -1,0 +1,137 @@
+"""Multi-file meshes (XDMF + its .h5) in one .zip, .tar.gz or .tar: checked before anything is
+unpacked (number of members, total unpacked size, no absolute path or `..`, no link or device),
+then unpacked into a folder; the mesh file inside is picked by its extension (models.mesh.formats).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import stat
+import tarfile
+import zipfile
+from pathlib import Path, PurePosixPath
+
+from models.errors import MeshError
+from models.mesh.formats import COMPOUND, FORMATS, extension
+
+MAX_MEMBERS = 64
+MAX_UNPACKED_BYTES = 4 << 30
+
+
+def _members(path: Path, name: str) -> list[tuple[str, int, str]]:
+    """(member name, unpacked size, kind: 'file' | 'dir' | 'link' | 'other') of every member."""
+    try:
+        if extension(path) == ".zip":
+            with zipfile.ZipFile(path) as zf:
+                out = []
+                for info in zf.infolist():
+                    mode = info.external_attr >> 16
+                    kind = (
+                        "dir"
+                        if info.is_dir()
+                        else "link"
+                        if stat.S_ISLNK(mode)
+                        else "file"
+                        if stat.S_IFMT(mode) == 0 or stat.S_ISREG(mode)  # no type bits: a plain file
+                        else "other"
+                    )
+                    out.append((info.filename, info.file_size, kind))
+                return out
+        with tarfile.open(path, "r:*") as tf:
+            return [
+                (
+                    m.name,
+                    m.size,
+                    "file"
+                    if m.isfile()
+                    else "dir"
+                    if m.isdir()
+                    else "link"
+                    if m.issym() or m.islnk()
+                    else "other",
+                )
+                for m in tf.getmembers()
+            ]
+    except (OSError, EOFError, zipfile.BadZipFile, tarfile.TarError, ValueError):
+        raise MeshError(f"cannot read {name}: it is not a valid {extension(path)} archive") from None
+
+
+def check_archive(
+    path: str | os.PathLike, max_members: int = MAX_MEMBERS, max_bytes: int = MAX_UNPACKED_BYTES
+) -> str:
+    """The mesh file inside the archive `path` (its member name), after every check; MeshError else."""
+    path = Path(path)
+    name = path.name
+    members = _members(path, name)
+    if len(members) > max_members:
+        raise MeshError(
+            f"cannot read {name}: the archive holds {len(members)} members; at most {max_members}"
+        )
+    total = sum(size for _, size, _ in members)
+    if total > max_bytes:
+        raise MeshError(
+            f"cannot read {name}: the archive unpacks to {total / 2**20:.0f} MiB; at most {max_bytes / 2**20:.0f} MiB"
+        )
+    for member, _, kind in members:
+        parts = PurePosixPath(member.replace("\\", "/")).parts
+        if member.startswith(("/", "\\")) or (parts and ":" in parts[0]) or ".." in parts:
+            raise MeshError(
+                f"cannot read {name}: the archive member {member[:100]} points outside the archive"
+            )
+        if kind in ("link", "other"):
+            raise MeshError(
+                f"cannot read {name}: the archive member {member[:100]} is a link or a device; only files are accepted"
+            )
+    meshes = [
+        m
+        for m, _, kind in members
+        if kind == "file" and (extension(m) in FORMATS or extension(m) in COMPOUND)
+    ]
+    if not meshes:
+        raise MeshError(
+            f"cannot read {name}: the archive holds no mesh file (one of {', '.join(FORMATS)} with its data files)"
+        )
+    if len(meshes) > 1:
+        raise MeshError(
+            f"cannot read {name}: the archive holds {len(meshes)} mesh files ({', '.join(meshes[:5])}); send one"
+        )
+    return meshes[0]
+
+
+def unpack(path: str | os.PathLike, dest: str | os.PathLike, max_bytes: int = MAX_UNPACKED_BYTES) -> Path:
+    """Check the archive, unpack its files into `dest` (sizes enforced while writing, not only as
+    declared) and return the mesh file's path there."""
+    path, dest = Path(path), Path(dest)
+    inner = check_archive(path, max_bytes=max_bytes)
+    written = 0
+
+    def copy(src, target: Path) -> None:
+        nonlocal written
+        target.parent.mkdir(parents=True, exist_ok=True)
+        with open(target, "wb") as out:
+            while chunk := src.read(1 << 20):
+                written += len(chunk)
+                if written > max_bytes:
+                    raise MeshError(f"cannot read {path.name}: the archive unpacks to more than it declares")
+                out.write(chunk)
+
+    try:
+        if extension(path) == ".zip":
+            with zipfile.ZipFile(path) as zf:
+                for info in zf.infolist():
+                    if not info.is_dir():
+                        with zf.open(info) as src:
+                            copy(src, dest / info.filename)
+        else:
+            with tarfile.open(path, "r:*") as tf:
+                for m in tf.getmembers():
+                    if m.isfile():
+                        copy(tf.extractfile(m), dest / m.name)
+    except (OSError, EOFError, zipfile.BadZipFile, tarfile.TarError, ValueError, RuntimeError):
+        shutil.rmtree(dest, ignore_errors=True)
+        raise MeshError(f"cannot read {path.name}: the archive is corrupted") from None
+    return dest / inner
+
+
+__all__ = ["check_archive", "unpack", "MAX_MEMBERS", "MAX_UNPACKED_BYTES"]

@@ -1,0 +1,68 @@
+"""The mesh formats we read, by file extension: one list for the CLI, the service and the web page.
+
+Imports nothing (no numpy, no VTK, no meshio): the service imports it for its upload checks and
+must not pull in the readers. `models.mesh.read.read_mesh` is the one dispatch that reads them.
+"""
+
+from __future__ import annotations
+
+import os
+
+# extension -> name of the format (as a user knows it; which library reads it is no user's concern)
+FORMATS: dict[str, str] = {
+    ".vtu": "VTK XML (VTU)",
+    ".vtk": "legacy VTK",
+    ".msh": "gmsh",
+    ".exo": "Exodus II",
+    ".e": "Exodus II",
+    ".xdmf": "XDMF",
+    ".xmf": "XDMF",
+    ".cgns": "CGNS",
+    ".cas": "Fluent case",
+    ".neu": "Gambit neutral",
+    ".inp": "Abaqus or AVS UCD",
+    ".ucd": "AVS UCD",
+    ".avs": "AVS UCD",
+    ".mesh": "Medit",
+    ".med": "MED",
+    ".obj": "Wavefront OBJ",
+    ".off": "OFF",
+    ".ply": "PLY",
+    ".stl": "STL",
+    ".h5m": "MOAB",
+    ".su2": "SU2",
+    ".nas": "Nastran",
+    ".bdf": "Nastran",
+    ".f3grid": "FLAC3D",
+    ".dat": "Tecplot",
+    ".tec": "Tecplot",
+    ".ugrid": "UGRID",
+}
+# a mesh file that needs other files beside it (XDMF's heavy data in .h5): uploaded in an archive
+MULTI_FILE = (".xdmf", ".xmf")
+# compound extensions first: "case.cas.h5" is a Fluent case, not an HDF5 file
+COMPOUND = {".cas.h5": "Fluent case (HDF5)"}
+ARCHIVES = (".zip", ".tar.gz", ".tgz", ".tar")
+# what the HTTP API and the web page accept: every single-file format, and archives holding the rest
+UPLOAD_EXTENSIONS = tuple(e for e in FORMATS if e not in MULTI_FILE) + tuple(COMPOUND) + ARCHIVES
+
+
+def extension(path: str | os.PathLike) -> str:
+    """The lower-case format extension of `path` ('.cas.h5', '.tar.gz' included), or ''."""
+    name = os.path.basename(os.fspath(path)).lower()
+    for ext in (*COMPOUND, ".tar.gz"):
+        if name.endswith(ext) and len(name) > len(ext):
+            return ext
+    return os.path.splitext(name)[1]
+
+
+def format_name(path: str | os.PathLike, file_format: str | None = None) -> str:
+    """The format a file is read as ('Exodus II', 'legacy VTK', ...): from file_format when given."""
+    if file_format:
+        key = "." + file_format.lower().lstrip(".")
+        return FORMATS.get(key, COMPOUND.get(key, file_format))
+    ext = extension(path)
+    return FORMATS.get(ext) or COMPOUND.get(ext) or "mesh"
+
+
+__all__ = ["FORMATS", "MULTI_FILE", "ARCHIVES", "UPLOAD_EXTENSIONS", "extension", "format_name"]

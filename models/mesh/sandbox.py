@@ -1,0 +1,349 @@
+"""Reading untrusted mesh files safely: in a forked child with a time and a memory limit.
+
+Readers written in C++ (VTK's) can crash on a corrupted file, and any reader can loop or blow up
+its memory on a file that lies about its sizes. `read_mesh_safe` runs `models.mesh.read.read_mesh`
+in a child forked from this process (a fork costs milliseconds: the child already has every module
+the parent imported) under RLIMIT_AS (the parent's address space plus `memory_bytes`) and a
+deadline. A segfault, an abort, a hang or a memory blow-up becomes one MeshError sentence naming
+the file and the format ("the Exodus II reader crashed on this file: it is corrupted or not
+Exodus II"); the calling process lives on.
+
+The Mesh comes back without a copy per cell: the child pickles it with protocol 5, every numpy
+array out of band, into a memfd (shared memory); the parent maps that memory copy-on-write and the
+arrays are views of it (writeable: orienting and welding edit them in place).
+
+Every message also gets the same wording here, in-process or not (`wording`): it names the file
+and the format, and a library's raw exception text or a Python repr is replaced by a sentence.
+The CLI, the HTTP API and the worker all read through this function, so they word a failure alike.
+
+MAGNET_READ_SANDBOX=0 reads in-process (no fork); MAGNET_READ_TIMEOUT_S and MAGNET_READ_MEMORY_MB
+change the default limits (600 s; the machine's physical memory).
+"""
+
+from __future__ import annotations
+
+import mmap
+import os
+import pickle
+import re
+import select
+import signal
+import struct
+import time
+
+from models.errors import MagnetError, MeshError, ModelError, ParameterError
+from models.mesh.formats import ARCHIVES, extension, format_name
+
+DEFAULT_TIMEOUT_S = 600.0
+_ALIGN = 64
+_ERRORS = {"MeshError": MeshError, "ParameterError": ParameterError, "ModelError": ModelError}
+
+# A library's own text or a Python repr in a message: never shown to a user as it is.
+RAW_TEXT = re.compile(
+    "|".join(
+        [
+            r"\bnp\.\w+\(",  # np.int64(6)
+            r"\b(?:array|dtype)\(",
+            r"<[\w.]+ object at 0x",
+            r"\bSystemExit\b",
+            r"Traceback \(most recent call last\)",
+            r"\b\w*(?:Error|Exception)\b(?! in the mesh)",  # KeyError, ValueError, ParseError, ...
+            r"out of bounds for (?:axis|size)",
+            r"index out of range",
+            r"invalid literal for",
+            r"could not convert",
+            r"cannot reshape",
+            r"codec can't (?:de|en)code",
+            r"No module named",
+            r"Could not find \.//",
+            r"values to unpack",
+            r"unpack requires",
+            r"buffer (?:is )?(?:smaller|size)",
+            r"has no attribute",
+            r"object is not",
+            r"unsupported operand",
+            r"Implementation assumes",
+            r"not well-formed|mismatched tag|junk after document|unclosed token|no element found",
+            r"undefined entity|syntax error",
+            r"\bvtk[A-Z]\w+",  # vtkXMLUnstructuredGridReader (C++ class names)
+            r"\.(?:cxx|cpp|pyx|py):\d+",
+            r"^\s*'[^']*'\s*$",  # a bare quoted key: KeyError('vtkidtype') as str
+            r":\s*'[^']*'\s*$",
+            r"\[Errno \d+\]",
+        ]
+    )
+)
+
+
+def is_raw(message: str) -> bool:
+    """True when `message` carries a library's raw exception text or a Python repr."""
+    return bool(RAW_TEXT.search(message or ""))
+
+
+def wording(message: str, path: str | os.PathLike, file_format: str | None = None) -> str:
+    """The message of a failed read as users get it everywhere: naming the file and the format,
+    with no raw library text (replaced by what is known: the format, and a line when one is given)."""
+    name = os.path.basename(os.fspath(path))
+    fmt = format_name(path, file_format)
+    message = " ".join((message or "").split())
+    if not message or is_raw(message):
+        line = re.search(r"\bline (\d+)", message or "")
+        where = f" (near line {line.group(1)})" if line else ""
+        return f"cannot read {name} as {fmt}: the file is corrupted or not {fmt}{where}"
+    if name in message and fmt in message:
+        return message
+    for prefix in (f"cannot read {name} as a mesh: ", f"cannot read {name}: "):
+        if message.startswith(prefix):
+            message = message[len(prefix) :]
+    return f"cannot read {name} as {fmt}: {message}"
+
+
+def crash_sentence(path, file_format: str | None = None) -> str:
+    name, fmt = os.path.basename(os.fspath(path)), format_name(path, file_format)
+    return f"cannot read {name} as {fmt}: the {fmt} reader crashed on this file: it is corrupted or not {fmt}"
+
+
+def timeout_sentence(path, timeout_s: float, file_format: str | None = None) -> str:
+    name, fmt = os.path.basename(os.fspath(path)), format_name(path, file_format)
+    return (
+        f"cannot read {name} as {fmt}: the {fmt} reader did not finish within {timeout_s:g} s: "
+        f"the file is corrupted, not {fmt}, or too large for this limit"
+    )
+
+
+def memory_sentence(path, memory_bytes: int, file_format: str | None = None) -> str:
+    name, fmt = os.path.basename(os.fspath(path)), format_name(path, file_format)
+    return (
+        f"cannot read {name} as {fmt}: the {fmt} reader needed more than {memory_bytes / 2**30:.1f} GiB "
+        f"of memory: the file is corrupted, not {fmt}, or too large for this limit"
+    )
+
+
+def _default_memory() -> int:
+    mb = os.environ.get("MAGNET_READ_MEMORY_MB")
+    if mb and mb.strip().isdigit():
+        return int(mb) << 20
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return 16 << 30
+
+
+def _default_timeout() -> float:
+    try:
+        return float(os.environ.get("MAGNET_READ_TIMEOUT_S", DEFAULT_TIMEOUT_S))
+    except ValueError:
+        return DEFAULT_TIMEOUT_S
+
+
+def sandbox_enabled() -> bool:
+    return (
+        hasattr(os, "fork") and hasattr(os, "memfd_create") and os.environ.get("MAGNET_READ_SANDBOX") != "0"
+    )
+
+
+def read_mesh_safe(
+    path: str | os.PathLike,
+    physical_tag: str | None = None,
+    file_format: str | None = None,
+    weld: float | None = None,
+    *,
+    timeout_s: float | None = None,
+    memory_bytes: int | None = None,
+):
+    """`models.mesh.read.read_mesh` in a forked child under limits (see the module docstring);
+    the same Mesh, or a MeshError / ParameterError worded for users."""
+    from models.mesh import read
+
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise MeshError(f"mesh file not found: {path}")
+    if os.path.isdir(path):
+        raise MeshError(f"{path} is a folder, not a mesh file")
+    if file_format is None and extension(path) in ARCHIVES:  # XDMF + .h5 and the like, in one upload
+        import shutil
+        import tempfile
+
+        from models.mesh.archive import unpack
+
+        folder = tempfile.mkdtemp(prefix="magnet-archive-")
+        try:
+            inner = unpack(path, folder)
+            return read_mesh_safe(
+                inner, physical_tag, None, weld, timeout_s=timeout_s, memory_bytes=memory_bytes
+            )
+        finally:
+            shutil.rmtree(folder, ignore_errors=True)
+    kwargs = {"physical_tag": physical_tag, "file_format": file_format, "weld": weld}
+    try:
+        if not sandbox_enabled():
+            return read.read_mesh(path, **kwargs)
+        return call_in_child(
+            _read_in_child,
+            (path, kwargs),
+            path=path,
+            file_format=file_format,
+            timeout_s=_default_timeout() if timeout_s is None else timeout_s,
+            memory_bytes=_default_memory() if memory_bytes is None else memory_bytes,
+        )
+    except MeshError as exc:
+        raise MeshError(wording(str(exc), path, file_format)) from None
+    except ParameterError:
+        raise
+    except MagnetError as exc:
+        raise MeshError(wording(str(exc), path, file_format)) from None
+    except (Exception, SystemExit):  # a reader's own exception escaped (in-process reading)
+        raise MeshError(wording("", path, file_format)) from None
+
+
+def _read_in_child(path, kwargs):
+    from models.mesh import read  # looked up at call time: whatever read_mesh dispatches to
+
+    return read.read_mesh(path, **kwargs)
+
+
+def call_in_child(fn, args=(), *, path, file_format=None, timeout_s: float, memory_bytes: int):
+    """fn(*args) in a forked child under the limits; its result (numpy arrays out of band, through
+    shared memory), or the MagnetError it raised; a crash, hang or memory blow-up as a MeshError."""
+    shm = os.memfd_create("magnet-read", os.MFD_CLOEXEC)
+    r, w = os.pipe()
+    try:
+        pid = os.fork()
+        if pid == 0:  # the child: never returns
+            os.close(r)
+            _child(fn, args, shm, w, memory_bytes, timeout_s)
+        os.close(w)
+        w = -1
+        status, answered = _wait(pid, r, timeout_s)
+        if status == "timeout" or (not answered and status == signal.SIGXCPU):
+            raise MeshError(timeout_sentence(path, timeout_s, file_format))
+        if not answered:
+            raise MeshError(crash_sentence(path, file_format))
+        answer = _load(shm)
+        if answer[0] == "ok":
+            return answer[1]
+        if answer[0] == "memory":
+            raise MeshError(memory_sentence(path, memory_bytes, file_format))
+        raise _ERRORS[answer[1]](answer[2])
+    finally:
+        os.close(shm)
+        os.close(r)
+        if w >= 0:
+            os.close(w)
+
+
+def _wait(pid: int, r: int, timeout_s: float):
+    """Wait for the child's one-byte answer (or the pipe's end: it died); ('timeout'|signal|0, answered)."""
+    deadline = time.monotonic() + timeout_s
+    done = False
+    try:
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return "timeout", False
+            try:
+                ready, _, _ = select.select([r], [], [], left)
+            except InterruptedError:
+                continue
+            if ready:
+                break
+        answered = os.read(r, 1) == b"1"
+        _, code = os.waitpid(pid, 0)
+        done = True
+        return (os.WTERMSIG(code) if os.WIFSIGNALED(code) else 0), answered
+    finally:
+        if not done:  # timeout, or the caller interrupted (Ctrl-C, a job cancelled): no child left behind
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            os.waitpid(pid, 0)
+
+
+def _child(fn, args, shm: int, w: int, memory_bytes: int, timeout_s: float) -> None:
+    code = 1
+    try:
+        import faulthandler
+        import resource
+
+        faulthandler.disable()  # its dump would go to a copy of stderr kept apart (pytest, PYTHONFAULTHANDLER)
+        devnull = os.open(os.devnull, os.O_RDWR)
+        for fd in (0, 1, 2):  # a C++ reader's error text never reaches the user's terminal
+            os.dup2(devnull, fd)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+        resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+        _, hard = resource.getrlimit(resource.RLIMIT_AS)
+        with open("/proc/self/statm") as f:
+            used = int(f.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+        soft = used + int(memory_bytes)
+        if hard != resource.RLIM_INFINITY:
+            soft = min(soft, hard)
+        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
+        cpu = int(timeout_s) + 2
+        _, cpu_hard = resource.getrlimit(resource.RLIMIT_CPU)
+        if cpu_hard == resource.RLIM_INFINITY or cpu < cpu_hard:
+            resource.setrlimit(resource.RLIMIT_CPU, (cpu, cpu_hard))
+        try:
+            answer = ("ok", fn(*args))
+        except MagnetError as exc:
+            answer = ("error", type(exc).__name__ if type(exc).__name__ in _ERRORS else "MeshError", str(exc))
+        except MemoryError:
+            answer = ("memory",)
+        except BaseException:  # a reader's own exception: worded by the parent, never shown raw
+            answer = ("error", "MeshError", "")
+        _dump(answer, shm)
+        os.write(w, b"1")
+        code = 0
+    except BaseException:
+        pass
+    finally:
+        os._exit(code)
+
+
+def _dump(answer, shm: int) -> None:
+    """header (pickle length, buffer count, buffer lengths), the pickle, every buffer 64-byte aligned."""
+    buffers = []
+    data = pickle.dumps(answer, protocol=5, buffer_callback=buffers.append)
+    raws = [b.raw() for b in buffers]
+    head = struct.pack(f"<QQ{len(raws)}Q", len(data), len(raws), *(m.nbytes for m in raws))
+    with os.fdopen(os.dup(shm), "wb", buffering=0) as out:
+        pos = 0
+        for chunk in (head, data, *raws):
+            pad = -pos % _ALIGN
+            if pad:
+                out.write(b"\0" * pad)
+                pos += pad
+            view = memoryview(chunk).cast("B")
+            while view.nbytes:
+                n = out.write(view)
+                view, pos = view[n:], pos + n
+
+
+def _load(shm: int):
+    size = os.fstat(shm).st_size
+    mem = mmap.mmap(shm, size, access=mmap.ACCESS_COPY)  # private: arrays are writeable views
+    view = memoryview(mem)
+    n_data, n_bufs = struct.unpack_from("<QQ", view, 0)
+    lengths = struct.unpack_from(f"<{n_bufs}Q", view, 16)
+    pos = 16 + 8 * n_bufs
+    pos += -pos % _ALIGN
+    data = view[pos : pos + n_data]
+    pos += n_data
+    bufs = []
+    for n in lengths:
+        pos += -pos % _ALIGN
+        bufs.append(view[pos : pos + n])
+        pos += n
+    return pickle.loads(data, buffers=bufs)
+
+
+__all__ = [
+    "read_mesh_safe",
+    "call_in_child",
+    "wording",
+    "is_raw",
+    "sandbox_enabled",
+    "crash_sentence",
+    "timeout_sentence",
+    "memory_sentence",
+]

@@ -1,0 +1,303 @@
+"""Reading corrupted files: a seeded mutation test over every format family, and files that crash
+VTK's C++ readers refused cleanly by the library, the CLI, the HTTP API and a worker job.
+
+Every outcome of a read is a Mesh, or a MeshError whose message names the file and the format tried
+and carries no library text (RAW below, written apart from models.mesh.sandbox's own detector).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from mutants import mutants, vtk_read, write_corpus
+from service_fixtures import ROOT, Api, service_env, square_mesh, start_api, wait_until, workers_online
+
+from models.errors import MeshError, ParameterError
+from models.mesh.container import Mesh
+from models.mesh.formats import format_name
+from models.mesh.sandbox import call_in_child, read_mesh_safe
+
+PER_FILE = 18  # mutants per corpus file: 18 files -> 324 reads
+RAW = [
+    r"np\.[a-z]+\d*\(",
+    r"\bSystemExit\b",
+    r"Traceback",
+    r'File "',
+    r"is out of bounds",
+    r"invalid literal",
+    r"cannot reshape",
+    r"could not convert",
+    r"codec can't",
+    r"No module named",
+    r"\.//DataArray",
+    r"\b[A-Z][a-z]+Error\b",
+    r"Exception\b",
+    r"not well-formed|mismatched tag|no element found|junk after",
+    r"\bexpat\b|\blxml\b|ElementTree",
+    r"\bvtk[A-Z]",
+    r"Segmentation fault|core dumped|SIGSEGV|SIGABRT",
+    r"^'[^']*'$",
+    r"object at 0x",
+    r"unpack requires|values to unpack|struct\.error",
+    r"list index|tuple index",
+]
+RAW_RE = re.compile("|".join(RAW))
+
+
+def assert_sentence(message: str, path: Path) -> None:
+    assert path.name in message, message
+    assert format_name(path) in message, message
+    assert not RAW_RE.search(message), message
+    assert "\n" not in message, message
+
+
+@pytest.fixture(scope="module")
+def corpus(tmp_path_factory):
+    return write_corpus(tmp_path_factory.mktemp("corpus"))
+
+
+def test_corpus_reads(corpus):
+    """The unmutated files are meshes (Exodus: a mesh or a clean refusal while no Exodus reader is in)."""
+    for name, path in corpus.items():
+        try:
+            mesh = read_mesh_safe(path)
+        except MeshError as exc:
+            assert name.endswith(".exo"), (name, str(exc))
+            assert_sentence(str(exc), path)
+            continue
+        assert isinstance(mesh, Mesh) and mesh.n_cells > 0, name
+
+
+def test_mutants_are_a_mesh_or_one_clear_sentence(corpus, tmp_path):
+    outcomes = {"mesh": 0, "refused": 0}
+    for k, (name, path) in enumerate(sorted(corpus.items())):
+        data = path.read_bytes()
+        for i, (how, bad) in enumerate(mutants(data, seed=1000 + k, n=PER_FILE)):
+            target = tmp_path / f"m{i}_{name}"
+            target.write_bytes(bad)
+            try:
+                mesh = read_mesh_safe(target, timeout_s=60)
+            except (MeshError, ParameterError) as exc:
+                outcomes["refused"] += 1
+                try:
+                    assert_sentence(str(exc), target)
+                except AssertionError:
+                    raise AssertionError(f"{name} mutant {i} ({how}): {exc}") from None
+            else:
+                assert isinstance(mesh, Mesh)
+                outcomes["mesh"] += 1
+            target.unlink()
+    assert outcomes["refused"] > 50 and sum(outcomes.values()) == PER_FILE * len(corpus), outcomes
+
+
+def _first_crash(path: Path, out: Path, seed: int = 23, limit: int = 60) -> Path:
+    """The first of the seeded mutants of `path` that kills VTK's own reader (a segfault or abort)."""
+    for _how, bad in mutants(path.read_bytes(), seed, limit):
+        out.write_bytes(bad)
+        try:
+            call_in_child(vtk_read, (str(out),), path=out, timeout_s=30, memory_bytes=2 << 30)
+        except MeshError as exc:
+            if "crashed" in str(exc):
+                return out
+    pytest.fail(f"none of {limit} mutants of {path.name} crashes VTK's reader")
+
+
+@pytest.fixture(scope="module")
+def crashers(corpus, tmp_path_factory):
+    folder = tmp_path_factory.mktemp("crash")
+    return [
+        _first_crash(corpus["mesh.exo"], folder / "crash.exo"),
+        _first_crash(corpus["vtk_binary.vtk"], folder / "crash.vtk"),
+    ]
+
+
+def vtk_first_env() -> dict:
+    """The environment of a deployment whose read_mesh reads these formats with VTK (tests/vtk_first)."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT / "tests" / "vtk_first"), str(ROOT)])
+    env["MAGNET_TEST_VTK_FIRST"] = "1"
+    env["MPLBACKEND"] = "Agg"
+    return env
+
+
+def test_crashing_files_kill_a_plain_reader(crashers):
+    """The mutants are real crashes: reading them in a plain process kills it."""
+    for path in crashers:
+        code = (
+            f"import sys; sys.path.insert(0, 'tests'); from mutants import vtk_read; vtk_read({str(path)!r})"
+        )
+        r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, timeout=120)
+        assert r.returncode < 0, (path.name, r.returncode)
+
+
+def test_library_turns_a_crash_into_a_sentence(crashers):
+    for path in crashers:
+        with pytest.raises(MeshError) as err:
+            call_in_child(vtk_read, (str(path),), path=path, timeout_s=30, memory_bytes=2 << 30)
+        fmt = format_name(path)
+        assert str(err.value) == (
+            f"cannot read {path.name} as {fmt}: the {fmt} reader crashed on this file: it is corrupted or not {fmt}"
+        )
+
+
+@pytest.mark.parametrize("command", ["info", "check", "agglomerate"])
+def test_cli_refuses_a_crashing_file_cleanly(crashers, tmp_path, command):
+    for path in crashers:
+        args = [sys.executable, "-m", "models.cli", command, str(path)]
+        if command == "agglomerate":
+            args += ["-o", str(tmp_path / "out.vtu"), "--k", "4"]
+        r = subprocess.run(args, cwd=ROOT, env=vtk_first_env(), capture_output=True, text=True, timeout=300)
+        out = r.stdout + r.stderr
+        assert "Segmentation" not in out and "Traceback" not in out and "core dumped" not in out, out
+        assert "reader crashed on this file" in out, out
+        if command == "check":  # the report says it, verdict error
+            assert r.returncode in (0, 1, 2), out
+        else:
+            assert r.returncode == 2, out
+            lines = r.stderr.strip().splitlines()
+            assert len(lines) == 1 and lines[0].startswith("magnet: error: cannot read " + path.name), out
+            assert_sentence(lines[0], path)
+
+
+def test_api_answers_422_and_keeps_serving_and_a_job_fails_once(crashers, tmp_path):
+    """A live server (uvicorn, embedded worker) whose readers crash on these files."""
+    env = service_env(tmp_path / "data", api_keys="tester:tok")
+    env.update({k: v for k, v in vtk_first_env().items() if k in ("PYTHONPATH", "MAGNET_TEST_VTK_FIRST")})
+    proc, url = start_api(env, tmp_path, embedded_worker=True)
+    api = Api(url, "tok")
+    try:
+        wait_until(lambda: workers_online(url, "tok") >= 1, 60, 0.2, "the embedded worker")
+        for path in crashers:
+            r = api.http.post("/v1/meshes", params={"filename": path.name}, content=path.read_bytes())
+            assert r.status_code == 422, r.text
+            body = r.json()
+            assert set(body) == {"detail", "field", "errors"} and body["field"] == "file", body
+            fmt = format_name(path)
+            assert body["detail"] == (
+                f"cannot read {path.name} as {fmt}: the {fmt} reader crashed on this file: "
+                f"it is corrupted or not {fmt}"
+            ), body
+            assert proc.alive()
+        # the API keeps serving: a good mesh is taken and agglomerated
+        good = square_mesh(tmp_path / "good.vtk", n=6)
+        mesh = api.upload(good)
+        ok = api.wait(api.submit(mesh["id"], model="metis", k=4)["id"])
+        assert ok["status"] == "succeeded", ok
+        # a stored mesh whose reader crashes inside a job (the stored bytes replaced by a crashing
+        # file): the job fails once with the sentence, it is not retried as a lost worker
+        from jobqueue.storage import Storage
+
+        stored = Storage(tmp_path / "data").mesh_path(mesh["id"], "vtk")
+        stored.write_bytes(crashers[1].read_bytes())
+        job = api.wait(api.submit(mesh["id"], model="metis", k=5)["id"])
+        assert job["status"] == "failed" and job["attempts"] == 1, job
+        assert "the legacy VTK reader crashed on this file" in job["error"], job
+        assert not RAW_RE.search(job["error"]), job
+        # and the worker is still there for the next job
+        stored.write_bytes(good.read_bytes())
+        again = api.wait(api.submit(mesh["id"], model="metis", k=3)["id"])
+        assert again["status"] == "succeeded", again
+        assert proc.alive()
+    finally:
+        api.close()
+        proc.stop()
+
+
+def _xdmf_h5(folder: Path) -> list[Path]:
+    import meshio
+    from mutants import _grid
+
+    pts, tets, _ = _grid()
+    folder.mkdir(parents=True, exist_ok=True)
+    meshio.write(folder / "case.xdmf", meshio.Mesh(pts, [("tetra", tets)]), data_format="HDF")
+    return sorted(folder.iterdir())
+
+
+def test_archives_hold_multi_file_meshes_and_are_checked_before_unpacking(tmp_path):
+    import tarfile
+    import zipfile
+
+    files = _xdmf_h5(tmp_path / "xdmf")
+    assert {p.suffix for p in files} == {".xdmf", ".h5"}
+    good_zip, good_tgz = tmp_path / "case.zip", tmp_path / "case.tar.gz"
+    with zipfile.ZipFile(good_zip, "w") as zf:
+        for p in files:
+            zf.write(p, f"case/{p.name}")
+    with tarfile.open(good_tgz, "w:gz") as tf:
+        for p in files:
+            tf.add(p, p.name)
+    for archive in (good_zip, good_tgz):
+        assert read_mesh_safe(archive).n_cells == 135
+    bad = {}
+    with zipfile.ZipFile(bad.setdefault("escape.zip", tmp_path / "escape.zip"), "w") as zf:
+        zf.writestr("../evil.xdmf", "x")
+    with zipfile.ZipFile(bad.setdefault("absolute.zip", tmp_path / "absolute.zip"), "w") as zf:
+        zf.writestr("/etc/evil.xdmf", "x")
+    with zipfile.ZipFile(bad.setdefault("many.zip", tmp_path / "many.zip"), "w") as zf:
+        for i in range(100):
+            zf.writestr(f"f{i}.txt", "x")
+    with zipfile.ZipFile(bad.setdefault("none.zip", tmp_path / "none.zip"), "w") as zf:
+        zf.writestr("readme.txt", "x")
+    with zipfile.ZipFile(bad.setdefault("bomb.zip", tmp_path / "bomb.zip"), "w", zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("big.vtu", b"\0" * (64 << 20))
+    link = tmp_path / "link.tar.gz"
+    with tarfile.open(link, "w:gz") as tf:
+        info = tarfile.TarInfo("mesh.vtu")
+        info.type, info.linkname = tarfile.SYMTYPE, "/etc/passwd"
+        tf.addfile(info)
+    bad["link.tar.gz"] = link
+    (tmp_path / "garbage.zip").write_bytes(b"PK\x03\x04 not a zip")
+    bad["garbage.zip"] = tmp_path / "garbage.zip"
+    says = {
+        "escape.zip": "outside the archive",
+        "absolute.zip": "outside the archive",
+        "many.zip": "100 members",
+        "none.zip": "no mesh file",
+        "bomb.zip": "unpacks to 64 MiB",
+        "link.tar.gz": "a link or a device",
+        "garbage.zip": "not a valid .zip archive",
+    }
+    from models.mesh.archive import unpack
+
+    for name, path in bad.items():
+        with pytest.raises(MeshError) as err:
+            unpack(path, tmp_path / "out", max_bytes=32 << 20)
+        assert says[name] in str(err.value) and name in str(err.value), str(err.value)
+        assert not (tmp_path / "out").exists() or not any((tmp_path / "out").rglob("*.xdmf"))
+        assert not RAW_RE.search(str(err.value)), str(err.value)
+
+
+def test_service_takes_a_zip_upload_and_the_page_lists_the_readers_formats(tmp_path):
+    import zipfile
+
+    from fastapi.testclient import TestClient
+
+    from jobqueue.settings import Settings
+    from models.mesh.formats import UPLOAD_EXTENSIONS
+    from service.app import create_app
+
+    files = _xdmf_h5(tmp_path / "xdmf")
+    archive = tmp_path / "case.zip"
+    with zipfile.ZipFile(archive, "w") as zf:
+        for p in files:
+            zf.write(p, p.name)
+    settings = Settings(data_dir=tmp_path / "data", api_keys="alice:alice-token")
+    with TestClient(create_app(settings)) as client:
+        head = {"Authorization": "Bearer alice-token"}
+        r = client.post(
+            "/v1/meshes", params={"filename": "case.zip"}, content=archive.read_bytes(), headers=head
+        )
+        assert r.status_code == 201 and r.json()["cells"] == 135, r.text
+        r = client.post("/v1/meshes", params={"filename": "case.xdmf"}, content=b"<Xdmf/>", headers=head)
+        assert r.status_code == 422 and ".zip" in r.json()["detail"] and r.json()["field"] == "filename", (
+            r.text
+        )
+        page = client.get("/").text
+        for ext in UPLOAD_EXTENSIONS:
+            assert ext in page, ext
+        assert "{{" not in page
