@@ -76,7 +76,9 @@ STALE = [
 
 @pytest.mark.parametrize(
     "doc",
-    USER_DOCS + sorted((ROOT / "models" / "weights").glob("*.md")) + [ROOT / "client" / "matlab" / "README.md"],
+    USER_DOCS
+    + sorted((ROOT / "models" / "weights").glob("*.md"))
+    + [ROOT / "client" / "matlab" / "README.md"],
     ids=lambda p: str(p.relative_to(ROOT)),
 )
 def test_no_document_names_a_module_that_moved(doc):
