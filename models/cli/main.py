@@ -402,7 +402,7 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
             "generate_main",
             "generate meshes / data sets (gmsh)",
         ),
-        ("train", "models.train", "add_train_args", "train_main", "train a SAGE model"),
+        ("train", "models.cli.train", "add_train_args", "train_main", "train a SAGE model"),
         (
             "hierarchy",
             "models.cli.hierarchy",
