@@ -30,6 +30,22 @@ from models.mesh.container import (
     VTK_WEDGE,
 )
 
+TAG_NAMES = (
+    "gmsh:physical",
+    "CellEntityIds",
+    "cell_tags",
+    "medit:ref",
+    "physical",
+    "material",
+    "tag",
+    "physical_group",
+    "avsucd:material",
+    "ObjectId",
+    "material_id",
+    "MaterialIds",
+    "block",  # element block / zone of a composite VTK output (vtk_readers)
+)
+BOUNDARY_TAG_NAME = "boundary_tag"  # boundary groups of lower-dimensional cells, as models.vtu writes them
 VTK_POLY_VERTEX = 2
 VTK_POLY_LINE = 4
 VTK_TRIANGLE_STRIP = 6

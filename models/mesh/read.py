@@ -11,15 +11,15 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import re
 import warnings
 from itertools import chain
 
-import meshio
 import numpy as np
 
 from models.errors import MeshError, ParameterError
 from models.mesh.build import MIRROR, _bounds, mesh_from_cells, weld_points  # noqa: F401 (MIRROR, weld_points: API)
-from models.mesh.cells import distinct_nodes
+from models.mesh.cells import BOUNDARY_TAG_NAME, TAG_NAMES, distinct_nodes
 from models.mesh.container import (
     CELL_TYPE_NAMES,
     VTK_HEXAHEDRON,
@@ -57,42 +57,121 @@ _TYPES: dict[str, tuple[int, int, int]] = {
     "pyramid13": (VTK_PYRAMID, 3, 5),
     "pyramid14": (VTK_PYRAMID, 3, 5),
 }
-TAG_NAMES = (
-    "gmsh:physical",
-    "CellEntityIds",
-    "cell_tags",
-    "medit:ref",
-    "physical",
-    "material",
-    "tag",
-    "physical_group",
-    "avsucd:material",
+# extension -> the reader family that serves it (docs/formats.md); any other meshio extension: meshio
+_VTK_XML = (".vtu", ".pvtu", ".vtp", ".pvtp", ".vti", ".pvti", ".vts", ".pvts", ".vtr", ".pvtr", ".vtm")
+_EXODUS = (".exo", ".e", ".ex2", ".exii", ".g", ".gen")
+_VTK_OTHER = {".xdmf": "xdmf", ".xmf": "xdmf", ".cgns": "cgns", ".cas": "fluent", ".neu": "gambit"}
+_SURFACES = (".stl", ".obj", ".ply", ".off")
+_MESHIO_SKIP = {".vtk", ".vtu", ".xdmf", ".xmf", ".cgns", ".e", ".exo", ".ex2", ".avs", ".inp", ".msh"}
+SUPPORTED_EXTENSIONS = tuple(
+    sorted(
+        {".vtk", ".msh", ".inp", ".ucd", ".avs", ".cas", ".cas.h5", ".neu", ".xdmf", ".xmf", ".cgns"}
+        | set(_VTK_XML)
+        | set(_EXODUS)
+        | {
+            ".mesh",
+            ".meshb",
+            ".med",
+            ".nas",
+            ".bdf",
+            ".fem",
+            ".su2",
+            ".h5m",
+            ".f3grid",
+            ".dat",
+            ".tec",
+            ".ugrid",
+        }
+        | {".mdpa", ".vol", ".vol.gz", ".ele", ".node", ".xml", ".post", ".dato"}
+        | set(_SURFACES)
+    )
 )
-BOUNDARY_TAG_NAME = "boundary_tag"  # boundary groups of lower-dimensional cells, as models.vtu writes them
-SUPPORTED_EXTENSIONS = (
-    ".vtu",
-    ".vtk",
-    ".msh",
-    ".xdmf",
-    ".xmf",
-    ".mesh",
-    ".med",
-    ".inp",
-    ".ucd",
-    ".obj",
-    ".off",
-    ".ply",
-    ".stl",
-    ".h5m",
-    ".su2",
-    ".nas",
-    ".bdf",
-    ".f3grid",
-    ".avs",
-    ".dat",
-    ".tec",
-    ".ugrid",
-)
+
+
+def _extension(path: str) -> str:
+    low = os.path.basename(path).lower()
+    for double in (".cas.h5", ".vol.gz", ".post.gz", ".dato.gz"):
+        if low.endswith(double):
+            return double
+    return os.path.splitext(low)[1]
+
+
+def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
+    """One reader per file, by extension and a look at its first bytes: (family, detail) with
+    family "vtu" (our fast VTU path, VTK's reader for any other VTU), "vtk" (detail: a key of
+    vtk_readers.READERS), "ucd" (our AVS UCD reader) or "meshio" (detail: meshio's file type)."""
+    name = os.path.basename(path)
+    ext = _extension(path)
+    with open(path, "rb") as fh:
+        head = fh.read(4096)
+    text = head.lstrip(b"\xef\xbb\xbf \t\r\n")
+    legacy = text[:14].lower() == b"# vtk datafile"
+    xml = text[:1] == b"<"
+    fmt = (file_format or "").lower()
+    if fmt:
+        if fmt in ("ucd", "avsucd"):
+            return ("vtk", "avs-binary") if head[:1] == b"\x07" else ("ucd", "")
+        if fmt == "vtu":
+            return ("vtu", "")
+        if fmt in ("vtk", "legacy"):
+            return ("vtk", "legacy") if legacy else ("vtk", "xml")
+        if fmt == "exodus":
+            return ("vtk", "exodus")
+        if fmt in ("xdmf", "cgns", "fluent", "gambit"):
+            return ("vtk", fmt)
+        return ("meshio", fmt)
+    if ext == ".vtk" or (legacy and ext in _VTK_XML):
+        if legacy:
+            return ("vtk", "legacy")
+        if xml and b"<VTKFile" in head:
+            return ("vtk", "xml")
+        raise MeshError(
+            f"cannot read {name} as legacy VTK: its first line must be '# vtk DataFile Version x.x'"
+        )
+    if ext in _VTK_XML:
+        if not xml:
+            raise MeshError(f"cannot read {name} as VTK XML ({ext}): the file does not start with an XML tag")
+        return ("vtu", "") if ext == ".vtu" else ("vtk", ext)
+    if ext in _EXODUS:
+        if head[:3] == b"CDF" or head[:4] == b"\x89HDF":
+            return ("vtk", "exodus")
+        raise MeshError(f"cannot read {name} as Exodus II: the file is neither netCDF nor HDF5 (byte 0)")
+    if ext == ".cas.h5":
+        return ("vtk", "fluent-h5")
+    if ext in _VTK_OTHER:
+        if ext in (".xdmf", ".xmf") and not xml:
+            raise MeshError(f"cannot read {name} as XDMF: the file does not start with an XML tag")
+        if ext == ".cas" and not text.startswith(b"("):
+            raise MeshError(f"cannot read {name} as a Fluent case: a Fluent case starts with '(' (byte 0)")
+        if ext == ".neu" and b"CONTROL INFO" not in head.upper():
+            raise MeshError(
+                f"cannot read {name} as Gambit neutral: no 'CONTROL INFO' section at the start of the file"
+            )
+        return ("vtk", _VTK_OTHER[ext])
+    if ext == ".msh":
+        if text.startswith(b"$"):
+            return ("meshio", "gmsh")
+        if text.startswith(b"("):
+            return ("vtk", "fluent")
+        raise MeshError(
+            f"cannot read {name}: a .msh file is gmsh (starts with '$MeshFormat') or Fluent (starts with '('), and this one is neither"
+        )
+    if ext in (".ucd", ".avs", ".inp"):
+        from models.mesh.ucd import is_ucd
+
+        if head[:1] == b"\x07":
+            return ("vtk", "avs-binary")
+        if ext != ".inp" or is_ucd(path):
+            return ("ucd", "")
+        return ("meshio", "abaqus")
+    import meshio
+
+    types = meshio.extension_to_filetypes.get(ext)
+    if not types:
+        raise MeshError(
+            f"unknown mesh format {ext or '(no extension)'!r}; use one of: " + ", ".join(SUPPORTED_EXTENSIONS)
+        )
+    return ("meshio", types[0])
 
 
 def read_mesh(
@@ -101,7 +180,8 @@ def read_mesh(
     file_format: str | None = None,
     weld: float | None = None,
 ) -> Mesh:
-    """Read a mesh file and return a validated, positively oriented `Mesh`.
+    """Read a mesh file and return a validated, positively oriented `Mesh`: one reader per file
+    (pick_reader), which hands its arrays to build.mesh_from_cells.
 
     weld: merge points closer than this distance first (coincident duplicates that split a mesh)."""
     path = os.fspath(path)
@@ -109,23 +189,34 @@ def read_mesh(
         raise MeshError(f"mesh file not found: {path}")
     if os.path.getsize(path) == 0:
         raise MeshError(f"mesh file is empty: {os.path.basename(path)}")
-    ext = os.path.splitext(path)[1].lower()
-    if file_format in ("ucd", "avsucd") or (file_format is None and ext in (".inp", ".ucd")):
-        from models.mesh.ucd import is_ucd, read_ucd
-
-        # .inp is Abaqus unless it looks like UCD
-        if ext == ".ucd" or file_format is not None or is_ucd(path):
-            return mesh_from_meshio(read_ucd(path), physical_tag=physical_tag, weld=weld, owned=True)
-    if file_format is None and ext not in meshio.extension_to_filetypes:
-        raise MeshError(
-            f"unknown mesh format {ext or '(no extension)'!r}; use one of: " + ", ".join(SUPPORTED_EXTENSIONS)
-        )
-    if (file_format or ext.lstrip(".")) == "vtu":
+    family, detail = pick_reader(path, file_format)
+    if family == "vtu":
         from models.mesh.vtu import read_vtu_simple
 
-        simple = read_vtu_simple(path)  # the common layout without meshio's XML tree; else None
+        simple = read_vtu_simple(path)  # the common layout, faster than any XML reader; else None
         if simple is not None:
             return mesh_from_meshio(simple, physical_tag=physical_tag, weld=weld, owned=True)
+        family, detail = "vtk", ".vtu"
+    if family == "ucd":
+        from models.mesh.ucd import read_ucd
+
+        return mesh_from_meshio(read_ucd(path), physical_tag=physical_tag, weld=weld, owned=True)
+    if family == "vtk":
+        from models.mesh.vtk_readers import read_vtk
+
+        return read_vtk(path, detail, physical_tag=physical_tag, weld=weld)
+    return mesh_from_meshio(_read_meshio(path, detail), physical_tag=physical_tag, weld=weld, owned=True)
+
+
+def _read_meshio(path: str, file_type: str):
+    """meshio's reader for `file_type` called directly (never meshio.read's guessing), with every
+    failure (meshio raises many kinds, even SystemExit) turned into one sentence of ours."""
+    import meshio
+    from meshio._helpers import reader_map
+
+    name = os.path.basename(path)
+    if file_type not in reader_map:
+        raise MeshError(f"unknown mesh format {file_type!r}; use one of: " + ", ".join(sorted(reader_map)))
     try:
         with (
             warnings.catch_warnings(),
@@ -133,24 +224,36 @@ def read_mesh(
             contextlib.redirect_stderr(io.StringIO()),
         ):
             warnings.simplefilter("ignore")
-            m = meshio.read(path, file_format=file_format)
+            return reader_map[file_type](path)
     except MeshError:
         raise
-    except (Exception, SystemExit) as exc:  # meshio raises many kinds (even SystemExit) on broken input
-        meshio_polyhedra_bug = "polyhedra with other cells" in str(exc) or "Incompatible cell data" in str(
-            exc
-        )
-        if meshio_polyhedra_bug and (file_format or ext).lstrip(".") == "vtu":
-            # e.g. our own 3D output with its boundary faces, or polyhedra not sorted by vertex count
-            from models.mesh.vtu import read_vtu_mixed
+    except (Exception, SystemExit) as exc:  # noqa: BLE001
+        raise MeshError(f"cannot read {name} with meshio's {file_type} reader: {_why(exc, meshio)}") from None
 
-            return mesh_from_meshio(read_vtu_mixed(path), physical_tag=physical_tag, weld=weld, owned=True)
-        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
-        if not any(ch.isalpha() for ch in msg):  # e.g. meshio's SystemExit(1) on a garbled file
-            what = ext.lstrip(".") or file_format or "mesh"
-            msg = f"not a valid {what} file ({' '.join([type(exc).__name__, msg]).strip()})"
-        raise MeshError(f"cannot read {os.path.basename(path)} as a mesh: {msg}") from None
-    return mesh_from_meshio(m, physical_tag=physical_tag, weld=weld, owned=True)
+
+_LINE = re.compile(r"\bline\s+(\d+)", re.IGNORECASE)
+
+
+def _why(exc: BaseException, meshio) -> str:
+    """What was wrong, in our words (a library's text is never shown: it names its internals)."""
+    text = str(exc)
+    where = _LINE.search(text)
+    at = f" (near line {int(where.group(1)):,})" if where else ""
+    if isinstance(exc, UnicodeDecodeError):
+        return f"it holds bytes that are not text where text was expected (byte offset {exc.start:,})"
+    if isinstance(exc, ModuleNotFoundError):
+        return f"this format needs the Python package {exc.name!r}, which is not installed"
+    if isinstance(exc, KeyError):
+        return "it holds an element type or a keyword that this reader does not know" + at
+    if isinstance(exc, ValueError) and ("literal" in text or "could not convert" in text):
+        return "a number in it is malformed" + at
+    if isinstance(exc, IndexError):
+        return "it refers to a node or an element that it does not define" + at
+    if isinstance(exc, EOFError) or "end of file" in text.lower() or "truncat" in text.lower():
+        return "the file ends before its data does (truncated?)" + at
+    if "reshape" in text or "size" in text:
+        return "a section holds fewer or more numbers than its header announces" + at
+    return "it is corrupted or not in this format" + at
 
 
 def mesh_from_meshio(
