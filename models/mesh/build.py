@@ -179,9 +179,16 @@ def _project_to_plane(mesh: Mesh) -> None:
     _, s, vt = np.linalg.svd(p - origin, full_matrices=False)
     extent = max(float(s[0]), 1e-300)
     if s[2] > 1e-8 * extent:
+        from models.mesh.container import CELL_TYPE_NAMES
+
+        counts = np.bincount(mesh.cell_types)
+        held = " and ".join(
+            f"{int(counts[t]):,} {CELL_TYPE_NAMES.get(int(t), 'cell')}s" for t in np.flatnonzero(counts)
+        )
         raise MeshError(
-            "2D cells lie on a curved (non-planar) surface; only planar 2D meshes are supported: "
-            "project the surface onto a plane first, or give a 3D volume mesh"
+            f"a curved (non-planar) surface of {held}: only planar 2D meshes and volume meshes are "
+            "agglomerated; give a volume mesh, or fill the closed surface with tetrahedra: "
+            "magnet generate stl --stl SURFACE -o volume.vtu"
         )
     e1, e2 = vt[0], vt[1]
     mesh.points = np.column_stack([(pts - origin) @ e1, (pts - origin) @ e2])

@@ -189,6 +189,15 @@ def read_mesh(
         raise MeshError(f"mesh file not found: {path}")
     if os.path.getsize(path) == 0:
         raise MeshError(f"mesh file is empty: {os.path.basename(path)}")
+    try:
+        return _read(path, physical_tag, file_format, weld)
+    except MeshError as exc:
+        name = os.path.basename(path)
+        msg = str(exc)
+        raise MeshError(msg if name in msg else f"{name}: {msg}") from None
+
+
+def _read(path: str, physical_tag, file_format, weld) -> Mesh:
     family, detail = pick_reader(path, file_format)
     if family == "vtu":
         from models.mesh.vtu import read_vtu_simple

@@ -60,6 +60,11 @@ def read_vtk(path: str, kind: str, physical_tag: str | None = None, weld: float 
     data = _run(path, kind)
     pts, offsets, conn, types, cell_data, poly = _arrays(data, path, what, cls)
     del data
+    if len(types) == 0:
+        raise MeshError(
+            f"cannot read {os.path.basename(path)} with VTK's {cls} ({what}): it holds no cells "
+            f"(is it truncated, or not a {what} file?)"
+        )
     tag_key = _tag_key(cell_data, physical_tag)
     tags = None if tag_key is None else _int_tags(cell_data[tag_key], len(types))
     btags = cell_data.get(BOUNDARY_TAG_NAME)
@@ -67,7 +72,7 @@ def read_vtk(path: str, kind: str, physical_tag: str | None = None, weld: float 
     try:
         norm = normalize(offsets, conn, types, tags=tags, bnd_tags=btags, poly=poly, n_points=len(pts))
     except MeshError as exc:
-        raise MeshError(f"{os.path.basename(path)}: {exc}") from None
+        raise MeshError(f"{os.path.basename(path)} ({what}): {exc}") from None
     meta = {"reader": f"VTK {cls}", "format": what}
     if norm.notes:
         meta["higher_order"] = "; ".join(norm.notes)
@@ -263,7 +268,8 @@ def _unstructured(ug):
         return pts, np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros(0, np.uint8), {}, None
     offsets = _np(cells.GetOffsetsArray())
     conn = _np(cells.GetConnectivityArray())
-    types = _np(ug.GetCellTypesArray()).astype(np.uint8, copy=False)
+    ct = ug.GetCellTypes()  # VTK >= 9.6: the type array (before: a vtkCellTypes)
+    types = _np(ct if ct.IsA("vtkDataArray") else ug.GetCellTypesArray()).astype(np.uint8, copy=False)
     poly = None
     if np.any(types == 42):
         poly = _polyhedron_faces(ug, types)
@@ -323,9 +329,9 @@ def _polydata(pd):
 def _structured(ds):
     """Image data, structured and rectilinear grids: hexahedra (3D), quads (2D) or lines from the
     point dimensions, VTK's cell numbering (i fastest)."""
-    dims = [int(d) for d in ds.GetDimensions()]
+    ext = ds.GetExtent()
+    dims = [int(ext[2 * a + 1] - ext[2 * a] + 1) for a in range(3)]
     if ds.IsA("vtkImageData"):
-        ext = ds.GetExtent()
         axes = [
             (ext[2 * a] + np.arange(dims[a])) * ds.GetSpacing()[a] for a in range(3)
         ]  # index -> distance along each axis
