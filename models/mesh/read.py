@@ -96,6 +96,17 @@ def _extension(path: str) -> str:
     return os.path.splitext(low)[1]
 
 
+_VTKTYPE = re.compile(rb"vtktype(?!u?int64\b)[a-z0-9]+")
+
+
+def _other_vtktypes(path: str) -> bool:
+    """A legacy VTK file naming a vtktype* data type other than (u)int64 (one regex pass, mmap)."""
+    import mmap
+
+    with open(path, "rb") as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+        return _VTKTYPE.search(mm) is not None
+
+
 def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
     """One reader per file, by extension and a look at its first bytes: (family, detail) with
     family "vtu" (our fast VTU path, VTK's reader for any other VTU), "vtk" (detail: a key of
@@ -122,7 +133,8 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
         return ("meshio", fmt)
     if ext == ".vtk" or (legacy and ext in _VTK_XML):
         if legacy:
-            return ("vtk", "legacy")
+            # VTK's legacy reader knows vtktypeint64/uint64 only; meshio writes e.g. vtktypeuint8 too
+            return ("meshio", "vtk") if _other_vtktypes(path) else ("vtk", "legacy")
         if xml and b"<VTKFile" in head:
             return ("vtk", "xml")
         raise MeshError(

@@ -205,6 +205,8 @@ _KINDS = (
 
 def explain(text: str, what: str) -> str:
     """VTK's error text -> what was wrong, in our words (and where, when VTK says where)."""
+    text = re.sub(r"In [^\n,]*\.(cxx|h|txx|hxx), line \d+", "", text)  # VTK's own source lines
+    text = re.sub(r"\b\S+\.(cxx|h|txx|hxx):\d+", "", text)
     low = text.lower()
     said = next(
         (msg for keys, msg in _KINDS if any(k in low for k in keys)), "it is corrupted or not a {what} file"
