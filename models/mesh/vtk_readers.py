@@ -59,6 +59,7 @@ def read_vtk(path: str, kind: str, physical_tag: str | None = None, weld: float 
     what, cls, _ = READERS[kind]
     data = _run(path, kind)
     pts, offsets, conn, types, cell_data, poly = _arrays(data, path, what, cls)
+    field = _field_data(data)
     del data
     if len(types) == 0:
         raise MeshError(
@@ -77,7 +78,7 @@ def read_vtk(path: str, kind: str, physical_tag: str | None = None, weld: float 
     if norm.notes:
         meta["higher_order"] = "; ".join(norm.notes)
         meta["higher_order_unused_points"] = norm.unused_higher
-    return mesh_from_cells(
+    mesh = mesh_from_cells(
         np.asarray(pts, dtype=np.float64),
         norm.offsets,
         norm.connectivity,
@@ -91,6 +92,21 @@ def read_vtk(path: str, kind: str, physical_tag: str | None = None, weld: float 
         weld=weld,
         meta=meta,
     )
+    from models.mesh.boundary import group_names
+
+    mesh.meta["group_names"], mesh.meta["boundary_names"] = group_names(field, mesh.dim)
+    return mesh
+
+
+def _field_data(data) -> dict:
+    """The dataset's field data {name: array} (group names as meshio's field_data: [tag, dim])."""
+    fd = data.GetFieldData()
+    out = {}
+    for i in range(fd.GetNumberOfArrays() if fd is not None else 0):
+        a = fd.GetArray(i)
+        if a is not None and a.GetName():
+            out[a.GetName()] = _np(a).reshape(-1)
+    return out
 
 
 def _tag_key(cell_data: dict, physical_tag: str | None) -> str | None:
@@ -117,8 +133,10 @@ class _Captured:
     """VTK's output window replaced by a string window while a reader runs."""
 
     def __enter__(self):
-        from vtkmodules.vtkCommonCore import vtkOutputWindow, vtkStringOutputWindow
+        from vtkmodules.vtkCommonCore import vtkLogger, vtkOutputWindow, vtkStringOutputWindow
 
+        self.verbosity = vtkLogger.GetCurrentVerbosityCutoff()
+        vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_OFF)  # VTK's logger prints errors itself
         self.prev = vtkOutputWindow.GetInstance()
         self.win = vtkStringOutputWindow()
         vtkOutputWindow.SetInstance(self.win)
@@ -131,10 +149,11 @@ class _Captured:
     _on_error.CallDataType = 8  # VTK_STRING: the message comes as call data
 
     def __exit__(self, *exc):
-        from vtkmodules.vtkCommonCore import vtkOutputWindow
+        from vtkmodules.vtkCommonCore import vtkLogger, vtkOutputWindow
 
         text = self.win.GetOutput() or ""
         vtkOutputWindow.SetInstance(self.prev)
+        vtkLogger.SetStderrVerbosity(self.verbosity)
         self.text = "\n".join([*self.errors, text])
         self.failed = bool(self.errors) or "ERROR" in text
         return False
