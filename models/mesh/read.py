@@ -62,7 +62,6 @@ _VTK_XML = (".vtu", ".pvtu", ".vtp", ".pvtp", ".vti", ".pvti", ".vts", ".pvts", 
 _EXODUS = (".exo", ".e", ".ex2", ".exii", ".g", ".gen")
 _VTK_OTHER = {".xdmf": "xdmf", ".xmf": "xdmf", ".cgns": "cgns", ".cas": "fluent", ".neu": "gambit"}
 _SURFACES = (".stl", ".obj", ".ply", ".off")
-_MESHIO_SKIP = {".vtk", ".vtu", ".xdmf", ".xmf", ".cgns", ".e", ".exo", ".ex2", ".avs", ".inp", ".msh"}
 SUPPORTED_EXTENSIONS = tuple(
     sorted(
         {".vtk", ".msh", ".inp", ".ucd", ".avs", ".cas", ".cas.h5", ".neu", ".xdmf", ".xmf", ".cgns"}
