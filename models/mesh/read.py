@@ -11,13 +11,15 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import re
 import warnings
 from itertools import chain
 
-import meshio
 import numpy as np
 
 from models.errors import MeshError, ParameterError
+from models.mesh.build import MIRROR, _bounds, mesh_from_cells, weld_points  # noqa: F401 (MIRROR, weld_points: API)
+from models.mesh.cells import BOUNDARY_TAG_NAME, TAG_NAMES, distinct_nodes
 from models.mesh.container import (
     CELL_TYPE_NAMES,
     VTK_HEXAHEDRON,
@@ -55,49 +57,132 @@ _TYPES: dict[str, tuple[int, int, int]] = {
     "pyramid13": (VTK_PYRAMID, 3, 5),
     "pyramid14": (VTK_PYRAMID, 3, 5),
 }
-# Node permutation that mirrors a cell (turns a negatively oriented cell into a positive one).
-MIRROR = {
-    VTK_TETRA: np.array([0, 2, 1, 3]),
-    VTK_HEXAHEDRON: np.array([0, 3, 2, 1, 4, 7, 6, 5]),
-    VTK_WEDGE: np.array([0, 2, 1, 3, 5, 4]),
-    VTK_PYRAMID: np.array([0, 3, 2, 1, 4]),
-}
-TAG_NAMES = (
-    "gmsh:physical",
-    "CellEntityIds",
-    "cell_tags",
-    "medit:ref",
-    "physical",
-    "material",
-    "tag",
-    "physical_group",
-    "avsucd:material",
+# extension -> the reader family that serves it (docs/formats.md); any other meshio extension: meshio
+_VTK_XML = (".vtu", ".pvtu", ".vtp", ".pvtp", ".vti", ".pvti", ".vts", ".pvts", ".vtr", ".pvtr", ".vtm")
+_EXODUS = (".exo", ".e", ".ex2", ".exii", ".g", ".gen")
+_VTK_OTHER = {".xdmf": "xdmf", ".xmf": "xdmf", ".cgns": "cgns", ".cas": "fluent", ".neu": "gambit"}
+_SURFACES = (".stl", ".obj", ".ply", ".off")
+SUPPORTED_EXTENSIONS = tuple(
+    sorted(
+        {".vtk", ".msh", ".inp", ".ucd", ".avs", ".cas", ".cas.h5", ".neu", ".xdmf", ".xmf", ".cgns"}
+        | set(_VTK_XML)
+        | set(_EXODUS)
+        | {
+            ".mesh",
+            ".meshb",
+            ".med",
+            ".nas",
+            ".bdf",
+            ".fem",
+            ".su2",
+            ".h5m",
+            ".f3grid",
+            ".dat",
+            ".tec",
+            ".ugrid",
+        }
+        | {".mdpa", ".vol", ".vol.gz", ".ele", ".node", ".xml", ".post", ".dato"}
+        | set(_SURFACES)
+    )
 )
-BOUNDARY_TAG_NAME = "boundary_tag"  # boundary groups of lower-dimensional cells, as models.vtu writes them
-SUPPORTED_EXTENSIONS = (
-    ".vtu",
-    ".vtk",
-    ".msh",
-    ".xdmf",
-    ".xmf",
-    ".mesh",
-    ".med",
-    ".inp",
-    ".ucd",
-    ".obj",
-    ".off",
-    ".ply",
-    ".stl",
-    ".h5m",
-    ".su2",
-    ".nas",
-    ".bdf",
-    ".f3grid",
-    ".avs",
-    ".dat",
-    ".tec",
-    ".ugrid",
-)
+
+
+def _extension(path: str) -> str:
+    low = os.path.basename(path).lower()
+    for double in (".cas.h5", ".vol.gz", ".post.gz", ".dato.gz"):
+        if low.endswith(double):
+            return double
+    return os.path.splitext(low)[1]
+
+
+_VTKTYPE = re.compile(rb"vtktype(?!u?int64\b)[a-z0-9]+")
+
+
+def _other_vtktypes(path: str) -> bool:
+    """A legacy VTK file naming a vtktype* data type other than (u)int64 (one regex pass, mmap)."""
+    import mmap
+
+    with open(path, "rb") as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+        return _VTKTYPE.search(mm) is not None
+
+
+def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
+    """One reader per file, by extension and a look at its first bytes: (family, detail) with
+    family "vtu" (our fast VTU path, VTK's reader for any other VTU), "vtk" (detail: a key of
+    vtk_readers.READERS), "ucd" (our AVS UCD reader) or "meshio" (detail: meshio's file type)."""
+    name = os.path.basename(path)
+    ext = _extension(path)
+    with open(path, "rb") as fh:
+        head = fh.read(4096)
+    text = head.lstrip(b"\xef\xbb\xbf \t\r\n")
+    legacy = text[:14].lower() == b"# vtk datafile"
+    xml = text[:1] == b"<"
+    fmt = (file_format or "").lower()
+    if fmt:
+        if fmt in ("ucd", "avsucd"):
+            return ("vtk", "avs-binary") if head[:1] == b"\x07" else ("ucd", "")
+        if fmt == "vtu":
+            return ("vtu", "")
+        if fmt in ("vtk", "legacy"):
+            return ("vtk", "legacy") if legacy else ("vtk", "xml")
+        if fmt == "exodus":
+            return ("vtk", "exodus")
+        if fmt in ("xdmf", "cgns", "fluent", "gambit"):
+            return ("vtk", fmt)
+        return ("meshio", fmt)
+    if ext == ".vtk" or (legacy and ext in _VTK_XML):
+        if legacy:
+            # VTK's legacy reader knows vtktypeint64/uint64 only; meshio writes e.g. vtktypeuint8 too
+            return ("meshio", "vtk") if _other_vtktypes(path) else ("vtk", "legacy")
+        if xml and b"<VTKFile" in head:
+            return ("vtk", "xml")
+        raise MeshError(
+            f"cannot read {name} as legacy VTK: its first line must be '# vtk DataFile Version x.x'"
+        )
+    if ext in _VTK_XML:
+        if not xml:
+            raise MeshError(f"cannot read {name} as VTK XML ({ext}): the file does not start with an XML tag")
+        return ("vtu", "") if ext == ".vtu" else ("vtk", ext)
+    if ext in _EXODUS:
+        if head[:3] == b"CDF" or head[:4] == b"\x89HDF":
+            return ("vtk", "exodus")
+        raise MeshError(f"cannot read {name} as Exodus II: the file is neither netCDF nor HDF5 (byte 0)")
+    if ext == ".cas.h5":
+        return ("vtk", "fluent-h5")
+    if ext in _VTK_OTHER:
+        if ext in (".xdmf", ".xmf") and not xml:
+            raise MeshError(f"cannot read {name} as XDMF: the file does not start with an XML tag")
+        if ext == ".cas" and not text.startswith(b"("):
+            raise MeshError(f"cannot read {name} as a Fluent case: a Fluent case starts with '(' (byte 0)")
+        if ext == ".neu" and b"CONTROL INFO" not in head.upper():
+            raise MeshError(
+                f"cannot read {name} as Gambit neutral: no 'CONTROL INFO' section at the start of the file"
+            )
+        return ("vtk", _VTK_OTHER[ext])
+    if ext == ".msh":
+        if text.startswith(b"$"):
+            return ("meshio", "gmsh")
+        if text.startswith(b"("):
+            return ("vtk", "fluent")
+        raise MeshError(
+            f"cannot read {name}: a .msh file is gmsh (starts with '$MeshFormat') or Fluent (starts with '('), and this one is neither"
+        )
+    if ext in (".ucd", ".avs", ".inp"):
+        from models.mesh.ucd import is_ucd
+
+        if head[:1] == b"\x07":
+            return ("vtk", "avs-binary")
+        if ext != ".inp" or is_ucd(path):
+            return ("ucd", "")
+        return ("meshio", "abaqus")
+    import meshio
+
+    types = meshio.extension_to_filetypes.get(ext)
+    if not types:
+        raise MeshError(
+            f"unknown mesh format {ext or '(no extension)'!r}; use one of: " + ", ".join(SUPPORTED_EXTENSIONS)
+        )
+    return ("meshio", types[0])
 
 
 def read_mesh(
@@ -106,7 +191,8 @@ def read_mesh(
     file_format: str | None = None,
     weld: float | None = None,
 ) -> Mesh:
-    """Read a mesh file and return a validated, positively oriented `Mesh`.
+    """Read a mesh file and return a validated, positively oriented `Mesh`: one reader per file
+    (pick_reader), which hands its arrays to build.mesh_from_cells.
 
     weld: merge points closer than this distance first (coincident duplicates that split a mesh)."""
     path = os.fspath(path)
@@ -114,23 +200,43 @@ def read_mesh(
         raise MeshError(f"mesh file not found: {path}")
     if os.path.getsize(path) == 0:
         raise MeshError(f"mesh file is empty: {os.path.basename(path)}")
-    ext = os.path.splitext(path)[1].lower()
-    if file_format in ("ucd", "avsucd") or (file_format is None and ext in (".inp", ".ucd")):
-        from models.mesh.ucd import is_ucd, read_ucd
+    try:
+        return _read(path, physical_tag, file_format, weld)
+    except MeshError as exc:
+        name = os.path.basename(path)
+        msg = str(exc)
+        raise MeshError(msg if name in msg else f"{name}: {msg}") from None
 
-        # .inp is Abaqus unless it looks like UCD
-        if ext == ".ucd" or file_format is not None or is_ucd(path):
-            return mesh_from_meshio(read_ucd(path), physical_tag=physical_tag, weld=weld, owned=True)
-    if file_format is None and ext not in meshio.extension_to_filetypes:
-        raise MeshError(
-            f"unknown mesh format {ext or '(no extension)'!r}; use one of: " + ", ".join(SUPPORTED_EXTENSIONS)
-        )
-    if (file_format or ext.lstrip(".")) == "vtu":
+
+def _read(path: str, physical_tag, file_format, weld) -> Mesh:
+    family, detail = pick_reader(path, file_format)
+    if family == "vtu":
         from models.mesh.vtu import read_vtu_simple
 
-        simple = read_vtu_simple(path)  # the common layout without meshio's XML tree; else None
+        simple = read_vtu_simple(path)  # the common layout, faster than any XML reader; else None
         if simple is not None:
             return mesh_from_meshio(simple, physical_tag=physical_tag, weld=weld, owned=True)
+        family, detail = "vtk", ".vtu"
+    if family == "ucd":
+        from models.mesh.ucd import read_ucd
+
+        return mesh_from_meshio(read_ucd(path), physical_tag=physical_tag, weld=weld, owned=True)
+    if family == "vtk":
+        from models.mesh.vtk_readers import read_vtk
+
+        return read_vtk(path, detail, physical_tag=physical_tag, weld=weld)
+    return mesh_from_meshio(_read_meshio(path, detail), physical_tag=physical_tag, weld=weld, owned=True)
+
+
+def _read_meshio(path: str, file_type: str):
+    """meshio's reader for `file_type` called directly (never meshio.read's guessing), with every
+    failure (meshio raises many kinds, even SystemExit) turned into one sentence of ours."""
+    import meshio
+    from meshio._helpers import reader_map
+
+    name = os.path.basename(path)
+    if file_type not in reader_map:
+        raise MeshError(f"unknown mesh format {file_type!r}; use one of: " + ", ".join(sorted(reader_map)))
     try:
         with (
             warnings.catch_warnings(),
@@ -138,24 +244,36 @@ def read_mesh(
             contextlib.redirect_stderr(io.StringIO()),
         ):
             warnings.simplefilter("ignore")
-            m = meshio.read(path, file_format=file_format)
+            return reader_map[file_type](path)
     except MeshError:
         raise
-    except (Exception, SystemExit) as exc:  # meshio raises many kinds (even SystemExit) on broken input
-        meshio_polyhedra_bug = "polyhedra with other cells" in str(exc) or "Incompatible cell data" in str(
-            exc
-        )
-        if meshio_polyhedra_bug and (file_format or ext).lstrip(".") == "vtu":
-            # e.g. our own 3D output with its boundary faces, or polyhedra not sorted by vertex count
-            from models.mesh.vtu import read_vtu_mixed
+    except (Exception, SystemExit) as exc:  # noqa: BLE001
+        raise MeshError(f"cannot read {name} with meshio's {file_type} reader: {_why(exc, meshio)}") from None
 
-            return mesh_from_meshio(read_vtu_mixed(path), physical_tag=physical_tag, weld=weld, owned=True)
-        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
-        if not any(ch.isalpha() for ch in msg):  # e.g. meshio's SystemExit(1) on a garbled file
-            what = ext.lstrip(".") or file_format or "mesh"
-            msg = f"not a valid {what} file ({' '.join([type(exc).__name__, msg]).strip()})"
-        raise MeshError(f"cannot read {os.path.basename(path)} as a mesh: {msg}") from None
-    return mesh_from_meshio(m, physical_tag=physical_tag, weld=weld, owned=True)
+
+_LINE = re.compile(r"\bline\s+(\d+)", re.IGNORECASE)
+
+
+def _why(exc: BaseException, meshio) -> str:
+    """What was wrong, in our words (a library's text is never shown: it names its internals)."""
+    text = str(exc)
+    where = _LINE.search(text)
+    at = f" (near line {int(where.group(1)):,})" if where else ""
+    if isinstance(exc, UnicodeDecodeError):
+        return f"it holds bytes that are not text where text was expected (byte offset {exc.start:,})"
+    if isinstance(exc, ModuleNotFoundError):
+        return f"this format needs the Python package {exc.name!r}, which is not installed"
+    if isinstance(exc, KeyError):
+        return "it holds an element type or a keyword that this reader does not know" + at
+    if isinstance(exc, ValueError) and ("literal" in text or "could not convert" in text):
+        return "a number in it is malformed" + at
+    if isinstance(exc, IndexError):
+        return "it refers to a node or an element that it does not define" + at
+    if isinstance(exc, EOFError) or "end of file" in text.lower() or "truncat" in text.lower():
+        return "the file ends before its data does (truncated?)" + at
+    if "reshape" in text or "size" in text:
+        return "a section holds fewer or more numbers than its header announces" + at
+    return "it is corrupted or not in this format" + at
 
 
 def mesh_from_meshio(
@@ -259,15 +377,6 @@ def mesh_from_blocks(
     owned: the blocks' arrays are the caller's to give away (see mesh_from_meshio)."""
     if points.ndim != 2 or len(points) == 0:
         raise MeshError("the mesh has no points")
-    if points.shape[1] == 1:
-        raise MeshError("1D meshes are not supported: the mesh has 1D coordinates")
-    if points.shape[1] == 2:
-        points = np.column_stack([points, np.zeros(len(points))])
-    bad = ~np.isfinite(points).all(axis=1)
-    if bad.any():
-        raise MeshError(
-            f"the mesh has {int(bad.sum())} points with NaN or infinite coordinates (first: point {int(np.flatnonzero(bad)[0])})"
-        )
     nonempty = [b for b in blocks if len(b[1]) > 0]
     if not nonempty:
         raise MeshError("the mesh has no cells")
@@ -314,108 +423,24 @@ def mesh_from_blocks(
     offsets, conn = _csr_from_blocks(data_list, owned=owned)
     cell_types = np.concatenate(types_list)
     tags = np.concatenate(tag_list).astype(np.int64) if tag_list and len(tag_list) == len(elem) else None
-    if tags is not None and len(tags) != len(cell_types):
-        raise MeshError("physical group data does not match the number of cells")
-
-    if conn.size and (conn.min() < 0 or conn.max() >= len(points)):
-        raise MeshError(
-            f"cells refer to missing points: point ids must be in 0..{len(points) - 1}, found {int(conn.min())}..{int(conn.max())}"
-        )
-
-    mesh = Mesh(
-        points=points,
-        offsets=offsets,
-        connectivity=conn,
-        cell_types=cell_types,
-        tags=tags,
-        tag_name=tag_name if tags is not None else None,
-    )
-    welded = None
-    if weld is not None:
-        welded = weld_points(points, weld)
-        mesh.connectivity = welded[conn]
-        mesh.meta["welded"] = int(np.count_nonzero(welded != np.arange(len(points))))
-    if dim == 2:
-        _collapse_repeated_nodes(mesh)
-    mesh.meta["lower_dim_cells"] = lower
-    if poly_faces:
-        _attach_polyhedra(mesh, poly_faces)
-        pf = mesh.poly_face_nodes
-        if pf.min() < 0 or pf.max() >= len(points):
-            raise MeshError("polyhedron faces refer to missing points")
-        if welded is not None:
-            mesh.poly_face_nodes = welded[pf]
-
+    bnd_csr = None
     if bnd:
         b_data = [
             np.asarray(d, dtype=np.int64)[:, : (_TYPES[n][2] or None)]
             for n, d, _ in bnd
             if not n.startswith("polyhedron")
         ]
-        mesh.boundary_offsets, mesh.boundary_connectivity = _csr_from_blocks(b_data)
-        mesh.boundary_types = np.concatenate([np.full(len(d), _TYPES[n][0], np.uint8) for n, d, _ in bnd])
-        if all(t is not None for _, _, t in bnd):
-            mesh.boundary_tags = np.concatenate([t for _, _, t in bnd]).astype(np.int64)
-        if mesh.boundary_connectivity.size and mesh.boundary_connectivity.max() >= len(points):
-            raise MeshError("boundary cells refer to missing points")
-        if welded is not None:
-            mesh.boundary_connectivity = welded[mesh.boundary_connectivity]
-
-    if dim == 2:
-        _project_to_plane(mesh)
-    _orient_and_check(mesh)
-    return mesh
-
-
-def weld_points(points: np.ndarray, tol: float) -> np.ndarray:
-    """(P,) the point each point is merged into: the smallest id of its group of points closer
-    than `tol` (transitively). A k-d tree finds the pairs; groups are connected components."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
-
-    if not (isinstance(tol, int | float) and np.isfinite(tol) and tol >= 0):
-        raise ParameterError(f"weld tolerance must be a finite number >= 0, got {tol!r}")
-    n = len(points)
-    pairs = (
-        cKDTree(points).query_pairs(float(tol), output_type="ndarray")
-        if tol > 0
-        else np.zeros((0, 2), np.int64)
+        b_off, b_conn = _csr_from_blocks(b_data)
+        b_types = np.concatenate([np.full(len(d), _TYPES[n][0], np.uint8) for n, d, _ in bnd])
+        b_tags = (
+            np.concatenate([t for _, _, t in bnd]).astype(np.int64)
+            if all(t is not None for _, _, t in bnd)
+            else None
+        )
+        bnd_csr = (b_off, b_conn, b_types, b_tags)
+    return mesh_from_cells(
+        points, offsets, conn, cell_types, tags, tag_name, poly_faces, bnd_csr, lower, dim, weld=weld
     )
-    if pairs.size == 0:
-        return np.arange(n)
-    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    _, comp = connected_components(g, directed=False)
-    first = np.full(comp.max() + 1, n, dtype=np.int64)
-    np.minimum.at(first, comp, np.arange(n))
-    return first[comp]
-
-
-def _collapse_repeated_nodes(mesh: Mesh) -> None:
-    """2D: drop a node equal to the next one in its cell's cycle (a quad with a repeated corner
-    is a triangle). Cells left with fewer than 3 nodes stay, and are refused as degenerate."""
-    from models.mesh.geometry import cell_index, next_in_cycle
-
-    conn = mesh.connectivity
-    sizes = np.diff(mesh.offsets)
-    if sizes.size and sizes.min() == sizes.max():  # the usual case: one cell size, a cheap test first
-        c = conn.reshape(-1, int(sizes[0]))
-        if not np.any(c == np.roll(c, -1, axis=1)):
-            return
-    rep = conn == conn[next_in_cycle(mesh.offsets)]
-    # keep at least one node per cell (a cell whose nodes are all equal keeps one)
-    cell = cell_index(mesh.offsets)
-    all_rep = np.bincount(cell, weights=rep, minlength=sizes.size) == sizes
-    rep &= ~(all_rep[cell] & (np.arange(conn.size) == mesh.offsets[:-1][cell]))
-    if not rep.any():
-        return
-    mesh.meta["collapsed"] = int(rep.sum())
-    new_sizes = sizes - np.bincount(cell, weights=rep, minlength=sizes.size).astype(np.int64)
-    mesh.connectivity = conn[~rep]
-    mesh.offsets = np.concatenate([[0], np.cumsum(new_sizes)]).astype(np.int64)
-    mesh.cell_types = np.where(
-        new_sizes == 3, VTK_TRIANGLE, np.where(new_sizes == 4, VTK_QUAD, VTK_POLYGON)
-    ).astype(np.uint8)
 
 
 def _polyhedra(data) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -425,182 +450,7 @@ def _polyhedra(data) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np
     faces = list(chain.from_iterable(data))
     fsizes = np.fromiter(map(len, faces), dtype=np.int64, count=len(faces))
     fnodes = np.concatenate(faces).astype(np.int64).reshape(-1) if faces else np.zeros(0, np.int64)
-    owner = np.repeat(np.repeat(np.arange(len(data)), nfaces), fsizes)
-    order = np.lexsort((fnodes, owner))
-    so, sn = owner[order], fnodes[order]
-    first = np.ones(sn.size, dtype=bool)
-    first[1:] = (so[1:] != so[:-1]) | (sn[1:] != sn[:-1])
-    return nfaces, fsizes, fnodes, np.bincount(so[first], minlength=len(data)).astype(np.int64), sn[first]
-
-
-def _attach_polyhedra(mesh: Mesh, poly_faces) -> None:
-    mesh.poly_cells = np.concatenate([c for c, _, _, _ in poly_faces])
-    nfaces = np.concatenate([n for _, n, _, _ in poly_faces])
-    fsizes = np.concatenate([f for _, _, f, _ in poly_faces])
-    mesh.poly_cell_faces = np.concatenate([[0], np.cumsum(nfaces)])
-    mesh.poly_face_offsets = np.concatenate([[0], np.cumsum(fsizes)])
-    mesh.poly_face_nodes = np.concatenate([f for _, _, _, f in poly_faces])
-
-
-def _project_to_plane(mesh: Mesh) -> None:
-    """A 2D mesh stored with 3D points: find its plane and keep 2D coordinates plus the frame."""
-    pts = mesh.points
-    used = np.zeros(len(pts), dtype=bool)
-    used[mesh.connectivity] = True
-    p = pts[used]
-    if np.all(p[:, 2] == p[0, 2]):
-        frame = np.array([[0.0, 0.0, p[0, 2]], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
-        mesh.points = np.ascontiguousarray(pts[:, :2])
-        mesh.frame = frame
-        return
-    origin = p.mean(axis=0)
-    _, s, vt = np.linalg.svd(p - origin, full_matrices=False)
-    extent = max(float(s[0]), 1e-300)
-    if s[2] > 1e-8 * extent:
-        raise MeshError(
-            "2D cells lie on a curved (non-planar) surface; only planar 2D meshes are supported: "
-            "project the surface onto a plane first, or give a 3D volume mesh"
-        )
-    e1, e2 = vt[0], vt[1]
-    mesh.points = np.column_stack([(pts - origin) @ e1, (pts - origin) @ e2])
-    mesh.frame = np.array([origin, e1, e2])
-
-
-def _orient_and_check(mesh: Mesh) -> None:
-    """Reject degenerate cells, orient cells by topology (see orientation.py), record what was fixed."""
-    from models.mesh.geometry import (
-        _all_tetrahedra,
-        _measures_and_centroids,
-        _tetra_measures,
-        cell_faces,
-        tetra_face_areas,
-    )
-    from models.mesh.orientation import orientation_flips
-
-    tets = _all_tetrahedra(mesh)
-    areas = None  # all tetrahedra: the face areas for the dual graph, from the same corners
-    if tets:
-        faces = None  # built once the cells are mirrored by their own sign (below)
-        vol, cen, areas = _tetra_measures(mesh, face_areas=True)
-    else:
-        faces = cell_faces(mesh) if mesh.dim == 3 else None
-        vol, cen = _measures_and_centroids(mesh, faces)
-    mesh.meta["measures"] = np.abs(vol)  # orientation does not change measure or centroid
-    mesh.meta["centroids"] = cen
-    lo, hi = _bounds(mesh.points)
-    bbox = hi - lo
-    scale = float(np.linalg.norm(bbox)) ** mesh.dim
-    if scale == 0:
-        raise MeshError("the mesh is degenerate: all points coincide")
-    degenerate = np.abs(vol) <= 1e-14 * scale
-    if degenerate.any():
-        ids = np.flatnonzero(degenerate)
-        kind = "area" if mesh.dim == 2 else "volume"
-        raise MeshError(
-            f"the mesh has {ids.size} degenerate (zero-{kind}) cells, e.g. cell ids {ids[:5].tolist()}; "
-            "remove them (or merge their coincident points with --weld) and retry"
-        )
-    pairing: dict = {}
-    if tets:
-        # Mirror every negative tetrahedron first (the usual answer), then build the faces and their
-        # pairing once, on the mirrored cells: nothing to rebuild or renumber unless the orientation
-        # flips more cells (folded ones). The same result as orienting the cells as they came: the
-        # topology fixes each piece up to one global flip, chosen by the sign of its total volume.
-        own = vol < 0
-        if own.any():
-            c = mesh.connectivity.reshape(-1, 4)
-            sel = np.flatnonzero(own)
-            c[sel, 1], c[sel, 2] = c[sel, 2], c[sel, 1]  # MIRROR[VTK_TETRA]
-        faces = cell_faces(mesh)
-        more = orientation_flips(mesh, np.abs(vol), faces, pairing)
-        flip = own ^ more
-    else:
-        more = flip = orientation_flips(mesh, vol, faces, pairing)
-    signed = np.where(flip, -vol, vol)
-    if more.any():
-        _flip_cells(mesh, more)
-    if faces is not None:
-        _keep_faces(mesh, more, faces, pairing, None if areas is None else tetra_face_areas(areas, flip))
-    folded = np.flatnonzero(signed < 0)
-    mesh.meta["signed_measures"] = signed
-    mesh.meta["orientation"] = {
-        "flipped": int(np.count_nonzero(flip)),
-        "folded": int(folded.size),
-        "folded_cells": folded[:20].tolist(),
-    }
-
-
-def _bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(min, max) per coordinate, one column at a time: the same values as points.min(axis=0) /
-    max(axis=0), a reduction numpy does slowly over rows of 2 or 3 (~30x at a million points)."""
-    cols = range(points.shape[1])
-    return np.array([points[:, d].min() for d in cols]), np.array([points[:, d].max() for d in cols])
-
-
-def _keep_faces(mesh: Mesh, flip: np.ndarray, faces, pairing: dict, areas=None) -> None:
-    """Keep the faces and the face pairing the orientation sorted, for prepare / dual_graph (one
-    sort and one gather of every face: the costliest steps of reading, not done twice).
-    They were made before the flips: a flipped tetrahedron lists the same faces in another local
-    order and direction, so its faces are rebuilt in place and face ids in the pairing renumbered
-    (the keys, hence the pairs, do not change). Other meshes keep them only when nothing was flipped.
-    areas: all tetrahedra, every face's area (face id 4 * cell + local face) after the flips."""
-    from models.mesh.geometry import FACE_TEMPLATES, _all_tetrahedra
-
-    order, pairs = pairing.get("order"), pairing.get("pairs")
-    if flip.any():
-        if not _all_tetrahedra(mesh):
-            return
-        tmpl = FACE_TEMPLATES[VTK_TETRA]
-        sel = np.flatnonzero(flip)
-        faces.nodes.reshape(-1, 12)[sel] = np.take(
-            mesh.connectivity.reshape(-1, 4)[sel], np.array(tmpl).reshape(-1), axis=1
-        )
-        m = MIRROR[VTK_TETRA]
-        # new local face k has the nodes of old local face m[tmpl[k]]: old j -> new k
-        mirrored = [frozenset(m[list(f)].tolist()) for f in tmpl]
-        new_of_old = np.array([mirrored.index(frozenset(f)) for f in tmpl])
-
-        def renumber(ids: np.ndarray) -> np.ndarray:
-            local = ids & 3  # face id = 4 * cell + local face
-            return np.where(flip[ids >> 2], ids - local + new_of_old[local], ids)
-
-        order = None if order is None else renumber(order)
-        pairs = None if pairs is None else (renumber(pairs[0]), renumber(pairs[1]))
-    mesh.meta["cell_faces"] = {
-        "connectivity": mesh.connectivity,
-        "faces": faces,
-        "order": order,
-        "same": pairing.get("same"),
-        "pairs": pairs,
-        "areas": areas,
-    }
-
-
-def _flip_cells(mesh: Mesh, flip: np.ndarray) -> None:
-    """Reverse the orientation of the cells where `flip` is True (in place, vectorized)."""
-    if mesh.dim == 2:
-        mesh.connectivity = _reverse_rows(mesh.offsets, mesh.connectivity, flip)
-        return
-    for t, perm in MIRROR.items():
-        sel = np.flatnonzero(flip & (mesh.cell_types == t))
-        if sel.size:
-            n = perm.size
-            rows = mesh.offsets[sel][:, None] + np.arange(n)[None, :]
-            mesh.connectivity[rows] = mesh.connectivity[rows[:, perm]]
-    if mesh.poly_cells is not None and flip[mesh.poly_cells].any():
-        # reverse every face of the flipped polyhedra
-        face_flip = np.repeat(flip[mesh.poly_cells], np.diff(mesh.poly_cell_faces))
-        mesh.poly_face_nodes = _reverse_rows(mesh.poly_face_offsets, mesh.poly_face_nodes, face_flip)
-
-
-def _reverse_rows(offsets: np.ndarray, values: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """CSR `values` with the rows where `mask` is True reversed (vectorized)."""
-    sizes = np.diff(offsets)
-    starts = offsets[:-1]
-    idx = np.arange(values.size)
-    row = np.repeat(np.arange(sizes.size), sizes)
-    src = np.where(mask[row], 2 * starts[row] + sizes[row] - 1 - idx, idx)
-    return values[src]
+    return (nfaces, fsizes, fnodes, *distinct_nodes(nfaces, fsizes, fnodes))
 
 
 def describe(mesh: Mesh) -> dict:

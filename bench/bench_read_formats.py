@@ -1,0 +1,119 @@
+"""Read stage against VTK's own reader, per format, in the same run (issue 23: at most 2x).
+
+Ours: models.mesh.read.read_mesh (the one reader pick_reader chooses, the conversion and the
+validation: point checks, degeneracy, orientation by topology, measures, face pairing).
+VTK: the same format's VTK reader, Update(), then vtk_to_numpy of points, offsets, connectivity and
+types (the arrays of an unstructured grid; structured datasets: their points only, the cells being
+implicit there). Each side runs --repeat times alternating in this process; the table gives the
+best of each and their ratio. Files of 10,000 cells or more, written here by VTK's writers.
+
+  python bench/bench_read_formats.py            # ~13,824-98,304 cells per file
+  python bench/bench_read_formats.py --n 30     # larger
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path[:0] = [os.path.dirname(HERE), os.path.join(os.path.dirname(HERE), "tests")]
+
+
+def vtk_side(path: str) -> float:
+    import vtk
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
+    t = time.perf_counter()
+    ext = os.path.splitext(path)[1]
+    r = {
+        ".vtk": vtk.vtkDataSetReader,
+        ".vtu": vtk.vtkXMLUnstructuredGridReader,
+        ".vts": vtk.vtkXMLStructuredGridReader,
+        ".vti": vtk.vtkXMLImageDataReader,
+        ".exo": vtk.vtkExodusIIReader,
+    }[ext]()
+    r.SetFileName(path)
+    r.Update()
+    ds = r.GetOutputDataObject(0)
+    if ds.IsA("vtkCompositeDataSet"):
+        it = ds.NewIterator()
+        it.InitTraversal()
+        ds = it.GetCurrentDataObject()
+    if ds.IsA("vtkUnstructuredGrid"):
+        c = ds.GetCells()
+        _ = (
+            vtk_to_numpy(ds.GetPoints().GetData()),
+            vtk_to_numpy(c.GetOffsetsArray()),
+            vtk_to_numpy(c.GetConnectivityArray()),
+            vtk_to_numpy(ds.GetCellTypes()),
+        )
+    elif ds.GetPoints() is not None:
+        _ = vtk_to_numpy(ds.GetPoints().GetData())
+    return time.perf_counter() - t
+
+
+def ours(path: str) -> float:
+    from models.mesh.read import read_mesh
+
+    t = time.perf_counter()
+    read_mesh(path)
+    return time.perf_counter() - t
+
+
+def corpus(tmp: str, n: int) -> list[tuple[str, str, int]]:
+    import vtk
+    import vtk_corpus as vc
+
+    out = []
+    p, h = vc.grid(n, n, n)
+    hexes = vc.unstructured(p, [(12, h)])
+    out.append(("hexahedra, legacy 4.2 binary", vc.write_legacy(os.path.join(tmp, "hex.vtk"), hexes, 42, True), len(h)))
+    kuhn = [[0, 1, 2, 6], [0, 2, 3, 6], [0, 3, 7, 6], [0, 7, 4, 6], [0, 4, 5, 6], [0, 5, 1, 6]]
+    m = max(n * 2 // 3, 12)
+    p2, h2 = vc.grid(m, m, m)
+    tets = np.concatenate([h2[:, k] for k in kuhn])
+    out.append(("tetrahedra, VTU appended", vc.write_xml(os.path.join(tmp, "tet.vtu"), vc.unstructured(p2, [(10, tets)])), len(tets)))
+    out.append(("tetrahedra, legacy 5.1 ascii", vc.write_legacy(os.path.join(tmp, "tet.vtk"), vc.unstructured(p2, [(10, tets)]), 51), len(tets)))
+    # quadratic tetrahedra: mid-edge nodes per cell (straight-sided)
+    pc = np.array([[0, 1], [1, 2], [2, 0], [0, 3], [1, 3], [2, 3]])
+    mids = p2[tets[:, pc]].mean(axis=2).reshape(-1, 3)
+    q = np.concatenate([tets, len(p2) + np.arange(len(mids)).reshape(-1, 6)], axis=1)
+    out.append(("quadratic tetrahedra (24), VTU", vc.write_xml(os.path.join(tmp, "q.vtu"), vc.unstructured(np.concatenate([p2, mids]), [(24, q)])), len(q)))
+    out.append(("structured grid, VTS", vc.write_xml(os.path.join(tmp, "sg.vts"), vc.structured_grid((n + 1,) * 3), "appended"), n**3))
+    im = vc.image((n + 1,) * 3)
+    out.append(("image data, VTI", vc.write_xml(os.path.join(tmp, "im.vti"), im, "appended"), n**3))
+    del vtk
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n", type=int, default=24, help="cells per side of the hexahedral grids")
+    ap.add_argument("--repeat", type=int, default=5)
+    args = ap.parse_args()
+    import vtk  # noqa: F401  (imported before the clocks: both sides use it loaded)
+
+    import models.mesh.read  # noqa: F401
+    import models.mesh.vtk_readers  # noqa: F401
+
+    with tempfile.TemporaryDirectory() as tmp:
+        files = corpus(tmp, args.n)
+        print(f"# read stage vs VTK reader + vtk_to_numpy, best of {args.repeat} alternating runs")
+        print("| file | cells | VTK s | ours s | ratio |")
+        print("|---|---|---|---|---|")
+        for name, path, cells in files:
+            a, b = [], []
+            for _ in range(args.repeat):
+                a.append(vtk_side(path))
+                b.append(ours(path))
+            print(f"| {name} | {cells:,} | {min(a):.4f} | {min(b):.4f} | {min(b) / min(a):.2f} |")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,332 @@
+"""Building a validated `Mesh` from the cells a reader made: points checked, points welded on
+request, polyhedra attached, boundary cells kept, 2D meshes projected onto their plane, cells
+checked for degeneracy and oriented by topology (see orientation.py). Every reader ends here.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from models.errors import MeshError, ParameterError
+from models.mesh.container import (
+    VTK_HEXAHEDRON,
+    VTK_POLYGON,
+    VTK_PYRAMID,
+    VTK_QUAD,
+    VTK_TETRA,
+    VTK_TRIANGLE,
+    VTK_WEDGE,
+    Mesh,
+)
+
+# Node permutation that mirrors a cell (turns a negatively oriented cell into a positive one).
+MIRROR = {
+    VTK_TETRA: np.array([0, 2, 1, 3]),
+    VTK_HEXAHEDRON: np.array([0, 3, 2, 1, 4, 7, 6, 5]),
+    VTK_WEDGE: np.array([0, 2, 1, 3, 5, 4]),
+    VTK_PYRAMID: np.array([0, 3, 2, 1, 4]),
+}
+
+
+def mesh_from_cells(
+    points: np.ndarray,
+    offsets: np.ndarray,
+    conn: np.ndarray,
+    cell_types: np.ndarray,
+    tags: np.ndarray | None,
+    tag_name: str | None,
+    poly_faces: list,
+    bnd,
+    lower: dict,
+    dim: int,
+    weld: float | None = None,
+    meta: dict | None = None,
+) -> Mesh:
+    """Our cells, as a reader made them (see cells.normalize), into a validated, oriented `Mesh`:
+    points (P, 2|3) float64; elements in CSR with our VTK types and tags; poly_faces
+    [(cell ids, faces per cell, face sizes, face nodes)]; bnd (offsets, conn, types, tags) or None."""
+    if points.ndim != 2 or len(points) == 0:
+        raise MeshError("the mesh has no points")
+    if points.shape[1] == 1:
+        raise MeshError("1D meshes are not supported: the mesh has 1D coordinates")
+    if points.shape[1] == 2:
+        points = np.column_stack([points, np.zeros(len(points))])
+    if not np.isfinite(points).all():
+        bad = ~np.isfinite(points).all(axis=1)
+        raise MeshError(
+            f"the mesh has {int(bad.sum())} points with NaN or infinite coordinates (first: point {int(np.flatnonzero(bad)[0])})"
+        )
+    if tags is not None and len(tags) != len(cell_types):
+        raise MeshError("physical group data does not match the number of cells")
+
+    if conn.size and (conn.min() < 0 or conn.max() >= len(points)):
+        raise MeshError(
+            f"cells refer to missing points: point ids must be in 0..{len(points) - 1}, found {int(conn.min())}..{int(conn.max())}"
+        )
+
+    mesh = Mesh(
+        points=points,
+        offsets=offsets,
+        connectivity=conn,
+        cell_types=cell_types,
+        tags=tags,
+        tag_name=tag_name if tags is not None else None,
+    )
+    if meta:
+        mesh.meta.update(meta)
+    welded = None
+    if weld is not None:
+        welded = weld_points(points, weld)
+        mesh.connectivity = welded[conn]
+        mesh.meta["welded"] = int(np.count_nonzero(welded != np.arange(len(points))))
+    if dim == 2:
+        _collapse_repeated_nodes(mesh)
+    mesh.meta["lower_dim_cells"] = lower
+    if poly_faces:
+        _attach_polyhedra(mesh, poly_faces)
+        pf = mesh.poly_face_nodes
+        if pf.min() < 0 or pf.max() >= len(points):
+            raise MeshError("polyhedron faces refer to missing points")
+        if welded is not None:
+            mesh.poly_face_nodes = welded[pf]
+
+    if bnd is not None:
+        mesh.boundary_offsets, mesh.boundary_connectivity, mesh.boundary_types, mesh.boundary_tags = bnd
+        bc = mesh.boundary_connectivity
+        if bc.size and (bc.min() < 0 or bc.max() >= len(points)):
+            raise MeshError("boundary cells refer to missing points")
+        if welded is not None:
+            mesh.boundary_connectivity = welded[bc]
+
+    if dim == 2:
+        _project_to_plane(mesh)
+    _orient_and_check(mesh)
+    return mesh
+
+
+def weld_points(points: np.ndarray, tol: float) -> np.ndarray:
+    """(P,) the point each point is merged into: the smallest id of its group of points closer
+    than `tol` (transitively). A k-d tree finds the pairs; groups are connected components."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    if not (isinstance(tol, int | float) and np.isfinite(tol) and tol >= 0):
+        raise ParameterError(f"weld tolerance must be a finite number >= 0, got {tol!r}")
+    n = len(points)
+    pairs = (
+        cKDTree(points).query_pairs(float(tol), output_type="ndarray")
+        if tol > 0
+        else np.zeros((0, 2), np.int64)
+    )
+    if pairs.size == 0:
+        return np.arange(n)
+    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, comp = connected_components(g, directed=False)
+    first = np.full(comp.max() + 1, n, dtype=np.int64)
+    np.minimum.at(first, comp, np.arange(n))
+    return first[comp]
+
+
+def _collapse_repeated_nodes(mesh: Mesh) -> None:
+    """2D: drop a node equal to the next one in its cell's cycle (a quad with a repeated corner
+    is a triangle). Cells left with fewer than 3 nodes stay, and are refused as degenerate."""
+    from models.mesh.geometry import cell_index, next_in_cycle
+
+    conn = mesh.connectivity
+    sizes = np.diff(mesh.offsets)
+    if sizes.size and sizes.min() == sizes.max():  # the usual case: one cell size, a cheap test first
+        c = conn.reshape(-1, int(sizes[0]))
+        if not np.any(c == np.roll(c, -1, axis=1)):
+            return
+    rep = conn == conn[next_in_cycle(mesh.offsets)]
+    # keep at least one node per cell (a cell whose nodes are all equal keeps one)
+    cell = cell_index(mesh.offsets)
+    all_rep = np.bincount(cell, weights=rep, minlength=sizes.size) == sizes
+    rep &= ~(all_rep[cell] & (np.arange(conn.size) == mesh.offsets[:-1][cell]))
+    if not rep.any():
+        return
+    mesh.meta["collapsed"] = int(rep.sum())
+    new_sizes = sizes - np.bincount(cell, weights=rep, minlength=sizes.size).astype(np.int64)
+    mesh.connectivity = conn[~rep]
+    mesh.offsets = np.concatenate([[0], np.cumsum(new_sizes)]).astype(np.int64)
+    mesh.cell_types = np.where(
+        new_sizes == 3, VTK_TRIANGLE, np.where(new_sizes == 4, VTK_QUAD, VTK_POLYGON)
+    ).astype(np.uint8)
+
+
+def _attach_polyhedra(mesh: Mesh, poly_faces) -> None:
+    mesh.poly_cells = np.concatenate([c for c, _, _, _ in poly_faces])
+    nfaces = np.concatenate([n for _, n, _, _ in poly_faces])
+    fsizes = np.concatenate([f for _, _, f, _ in poly_faces])
+    mesh.poly_cell_faces = np.concatenate([[0], np.cumsum(nfaces)])
+    mesh.poly_face_offsets = np.concatenate([[0], np.cumsum(fsizes)])
+    mesh.poly_face_nodes = np.concatenate([f for _, _, _, f in poly_faces])
+
+
+def _project_to_plane(mesh: Mesh) -> None:
+    """A 2D mesh stored with 3D points: find its plane and keep 2D coordinates plus the frame."""
+    pts = mesh.points
+    used = np.zeros(len(pts), dtype=bool)
+    used[mesh.connectivity] = True
+    p = pts[used]
+    if np.all(p[:, 2] == p[0, 2]):
+        frame = np.array([[0.0, 0.0, p[0, 2]], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+        mesh.points = np.ascontiguousarray(pts[:, :2])
+        mesh.frame = frame
+        return
+    origin = p.mean(axis=0)
+    _, s, vt = np.linalg.svd(p - origin, full_matrices=False)
+    extent = max(float(s[0]), 1e-300)
+    if s[2] > 1e-8 * extent:
+        from models.mesh.container import CELL_TYPE_NAMES
+
+        counts = np.bincount(mesh.cell_types)
+        held = " and ".join(
+            f"{int(counts[t]):,} {CELL_TYPE_NAMES.get(int(t), 'cell')}s" for t in np.flatnonzero(counts)
+        )
+        raise MeshError(
+            f"a curved (non-planar) surface of {held}: only planar 2D meshes and volume meshes are "
+            "agglomerated; give a volume mesh, or fill the closed surface with tetrahedra: "
+            "magnet generate stl --stl SURFACE -o volume.vtu"
+        )
+    e1, e2 = vt[0], vt[1]
+    mesh.points = np.column_stack([(pts - origin) @ e1, (pts - origin) @ e2])
+    mesh.frame = np.array([origin, e1, e2])
+
+
+def _orient_and_check(mesh: Mesh) -> None:
+    """Reject degenerate cells, orient cells by topology (see orientation.py), record what was fixed."""
+    from models.mesh.geometry import (
+        _all_tetrahedra,
+        _measures_and_centroids,
+        _tetra_measures,
+        cell_faces,
+        tetra_face_areas,
+    )
+    from models.mesh.orientation import orientation_flips
+
+    tets = _all_tetrahedra(mesh)
+    areas = None  # all tetrahedra: the face areas for the dual graph, from the same corners
+    if tets:
+        faces = None  # built once the cells are mirrored by their own sign (below)
+        vol, cen, areas = _tetra_measures(mesh, face_areas=True)
+    else:
+        faces = cell_faces(mesh) if mesh.dim == 3 else None
+        vol, cen = _measures_and_centroids(mesh, faces)
+    mesh.meta["measures"] = np.abs(vol)  # orientation does not change measure or centroid
+    mesh.meta["centroids"] = cen
+    lo, hi = _bounds(mesh.points)
+    bbox = hi - lo
+    scale = float(np.linalg.norm(bbox)) ** mesh.dim
+    if scale == 0:
+        raise MeshError("the mesh is degenerate: all points coincide")
+    degenerate = np.abs(vol) <= 1e-14 * scale
+    if degenerate.any():
+        ids = np.flatnonzero(degenerate)
+        kind = "area" if mesh.dim == 2 else "volume"
+        raise MeshError(
+            f"the mesh has {ids.size} degenerate (zero-{kind}) cells, e.g. cell ids {ids[:5].tolist()}; "
+            "remove them (or merge their coincident points with --weld) and retry"
+        )
+    pairing: dict = {}
+    if tets:
+        # Mirror every negative tetrahedron first (the usual answer), then build the faces and their
+        # pairing once, on the mirrored cells: nothing to rebuild or renumber unless the orientation
+        # flips more cells (folded ones). The same result as orienting the cells as they came: the
+        # topology fixes each piece up to one global flip, chosen by the sign of its total volume.
+        own = vol < 0
+        if own.any():
+            c = mesh.connectivity.reshape(-1, 4)
+            sel = np.flatnonzero(own)
+            c[sel, 1], c[sel, 2] = c[sel, 2], c[sel, 1]  # MIRROR[VTK_TETRA]
+        faces = cell_faces(mesh)
+        more = orientation_flips(mesh, np.abs(vol), faces, pairing)
+        flip = own ^ more
+    else:
+        more = flip = orientation_flips(mesh, vol, faces, pairing)
+    signed = np.where(flip, -vol, vol)
+    if more.any():
+        _flip_cells(mesh, more)
+    if faces is not None:
+        _keep_faces(mesh, more, faces, pairing, None if areas is None else tetra_face_areas(areas, flip))
+    folded = np.flatnonzero(signed < 0)
+    mesh.meta["signed_measures"] = signed
+    mesh.meta["orientation"] = {
+        "flipped": int(np.count_nonzero(flip)),
+        "folded": int(folded.size),
+        "folded_cells": folded[:20].tolist(),
+    }
+
+
+def _bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(min, max) per coordinate, one column at a time: the same values as points.min(axis=0) /
+    max(axis=0), a reduction numpy does slowly over rows of 2 or 3 (~30x at a million points)."""
+    cols = range(points.shape[1])
+    return np.array([points[:, d].min() for d in cols]), np.array([points[:, d].max() for d in cols])
+
+
+def _keep_faces(mesh: Mesh, flip: np.ndarray, faces, pairing: dict, areas=None) -> None:
+    """Keep the faces and the face pairing the orientation sorted, for prepare / dual_graph (one
+    sort and one gather of every face: the costliest steps of reading, not done twice).
+    They were made before the flips: a flipped tetrahedron lists the same faces in another local
+    order and direction, so its faces are rebuilt in place and face ids in the pairing renumbered
+    (the keys, hence the pairs, do not change). Other meshes keep them only when nothing was flipped.
+    areas: all tetrahedra, every face's area (face id 4 * cell + local face) after the flips."""
+    from models.mesh.geometry import FACE_TEMPLATES, _all_tetrahedra
+
+    order, pairs = pairing.get("order"), pairing.get("pairs")
+    if flip.any():
+        if not _all_tetrahedra(mesh):
+            return
+        tmpl = FACE_TEMPLATES[VTK_TETRA]
+        sel = np.flatnonzero(flip)
+        faces.nodes.reshape(-1, 12)[sel] = np.take(
+            mesh.connectivity.reshape(-1, 4)[sel], np.array(tmpl).reshape(-1), axis=1
+        )
+        m = MIRROR[VTK_TETRA]
+        # new local face k has the nodes of old local face m[tmpl[k]]: old j -> new k
+        mirrored = [frozenset(m[list(f)].tolist()) for f in tmpl]
+        new_of_old = np.array([mirrored.index(frozenset(f)) for f in tmpl])
+
+        def renumber(ids: np.ndarray) -> np.ndarray:
+            local = ids & 3  # face id = 4 * cell + local face
+            return np.where(flip[ids >> 2], ids - local + new_of_old[local], ids)
+
+        order = None if order is None else renumber(order)
+        pairs = None if pairs is None else (renumber(pairs[0]), renumber(pairs[1]))
+    mesh.meta["cell_faces"] = {
+        "connectivity": mesh.connectivity,
+        "faces": faces,
+        "order": order,
+        "same": pairing.get("same"),
+        "pairs": pairs,
+        "areas": areas,
+    }
+
+
+def _flip_cells(mesh: Mesh, flip: np.ndarray) -> None:
+    """Reverse the orientation of the cells where `flip` is True (in place, vectorized)."""
+    if mesh.dim == 2:
+        mesh.connectivity = _reverse_rows(mesh.offsets, mesh.connectivity, flip)
+        return
+    for t, perm in MIRROR.items():
+        sel = np.flatnonzero(flip & (mesh.cell_types == t))
+        if sel.size:
+            n = perm.size
+            rows = mesh.offsets[sel][:, None] + np.arange(n)[None, :]
+            mesh.connectivity[rows] = mesh.connectivity[rows[:, perm]]
+    if mesh.poly_cells is not None and flip[mesh.poly_cells].any():
+        # reverse every face of the flipped polyhedra
+        face_flip = np.repeat(flip[mesh.poly_cells], np.diff(mesh.poly_cell_faces))
+        mesh.poly_face_nodes = _reverse_rows(mesh.poly_face_offsets, mesh.poly_face_nodes, face_flip)
+
+
+def _reverse_rows(offsets: np.ndarray, values: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """CSR `values` with the rows where `mask` is True reversed (vectorized)."""
+    sizes = np.diff(offsets)
+    starts = offsets[:-1]
+    idx = np.arange(values.size)
+    row = np.repeat(np.arange(sizes.size), sizes)
+    src = np.where(mask[row], 2 * starts[row] + sizes[row] - 1 - idx, idx)
+    return values[src]

@@ -1,0 +1,507 @@
+"""The formats VTK is the reference for, read by VTK's own readers (the `vtk` wheel, imported here
+only, lazily: a file that needs no VTK never loads it).
+
+Legacy VTK (every version and dataset), VTK XML (.vtu .vtp .vti .vts .vtr and their parallel
+forms), Exodus II, XDMF, CGNS, Fluent (.cas, .msh, .cas.h5), Gambit (.neu), binary AVS UCD.
+VTK's arrays become ours with vtk_to_numpy (offsets, connectivity, types: no loop over cells);
+structured datasets (image data, structured and rectilinear grids) get their quads / hexahedra
+from their dimensions. Composite outputs (element blocks, zones) are joined: blocks that share the
+file's point set (Exodus with SqueezePoints off, Fluent zones) keep it, others have their
+coincident points merged, as vtkAppendFilter's MergePoints does.
+
+VTK's readers report errors on the output window, not as exceptions: they are captured and turned
+into one sentence of ours (file, reader, what was wrong and where, when VTK says where).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+
+import numpy as np
+
+from models.errors import MeshError, ParameterError
+from models.mesh.cells import BOUNDARY_TAG_NAME, TAG_NAMES, normalize, ranges
+
+# extension -> (what the file is, VTK reader class, its module)
+_XML = "vtkmodules.vtkIOXML"
+READERS: dict[str, tuple[str, str, str]] = {
+    "legacy": ("legacy VTK", "vtkDataSetReader", "vtkmodules.vtkIOLegacy"),
+    ".vtu": ("VTK XML unstructured grid", "vtkXMLUnstructuredGridReader", _XML),
+    ".pvtu": ("VTK XML parallel unstructured grid", "vtkXMLPUnstructuredGridReader", _XML),
+    ".vtp": ("VTK XML polydata", "vtkXMLPolyDataReader", _XML),
+    ".pvtp": ("VTK XML parallel polydata", "vtkXMLPPolyDataReader", _XML),
+    ".vti": ("VTK XML image data", "vtkXMLImageDataReader", _XML),
+    ".pvti": ("VTK XML parallel image data", "vtkXMLPImageDataReader", _XML),
+    ".vts": ("VTK XML structured grid", "vtkXMLStructuredGridReader", _XML),
+    ".pvts": ("VTK XML parallel structured grid", "vtkXMLPStructuredGridReader", _XML),
+    ".vtr": ("VTK XML rectilinear grid", "vtkXMLRectilinearGridReader", _XML),
+    ".pvtr": ("VTK XML parallel rectilinear grid", "vtkXMLPRectilinearGridReader", _XML),
+    ".vtm": ("VTK XML multiblock", "vtkXMLMultiBlockDataReader", _XML),
+    "xml": ("VTK XML", "vtkXMLGenericDataObjectReader", _XML),
+    "exodus": ("Exodus II", "vtkExodusIIReader", "vtkmodules.vtkIOExodus"),
+    "xdmf": ("XDMF", "vtkXdmfReader", "vtkmodules.vtkIOXdmf2"),
+    "cgns": ("CGNS", "vtkCGNSReader", "vtkmodules.vtkIOCGNSReader"),
+    "fluent": ("Fluent case", "vtkFLUENTReader", "vtkmodules.vtkIOGeometry"),
+    "fluent-h5": ("Fluent HDF5 case", "vtkFLUENTCFFReader", "vtkmodules.vtkIOFLUENTCFF"),
+    "gambit": ("Gambit neutral", "vtkGAMBITReader", "vtkmodules.vtkIOGeometry"),
+    "avs-binary": ("binary AVS UCD", "vtkAVSucdReader", "vtkmodules.vtkIOGeometry"),
+    "avs": ("AVS UCD", "vtkAVSucdReader", "vtkmodules.vtkIOGeometry"),
+}
+EXODUS_EXTENSIONS = (".exo", ".e", ".ex2", ".exii", ".g", ".gen")
+HIDDEN_CELL, HIDDEN_POINT = 32, 2  # vtkDataSetAttributes ghost bits
+
+
+def read_vtk(path: str, kind: str, physical_tag: str | None = None, weld: float | None = None):
+    """Read `path` with VTK's reader for `kind` (a key of READERS) and build our `Mesh`."""
+    from models.mesh.build import mesh_from_cells
+
+    what, cls, _ = READERS[kind]
+    data = _run(path, kind)
+    pts, offsets, conn, types, cell_data, poly = _arrays(data, path, what, cls)
+    field = _field_data(data)
+    del data
+    if len(types) == 0:
+        raise MeshError(
+            f"cannot read {os.path.basename(path)} with VTK's {cls} ({what}): it holds no cells "
+            f"(is it truncated, or not a {what} file?)"
+        )
+    tag_key = _tag_key(cell_data, physical_tag)
+    tags = None if tag_key is None else _int_tags(cell_data[tag_key], len(types))
+    btags = cell_data.get(BOUNDARY_TAG_NAME)
+    btags = None if btags is None else _int_tags(btags, len(types))
+    try:
+        norm = normalize(offsets, conn, types, tags=tags, bnd_tags=btags, poly=poly, n_points=len(pts))
+    except MeshError as exc:
+        raise MeshError(f"{os.path.basename(path)} ({what}): {exc}") from None
+    meta = {"reader": f"VTK {cls}", "format": what}
+    if norm.notes:
+        meta["higher_order"] = "; ".join(norm.notes)
+        meta["higher_order_unused_points"] = norm.unused_higher
+    mesh = mesh_from_cells(
+        np.asarray(pts, dtype=np.float64),
+        norm.offsets,
+        norm.connectivity,
+        norm.types,
+        None if norm.tags is None else norm.tags.astype(np.int64),
+        tag_key,
+        norm.poly_faces,
+        norm.bnd,
+        norm.lower,
+        norm.dim,
+        weld=weld,
+        meta=meta,
+    )
+    from models.mesh.boundary import group_names
+
+    mesh.meta["group_names"], mesh.meta["boundary_names"] = group_names(field, mesh.dim)
+    return mesh
+
+
+def _field_data(data) -> dict:
+    """The dataset's field data {name: array} (group names as meshio's field_data: [tag, dim])."""
+    fd = data.GetFieldData()
+    out = {}
+    for i in range(fd.GetNumberOfArrays() if fd is not None else 0):
+        a = fd.GetArray(i)
+        if a is not None and a.GetName():
+            out[a.GetName()] = _np(a).reshape(-1)
+    return out
+
+
+def _tag_key(cell_data: dict, physical_tag: str | None) -> str | None:
+    if physical_tag is not None:
+        if physical_tag not in cell_data:
+            raise ParameterError(
+                f"physical tag {physical_tag!r} not found in the mesh cell data; available: {sorted(cell_data) or 'none'}"
+            )
+        return physical_tag
+    return next((k for k in TAG_NAMES if k in cell_data), None)
+
+
+def _int_tags(a: np.ndarray, n: int) -> np.ndarray | None:
+    a = np.asarray(a)
+    if a.ndim != 1 or len(a) != n or not np.issubdtype(a.dtype, np.number):
+        return None
+    return a.astype(np.int64)
+
+
+# ---- running a reader, its errors captured ------------------------------------------------------
+
+
+class _Captured:
+    """VTK's output window replaced by a string window while a reader runs."""
+
+    def __enter__(self):
+        from vtkmodules.vtkCommonCore import vtkLogger, vtkOutputWindow, vtkStringOutputWindow
+
+        self.verbosity = vtkLogger.GetCurrentVerbosityCutoff()
+        vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_OFF)  # VTK's logger prints errors itself
+        self.prev = vtkOutputWindow.GetInstance()
+        self.win = vtkStringOutputWindow()
+        vtkOutputWindow.SetInstance(self.win)
+        self.errors: list[str] = []
+        return self
+
+    def _on_error(self, _obj, _event, data=None):
+        self.errors.append(str(data or "error"))
+
+    _on_error.CallDataType = 8  # VTK_STRING: the message comes as call data
+
+    def __exit__(self, *exc):
+        from vtkmodules.vtkCommonCore import vtkLogger, vtkOutputWindow
+
+        text = self.win.GetOutput() or ""
+        vtkOutputWindow.SetInstance(self.prev)
+        vtkLogger.SetStderrVerbosity(self.verbosity)
+        self.text = "\n".join([*self.errors, text])
+        self.failed = bool(self.errors) or "ERROR" in text
+        return False
+
+
+def _run(path: str, kind: str):
+    import importlib
+
+    what, cls, module = READERS[kind]
+    reader = getattr(importlib.import_module(module), cls)()
+    name = os.path.basename(path)
+    with _Captured() as cap:
+        reader.AddObserver("ErrorEvent", cap._on_error)
+        reader.SetFileName(path)
+        if kind == "exodus":
+            reader.UpdateInformation()
+            reader.SetAllArrayStatus(reader.ELEM_BLOCK, 1)
+            reader.SetSqueezePoints(False)  # every block keeps the file's node numbering
+        elif kind == "cgns":
+            reader.UpdateInformation()
+            reader.EnableAllBases()
+        elif kind == "avs-binary":
+            reader.SetBinaryFile(1)
+        elif kind == "legacy":
+            reader.ReadAllScalarsOn()
+            reader.ReadAllFieldsOn()
+        reader.Update()
+        out = reader.GetOutputDataObject(0)
+    if cap.failed:
+        raise MeshError(f"cannot read {name} with VTK's {cls} ({what}): {explain(cap.text, what)}")
+    if out is None:
+        raise MeshError(f"cannot read {name} with VTK's {cls} ({what}): the reader produced no data")
+    return out
+
+
+_WHERE = re.compile(r"\b(line|column|byte index|offset|position|piece)\s*[:=]?\s*(\d+)", re.IGNORECASE)
+_KINDS = (
+    (("xml", "parsing"), "its XML is not well-formed"),
+    (
+        ("unrecognized file type", "unsupported data type", "not a vtk", "unrecognized keyword"),
+        "its header or a section keyword is not one VTK knows",
+    ),
+    (
+        ("premature", "end of file", "eof", "too short", "truncat", "unexpected end"),
+        "the file ends before its data does (truncated?)",
+    ),
+    (("decompress", "compress", "zlib", "lz4", "lzma"), "its compressed data cannot be decompressed"),
+    (("appended",), "its appended data section is broken"),
+    (("base64",), "its base64 data is broken"),
+    (("points",), "its point coordinates cannot be read"),
+    (("cell types", "cell_types", "types"), "its cell types cannot be read"),
+    (("offsets", "connectivity", "cells", "cell"), "its cells cannot be read"),
+    (
+        (
+            "unable to open",
+            "cannot open",
+            "could not open",
+            "failed to open",
+            "can't open",
+            "not a valid",
+            "open file",
+        ),
+        "it cannot be opened as a {what} file",
+    ),
+    (("netcdf", "hdf5", "h5"), "its binary container (netCDF / HDF5) is corrupted"),
+)
+
+
+def explain(text: str, what: str) -> str:
+    """VTK's error text -> what was wrong, in our words (and where, when VTK says where)."""
+    text = re.sub(r"In [^\n,]*\.(cxx|h|txx|hxx), line \d+", "", text)  # VTK's own source lines
+    text = re.sub(r"\b\S+\.(cxx|h|txx|hxx):\d+", "", text)
+    low = text.lower()
+    said = next(
+        (msg for keys, msg in _KINDS if any(k in low for k in keys)), "it is corrupted or not a {what} file"
+    )
+    where = []
+    seen = set()
+    for m in _WHERE.finditer(text):
+        key = m.group(1).lower()
+        if key not in seen and key != "piece":
+            seen.add(key)
+            where.append(f"{key} {int(m.group(2)):,}")
+    said = said.format(what=what)
+    return f"{said} (at {', '.join(where[:3])})" if where else said
+
+
+# ---- VTK data -> arrays -------------------------------------------------------------------------
+
+
+def _np(a) -> np.ndarray:
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
+    return vtk_to_numpy(a)
+
+
+def _cell_data(ds) -> dict:
+    cd = ds.GetCellData()
+    out = {}
+    for i in range(cd.GetNumberOfArrays()):
+        a = cd.GetArray(i)
+        if a is not None and a.GetName() and a.GetNumberOfComponents() == 1:
+            out[a.GetName()] = _np(a)
+    return out
+
+
+def _arrays(data, path: str, what: str, cls: str):
+    """(points, offsets, connectivity, types, cell data {name: array}, polyhedron faces or None)."""
+    if data.IsA("vtkCompositeDataSet"):
+        return _composite(data, path, what, cls)
+    return _dataset(data, path, what, cls)
+
+
+def _dataset(ds, path, what, cls):
+    if ds.IsA("vtkUnstructuredGrid"):
+        out = _unstructured(ds)
+    elif ds.IsA("vtkPolyData"):
+        out = _polydata(ds)
+    elif ds.IsA("vtkImageData") or ds.IsA("vtkStructuredGrid") or ds.IsA("vtkRectilinearGrid"):
+        out = _structured(ds)
+    else:
+        raise MeshError(
+            f"cannot read {os.path.basename(path)} with VTK's {cls} ({what}): it holds a {ds.GetClassName()[3:]}, not a mesh"
+        )
+    return _hide_blanked(ds, *out)
+
+
+def _unstructured(ug):
+    n = ug.GetNumberOfPoints()
+    pts = _np(ug.GetPoints().GetData()) if n else np.zeros((0, 3))
+    cells = ug.GetCells()
+    if ug.GetNumberOfCells() == 0:
+        return pts, np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros(0, np.uint8), {}, None
+    offsets = _np(cells.GetOffsetsArray())
+    conn = _np(cells.GetConnectivityArray())
+    ct = ug.GetCellTypes()  # VTK >= 9.6: the type array (before: a vtkCellTypes)
+    types = _np(ct if ct.IsA("vtkDataArray") else ug.GetCellTypesArray()).astype(np.uint8, copy=False)
+    poly = None
+    if np.any(types == 42):
+        poly = _polyhedron_faces(ug, types)
+    return pts, offsets, conn, types, _cell_data(ug), poly
+
+
+def _polyhedron_faces(ug, types):
+    """The polyhedra's faces, per polyhedron in cell order: (face offsets per polyhedron, face
+    offsets, face nodes)."""
+    faces, locs = ug.GetPolyhedronFaces(), ug.GetPolyhedronFaceLocations()
+    if faces is None or locs is None:
+        return None
+    f_off, f_conn = _np(faces.GetOffsetsArray()).astype(np.int64), _np(faces.GetConnectivityArray())
+    l_off, l_conn = _np(locs.GetOffsetsArray()).astype(np.int64), _np(locs.GetConnectivityArray())
+    q = np.flatnonzero(types == 42)
+    count = l_off[q + 1] - l_off[q]
+    fids = np.asarray(l_conn[ranges(l_off[q], count)], dtype=np.int64)
+    if fids.size and (fids.min() < 0 or fids.max() >= f_off.size - 1):
+        raise MeshError("a polyhedron refers to a face that the file does not have")
+    fsz = f_off[fids + 1] - f_off[fids]
+    nodes = np.asarray(f_conn[ranges(f_off[fids], fsz)], dtype=np.int64)
+    cell_face_off = np.zeros(q.size + 1, np.int64)
+    np.cumsum(count, out=cell_face_off[1:])
+    face_off = np.zeros(fsz.size + 1, np.int64)
+    np.cumsum(fsz, out=face_off[1:])
+    return cell_face_off, face_off, nodes
+
+
+def _polydata(pd):
+    """Verts, lines, polygons, strips (VTK's cell order for polydata) in one CSR."""
+    n = pd.GetNumberOfPoints()
+    pts = _np(pd.GetPoints().GetData()) if n else np.zeros((0, 3))
+    offs, conns, types = [], [], []
+    base = 0
+    for arr, one, many in (
+        (pd.GetVerts(), 1, 2),
+        (pd.GetLines(), 3, 4),
+        (pd.GetPolys(), 7, 7),
+        (pd.GetStrips(), 6, 6),
+    ):
+        if arr is None or arr.GetNumberOfCells() == 0:
+            continue
+        o = _np(arr.GetOffsetsArray()).astype(np.int64)
+        c = _np(arr.GetConnectivityArray())
+        sizes = np.diff(o)
+        offs.append(o[1:] + base)
+        conns.append(c)
+        types.append(np.where(sizes == (1 if one == 1 else 2), one, many).astype(np.uint8))
+        base += int(o[-1])
+    if not types:
+        return pts, np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros(0, np.uint8), {}, None
+    offsets = np.concatenate([np.zeros(1, np.int64), *offs])
+    conn = conns[0] if len(conns) == 1 else np.concatenate([np.asarray(c, np.int64) for c in conns])
+    return pts, offsets, conn, np.concatenate(types), _cell_data(pd), None
+
+
+def _structured(ds):
+    """Image data, structured and rectilinear grids: hexahedra (3D), quads (2D) or lines from the
+    point dimensions, VTK's cell numbering (i fastest)."""
+    ext = ds.GetExtent()
+    dims = [int(ext[2 * a + 1] - ext[2 * a] + 1) for a in range(3)]
+    if ds.IsA("vtkImageData"):
+        axes = [
+            (ext[2 * a] + np.arange(dims[a])) * ds.GetSpacing()[a] for a in range(3)
+        ]  # index -> distance along each axis
+        grid = _grid_points(axes)
+        m = ds.GetDirectionMatrix()
+        d = np.array([[m.GetElement(i, j) for j in range(3)] for i in range(3)])
+        pts = grid if np.array_equal(d, np.eye(3)) else grid @ d.T
+        pts = pts + np.asarray(ds.GetOrigin())
+    elif ds.IsA("vtkRectilinearGrid"):
+        axes = [
+            np.asarray(_np(c), np.float64) if c is not None else np.zeros(1)
+            for c in (ds.GetXCoordinates(), ds.GetYCoordinates(), ds.GetZCoordinates())
+        ]
+        pts = _grid_points(axes)
+    else:
+        pts = _np(ds.GetPoints().GetData()) if ds.GetNumberOfPoints() else np.zeros((0, 3))
+    live = [a for a in range(3) if dims[a] > 1]
+    stride = [1, dims[0], dims[0] * dims[1]]
+    cdims = [dims[a] - 1 for a in live]
+    ncells = int(np.prod(cdims)) if live else 0
+    if not live:
+        return pts, np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros(0, np.uint8), {}, None
+    idx = _lower_corners(live, cdims, stride)
+    if len(live) == 3:
+        sx, sy, sz = stride
+        corner = np.array([0, sx, sx + sy, sy, sz, sz + sx, sz + sx + sy, sz + sy])
+        vtk = 12
+    elif len(live) == 2:
+        sa, sb = stride[live[0]], stride[live[1]]
+        corner = np.array([0, sa, sa + sb, sb])
+        vtk = 9
+    else:
+        corner = np.array([0, stride[live[0]]])
+        vtk = 3
+    conn = (idx[:, None] + corner[None, :]).reshape(-1)
+    w = corner.size
+    offsets = np.arange(0, ncells * w + 1, w, dtype=np.int64)
+    return pts, offsets, conn, np.full(ncells, vtk, np.uint8), _cell_data(ds), None
+
+
+def _lower_corners(live, cdims, stride) -> np.ndarray:
+    """Point id of each cell's lower corner, cells numbered with the first live axis fastest."""
+    parts = [np.arange(n, dtype=np.int64) * stride[a] for a, n in zip(live, cdims, strict=True)]
+    total = parts[-1]
+    for p in parts[-2::-1]:  # outer axes first: idx[k, j, i] = k*sz + j*sy + i
+        total = (total[:, None] + p[None, :]).reshape(-1)
+    return total
+
+
+def _grid_points(axes) -> np.ndarray:
+    """Points of a tensor grid, x fastest."""
+    x, y, z = axes
+    pts = np.empty((z.size, y.size, x.size, 3))
+    pts[..., 0] = x[None, None, :]
+    pts[..., 1] = y[None, :, None]
+    pts[..., 2] = z[:, None, None]
+    return pts.reshape(-1, 3)
+
+
+def _hide_blanked(ds, pts, offsets, conn, types, cell_data, poly):
+    """Drop blanked (hidden) cells, and cells on hidden points, as VTK does when it draws them."""
+    ghost = ds.GetCellData().GetArray("vtkGhostType")
+    pghost = ds.GetPointData().GetArray("vtkGhostType")
+    hide = None
+    if ghost is not None:
+        hide = (_np(ghost) & HIDDEN_CELL) != 0
+    if pghost is not None and types.size:
+        hp = (_np(pghost) & HIDDEN_POINT) != 0
+        if hp.any():
+            cell = np.repeat(np.arange(types.size), np.diff(offsets))
+            on = np.bincount(cell, weights=hp[np.asarray(conn, np.int64)], minlength=types.size) > 0
+            hide = on if hide is None else hide | on
+    cell_data.pop("vtkGhostType", None)
+    if hide is None or not hide.any() or poly is not None:
+        return pts, offsets, conn, types, cell_data, poly
+    keep = np.flatnonzero(~hide)
+    sizes = np.diff(offsets)[keep]
+    conn = np.asarray(conn)[ranges(offsets[keep], sizes)]
+    offsets = np.zeros(keep.size + 1, np.int64)
+    np.cumsum(sizes, out=offsets[1:])
+    cell_data = {k: v[keep] for k, v in cell_data.items() if len(v) == hide.size}
+    return pts, offsets, conn, types[keep], cell_data, poly
+
+
+def _leaves(data) -> list:
+    it = data.NewIterator()
+    it.SkipEmptyNodesOn()
+    it.InitTraversal()
+    out = []
+    while not it.IsDoneWithTraversal():
+        ds = it.GetCurrentDataObject()
+        if ds is not None and ds.IsA("vtkDataSet") and ds.GetNumberOfCells() > 0:
+            out.append(ds)
+        it.GoToNextItem()
+    return out
+
+
+def _composite(data, path, what, cls):
+    """Element blocks / zones joined in one cell set; a `block` tag (1, 2, ...) where the blocks
+    carry no tag of their own."""
+    leaves = _leaves(data)
+    if not leaves:
+        raise MeshError(
+            f"cannot read {os.path.basename(path)} with VTK's {cls} ({what}): the file has no cells"
+        )
+    parts = [_dataset(ds, path, what, cls) for ds in leaves]
+    if len(parts) == 1:
+        pts, off, conn, types, cd, poly = parts[0]
+        if not any(k in cd for k in TAG_NAMES):
+            cd = {**cd, "block": np.ones(len(types), np.int64)}
+        return pts, off, conn, types, cd, poly
+    shared = all(len(p[0]) == len(parts[0][0]) for p in parts) and all(
+        p[0] is parts[0][0] or np.array_equal(p[0], parts[0][0]) for p in parts[1:]
+    )
+    offs, conns, types, polys = [np.zeros(1, np.int64)], [], [], []
+    base_c = base_p = 0
+    for pts, off, conn, t, _, poly in parts:
+        offs.append(np.asarray(off[1:], np.int64) + base_c)
+        conns.append(np.asarray(conn, np.int64) + (0 if shared else base_p))
+        types.append(t)
+        polys.append(poly)
+        base_c += int(off[-1])
+        base_p += len(pts)
+    keys = set(parts[0][4]).intersection(*(p[4] for p in parts[1:]))
+    cd = {k: np.concatenate([p[4][k] for p in parts]) for k in keys}
+    cd["block"] = np.repeat(np.arange(1, len(parts) + 1), [len(p[3]) for p in parts])
+    poly = _join_polys(polys, [p[0] for p in parts], shared) if any(p is not None for p in polys) else None
+    conn = np.concatenate(conns)
+    if shared:
+        pts = parts[0][0]
+    else:
+        pts = np.concatenate([np.asarray(p[0], np.float64) for p in parts])
+        pts, inverse = np.unique(pts, axis=0, return_inverse=True)  # coincident points merged
+        inverse = inverse.reshape(-1)
+        conn = inverse[conn]
+        if poly is not None:
+            poly = (poly[0], poly[1], inverse[poly[2]])
+    return pts, np.concatenate(offs), conn, np.concatenate(types), cd, poly
+
+
+def _join_polys(polys, pts_list, shared):
+    cf, fo, fn = [np.zeros(1, np.int64)], [np.zeros(1, np.int64)], []
+    base_f = base_n = base_p = 0
+    for poly, pts in zip(polys, pts_list, strict=True):
+        if poly is not None:
+            cf.append(poly[0][1:] + base_f)
+            fo.append(poly[1][1:] + base_n)
+            fn.append(poly[2] + (0 if shared else base_p))
+            base_f += int(poly[0][-1])
+            base_n += int(poly[1][-1])
+        base_p += len(pts)
+    return np.concatenate(cf), np.concatenate(fo), np.concatenate(fn)
