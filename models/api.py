@@ -135,6 +135,7 @@ def _write_hierarchy_zip(
                 ratio=o["ratio"],
                 coarsest=o["coarsest"] or 10,
                 seed=o["seed"],
+                finest=res.agglomeration.labels,  # the job's agglomeration is the finest level
             )
             write_hierarchy(
                 tmp,

@@ -38,11 +38,19 @@ def extension_of(filename: str | None) -> str:
     if filename and any(ord(ch) < 32 or ord(ch) == 127 for ch in filename):
         raise UploadRejected(422, "filename: control characters (e.g. NUL) are not allowed")
     ext = Path(filename or "").suffix.lower().lstrip(".")
+    allowed = ", ".join("." + e for e in ALLOWED_EXTENSIONS)
+    if not filename:
+        raise UploadRejected(
+            422,
+            "filename: missing; send the mesh's file name (query parameter filename=brain.vtu with a raw "
+            "body, or the file name of the multipart field 'file'): its extension tells the format, one "
+            f"of {allowed}",
+        )
     if ext not in ALLOWED_EXTENSIONS:
         raise UploadRejected(
             422,
-            f"unsupported or missing mesh file extension in filename {filename!r}; "
-            f"use one of: {', '.join('.' + e for e in ALLOWED_EXTENSIONS)}",
+            f"filename: {filename!r} has {'no' if not ext else 'an unsupported'} mesh file extension; "
+            f"use one of: {allowed}",
         )
     return ext
 

@@ -80,3 +80,21 @@ def test_a_count_that_cannot_be_met_is_refused_with_the_reason():
     _check(agglomerate(points=pts, cells=cells, k=2), 2)
     with pytest.raises(ParameterError, match="larger than the number of cells"):
         agglomerate(points=pts, cells=cells, k=33)
+
+
+def test_job_hierarchy_with_k_has_the_agglomeration_as_its_finest_level(tmp_path):
+    import json
+    import zipfile
+
+    from models import api
+
+    s = api.run_job(
+        BRAIN,
+        tmp_path,
+        {"model": "metis", "k": 64, "options": {"hierarchy": True, "ratio": 4, "coarsest": 4}},
+    )
+    index = json.loads(zipfile.ZipFile(tmp_path / "hierarchy.zip").read("hierarchy.json"))
+    sizes = [lv["elements"] for lv in index["levels"]]
+    assert s["elements"] == 64 and sizes == [4, 16, 64] and index["nested"]
+    finest = json.loads(zipfile.ZipFile(tmp_path / "hierarchy.zip").read(index["levels"][-1]["labels"]))
+    assert finest == json.loads((tmp_path / "labels.json").read_text())
