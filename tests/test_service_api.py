@@ -435,3 +435,25 @@ def test_every_422_has_one_shape(app, square):
     body = r.json()
     assert r.status_code == 422 and set(body) == {"detail", "field", "errors"} and body["field"] == "filename"
     assert "None" not in body["detail"] and "filename=" in body["detail"] and ".vtu" in body["detail"]
+
+
+def test_worker_says_in_plain_words_what_it_takes(tmp_path, monkeypatch, capsys):
+    """No Celery banner (`cpu exchange=cpu(direct) key=cpu`): one line of ours instead."""
+    import worker.app
+    from worker.cli import main as worker_main
+
+    seen = {}
+
+    class FakeApp:
+        def worker_main(self, argv):
+            seen["argv"] = argv
+
+    monkeypatch.setattr(worker.app, "make_worker_app", lambda settings: FakeApp())
+    monkeypatch.setenv("MAGNET_DATA_DIR", str(tmp_path))
+    assert worker_main(["worker", "-Q", "gpu,cpu", "-n", "w1"]) == 0
+    out = capsys.readouterr().out
+    assert out.strip() == (
+        "magnet worker w1: takes gpu: GPU jobs (the neural models, sage-*, rl-*), cpu: CPU jobs (every model); "
+        "1 job(s) at a time"
+    )
+    assert seen["argv"][0] == "--quiet" and "worker" in seen["argv"]
