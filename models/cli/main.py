@@ -459,6 +459,8 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
             getattr(mod, adder)(p)
             p.set_defaults(func=getattr(mod, runner))
 
+    if argv and argv[0] in sub.choices:  # a library command: no need to look for the server side's
+        return parser  # (importlib.metadata's scan of the installed packages costs ~60 ms of start-up)
     from importlib.metadata import entry_points
 
     for ep in entry_points(group="magnet.commands"):
