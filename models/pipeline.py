@@ -133,6 +133,7 @@ def run(
     threshold: int = 200,
     record_levels: bool = False,
     keep_groups: bool | None = None,
+    allow_extra: bool = False,
 ) -> Result:
     """Agglomerate `mesh`; progress(fraction, stage) is called between stages. refiner, threshold,
     record_levels, keep_groups: see models.partition.agglomerate.agglomerate (multilevel mode, nested
@@ -175,6 +176,7 @@ def run(
         threshold=threshold,
         record_levels=record_levels,
         keep_groups=keep_groups,
+        allow_extra=allow_extra,
     )
     timings["partition"] = time.perf_counter() - t
     for stage in ("coarsen", "bisect", "refine"):  # parts of "partition" (multilevel mode, refiners)
@@ -184,6 +186,8 @@ def run(
     t = time.perf_counter()
     report(0.72, "merge")
     poly, labels, n_split = split_holes(mesh, graph, data, agg.labels, hole_policy)
+    if agg.exact and poly.n_elements != agg.n_elements:
+        poly, labels = _recount_after_holes(mesh, graph, data, agg, poly, labels, hole_policy)
     poly = sort_by_vertex_count(poly)  # 3D: the element order meshio can read back
     labels = poly.labels
     agg.labels = labels
@@ -211,6 +215,26 @@ def run(
         timings["metrics"] = time.perf_counter() - t
     report(0.9, "write")
     return res
+
+
+def _recount_after_holes(mesh, graph, data, agg, poly, labels, hole_policy, rounds: int = 4):
+    """Elements cut because they enclosed a hole raised the count above the k asked for: merge the
+    smallest back (models.partition.connect) and check for holes again, a few rounds."""
+    from models.partition.connect import exact_count
+
+    target = agg.n_elements
+    nodes = np.arange(mesh.n_cells)
+    for _ in range(rounds if target == agg.requested else 0):  # not with a subset: the rest stays as is
+        labels, merged, resplit = exact_count(data, labels, nodes, target)
+        agg.recount["merged"] = agg.recount.get("merged", 0) + merged
+        agg.recount["split"] = agg.recount.get("split", 0) + resplit
+        poly, labels, _n = split_holes(mesh, graph, data, labels, hole_policy)
+        if poly.n_elements == target:
+            return poly, labels
+    raise ParameterError(
+        f"k = {agg.requested} cannot be met: elements that enclose a hole must be cut and merging "
+        f"them back makes new holes ({poly.n_elements} elements); allow extra elements (--allow-extra)"
+    )
 
 
 def element_metrics(res: Result) -> dict:

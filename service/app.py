@@ -52,7 +52,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
 
 def _error(status: int, detail: str, field: str | None = None, headers: dict | None = None) -> JSONResponse:
-    body = {"detail": detail} | ({"field": field} if field else {})
+    """Every 422 has one shape, {detail, field, errors} (as FastAPI's request errors, see
+    invalid_request); field is the parameter at fault or null."""
+    body: dict = {"detail": detail}
+    if status == 422:
+        if field is None and ":" in detail:  # "subset: expected a JSON list ..." names its field
+            head = detail.split(":", 1)[0]
+            field = head if head.replace(".", "").replace("_", "").isalnum() else None
+        loc = ["body", *field.split(".")] if field else ["body"]
+        body |= {"field": field, "errors": [{"loc": loc, "msg": detail, "type": "value_error"}]}
+    elif field:
+        body["field"] = field
     return JSONResponse(body, status_code=status, headers=headers)
 
 

@@ -43,6 +43,14 @@ def extension_of(filename: str | None) -> str:
     if filename and any(ord(ch) < 32 or ord(ch) == 127 for ch in filename):
         raise UploadRejected(422, "filename: control characters (e.g. NUL) are not allowed", "filename")
     ext = formats.extension(filename or "").lstrip(".")
+    if not filename:
+        raise UploadRejected(
+            422,
+            "filename: missing; send the mesh's file name (query parameter filename=brain.vtu with a raw "
+            "body, or the file name of the multipart field 'file'): its extension tells the format, one "
+            f"of {', '.join('.' + e for e in ALLOWED_EXTENSIONS)}",
+            "filename",
+        )
     if ext not in ALLOWED_EXTENSIONS:
         shown = os.path.basename((filename or "").replace("\\", "/"))[:100]
         what = f"the file name {shown}" if shown else "the upload has no file name: it"

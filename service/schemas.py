@@ -106,11 +106,19 @@ class JobOptions(BaseModel):
         ge=2,
         le=1e6,
         **Finite,
-        description="with hierarchy: nested levels of their own, "
+        description="with hierarchy: the job's agglomeration is the finest level and coarser ones have "
         "this many times fewer elements per level, any model (as `magnet hierarchy`)",
     )
     coarsest: int | None = Field(
         None, ge=1, le=10**9, description="with ratio: at most this many elements on the coarsest level (10)"
+    )
+    allow_extra: bool | None = Field(
+        None,
+        description="with k: keep every connected fragment of a part as an element (more than k); "
+        "default false: exactly k elements, or a 422 saying why k cannot be met",
+    )
+    keep_groups: bool | None = Field(
+        None, description="refiner: cuts prefer physical-group interfaces (default: on for sage-hetero)"
     )
 
 
@@ -124,9 +132,11 @@ class JobParams(BaseModel):
     mode: str | None = Field(
         None,
         max_length=40,
-        description="kway | nref | target-size | mult-factor | segregated | coarsen | multilevel",
+        description="kway | nref | target-size | mult-factor | segregated | coarsen | multilevel "
+        "(default: the one the size given implies: k kway, nref nref, target_size target-size, "
+        "mult_factor mult-factor; with subset coarsen)",
     )
-    k: int | None = Field(None, ge=1, le=10**8, description="number of elements (kway)")
+    k: int | None = Field(None, ge=1, le=10**8, description="number of elements (kway): exactly k")
     nref: int | None = Field(None, ge=0, le=64, description="number of refinements: 2^nref elements")
     target_size: float | None = Field(None, gt=0, **Finite, description="largest element diameter")
     mult_factor: float | None = Field(

@@ -172,9 +172,12 @@ def test_components_and_absorption(square):
     # k-means on a subset made of two far apart strips: parts get split, fragments absorbed
     x = d.centroids[:, 0]
     subset = np.flatnonzero((x < 0.2) | (x > 0.8))
-    r = agglomerate(m, d, model="kmeans", mode="kway", k=1, subset=subset)
+    r = agglomerate(m, d, model="kmeans", mode="kway", k=1, subset=subset, allow_extra=True)
     assert r.parts_split == 1 and r.n_elements - (m.n_cells - subset.size) == 2
     assert all_connected(g, r.labels)
+    # by default k = 1 is refused: one element cannot span the two strips
+    with pytest.raises(ParameterError, match="2 separate pieces"):
+        agglomerate(m, d, model="kmeans", mode="kway", k=1, subset=subset)
 
 
 def test_absorb_tiny_fragments_gives_requested_count(square):

@@ -126,7 +126,8 @@ def test_cli_same_flags_same_result_as_local(server, tmp_path, capsys):
     local_line = capsys.readouterr().out.strip().splitlines()[-1]
     remote_line = out.stdout.strip().splitlines()[-1]
     assert remote_line.split(" | ")[0] == local_line.split(" | ")[0], (remote_line, local_line)
-    assert " | total " in remote_line and remote_line.endswith(f"| job {remote_line.rsplit(' ', 1)[-1]}")
+    assert " | job: read " in remote_line and " | client wall time " in remote_line
+    assert remote_line.count("total") == 1 and remote_line.endswith(f"| job {remote_line.rsplit(' ', 1)[-1]}")
     assert json.loads((remote / "l.json").read_text()) == json.loads((local / "l.json").read_text())
     assert (
         json.loads((remote / "m.json").read_text())["summary"]
@@ -323,3 +324,18 @@ def test_client_knows_exactly_the_api_fields():
 
     assert set(OPTION_NAMES) == set(JobOptions.model_fields)
     assert set(PARAM_NAMES) == set(JobParams.model_fields) - {"options"}
+
+
+def test_summary_line_labels_job_stages_and_client_time(monkeypatch):
+    monkeypatch.syspath_prepend(str(Path(ROOT) / "client"))
+    from magnet_client.cli import summary_line
+
+    job = {
+        "id": "abc",
+        "mesh": {"cells": 288},
+        "result": {"elements": 16, "timings": {"read": 0.1, "write": 0.38, "total": 0.43}},
+    }
+    line = summary_line(job, 0.55)
+    assert line == (
+        "16 elements from 288 cells | job: read 0.10s write 0.38s total 0.43s | client wall time 0.55s | job abc"
+    )

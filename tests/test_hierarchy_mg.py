@@ -163,12 +163,13 @@ def test_api_job_with_a_hierarchy_of_its_own(tmp_path):
             "mesh_id": mesh["id"],
             "model": "rtree",
             "mode": "kway",
-            "k": 9,
+            "k": 288,
             "options": {"hierarchy": True, "ratio": 4, "coarsest": 8},
         }
         job = client.post("/v1/jobs", json=body, headers=h).json()
         assert execute_job(job["id"], settings) == "succeeded"
-        assert client.get(f"/v1/jobs/{job['id']}", headers=h).json()["result"]["elements"] == 9
+        # the job's k = 288 elements are the finest level; the coarser ones agglomerate them
+        assert client.get(f"/v1/jobs/{job['id']}", headers=h).json()["result"]["elements"] == 288
         zf = zipfile.ZipFile(io.BytesIO(client.get(f"/v1/jobs/{job['id']}/hierarchy", headers=h).content))
         index = json.loads(zf.read("hierarchy.json"))
         n = 2 * 24 * 24

@@ -128,6 +128,7 @@ def test_packages_import_only_downstream():
 # models/ from the ground up: each subpackage (or top-level module) may import only those before it
 MODELS_FLOORS = [
     "models.errors",
+    "models.params",
     "models.native",
     "models.graph",
     "models.mesh",
@@ -138,6 +139,7 @@ MODELS_FLOORS = [
     "models.export",
     "models.hierarchy",
     "models.pipeline",
+    "models.agglomeration",
     "models.api",
     "models.learn",
     "models.cli",

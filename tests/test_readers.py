@@ -69,7 +69,9 @@ def _exodus(path):
         "import sys; sys.path.insert(0, sys.argv[1]); import vtk_corpus as vc; "
         "p, h = vc.grid(3, 2, 2); vc.write_exodus(sys.argv[2], vc.unstructured(p, [(12, h)]))"
     )
-    r = subprocess.run([sys.executable, "-c", code, os.path.dirname(__file__), str(path)], capture_output=True)
+    r = subprocess.run(
+        [sys.executable, "-c", code, os.path.dirname(__file__), str(path)], capture_output=True
+    )
     if r.returncode != 0 or not os.path.exists(path) or os.path.getsize(path) < 1000:
         pytest.skip(f"vtkExodusIIWriter failed in this vtk wheel (exit {r.returncode})")
     return str(path)
@@ -154,7 +156,13 @@ def test_meshio_and_gmsh_writers(tmp_path):
     ug = vc.unstructured(p, [(10, tets)])
     ref_path = vc.write_xml(tmp_path / "ref.vtu", ug, "ascii")
     n_ref, vtk_total = vc.vtk_reference(ref_path)
-    for ext, fmt in ((".msh", "gmsh"), (".mesh", "medit"), (".inp", "abaqus"), (".vtk", "vtk"), (".vtu", "vtu")):
+    for ext, fmt in (
+        (".msh", "gmsh"),
+        (".mesh", "medit"),
+        (".inp", "abaqus"),
+        (".vtk", "vtk"),
+        (".vtu", "vtu"),
+    ):
         path = str(tmp_path / f"m{ext}")
         meshio.write(path, meshio.Mesh(p, [("tetra", tets)]), file_format=fmt)
         mesh = read_mesh(path)

@@ -408,3 +408,52 @@ def test_cli_entry_points_register_subcommands():
     assert args.port == 9000 and args.no_worker and callable(args.func)
     args = parser.parse_args(["worker", "-Q", "gpu,cpu", "-c", "1"])
     assert args.queues == "gpu,cpu" and callable(args.func)
+
+
+def test_every_422_has_one_shape(app, square):
+    """Rule errors of the library (k above the cells, unknown model, nref over 30) answer the same
+    {detail, field, errors} as FastAPI's own request errors (issue 25)."""
+    client, _ = app
+    mesh = upload(client, square)
+    cases = [
+        ({"k": 10_000}, "k"),
+        ({"model": "nope", "k": 2}, "model"),
+        ({"mode": "nref", "nref": 31}, "nref"),
+        ({"nref": 3, "k": 4}, None),
+        ({"mode": "kway", "nref": 3}, "nref"),
+        ({"k": "many"}, "k"),
+    ]
+    for params, field in cases:
+        r = client.post("/v1/jobs", json={"mesh_id": mesh["id"], **params}, headers=auth("alice"))
+        body = r.json()
+        assert r.status_code == 422 and set(body) == {"detail", "field", "errors"}, (params, r.text)
+        assert body["field"] == field and body["errors"] and body["errors"][0]["msg"], (params, r.text)
+        assert "\n" not in body["detail"] and "{" not in body["detail"], body
+    r = client.post("/v1/jobs", json={"mesh_id": mesh["id"], "nref": 2}, headers=auth("alice"))
+    assert r.status_code in (201, 202), r.text  # nref alone means mode nref
+    r = client.post("/v1/meshes", content=square.read_bytes(), headers=auth("alice"))
+    body = r.json()
+    assert r.status_code == 422 and set(body) == {"detail", "field", "errors"} and body["field"] == "filename"
+    assert "None" not in body["detail"] and "filename=" in body["detail"] and ".vtu" in body["detail"]
+
+
+def test_worker_says_in_plain_words_what_it_takes(tmp_path, monkeypatch, capsys):
+    """No Celery banner (`cpu exchange=cpu(direct) key=cpu`): one line of ours instead."""
+    import worker.app
+    from worker.cli import main as worker_main
+
+    seen = {}
+
+    class FakeApp:
+        def worker_main(self, argv):
+            seen["argv"] = argv
+
+    monkeypatch.setattr(worker.app, "make_worker_app", lambda settings: FakeApp())
+    monkeypatch.setenv("MAGNET_DATA_DIR", str(tmp_path))
+    assert worker_main(["worker", "-Q", "gpu,cpu", "-n", "w1"]) == 0
+    out = capsys.readouterr().out
+    assert out.strip() == (
+        "magnet worker w1: takes gpu: GPU jobs (the neural models, sage-*, rl-*), cpu: CPU jobs (every model); "
+        "1 job(s) at a time"
+    )
+    assert seen["argv"][0] == "--quiet" and "worker" in seen["argv"]

@@ -22,7 +22,7 @@ def test_hierarchy_levels_json(app, tmp_path):  # noqa: F811
         square,
         model="rtree",
         mode="kway",
-        k=8,
+        k=72,
         options={"hierarchy": True, "ratio": 4, "coarsest": 4},
     )
     zf = zipfile.ZipFile(io.BytesIO(client.get(f"/v1/jobs/{job['id']}/hierarchy", headers=ALICE).content))
@@ -32,7 +32,8 @@ def test_hierarchy_levels_json(app, tmp_path):  # noqa: F811
     levels = r.json()
     assert levels["model"] == "rtree" and levels["ratio"] == 4 and levels["dim"] == 2 and levels["nested"]
     assert [lv["elements"] for lv in levels["levels"]] == [lv["elements"] for lv in index["levels"]]
-    assert len(levels["levels"]) >= 3 and levels["levels"][-1]["elements"] == 288 // 4  # 72, 18, 4
+    # the finest level is the job's agglomeration (k = 72), the coarser ones agglomerate it: 72, 18, 5, 2
+    assert len(levels["levels"]) >= 3 and levels["levels"][-1]["elements"] == 72 == job["result"]["elements"]
     for lv in levels["levels"]:
         assert "circle_ratio" in lv["summary"] and lv["coverage"] >= 1.0
 

@@ -62,15 +62,41 @@ def linear_cells(family: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 _FAMILY = {
-    22: 5, 23: 9, 24: 10, 25: 12, 26: 13, 27: 14, 28: 9, 29: 12, 30: 9, 31: 13, 32: 13, 33: 12,
-    34: 5, 69: 5, 70: 9, 71: 10, 72: 12, 73: 13, 76: 5, 77: 9, 78: 10, 79: 12, 80: 13,
+    22: 5,
+    23: 9,
+    24: 10,
+    25: 12,
+    26: 13,
+    27: 14,
+    28: 9,
+    29: 12,
+    30: 9,
+    31: 13,
+    32: 13,
+    33: 12,
+    34: 5,
+    69: 5,
+    70: 9,
+    71: 10,
+    72: 12,
+    73: 13,
+    76: 5,
+    77: 9,
+    78: 10,
+    79: 12,
+    80: 13,
 }
 _LAGRANGE = {
-    69: ("vtkLagrangeTriangle", 6, None), 70: ("vtkLagrangeQuadrilateral", 9, (2, 2)),
-    71: ("vtkLagrangeTetra", 10, None), 72: ("vtkLagrangeHexahedron", 27, (2, 2, 2)),
-    73: ("vtkLagrangeWedge", 18, (2, 2, 2)), 76: ("vtkBezierTriangle", 6, None),
-    77: ("vtkBezierQuadrilateral", 9, (2, 2)), 78: ("vtkBezierTetra", 10, None),
-    79: ("vtkBezierHexahedron", 27, (2, 2, 2)), 80: ("vtkBezierWedge", 18, (2, 2, 2)),
+    69: ("vtkLagrangeTriangle", 6, None),
+    70: ("vtkLagrangeQuadrilateral", 9, (2, 2)),
+    71: ("vtkLagrangeTetra", 10, None),
+    72: ("vtkLagrangeHexahedron", 27, (2, 2, 2)),
+    73: ("vtkLagrangeWedge", 18, (2, 2, 2)),
+    76: ("vtkBezierTriangle", 6, None),
+    77: ("vtkBezierQuadrilateral", 9, (2, 2)),
+    78: ("vtkBezierTetra", 10, None),
+    79: ("vtkBezierHexahedron", 27, (2, 2, 2)),
+    80: ("vtkBezierWedge", 18, (2, 2, 2)),
 }
 HIGHER_ORDER = sorted(_FAMILY)  # 37 (triquadratic pyramid): its parametric space is not vtkPyramid's
 
@@ -177,7 +203,9 @@ def write_legacy(path, ds, version: int = 51, binary: bool = False) -> str:
     return str(path)
 
 
-def write_xml(path, ds, mode: str = "appended", compress: bool = False, pieces: int = 1, encode: bool = True) -> str:
+def write_xml(
+    path, ds, mode: str = "appended", compress: bool = False, pieces: int = 1, encode: bool = True
+) -> str:
     ext = os.path.splitext(str(path))[1]
     cls = {
         ".vtu": vtk.vtkXMLUnstructuredGridWriter,
@@ -335,7 +363,9 @@ def vtk_reference(path: str) -> tuple[int, float]:
     size = vtk_to_numpy(f.GetOutput().GetCellData().GetArray(name)).copy()
     poly = np.flatnonzero([ds.GetCellType(i) == vtk.VTK_POLYGON for i in range(ds.GetNumberOfCells())])
     for i in poly:  # a test's few polygons
-        q = np.array([ds.GetPoint(ds.GetCell(i).GetPointId(j)) for j in range(ds.GetCell(i).GetNumberOfPoints())])
+        q = np.array(
+            [ds.GetPoint(ds.GetCell(i).GetPointId(j)) for j in range(ds.GetCell(i).GetNumberOfPoints())]
+        )
         size[i] = 0.5 * np.linalg.norm(np.cross(q, np.roll(q, -1, axis=0)).sum(axis=0))
     for i in np.flatnonzero([ds.GetCellType(i) == vtk.VTK_POLYHEDRON for i in range(ds.GetNumberOfCells())]):
         cell, vol = ds.GetCell(i), 0.0

@@ -69,7 +69,9 @@ def run_worker(args: argparse.Namespace) -> int:
     settings.data_dir.mkdir(parents=True, exist_ok=True)
     app = make_worker_app(settings)
     name = args.name or f"magnet-{os.getpid()}@{socket.gethostname()}"
+    print(banner(name, args.queues, args.concurrency), flush=True)
     argv = [
+        "--quiet",  # no Celery banner: its queue lines ("cpu exchange=cpu(direct) key=cpu") say nothing to a user
         "worker",
         "--queues",
         args.queues,
@@ -87,6 +89,16 @@ def run_worker(args: argparse.Namespace) -> int:
     ]
     app.worker_main(argv)
     return 0
+
+
+QUEUE_WORDS = {"cpu": "CPU jobs (every model)", "gpu": "GPU jobs (the neural models, sage-*, rl-*)"}
+
+
+def banner(name: str, queues: str, concurrency: int) -> str:
+    """The worker's start line in plain words (instead of Celery's banner)."""
+    names = [q.strip() for q in queues.split(",") if q.strip()]
+    what = ", ".join(f"{q}: {QUEUE_WORDS.get(q, 'jobs sent to this queue')}" for q in names)
+    return f"magnet worker {name}: takes {what}; {concurrency} job(s) at a time"
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -127,7 +127,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def summary_line(job: dict, seconds: float) -> str:
     """The one line `magnet agglomerate` prints (elements, parts split, fragments absorbed, holed
-    elements split, stage timings, total), plus the job id."""
+    elements split), then the job's own stage timings on the server ("job: read ... total"), the
+    client's wall time (upload, queue, wait and downloads included) and the job id."""
     result = job.get("result") or {}
     extra = []
     if result.get("parts_split"):
@@ -142,8 +143,8 @@ def summary_line(job: dict, seconds: float) -> str:
     stages = " ".join(f"{k} {v:.2f}s" for k, v in (result.get("timings") or {}).items())
     cells = (job.get("mesh") or {}).get("cells")
     return (
-        f"{result.get('elements')} elements from {cells} cells{note} | {stages} | total {seconds:.2f}s"
-        f" | job {job['id']}"
+        f"{result.get('elements')} elements from {cells} cells{note} | job: {stages or 'cached'}"
+        f" | client wall time {seconds:.2f}s | job {job['id']}"
     )
 
 

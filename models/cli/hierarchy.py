@@ -68,47 +68,26 @@ def add_mgcheck_args(p: argparse.ArgumentParser) -> None:
 
 
 def hierarchy_main(args) -> int:
-    from models.hierarchy.nested import build_hierarchy, write_hierarchy
-    from models.mesh.boundary import fine_boundary, has_groups
-    from models.mesh.sandbox import read_mesh_safe as read_mesh
-    from models.pipeline import prepare
+    from models.agglomeration import build_hierarchy
 
     out = args.output
     parent = os.path.dirname(os.path.abspath(out))
     if not os.path.isdir(parent):
         raise ParameterError(f"cannot write the hierarchy to {out!r}: folder {parent!r} does not exist")
     t0 = time.perf_counter()
-    mesh = read_mesh(args.mesh, physical_tag=args.physical_tag)
-    graph, data = prepare(mesh)
-    t_read = time.perf_counter() - t0
-    levels, info = build_hierarchy(
-        mesh,
-        data,
+    h = build_hierarchy(
+        args.mesh,
         model=args.model,
         ratio=args.ratio,
         coarsest=args.coarsest,
         seed=args.seed,
         groups=args.groups,
+        physical_tag=args.physical_tag,
     )
+    mesh, data, info = h.mesh, h.data, h.info
+    t_read = time.perf_counter() - t0 - info["build_time"]
     t = time.perf_counter()
-    boundary = fine_boundary(mesh, graph.faces, graph.partner) if has_groups(mesh) else None
-    index = write_hierarchy(
-        out,
-        mesh,
-        data,
-        levels,
-        metrics=args.metrics,
-        lymph=args.lymph,
-        boundary=boundary,
-        merged=info.pop("merged"),
-        extra={
-            "model": args.model,
-            "ratio": info["ratio"],
-            "coarsest": info["coarsest"],
-            "method": info["method"],
-            "build_time": info["build_time"],
-        },
-    )
+    index = h.write(out, metrics=args.metrics, lymph=args.lymph)
     t_write = time.perf_counter() - t
     mg = ""
     if args.mgcheck:

@@ -25,13 +25,14 @@ def _add_job_args(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--mode",
-        default="kway",
-        help="kway | nref | target-size | mult-factor | segregated | coarsen | multilevel",
+        help="kway | nref | target-size | mult-factor | segregated | coarsen | multilevel "
+        "(default: the one the size flag implies: --k kway, --nref nref, --target-size target-size, "
+        "--mult-factor mult-factor; with --subset coarsen)",
     )
     p.add_argument(
         "--refiner",
         choices=["fm", "rl-refiner"],
-        help="refine every bisection (every level in multilevel mode); k-way mode: fm",
+        help="refine every bisection (every level in multilevel mode); k-way mode: fm (default: none)",
     )
     p.add_argument(
         "--threshold",
@@ -46,7 +47,13 @@ def _add_job_args(p: argparse.ArgumentParser) -> None:
         help="refiner: cuts prefer physical-group interfaces and never leave more cells outside their part's "
         "majority group (auto: on for sage-hetero)",
     )
-    p.add_argument("--k", type=int, help="number of elements (kway)")
+    p.add_argument("--k", type=int, help="number of elements (kway): exactly k unless --allow-extra")
+    p.add_argument(
+        "--allow-extra",
+        action="store_true",
+        help="with --k: keep every connected fragment of a part as an element of its own (more than k "
+        "elements), instead of merging fragments and splitting the largest elements to give exactly k",
+    )
     p.add_argument("--nref", type=int, help="number of refinements: 2^nref elements")
     p.add_argument("--target-size", type=float, help="bisect until every element's diameter is below this")
     p.add_argument("--mult-factor", type=float, help="target size = factor x mesh diameter (0 < f <= 1)")
@@ -87,7 +94,7 @@ def _add_job_args(p: argparse.ArgumentParser) -> None:
         choices=["split", "error"],
         help="what to do with elements that enclose a hole",
     )
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="random seed")
     p.add_argument(
         "--size-measure",
         default="centroids",
@@ -119,6 +126,38 @@ def _read_subset(path: str | None):
     if arr.ndim != 1 or arr.size == 0 or not np.issubdtype(arr.dtype, np.integer):
         raise ParameterError(f"subset file {path} must hold a non-empty list of integer cell ids")
     return arr.astype(np.int64)
+
+
+def job_params(args, subset=None) -> dict:
+    """The job parameters of a `magnet agglomerate` / `compare` command line, as the service takes
+    them (models.params.validate_params checks them: one validation for every way in)."""
+    params = {
+        "model": args.model,
+        "mode": args.mode,
+        "k": args.k,
+        "nref": args.nref,
+        "target_size": args.target_size,
+        "mult_factor": args.mult_factor,
+        "subset": None if subset is None else subset.tolist(),
+        "refiner": args.refiner,
+        "options": {
+            "seed": args.seed,
+            "absorb_fraction": args.absorb,
+            "hole_policy": args.hole_policy,
+            "physical_tag": args.physical_tag,
+            "method": args.method,
+            "boundary_tag": args.boundary_tag,
+            "size_measure": args.size_measure,
+            "threshold": args.threshold,
+            "hierarchy": bool(getattr(args, "hierarchy", None)),
+            "weld": args.weld,
+            "allow_extra": args.allow_extra,
+            "keep_groups": {"auto": None, "on": True, "off": False}[args.keep_groups],
+        },
+    }
+    params = {key: v for key, v in params.items() if v is not None}
+    params["options"] = {key: v for key, v in params["options"].items() if v is not None}
+    return params
 
 
 class _Progress:
@@ -161,7 +200,8 @@ def check_output_path(path: str | None, what: str, suffixes: tuple[str, ...] = (
 
 def cmd_agglomerate(args) -> int:
     from models import pipeline
-    from models.mesh.sandbox import read_mesh_safe as read_mesh
+    from models.agglomeration import run
+    from models.params import validate_params
 
     check_output_path(args.output, "output mesh", (".vtu", ".ucd", ".inp"))
     ucd = os.path.splitext(args.output)[1].lower() in (".ucd", ".inp")
@@ -169,32 +209,12 @@ def cmd_agglomerate(args) -> int:
         check_output_path(getattr(args, what), f"--{what} file")
     t0 = time.perf_counter()
     subset = _read_subset(args.subset)
-    mesh = read_mesh(args.mesh, physical_tag=args.physical_tag, weld=args.weld)
-    t_read = time.perf_counter() - t0
-    prog = _Progress(args.progress or (sys.stderr.isatty() and mesh.n_cells > 200_000))
+    params = job_params(args, subset)
+    validate_params(params)  # a bad flag fails before the mesh is read
+    prog = _Progress(args.progress or sys.stderr.isatty())
     try:
-        res = pipeline.run(
-            mesh,
-            model=args.model,
-            mode=args.mode,
-            k=args.k,
-            nref=args.nref,
-            target_size=args.target_size,
-            mult_factor=args.mult_factor,
-            subset=subset,
-            absorb_fraction=args.absorb,
-            hole_policy=args.hole_policy,
-            seed=args.seed,
-            model_options={"method": args.method} if args.model == "metis" else None,
-            size_measure=args.size_measure,
-            compute_metrics=bool(args.metrics) or args.model_metrics,
-            progress=prog,
-            refiner=args.refiner,
-            threshold=args.threshold,
-            record_levels=bool(args.hierarchy),
-            keep_groups={"auto": None, "on": True, "off": False}[args.keep_groups],
-        )
-        res.timings = {"read": t_read, **res.timings}
+        result = run(args.mesh, params, metrics=bool(args.metrics) or args.model_metrics, progress=prog)
+        res, mesh = result.result, result.mesh
         if args.hierarchy:
             idx = pipeline.write_hierarchy(res, args.hierarchy)
             print(
@@ -233,6 +253,9 @@ def cmd_agglomerate(args) -> int:
         extra.append(f"{s['fragments_absorbed']} fragments absorbed")
     if s["holes_split"]:
         extra.append(f"{s['holes_split']} holed elements split")
+    rc = s.get("recount") or {}
+    if rc.get("merged") or rc.get("split"):
+        extra.append(f"exactly k: {rc['merged']} fragments merged, {rc['split']} elements split again")
     note = f" ({', '.join(extra)})" if extra else ""
     print(f"{s['elements']} elements from {mesh.n_cells} cells{note} | {stages} | total {total:.2f}s")
     return 0
@@ -282,31 +305,25 @@ def cmd_plot(args) -> int:
 
 
 def cmd_compare(args) -> int:
-    from models import pipeline
-    from models.mesh.sandbox import read_mesh_safe as read_mesh
+    from models.agglomeration import read_mesh, run
+    from models.params import MODE_SIZES, infer_mode
     from models.quality.plot import metrics_table, plot_metric_boxplots
 
-    mesh = read_mesh(args.mesh, physical_tag=args.physical_tag)
+    base = job_params(args)
+    mesh = read_mesh(args.mesh, physical_tag=args.physical_tag, weld=args.weld)
     results = {}
     for spec in args.methods.split(","):
         model, _, mode = spec.strip().partition(":")
         mode = mode or args.mode
+        params = dict(base, model=model)
+        if mode:  # each method takes the size flag its mode uses (e.g. metis:kway,metis:nref --k 64 --nref 6)
+            params["mode"] = mode
+            for size in ("k", "nref", "target_size", "mult_factor"):
+                if size not in MODE_SIZES.get(mode, ()):
+                    params.pop(size, None)
+        mode = mode or infer_mode(params)
         t = time.perf_counter()
-        res = pipeline.run(
-            mesh,
-            model=model,
-            mode=mode,
-            k=args.k,
-            nref=args.nref,
-            target_size=args.target_size,
-            mult_factor=args.mult_factor,
-            absorb_fraction=args.absorb,
-            seed=args.seed,
-            size_measure=args.size_measure,
-            refiner=args.refiner,
-            threshold=args.threshold,
-            keep_groups={"auto": None, "on": True, "off": False}[args.keep_groups],
-        )
+        res = run(mesh, params).result
         rep = dict(res.metrics)
         rep["time"] = time.perf_counter() - t
         results[f"{model}:{mode}"] = rep
@@ -329,9 +346,25 @@ def cmd_compare(args) -> int:
     return 0
 
 
+class _Help(argparse.HelpFormatter):
+    """--help shows every default that is set (flags without one say so in their text)."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        d = action.default
+        if d is None or d is argparse.SUPPRESS or d is False or "default" in text or action.nargs == 0:
+            return text
+        return f"{text} (default {d})" if text else f"(default {d})"
+
+
 def build_parser(argv: list[str]) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="magnet", description="Mesh agglomeration (MAGNET service library)")
+    import functools
+
+    parser = argparse.ArgumentParser(
+        prog="magnet", description="Mesh agglomeration (MAGNET service library)", formatter_class=_Help
+    )
     sub = parser.add_subparsers(dest="command", required=True)
+    sub.add_parser = functools.partial(sub.add_parser, formatter_class=_Help)
 
     p = sub.add_parser("agglomerate", help="agglomerate a mesh in-process")
     p.add_argument("mesh")
@@ -426,6 +459,8 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
             getattr(mod, adder)(p)
             p.set_defaults(func=getattr(mod, runner))
 
+    if argv and argv[0] in sub.choices:  # a library command: no need to look for the server side's
+        return parser  # (importlib.metadata's scan of the installed packages costs ~60 ms of start-up)
     from importlib.metadata import entry_points
 
     for ep in entry_points(group="magnet.commands"):

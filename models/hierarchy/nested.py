@@ -420,6 +420,7 @@ def build_hierarchy(
     seed: int = 0,
     groups: bool = False,
     model_options: dict | None = None,
+    finest: np.ndarray | None = None,
 ) -> tuple[list[np.ndarray], dict]:
     """Exactly nested levels (coarsest first) with about `ratio` times fewer elements per level, from
     n_cells / ratio down to at most `coarsest` elements; every element connected.
@@ -429,7 +430,10 @@ def build_hierarchy(
     then joined to a neighbour so counts stay exact). Bisection-only models (sage-base, ...): one
     recursive bisection, recorded, and the levels nearest the wanted counts.
     groups: no element crosses a physical group (rtree only). Returns (levels, info); info["merged"]
-    holds each level's polytopes (pass them to write_hierarchy as `merged`)."""
+    holds each level's polytopes (pass them to write_hierarchy as `merged`).
+    finest: (cells,) labels of an agglomeration already made (a job's k elements): it is the finest
+    level, and the coarser ones agglomerate its elements by `ratio` (k-way on each level's coarse
+    dual graph; metis for models without a k-way mode)."""
     import time
 
     from models.errors import ParameterError
@@ -438,6 +442,10 @@ def build_hierarchy(
 
     t0 = time.perf_counter()
     n = mesh.n_cells
+    if finest is not None:
+        return _hierarchy_above(
+            data, np.asarray(finest, dtype=np.int64), mesh, model, ratio, coarsest, seed, t0
+        )
     counts = level_counts(n, ratio, coarsest)
     if not counts:
         raise ParameterError(f"the mesh has {n} cells: nothing to coarsen with coarsest = {coarsest}")
@@ -508,6 +516,36 @@ def build_hierarchy(
         "coarsest": int(coarsest),
         "requested": counts,
         "method": how,
+        "build_time": time.perf_counter() - t0,
+        "merged": polys,
+    }
+    return levels, info
+
+
+def _hierarchy_above(data, finest, mesh, model, ratio, coarsest, seed, t0):
+    """build_hierarchy(..., finest=labels): the given agglomeration and coarser levels above it."""
+    import time
+
+    from models.partition import get_partitioner
+    from models.partition.rtree import level_counts, make_connected
+
+    counts = level_counts(int(finest.max()) + 1, ratio, coarsest)
+    part = get_partitioner(model, seed=seed)
+    if not part.supports_kway:
+        part = get_partitioner("metis", seed=seed)
+    levels = [finest]
+    for c in reversed(counts):
+        cg = coarse_graph(data, levels[0])
+        raw = np.asarray(part.kway(cg, int(c)), dtype=np.int64)
+        raw, _ = make_connected(cg.indptr, cg.indices, cg.weights, compact_labels(raw), measures=cg.measures)
+        levels.insert(0, compact_labels(raw)[levels[0]])
+    levels, polys = _fix_holes(mesh, data, levels, None)
+    info = {
+        "model": part.name,
+        "ratio": float(ratio),
+        "coarsest": int(coarsest),
+        "requested": [*counts, int(finest.max()) + 1],
+        "method": "the job's agglomeration as the finest level, its elements agglomerated (k-way on each coarse dual graph)",
         "build_time": time.perf_counter() - t0,
         "merged": polys,
     }

@@ -15,14 +15,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
 
 from models.errors import ParameterError
 from models.graph.batch import GraphBatch
 from models.mesh.celldata import CellData, compact_labels  # here too: models.agglomerate.CellData
 from models.mesh.container import Mesh
-from models.mesh.dual import kept_edges, sorted_unique, subgraph_by_labels
+from models.mesh.dual import sorted_unique, subgraph_by_labels
 from models.partition import Partitioner, get_partitioner
+from models.partition.connect import connected_parts  # noqa: F401  (here too: callers import it from here)
 
 MODES = ("kway", "nref", "target-size", "mult-factor", "segregated", "coarsen", "multilevel")
 MAX_NREF = 30
@@ -43,6 +43,8 @@ class Agglomeration:
     warnings: list = field(default_factory=list)
     levels: list | None = None  # labels over `nodes` after each recursion level (record_levels)
     nodes: np.ndarray | None = None
+    exact: bool = False  # the count `requested` is enforced (k asked for, allow_extra off)
+    recount: dict = field(default_factory=dict)  # {"merged": n, "split": n} to meet it
 
     def summary(self) -> dict:
         return {
@@ -51,6 +53,10 @@ class Agglomeration:
             "parts_before_split": int(self.parts_before_split),
             "parts_split": int(self.parts_split),
             "fragments_absorbed": int(self.fragments_absorbed),
+            "recount": {
+                "merged": int(self.recount.get("merged", 0)),
+                "split": int(self.recount.get("split", 0)),
+            },
         }
 
 
@@ -68,30 +74,6 @@ def make_batch(data: CellData, labels: np.ndarray, nodes: np.ndarray | None = No
         tags=None if data.tags is None else data.tags[order],
         node_ids=order,
     )
-
-
-def connected_parts(data: CellData, labels: np.ndarray, nodes: np.ndarray) -> tuple[np.ndarray, int]:
-    """Split every part into its connected components. Returns (new labels over nodes, parts split).
-
-    Linear: the edges inside parts are kept in the original CSR numbering, no sort."""
-    if nodes.size == 0:
-        return labels, 0
-    g = data.graph
-    n = g.n
-    lab = np.full(n, -1, dtype=np.int64)
-    lab[nodes] = labels
-    kp, e = kept_edges(g.indptr, g.indices, lab)
-    m = sp.csr_matrix((np.ones(int(kp[-1]), dtype=np.int8), g.indices[e], kp), shape=(n, n))
-    _, comp = connected_components(m, directed=False)
-    comp = comp[nodes]
-    present = np.zeros(int(comp.max()) + 1, dtype=bool)
-    present[comp] = True
-    remap = np.cumsum(present) - 1
-    new = remap[comp]
-    part_of = np.empty(int(new.max()) + 1, dtype=np.int64)
-    part_of[new] = labels
-    split = int(np.count_nonzero(np.bincount(part_of) > 1))
-    return new, split
 
 
 def absorb_fragments(
@@ -388,6 +370,7 @@ def agglomerate(
     size_measure: str = "centroids",
     keep_groups: bool | None = None,
     group_weight: float | None = None,
+    allow_extra: bool = False,
 ) -> Agglomeration:
     """Partition the cells and return connected parts (see the module docstring for the modes).
 
@@ -402,7 +385,10 @@ def agglomerate(
     keep_groups (None = on for heterogeneity-aware models, sage-hetero): on a mesh with physical
     groups, the refiner sees edges between groups at `group_weight` (default 0.01) so its cuts
     prefer material interfaces, and a refined bisection (k-way partition, polished partition) is
-    kept only if no more cells end up outside the majority group of their part (models.partition.groups)."""
+    kept only if no more cells end up outside the majority group of their part (models.partition.groups).
+    k asked for (mode kway, or coarsen with k) gives exactly k elements (models.partition.connect:
+    fragments merged, the largest parts split again; ParameterError when it cannot be met) unless
+    allow_extra, which keeps every connected fragment as an element of its own."""
     t0 = time.perf_counter()
     n = mesh.n_cells
     if mode not in MODES:
@@ -593,6 +579,13 @@ def agglomerate(
     labels, parts_split = connected_parts(data, labels, nodes)
     labels, absorbed = absorb_fragments(data, labels, nodes, absorb_fraction, parts_before)
     labels = compact_labels(labels)
+    exact = sub_mode == "kway" and not allow_extra
+    recount = {}
+    if exact:
+        from models.partition.connect import exact_count
+
+        labels, merged, resplit = exact_count(data, labels, nodes, int(k))
+        recount = {"merged": merged, "split": resplit}
     n_agg = int(labels.max()) + 1 if labels.size else 0
     full = np.empty(n, dtype=np.int64)
     full[nodes] = labels
@@ -609,6 +602,8 @@ def agglomerate(
         timings={"partition": t_part, "connect": t_conn, **stage_times},
         levels=level_labels,
         nodes=nodes if record_levels else None,
+        exact=exact,
+        recount=recount,
     )
 
 

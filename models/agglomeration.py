@@ -1,0 +1,511 @@
+"""The Python API (`from models import agglomerate, build_hierarchy, read_mesh, check`): the one
+way in. The CLI, the worker (models.api.run_job) and the service call these functions.
+
+A mesh is given as a path, a `meshio.Mesh`, a VTK or pyvista unstructured grid (duck-typed: no
+pyvista needed), a `models.mesh.container.Mesh`, or arrays: `points=` plus `cells=` as a list of
+(meshio cell type, connectivity) blocks (and `tags=`, one array per block, for physical groups).
+Keywords are the CLI's and the service's, checked by the one validation they share
+(models.params.validate_params): the same errors, word for word.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+from models.errors import MeshError, ParameterError
+from models.params import validate_params
+
+if TYPE_CHECKING:
+    import meshio
+
+    from models.mesh.container import Mesh, PolyMesh
+    from models.pipeline import Result
+
+# the slow case a user should hear about before waiting (one line on stderr, see docs/python.md)
+SLOW_CELLS = 2_000
+
+
+def read_mesh(
+    source=None,
+    *,
+    points=None,
+    cells=None,
+    tags=None,
+    physical_tag: str | None = None,
+    weld: float | None = None,
+) -> Mesh:
+    """The validated, positively oriented `Mesh` of any accepted source (MeshError if invalid)."""
+    from models.mesh.container import Mesh
+    from models.mesh.read import mesh_from_meshio
+    from models.mesh.sandbox import read_mesh_safe as read_file
+
+    if source is None:
+        if points is None or cells is None:
+            raise ParameterError(
+                "give a mesh: a path, a meshio.Mesh, a VTK or pyvista unstructured grid, or points= and cells="
+            )
+        return mesh_from_meshio(
+            _meshio_from_arrays(points, cells, tags), physical_tag=physical_tag, weld=weld
+        )
+    if points is not None or cells is not None:
+        raise ParameterError("give either a mesh or points= and cells=, not both")
+    if isinstance(source, str | os.PathLike):
+        return read_file(source, physical_tag=physical_tag, weld=weld)
+    if isinstance(source, Mesh):
+        return source
+    if hasattr(source, "GetCellTypesArray") or hasattr(source, "celltypes"):  # VTK, pyvista
+        return mesh_from_meshio(_meshio_from_grid(source), physical_tag=physical_tag, weld=weld, owned=True)
+    if isinstance(getattr(source, "cells", None), list) and hasattr(source, "points"):  # meshio.Mesh
+        return mesh_from_meshio(source, physical_tag=physical_tag, weld=weld)
+    raise ParameterError(
+        f"cannot read a {type(source).__name__} as a mesh: give a path, a meshio.Mesh, a VTK or pyvista "
+        "unstructured grid, or points= and cells="
+    )
+
+
+def check(source=None, *, points=None, cells=None, tags=None, physical_tag=None, weld=None) -> dict:
+    """The `magnet check` report of a mesh: {verdict: ok | warnings | error, issues: [...], ...}."""
+    from models.mesh.check import check_file, mesh_report
+
+    if isinstance(source, str | os.PathLike):
+        return check_file(source, physical_tag=physical_tag, weld=weld)
+    return mesh_report(
+        read_mesh(source, points=points, cells=cells, tags=tags, physical_tag=physical_tag, weld=weld)
+    )
+
+
+def agglomerate(
+    source=None,
+    *,
+    points=None,
+    cells=None,
+    tags=None,
+    model: str = "metis",
+    mode: str | None = None,
+    k: int | None = None,
+    nref: int | None = None,
+    target_size: float | None = None,
+    mult_factor: float | None = None,
+    subset=None,
+    refiner: str | None = None,
+    physical_tag: str | None = None,
+    weld: float | None = None,
+    seed: int = 0,
+    absorb_fraction: float = 0.0,
+    hole_policy: str = "split",
+    method: str = "kway",
+    size_measure: str = "centroids",
+    threshold: int = 200,
+    keep_groups: bool | None = None,
+    allow_extra: bool = False,
+    boundary_tag: int = 1,
+    hierarchy: bool = False,
+    metrics: bool = True,
+    progress: Callable[[float, str], None] | None = None,
+    warn: Callable[[str], None] | None = None,
+) -> Agglomeration:
+    """Agglomerate a mesh into polygons (2D) or polyhedra (3D).
+
+    The mode follows from the size given when `mode` is None (k: kway, nref: nref, target_size:
+    target-size, mult_factor: mult-factor; with a subset: coarsen). k gives exactly k elements
+    unless allow_extra. hierarchy: keep the nested levels of a recursive mode (result.write_hierarchy).
+    metrics: compute the metrics now (else on first use of .metrics). warn(line): told of slow runs."""
+    if subset is not None:
+        import numpy as np
+
+        subset = np.asarray(subset)
+        subset = subset.tolist() if subset.ndim == 1 and np.issubdtype(subset.dtype, np.integer) else subset
+    params = {
+        "model": model,
+        "mode": mode,
+        "k": k,
+        "nref": nref,
+        "target_size": target_size,
+        "mult_factor": mult_factor,
+        "subset": subset,
+        "refiner": refiner,
+        "options": {
+            "seed": seed,
+            "absorb_fraction": absorb_fraction,
+            "hole_policy": hole_policy,
+            "physical_tag": physical_tag,
+            "method": method,
+            "boundary_tag": boundary_tag,
+            "size_measure": size_measure,
+            "threshold": threshold,
+            "hierarchy": hierarchy,
+            "weld": weld,
+            "allow_extra": allow_extra,
+            "keep_groups": keep_groups,
+        },
+    }
+    params = {key: v for key, v in params.items() if v is not None}
+    params["options"] = {key: v for key, v in params["options"].items() if v is not None}
+    return run(
+        source, params, points=points, cells=cells, tags=tags, metrics=metrics, progress=progress, warn=warn
+    )
+
+
+def run(
+    source,
+    params: dict,
+    *,
+    points=None,
+    cells=None,
+    tags=None,
+    metrics: bool = True,
+    progress: Callable[[float, str], None] | None = None,
+    warn: Callable[[str], None] | None = None,
+) -> Agglomeration:
+    """`agglomerate` with the parameters as the service's job dict ({model, mode, k, ..., options:
+    {...}}, see models.params): what the CLI and models.api.run_job call."""
+    import time
+
+    p = validate_params(params)  # before the mesh is read: bad keywords fail at once
+    o = p["options"]
+    t0 = time.perf_counter()
+    mesh = read_mesh(
+        source, points=points, cells=cells, tags=tags, physical_tag=o["physical_tag"], weld=o["weld"]
+    )
+    t_read = time.perf_counter() - t0
+    p = validate_params(
+        params, {"cells": mesh.n_cells, "physical_groups": mesh.physical_groups(), "dim": mesh.dim}
+    )
+    o = p["options"]
+    if p["model"] == "rl-partitioner" and p["mode"] != "multilevel" and mesh.n_cells > SLOW_CELLS:
+        (warn or _stderr)(
+            f"rl-partitioner on {mesh.n_cells} cells outside mode multilevel is slow (about 2 minutes "
+            "for 14,000 cells); mode multilevel runs it on coarse graphs only"
+        )
+    from models import pipeline
+
+    res = pipeline.run(
+        mesh,
+        model=p["model"],
+        mode=p["mode"],
+        k=p["k"],
+        nref=p["nref"],
+        target_size=p["target_size"],
+        mult_factor=p["mult_factor"],
+        subset=p["subset"],
+        absorb_fraction=o["absorb_fraction"],
+        hole_policy=o["hole_policy"],
+        seed=o["seed"],
+        model_options={"method": o["method"]} if p["model"] == "metis" else None,
+        compute_metrics=metrics,
+        progress=progress,
+        size_measure=o["size_measure"],
+        refiner=p["refiner"],
+        threshold=o["threshold"],
+        record_levels=o["hierarchy"] and o["ratio"] is None,
+        keep_groups=o["keep_groups"],
+        allow_extra=o["allow_extra"],
+    )
+    res.timings = {"read": t_read, **res.timings}
+    return Agglomeration(res, p)
+
+
+class Agglomeration:
+    """The result of `agglomerate`: labels (fine cell -> element), elements (the polytopes as
+    arrays), metrics, and writers."""
+
+    def __init__(self, result: Result, params: dict):
+        self.result = result
+        self.params = params
+
+    def __repr__(self) -> str:
+        return f"<Agglomeration: {self.n_elements} elements from {self.mesh.n_cells} cells ({self.params['model']})>"
+
+    @property
+    def mesh(self) -> Mesh:
+        """The fine mesh, as read (oriented, validated)."""
+        return self.result.mesh
+
+    @property
+    def labels(self):
+        """(cells,) int64: the element of every fine cell, 0..n_elements-1."""
+        return self.result.agglomeration.labels
+
+    @property
+    def n_elements(self) -> int:
+        return int(self.result.poly.n_elements)
+
+    @property
+    def elements(self) -> PolyMesh:
+        """The polygons / polyhedra as arrays (models.mesh.container.PolyMesh): points, and per
+        element a CSR of loops (2D: its boundary loop, counter-clockwise) or faces (3D: outward)."""
+        return self.result.poly
+
+    def polygon(self, e: int):
+        """2D: the point ids of element e's boundary loop, counter-clockwise."""
+        p = self.result.poly
+        if p.dim != 2:
+            raise ParameterError("polygon() is for 2D results; 3D elements are polyhedra (see .elements)")
+        lo = p.loop_offsets[p.elem_offsets[e]]
+        return p.loop_nodes[lo : p.loop_offsets[p.elem_offsets[e] + 1]]
+
+    @property
+    def metrics(self) -> dict:
+        """The metrics report (per element, summary, partition), computed on first use."""
+        if self.result.metrics is None:
+            from models.pipeline import element_metrics
+
+            self.result.metrics = element_metrics(self.result)
+        return self.result.metrics
+
+    @property
+    def timings(self) -> dict:
+        return dict(self.result.timings)
+
+    def summary(self) -> dict:
+        """{elements, requested, parts_split, fragments_absorbed, recount, holes_split, cells, dim, timings}."""
+        return self.result.summary()
+
+    def write(self, path: str | os.PathLike, kind: str | None = None, boundary_tag: int | None = None) -> str:
+        """Write by suffix: .vtu (the polytopes with per-element metrics), .json (the metrics report),
+        .mat (lymph structs, 2D), .ucd / .inp (deal.II: fine cells, material id = element), .png
+        (a picture). kind="labels" writes the labels as a JSON list, kind="lymph" a .json lymph file."""
+        from models import pipeline
+
+        path = os.fspath(path)
+        ext = os.path.splitext(path)[1].lower()
+        kind = kind or {
+            ".vtu": "mesh",
+            ".json": "metrics",
+            ".mat": "lymph",
+            ".ucd": "ucd",
+            ".inp": "ucd",
+            ".png": "plot",
+        }.get(ext)
+        if kind is None:
+            raise ParameterError(
+                f"cannot tell what to write to {path!r}: use .vtu, .json, .mat, .ucd, .inp or .png"
+            )
+        tag = self.params["options"]["boundary_tag"] if boundary_tag is None else boundary_tag
+        if kind == "ucd":
+            from models.export.ucd import write_ucd
+
+            write_ucd(
+                path,
+                self.mesh,
+                material=self.labels,
+                comment=f"magnet: {self.n_elements} agglomerated elements; material id = element (0-based)",
+            )
+            return path
+        if kind == "metrics":
+            self.metrics  # noqa: B018  (computed here, not timed as "write")
+            extra = {"params": self.params}
+            from models.params import MODEL_VERSION
+
+            extra["model_version"] = MODEL_VERSION
+            pipeline.write_outputs(self.result, metrics=path, extra=extra, boundary_tag=tag)
+            return path
+        if kind == "mesh" and self.result.metrics is None:
+            self.metrics  # noqa: B018  (the VTU carries the per-element metrics)
+        where = {"mesh": "vtu", "labels": "labels", "lymph": "lymph", "plot": "plot"}
+        if kind not in where:
+            raise ParameterError(f"kind must be one of {sorted([*where, 'metrics', 'ucd'])}, got {kind!r}")
+        pipeline.write_outputs(self.result, **{where[kind]: path}, boundary_tag=tag)
+        return path
+
+    def write_hierarchy(self, folder: str | os.PathLike, lymph: bool = False) -> dict:
+        """The nested levels of a recursive run (agglomerate(..., hierarchy=True)) into `folder`;
+        returns the hierarchy.json index."""
+        from models import pipeline
+
+        return pipeline.write_hierarchy(
+            self.result,
+            os.fspath(folder),
+            lymph=lymph,
+            boundary_tag=self.params["options"]["boundary_tag"],
+        )
+
+    def to_meshio(self) -> meshio.Mesh:
+        """The polytopes as a meshio.Mesh (polygon / polyhedron blocks) with the per-element metrics
+        as cell data (when computed)."""
+        import tempfile
+
+        import meshio
+
+        from models.export.vtu import write_vtu
+
+        cell_data = {}
+        if self.result.metrics is not None:
+            import numpy as np
+
+            cell_data = {
+                n: np.asarray(v, dtype=np.float64) for n, v in self.result.metrics["per_element"].items()
+            }
+        with tempfile.TemporaryDirectory(prefix="magnet-") as tmp:
+            path = os.path.join(tmp, "elements.vtu")
+            write_vtu(path, self.result.poly, cell_data)
+            return meshio.read(path)
+
+    def to_pyvista(self):
+        """The polytopes as a pyvista.UnstructuredGrid (needs pyvista)."""
+        try:
+            import pyvista
+        except ImportError:
+            raise ParameterError(
+                "to_pyvista() needs pyvista (pip install pyvista); to_meshio() does not"
+            ) from None
+        return pyvista.from_meshio(self.to_meshio())
+
+
+def build_hierarchy(
+    source=None,
+    *,
+    points=None,
+    cells=None,
+    tags=None,
+    model: str = "rtree",
+    ratio: float = 8.0,
+    coarsest: int = 10,
+    groups: bool = False,
+    seed: int = 0,
+    physical_tag: str | None = None,
+    weld: float | None = None,
+) -> Hierarchy:
+    """Nested levels for multigrid (as `magnet hierarchy`): about `ratio` times fewer elements per
+    level down to at most `coarsest`; every element connected, every level nested in the next finer."""
+    params = validate_params(
+        {
+            "model": model,
+            "nref": 1,
+            "options": {"seed": seed, "hierarchy": True, "ratio": ratio, "coarsest": coarsest},
+        }
+    )
+    from models.hierarchy.nested import build_hierarchy as build
+    from models.pipeline import prepare
+
+    mesh = read_mesh(source, points=points, cells=cells, tags=tags, physical_tag=physical_tag, weld=weld)
+    graph, data = prepare(mesh)
+    o = params["options"]
+    levels, info = build(
+        mesh,
+        data,
+        model=params["model"],
+        ratio=o["ratio"],
+        coarsest=o["coarsest"],
+        seed=o["seed"],
+        groups=groups,
+    )
+    return Hierarchy(mesh, graph, data, levels, info)
+
+
+class Hierarchy:
+    """Nested levels, coarsest first: `levels[i]` is the (cells,) labels of level i."""
+
+    def __init__(self, mesh, graph, data, levels, info):
+        self.mesh, self.graph, self.data, self.levels = mesh, graph, data, levels
+        self.merged = info.pop("merged")
+        self.info = info
+
+    def __repr__(self) -> str:
+        sizes = " > ".join(str(int(lv.max()) + 1) for lv in self.levels)
+        return f"<Hierarchy: {len(self.levels)} levels ({sizes} elements) from {self.mesh.n_cells} cells>"
+
+    def write(self, folder: str | os.PathLike, metrics: bool = False, lymph: bool = False) -> dict:
+        """level_L.vtu, .labels.json, .parent.json, .metrics.json, aggregation operators and
+        hierarchy.json into `folder`; returns the hierarchy.json index."""
+        from models.hierarchy.nested import write_hierarchy
+        from models.mesh.boundary import fine_boundary, has_groups
+
+        m, g = self.mesh, self.graph
+        boundary = fine_boundary(m, g.faces, g.partner) if has_groups(m) else None
+        keys = ("model", "ratio", "coarsest", "method", "build_time")
+        return write_hierarchy(
+            os.fspath(folder),
+            m,
+            self.data,
+            self.levels,
+            metrics=metrics,
+            lymph=lymph,
+            boundary=boundary,
+            merged=self.merged,
+            extra={key: self.info[key] for key in keys},
+        )
+
+
+def _stderr(line: str) -> None:
+    import sys
+
+    print(f"magnet: warning: {line}", file=sys.stderr)
+
+
+def _meshio_from_arrays(points, cells, tags) -> meshio.Mesh:
+    import meshio
+    import numpy as np
+
+    if isinstance(cells, dict):
+        cells = list(cells.items())
+    try:
+        blocks = [(str(name), np.asarray(conn)) for name, conn in cells]
+    except (TypeError, ValueError):
+        raise ParameterError(
+            "cells must be a list of (cell type, connectivity) pairs, e.g. [('triangle', tri)]"
+        ) from None
+    cell_data = {}
+    if tags is not None:
+        if len(tags) != len(blocks):
+            raise ParameterError(f"tags must hold one array per cell block ({len(blocks)}), got {len(tags)}")
+        cell_data["gmsh:physical"] = [np.asarray(t).reshape(-1) for t in tags]
+    try:
+        return meshio.Mesh(np.asarray(points, dtype=np.float64), blocks, cell_data=cell_data)
+    except (TypeError, ValueError) as exc:
+        raise MeshError(
+            f"points / cells do not form a mesh: {str(exc).splitlines()[0] if str(exc) else 'bad shapes'}"
+        ) from None
+
+
+def _meshio_from_grid(grid) -> meshio.Mesh:
+    """A VTK (vtkUnstructuredGrid) or pyvista UnstructuredGrid as meshio blocks: one block per run
+    of cells of one type and size, so the cells keep their order (labels follow the grid's cells)."""
+    import meshio
+    import numpy as np
+    from meshio._vtk_common import vtk_to_meshio_type
+
+    if hasattr(grid, "GetCellTypesArray"):  # plain VTK
+        from vtkmodules.util.numpy_support import vtk_to_numpy
+
+        if grid.GetPoints() is None:
+            raise MeshError("the VTK grid has no points")
+        points = vtk_to_numpy(grid.GetPoints().GetData())
+        ca = grid.GetCells()
+        offsets = vtk_to_numpy(ca.GetOffsetsArray()).astype(np.int64)
+        conn = vtk_to_numpy(ca.GetConnectivityArray()).astype(np.int64)
+        try:  # VTK >= 9.6: GetCellTypes() is the array (GetCellTypesArray is deprecated)
+            types_array = grid.GetCellTypes()
+        except TypeError:
+            types_array = grid.GetCellTypesArray()
+        types = vtk_to_numpy(types_array).astype(np.int64)
+        cd = grid.GetCellData()
+        data = {
+            cd.GetArrayName(i): vtk_to_numpy(cd.GetArray(i))
+            for i in range(cd.GetNumberOfArrays())
+            if cd.GetArray(i) is not None
+        }
+    else:  # pyvista
+        points = np.asarray(grid.points)
+        offsets = np.asarray(grid.offsets, dtype=np.int64)
+        conn = np.asarray(grid.cell_connectivity, dtype=np.int64)
+        types = np.asarray(grid.celltypes, dtype=np.int64)
+        data = {name: np.asarray(grid.cell_data[name]) for name in grid.cell_data.keys()}
+    if types.size == 0:
+        raise MeshError("the grid has no cells")
+    if np.any(types == 42):
+        raise MeshError("polyhedral cells in a VTK grid: write the grid to .vtu and pass the path")
+    sizes = np.diff(offsets)
+    cut = np.flatnonzero((types[1:] != types[:-1]) | (sizes[1:] != sizes[:-1])) + 1
+    starts, ends = np.r_[0, cut], np.r_[cut, types.size]
+    blocks, cell_data = [], {name: [] for name in data}
+    for s, e in zip(starts, ends, strict=True):  # one per run of cells of one type (not per cell)
+        t = int(types[s])
+        if t not in vtk_to_meshio_type:
+            raise MeshError(f"unsupported VTK cell type {t} in the grid")
+        blocks.append((vtk_to_meshio_type[t], conn[offsets[s] : offsets[e]].reshape(e - s, int(sizes[s]))))
+        for name, arr in data.items():
+            cell_data[name].append(arr[s:e])
+    return meshio.Mesh(points, blocks, cell_data={n: v for n, v in cell_data.items() if n})
