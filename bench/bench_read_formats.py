@@ -73,19 +73,49 @@ def corpus(tmp: str, n: int) -> list[tuple[str, str, int]]:
     out = []
     p, h = vc.grid(n, n, n)
     hexes = vc.unstructured(p, [(12, h)])
-    out.append(("hexahedra, legacy 4.2 binary", vc.write_legacy(os.path.join(tmp, "hex.vtk"), hexes, 42, True), len(h)))
+    out.append(
+        (
+            "hexahedra, legacy 4.2 binary",
+            vc.write_legacy(os.path.join(tmp, "hex.vtk"), hexes, 42, True),
+            len(h),
+        )
+    )
     kuhn = [[0, 1, 2, 6], [0, 2, 3, 6], [0, 3, 7, 6], [0, 7, 4, 6], [0, 4, 5, 6], [0, 5, 1, 6]]
     m = max(n * 2 // 3, 12)
     p2, h2 = vc.grid(m, m, m)
     tets = np.concatenate([h2[:, k] for k in kuhn])
-    out.append(("tetrahedra, VTU appended", vc.write_xml(os.path.join(tmp, "tet.vtu"), vc.unstructured(p2, [(10, tets)])), len(tets)))
-    out.append(("tetrahedra, legacy 5.1 ascii", vc.write_legacy(os.path.join(tmp, "tet.vtk"), vc.unstructured(p2, [(10, tets)]), 51), len(tets)))
+    out.append(
+        (
+            "tetrahedra, VTU appended",
+            vc.write_xml(os.path.join(tmp, "tet.vtu"), vc.unstructured(p2, [(10, tets)])),
+            len(tets),
+        )
+    )
+    out.append(
+        (
+            "tetrahedra, legacy 5.1 ascii",
+            vc.write_legacy(os.path.join(tmp, "tet.vtk"), vc.unstructured(p2, [(10, tets)]), 51),
+            len(tets),
+        )
+    )
     # quadratic tetrahedra: mid-edge nodes per cell (straight-sided)
     pc = np.array([[0, 1], [1, 2], [2, 0], [0, 3], [1, 3], [2, 3]])
     mids = p2[tets[:, pc]].mean(axis=2).reshape(-1, 3)
     q = np.concatenate([tets, len(p2) + np.arange(len(mids)).reshape(-1, 6)], axis=1)
-    out.append(("quadratic tetrahedra (24), VTU", vc.write_xml(os.path.join(tmp, "q.vtu"), vc.unstructured(np.concatenate([p2, mids]), [(24, q)])), len(q)))
-    out.append(("structured grid, VTS", vc.write_xml(os.path.join(tmp, "sg.vts"), vc.structured_grid((n + 1,) * 3), "appended"), n**3))
+    out.append(
+        (
+            "quadratic tetrahedra (24), VTU",
+            vc.write_xml(os.path.join(tmp, "q.vtu"), vc.unstructured(np.concatenate([p2, mids]), [(24, q)])),
+            len(q),
+        )
+    )
+    out.append(
+        (
+            "structured grid, VTS",
+            vc.write_xml(os.path.join(tmp, "sg.vts"), vc.structured_grid((n + 1,) * 3), "appended"),
+            n**3,
+        )
+    )
     im = vc.image((n + 1,) * 3)
     out.append(("image data, VTI", vc.write_xml(os.path.join(tmp, "im.vti"), im, "appended"), n**3))
     del vtk

@@ -71,6 +71,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--coarsest", type=int, help="with --ratio: at most N elements on the coarsest level (default 10)"
     )
     p.add_argument("--k", type=int, help="number of elements (kway)")
+    p.add_argument(
+        "--allow-extra",
+        action="store_true",
+        help="keep every connected fragment as an element (more than k where a part is disconnected); "
+        "default: exactly k, or the job is refused with the reason",
+    )
     p.add_argument("--nref", type=int, help="number of refinements: 2^nref elements")
     p.add_argument("--target-size", type=float, help="bisect until every element's diameter is below this")
     p.add_argument("--mult-factor", type=float, help="target size = factor x mesh diameter (0 < f <= 1)")
@@ -177,6 +183,7 @@ def cmd_agglomerate(client: Client, args: argparse.Namespace) -> int:
         ratio=args.ratio,
         coarsest=args.coarsest,
         weld=args.weld,
+        allow_extra=True if args.allow_extra else None,
         size_measure=args.size_measure,
     )
     print(summary_line(job, time.perf_counter() - t0))

@@ -12,6 +12,8 @@ import httpx
 
 OPTION_NAMES = (
     "seed",
+    "allow_extra",
+    "keep_groups",
     "absorb_fraction",
     "hole_policy",
     "physical_tag",

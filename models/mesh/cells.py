@@ -250,9 +250,9 @@ def normalize(
             f"the file holds only {types.size:,} {kinds} cells (no area or volume): 1D meshes are not "
             "supported; give a planar (2D) or a volume (3D) mesh"
         )
+    # every lower-dimensional cell is reported (not agglomerated; faces of the elements become boundary groups)
     for t, cnt in zip(*np.unique(types[dims < dim], return_counts=True), strict=True):
-        if DIM[t] < dim - 1 or t in (VTK_POLY_VERTEX, VTK_POLY_LINE):
-            out.lower[type_name(t)] = out.lower.get(type_name(t), 0) + int(cnt)
+        out.lower[type_name(t)] = out.lower.get(type_name(t), 0) + int(cnt)
     elem = np.flatnonzero(dims == dim)
     higher = HIGHER[types[elem]]
     if higher.any() and n_points is not None:
