@@ -169,7 +169,22 @@ def cmd_agglomerate(args) -> int:
         check_output_path(getattr(args, what), f"--{what} file")
     t0 = time.perf_counter()
     subset = _read_subset(args.subset)
-    mesh = read_mesh(args.mesh, physical_tag=args.physical_tag, weld=args.weld)
+    if args.fill:
+        mesh = _fill(args)
+    else:
+        if args.remesh or args.fill_size is not None or args.fill_size_abs is not None:
+            raise ParameterError("--remesh, --fill-size and --fill-size-abs go with --fill")
+        try:
+            mesh = read_mesh(args.mesh, physical_tag=args.physical_tag, weld=args.weld)
+        except MagnetError as exc:
+            from models.mesh.fill import is_surface_file
+
+            if not is_surface_file(args.mesh) or "--fill" in str(exc):
+                raise
+            raise type(exc)(
+                f"{exc}; a closed surface is filled with tetrahedra by: magnet agglomerate "
+                f"{os.path.basename(args.mesh)} --fill ..."
+            ) from None
     t_read = time.perf_counter() - t0
     prog = _Progress(args.progress or (sys.stderr.isatty() and mesh.n_cells > 200_000))
     try:
@@ -194,7 +209,7 @@ def cmd_agglomerate(args) -> int:
             record_levels=bool(args.hierarchy),
             keep_groups={"auto": None, "on": True, "off": False}[args.keep_groups],
         )
-        res.timings = {"read": t_read, **res.timings}
+        res.timings = {"fill" if args.fill else "read": t_read, **res.timings}
         if args.hierarchy:
             idx = pipeline.write_hierarchy(res, args.hierarchy)
             print(
@@ -236,6 +251,22 @@ def cmd_agglomerate(args) -> int:
     note = f" ({', '.join(extra)})" if extra else ""
     print(f"{s['elements']} elements from {mesh.n_cells} cells{note} | {stages} | total {total:.2f}s")
     return 0
+
+
+def _fill(args):
+    """`agglomerate shell.stl --fill`: the closed surface filled with tetrahedra (models.mesh.fill)."""
+    from models.cli.fill import FillProgress, fill_options
+    from models.mesh.fill import describe_fill, fill_mesh
+
+    if args.physical_tag or args.weld is not None:
+        raise ParameterError("--physical-tag and --weld do not apply to --fill (a surface has no groups)")
+    prog = FillProgress(os.path.basename(args.mesh))
+    try:
+        mesh = fill_mesh(args.mesh, size=args.fill_size, progress=prog, seed=args.seed, **fill_options(args))
+    finally:
+        prog.close()
+    print(describe_fill(mesh.meta["fill"]))
+    return mesh
 
 
 def cmd_check(args) -> int:
@@ -353,6 +384,15 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
         "(level_L.vtu, level_L.labels.json, level_L.parent.json, level_L.metrics.json, hierarchy.json)",
     )
     p.add_argument("--progress", action="store_true", help="always show the progress bar")
+    p.add_argument(
+        "--fill",
+        action="store_true",
+        help="MESH is a closed surface (.stl, .obj, .ply, .off): fill it with tetrahedra first, keeping its "
+        "triangles (see --remesh, --fill-size, --fill-size-abs, --max-cells)",
+    )
+    from models.cli.fill import add_fill_args
+
+    add_fill_args(p)
     p.set_defaults(func=cmd_agglomerate, model_metrics=False)
 
     p = sub.add_parser(
