@@ -5,7 +5,9 @@ inspection) and must never import torch. Neural partitioners are loaded lazily b
 
 - inspect_mesh(path, physical_tag=None) -> {"cells", "points", "dim", "cell_types": {name: count},
   "physical_groups": [int], "bbox": [[min...], [max...]], "boundary_groups": [int], "boundary":
-  models.mesh.boundary.summary}; raises MeshError.
+  models.mesh.boundary.summary}; raises MeshError. A closed surface (STL, OBJ, PLY, OFF) that is no
+  planar mesh gives {"surface": {triangles, area, enclosed_volume, ...}, "cells": the estimated number of
+  tetrahedra when filled as it stands, ...}: its jobs need options.fill.
 - validate_params(params, mesh_info=None) -> normalized params dict; raises ParameterError whose
   message names the field. Keys: model, mode, k, nref, target_size, mult_factor, subset (list of
   cell ids), refiner (fm | rl-refiner | null), options {seed, absorb_fraction, hole_policy,
@@ -14,7 +16,10 @@ inspection) and must never import torch. Neural partitioners are loaded lazily b
   centroids, the paper's measure, default; "vertices": between its vertices), threshold (coarsest
   graph size of mode multilevel, default 200), hierarchy (keep every nested level), ratio / coarsest
   (with hierarchy: nested levels of their own at this coarsening ratio, as `magnet hierarchy`), weld (merge
-  points closer than this first)}.
+  points closer than this first), fill (the mesh is a closed surface, STL/OBJ/PLY/OFF: fill it with
+  tetrahedra first, keeping its triangles; models.mesh.fill), fill_remesh (re-mesh the surface first),
+  fill_size (re-mesh size as a fraction of the bounding-box diagonal, (0, 1]), fill_size_abs (re-mesh
+  size in the file's own length unit), fill_max_cells (refuse beyond this estimate, default 5,000,000)}.
 - run_job(mesh_path, out_dir, params, progress=None, should_cancel=None) -> summary dict
   {"elements", "parts_split", "fragments_absorbed", "timings": {stage: seconds}, "outputs": {kind: filename}}
   writing into out_dir: mesh.vtu, metrics.json, labels.json, preview.png, and for 2D meshes
@@ -30,7 +35,7 @@ import os
 import time
 from collections.abc import Callable
 
-from models.errors import ParameterError
+from models.errors import MagnetError, ParameterError
 
 MODEL_VERSION = "0.1.0"
 MODES = ("kway", "nref", "target-size", "mult-factor", "segregated", "coarsen", "multilevel")
@@ -96,15 +101,50 @@ def list_models() -> list[dict]:
 def inspect_mesh(path: str | os.PathLike, physical_tag: str | None = None, check: bool = False) -> dict:
     """Read and validate a mesh; return its summary (MeshError if it is not a valid mesh).
     check: add the `magnet check` report (models.mesh.check.mesh_report) under "check"."""
+    from models.mesh.fill import is_surface_file
     from models.mesh.read import describe, read_mesh
 
-    mesh = read_mesh(path, physical_tag=physical_tag)
+    try:
+        mesh = read_mesh(path, physical_tag=physical_tag)
+    except MagnetError:
+        if not is_surface_file(path):
+            raise
+        return _inspect_surface(path)
     info = describe(mesh)
     if check:
         from models.mesh.check import mesh_report
 
         info["check"] = mesh_report(mesh)
     return info
+
+
+def _inspect_surface(path) -> dict:
+    """inspect_mesh of a closed surface to be filled (MeshError, saying where, if it is not closed)."""
+    from models.mesh.fill import check_closed, estimate_cells, read_surface
+
+    s = read_surface(path)
+    check_closed(s)
+    est = estimate_cells(s)
+    return {
+        "cells": est,
+        "points": len(s.points),
+        "dim": 3,
+        "cell_types": {"triangle": len(s.triangles)},
+        "physical_groups": [],
+        "bbox": s.info["bbox"],
+        "boundary_groups": [],
+        "surface": {k: s.info[k] for k in ("triangles", "area", "enclosed_volume", "oriented")}
+        | {"estimated_cells": est},
+    }
+
+
+def _bool(opts: dict, name: str) -> bool:
+    v = opts.get(name, False)
+    if v in ("true", "false"):  # form fields arrive as strings
+        v = v == "true"
+    if not isinstance(v, bool):
+        raise ParameterError(f"options.{name} must be true or false, got {v!r}")
+    return v
 
 
 def _int(params: dict, name: str, lo: int | None = None, hi: int | None = None) -> int | None:
@@ -191,6 +231,11 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
         "weld",
         "ratio",
         "coarsest",
+        "fill",
+        "fill_remesh",
+        "fill_size",
+        "fill_size_abs",
+        "fill_max_cells",
     }
     if set(opts) - known_opts:
         raise ParameterError(f"unknown option(s): {sorted(set(opts) - known_opts)}")
@@ -233,6 +278,17 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
     weld = _float(opts, "weld")
     if weld is not None and weld < 0:
         raise ParameterError(f"options.weld must be >= 0 (a distance), got {weld}")
+    fill = _bool(opts, "fill")
+    fill_remesh = _bool(opts, "fill_remesh")
+    fill_size = _float(opts, "fill_size", lo_open=0.0, hi=1.0)
+    fill_size_abs = _float(opts, "fill_size_abs", lo_open=0.0)
+    fill_max_cells = _int(opts, "fill_max_cells", lo=1)
+    if fill_size is not None and fill_size_abs is not None:
+        raise ParameterError("options.fill_size (relative) and options.fill_size_abs (absolute): give one")
+    if not fill and (fill_remesh or fill_size is not None or fill_size_abs is not None or fill_max_cells):
+        raise ParameterError(
+            "options.fill_remesh, fill_size, fill_size_abs and fill_max_cells go with options.fill"
+        )
     size_measure = opts.get("size_measure", "centroids")
     if size_measure not in ("centroids", "vertices"):
         raise ParameterError(f"options.size_measure must be 'centroids' or 'vertices', got {size_measure!r}")
@@ -258,7 +314,16 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
             f"model {model!r} has no direct k-way mode; use nref, target-size or mult-factor"
         )
 
-    if mesh_info is not None:
+    if mesh_info is not None and mesh_info.get("surface") is not None and not fill:
+        raise ParameterError(
+            f"options.fill: the mesh is a closed surface of {mesh_info['surface']['triangles']:,} triangles; "
+            "set options.fill = true to fill it with tetrahedra"
+        )
+    if mesh_info is not None and fill and mesh_info.get("surface") is None and not mesh_info.get("filled"):
+        raise ParameterError(
+            "options.fill is for a closed surface (STL, OBJ, PLY, OFF), not a volume or planar mesh"
+        )
+    if mesh_info is not None and not (fill and mesh_info.get("surface") is not None):  # cells known
         n = int(mesh_info["cells"])
         n_work = n if subset is None else len(set(subset))
         if subset is not None and max(subset) >= n:
@@ -294,6 +359,17 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
             "weld": weld,
             "ratio": ratio,
             "coarsest": coarsest,
+            **(
+                {
+                    "fill": True,
+                    "fill_remesh": fill_remesh,
+                    "fill_size": fill_size,
+                    "fill_size_abs": fill_size_abs,
+                    "fill_max_cells": fill_max_cells,
+                }
+                if fill
+                else {}
+            ),
         },
     }
 
@@ -320,13 +396,33 @@ def run_job(
             progress(frac, stage)
 
     t0 = time.perf_counter()
-    tick(0.0, "read")
-    mesh = read_mesh(mesh_path, physical_tag=p["options"]["physical_tag"], weld=p["options"]["weld"])
+    o = p["options"]
+    if o.get("fill"):
+        from models.mesh.fill import DEFAULT_MAX_CELLS, fill_mesh
+
+        tick(0.0, "fill")
+        mesh = fill_mesh(
+            mesh_path,
+            remesh=o["fill_remesh"],
+            size=o["fill_size"],
+            size_abs=o["fill_size_abs"],
+            max_cells=o["fill_max_cells"] or DEFAULT_MAX_CELLS,
+            seed=o["seed"],
+            progress=lambda frac, stage: tick(0.2 * frac, "fill"),
+        )
+    else:
+        tick(0.0, "read")
+        mesh = read_mesh(mesh_path, physical_tag=o["physical_tag"], weld=o["weld"])
     t_read = time.perf_counter() - t0
     validate_params(
-        params, {"cells": mesh.n_cells, "physical_groups": mesh.physical_groups(), "dim": mesh.dim}
+        params,
+        {
+            "cells": mesh.n_cells,
+            "physical_groups": mesh.physical_groups(),
+            "dim": mesh.dim,
+            "filled": bool(o.get("fill")),
+        },
     )
-    o = p["options"]
     model_options = {"method": o["method"]} if p["model"] == "metis" else None
     res = pipeline.run(
         mesh,
@@ -347,7 +443,7 @@ def run_job(
         threshold=o["threshold"],
         record_levels=o["hierarchy"] and o["ratio"] is None,
     )
-    res.timings = {"read": t_read, **res.timings}
+    res.timings = {"fill" if o.get("fill") else "read": t_read, **res.timings}
     files = {"mesh": "mesh.vtu", "metrics": "metrics.json", "labels": "labels.json", "preview": "preview.png"}
     if mesh.dim == 2:
         files["lymph"] = "lymph.json"
@@ -371,6 +467,8 @@ def run_job(
     s = res.summary()
     s["timings"]["total"] = round(time.perf_counter() - t0, 4)
     s["outputs"] = files
+    if o.get("fill"):
+        s["fill"] = mesh.meta["fill"]
     return s
 
 
