@@ -19,7 +19,7 @@ gmsh = pytest.importorskip("gmsh")
 
 from models import api  # noqa: E402
 from models.errors import MeshError, ParameterError  # noqa: E402
-from models.mesh.fill import fill_surface, read_surface  # noqa: E402
+from models.mesh.fill import _box_pairs, fill_surface, read_surface  # noqa: E402
 from models.mesh.read import read_mesh  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -195,6 +195,18 @@ def test_self_intersecting_surface_is_refused_with_a_point(tmp_path, shapes):
         assert (p >= lo - 1e-9).all() and (p <= lo + 1 + 1e-9).all()
         assert np.isclose(p, lo).any() or np.isclose(p, lo + 1).any()
     _no_library_text(msg)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_grid_finds_every_overlapping_box_pair(seed):
+    rng = np.random.default_rng(seed)
+    lo = rng.uniform(0, 10, size=(400, 3))
+    hi = lo + rng.uniform(0, 1, size=(400, 3)) ** 4 * 4  # mostly small boxes, a few long ones
+    overlap = (lo[:, None] <= hi[None]).all(2) & (lo[None] <= hi[:, None]).all(2)
+    want = {(i, j) for i, j in zip(*np.nonzero(np.triu(overlap, 1)), strict=True)}
+    for entries in (10**6, 2000):  # a fine grid, and one coarsened to fit 2,000 entries
+        got = {tuple(map(int, q)) for q in _box_pairs(lo, hi, entries, 10**7)}
+        assert want <= got
 
 
 def test_non_manifold_and_unreadable_surfaces(tmp_path, shapes):

@@ -233,38 +233,73 @@ def estimate_cells(s: Surface, h: float | None = None) -> int:
 # -------------------------------------------------------------------------------- intersections
 
 
-def find_intersection(s: Surface, limit: int = 2_000_000) -> tuple[int, np.ndarray | None]:
-    """(number of crossing triangle pairs found, one crossing point or None): every edge of a
-    triangle tested against every triangle with no shared corner whose box overlaps its own."""
-    from scipy.spatial import cKDTree
+def _box_pairs(lo: np.ndarray, hi: np.ndarray, max_entries: int, max_pairs: int) -> np.ndarray:
+    """(M, 2) pairs i < j of boxes that share a cell of a uniform grid (each box entered in every cell
+    it overlaps; the cell grows until the entries fit in max_entries), at most max_pairs of them."""
+    gmin = lo.min(0)
+    ext = (hi - lo).max(1)
+    cell = max(float(np.median(ext)), float(np.ptp(np.vstack([lo, hi]), axis=0).max()) * 1e-6, 1e-300)
+    while True:
+        i0 = np.floor((lo - gmin) / cell).astype(np.int64)
+        span = np.floor((hi - gmin) / cell).astype(np.int64) - i0 + 1
+        counts = span.prod(1)
+        if counts.sum() <= max_entries:
+            break
+        cell *= 2
+    dims = (i0 + span).max(0) + 1
+    box = np.repeat(np.arange(len(lo)), counts)
+    local = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    sx, sy = span[box, 0], span[box, 1]
+    cx = i0[box, 0] + local % sx
+    cy = i0[box, 1] + (local // sx) % sy
+    cz = i0[box, 2] + local // (sx * sy)
+    key = (cx * dims[1] + cy) * dims[2] + cz
+    order = np.argsort(key, kind="stable")
+    key, box = key[order], box[order]
+    start = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    size = np.diff(np.r_[start, len(key)])
+    rank = np.arange(len(key)) - np.repeat(start, size)  # each entry pairs with the earlier ones of its cell
+    total = int(rank.sum())
+    if total > max_pairs:  # keep the first cells' pairs (a partial search)
+        rank = rank * (np.cumsum(rank) <= max_pairs)
+        total = int(rank.sum())
+    first = np.repeat(np.arange(len(key)), rank)
+    second = np.repeat(np.repeat(start, size), rank) + (
+        np.arange(total) - np.repeat(np.cumsum(rank) - rank, rank)
+    )
+    a, b = box[first], box[second]
+    pairs = np.column_stack([np.minimum(a, b), np.maximum(a, b)])
+    return np.unique(pairs, axis=0) if len(pairs) else pairs
 
+
+def find_intersection(
+    s: Surface, max_entries: int = 20_000_000, max_pairs: int = 20_000_000, chunk: int = 1_000_000
+) -> tuple[int, np.ndarray | None]:
+    """(number of crossing triangle pairs found, one crossing point or None): every edge of a
+    triangle tested against every triangle with no shared corner whose box overlaps its own (pairs
+    from a uniform grid, tested a chunk at a time)."""
     p = s.points[s.triangles]  # (T, 3, 3)
     lo, hi = p.min(1), p.max(1)
-    centre, radius = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo, axis=1)
-    tree = cKDTree(centre)
-    pairs = tree.query_pairs(2 * float(radius.max()) + 1e-12, output_type="ndarray")
-    if len(pairs) > limit:  # very uneven triangles: fall back to a sample of the closest pairs
-        pairs = pairs[:limit]
-    i, j = pairs[:, 0], pairs[:, 1]
-    keep = (lo[i] <= hi[j]).all(1) & (lo[j] <= hi[i]).all(1)
-    ti, tj = s.triangles[i], s.triangles[j]
-    shared = (ti[:, :, None] == tj[:, None, :]).any((1, 2))
-    keep &= ~shared
-    i, j = i[keep], j[keep]
-    if not len(i):
-        return 0, None
-    hits = np.zeros(len(i), dtype=bool)
-    point = None
-    for first, second in ((i, j), (j, i)):
-        for e in range(3):
-            o = p[first, e]
-            d = p[first, (e + 1) % 3] - o
-            ok, t = _segment_triangle(o, d, p[second])
-            hits |= ok
-            if point is None and ok.any():
-                k = int(np.flatnonzero(ok)[0])
-                point = o[k] + t[k] * d[k]
-    return int(hits.sum()), point
+    pairs = _box_pairs(lo, hi, max_entries, max_pairs)
+    count, point = 0, None
+    for c in range(0, len(pairs), chunk):
+        i, j = pairs[c : c + chunk, 0], pairs[c : c + chunk, 1]
+        keep = (lo[i] <= hi[j]).all(1) & (lo[j] <= hi[i]).all(1)
+        ti, tj = s.triangles[i], s.triangles[j]
+        keep &= ~(ti[:, :, None] == tj[:, None, :]).any((1, 2))
+        i, j = i[keep], j[keep]
+        hits = np.zeros(len(i), dtype=bool)
+        for first, second in ((i, j), (j, i)):
+            for e in range(3):
+                o = p[first, e]
+                d = p[first, (e + 1) % 3] - o
+                ok, t = _segment_triangle(o, d, p[second])
+                hits |= ok
+                if point is None and ok.any():
+                    k = int(np.flatnonzero(ok)[0])
+                    point = o[k] + t[k] * d[k]
+        count += int(hits.sum())
+    return count, point
 
 
 def _segment_triangle(o: np.ndarray, d: np.ndarray, tri: np.ndarray, eps: float = 1e-12):
