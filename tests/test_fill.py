@@ -19,7 +19,7 @@ gmsh = pytest.importorskip("gmsh")
 
 from models import api  # noqa: E402
 from models.errors import MeshError, ParameterError  # noqa: E402
-from models.mesh.fill import _box_pairs, fill_surface, read_surface  # noqa: E402
+from models.mesh.fill import _box_pairs, check_closed, fill_surface, read_surface  # noqa: E402
 from models.mesh.read import read_mesh  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -123,6 +123,28 @@ def test_kept_surface_is_filled_to_its_enclosed_volume(tmp_path, shapes, case):
     read = meshio.read(str(path))  # the coordinates as the file holds them (ASCII STL rounds)
     assert triangle_keys(f.points, bnd) == triangle_keys(read.points, read.cells_dict["triangle"])
     assert 0.5 <= f.info["cells"] / f.info["estimated_cells"] <= 2.0
+
+
+def test_badly_oriented_triangles_are_turned(tmp_path, shapes):
+    points, tris = shapes["torus"]
+    bad = tris.copy()
+    bad[::5] = bad[::5, ::-1]  # every fifth triangle reversed
+    inside_out = tris[:, ::-1]  # all reversed: consistent, but inward
+    ref = enclosed_volume(points, tris)
+    for name, t in (("some.stl", bad), ("inward.stl", inside_out)):
+        meshio.write(str(tmp_path / name), meshio.Mesh(points, [("triangle", t)]))
+        f = fill_surface(tmp_path / name)
+        assert abs(f.info["enclosed_volume"] - ref) <= 1e-9 * ref
+        assert abs(f.info["volume"] - ref) <= 1e-9 * ref
+    s = read_surface(tmp_path / "some.stl")
+    check_closed(s)
+    assert s.info["oriented"] is False and s.info["reoriented"] in (
+        len(tris[::5]),
+        len(tris) - len(tris[::5]),
+    )
+    assert enclosed_volume(s.points, s.triangles) == pytest.approx(ref, rel=1e-12)
+    p = s.points[s.triangles]  # now outward: the signed volume is positive
+    assert np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() > 0
 
 
 def test_remesh_relative_and_absolute_size(tmp_path, shapes):

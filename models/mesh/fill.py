@@ -205,18 +205,87 @@ def check_closed(s: Surface) -> None:
     # consistently oriented: every edge is walked once each way (a < b on exactly one of its two uses)
     forward = np.bincount(inv, weights=(a < b), minlength=len(uniq))
     oriented = bool((forward == 1).all())
+    flipped = 0 if oriented else _reorient(s, key, a < b)
     area = float(s.areas().sum())
-    vol = s.signed_volume() if oriented else None
+    vol = _outward(s)
     s.info.update(
         area=area,
         oriented=oriented,
-        enclosed_volume=None if vol is None else abs(vol),
+        reoriented=flipped,
+        enclosed_volume=vol,
         bbox=[s.points.min(0).tolist(), s.points.max(0).tolist()],
     )
-    if area <= 0 or (vol is not None and abs(vol) <= 1e-12 * s.diagonal**3):
+    if area <= 0 or (vol is not None and vol <= 1e-12 * s.diagonal**3):
         raise MeshError(
             f"{s.name} encloses no volume (its triangles lie in a plane): there is nothing to fill"
         )
+
+
+def _reorient(s: Surface, key: np.ndarray, forward: np.ndarray) -> int | None:
+    """Flip triangles so that each shell is consistently oriented (the file's triangles disagree):
+    a breadth-first tree over the triangles' shared edges per shell, the flips along it summed by
+    pointer jumping (log depth numpy steps). Returns the number flipped, None if not orientable."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import breadth_first_order, connected_components
+
+    t = len(s.triangles)
+    order = np.argsort(key, kind="stable")  # a closed manifold: every edge has exactly two uses
+    u, v = order[0::2], order[1::2]
+    ti, tj = u // 3, v // 3
+    rel = (forward[u] == forward[v]).astype(np.int8)  # 1: the two triangles disagree across this edge
+    adj = coo_matrix((np.r_[rel, rel] + 1, (np.r_[ti, tj], np.r_[tj, ti])), shape=(t, t)).tocsr()
+    n_comp, comp = connected_components(adj, directed=False)
+    parent = np.arange(t)
+    for root in np.unique(comp, return_index=True)[1]:  # one breadth-first tree per shell
+        _, pred = breadth_first_order(adj, int(root), directed=False, return_predecessors=True)
+        reached = pred >= 0
+        parent[reached] = pred[reached]
+    flip = np.asarray(adj[np.arange(t), parent]).ravel().astype(np.int8) - 1
+    flip[parent == np.arange(t)] = 0
+    while (parent != parent[parent]).any():
+        flip, parent = flip ^ flip[parent], parent[parent]
+    tris = s.triangles.copy()
+    tris[flip == 1] = tris[flip == 1][:, [0, 2, 1]]
+    old, s.triangles = s.triangles, tris
+    if _consistent(s) is None:
+        s.triangles = old
+        return None  # not orientable (cannot enclose a volume as one consistent shell)
+    return int(flip.sum())
+
+
+def _consistent(s: Surface) -> np.ndarray | None:
+    """The first corner of every edge use (flat, 3 per triangle) if every edge is walked once each
+    way, else None."""
+    t = s.triangles
+    a = t.reshape(-1)
+    b = t[:, [1, 2, 0]].reshape(-1)
+    key = np.minimum(a, b) * len(s.points) + np.maximum(a, b)
+    _, inv = np.unique(key, return_inverse=True)
+    return a if (np.bincount(inv, weights=(a < b)) == 1).all() else None
+
+
+def _outward(s: Surface) -> float | None:
+    """Turn every shell (edge-connected set of triangles) outward if it is consistently oriented and
+    return the enclosed volume (None if the orientation is not consistent)."""
+    t, n = s.triangles, len(s.points)
+    a = _consistent(s)
+    if a is None:
+        return None
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    # shells: triangles connected through points (a vertex-touching pair of shells counts as one)
+    rows = np.repeat(np.arange(len(t)), 3)
+    inc = coo_matrix((np.ones(len(rows)), (rows, a)), shape=(len(t), n)).tocsr()
+    _, comp = connected_components(inc @ inc.T, directed=False)
+    p = s.points[t] - s.points.mean(0)
+    per = np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])) / 6.0
+    vol = np.bincount(comp, weights=per)
+    inward = vol[comp] < 0
+    if inward.any():
+        s.triangles = t.copy()
+        s.triangles[inward] = t[inward][:, [0, 2, 1]]
+    return float(np.abs(vol).sum())
 
 
 def estimate_cells(s: Surface, h: float | None = None) -> int:
