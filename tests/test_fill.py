@@ -19,7 +19,13 @@ gmsh = pytest.importorskip("gmsh")
 
 from models import api  # noqa: E402
 from models.errors import MeshError, ParameterError  # noqa: E402
-from models.mesh.fill import _box_pairs, check_closed, fill_surface, read_surface  # noqa: E402
+from models.mesh.fill import (  # noqa: E402
+    _box_pairs,
+    check_closed,
+    fill_surface,
+    find_intersection,
+    read_surface,
+)
 from models.mesh.read import read_mesh  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -63,6 +69,11 @@ def cad(occ):
     bores = [(3, occ.addCylinder(-30, 0, -30, 0, 0, 60, 15)), (3, occ.addCylinder(30, 0, -30, 0, 0, 60, 12))]
     cut, _ = occ.cut([(3, plate)], bores)
     occ.fuse(cut, [(3, occ.addSphere(0, 0, 20, 25)), (3, occ.addTorus(0, 0, -20, 40, 6))])
+
+
+def _write(path, points, tris):
+    meshio.write(str(path), meshio.Mesh(points, [("triangle", tris)]))
+    return path
 
 
 def enclosed_volume(points, tris) -> float:
@@ -211,12 +222,20 @@ def test_self_intersecting_surface_is_refused_with_a_point(tmp_path, shapes):
         fill_surface(path)
     msg = str(err.value)
     assert msg.startswith("overlap.stl intersects itself: ") and "meshfix" in msg
+    with pytest.raises(MeshError, match="intersects itself"):  # checked before re-meshing too
+        fill_surface(path, remesh=True)
     p = np.array([float(v) for v in re.search(r"e\.g\. at \(([^)]*)\)", msg).group(1).split(",")])
     # the point lies on both boxes' surfaces: inside (or on) each box, on a face of each
     for lo in (np.zeros(3), shift):
         assert (p >= lo - 1e-9).all() and (p <= lo + 1 + 1e-9).all()
         assert np.isclose(p, lo).any() or np.isclose(p, lo + 1).any()
     _no_library_text(msg)
+
+
+def test_clean_surfaces_have_no_crossing(tmp_path, shapes):
+    for name, (points, tris) in shapes.items():
+        s = read_surface(_write(tmp_path / f"{name}.stl", points, tris))
+        assert find_intersection(s) == (0, None)
 
 
 @pytest.mark.parametrize("seed", [0, 1])

@@ -459,23 +459,30 @@ def _tets_out(gmsh) -> tuple[np.ndarray, np.ndarray]:
     return coords[used].copy(), remap[tets]
 
 
+def _crossing_error(s: Surface) -> MeshError | None:
+    count, point = find_intersection(s)
+    if point is None:
+        return None
+    return MeshError(
+        f"{s.name} intersects itself: {count:,} pairs of triangles cross, e.g. at {_fmt_point(point)}; {REPAIR}"
+    )
+
+
 def _gmsh_failure(s: Surface, exc: Exception) -> MeshError:
-    """Our sentence for gmsh's failure (never gmsh's own text)."""
+    """Our sentence for gmsh's failure (never gmsh's own text): where the surface crosses itself if
+    it does, else what gmsh's failure means."""
+    crossing = _crossing_error(s)
+    if crossing is not None:
+        return crossing
     text = str(exc)
     if "intersect" in text or "PLC" in text or "overlap" in text.lower():
-        count, point = find_intersection(s)
-        if point is not None:
-            return MeshError(
-                f"{s.name} intersects itself: {count:,} pairs of triangles cross, e.g. at {_fmt_point(point)}; "
-                f"{REPAIR}"
-            )
         return MeshError(
-            f"{s.name} could not be filled: its triangles cross or overlap somewhere (two facets meet "
+            f"{s.name} could not be filled: its triangles overlap or touch somewhere (two facets meet "
             f"away from their edges); {REPAIR}"
         )
     return MeshError(
         f"{s.name} could not be filled with tetrahedra (the mesher gave up on its boundary: facets that "
-        f"cross, overlap or nearly touch); {REPAIR}, or try --remesh"
+        f"overlap or nearly touch); {REPAIR}, or try --remesh"
     )
 
 
@@ -514,6 +521,10 @@ def fill_surface(
             f"filling {s.name} would make about {estimate:,} tetrahedra, more than the limit of {max_cells:,}: "
             f"use {how}, or raise the limit (--max-cells)"
         )
+    if remesh:  # re-meshing a surface that crosses itself can end in a wrong volume without an error
+        crossing = _crossing_error(s)
+        if crossing is not None:
+            raise crossing
     expected = estimate / 60_000.0  # seconds: gmsh makes about 40-80k tetrahedra a second here
     t1 = time.perf_counter()
     with _gmsh(seed) as gmsh:
@@ -555,6 +566,7 @@ def fill_surface(
         "cells": len(tets),
         "points": len(points),
         "enclosed_volume": s.info.get("enclosed_volume"),
+        "reoriented": s.info.get("reoriented"),
         "volume": filled.volume(),
         "timings": {"check": t_check, "fill": time.perf_counter() - t1},
     }
