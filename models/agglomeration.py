@@ -166,12 +166,33 @@ def run(
     p = validate_params(params)  # before the mesh is read: bad keywords fail at once
     o = p["options"]
     t0 = time.perf_counter()
-    mesh = read_mesh(
-        source, points=points, cells=cells, tags=tags, physical_tag=o["physical_tag"], weld=o["weld"]
-    )
+    if o.get("fill"):  # a closed surface (STL, OBJ, PLY, OFF) filled with tetrahedra first
+        from models.mesh.fill import DEFAULT_MAX_CELLS, fill_mesh
+
+        if progress is not None:
+            progress(0.0, "fill")
+        mesh = fill_mesh(
+            source,
+            remesh=o["fill_remesh"],
+            size=o["fill_size"],
+            size_abs=o["fill_size_abs"],
+            max_cells=o["fill_max_cells"] or DEFAULT_MAX_CELLS,
+            seed=o["seed"],
+            progress=None if progress is None else (lambda frac, stage: progress(0.2 * frac, "fill")),
+        )
+    else:
+        mesh = read_mesh(
+            source, points=points, cells=cells, tags=tags, physical_tag=o["physical_tag"], weld=o["weld"]
+        )
     t_read = time.perf_counter() - t0
     p = validate_params(
-        params, {"cells": mesh.n_cells, "physical_groups": mesh.physical_groups(), "dim": mesh.dim}
+        params,
+        {
+            "cells": mesh.n_cells,
+            "physical_groups": mesh.physical_groups(),
+            "dim": mesh.dim,
+            "filled": bool(o.get("fill")),
+        },
     )
     o = p["options"]
     if p["model"] == "rl-partitioner" and p["mode"] != "multilevel" and mesh.n_cells > SLOW_CELLS:
@@ -203,7 +224,9 @@ def run(
         keep_groups=o["keep_groups"],
         allow_extra=o["allow_extra"],
     )
-    res.timings = {"read": t_read, **res.timings}
+    res.timings = {"fill" if o.get("fill") else "read": t_read, **res.timings}
+    if o.get("fill"):
+        res.mesh.meta.setdefault("fill", mesh.meta.get("fill"))
     return Agglomeration(res, p)
 
 

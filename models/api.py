@@ -47,16 +47,43 @@ class JobCancelled(Exception):
 def inspect_mesh(path: str | os.PathLike, physical_tag: str | None = None, check: bool = False) -> dict:
     """Read and validate a mesh; return its summary (MeshError if it is not a valid mesh).
     check: add the `magnet check` report (models.mesh.check.mesh_report) under "check"."""
+    from models.errors import MagnetError
+    from models.mesh.fill import is_surface_file
     from models.mesh.read import describe
     from models.mesh.sandbox import read_mesh_safe as read_mesh
 
-    mesh = read_mesh(path, physical_tag=physical_tag)
+    try:
+        mesh = read_mesh(path, physical_tag=physical_tag)
+    except MagnetError:
+        if not is_surface_file(path):
+            raise
+        return _inspect_surface(path)
     info = describe(mesh)
     if check:
         from models.mesh.check import mesh_report
 
         info["check"] = mesh_report(mesh)
     return info
+
+
+def _inspect_surface(path) -> dict:
+    """inspect_mesh of a closed surface to be filled (MeshError, saying where, if it is not closed)."""
+    from models.mesh.fill import check_closed, estimate_cells, read_surface
+
+    s = read_surface(path)
+    check_closed(s)
+    est = estimate_cells(s)
+    return {
+        "cells": est,
+        "points": len(s.points),
+        "dim": 3,
+        "cell_types": {"triangle": len(s.triangles)},
+        "physical_groups": [],
+        "bbox": s.info["bbox"],
+        "boundary_groups": [],
+        "surface": {k: s.info[k] for k in ("triangles", "area", "enclosed_volume", "oriented")}
+        | {"estimated_cells": est},
+    }
 
 
 def run_job(
@@ -109,6 +136,8 @@ def run_job(
     s = res.summary()
     s["timings"]["total"] = round(time.perf_counter() - t0, 4)
     s["outputs"] = files
+    if o.get("fill"):
+        s["fill"] = mesh.meta.get("fill")
     return s
 
 

@@ -84,6 +84,15 @@ def _int(params: dict, name: str, lo: int | None = None, hi: int | None = None) 
     return v
 
 
+def _bool(opts: dict, name: str) -> bool:
+    v = opts.get(name, False)
+    if v in ("true", "false"):  # form fields arrive as strings
+        v = v == "true"
+    if not isinstance(v, bool):
+        raise ParameterError(f"options.{name} must be true or false, got {v!r}")
+    return v
+
+
 def _float(params: dict, name: str, lo_open: float | None = None, hi: float | None = None) -> float | None:
     v = params.get(name)
     if v is None:
@@ -208,6 +217,11 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
         "coarsest",
         "allow_extra",
         "keep_groups",
+        "fill",
+        "fill_remesh",
+        "fill_size",
+        "fill_size_abs",
+        "fill_max_cells",
     }
     if set(opts) - known_opts:
         raise ParameterError(f"unknown option(s): {sorted(set(opts) - known_opts)}")
@@ -258,6 +272,17 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
     weld = _float(opts, "weld")
     if weld is not None and weld < 0:
         raise ParameterError(f"options.weld must be >= 0 (a distance), got {weld}")
+    fill = _bool(opts, "fill")
+    fill_remesh = _bool(opts, "fill_remesh")
+    fill_size = _float(opts, "fill_size", lo_open=0.0, hi=1.0)
+    fill_size_abs = _float(opts, "fill_size_abs", lo_open=0.0)
+    fill_max_cells = _int(opts, "fill_max_cells", lo=1)
+    if fill_size is not None and fill_size_abs is not None:
+        raise ParameterError("options.fill_size (relative) and options.fill_size_abs (absolute): give one")
+    if not fill and (fill_remesh or fill_size is not None or fill_size_abs is not None or fill_max_cells):
+        raise ParameterError(
+            "options.fill_remesh, fill_size, fill_size_abs and fill_max_cells go with options.fill"
+        )
     size_measure = opts.get("size_measure", "centroids")
     if size_measure not in ("centroids", "vertices"):
         raise ParameterError(f"options.size_measure must be 'centroids' or 'vertices', got {size_measure!r}")
@@ -283,7 +308,16 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
             f"model {model!r} has no direct k-way mode; use nref, target-size or mult-factor"
         )
 
-    if mesh_info is not None:
+    if mesh_info is not None and mesh_info.get("surface") is not None and not fill:
+        raise ParameterError(
+            f"options.fill: the mesh is a closed surface of {mesh_info['surface']['triangles']:,} triangles; "
+            "set options.fill = true to fill it with tetrahedra"
+        )
+    if mesh_info is not None and fill and mesh_info.get("surface") is None and not mesh_info.get("filled"):
+        raise ParameterError(
+            "options.fill is for a closed surface (STL, OBJ, PLY, OFF), not a volume or planar mesh"
+        )
+    if mesh_info is not None and not (fill and mesh_info.get("surface") is not None):  # cells known
         n = int(mesh_info["cells"])
         n_work = n if subset is None else len(set(subset))
         if subset is not None and max(subset) >= n:
@@ -321,5 +355,16 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
             "coarsest": coarsest,
             "allow_extra": allow_extra,
             "keep_groups": keep_groups,
+            **(
+                {
+                    "fill": True,
+                    "fill_remesh": fill_remesh,
+                    "fill_size": fill_size,
+                    "fill_size_abs": fill_size_abs,
+                    "fill_max_cells": fill_max_cells,
+                }
+                if fill
+                else {}
+            ),
         },
     }

@@ -120,6 +120,28 @@ class JobOptions(BaseModel):
     keep_groups: bool | None = Field(
         None, description="refiner: cuts prefer physical-group interfaces (default: on for sage-hetero)"
     )
+    fill: bool | None = Field(
+        None,
+        description="the mesh is a closed surface (STL, OBJ, PLY, OFF): fill it with tetrahedra first, "
+        "keeping its triangles",
+    )
+    fill_remesh: bool | None = Field(None, description="with fill: re-mesh the surface first")
+    fill_size: float | None = Field(
+        None,
+        gt=0,
+        le=1,
+        **Finite,
+        description="with fill: re-mesh size, fraction of the bounding-box diagonal",
+    )
+    fill_size_abs: float | None = Field(
+        None, gt=0, **Finite, description="with fill: re-mesh size in the file's own length unit"
+    )
+    fill_max_cells: int | None = Field(
+        None,
+        ge=1,
+        le=10**9,
+        description="with fill: refuse beyond this estimated number of tetrahedra (5,000,000)",
+    )
 
 
 class JobParams(BaseModel):
@@ -163,6 +185,7 @@ class JobResult(BaseModel):
     fragments_absorbed: int | None = None
     holes_split: int | None = None
     timings: dict[str, float] = {}
+    fill: dict | None = None
 
 
 class JobOut(BaseModel):

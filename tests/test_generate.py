@@ -10,7 +10,7 @@ import pytest
 pytest.importorskip("gmsh")
 
 from models.cli.generate import add_generate_args, generate_main  # noqa: E402
-from models.errors import ParameterError  # noqa: E402
+from models.errors import MeshError, ParameterError  # noqa: E402
 from models.learn.dataset import GraphDataset, build_dataset, get_recipe  # noqa: E402
 from models.learn.generate import KINDS_2D, generate, sphere_stl  # noqa: E402
 from models.mesh.dual import dual_graph  # noqa: E402
@@ -92,10 +92,12 @@ def test_voronoi_cells_are_polygons():
 def test_stl_is_filled_with_tetrahedra(tmp_path):
     stl = tmp_path / "sphere.stl"
     sphere_stl(stl, h=0.3)
-    g = generate("stl", seed=0, stl=stl, size=0.3)
+    kept = generate("stl", seed=0, stl=stl)  # the surface as it stands (models.mesh.fill)
+    assert not kept.info["remeshed"] and kept.info["volume"] == pytest.approx(kept.info["enclosed_volume"])
+    g = generate("stl", seed=0, stl=stl, size=0.1)  # re-meshed at 0.1 x the bounding-box diagonal
     measures, _ = measures_and_centroids(g.to_mesh())
-    assert measures.sum() == pytest.approx(4 / 3 * np.pi, rel=0.1)
-    with pytest.raises(ParameterError):
+    assert g.info["remeshed"] and measures.sum() == pytest.approx(4 / 3 * np.pi, rel=0.1)
+    with pytest.raises(MeshError, match="surface file not found"):
         generate("stl", seed=0, stl=tmp_path / "missing.stl")
 
 

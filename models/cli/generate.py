@@ -8,8 +8,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from models.cli.fill import FillProgress, add_fill_args, fill_options
 from models.errors import ParameterError
 from models.learn.generate import KINDS, generate
+from models.mesh.fill import describe_fill
 
 
 def add_generate_args(parser: argparse.ArgumentParser) -> None:
@@ -24,11 +26,23 @@ def add_generate_args(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--seed", type=int, default=0, help="random seed (same seed, same mesh)")
     parser.add_argument("--count", type=int, default=1, help="number of meshes (seeds seed, seed+1, ...)")
-    parser.add_argument("--size", type=float, default=None, help="mesh size h (default: random per mesh)")
+    parser.add_argument(
+        "--size",
+        type=float,
+        default=None,
+        help="mesh size h (default: random per mesh); kind stl: re-mesh the surface at this fraction "
+        "of its bounding-box diagonal, in (0, 1] (e.g. 0.02)",
+    )
     parser.add_argument("--n", type=int, default=None, help="points (delaunay/voronoi) or holes/inclusions")
     parser.add_argument("--parts", type=int, default=None, help="cube-hetero: number of parts, 1-4")
     parser.add_argument("--regular", action="store_true", help="holes/inclusions on a regular grid")
-    parser.add_argument("--stl", default=None, help="kind stl: the closed surface to fill")
+    parser.add_argument(
+        "--stl",
+        default=None,
+        help="kind stl: the closed surface to fill (.stl ASCII or binary, .obj, .ply, .off); by default "
+        "its triangles are kept as the faces of the tetrahedra",
+    )
+    add_fill_args(parser, prefix="")
     parser.add_argument("--format", default="vtu", help="file suffix when writing a folder (default vtu)")
     parser.add_argument(
         "--recipe", default=None, help="dataset: a recipe name (see models.learn.dataset.RECIPES)"
@@ -51,10 +65,22 @@ def generate_main(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if args.count > 1:
         out.mkdir(parents=True, exist_ok=True)
+    if args.kind != "stl" and (args.size_abs is not None or args.remesh):
+        raise ParameterError("--size-abs and --remesh are for kind stl (filling a closed surface)")
     for i in range(args.count):
         seed = args.seed + i
-        mesh = generate(args.kind, seed, args.size, args.n, args.parts, args.regular, args.stl)
+        fill = None
+        if args.kind == "stl":
+            fill = fill_options(args, prefix="")
+            fill["progress"] = prog = FillProgress(Path(args.stl or "").name)
+        try:
+            mesh = generate(args.kind, seed, args.size, args.n, args.parts, args.regular, args.stl, fill)
+        finally:
+            if fill:
+                prog.close()
         path = out / f"{args.kind}_{seed:05d}.{args.format}" if args.count > 1 else out
         mesh.write(path)
+        if mesh.info:
+            print(describe_fill(mesh.info))
         print(f"{path}: {mesh.n_cells} cells, {len(mesh.points)} points")
     return 0

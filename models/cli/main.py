@@ -211,10 +211,29 @@ def cmd_agglomerate(args) -> int:
     subset = _read_subset(args.subset)
     params = job_params(args, subset)
     validate_params(params)  # a bad flag fails before the mesh is read
+    if args.fill:
+        source = _fill(args)  # the closed surface filled with tetrahedra (its own progress line)
+    else:
+        if args.remesh or args.fill_size is not None or args.fill_size_abs is not None:
+            raise ParameterError("--remesh, --fill-size and --fill-size-abs go with --fill")
+        source = args.mesh
+    t_fill = time.perf_counter() - t0
     prog = _Progress(args.progress or sys.stderr.isatty())
     try:
-        result = run(args.mesh, params, metrics=bool(args.metrics) or args.model_metrics, progress=prog)
+        try:
+            result = run(source, params, metrics=bool(args.metrics) or args.model_metrics, progress=prog)
+        except MagnetError as exc:
+            from models.mesh.fill import is_surface_file
+
+            if args.fill or not is_surface_file(args.mesh) or "--fill" in str(exc):
+                raise
+            raise type(exc)(
+                f"{exc}; a closed surface is filled with tetrahedra by: magnet agglomerate "
+                f"{os.path.basename(args.mesh)} --fill ..."
+            ) from None
         res, mesh = result.result, result.mesh
+        if args.fill:
+            res.timings = {"fill": t_fill, **{k: v for k, v in res.timings.items() if k != "read"}}
         if args.hierarchy:
             idx = pipeline.write_hierarchy(res, args.hierarchy)
             print(
@@ -259,6 +278,22 @@ def cmd_agglomerate(args) -> int:
     note = f" ({', '.join(extra)})" if extra else ""
     print(f"{s['elements']} elements from {mesh.n_cells} cells{note} | {stages} | total {total:.2f}s")
     return 0
+
+
+def _fill(args):
+    """`agglomerate shell.stl --fill`: the closed surface filled with tetrahedra (models.mesh.fill)."""
+    from models.cli.fill import FillProgress, fill_options
+    from models.mesh.fill import describe_fill, fill_mesh
+
+    if args.physical_tag or args.weld is not None:
+        raise ParameterError("--physical-tag and --weld do not apply to --fill (a surface has no groups)")
+    prog = FillProgress(os.path.basename(args.mesh))
+    try:
+        mesh = fill_mesh(args.mesh, size=args.fill_size, progress=prog, seed=args.seed, **fill_options(args))
+    finally:
+        prog.close()
+    print(describe_fill(mesh.meta["fill"]))
+    return mesh
 
 
 def cmd_check(args) -> int:
@@ -386,6 +421,15 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
         "(level_L.vtu, level_L.labels.json, level_L.parent.json, level_L.metrics.json, hierarchy.json)",
     )
     p.add_argument("--progress", action="store_true", help="always show the progress bar")
+    p.add_argument(
+        "--fill",
+        action="store_true",
+        help="MESH is a closed surface (.stl, .obj, .ply, .off): fill it with tetrahedra first, keeping its "
+        "triangles (see --remesh, --fill-size, --fill-size-abs, --max-cells)",
+    )
+    from models.cli.fill import add_fill_args
+
+    add_fill_args(p)
     p.set_defaults(func=cmd_agglomerate, model_metrics=False)
 
     p = sub.add_parser(

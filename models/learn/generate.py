@@ -37,6 +37,7 @@ class GeneratedMesh:
     tags: np.ndarray | None
     kind: str
     seed: int
+    info: dict | None = None
 
     @property
     def dim(self) -> int:
@@ -263,26 +264,31 @@ def cube_hetero(seed: int, h: float, parts: int | None = None) -> GeneratedMesh:
     return GeneratedMesh(points, cells, tags, "cube-hetero", seed)
 
 
-def from_stl(path: str | Path, seed: int, h: float, angle_deg: float = 40.0) -> GeneratedMesh:
-    """Tetrahedra filling the closed surface of an STL file (surface re-meshed at size h)."""
-    if not Path(path).is_file():
-        raise ParameterError(f"STL file not found: {path}")
-    with _gmsh(seed, h) as gmsh:
-        gmsh.merge(str(path))
-        gmsh.model.mesh.classifySurfaces(np.radians(angle_deg), True, True, np.pi)
-        gmsh.model.mesh.createGeometry()
-        surfaces = [e for _, e in gmsh.model.getEntities(2)]
-        if not surfaces:
-            raise MeshError(f"no surface in {path}")
-        loop = gmsh.model.geo.addSurfaceLoop(surfaces)
-        gmsh.model.geo.addVolume([loop])
-        gmsh.model.geo.synchronize()
-        try:
-            gmsh.model.mesh.generate(3)
-        except Exception as exc:  # gmsh raises plain Exception
-            raise MeshError(f"gmsh could not fill the STL surface (is it closed?): {exc}") from exc
-        points, cells, _ = _extract(gmsh, 3, None)
-    return GeneratedMesh(points, cells, None, "stl", seed)
+def from_stl(
+    path: str | Path,
+    seed: int = 0,
+    size: float | None = None,
+    size_abs: float | None = None,
+    remesh: bool = False,
+    max_cells: int | None = None,
+    progress=None,
+) -> GeneratedMesh:
+    """Tetrahedra filling a closed surface (STL, OBJ, PLY, OFF): as it stands by default, or re-meshed
+    at `size` x the bounding-box diagonal / at `size_abs` in the file's unit (models.mesh.fill)."""
+    from models.mesh.fill import DEFAULT_MAX_CELLS, fill_surface
+
+    filled = fill_surface(
+        path,
+        remesh=remesh,
+        size=size,
+        size_abs=size_abs,
+        max_cells=DEFAULT_MAX_CELLS if max_cells is None else max_cells,
+        seed=seed,
+        progress=progress,
+    )
+    g = GeneratedMesh(filled.points, [("tetra", filled.tets)], None, "stl", seed)
+    g.info = filled.info
+    return g
 
 
 def sphere_stl(path: str | Path, h: float = 0.2) -> None:
@@ -399,14 +405,17 @@ def generate(
     parts: int | None = None,
     regular: bool = False,
     stl: str | Path | None = None,
+    fill: dict | None = None,
 ) -> GeneratedMesh:
     """One mesh of the given kind. `size` is the mesh size h (gmsh kinds) or 1/divisions (structured);
     `n` the number of points (delaunay, voronoi) or holes / inclusions; random within a range when
-    left out (drawn from the seed)."""
+    left out (drawn from the seed). Kind stl: the surface is kept unless `size` (a fraction of its
+    bounding-box diagonal) or fill = {"size_abs", "remesh"} asks for re-meshing; fill may also hold
+    "max_cells" and "progress" (see from_stl)."""
     if kind not in KINDS:
         raise ParameterError(f"unknown mesh kind {kind!r}; choose one of {list(KINDS)}")
     rng = np.random.default_rng([seed, 7])
-    if size is not None and not 0 < size <= 1:
+    if size is not None and kind != "stl" and not 0 < size <= 1:
         raise ParameterError("size must be in (0, 1]")
     if kind in ("square-tri", "square-quad"):
         div = int(round(1 / size)) if size else int(rng.integers(10, 41))
@@ -431,5 +440,5 @@ def generate(
     if kind == "cube-hetero":
         return cube_hetero(seed, h3, parts)
     if stl is None:
-        raise ParameterError("kind 'stl' needs --stl FILE")
-    return from_stl(stl, seed, size if size else 0.1)
+        raise ParameterError("kind 'stl' needs --stl FILE (a closed surface: .stl, .obj, .ply or .off)")
+    return from_stl(stl, seed, size, **(fill or {}))

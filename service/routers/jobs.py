@@ -40,6 +40,7 @@ def job_out(job: JobRecord) -> JobOut:
                 k: job.result.get(k) for k in ("elements", "parts_split", "fragments_absorbed", "holes_split")
             },
             timings=job.result.get("timings") or {},
+            fill=job.result.get("fill"),
         )
     return JobOut(
         id=job.id,

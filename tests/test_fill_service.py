@@ -1,0 +1,79 @@
+"""A closed surface through the HTTP API (in-process app, embedded broker, the worker's execute_job):
+the upload is accepted as a surface, its jobs need options.fill, and the filled result keeps the
+enclosed volume. An open surface is refused at upload with our sentence."""
+
+from __future__ import annotations
+
+import meshio
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+pytest.importorskip("gmsh")
+
+from jobqueue.settings import Settings  # noqa: E402
+from service.app import create_app  # noqa: E402
+from worker.tasks import execute_job  # noqa: E402
+
+KEYS = "alice:alice-token"
+H = {"Authorization": "Bearer alice-token"}
+
+
+def ball(n: int = 12) -> tuple[np.ndarray, np.ndarray]:
+    """A closed triangulated unit sphere, surface-meshed by gmsh."""
+    import gmsh
+
+    gmsh.initialize(readConfigFiles=False, interruptible=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 2.0 / n)
+        gmsh.model.occ.addSphere(0, 0, 0, 1)
+        gmsh.model.occ.synchronize()
+        gmsh.model.mesh.generate(2)
+        tags, coords, _ = gmsh.model.mesh.getNodes()
+        index = np.zeros(int(tags.max()) + 1, dtype=np.int64)
+        index[tags.astype(np.int64)] = np.arange(len(tags))
+        _, nodes = gmsh.model.mesh.getElementsByType(2)
+        return coords.reshape(-1, 3).copy(), index[nodes.astype(np.int64)].reshape(-1, 3)
+    finally:
+        gmsh.finalize()
+
+
+def upload(client, name: str, data: bytes):
+    return client.post(
+        "/v1/meshes",
+        params={"filename": name},
+        content=data,
+        headers={"Content-Type": "application/octet-stream", **H},
+    )
+
+
+def test_surface_upload_fill_job_and_open_surface(tmp_path):
+    points, tris = ball()
+    p = points[tris]
+    ref = abs(np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6)
+    path = tmp_path / "ball.stl"
+    meshio.write(str(path), meshio.Mesh(points, [("triangle", tris)]))
+    settings = Settings(data_dir=tmp_path / "data", api_keys=KEYS)
+    client = TestClient(create_app(settings))
+    with client:
+        r = upload(client, "ball.stl", path.read_bytes())
+        assert r.status_code == 201, r.text
+        mesh = r.json()
+        r = client.post("/v1/jobs", json={"mesh_id": mesh["id"], "k": 8}, headers=H)
+        assert r.status_code == 422 and "options.fill" in r.text
+        r = client.post(
+            "/v1/jobs", json={"mesh_id": mesh["id"], "k": 8, "options": {"fill": True}}, headers=H
+        )
+        assert r.status_code == 202, r.text
+        job = r.json()
+        assert execute_job(job["id"], settings) == "succeeded"
+        done = client.get(f"/v1/jobs/{job['id']}", headers=H).json()
+        assert done["result"]["elements"] == 8
+        assert abs(done["result"]["fill"]["volume"] - ref) <= 1e-9 * ref
+        assert not done["result"]["fill"]["remeshed"]
+        opened = tmp_path / "open.stl"
+        meshio.write(str(opened), meshio.Mesh(points, [("triangle", tris[: len(tris) // 2])]))
+        r = upload(client, "open.stl", opened.read_bytes())
+        assert r.status_code == 422
+        assert "is not a closed surface" in r.text and "boundary edges" in r.text
