@@ -109,7 +109,7 @@ def run_job(
             progress(frac, stage)
 
     t0 = time.perf_counter()
-    tick(0.0, "read")
+    tick(0.0, "fill" if p["options"].get("fill") else "read")
     result = run(mesh_path, params, progress=tick, warn=warn)
     res = result.result
     mesh, p, o = res.mesh, result.params, result.params["options"]
