@@ -50,6 +50,11 @@ def add_hierarchy_args(p: argparse.ArgumentParser) -> None:
         help="judge the levels with a multigrid solve (see magnet mgcheck); "
         "numbers in hierarchy.json under 'multigrid'",
     )
+    p.add_argument(
+        "--kappa",
+        metavar="KX,KY[,KZ]",
+        help="with --mgcheck: anisotropic diffusion tensor diag(kx, ky[, kz]) (default: identity)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--physical-tag")
     p.set_defaults(func=hierarchy_main)
@@ -63,6 +68,11 @@ def add_mgcheck_args(p: argparse.ArgumentParser) -> None:
         help="a folder written by `magnet hierarchy` or `magnet agglomerate --hierarchy`",
     )
     p.add_argument("--json", action="store_true", help="print the report as JSON")
+    p.add_argument(
+        "--kappa",
+        metavar="KX,KY[,KZ]",
+        help="anisotropic diffusion tensor diag(kx, ky[, kz]) in the TPFA operator (default: identity)",
+    )
     p.add_argument("--physical-tag")
     p.set_defaults(func=mgcheck_main)
 
@@ -74,6 +84,10 @@ def hierarchy_main(args) -> int:
     from models.pipeline import prepare
 
     out = args.output
+    if args.kappa is not None:
+        from models.hierarchy.multigrid import parse_kappa
+
+        parse_kappa(args.kappa)  # bad values refused before any work
     parent = os.path.dirname(os.path.abspath(out))
     if not os.path.isdir(parent):
         raise ParameterError(f"cannot write the hierarchy to {out!r}: folder {parent!r} does not exist")
@@ -112,13 +126,13 @@ def hierarchy_main(args) -> int:
     t_write = time.perf_counter() - t
     mg = ""
     if args.mgcheck:
-        from models.hierarchy.multigrid import format_report, mgcheck
+        from models.hierarchy.multigrid import format_report, mgcheck, parse_kappa
 
         written = [
             np.asarray(json.load(open(os.path.join(out, lv["labels"]), encoding="utf-8")), dtype=np.int64)
             for lv in index["levels"]
         ]
-        rep = mgcheck(mesh, data, written)
+        rep = mgcheck(mesh, data, written, kappa=parse_kappa(args.kappa, mesh.dim))
         index["multigrid"] = rep
         from models.hierarchy.nested import _write_json
 
@@ -160,15 +174,17 @@ def read_levels(folder: str) -> list[np.ndarray]:
 
 
 def mgcheck_main(args) -> int:
-    from models.hierarchy.multigrid import format_report, mgcheck
+    from models.hierarchy.multigrid import format_report, mgcheck, parse_kappa
     from models.mesh.read import read_mesh
     from models.pipeline import prepare
 
+    kappa = parse_kappa(args.kappa)
     levels = read_levels(args.hierarchy)
     mesh = read_mesh(args.mesh, physical_tag=args.physical_tag)
     if any(lv.ndim != 1 or lv.size != mesh.n_cells for lv in levels):
         raise MeshError(f"the hierarchy in {args.hierarchy!r} is not of this mesh ({mesh.n_cells} cells)")
     _, data = prepare(mesh)
-    rep = mgcheck(mesh, data, levels)
+    kappa = parse_kappa(args.kappa, mesh.dim)
+    rep = mgcheck(mesh, data, levels, kappa=kappa)
     print(json.dumps(rep, indent=1) if args.json else format_report(rep))
     return 0
