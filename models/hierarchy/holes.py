@@ -240,11 +240,17 @@ def ring_cut(
 
 
 def merge_pairs(
-    data: CellData, labels: np.ndarray, parent: np.ndarray, protect: np.ndarray, r: int
+    data: CellData,
+    labels: np.ndarray,
+    parent: np.ndarray,
+    origin: np.ndarray,
+    forbid: set,
+    r: int,
 ) -> tuple[np.ndarray, int]:
     """Up to r disjoint pairs of neighbouring elements with the same parent (`parent`: the coarser
-    level's label of each cell) merged, the pairs with the fewest cells first; elements `protect`
-    (a (k,) mask: the halves of ring cuts) stay. Returns (labels compacted, pairs merged)."""
+    level's label of each cell) merged, the pairs with the fewest cells first; two halves of one
+    ring cut (the same `origin`, a label per cell, -1: not cut) never, nor the pairs in `forbid`
+    (pairs of the elements' first cells). Returns (labels compacted, pairs merged)."""
     from models.partition.rtree import _quotient
 
     g = data.graph
@@ -254,12 +260,19 @@ def merge_pairs(
         return labels, 0
     pe = np.zeros(k, dtype=np.int64)
     pe[labels] = parent
+    rep = np.full(k, labels.size, dtype=np.int64)
+    np.minimum.at(rep, labels, np.arange(labels.size))  # each element's first cell
+    og = origin[rep]
     size = np.bincount(labels, minlength=k)
     qp, qi, _ = _quotient(g.indptr, g.indices, g.weights, labels, k)
     a = np.repeat(np.arange(k), np.diff(qp))
     b = qi
-    ok = (a < b) & (pe[a] == pe[b]) & ~protect[a] & ~protect[b]
+    ok = (a < b) & (pe[a] == pe[b]) & ((og[a] < 0) | (og[a] != og[b]))
     a, b = a[ok], b[ok]
+    if forbid:
+        key = np.minimum(rep[a], rep[b]) * labels.size + np.maximum(rep[a], rep[b])
+        keep = ~np.isin(key, np.fromiter(forbid, dtype=np.int64, count=len(forbid)))
+        a, b = a[keep], b[keep]
     order = np.argsort(size[a] + size[b], kind="stable")
     used = np.zeros(k, dtype=bool)
     target = np.arange(k)
@@ -358,6 +371,7 @@ def fix_holes(
         bad, cen, poly, G = detector(out[L], True, L, finer, G_finer)
         found, cuts, splits, merged, rounds = int(bad.size), 0, 0, 0, 0
         touched = np.zeros(mesh.n_cells, dtype=bool)  # cells of elements that were cut
+        given = out[L]
         while bad.size:
             touched |= np.isin(out[L], bad)
             if rounds < RING_ROUNDS:
@@ -374,21 +388,31 @@ def fix_holes(
             rounds += 1
             bad, cen, poly, G = detector(out[L], False, L, finer, G_finer)
         parent = out[L - 1] if L > 0 else np.zeros(mesh.n_cells, dtype=np.int64)
-        refused = np.zeros(0, dtype=np.int64)  # cells of merges undone (their elements stay apart)
+        origin = np.where(touched, given, -1)  # the element each cut cell came from
+        forbid: set = set()  # pairs (of first cells) whose merge enclosed a hole
         for _ in range(MERGE_ROUNDS):  # merge back as many pairs, inside the coarser level's elements
             extra = int(out[L].max()) + 1 - k0
             if extra <= 0:
                 break
             before = out[L]
-            protect = np.zeros(extra + k0, dtype=bool)
-            protect[before[refused]] = True
-            after, m = merge_pairs(data, before, parent, protect, extra)
+            after, m = merge_pairs(data, before, parent, origin, forbid, extra)
             if m == 0:
                 break
             bad2, _, p2, G2 = detector(after, False, L, finer, G_finer)
-            if bad2.size:  # a merge that encloses a hole: undone
+            if bad2.size:  # a merge that encloses a hole: undone, and not tried again
                 undo = np.isin(after, bad2)
-                refused = np.union1d(refused, np.flatnonzero(undo))
+                cells = np.flatnonzero(undo)
+                kb = int(before.max()) + 1
+                fb = np.full(kb, mesh.n_cells, dtype=np.int64)
+                np.minimum.at(fb, before[cells], cells)  # first cell of each merged half
+                hb = np.unique(before[cells])
+                ea = after[fb[hb]]  # the merged element of each half
+                lo = np.full(int(after.max()) + 1, mesh.n_cells, dtype=np.int64)
+                hi = np.full(int(after.max()) + 1, -1, dtype=np.int64)
+                np.minimum.at(lo, ea, fb[hb])
+                np.maximum.at(hi, ea, fb[hb])
+                pair = (hi >= 0) & (lo < hi)
+                forbid |= set((lo[pair] * mesh.n_cells + hi[pair]).tolist())
                 after = after.copy()
                 after[undo] = int(after.max()) + 1 + before[undo]
                 after = compact_labels(after)
