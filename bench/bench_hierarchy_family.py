@@ -42,7 +42,7 @@ COARSEST = 10
 # model name in the table -> (build_hierarchy model, model_options)
 MODELS = {
     "rtree": ("rtree", None),
-    "rtree-cells": ("rtree", {"balance": "cells"}),  # count-weighted cuts (the issue's reading, checked)
+    "rtree-measure": ("rtree", {"balance": "measure"}),  # measure-weighted cuts (the default before issue 24)
     "metis": ("metis", None),
     "kmeans": ("kmeans", None),
     "sage-base": ("sage-base", None),

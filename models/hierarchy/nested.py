@@ -457,8 +457,13 @@ def build_hierarchy(
         )
         batch.cell_boxes = cell_boxes(data.points, data.offsets, data.connectivity)
         tags = None if not groups else np.unique(mesh.tags, return_inverse=True)[1].astype(np.int64)
+        # count-weighted cuts: an element's size follows the local cell size, so elements hold
+        # comparable numbers of cells as algebraic aggregates do (issue 24: on the family, smoothed
+        # PCG iterations vs pyamg worst case 4.20x (graded 100:1) with measure-weighted cuts, 1.26x
+        # with count-weighted; the same levels on uniform meshes); model_options may ask "measure"
         opts = {
             "boxes": batch.cell_boxes,
+            "balance": "cells",
             **(model_options or {}),
         }  # the tight cuts, as the flat modes make them
         graphs = []  # the graphs of the levels' elements, for the cavity check
