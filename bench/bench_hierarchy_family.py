@@ -37,8 +37,11 @@ from models.mesh.read import mesh_from_arrays  # noqa: E402
 from models.pipeline import prepare  # noqa: E402
 from models.quality.report import box_measures  # noqa: E402
 
-RATIO = 8.0
+RATIO = 8.0  # --ratio changes it
 COARSEST = 10
+MODEL_OPTS: dict = {}  # extra rtree options for box_at (none by default)
+# 2D members with holes (box ratio / coverage at 91 and 364 are judged on the others)
+HOLED = {"plate-1hole": True, "plate-4holes": True, "plate-16holes": True, "quads": True, "tri+quad": True}
 # model name in the table -> (build_hierarchy model, model_options)
 MODELS = {
     "rtree": ("rtree", None),
@@ -65,6 +68,33 @@ def metis_time(data, k: int) -> float:
     t = time.perf_counter()
     get_partitioner("metis").kway(batch, int(k))
     return time.perf_counter() - t
+
+
+def box_at(mesh, data, counts=(91, 364)) -> dict:
+    """Box ratio and coverage of rtree hierarchy levels of exactly `counts` elements (R3MG's measures
+    at 91 and 364 elements; count-weighted cuts as build_hierarchy makes them; 2D members without
+    holes)."""
+    from models.graph.batch import GraphBatch
+    from models.partition.rtree import cell_boxes, rtree_levels
+
+    n, G = mesh.n_cells, data.graph
+    batch = GraphBatch(
+        indptr=G.indptr,
+        indices=G.indices,
+        weights=G.weights,
+        graph_ptr=np.array([0, n], dtype=np.int64),
+        centroids=data.centroids,
+        measures=data.measures,
+        tags=data.tags,
+        node_ids=np.arange(n),
+    )
+    boxes = cell_boxes(data.points, data.offsets, data.connectivity)
+    levels = rtree_levels(batch, list(counts), balance="cells", boxes=boxes, **MODEL_OPTS.get("rtree", {}))
+    out = {}
+    for c, lv in zip(counts, levels, strict=True):
+        bm = box_measures(mesh.points, mesh.offsets, mesh.connectivity, lv, data.measures)
+        out[str(c)] = [float(bm["box_ratio"].mean()), float(bm["coverage"])]
+    return out
 
 
 def row(name, mesh, graph, data, model, kappa, t_metis) -> dict:
@@ -177,7 +207,9 @@ def main() -> None:
     ap.add_argument("--models", default="rtree,metis,kmeans", help=f"comma list of {', '.join(MODELS)}")
     ap.add_argument("--meshes", default=",".join(FAMILY), help="comma list (default: the whole family)")
     ap.add_argument("--json", help="write every number here")
+    ap.add_argument("--ratio", type=float, default=RATIO, help="requested ratio per level (default 8)")
     a = ap.parse_args()
+    globals()["RATIO"] = a.ratio
     models = a.models.split(",")
     rows = []
     for name in a.meshes.split(","):
@@ -200,6 +232,8 @@ def main() -> None:
         print(HEAD, flush=True)
         for model in models:
             r = row(name, mesh, graph, data, model, kappa, t_metis)
+            if model == "rtree" and mesh.dim == 2 and "error" not in r and not HOLED.get(name, False):
+                r["box_at"] = box_at(mesh, data)
             rows.append(r)
             print(fmt(r), flush=True)
     ok = [r for r in rows if "error" not in r]
@@ -208,6 +242,20 @@ def main() -> None:
     print(HEAD)
     for r in ok:
         print(fmt(r))
+    at = [r for r in ok if "box_at" in r]
+    if at:
+        print(
+            "\nrtree box ratio / coverage at 91 and 364 elements (2D members without holes; goal >= 0.85 / <= 1.15)"
+        )
+        for r in at:
+            b = r["box_at"]
+            print(
+                f"  {r['mesh']:<14} 91: {b['91'][0]:.2f} / {b['91'][1]:.2f}   364: {b['364'][0]:.2f} / {b['364'][1]:.2f}"
+            )
+        print(
+            f"  worst: BR {min(min(r['box_at']['91'][0], r['box_at']['364'][0]) for r in at):.2f}, "
+            f"coverage {max(max(r['box_at']['91'][1], r['box_at']['364'][1]) for r in at):.2f}"
+        )
     print("\nworst over the family:")
     for line in worst_cases(rows):
         print("  " + line)
