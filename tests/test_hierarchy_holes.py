@@ -116,6 +116,31 @@ def test_a_ring_is_cut_into_two_elements_without_holes():
     assert share.min() > 0.3
 
 
+def test_one_cut_opens_a_row_of_holes():
+    """A rectangle with four holes on a slanted line, as one element: the cut through all four centres
+    (given all the holes) leaves two hole-free halves at once; the cut through the first hole alone
+    (the one-hole ring cut) leaves holed halves."""
+
+    def build(occ):
+        disks = [(2, occ.addDisk(0.5 + i, 0.5 + 0.3 * i, 0, 0.15, 0.15)) for i in range(4)]
+        occ.cut([(2, occ.addRectangle(0, 0, 0, 4, 1.9))], disks)
+
+    pts, tri = _gmsh_2d(build, 0.08)
+    mesh = mesh_from_arrays(pts, [("triangle", tri)])
+    graph, data = prepare(mesh)
+    one = np.zeros(mesh.n_cells, dtype=np.int64)
+    _, holes = merge(mesh, graph, one, data.measures)
+    assert holes.elements.tolist() == [0, 0, 0, 0]
+    be, cen = np.asarray(holes.elements), np.asarray(holes.centers)
+    fine = np.arange(mesh.n_cells)
+    single, _ = ring_cut(data, one, np.array([0]), cen[:1], fine)
+    assert _holed(mesh, graph, data, single) > 0
+    lab, cuts = ring_cut(data, one, np.array([0]), cen[:1], fine, holes=(be, cen))
+    assert cuts == 1 and int(lab.max()) + 1 == 2
+    assert _holed(mesh, graph, data, lab) == 0
+    assert _label_pieces(graph.indptr, graph.indices, lab)[0] == 2
+
+
 def test_kappa_scales_the_tpfa_operator(plate):
     mesh, _, data, _, _ = plate
     A, _ = tpfa_poisson(mesh, data)

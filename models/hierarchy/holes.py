@@ -187,11 +187,21 @@ def _atoms(data: CellData, finer: np.ndarray, kf: int) -> tuple[np.ndarray, np.n
 
 
 def ring_cut(
-    data: CellData, coarse: np.ndarray, bad: np.ndarray, centers: np.ndarray | None, finer: np.ndarray
+    data: CellData,
+    coarse: np.ndarray,
+    bad: np.ndarray,
+    centers: np.ndarray | None,
+    finer: np.ndarray,
+    holes: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, int]:
     """Every element `bad` of `coarse` cut in two (unions of `finer`'s elements) by the line/plane
     through its hole's centre (`centers[i]` for bad[i]; None or a degenerate cut: the element's own
     centroid) normal to the element's principal axis; each half made connected inside the element.
+    holes: (element, centre) of every hole found (sorted by element); an element with two or more
+    holes is cut through all of their centres at once where they lie on a line (plane): the cut
+    passes through the centres' mean and contains their principal direction, its normal the
+    element's principal axis made orthogonal to that direction (so several holes are opened by one
+    cut instead of one per round).
     Returns the labels (compacted) and the number of elements cut."""
     from models.partition.rtree import _quotient, make_connected
 
@@ -222,6 +232,8 @@ def ring_cut(
     h = mu.copy()
     if centers is not None and len(centers):
         h[bad] = np.asarray(centers, dtype=np.float64)[:, :dim]
+    if holes is not None and len(holes[0]):
+        _through_centres(holes, isbad, h, v, C, dim)
     side = ((xa - h[e]) * v[e]).sum(axis=1) > 0
     n = np.bincount(e, minlength=k)
     n1 = np.bincount(e, weights=side, minlength=k)
@@ -237,6 +249,39 @@ def ring_cut(
     lab, _ = make_connected(qp, qi, qw, lab, parent=node_to, measures=m)
     lab = compact_labels(lab)
     return lab[finer], int(((n1 > 0) & (n1 < n) & isbad).sum())
+
+
+def _through_centres(holes, isbad, h, v, C, dim) -> None:
+    """Elements with two or more holes: h (the point the cut passes through) becomes the holes'
+    mean centre and v (the cut's normal) the element's principal axis made orthogonal to the
+    centres' principal direction u (the cut contains the line of the centres); where v is parallel
+    to u, the element's second axis. In place."""
+    be, cc = np.asarray(holes[0], dtype=np.int64), np.asarray(holes[1], dtype=np.float64)[:, :dim]
+    k = isbad.size
+    keep = (be < k) & isbad[np.minimum(be, k - 1)]
+    be, cc = be[keep], cc[keep]
+    nh = np.bincount(be, minlength=k)
+    multi = np.flatnonzero(nh >= 2)
+    if multi.size == 0:
+        return
+    cm = np.column_stack([np.bincount(be, weights=cc[:, d], minlength=k) for d in range(dim)])
+    cm /= np.maximum(nh, 1)[:, None]
+    dc = cc - cm[be]
+    S = np.zeros((k, dim, dim))
+    for i in range(dim):  # a loop over pairs of axes
+        for j in range(i, dim):
+            S[:, i, j] = S[:, j, i] = np.bincount(be, weights=dc[:, i] * dc[:, j], minlength=k)
+    u = np.linalg.eigh(S[multi])[1][:, :, -1]  # the centres' principal direction
+    vm = v[multi] - (v[multi] * u).sum(axis=1)[:, None] * u
+    nrm = np.linalg.norm(vm, axis=1)
+    flat = nrm < 1e-6
+    if flat.any():  # the element's axis along the centres' line: its second axis
+        second = np.linalg.eigh(C[multi[flat]])[1][:, :, -2]
+        vm[flat] = second - (second * u[flat]).sum(axis=1)[:, None] * u[flat]
+        nrm[flat] = np.linalg.norm(vm[flat], axis=1)
+    ok = nrm > 1e-9
+    h[multi[ok]] = cm[multi[ok]]
+    v[multi[ok]] = vm[ok] / nrm[ok][:, None]
 
 
 def merge_pairs(
@@ -380,7 +425,7 @@ def fix_holes(
                     be, cc = cen
                     first = np.r_[True, be[1:] != be[:-1]]
                     centres = cc[first]
-                out[L], c = ring_cut(data, out[L], bad, centres, finer)
+                out[L], c = ring_cut(data, out[L], bad, centres, finer, holes=cen)
                 cuts += c
             else:
                 out[L] = _split_elements(out[L], bad, finer)
