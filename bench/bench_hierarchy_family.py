@@ -46,6 +46,7 @@ HOLED = {"plate-1hole": True, "plate-4holes": True, "plate-16holes": True, "quad
 MODELS = {
     "rtree": ("rtree", None),
     "rtree-measure": ("rtree", {"balance": "measure"}),  # measure-weighted cuts (the default before issue 24)
+    "rtree-principal": ("rtree", {"axes": "principal"}),  # cuts across each part's principal axis (numpy)
     "metis": ("metis", None),
     "kmeans": ("kmeans", None),
     "sage-base": ("sage-base", None),

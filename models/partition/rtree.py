@@ -620,6 +620,7 @@ def rtree_levels(
     boxes: tuple | None = None,
     slack: float = SLACK,
     graphs: list | None = None,
+    axes: str = "box",
 ) -> list[np.ndarray]:
     """Nested labels for the element counts `counts` (coarsest first), each level connected.
 
@@ -633,20 +634,30 @@ def rtree_levels(
     groups: optional (N,) labels (e.g. physical groups) no element may cross.
     graphs: a list that receives the CSR (indptr, indices) of the graph of each level's elements in
     the numbering of the returned labels (finest first, all levels but the coarsest; no repeats, no
-    self loops; rows sorted where no sweep renumbered them)."""
+    self loops; rows sorted where no sweep renumbered them).
+    axes: "box" (the cuts across the longest extent of each part's box, compiled where built) or
+    "principal" (split_principal: across each part's own principal axis; numpy only, no tight cuts)."""
+    if axes not in ("box", "principal"):
+        raise ParameterError(f"axes must be 'box' or 'principal', got {axes!r}")
     w = batch.measures if balance == "measure" else np.ones(batch.n_nodes)
     w = np.asarray(w, dtype=np.float64)
     wp = np.maximum(w, 1e-300)
     lo, hi = boxes if boxes is not None else (None, None)
     root = components(batch, groups)
     n_root = int(root.max()) + 1 if root.size else 0
-    seg = _Segments(batch.centroids, root, n_root)
+    principal = axes == "principal"
+    seg = None if principal else _Segments(batch.centroids, root, n_root)
     parent = root
     raw = []
     for c in counts:
-        k_par = seg.size.size
-        need = apportion(np.bincount(parent, weights=w, minlength=k_par), int(c), seg.size)
-        parent = split_counts(parent, need, batch.centroids, wp, lo, hi, slack, segments=seg)
+        size = np.bincount(parent) if principal else seg.size
+        need = apportion(np.bincount(parent, weights=w, minlength=size.size), int(c), size)
+        if principal:
+            from models.partition.rtree_principal import split_principal
+
+            parent = split_principal(parent, need, batch.centroids, wp)
+        else:
+            parent = split_counts(parent, need, batch.centroids, wp, lo, hi, slack, segments=seg)
         raw.append(parent)
     # element ids stay the raw part ids, so raw parent maps give each element's parents
     up = []  # up[L]: raw part of level L -> its raw part at level L-1 (root group for L = 0)
