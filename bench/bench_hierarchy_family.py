@@ -39,7 +39,6 @@ from models.quality.report import box_measures  # noqa: E402
 
 RATIO = 8.0  # --ratio changes it
 COARSEST = 10
-MODEL_OPTS: dict = {}  # extra rtree options for box_at (none by default)
 # 2D members with holes (box ratio / coverage at 91 and 364 are judged on the others)
 HOLED = {"plate-1hole": True, "plate-4holes": True, "plate-16holes": True, "quads": True, "tri+quad": True}
 # model name in the table -> (build_hierarchy model, model_options)
@@ -90,7 +89,7 @@ def box_at(mesh, data, counts=(91, 364)) -> dict:
         node_ids=np.arange(n),
     )
     boxes = cell_boxes(data.points, data.offsets, data.connectivity)
-    levels = rtree_levels(batch, list(counts), balance="cells", boxes=boxes, **MODEL_OPTS.get("rtree", {}))
+    levels = rtree_levels(batch, list(counts), balance="cells", boxes=boxes)
     out = {}
     for c, lv in zip(counts, levels, strict=True):
         bm = box_measures(mesh.points, mesh.offsets, mesh.connectivity, lv, data.measures)
