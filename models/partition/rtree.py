@@ -28,6 +28,8 @@ from models.graph.batch import GraphBatch
 from models.graph.csr import kept_pointers, row_pointers, run_starts
 from models.native import compiled
 from models.partition.base import Partitioner
+from models.partition.rtree_principal import split_principal
+from models.partition.rtree_split import _count_split
 
 SLACK = 0.3  # cut moves up to 0.3 x one final part's measure for tighter boxes (BR .881 at 364 on the refined quads; VD .94 -> .83)
 
@@ -206,16 +208,6 @@ def split_counts(
     labels[P[0]] = np.repeat(rank[by_pos], size[by_pos])
     seg.start, seg.size = start[part_order], size[part_order]  # ranges of the parts, in their new numbering
     return labels
-
-
-def _count_split(m, base, vol, length, dim):
-    """(m1, target): of each active part's m parts, m1 go to side 0, which ends at measure `target`
-    (base: the measure before the part in the step's running sum; vol: its own)."""
-    side_len = (np.maximum(vol, 1e-300) / np.maximum(m, 1)) ** (1.0 / dim)
-    cols = np.maximum(2, np.rint(length / np.maximum(side_len, 1e-300))).astype(np.int64)
-    m1 = np.clip(np.rint(m * (cols // 2) / cols).astype(np.int64), 1, np.maximum(m - 1, 1))
-    target = base + m1 / np.maximum(m, 1) * vol
-    return m1, target
 
 
 def _halving_step(P, x, w, a_start, a_size, m, side, lh_t, slack):
@@ -653,8 +645,6 @@ def rtree_levels(
         size = np.bincount(parent) if principal else seg.size
         need = apportion(np.bincount(parent, weights=w, minlength=size.size), int(c), size)
         if principal:
-            from models.partition.rtree_principal import split_principal
-
             parent = split_principal(parent, need, batch.centroids, wp)
         else:
             parent = split_counts(parent, need, batch.centroids, wp, lo, hi, slack, segments=seg)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from models.partition.rtree import _count_split
+from models.partition.rtree_split import _count_split
 
 
 def split_principal(grp: np.ndarray, need: np.ndarray, x: np.ndarray, w: np.ndarray) -> np.ndarray:
