@@ -438,7 +438,7 @@ class Hierarchy:
 
         m, g = self.mesh, self.graph
         boundary = fine_boundary(m, g.faces, g.partner) if has_groups(m) else None
-        keys = ("model", "ratio", "coarsest", "method", "build_time")
+        keys = ("model", "ratio", "coarsest", "method", "build_time", "report")
         return write_hierarchy(
             os.fspath(folder),
             m,

@@ -177,7 +177,7 @@ def _write_hierarchy_zip(
                 boundary=res.boundary,
                 boundary_tag=boundary_tag,
                 merged=info.pop("merged"),
-                extra={k: info[k] for k in ("model", "ratio", "coarsest", "method", "build_time")},
+                extra={k: info[k] for k in ("model", "ratio", "coarsest", "method", "build_time", "report")},
             )
         else:
             pipeline.write_hierarchy(

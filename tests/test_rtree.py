@@ -61,6 +61,22 @@ def test_levels_3d_tets():
     assert all(pieces(g, lab) == c for lab, c in zip(levels, counts, strict=True))
 
 
+@pytest.mark.parametrize("ratio", [4, 8])
+def test_principal_axis_levels_nested_connected_exact(brain, ratio):
+    """axes="principal" (cuts across each part's own principal axis, numpy only): the same guarantees."""
+    m, g, d = brain
+    counts = level_counts(m.n_cells, ratio, coarsest=4)
+    levels = rtree_levels(make_batch(d, np.zeros(m.n_cells, dtype=np.int64)), counts, axes="principal")
+    assert [lab.max() + 1 for lab in levels] == counts
+    assert all(pieces(g, lab) == c for lab, c in zip(levels, counts, strict=True))
+    for coarse, fine in zip(levels[:-1], levels[1:], strict=True):
+        parent = np.full(fine.max() + 1, -1)
+        parent[fine] = coarse
+        assert np.array_equal(parent[fine], coarse)
+    with pytest.raises(ParameterError):
+        rtree_levels(make_batch(d, np.zeros(m.n_cells, dtype=np.int64)), counts, axes="diagonal")
+
+
 def test_hierarchy_elements_numbered_along_the_principal_axis(brain):
     """Every level of a hierarchy is numbered along one sweep of the domain (its measure-weighted
     principal axis); a single level (the flat k-way mode) keeps the tree's numbering."""

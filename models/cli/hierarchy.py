@@ -50,6 +50,11 @@ def add_hierarchy_args(p: argparse.ArgumentParser) -> None:
         help="judge the levels with a multigrid solve (see magnet mgcheck); "
         "numbers in hierarchy.json under 'multigrid'",
     )
+    p.add_argument(
+        "--kappa",
+        metavar="KX,KY[,KZ]",
+        help="with --mgcheck: anisotropic diffusion tensor diag(kx, ky[, kz]) (default: identity)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--physical-tag")
     p.set_defaults(func=hierarchy_main)
@@ -63,6 +68,11 @@ def add_mgcheck_args(p: argparse.ArgumentParser) -> None:
         help="a folder written by `magnet hierarchy` or `magnet agglomerate --hierarchy`",
     )
     p.add_argument("--json", action="store_true", help="print the report as JSON")
+    p.add_argument(
+        "--kappa",
+        metavar="KX,KY[,KZ]",
+        help="anisotropic diffusion tensor diag(kx, ky[, kz]) in the TPFA operator (default: identity)",
+    )
     p.add_argument("--physical-tag")
     p.set_defaults(func=mgcheck_main)
 
@@ -71,6 +81,10 @@ def hierarchy_main(args) -> int:
     from models.agglomeration import build_hierarchy
 
     out = args.output
+    if args.kappa is not None:
+        from models.hierarchy.multigrid import parse_kappa
+
+        parse_kappa(args.kappa)  # bad values refused before any work
     parent = os.path.dirname(os.path.abspath(out))
     if not os.path.isdir(parent):
         raise ParameterError(f"cannot write the hierarchy to {out!r}: folder {parent!r} does not exist")
@@ -91,25 +105,43 @@ def hierarchy_main(args) -> int:
     t_write = time.perf_counter() - t
     mg = ""
     if args.mgcheck:
-        from models.hierarchy.multigrid import format_report, mgcheck
+        from models.hierarchy.multigrid import format_report, mgcheck, parse_kappa
 
         written = [
             np.asarray(json.load(open(os.path.join(out, lv["labels"]), encoding="utf-8")), dtype=np.int64)
             for lv in index["levels"]
         ]
-        rep = mgcheck(mesh, data, written)
+        rep = mgcheck(mesh, data, written, kappa=parse_kappa(args.kappa, mesh.dim))
         index["multigrid"] = rep
         from models.hierarchy.nested import _write_json
 
         _write_json(os.path.join(out, "hierarchy.json"), index)
         mg = "\n" + format_report(rep)
     sizes = " > ".join(str(lv["elements"]) for lv in index["levels"])
+    print(format_levels(info["report"]))
     print(
         f"{len(index['levels'])} nested levels ({sizes} elements) from {mesh.n_cells} cells with {args.model} "
         f"| read {t_read:.2f}s build {info['build_time']:.2f}s write {t_write:.2f}s | total {time.perf_counter() - t0:.2f}s"
         f" -> {out}{mg}"
     )
     return 0
+
+
+def format_levels(report: list[dict]) -> str:
+    """The per-level report: elements (requested), ratio to the finer level (requested), holed
+    elements found, ring cuts, elements split into their children, pairs merged back."""
+    lines = [
+        f"{'level':>5}{'elements':>10}{'requested':>10}{'ratio':>7}{'wanted':>8}{'holed':>7}{'ring cuts':>10}"
+        f"{'splits':>8}{'merged':>8}"
+    ]
+    for r in report:
+        req = f"{r['requested']}" if "requested" in r else "-"
+        want = f"{r['requested_ratio']:.2f}" if "requested_ratio" in r else "-"
+        lines.append(
+            f"{r['level']:>5}{r['elements']:>10}{req:>10}{r['ratio']:>7.2f}{want:>8}{r['holed_elements']:>7}"
+            f"{r['ring_cuts']:>10}{r['split_into_children']:>8}{r['merged_pairs']:>8}"
+        )
+    return "\n".join(lines)
 
 
 def read_levels(folder: str) -> list[np.ndarray]:
@@ -139,15 +171,17 @@ def read_levels(folder: str) -> list[np.ndarray]:
 
 
 def mgcheck_main(args) -> int:
-    from models.hierarchy.multigrid import format_report, mgcheck
+    from models.hierarchy.multigrid import format_report, mgcheck, parse_kappa
     from models.mesh.sandbox import read_mesh_safe as read_mesh
     from models.pipeline import prepare
 
+    kappa = parse_kappa(args.kappa)
     levels = read_levels(args.hierarchy)
     mesh = read_mesh(args.mesh, physical_tag=args.physical_tag)
     if any(lv.ndim != 1 or lv.size != mesh.n_cells for lv in levels):
         raise MeshError(f"the hierarchy in {args.hierarchy!r} is not of this mesh ({mesh.n_cells} cells)")
     _, data = prepare(mesh)
-    rep = mgcheck(mesh, data, levels)
+    kappa = parse_kappa(args.kappa, mesh.dim)
+    rep = mgcheck(mesh, data, levels, kappa=kappa)
     print(json.dumps(rep, indent=1) if args.json else format_report(rep))
     return 0

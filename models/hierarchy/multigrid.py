@@ -23,17 +23,51 @@ TOL = 1e-8
 MAXITER = 500
 
 
-def tpfa_poisson(mesh: Mesh, data: CellData) -> tuple[sp.csr_matrix, np.ndarray]:
-    """(A, b): two-point flux -div grad on the cells; transmissibility |f| / distance between the
-    centroids (interior faces) or between the centroid and the face centre (boundary faces, u = 0)."""
+def parse_kappa(text: str | None, dim: int | None = None) -> np.ndarray | None:
+    """'kx,ky[,kz]' -> the diagonal of the diffusion tensor (positive, finite); None stays None."""
+    if text is None:
+        return None
+    try:
+        k = np.array([float(v) for v in str(text).split(",")], dtype=np.float64)
+    except ValueError:
+        raise ParameterError(f"kappa must be comma-separated numbers kx,ky[,kz], got {text!r}") from None
+    if k.size not in (2, 3) or not np.all(np.isfinite(k)) or not np.all(k > 0):
+        raise ParameterError(f"kappa must be two or three positive numbers kx,ky[,kz], got {text!r}")
+    if dim is not None and k.size != dim:
+        raise ParameterError(f"kappa has {k.size} values but the mesh is {dim}D: give one per axis")
+    return k
+
+
+def _directional(v: np.ndarray, kappa: np.ndarray | None) -> np.ndarray:
+    """v_hat^T K v_hat for the rows v (K = diag(kappa)); 1 without kappa."""
+    if kappa is None:
+        return np.ones(v.shape[0])
+    sq = v * v
+    return (sq @ kappa) / np.maximum(sq.sum(axis=1), 1e-300)
+
+
+def tpfa_poisson(
+    mesh: Mesh, data: CellData, kappa: np.ndarray | None = None
+) -> tuple[sp.csr_matrix, np.ndarray]:
+    """(A, b): two-point flux -div(K grad) on the cells; transmissibility |f| k_d / distance between
+    the centroids (interior faces) or between the centroid and the face centre (boundary faces,
+    u = 0), where k_d = d^T K d / |d|^2 along that connecting vector d (K = diag(kappa), identity
+    without; exact on K-orthogonal meshes such as axis-aligned boundary layers)."""
     from models.mesh.geometry import face_measures
 
     g = data.graph
     n = g.n
     c = data.centroids
+    if kappa is not None:
+        kappa = np.asarray(kappa, dtype=np.float64)
+        if kappa.size != c.shape[1]:
+            raise ParameterError(
+                f"kappa has {kappa.size} values but the mesh is {c.shape[1]}D: give one per axis"
+            )
     rows = np.repeat(np.arange(n), np.diff(g.indptr))
-    d = np.linalg.norm(c[rows] - c[g.indices], axis=1)
-    t = g.weights / np.maximum(d, 1e-300)
+    dv = c[rows] - c[g.indices]
+    d = np.linalg.norm(dv, axis=1)
+    t = g.weights * _directional(dv, kappa) / np.maximum(d, 1e-300)
     f = g.faces
     fb = np.flatnonzero(g.partner < 0)
     pts = np.asarray(mesh.points, dtype=np.float64)[:, : c.shape[1]]
@@ -44,7 +78,8 @@ def tpfa_poisson(mesh: Mesh, data: CellData) -> tuple[sp.csr_matrix, np.ndarray]
     fsum = np.add.reduceat(pts[f.nodes[idx]], first[:-1], axis=0) if fb.size else np.zeros((0, c.shape[1]))
     fcen = fsum / np.maximum(size, 1)[:, None]
     owner = f.cell[fb]
-    tb = face_measures(pts, f, fb) / np.maximum(np.linalg.norm(c[owner] - fcen, axis=1), 1e-300)
+    bv = c[owner] - fcen
+    tb = face_measures(pts, f, fb) * _directional(bv, kappa) / np.maximum(np.linalg.norm(bv, axis=1), 1e-300)
     diag = np.bincount(rows, weights=t, minlength=n) + np.bincount(owner, weights=tb, minlength=n)
     A = sp.csr_matrix((-t, g.indices, g.indptr), shape=(n, n)) + sp.diags(diag)
     return A.tocsr(), np.asarray(data.measures, dtype=np.float64).copy()
@@ -104,9 +139,10 @@ def pyamg_sa(A: sp.csr_matrix, b: np.ndarray, smooth: bool = True) -> dict:
     }
 
 
-def mgcheck(mesh: Mesh, data: CellData, levels: list[np.ndarray]) -> dict:
+def mgcheck(mesh: Mesh, data: CellData, levels: list[np.ndarray], kappa: np.ndarray | None = None) -> dict:
     """Unsmoothed and smoothed aggregation on our levels (coarsest first, as written by
-    models.hierarchy.nested) beside pyamg's smoothed aggregation, on the TPFA Poisson problem."""
+    models.hierarchy.nested) beside pyamg's smoothed aggregation, on the TPFA Poisson problem
+    (kappa: the diagonal of an anisotropic diffusion tensor, see tpfa_poisson)."""
     from models.hierarchy.nested import aggregation_operators, is_nested
 
     if not levels:
@@ -117,7 +153,7 @@ def mgcheck(mesh: Mesh, data: CellData, levels: list[np.ndarray]) -> dict:
         raise ParameterError(
             "the levels are not nested: every element must lie inside one element of the coarser level"
         )
-    A, b = tpfa_poisson(mesh, data)
+    A, b = tpfa_poisson(mesh, data, kappa)
     ops = list(reversed(aggregation_operators(levels, mesh.n_cells)))
     base_un = pyamg_sa(A, b, smooth=False)
     base = pyamg_sa(A, b)
@@ -132,7 +168,9 @@ def mgcheck(mesh: Mesh, data: CellData, levels: list[np.ndarray]) -> dict:
         "smoothed_complexity_vs_pyamg": sm["operator_complexity"] / base["operator_complexity"],
     }
     return {
-        "problem": "TPFA Poisson, Dirichlet boundary, rhs = cell measures; PCG, V-cycle, tol 1e-8",
+        "problem": "TPFA Poisson, Dirichlet boundary, rhs = cell measures; PCG, V-cycle, tol 1e-8"
+        + ("" if kappa is None else f"; kappa = diag({', '.join(f'{v:g}' for v in kappa)})"),
+        "kappa": None if kappa is None else [float(v) for v in kappa],
         "unknowns": int(A.shape[0]),
         "level_sizes": [int(lv.max()) + 1 for lv in reversed(levels)],
         "unsmoothed": un,

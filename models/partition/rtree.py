@@ -28,6 +28,8 @@ from models.graph.batch import GraphBatch
 from models.graph.csr import kept_pointers, row_pointers, run_starts
 from models.native import compiled
 from models.partition.base import Partitioner
+from models.partition.rtree_principal import split_principal
+from models.partition.rtree_split import _count_split
 
 SLACK = 0.3  # cut moves up to 0.3 x one final part's measure for tighter boxes (BR .881 at 364 on the refined quads; VD .94 -> .83)
 
@@ -206,16 +208,6 @@ def split_counts(
     labels[P[0]] = np.repeat(rank[by_pos], size[by_pos])
     seg.start, seg.size = start[part_order], size[part_order]  # ranges of the parts, in their new numbering
     return labels
-
-
-def _count_split(m, base, vol, length, dim):
-    """(m1, target): of each active part's m parts, m1 go to side 0, which ends at measure `target`
-    (base: the measure before the part in the step's running sum; vol: its own)."""
-    side_len = (np.maximum(vol, 1e-300) / np.maximum(m, 1)) ** (1.0 / dim)
-    cols = np.maximum(2, np.rint(length / np.maximum(side_len, 1e-300))).astype(np.int64)
-    m1 = np.clip(np.rint(m * (cols // 2) / cols).astype(np.int64), 1, np.maximum(m - 1, 1))
-    target = base + m1 / np.maximum(m, 1) * vol
-    return m1, target
 
 
 def _halving_step(P, x, w, a_start, a_size, m, side, lh_t, slack):
@@ -620,6 +612,7 @@ def rtree_levels(
     boxes: tuple | None = None,
     slack: float = SLACK,
     graphs: list | None = None,
+    axes: str = "box",
 ) -> list[np.ndarray]:
     """Nested labels for the element counts `counts` (coarsest first), each level connected.
 
@@ -633,20 +626,28 @@ def rtree_levels(
     groups: optional (N,) labels (e.g. physical groups) no element may cross.
     graphs: a list that receives the CSR (indptr, indices) of the graph of each level's elements in
     the numbering of the returned labels (finest first, all levels but the coarsest; no repeats, no
-    self loops; rows sorted where no sweep renumbered them)."""
+    self loops; rows sorted where no sweep renumbered them).
+    axes: "box" (the cuts across the longest extent of each part's box, compiled where built) or
+    "principal" (split_principal: across each part's own principal axis; numpy only, no tight cuts)."""
+    if axes not in ("box", "principal"):
+        raise ParameterError(f"axes must be 'box' or 'principal', got {axes!r}")
     w = batch.measures if balance == "measure" else np.ones(batch.n_nodes)
     w = np.asarray(w, dtype=np.float64)
     wp = np.maximum(w, 1e-300)
     lo, hi = boxes if boxes is not None else (None, None)
     root = components(batch, groups)
     n_root = int(root.max()) + 1 if root.size else 0
-    seg = _Segments(batch.centroids, root, n_root)
+    principal = axes == "principal"
+    seg = None if principal else _Segments(batch.centroids, root, n_root)
     parent = root
     raw = []
     for c in counts:
-        k_par = seg.size.size
-        need = apportion(np.bincount(parent, weights=w, minlength=k_par), int(c), seg.size)
-        parent = split_counts(parent, need, batch.centroids, wp, lo, hi, slack, segments=seg)
+        size = np.bincount(parent) if principal else seg.size
+        need = apportion(np.bincount(parent, weights=w, minlength=size.size), int(c), size)
+        if principal:
+            parent = split_principal(parent, need, batch.centroids, wp)
+        else:
+            parent = split_counts(parent, need, batch.centroids, wp, lo, hi, slack, segments=seg)
         raw.append(parent)
     # element ids stay the raw part ids, so raw parent maps give each element's parents
     up = []  # up[L]: raw part of level L -> its raw part at level L-1 (root group for L = 0)

@@ -1,0 +1,185 @@
+"""Hierarchies on domains with holes (issue 24): no element encloses a hole, rings around holes are
+cut, every level coarsens near the requested ratio, the per-level report; mgcheck --kappa.
+The meshes are made here with gmsh (a plate with a 2 x 2 grid of holes, an annulus)."""
+
+import json
+import os
+import subprocess
+import sys
+
+import meshio
+import numpy as np
+import pytest
+
+from models.hierarchy.holes import ring_cut
+from models.hierarchy.multigrid import parse_kappa, tpfa_poisson
+from models.hierarchy.nested import build_hierarchy, is_nested
+from models.mesh.read import mesh_from_arrays
+from models.partition.rtree import _label_pieces
+from models.pipeline import prepare
+from models.polytope.merge import merge
+
+
+def _gmsh_2d(build, h):
+    import gmsh
+
+    gmsh.initialize(["-nt", "1"])
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        build(gmsh.model.occ)
+        gmsh.model.occ.synchronize()
+        gmsh.option.setNumber("Mesh.MeshSizeMin", h)
+        gmsh.option.setNumber("Mesh.MeshSizeMax", h)
+        gmsh.model.mesh.generate(2)
+        tags, coords, _ = gmsh.model.mesh.getNodes()
+        types, _, nodes = gmsh.model.mesh.getElements(2)
+        tri = np.concatenate(
+            [np.asarray(n).reshape(-1, 3) for t, n in zip(types, nodes, strict=True) if t == 2]
+        )
+    finally:
+        gmsh.finalize()
+    index = np.empty(int(tags.max()) + 1, dtype=np.int64)
+    index[tags.astype(np.int64)] = np.arange(tags.size)
+    pts = np.asarray(coords).reshape(-1, 3)[:, :2]
+    used = np.unique(index[tri.astype(np.int64)])
+    remap = np.full(pts.shape[0], -1, dtype=np.int64)
+    remap[used] = np.arange(used.size)
+    return pts[used], remap[index[tri.astype(np.int64)]]
+
+
+def _plate(occ, holes=2):
+    sq = occ.addRectangle(0, 0, 0, 1, 1)
+    r = 0.3 / holes
+    disks = [
+        (2, occ.addDisk((i + 0.5) / holes, (j + 0.5) / holes, 0, r, r))
+        for i in range(holes)
+        for j in range(holes)
+    ]
+    occ.cut([(2, sq)], disks)
+
+
+@pytest.fixture(scope="module")
+def plate():
+    pts, tri = _gmsh_2d(_plate, 0.03)
+    mesh = mesh_from_arrays(pts, [("triangle", tri)])
+    graph, data = prepare(mesh)
+    return mesh, graph, data, pts, tri
+
+
+def _holed(mesh, graph, data, labels):
+    _, holes = merge(mesh, graph, labels, data.measures)
+    return int(np.unique(holes.elements).size)
+
+
+@pytest.mark.parametrize("model", ["rtree", "metis", "kmeans"])
+def test_no_element_encloses_a_hole_and_levels_nest(plate, model):
+    mesh, graph, data, _, _ = plate
+    levels, info = build_hierarchy(mesh, data, model=model, ratio=8, coarsest=10)
+    assert is_nested(levels)
+    for lv in levels:
+        k = int(lv.max()) + 1
+        assert _holed(mesh, graph, data, lv) == 0
+        assert _label_pieces(graph.indptr, graph.indices, lv)[0] == k  # every element connected
+    rep = info["report"]
+    assert [r["elements"] for r in rep] == [int(lv.max()) + 1 for lv in levels]
+    assert all(
+        {"holed_elements", "ring_cuts", "split_into_children", "merged_pairs", "ratio"} <= set(r) for r in rep
+    )
+
+
+def test_rtree_levels_coarsen_within_25_percent_of_the_ratio(plate):
+    mesh, graph, data, _, _ = plate
+    levels, info = build_hierarchy(mesh, data, model="rtree", ratio=8, coarsest=10)
+    assert len(levels) == len(info["requested"])
+    assert int(levels[0].max()) + 1 <= 10  # down to --coarsest
+    for r in info["report"]:
+        assert 0.75 <= r["ratio_vs_requested"] <= 1.25, r
+    assert sum(r["ring_cuts"] for r in info["report"]) >= 1  # the holes were there to be cut
+    assert sum(r["split_into_children"] for r in info["report"]) == 0
+
+
+def test_a_ring_is_cut_into_two_elements_without_holes():
+    pts, tri = _gmsh_2d(
+        lambda occ: occ.cut([(2, occ.addDisk(0, 0, 0, 1, 1))], [(2, occ.addDisk(0, 0, 0, 0.5, 0.5))]), 0.1
+    )
+    mesh = mesh_from_arrays(pts, [("triangle", tri)])
+    graph, data = prepare(mesh)
+    one = np.zeros(mesh.n_cells, dtype=np.int64)
+    _, holes = merge(mesh, graph, one, data.measures)
+    assert holes.elements.tolist() == [0]  # the whole annulus encloses its hole
+    lab, cuts = ring_cut(data, one, np.array([0]), holes.centers, np.arange(mesh.n_cells))
+    assert cuts == 1 and int(lab.max()) + 1 == 2
+    assert _holed(mesh, graph, data, lab) == 0
+    assert _label_pieces(graph.indptr, graph.indices, lab)[0] == 2
+    # each half holds about half the ring
+    share = np.bincount(lab, weights=data.measures) / data.measures.sum()
+    assert share.min() > 0.3
+
+
+def test_one_cut_opens_a_row_of_holes():
+    """A rectangle with four holes on a slanted line, as one element: the cut through all four centres
+    (given all the holes) leaves two hole-free halves at once; the cut through the first hole alone
+    (the one-hole ring cut) leaves holed halves."""
+
+    def build(occ):
+        disks = [(2, occ.addDisk(0.5 + i, 0.5 + 0.3 * i, 0, 0.15, 0.15)) for i in range(4)]
+        occ.cut([(2, occ.addRectangle(0, 0, 0, 4, 1.9))], disks)
+
+    pts, tri = _gmsh_2d(build, 0.08)
+    mesh = mesh_from_arrays(pts, [("triangle", tri)])
+    graph, data = prepare(mesh)
+    one = np.zeros(mesh.n_cells, dtype=np.int64)
+    _, holes = merge(mesh, graph, one, data.measures)
+    assert holes.elements.tolist() == [0, 0, 0, 0]
+    be, cen = np.asarray(holes.elements), np.asarray(holes.centers)
+    fine = np.arange(mesh.n_cells)
+    single, _ = ring_cut(data, one, np.array([0]), cen[:1], fine)
+    assert _holed(mesh, graph, data, single) > 0
+    lab, cuts = ring_cut(data, one, np.array([0]), cen[:1], fine, holes=(be, cen))
+    assert cuts == 1 and int(lab.max()) + 1 == 2
+    assert _holed(mesh, graph, data, lab) == 0
+    assert _label_pieces(graph.indptr, graph.indices, lab)[0] == 2
+
+
+def test_kappa_scales_the_tpfa_operator(plate):
+    mesh, _, data, _, _ = plate
+    A, _ = tpfa_poisson(mesh, data)
+    A1, _ = tpfa_poisson(mesh, data, np.array([1.0, 1.0]))
+    A2, _ = tpfa_poisson(mesh, data, np.array([3.0, 3.0]))
+    Ax, _ = tpfa_poisson(mesh, data, np.array([50.0, 1.0]))
+    assert abs(A - A1).max() < 1e-12
+    assert abs(A2 - 3 * A).max() < 1e-9 * abs(A).max()
+    assert abs(Ax - A).max() > 1.0  # anisotropic: a different operator, still symmetric
+    assert abs(Ax - Ax.T).max() < 1e-9 * abs(Ax).max()
+    assert parse_kappa("50,1").tolist() == [50.0, 1.0]
+
+
+def magnet(*args):
+    env = dict(os.environ, MPLBACKEND="Agg")
+    return subprocess.run(
+        [sys.executable, "-m", "models.cli", *map(str, args)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+    )
+
+
+def test_cli_hierarchy_report_and_mgcheck_kappa(plate, tmp_path):
+    _, _, _, pts, tri = plate
+    path = tmp_path / "plate.vtu"
+    meshio.write(path, meshio.Mesh(np.column_stack([pts, np.zeros(len(pts))]), [("triangle", tri)]))
+    out = tmp_path / "h"
+    r = magnet("hierarchy", path, "-o", out)
+    assert r.returncode == 0, r.stderr
+    assert "ring cuts" in r.stdout
+    index = json.load(open(out / "hierarchy.json"))
+    assert [x["elements"] for x in index["report"]] == [x["elements"] for x in index["levels"]]
+    r = magnet("mgcheck", path, out, "--kappa", "50,1", "--json")
+    assert r.returncode == 0, r.stderr
+    rep = json.loads(r.stdout)
+    assert rep["kappa"] == [50.0, 1.0] and rep["smoothed"]["converged"]
+    for bad in ("50", "1,-2", "a,b", "1,2,3"):
+        r = magnet("mgcheck", path, out, "--kappa", bad)
+        assert r.returncode == 2
+        assert r.stderr.strip().count("\n") == 0 and "kappa" in r.stderr and "Traceback" not in r.stderr
