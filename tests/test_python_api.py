@@ -27,6 +27,17 @@ def doc_example() -> str:
     return m.group(1)
 
 
+def readme_example() -> str:
+    text = open(os.path.join(ROOT, "README.md"), encoding="utf-8").read()
+    m = re.search(r"## Python\n\n<!-- the example:[^\n]*-->\n```python\n(.*?)```", text, re.S)
+    assert m, "README.md lost its Python example block"
+    return m.group(1)
+
+
+def test_the_readme_shows_the_documented_example():
+    assert readme_example() == doc_example()
+
+
 def _env():
     return dict(os.environ, PYTHONPATH=ROOT, MPLBACKEND="Agg")
 
