@@ -9,8 +9,11 @@ the file and the format ("the Exodus II reader crashed on this file: it is corru
 Exodus II"); the calling process lives on.
 
 The Mesh comes back without a copy per cell: the child pickles it with protocol 5, every numpy
-array out of band, into a memfd (shared memory); the parent maps that memory copy-on-write and the
-arrays are views of it (writeable: orienting and welding edit them in place).
+array out of band (each once: pickle memoizes an array met twice), into a memfd (shared memory);
+the parent maps that memory shared and populated (MAP_SHARED | MAP_POPULATE: no page fault per
+page, no copy-on-write when an array is edited in place) and the arrays are views of it. The
+child runs with the garbage collector off (no copy-on-write faults from a collection), and once it
+has answered the parent goes on while it exits (collected at the next read or at exit).
 
 Every message also gets the same wording here, in-process or not (`wording`): it names the file
 and the format, and a library's raw exception text or a Python repr is replaced by a sentence.
@@ -22,6 +25,7 @@ change the default limits (600 s; the machine's physical memory).
 
 from __future__ import annotations
 
+import atexit
 import mmap
 import os
 import pickle
@@ -248,8 +252,11 @@ def _wait(pid: int, r: int, timeout_s: float):
             if ready:
                 break
         answered = os.read(r, 1) == b"1"
-        _, code = os.waitpid(pid, 0)
         done = True
+        if answered:  # the answer is whole: the child's exit (unmapping its memory) runs on meanwhile
+            _reap_later(pid)
+            return 0, True
+        _, code = os.waitpid(pid, 0)
         return (os.WTERMSIG(code) if os.WIFSIGNALED(code) else 0), answered
     finally:
         if not done:  # timeout, or the caller interrupted (Ctrl-C, a job cancelled): no child left behind
@@ -260,10 +267,42 @@ def _wait(pid: int, r: int, timeout_s: float):
             os.waitpid(pid, 0)
 
 
+_PENDING: list[int] = []  # children that answered and are still exiting
+
+
+def _reap_later(pid: int) -> None:
+    """Collect `pid` without waiting for it: a child that answered spends milliseconds unmapping
+    its copy of this process's memory; that runs while the caller goes on. Children collected at
+    the next read (and at exit), never left as zombies for long."""
+    _PENDING.append(pid)
+    for p in list(_PENDING):
+        try:
+            done, _ = os.waitpid(p, os.WNOHANG)
+        except ChildProcessError:
+            done = p
+        if done:
+            _PENDING.remove(p)
+
+
+def _reap_all() -> None:
+    for p in list(_PENDING):
+        try:
+            os.waitpid(p, 0)
+        except ChildProcessError:
+            pass
+    _PENDING.clear()
+
+
+atexit.register(_reap_all)
+
+
 def _child(fn, args, shm: int, w: int, memory_bytes: int, timeout_s: float) -> None:
     code = 1
     try:
         import faulthandler
+        import gc
+
+        gc.disable()  # a collection would touch every object: copy-on-write faults for nothing
         import resource
 
         faulthandler.disable()  # its dump would go to a copy of stderr kept apart (pytest, PYTHONFAULTHANDLER)
@@ -321,7 +360,10 @@ def _dump(answer, shm: int) -> None:
 
 def _load(shm: int):
     size = os.fstat(shm).st_size
-    mem = mmap.mmap(shm, size, access=mmap.ACCESS_COPY)  # private: arrays are writeable views
+    # shared (no copy-on-write fault when an array is edited: the memfd is ours alone now) and
+    # populated in one go (no page fault per 4 KiB page on first touch)
+    flags = mmap.MAP_SHARED | getattr(mmap, "MAP_POPULATE", 0)
+    mem = mmap.mmap(shm, size, flags=flags, prot=mmap.PROT_READ | mmap.PROT_WRITE)
     view = memoryview(mem)
     n_data, n_bufs = struct.unpack_from("<QQ", view, 0)
     lengths = struct.unpack_from(f"<{n_bufs}Q", view, 16)
