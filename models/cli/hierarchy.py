@@ -70,7 +70,7 @@ def add_mgcheck_args(p: argparse.ArgumentParser) -> None:
 def hierarchy_main(args) -> int:
     from models.hierarchy.nested import build_hierarchy, write_hierarchy
     from models.mesh.boundary import fine_boundary, has_groups
-    from models.mesh.sandbox import read_mesh_safe as read_mesh
+    from models.mesh.sandbox import read_mesh_cli as read_mesh
     from models.pipeline import prepare
 
     out = args.output
@@ -161,7 +161,7 @@ def read_levels(folder: str) -> list[np.ndarray]:
 
 def mgcheck_main(args) -> int:
     from models.hierarchy.multigrid import format_report, mgcheck
-    from models.mesh.sandbox import read_mesh_safe as read_mesh
+    from models.mesh.sandbox import read_mesh_cli as read_mesh
     from models.pipeline import prepare
 
     levels = read_levels(args.hierarchy)

@@ -161,7 +161,7 @@ def check_output_path(path: str | None, what: str, suffixes: tuple[str, ...] = (
 
 def cmd_agglomerate(args) -> int:
     from models import pipeline
-    from models.mesh.sandbox import read_mesh_safe as read_mesh
+    from models.mesh.sandbox import read_mesh_cli as read_mesh
 
     check_output_path(args.output, "output mesh", (".vtu", ".ucd", ".inp"))
     ucd = os.path.splitext(args.output)[1].lower() in (".ucd", ".inp")
@@ -257,7 +257,7 @@ def cmd_plot(args) -> int:
     import numpy as np
 
     from models import pipeline
-    from models.mesh.sandbox import read_mesh_safe as read_mesh
+    from models.mesh.sandbox import read_mesh_cli as read_mesh
     from models.quality.plot import plot_agglomeration
 
     mesh = read_mesh(args.mesh, physical_tag=args.physical_tag)
@@ -283,7 +283,7 @@ def cmd_plot(args) -> int:
 
 def cmd_compare(args) -> int:
     from models import pipeline
-    from models.mesh.sandbox import read_mesh_safe as read_mesh
+    from models.mesh.sandbox import read_mesh_cli as read_mesh
     from models.quality.plot import metrics_table, plot_metric_boxplots
 
     mesh = read_mesh(args.mesh, physical_tag=args.physical_tag)

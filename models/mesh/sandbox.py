@@ -19,6 +19,9 @@ Every message also gets the same wording here, in-process or not (`wording`): it
 and the format, and a library's raw exception text or a Python repr is replaced by a sentence.
 The CLI, the HTTP API and the worker all read through this function, so they word a failure alike.
 
+The CLI reads through `read_mesh_cli`: in-process when the reader is pure Python (it cannot crash
+the interpreter), in the child when it is native (VTK, HDF5, netCDF).
+
 MAGNET_READ_SANDBOX=0 reads in-process (no fork); MAGNET_READ_TIMEOUT_S and MAGNET_READ_MEMORY_MB
 change the default limits (600 s; the machine's physical memory).
 """
@@ -154,9 +157,11 @@ def read_mesh_safe(
     *,
     timeout_s: float | None = None,
     memory_bytes: int | None = None,
+    in_process: bool = False,
 ):
     """`models.mesh.read.read_mesh` in a forked child under limits (see the module docstring);
-    the same Mesh, or a MeshError / ParameterError worded for users."""
+    the same Mesh, or a MeshError / ParameterError worded for users. in_process: read here (the
+    same wording; read_mesh_cli sets it for pure-Python readers)."""
     from models.mesh import read
 
     path = os.fspath(path)
@@ -180,7 +185,7 @@ def read_mesh_safe(
             shutil.rmtree(folder, ignore_errors=True)
     kwargs = {"physical_tag": physical_tag, "file_format": file_format, "weld": weld}
     try:
-        if not sandbox_enabled():
+        if in_process or not sandbox_enabled():
             return read.read_mesh(path, **kwargs)
         return call_in_child(
             _read_in_child,
@@ -198,6 +203,38 @@ def read_mesh_safe(
         raise MeshError(wording(str(exc), path, file_format)) from None
     except (Exception, SystemExit):  # a reader's own exception escaped (in-process reading)
         raise MeshError(wording("", path, file_format)) from None
+
+
+# meshio readers that call into compiled libraries (HDF5, netCDF): read in the sandbox, like VTK's
+NATIVE_MESHIO = frozenset({"med", "h5m", "xdmf", "exodus", "hmf", "cgns"})
+
+
+def pure_python_reader(path: str, file_format: str | None = None) -> bool:
+    """True when the reader read_mesh picks for `path` is Python and numpy only (our AVS UCD reader,
+    meshio's text readers: gmsh, Abaqus, Nastran, medit, ...): it cannot crash the interpreter.
+    VTK's readers, our VTU path (it falls back to VTK's reader) and meshio's HDF5/netCDF readers
+    are native. An unreadable head answers False (the sandbox then words the failure)."""
+    from models.mesh import read
+
+    try:
+        family, detail = read.pick_reader(path, file_format)
+    except (MagnetError, OSError):
+        return False
+    return family == "ucd" or (family == "meshio" and detail not in NATIVE_MESHIO)
+
+
+def read_mesh_cli(path, physical_tag=None, file_format=None, weld=None, **limits):
+    """read_mesh_safe as the CLI reads: in-process when the reader is pure Python (no fork, no
+    transfer), in the sandbox when it is native (VTK, HDF5, netCDF). The service and the worker
+    always read in the sandbox (read_mesh_safe)."""
+    if (
+        sandbox_enabled()
+        and os.path.isfile(os.fspath(path))
+        and extension(os.fspath(path)) not in ARCHIVES
+        and pure_python_reader(os.fspath(path), file_format)
+    ):
+        limits = {**limits, "in_process": True}
+    return read_mesh_safe(path, physical_tag, file_format, weld, **limits)
 
 
 def _read_in_child(path, kwargs):
@@ -381,6 +418,8 @@ def _load(shm: int):
 
 __all__ = [
     "read_mesh_safe",
+    "read_mesh_cli",
+    "pure_python_reader",
     "call_in_child",
     "wording",
     "is_raw",
