@@ -3,7 +3,8 @@
 models/quality/_fastmetrics.c holds compiled helpers of models/quality/ (the 3D inscribed-ball search,
 the 3D geometry, enclosing balls, partition statistics); models/graph/_fastgraph.c graph helpers of the
 rtree partitioner and the 2D merge (the halving steps of the cuts, connected pieces, coarse-graph
-edges, boundary loops). Both are optional: where they cannot be compiled the install goes on and
+edges, boundary loops); models/mesh/_fastmesh.c the read stage's validation (measures of fixed-size
+cells, the orientation check). Both are optional: where they cannot be compiled the install goes on and
 the numpy twins run (same results, slower; models/native.py finds them).
 """
 
@@ -25,6 +26,15 @@ setup(
             depends=["models/_buffers.h"],
             include_dirs=["models"],
             # no -ffast-math or contraction: the same float operations as the numpy twins, bit for bit
+            extra_compile_args=["-O3", "-fno-math-errno", "-ffp-contract=off"],
+            optional=True,
+        ),
+        Extension(
+            "models.mesh._fastmesh",
+            ["models/mesh/_fastmesh.c"],
+            depends=["models/_buffers.h"],
+            include_dirs=["models"],
+            # the same float operations as the numpy twins in geometry.py, bit for bit
             extra_compile_args=["-O3", "-fno-math-errno", "-ffp-contract=off"],
             optional=True,
         ),

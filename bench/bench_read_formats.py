@@ -6,6 +6,8 @@ VTK: the same format's VTK reader, Update(), then vtk_to_numpy of points, offset
 types (the arrays of an unstructured grid; structured datasets: their points only, the cells being
 implicit there). Each side runs --repeat times alternating in this process; the table gives the
 best of each and their ratio. Files of 10,000 cells or more, written here by VTK's writers.
+"ours sandboxed" is read_mesh_safe (a forked child, the Mesh back through a memfd), the way the
+service and the worker read every upload.
 
   python bench/bench_read_formats.py            # ~13,824-98,304 cells per file
   python bench/bench_read_formats.py --n 30     # larger
@@ -59,11 +61,35 @@ def vtk_side(path: str) -> float:
 
 
 def ours(path: str) -> float:
+    """In-process: read_mesh as it is (MAGNET_READ_SANDBOX=0 and the CLI's pure-Python readers)."""
     from models.mesh.read import read_mesh
 
     t = time.perf_counter()
     read_mesh(path)
     return time.perf_counter() - t
+
+
+def sandboxed(path: str) -> float:
+    """In a forked child (read_mesh_safe: the service, the worker, the CLI on native readers), the
+    fork, the child's read and the Mesh's way back through the memfd all counted."""
+    from models.mesh.sandbox import read_mesh_safe
+
+    t = time.perf_counter()
+    read_mesh_safe(path)
+    return time.perf_counter() - t
+
+
+def _exodus(path: str, points, hexes) -> str | None:
+    """Exodus II written by meshio (it needs netCDF4; vtkExodusIIWriter crashes in the vtk 9.7
+    wheel), or None where netCDF4 is missing."""
+    try:
+        import meshio
+        import netCDF4  # noqa: F401
+    except ImportError:
+        print("# Exodus II left out: meshio's Exodus writer needs netCDF4 (pip install netCDF4)")
+        return None
+    meshio.write(path, meshio.Mesh(points, [("hexahedron", hexes)]), file_format="exodus")
+    return path
 
 
 def corpus(tmp: str, n: int) -> list[tuple[str, str, int]]:
@@ -109,6 +135,9 @@ def corpus(tmp: str, n: int) -> list[tuple[str, str, int]]:
             len(q),
         )
     )
+    exo = _exodus(os.path.join(tmp, "hex.exo"), p, h)
+    if exo:
+        out.append(("hexahedra, Exodus II (meshio + netCDF4)", exo, len(h)))
     out.append(
         (
             "structured grid, VTS",
@@ -135,14 +164,20 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         files = corpus(tmp, args.n)
         print(f"# read stage vs VTK reader + vtk_to_numpy, best of {args.repeat} alternating runs")
-        print("| file | cells | VTK s | ours s | ratio |")
-        print("|---|---|---|---|---|")
+        print(
+            "| file | cells | VTK s | ours in-process s | ours sandboxed s | in-process / VTK | sandboxed / VTK |"
+        )
+        print("|---|---|---|---|---|---|---|")
         for name, path, cells in files:
-            a, b = [], []
+            a, b, c = [], [], []
             for _ in range(args.repeat):
                 a.append(vtk_side(path))
                 b.append(ours(path))
-            print(f"| {name} | {cells:,} | {min(a):.4f} | {min(b):.4f} | {min(b) / min(a):.2f} |")
+                c.append(sandboxed(path))
+            va, vb, vc_ = min(a), min(b), min(c)
+            print(
+                f"| {name} | {cells:,} | {va:.4f} | {vb:.4f} | {vc_:.4f} | {vb / va:.2f} | {vc_ / va:.2f} |"
+            )
 
 
 if __name__ == "__main__":

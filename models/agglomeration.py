@@ -35,11 +35,16 @@ def read_mesh(
     tags=None,
     physical_tag: str | None = None,
     weld: float | None = None,
+    untrusted: bool = False,
 ) -> Mesh:
-    """The validated, positively oriented `Mesh` of any accepted source (MeshError if invalid)."""
+    """The validated, positively oriented `Mesh` of any accepted source (MeshError if invalid).
+    A path is read by native readers (VTK, HDF5, netCDF) in a forked child with limits, so a crash
+    is a MeshError; untrusted=True (uploads: the service and the worker) reads every file so."""
     from models.mesh.container import Mesh
     from models.mesh.read import mesh_from_meshio
-    from models.mesh.sandbox import read_mesh_safe as read_file
+    from models.mesh.sandbox import read_mesh_cli, read_mesh_safe
+
+    read_file = read_mesh_safe if untrusted else read_mesh_cli
 
     if source is None:
         if points is None or cells is None:
@@ -105,6 +110,7 @@ def agglomerate(
     metrics: bool = True,
     progress: Callable[[float, str], None] | None = None,
     warn: Callable[[str], None] | None = None,
+    untrusted: bool = False,
 ) -> Agglomeration:
     """Agglomerate a mesh into polygons (2D) or polyhedra (3D).
 
@@ -182,7 +188,13 @@ def run(
         )
     else:
         mesh = read_mesh(
-            source, points=points, cells=cells, tags=tags, physical_tag=o["physical_tag"], weld=o["weld"]
+            source,
+            points=points,
+            cells=cells,
+            tags=tags,
+            physical_tag=o["physical_tag"],
+            weld=o["weld"],
+            untrusted=untrusted,
         )
     t_read = time.perf_counter() - t0
     p = validate_params(

@@ -110,7 +110,7 @@ def run_job(
 
     t0 = time.perf_counter()
     tick(0.0, "fill" if p["options"].get("fill") else "read")
-    result = run(mesh_path, params, progress=tick, warn=warn)
+    result = run(mesh_path, params, progress=tick, warn=warn, untrusted=True)  # uploads: always sandboxed
     res = result.result
     mesh, p, o = res.mesh, result.params, result.params["options"]
     files = {"mesh": "mesh.vtu", "metrics": "metrics.json", "labels": "labels.json", "preview": "preview.png"}

@@ -1,5 +1,6 @@
 """The compiled helper modules, built by setup.py where a C compiler is found: models/quality/_fastmetrics.c
-(the metrics' 3D geometry and inscribed balls) and models/graph/_fastgraph.c (the rtree model's cuts,
+(the metrics' 3D geometry and inscribed balls), models/mesh/_fastmesh.c (the read stage's validation of
+fixed-size cells) and models/graph/_fastgraph.c (the rtree model's cuts,
 connected pieces, coarse-graph edges, merge_2d's boundary loops). Each of their functions has a
 numpy twin next to its caller, which runs where the module was not built or MAGNET_NO_COMPILED=1
 (same results; the tests hold them equal)."""

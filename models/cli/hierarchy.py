@@ -172,7 +172,7 @@ def read_levels(folder: str) -> list[np.ndarray]:
 
 def mgcheck_main(args) -> int:
     from models.hierarchy.multigrid import format_report, mgcheck, parse_kappa
-    from models.mesh.sandbox import read_mesh_safe as read_mesh
+    from models.mesh.sandbox import read_mesh_cli as read_mesh
     from models.pipeline import prepare
 
     kappa = parse_kappa(args.kappa)

@@ -315,7 +315,7 @@ def cmd_plot(args) -> int:
     import numpy as np
 
     from models import pipeline
-    from models.mesh.sandbox import read_mesh_safe as read_mesh
+    from models.mesh.sandbox import read_mesh_cli as read_mesh
     from models.quality.plot import plot_agglomeration
 
     mesh = read_mesh(args.mesh, physical_tag=args.physical_tag)

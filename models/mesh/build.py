@@ -202,6 +202,7 @@ def _orient_and_check(mesh: Mesh) -> None:
         _measures_and_centroids,
         _tetra_measures,
         cell_faces,
+        fixed_layout_compiled,
         tetra_face_areas,
     )
     from models.mesh.orientation import orientation_flips
@@ -212,7 +213,9 @@ def _orient_and_check(mesh: Mesh) -> None:
         faces = None  # built once the cells are mirrored by their own sign (below)
         vol, cen, areas = _tetra_measures(mesh, face_areas=True)
     else:
-        faces = cell_faces(mesh) if mesh.dim == 3 else None
+        # one cell type of fixed node count, compiled helpers: measures and the orientation check
+        # from the cells' template, no face array (the dual graph makes it when it needs it)
+        faces = cell_faces(mesh) if mesh.dim == 3 and fixed_layout_compiled(mesh) is None else None
         vol, cen = _measures_and_centroids(mesh, faces)
     mesh.meta["measures"] = np.abs(vol)  # orientation does not change measure or centroid
     mesh.meta["centroids"] = cen

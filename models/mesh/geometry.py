@@ -23,6 +23,85 @@ FACE_TEMPLATES: dict[int, list[tuple[int, ...]]] = {
 }
 
 
+NODES = {VTK_TETRA: 4, VTK_HEXAHEDRON: 8, VTK_WEDGE: 6, VTK_PYRAMID: 5}
+
+
+def _one_fixed_type(mesh: Mesh) -> int | None:
+    """The cell type when every cell is of one type of FACE_TEMPLATES (stored as rows of its node
+    count, offsets k * i), else None."""
+    n = mesh.n_cells
+    if not n or mesh.poly_cells is not None:
+        return None
+    t = int(mesh.cell_types[0])
+    k = NODES.get(t)
+    if k is None or mesh.connectivity.size != k * n or mesh.offsets[-1] != k * n:
+        return None
+    if not (np.all(mesh.cell_types == t) and np.array_equal(mesh.offsets, np.arange(0, k * n + 1, k))):
+        return None
+    return t
+
+
+def fixed_template(t: int) -> tuple[np.ndarray, np.ndarray]:
+    """FACE_TEMPLATES[t] flat for models/mesh/_fastmesh.c: (local nodes of the faces, the triangles
+    first, in template order, as cell_faces orders a cell's faces; (nf,) their sizes)."""
+    faces = FACE_TEMPLATES[t]
+    order = [f for f in faces if len(f) == 3] + [f for f in faces if len(f) != 3]
+    return (
+        np.array([j for f in order for j in f], dtype=np.int64),
+        np.array([len(f) for f in order], dtype=np.int64),
+    )
+
+
+def fixed_layout_compiled(mesh: Mesh):
+    """(compiled module, cell type) when the read stage can validate this mesh without a face array
+    (3D, cells of one FACE_TEMPLATES type other than tetrahedra, models/mesh/_fastmesh.c built)."""
+    from models.native import compiled
+
+    if mesh.dim != 3:
+        return None
+    t = _one_fixed_type(mesh)
+    if t is None or t == VTK_TETRA:
+        return None
+    fast = compiled("mesh._fastmesh")
+    return None if fast is None else (fast, t)
+
+
+def _fixed_measures(mesh: Mesh) -> tuple[np.ndarray, np.ndarray] | None:
+    """_measures_and_centroids of a mesh of FACE_TEMPLATES cells (no polyhedra) by the compiled
+    models/mesh/_fastmesh.c, one call per cell type (the same values bit for bit: each cell's faces
+    and triangles in the order of cell_faces + face_triangles); None where it was not built."""
+    from models.native import compiled
+
+    fast = compiled("mesh._fastmesh")
+    if fast is None or mesh.dim != 3 or not mesh.n_cells:
+        return None
+    if mesh.poly_cells is not None or not np.isin(mesh.cell_types, list(FACE_TEMPLATES)).all():
+        return None
+    n = mesh.n_cells
+    pts = np.ascontiguousarray(mesh.points, dtype=np.float64)
+    one = _one_fixed_type(mesh)
+    vol, cen = np.empty(n), np.empty((n, 3))
+    for t in FACE_TEMPLATES:
+        k = NODES[t]
+        if one is not None:
+            if one != t:
+                continue
+            sel, conn = None, np.ascontiguousarray(mesh.connectivity, dtype=np.int64)
+        else:
+            sel = np.flatnonzero(mesh.cell_types == t)
+            if sel.size == 0:
+                continue
+            conn = mesh.connectivity[mesh.offsets[sel][:, None] + np.arange(k)[None, :]].astype(np.int64)
+        tmpl, tsize = fixed_template(t)
+        if sel is None:
+            fast.fixed_measures(pts, conn.reshape(-1), tmpl, tsize, vol, cen)
+            break
+        v, c = np.empty(sel.size), np.empty((sel.size, 3))
+        fast.fixed_measures(pts, conn.reshape(-1), tmpl, tsize, v, c)
+        vol[sel], cen[sel] = v, c
+    return vol, cen
+
+
 @dataclass
 class Faces:
     """All faces of all cells (each interior face appears twice, once per cell).
@@ -98,12 +177,23 @@ def cell_faces(mesh: Mesh) -> Faces:
             nodes=nodes.astype(np.int64, copy=False),
         )
     parts_cell, parts_size, parts_nodes = [], [], []
+    one = _one_fixed_type(mesh)
     for t, faces in FACE_TEMPLATES.items():
-        sel = np.flatnonzero(mesh.cell_types == t)
-        if sel.size == 0:
+        sel = (
+            np.flatnonzero(mesh.cell_types == t)
+            if one is None
+            else np.arange(mesh.n_cells)
+            if one == t
+            else None
+        )
+        if sel is None or sel.size == 0:
             continue
-        n = {VTK_TETRA: 4, VTK_HEXAHEDRON: 8, VTK_WEDGE: 6, VTK_PYRAMID: 5}[t]
-        conn = mesh.connectivity[mesh.offsets[sel][:, None] + np.arange(n)[None, :]]
+        n = NODES[t]
+        conn = (
+            mesh.connectivity.reshape(-1, n)
+            if one == t
+            else mesh.connectivity[mesh.offsets[sel][:, None] + np.arange(n)[None, :]]
+        )
         for size in (3, 4):
             tmpl = [f for f in faces if len(f) == size]
             if not tmpl:
@@ -122,6 +212,8 @@ def cell_faces(mesh: Mesh) -> Faces:
     nodes = np.concatenate(parts_nodes).astype(np.int64)
     offsets = np.zeros(sizes.size + 1, dtype=np.int64)
     np.cumsum(sizes, out=offsets[1:])
+    if len(parts_cell) == 1:  # one part (e.g. hexahedra only): already grouped by cell
+        return Faces(cell=cell, offsets=offsets, nodes=nodes)
     # order faces by cell (stable), so faces of a cell are contiguous
     order = np.argsort(cell, kind="stable")
     if not np.array_equal(order, np.arange(order.size)):
@@ -340,6 +432,9 @@ def _measures_and_centroids(mesh: Mesh, faces: Faces | None = None) -> tuple[np.
         return _polygon_measures(mesh.points, mesh.offsets, mesh.connectivity)
     if _all_tetrahedra(mesh):
         return _tetra_measures(mesh)
+    fixed = _fixed_measures(mesh)
+    if fixed is not None:
+        return fixed
     faces = faces or cell_faces(mesh)
     owner, a, b, c = face_triangles(mesh.points, faces.offsets, faces.nodes)
     cell = faces.cell[owner]

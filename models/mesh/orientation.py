@@ -111,6 +111,18 @@ def _consistent(faces: Faces, flip: np.ndarray, n_points: int) -> bool | None:
         a, b = np.where(f, e[:, 1], e[:, 0]), np.where(f, e[:, 0], e[:, 1])
         keys = a * np.int64(n_points) + b
     else:
+        from models.native import compiled
+
+        fast = compiled("mesh._fastmesh")
+        if fast is not None:  # a hash table of the same directed keys, no sort (models/mesh/_fastmesh.c)
+            return bool(
+                fast.consistent(
+                    faces.offsets.astype(np.int64, copy=False),
+                    faces.nodes.astype(np.int64, copy=False),
+                    faces.cell.astype(np.int64, copy=False),
+                    flip.view(np.uint8),
+                )
+            )
         bits = max(int(n_points - 1).bit_length(), 1)
         if 3 * bits + 3 > 63:
             return None
@@ -180,6 +192,17 @@ def orientation_flips(
     own = measures < 0
     if mesh.dim == 2 and _consistent_2d(mesh.offsets, mesh.connectivity, own, mesh.n_points):
         return own  # fast path (one plain sort): flipping each cell by its own sign is consistent
+    if faces is None and mesh.dim == 3:
+        from models.mesh.geometry import fixed_layout_compiled, fixed_template
+
+        fixed = fixed_layout_compiled(mesh)
+        if fixed is not None and fixed[0].fixed_consistent(
+            mesh.connectivity.astype(np.int64, copy=False),
+            *fixed_template(fixed[1]),
+            own.view(np.uint8),
+            np.array([mesh.n_points], dtype=np.int64),
+        ):
+            return own  # no face array: the dual graph builds it when it needs it
     faces = faces or cell_faces(mesh)
     paired = _pairing(faces, mesh.n_points) if mesh.dim == 3 else None
     pairs = None

@@ -9,12 +9,18 @@ the file and the format ("the Exodus II reader crashed on this file: it is corru
 Exodus II"); the calling process lives on.
 
 The Mesh comes back without a copy per cell: the child pickles it with protocol 5, every numpy
-array out of band, into a memfd (shared memory); the parent maps that memory copy-on-write and the
-arrays are views of it (writeable: orienting and welding edit them in place).
+array out of band (each once: pickle memoizes an array met twice), into a memfd (shared memory);
+the parent maps that memory shared and populated (MAP_SHARED | MAP_POPULATE: no page fault per
+page, no copy-on-write when an array is edited in place) and the arrays are views of it. The
+child runs with the garbage collector off (no copy-on-write faults from a collection), and once it
+has answered the parent goes on while it exits (collected at the next read or at exit).
 
 Every message also gets the same wording here, in-process or not (`wording`): it names the file
 and the format, and a library's raw exception text or a Python repr is replaced by a sentence.
 The CLI, the HTTP API and the worker all read through this function, so they word a failure alike.
+
+The CLI reads through `read_mesh_cli`: in-process when the reader is pure Python (it cannot crash
+the interpreter), in the child when it is native (VTK, HDF5, netCDF).
 
 MAGNET_READ_SANDBOX=0 reads in-process (no fork); MAGNET_READ_TIMEOUT_S and MAGNET_READ_MEMORY_MB
 change the default limits (600 s; the machine's physical memory).
@@ -22,6 +28,7 @@ change the default limits (600 s; the machine's physical memory).
 
 from __future__ import annotations
 
+import atexit
 import mmap
 import os
 import pickle
@@ -150,9 +157,11 @@ def read_mesh_safe(
     *,
     timeout_s: float | None = None,
     memory_bytes: int | None = None,
+    in_process: bool = False,
 ):
     """`models.mesh.read.read_mesh` in a forked child under limits (see the module docstring);
-    the same Mesh, or a MeshError / ParameterError worded for users."""
+    the same Mesh, or a MeshError / ParameterError worded for users. in_process: read here (the
+    same wording; read_mesh_cli sets it for pure-Python readers)."""
     from models.mesh import read
 
     path = os.fspath(path)
@@ -176,7 +185,7 @@ def read_mesh_safe(
             shutil.rmtree(folder, ignore_errors=True)
     kwargs = {"physical_tag": physical_tag, "file_format": file_format, "weld": weld}
     try:
-        if not sandbox_enabled():
+        if in_process or not sandbox_enabled():
             return read.read_mesh(path, **kwargs)
         return call_in_child(
             _read_in_child,
@@ -194,6 +203,38 @@ def read_mesh_safe(
         raise MeshError(wording(str(exc), path, file_format)) from None
     except (Exception, SystemExit):  # a reader's own exception escaped (in-process reading)
         raise MeshError(wording("", path, file_format)) from None
+
+
+# meshio readers that call into compiled libraries (HDF5, netCDF): read in the sandbox, like VTK's
+NATIVE_MESHIO = frozenset({"med", "h5m", "xdmf", "exodus", "hmf", "cgns"})
+
+
+def pure_python_reader(path: str, file_format: str | None = None) -> bool:
+    """True when the reader read_mesh picks for `path` is Python and numpy only (our AVS UCD reader,
+    meshio's text readers: gmsh, Abaqus, Nastran, medit, ...): it cannot crash the interpreter.
+    VTK's readers, our VTU path (it falls back to VTK's reader) and meshio's HDF5/netCDF readers
+    are native. An unreadable head answers False (the sandbox then words the failure)."""
+    from models.mesh import read
+
+    try:
+        family, detail = read.pick_reader(path, file_format)
+    except (MagnetError, OSError):
+        return False
+    return family == "ucd" or (family == "meshio" and detail not in NATIVE_MESHIO)
+
+
+def read_mesh_cli(path, physical_tag=None, file_format=None, weld=None, **limits):
+    """read_mesh_safe as the CLI reads: in-process when the reader is pure Python (no fork, no
+    transfer), in the sandbox when it is native (VTK, HDF5, netCDF). The service and the worker
+    always read in the sandbox (read_mesh_safe)."""
+    if (
+        sandbox_enabled()
+        and os.path.isfile(os.fspath(path))
+        and extension(os.fspath(path)) not in ARCHIVES
+        and pure_python_reader(os.fspath(path), file_format)
+    ):
+        limits = {**limits, "in_process": True}
+    return read_mesh_safe(path, physical_tag, file_format, weld, **limits)
 
 
 def _read_in_child(path, kwargs):
@@ -248,8 +289,11 @@ def _wait(pid: int, r: int, timeout_s: float):
             if ready:
                 break
         answered = os.read(r, 1) == b"1"
-        _, code = os.waitpid(pid, 0)
         done = True
+        if answered:  # the answer is whole: the child's exit (unmapping its memory) runs on meanwhile
+            _reap_later(pid)
+            return 0, True
+        _, code = os.waitpid(pid, 0)
         return (os.WTERMSIG(code) if os.WIFSIGNALED(code) else 0), answered
     finally:
         if not done:  # timeout, or the caller interrupted (Ctrl-C, a job cancelled): no child left behind
@@ -260,10 +304,42 @@ def _wait(pid: int, r: int, timeout_s: float):
             os.waitpid(pid, 0)
 
 
+_PENDING: list[int] = []  # children that answered and are still exiting
+
+
+def _reap_later(pid: int) -> None:
+    """Collect `pid` without waiting for it: a child that answered spends milliseconds unmapping
+    its copy of this process's memory; that runs while the caller goes on. Children collected at
+    the next read (and at exit), never left as zombies for long."""
+    _PENDING.append(pid)
+    for p in list(_PENDING):
+        try:
+            done, _ = os.waitpid(p, os.WNOHANG)
+        except ChildProcessError:
+            done = p
+        if done:
+            _PENDING.remove(p)
+
+
+def _reap_all() -> None:
+    for p in list(_PENDING):
+        try:
+            os.waitpid(p, 0)
+        except ChildProcessError:
+            pass
+    _PENDING.clear()
+
+
+atexit.register(_reap_all)
+
+
 def _child(fn, args, shm: int, w: int, memory_bytes: int, timeout_s: float) -> None:
     code = 1
     try:
         import faulthandler
+        import gc
+
+        gc.disable()  # a collection would touch every object: copy-on-write faults for nothing
         import resource
 
         faulthandler.disable()  # its dump would go to a copy of stderr kept apart (pytest, PYTHONFAULTHANDLER)
@@ -321,7 +397,10 @@ def _dump(answer, shm: int) -> None:
 
 def _load(shm: int):
     size = os.fstat(shm).st_size
-    mem = mmap.mmap(shm, size, access=mmap.ACCESS_COPY)  # private: arrays are writeable views
+    # shared (no copy-on-write fault when an array is edited: the memfd is ours alone now) and
+    # populated in one go (no page fault per 4 KiB page on first touch)
+    flags = mmap.MAP_SHARED | getattr(mmap, "MAP_POPULATE", 0)
+    mem = mmap.mmap(shm, size, flags=flags, prot=mmap.PROT_READ | mmap.PROT_WRITE)
     view = memoryview(mem)
     n_data, n_bufs = struct.unpack_from("<QQ", view, 0)
     lengths = struct.unpack_from(f"<{n_bufs}Q", view, 16)
@@ -339,6 +418,8 @@ def _load(shm: int):
 
 __all__ = [
     "read_mesh_safe",
+    "read_mesh_cli",
+    "pure_python_reader",
     "call_in_child",
     "wording",
     "is_raw",

@@ -1,0 +1,273 @@
+/* Compiled helpers of the read stage's validation (models/mesh/geometry.py and orientation.py; each
+ * has a numpy twin there: the fallback and the reference in the tests; MAGNET_NO_COMPILED=1 switches
+ * them off). Same results bit for bit: the same floating-point operations in the same order as the
+ * numpy code (built with -ffp-contract=off, no fast-math).
+ *
+ *   fixed_measures  signed volume and centroid of cells of one type with a fixed node count, by the
+ *                   divergence theorem on their faces as geometry._measures_and_centroids does it:
+ *                   triangles as they are, a face of 4+ nodes fanned from the mean of its nodes,
+ *                   every triangle relative to the cell's vertex mean;
+ *   consistent      orientation._consistent (fixed_consistent: the same from a cell type's template): with the cells in `flip` reversed, is any face met twice
+ *                   in the same direction? (a hash table of directed face keys instead of a sort)
+ *
+ * Arrays come through the buffer protocol (no numpy headers at build time); point ids are trusted
+ * (build.mesh_from_cells checked them before).
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include "_buffers.h"
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* fixed_measures(points, conn, tmpl, tsize, vol, cen)
+ *   points (P * 3) float64; conn (C * k) int64; tmpl: the local nodes of the cell's faces, the
+ *   triangles first then the others, each in template order (as cell_faces + face_triangles order
+ *   them); tsize (nf,) their sizes. Out: vol (C,), cen (C * 3). */
+static PyObject *py_fixed_measures(PyObject *self, PyObject *args) {
+    static const char *const names[] = {"points", "conn", "tmpl", "tsize", "vol", "cen"};
+    static const int wr[] = {0, 0, 0, 0, 1, 1};
+    Py_buffer b[6];
+    if (parse_bufs(args, 6, "fixed_measures", names, NULL, wr, b) < 0) return NULL;
+    const double *P = b[0].buf;
+    const int64_t *conn = b[1].buf, *tmpl = b[2].buf, *tsize = b[3].buf;
+    double *vol = b[4].buf, *cen = b[5].buf;
+    int64_t C = N8(b[4]), nf = N8(b[3]), nt = N8(b[2]);
+    int64_t k = C ? N8(b[1]) / C : 0;
+    if (C * 3 != N8(b[5]) || (C && k * C != N8(b[1])) || k > 64 || nf > 64) {
+        release_arr(b, 6);
+        PyErr_SetString(PyExc_ValueError, "fixed_measures: inconsistent array sizes");
+        return NULL;
+    }
+    int64_t sum = 0;
+    for (int64_t f = 0; f < nf; f++) sum += tsize[f];
+    if (sum != nt) {
+        release_arr(b, 6);
+        PyErr_SetString(PyExc_ValueError, "fixed_measures: template sizes do not add up");
+        return NULL;
+    }
+    Py_BEGIN_ALLOW_THREADS
+    for (int64_t i = 0; i < C; i++) {
+        const int64_t *c = conn + i * k;
+        double o[3] = {0.0, 0.0, 0.0};
+        for (int64_t j = 0; j < k; j++)
+            for (int d = 0; d < 3; d++) o[d] += P[3 * c[j] + d];
+        for (int d = 0; d < 3; d++) o[d] /= (double)k;
+        double v_sum = 0.0, g_sum[3] = {0.0, 0.0, 0.0};
+        /* one triangle (a, b, c): the numpy path's a - o, b - o, c - o, einsum(a, cross(b, c)) / 6
+           (summed x, z, y), (a + b + c) / 4 */
+        /* every node relative to o once (the same values the numpy path computes per triangle) */
+        double rel[64][3];
+        for (int64_t j = 0; j < k; j++)
+            for (int d = 0; d < 3; d++) rel[j][d] = P[3 * c[j] + d] - o[d];
+#define TRI(A, B, CC)                                                                              \
+    do {                                                                                           \
+        double a0 = (A)[0], a1 = (A)[1], a2 = (A)[2];                                              \
+        double b0 = (B)[0], b1 = (B)[1], b2 = (B)[2];                                              \
+        double c0 = (CC)[0], c1 = (CC)[1], c2 = (CC)[2];                                           \
+        double x0 = b1 * c2 - b2 * c1, x1 = b2 * c0 - b0 * c2, x2 = b0 * c1 - b1 * c0;             \
+        double t0 = a0 * x0, t1 = a1 * x1, t2 = a2 * x2;                                           \
+        double v = ((t0 + t2) + t1) / 6.0;                                                         \
+        v_sum += v;                                                                                \
+        g_sum[0] += v * (((a0 + b0) + c0) / 4.0);                                                  \
+        g_sum[1] += v * (((a1 + b1) + c1) / 4.0);                                                  \
+        g_sum[2] += v * (((a2 + b2) + c2) / 4.0);                                                  \
+    } while (0)
+        int64_t pos = 0;
+        for (int64_t f = 0; f < nf; f++) {
+            int64_t s = tsize[f];
+            const int64_t *t = tmpl + pos;
+            pos += s;
+            if (s == 3) {
+                TRI(rel[t[0]], rel[t[1]], rel[t[2]]);
+                continue;
+            }
+            double m[3] = {0.0, 0.0, 0.0};
+            for (int64_t j = 0; j < s; j++)
+                for (int d = 0; d < 3; d++) m[d] += P[3 * c[t[j]] + d];
+            for (int d = 0; d < 3; d++) m[d] = m[d] / (double)s - o[d];
+            for (int64_t j = 0; j < s; j++) TRI(m, rel[t[j]], rel[t[(j + 1) % s]]);
+        }
+#undef TRI
+        vol[i] = v_sum;
+        for (int d = 0; d < 3; d++) cen[3 * i + d] = g_sum[d] / v_sum + o[d];
+    }
+    Py_END_ALLOW_THREADS
+    release_arr(b, 6);
+    Py_RETURN_NONE;
+}
+
+/* consistent(offsets, nodes, cell, flip) -> bool
+ *   faces in CSR (offsets (F+1,), nodes), cell (F,) their cells, flip (C,) uint8. A face's directed
+ *   key: (smallest node, the node after it, the node before it, min(size, 7)), after and before
+ *   swapped where its cell is flipped. False when a key is met twice. */
+typedef struct {
+    int64_t m, nx, pv, s;
+} Key;
+
+static inline uint64_t mix(uint64_t h) {
+    h ^= h >> 33;
+    h *= 0xff51afd7ed558ccdULL;
+    h ^= h >> 33;
+    h *= 0xc4ceb9fe1a85ec53ULL;
+    h ^= h >> 33;
+    return h;
+}
+
+static PyObject *py_consistent(PyObject *self, PyObject *args) {
+    static const char *const names[] = {"offsets", "nodes", "cell", "flip"};
+    static const Py_ssize_t sizes[] = {8, 8, 8, 1};
+    static const int wr[] = {0, 0, 0, 0};
+    Py_buffer b[4];
+    if (parse_bufs(args, 4, "consistent", names, sizes, wr, b) < 0) return NULL;
+    const int64_t *off = b[0].buf, *nodes = b[1].buf, *cell = b[2].buf;
+    const uint8_t *flip = b[3].buf;
+    int64_t F = N8(b[0]) - 1, nn = N8(b[1]), nc = (int64_t)b[3].len;
+    if (F < 0 || N8(b[2]) != F || (F > 0 && off[F] > nn)) {
+        release_arr(b, 4);
+        PyErr_SetString(PyExc_ValueError, "consistent: inconsistent array sizes");
+        return NULL;
+    }
+    uint64_t cap = 16;
+    while (cap < 2 * (uint64_t)F) cap <<= 1;
+    Key *table = malloc(cap * sizeof(Key));
+    int ok = 1, err = table == NULL;
+    Py_BEGIN_ALLOW_THREADS
+    if (!err) {
+        for (uint64_t i = 0; i < cap; i++) table[i].s = -1;
+        for (int64_t f = 0; f < F && ok; f++) {
+            int64_t a = off[f], s = off[f + 1] - a;
+            if (s < 1 || cell[f] < 0 || cell[f] >= nc) continue; /* not a face: left to the full path */
+            int64_t j = 0;
+            for (int64_t q = 1; q < s; q++)
+                if (nodes[a + q] < nodes[a + j]) j = q; /* first of the smallest (argmin) */
+            Key key = {nodes[a + j], nodes[a + (j + 1) % s], nodes[a + (j + s - 1) % s], s < 7 ? s : 7};
+            if (flip[cell[f]]) {
+                int64_t t = key.nx;
+                key.nx = key.pv;
+                key.pv = t;
+            }
+            uint64_t h = mix((uint64_t)key.m * 0x9E3779B97F4A7C15ULL ^ mix((uint64_t)key.nx) ^
+                             (mix((uint64_t)key.pv) << 1) ^ (uint64_t)key.s) & (cap - 1);
+            for (;;) {
+                Key *e = table + h;
+                if (e->s < 0) {
+                    *e = key;
+                    break;
+                }
+                if (e->m == key.m && e->nx == key.nx && e->pv == key.pv && e->s == key.s) {
+                    ok = 0;
+                    break;
+                }
+                h = (h + 1) & (cap - 1);
+            }
+        }
+    }
+    Py_END_ALLOW_THREADS
+    free(table);
+    release_arr(b, 4);
+    if (err) return PyErr_NoMemory();
+    return PyBool_FromLong(ok);
+}
+
+/* fixed_consistent(conn, tmpl, tsize, flip, npts) -> bool
+ *   consistent() for cells of one type with a fixed node count, their faces taken from the
+ *   template (as fixed_measures) instead of a face array; npts (1,) the number of points. The
+ *   faces are bucketed by their smallest node (a counting sort over the points: cache-friendly,
+ *   unlike a hash table of every face) and compared within each bucket. */
+typedef struct {
+    int64_t nx, pv, s;
+} Rest;
+
+static PyObject *py_fixed_consistent(PyObject *self, PyObject *args) {
+    static const char *const names[] = {"conn", "tmpl", "tsize", "flip", "npts"};
+    static const Py_ssize_t sizes[] = {8, 8, 8, 1, 8};
+    static const int wr[] = {0, 0, 0, 0, 0};
+    Py_buffer b[5];
+    if (parse_bufs(args, 5, "fixed_consistent", names, sizes, wr, b) < 0) return NULL;
+    const int64_t *conn = b[0].buf, *tmpl = b[1].buf, *tsize = b[2].buf, *npts = b[4].buf;
+    const uint8_t *flip = b[3].buf;
+    int64_t C = (int64_t)b[3].len, nf = N8(b[2]), nt = N8(b[1]);
+    int64_t k = C ? N8(b[0]) / C : 0, sum = 0;
+    for (int64_t f = 0; f < nf; f++) sum += tsize[f];
+    if (N8(b[4]) != 1 || npts[0] < 0 || (C && k * C != N8(b[0])) || sum != nt || nf > 64) {
+        release_arr(b, 5);
+        PyErr_SetString(PyExc_ValueError, "fixed_consistent: inconsistent array sizes");
+        return NULL;
+    }
+    int64_t P = npts[0], F = C * nf;
+    int64_t *start = calloc((size_t)P + 2, sizeof(int64_t));
+    int64_t *mins = malloc((size_t)(F ? F : 1) * sizeof(int64_t));
+    Rest *rest = malloc((size_t)(F ? F : 1) * sizeof(Rest));
+    int ok = 1, err = !start || !mins || !rest;
+    Py_BEGIN_ALLOW_THREADS
+    if (!err) {
+        for (int64_t i = 0; i < C && !err; i++) { /* every face's smallest node; counts */
+            const int64_t *c = conn + i * k;
+            int64_t pos = 0;
+            for (int64_t f = 0; f < nf; f++) {
+                int64_t s = tsize[f], j = 0;
+                const int64_t *t = tmpl + pos;
+                pos += s;
+                for (int64_t q = 1; q < s; q++)
+                    if (c[t[q]] < c[t[j]]) j = q;
+                int64_t m = c[t[j]];
+                if (m < 0 || m >= P) {
+                    err = 2;
+                    break;
+                }
+                mins[i * nf + f] = m;
+                start[m + 2]++;
+            }
+        }
+        for (int64_t p = 2; p < P + 2 && !err; p++) start[p] += start[p - 1];
+        for (int64_t i = 0; i < C && !err; i++) { /* scattered into the buckets */
+            const int64_t *c = conn + i * k;
+            int64_t pos = 0;
+            for (int64_t f = 0; f < nf; f++) {
+                int64_t s = tsize[f], j = 0;
+                const int64_t *t = tmpl + pos;
+                pos += s;
+                for (int64_t q = 1; q < s; q++)
+                    if (c[t[q]] < c[t[j]]) j = q;
+                int64_t nx = c[t[(j + 1) % s]], pv = c[t[(j + s - 1) % s]];
+                Rest r = {flip[i] ? pv : nx, flip[i] ? nx : pv, s < 7 ? s : 7};
+                rest[start[mins[i * nf + f] + 1]++] = r;
+            }
+        }
+        for (int64_t p = 0; p < P && ok && !err; p++) /* start[p]..start[p+1]: bucket p */
+            for (int64_t x = start[p]; x < start[p + 1] && ok; x++)
+                for (int64_t y = x + 1; y < start[p + 1]; y++)
+                    if (rest[x].nx == rest[y].nx && rest[x].pv == rest[y].pv && rest[x].s == rest[y].s) {
+                        ok = 0;
+                        break;
+                    }
+    }
+    Py_END_ALLOW_THREADS
+    free(start);
+    free(mins);
+    free(rest);
+    release_arr(b, 5);
+    if (err == 1) return PyErr_NoMemory();
+    if (err) {
+        PyErr_SetString(PyExc_ValueError, "fixed_consistent: a point id is out of range");
+        return NULL;
+    }
+    return PyBool_FromLong(ok);
+}
+
+static PyMethodDef methods[] = {
+    {"fixed_consistent", py_fixed_consistent, METH_VARARGS,
+     "fixed_consistent(conn, tmpl, tsize, flip, npts) -> bool: consistent() for cells of one type."},
+    {"fixed_measures", py_fixed_measures, METH_VARARGS,
+     "fixed_measures(points, conn, tmpl, tsize, vol, cen): signed volumes and centroids of cells of "
+     "one type (geometry._measures_and_centroids, bit for bit)."},
+    {"consistent", py_consistent, METH_VARARGS,
+     "consistent(offsets, nodes, cell, flip) -> bool: orientation._consistent by a hash table."},
+    {NULL, NULL, 0, NULL}};
+
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_fastmesh",
+                                    "Compiled helpers of the read stage (see models/mesh/_fastmesh.c).", -1,
+                                    methods};
+
+PyMODINIT_FUNC PyInit__fastmesh(void) { return PyModule_Create(&module); }
