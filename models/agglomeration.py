@@ -150,7 +150,15 @@ def agglomerate(
     params = {key: v for key, v in params.items() if v is not None}
     params["options"] = {key: v for key, v in params["options"].items() if v is not None}
     return run(
-        source, params, points=points, cells=cells, tags=tags, metrics=metrics, progress=progress, warn=warn
+        source,
+        params,
+        points=points,
+        cells=cells,
+        tags=tags,
+        metrics=metrics,
+        progress=progress,
+        warn=warn,
+        untrusted=untrusted,
     )
 
 
@@ -164,6 +172,7 @@ def run(
     metrics: bool = True,
     progress: Callable[[float, str], None] | None = None,
     warn: Callable[[str], None] | None = None,
+    untrusted: bool = False,
 ) -> Agglomeration:
     """`agglomerate` with the parameters as the service's job dict ({model, mode, k, ..., options:
     {...}}, see models.params): what the CLI and models.api.run_job call."""
