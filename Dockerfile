@@ -31,12 +31,12 @@ COPY jobqueue ./jobqueue
 COPY service ./service
 COPY worker ./worker
 # a C compiler only while installing: setup.py builds the compiled helpers (models/quality/_fastmetrics.c,
-# models/graph/_fastgraph.c)
+# models/graph/_fastgraph.c, models/mesh/_fastmesh.c)
 RUN apt-get update && apt-get install -y --no-install-recommends gcc libc6-dev \
     && (python -c "import os, sys, sysconfig; sys.exit(not os.path.exists(sysconfig.get_paths()['include'] + '/Python.h'))" \
         || apt-get install -y --no-install-recommends python3-dev) \
     && pip install ".[neural,service]" \
-    && (cd / && python -c "import models.quality._fastmetrics, models.graph._fastgraph") \
+    && (cd / && python -c "import models.quality._fastmetrics, models.graph._fastgraph, models.mesh._fastmesh") \
     && apt-get purge -y gcc libc6-dev && apt-get autoremove -y && rm -rf /var/lib/apt/lists/* \
     && useradd --system --create-home --uid 10001 magnet \
     && mkdir -p /data && chown magnet /data

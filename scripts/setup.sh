@@ -9,7 +9,7 @@ fi
 stamp=.venv/.magnet-installed
 # (again when a compiled module's source or build changed: setup.py builds models/_fast*.c)
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ client/pyproject.toml -nt "$stamp" ] \
-  || [ setup.py -nt "$stamp" ] || [ models/quality/_fastmetrics.c -nt "$stamp" ] || [ models/graph/_fastgraph.c -nt "$stamp" ] \
+  || [ setup.py -nt "$stamp" ] || [ models/quality/_fastmetrics.c -nt "$stamp" ] || [ models/graph/_fastgraph.c -nt "$stamp" ] || [ models/mesh/_fastmesh.c -nt "$stamp" ] \
   || [ models/_buffers.h -nt "$stamp" ]; then
   .venv/bin/python -m pip install -q --upgrade pip
   # torch pinned first: the CPU wheel (a bare "torch" would pull a multi-GB CUDA build)
