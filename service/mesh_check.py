@@ -43,6 +43,15 @@ def extension_of(filename: str | None) -> str:
     if filename and any(ord(ch) < 32 or ord(ch) == 127 for ch in filename):
         raise UploadRejected(422, "filename: control characters (e.g. NUL) are not allowed", "filename")
     ext = formats.extension(filename or "").lstrip(".")
+    if "." + ext in formats.MULTI_FILE:
+        shown = os.path.basename((filename or "").replace("\\", "/"))[:100]
+        fmt = formats.format_name(shown)
+        raise UploadRejected(
+            422,
+            f"{shown} is a {fmt} file, which refers to other files beside it (its data or its pieces): "
+            f"upload a .zip or .tar.gz holding {shown} and those files",
+            "filename",
+        )
     if ext not in ALLOWED_EXTENSIONS:
         shown = os.path.basename((filename or "").replace("\\", "/"))[:100]
         what = f"the file name {shown}" if shown else "the upload has no file name: it"
