@@ -80,7 +80,9 @@ def test_mutants_are_a_mesh_or_one_clear_sentence(corpus, tmp_path):
             target = tmp_path / f"m{i}_{name}"
             target.write_bytes(bad)
             try:
-                mesh = read_mesh_safe(target, timeout_s=60)
+                mesh = read_mesh_safe(
+                    target, timeout_s=10, memory_bytes=2 << 30
+                )  # a hang or a blow-up: a sentence too
             except (MeshError, ParameterError) as exc:
                 outcomes["refused"] += 1
                 try:
