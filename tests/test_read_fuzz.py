@@ -113,7 +113,7 @@ def _first_crash(path: Path, out: Path, seed: int = 23, limit: int = 60) -> Path
 def crashers(corpus, tmp_path_factory):
     folder = tmp_path_factory.mktemp("crash")
     return [
-        _first_crash(corpus["mesh.exo"], folder / "crash.exo"),
+        _first_crash(corpus["blocks.e"], folder / "crash.e"),  # meshio's Exodus (IOSS's: no crash in 240)
         _first_crash(corpus["vtk_binary.vtk"], folder / "crash.vtk"),
     ]
 
