@@ -308,7 +308,7 @@ def _bad_files(corpus, folder: Path) -> list[Path]:
     folder.mkdir(parents=True, exist_ok=True)
     out = []
     for name in (
-        "blocks.e", "mesh.exo", "zones.cgns", "mesh.neu", "mesh_bin.inp", "fluent.msh", "mesh.xdmf",
+        "blocks.e", "mesh.exo", "zones.cgns", "mesh.neu", "mesh_bin.inp", "fluent.msh",
         "vtk_binary.vtk", "ascii.vtk", "gmsh22.msh", "gmsh41_bin.msh", "inline.vtu", "compressed.vtu",
         "mesh.ucd",
     ):  # fmt: skip
