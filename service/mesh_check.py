@@ -51,6 +51,15 @@ def extension_of(filename: str | None) -> str:
             f"of {', '.join('.' + e for e in ALLOWED_EXTENSIONS)}",
             "filename",
         )
+    if "." + ext in formats.MULTI_FILE:
+        shown = os.path.basename((filename or "").replace("\\", "/"))[:100]
+        fmt = formats.format_name(shown)
+        raise UploadRejected(
+            422,
+            f"{shown} ({fmt}) refers to other files beside it (its data or its pieces): "
+            f"upload a .zip or .tar.gz holding {shown} and those files",
+            "filename",
+        )
     if ext not in ALLOWED_EXTENSIONS:
         shown = os.path.basename((filename or "").replace("\\", "/"))[:100]
         what = f"the file name {shown}" if shown else "the upload has no file name: it"

@@ -184,6 +184,19 @@ def write_corpus(folder: Path) -> dict[str, Path]:
     w.SetFileName(str(out("mesh.exo")))
     w.SetInputData(coll)
     w.Write()
+    # the families VTK's writers do not cover here (tests/format_writers.py): meshio's Exodus II and
+    # XDMF + HDF5 writers, and CGNS, Gambit, binary AVS UCD and Fluent written by their specs
+    import format_writers as fw
+
+    bp, bblocks = fw.blocks(2, 2, 2)
+    fw.write_exodus(out("blocks.e"), bp, bblocks)
+    fw.write_xdmf(out("mesh_h5.xdmf"), bp, bblocks)  # its heavy data: mesh_h5.h5 beside it
+    fw.write_cgns(
+        out("zones.cgns"), [(zp, [("hexahedron", zc)]) for zp, zc in fw.split_zones(*fw.grid(2, 2, 1))]
+    )
+    fw.write_gambit(out("mesh.neu"), bp, bblocks)
+    fw.write_avs_binary(out("mesh_bin.inp"), bp, bblocks)
+    fw.write_fluent(out("fluent.msh"), *fw.grid(2, 2, 1))
     return files
 
 

@@ -325,6 +325,26 @@ def vtk_read(path: str):
         r.SetFileName(path)
         r.UpdateInformation()
         r.SetAllArrayStatus(r.ELEM_BLOCK, 1)
+        r.SetSqueezePoints(False)  # squeezed, the reader hands out float32 points; unsqueezed the file's
+    elif ext in (".xdmf", ".xmf"):
+        r = vtk.vtkXdmfReader()
+    elif ext == ".cgns":
+        r = vtk.vtkCGNSReader()
+        r.SetFileName(path)
+        r.UpdateInformation()
+        r.EnableAllBases()
+    elif ext == ".neu":
+        r = vtk.vtkGAMBITReader()
+    elif ext in (".inp", ".ucd", ".avs"):
+        r = vtk.vtkAVSucdReader()
+    elif ext in (".msh", ".cas"):
+        r = vtk.vtkFLUENTReader()  # its cell zones: the face zones' blocks are not volume cells
+        r.SetFileName(path)
+        r.UpdateInformation()
+        sel = r.GetZoneSectionSelection()
+        for i in range(sel.GetNumberOfArrays()):
+            if not sel.GetArrayName(i).endswith((":fluid", ":solid")):
+                sel.DisableArray(sel.GetArrayName(i))
     else:
         r = vtk.vtkXMLGenericDataObjectReader()
     r.SetFileName(path)

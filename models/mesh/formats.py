@@ -37,11 +37,44 @@ FORMATS: dict[str, str] = {
     ".dat": "Tecplot",
     ".tec": "Tecplot",
     ".ugrid": "UGRID",
+    # VTK's other XML datasets and parallel / multiblock files (these name their pieces' files)
+    ".vtp": "VTK XML polydata",
+    ".vti": "VTK XML image data",
+    ".vts": "VTK XML structured grid",
+    ".vtr": "VTK XML rectilinear grid",
+    ".pvtu": "VTK XML parallel unstructured grid",
+    ".pvtp": "VTK XML parallel polydata",
+    ".pvti": "VTK XML parallel image data",
+    ".pvts": "VTK XML parallel structured grid",
+    ".pvtr": "VTK XML parallel rectilinear grid",
+    ".vtm": "VTK XML multiblock",
+    ".ex2": "Exodus II",
+    ".exii": "Exodus II",
+    ".g": "Exodus II",
+    ".gen": "Exodus II",
+    # the rest of what meshio reads well
+    ".meshb": "Medit",
+    ".fem": "Nastran",
+    ".mdpa": "Kratos",
+    ".vol": "Netgen",
+    ".post": "PERMAS",
+    ".dato": "PERMAS",
+    ".xml": "DOLFIN XML",
+    ".ele": "TetGen",
+    ".node": "TetGen",
 }
-# a mesh file that needs other files beside it (XDMF's heavy data in .h5): uploaded in an archive
-MULTI_FILE = (".xdmf", ".xmf")
+# a mesh file that needs other files beside it (XDMF's heavy data in .h5, a parallel VTK file's
+# pieces, TetGen's .node beside its .ele): uploaded in an archive holding them all
+MULTI_FILE = (".xdmf", ".xmf", ".pvtu", ".pvtp", ".pvti", ".pvts", ".pvtr", ".vtm", ".ele", ".node")
 # compound extensions first: "case.cas.h5" is a Fluent case, not an HDF5 file
-COMPOUND = {".cas.h5": "Fluent case (HDF5)"}
+COMPOUND = {
+    ".cas.h5": "Fluent case (HDF5)",
+    ".vol.gz": "Netgen",
+    ".post.gz": "PERMAS",
+    ".dato.gz": "PERMAS",
+}
+# every extension a mesh file may have (the one list: read.py's dispatch, the CLI's help, the page)
+MESH_EXTENSIONS = tuple(sorted({*FORMATS, *COMPOUND}))
 ARCHIVES = (".zip", ".tar.gz", ".tgz", ".tar")
 # what the HTTP API and the web page accept: every single-file format, and archives holding the rest
 UPLOAD_EXTENSIONS = tuple(e for e in FORMATS if e not in MULTI_FILE) + tuple(COMPOUND) + ARCHIVES
@@ -65,4 +98,12 @@ def format_name(path: str | os.PathLike, file_format: str | None = None) -> str:
     return FORMATS.get(ext) or COMPOUND.get(ext) or "mesh"
 
 
-__all__ = ["FORMATS", "MULTI_FILE", "ARCHIVES", "UPLOAD_EXTENSIONS", "extension", "format_name"]
+__all__ = [
+    "FORMATS",
+    "MESH_EXTENSIONS",
+    "MULTI_FILE",
+    "ARCHIVES",
+    "UPLOAD_EXTENSIONS",
+    "extension",
+    "format_name",
+]

@@ -32,6 +32,7 @@ from models.mesh.container import (
     VTK_WEDGE,
     Mesh,
 )
+from models.mesh.formats import MESH_EXTENSIONS, extension
 
 # meshio cell type name -> (VTK type, topological dimension, number of corner nodes kept)
 _TYPES: dict[str, tuple[int, int, int]] = {
@@ -62,37 +63,11 @@ _VTK_XML = (".vtu", ".pvtu", ".vtp", ".pvtp", ".vti", ".pvti", ".vts", ".pvts", 
 _EXODUS = (".exo", ".e", ".ex2", ".exii", ".g", ".gen")
 _VTK_OTHER = {".xdmf": "xdmf", ".xmf": "xdmf", ".cgns": "cgns", ".cas": "fluent", ".neu": "gambit"}
 _SURFACES = (".stl", ".obj", ".ply", ".off")
-SUPPORTED_EXTENSIONS = tuple(
-    sorted(
-        {".vtk", ".msh", ".inp", ".ucd", ".avs", ".cas", ".cas.h5", ".neu", ".xdmf", ".xmf", ".cgns"}
-        | set(_VTK_XML)
-        | set(_EXODUS)
-        | {
-            ".mesh",
-            ".meshb",
-            ".med",
-            ".nas",
-            ".bdf",
-            ".fem",
-            ".su2",
-            ".h5m",
-            ".f3grid",
-            ".dat",
-            ".tec",
-            ".ugrid",
-        }
-        | {".mdpa", ".vol", ".vol.gz", ".ele", ".node", ".xml", ".post", ".dato"}
-        | set(_SURFACES)
-    )
-)
+SUPPORTED_EXTENSIONS = MESH_EXTENSIONS  # the one list, in models/mesh/formats.py
 
 
 def _extension(path: str) -> str:
-    low = os.path.basename(path).lower()
-    for double in (".cas.h5", ".vol.gz", ".post.gz", ".dato.gz"):
-        if low.endswith(double):
-            return double
-    return os.path.splitext(low)[1]
+    return extension(path)
 
 
 _VTKTYPE = re.compile(rb"vtktype(?!u?int64\b)[a-z0-9]+")

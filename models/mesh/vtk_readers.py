@@ -175,6 +175,9 @@ def _run(path: str, kind: str):
         elif kind == "cgns":
             reader.UpdateInformation()
             reader.EnableAllBases()
+        elif kind in ("fluent", "fluent-h5"):
+            reader.UpdateInformation()
+            _fluent_cell_zones_only(reader)
         elif kind == "avs-binary":
             reader.SetBinaryFile(1)
         elif kind == "legacy":
@@ -187,6 +190,24 @@ def _run(path: str, kind: str):
     if out is None:
         raise MeshError(f"cannot read {name} with VTK's {cls} ({what}): the reader produced no data")
     return out
+
+
+# Fluent zone types of cell zones (section 45 "(45 (id type name)())"); the rest are face zones
+FLUENT_CELL_ZONES = ("fluid", "solid")
+
+
+def _fluent_cell_zones_only(reader) -> None:
+    """Read a Fluent case's cell zones only: VTK's reader (9.7) also outputs every face zone as a
+    block, and for an ASCII mesh of hexahedra those blocks repeat a volume cell per face. Zones are
+    named 'name:type'; when no zone is a known cell zone type, every zone stays selected."""
+    sel = getattr(reader, "GetZoneSectionSelection", lambda: None)()
+    if sel is None:
+        return
+    names = [sel.GetArrayName(i) for i in range(sel.GetNumberOfArrays())]
+    cells = [n for n in names if n.rsplit(":", 1)[-1].lower() in FLUENT_CELL_ZONES]
+    if cells:
+        for n in names:
+            (sel.EnableArray if n in cells else sel.DisableArray)(n)
 
 
 _WHERE = re.compile(r"\b(line|column|byte index|offset|position|piece)\s*[:=]?\s*(\d+)", re.IGNORECASE)
@@ -458,7 +479,7 @@ def _composite(data, path, what, cls):
         raise MeshError(
             f"cannot read {os.path.basename(path)} with VTK's {cls} ({what}): the file has no cells"
         )
-    parts = [_dataset(ds, path, what, cls) for ds in leaves]
+    parts = _distinct([_dataset(ds, path, what, cls) for ds in leaves])
     if len(parts) == 1:
         pts, off, conn, types, cd, poly = parts[0]
         if not any(k in cd for k in TAG_NAMES):
@@ -491,6 +512,25 @@ def _composite(data, path, what, cls):
         if poly is not None:
             poly = (poly[0], poly[1], inverse[poly[2]])
     return pts, np.concatenate(offs), conn, np.concatenate(types), cd, poly
+
+
+def _distinct(parts: list) -> list:
+    """The blocks, each one repeating an earlier block (same points and cells) dropped: an XDMF time
+    series holds its mesh once as a grid and once per time step, all of them the same mesh."""
+    kept: list = []
+    for part in parts:
+        pts, off, conn, types = part[:4]
+        if not any(
+            len(k[3]) == len(types)
+            and len(k[2]) == len(conn)
+            and np.array_equal(k[3], types)
+            and np.array_equal(k[2], conn)
+            and np.array_equal(k[1], off)
+            and (k[0] is pts or np.array_equal(k[0], pts))
+            for k in kept
+        ):
+            kept.append(part)
+    return kept
 
 
 def _join_polys(polys, pts_list, shared):

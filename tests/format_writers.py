@@ -1,0 +1,267 @@
+"""Writers for the format families that VTK's own writers do not cover here, at test time: by the
+tool that writes them in practice where this machine has it (meshio's Exodus II and XDMF writers,
+meshio's XDMF TimeSeriesWriter), else by hand from the format's specification (CGNS/HDF5 by the
+SIDS file mapping with h5py, Gambit neutral, binary AVS UCD, Fluent ASCII mesh).
+
+meshio's own CGNS writer is not used: its files lack the CGNSBase_t/Zone_t labels and VTK's CGNS
+reader refuses them ("Not enough bases in the file"). vtkExodusIIWriter segfaults in the vtk 9.7
+wheel, so Exodus comes from meshio (netCDF4).
+
+Geometry: vtk_corpus.grid (an affine image of a unit grid: planar faces), several blocks / zones.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+from pathlib import Path
+
+import numpy as np
+
+HEX_FACES = [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]
+
+
+def wedges(hexes: np.ndarray) -> np.ndarray:
+    """Each hexahedron as two wedges (prism axis along the hexahedron's 0-3 edge): conforming with
+    hexahedra below and above, and with each other."""
+    return np.concatenate([hexes[:, [0, 1, 5, 3, 2, 6]], hexes[:, [0, 5, 4, 3, 6, 7]]])
+
+
+# an affine map with dyadic entries: the grid's points are exact in float32 too (binary AVS UCD and
+# VTK's Fluent reader keep float32 points), so every face stays planar in either precision
+D = np.array([[1.0, 0.25, 0.125], [0.125, 1.25, 0.0], [0.0, 0.25, 0.875]])
+
+
+def grid(nx: int, ny: int, nz: int) -> tuple[np.ndarray, np.ndarray]:
+    """vtk_corpus.grid's hexahedra, its points mapped by D instead."""
+    import vtk_corpus as vc
+
+    p, h = vc.grid(nx, ny, nz)
+    return np.rint(p @ np.linalg.inv(vc.A).T) @ D.T, h
+
+
+def blocks(nx: int = 3, ny: int = 2, nz: int = 2):
+    """Points and two element blocks of an nx x ny x nz grid: hexahedra (bottom layers) and wedges
+    (the top layer)."""
+    p, h = grid(nx, ny, nz)
+    top = np.arange(len(h)) >= nx * ny * (nz - 1)
+    return p, [("hexahedron", h[~top]), ("wedge", wedges(h[top]))]
+
+
+def write_exodus(path, points, cell_blocks) -> str:
+    """Exodus II by meshio's writer (netCDF4): one element block per cell block."""
+    import meshio
+
+    meshio.write(str(path), meshio.Mesh(points, cell_blocks), file_format="exodus")
+    return str(path)
+
+
+def write_xdmf(path, points, cell_blocks) -> str:
+    """XDMF 3 with its heavy data in an HDF5 file beside it (meshio's writer)."""
+    import meshio
+
+    meshio.write(str(path), meshio.Mesh(points, cell_blocks), file_format="xdmf", data_format="HDF")
+    return str(path)
+
+
+def write_xdmf_series(path, points, cell_blocks, steps: int = 3) -> str:
+    """An XDMF time series (meshio.xdmf.TimeSeriesWriter): the mesh once, point data per step.
+    The writer puts its .h5 in the working directory: it is run from the file's folder."""
+    import meshio
+
+    path = Path(path)
+    cwd = os.getcwd()
+    os.chdir(path.parent)
+    try:
+        with meshio.xdmf.TimeSeriesWriter(path.name) as w:
+            w.write_points_cells(points, cell_blocks)
+            for t in range(steps):
+                w.write_data(float(t), point_data={"u": points[:, 0] * t})
+    finally:
+        os.chdir(cwd)
+    return str(path)
+
+
+# ---- CGNS (HDF5) by the SIDS-to-HDF5 file mapping -------------------------------------------------
+
+CGNS_TYPES = {"tetra": 10, "pyramid": 12, "wedge": 14, "hexahedron": 17, "triangle": 5, "quad": 7}
+
+
+def _node(parent, name: str, label: str, dtype: str, data=None):
+    g = parent.create_group(name, track_order=True)
+    g.attrs.create("name", np.bytes_(name), dtype="S33")
+    g.attrs.create("label", np.bytes_(label), dtype="S33")
+    g.attrs.create("type", np.bytes_(dtype), dtype="S3")
+    g.attrs.create("flags", np.array([1], np.int32))
+    if data is not None:
+        if dtype == "C1":
+            data = np.frombuffer(data.encode(), np.int8)
+        data = np.asarray(data)
+        g.create_dataset(" data", data=data.T if data.ndim > 1 else data)  # CGNS arrays are Fortran-ordered
+    return g
+
+
+def write_cgns(path, zones) -> str:
+    """A CGNS/HDF5 file of unstructured zones: zones = [(points, [(meshio type, cells)])], one
+    Elements_t node per block, 1-based connectivity, each zone with its own points."""
+    import h5py
+
+    with h5py.File(str(path), "w", track_order=True) as f:
+        f.attrs.create("name", np.bytes_("HDF5 MotherNode"), dtype="S33")
+        f.attrs.create("label", np.bytes_("Root Node of HDF5 File"), dtype="S33")
+        f.attrs.create("type", np.bytes_("MT"), dtype="S3")
+        f.create_dataset(" format", data=np.frombuffer(b"IEEE_LITTLE_32\0", np.int8))
+        f.create_dataset(" hdf5version", data=np.frombuffer(b"HDF5 Version 1.12.2".ljust(33, b"\0"), np.int8))
+        _node(f, "CGNSLibraryVersion", "CGNSLibraryVersion_t", "R4", np.array([4.2], np.float32))
+        base = _node(f, "Base", "CGNSBase_t", "I4", np.array([3, 3], np.int32))
+        for zi, (pts, cell_blocks) in enumerate(zones, 1):
+            ncell = sum(len(c) for _, c in cell_blocks)
+            zone = _node(base, f"Zone{zi}", "Zone_t", "I4", np.array([[len(pts), ncell, 0]], np.int32))
+            _node(zone, "ZoneType", "ZoneType_t", "C1", "Unstructured")
+            coords = _node(zone, "GridCoordinates", "GridCoordinates_t", "MT")
+            for axis, nm in enumerate("XYZ"):
+                _node(coords, "Coordinate" + nm, "DataArray_t", "R8", np.ascontiguousarray(pts[:, axis]))
+            start = 1
+            for bi, (kind, cells) in enumerate(cell_blocks):
+                e = _node(
+                    zone, f"Elements{bi}", "Elements_t", "I4", np.array([CGNS_TYPES[kind], 0], np.int32)
+                )
+                _node(
+                    e,
+                    "ElementRange",
+                    "IndexRange_t",
+                    "I4",
+                    np.array([start, start + len(cells) - 1], np.int32),
+                )
+                _node(e, "ElementConnectivity", "DataArray_t", "I4", (cells + 1).astype(np.int32).ravel())
+                start += len(cells)
+    return str(path)
+
+
+def split_zones(points, cells, axis: int = 0):
+    """Cells split in two zones by their centres along `axis`, each zone with its own points (the
+    interface points repeated, as multi-zone CGNS files have them)."""
+    c = points[cells].mean(axis=1)[:, axis]
+    out = []
+    for part in (cells[c < np.median(c)], cells[c >= np.median(c)]):
+        used, inv = np.unique(part, return_inverse=True)
+        out.append((points[used], inv.reshape(part.shape)))
+    return out
+
+
+# ---- Gambit neutral (by the GAMBIT neutral file specification) -----------------------------------
+
+GAMBIT_TYPES = {"quad": 2, "triangle": 3, "hexahedron": 4, "wedge": 5, "tetra": 6, "pyramid": 7}
+
+
+def write_gambit(path, points, cell_blocks) -> str:
+    """A Gambit neutral file: header, NODAL COORDINATES, ELEMENTS/CELLS (7 nodes a line), one
+    ELEMENT GROUP per block."""
+    ncells = sum(len(c) for _, c in cell_blocks)
+    out = [
+        "        CONTROL INFO 2.4.6",
+        "** GAMBIT NEUTRAL FILE",
+        "hand-written test mesh",
+        "PROGRAM:                Gambit     VERSION:  2.4.6",
+        " 4 Dec 2026    12:00:00",
+        "     NUMNP     NELEM     NGRPS    NBSETS     NDFCD     NDFVL",
+        f"{len(points):10d}{ncells:10d}{len(cell_blocks):10d}{0:10d}{3:10d}{3:10d}",
+        "ENDOFSECTION",
+        "   NODAL COORDINATES 2.4.6",
+    ]
+    out += [f"{i + 1:10d}{x:20.11e}{y:20.11e}{z:20.11e}" for i, (x, y, z) in enumerate(points)]
+    out += ["ENDOFSECTION", "      ELEMENTS/CELLS 2.4.6"]
+    eid = 0
+    ids = []
+    for kind, cells in cell_blocks:
+        ids.append(np.arange(eid + 1, eid + len(cells) + 1))
+        for c in cells + 1:
+            eid += 1
+            head = f"{eid:8d} {GAMBIT_TYPES[kind]:2d} {len(c):2d} "
+            nodes = [f"{n:8d}" for n in c]
+            out.append(head + "".join(nodes[:7]))
+            for k in range(7, len(nodes), 7):
+                out.append(" " * 15 + "".join(nodes[k : k + 7]))
+    out.append("ENDOFSECTION")
+    for g, ((kind, cells), gid) in enumerate(zip(cell_blocks, ids, strict=True), 1):
+        out += [
+            "       ELEMENT GROUP 2.4.6",
+            f"GROUP:{g:11d} ELEMENTS:{len(cells):11d} MATERIAL:{2:11d} NFLAGS:{1:11d}",
+            f"{kind:>32s}",
+            "       0",
+        ]
+        out += ["".join(f"{i:8d}" for i in gid[k : k + 10]) for k in range(0, len(gid), 10)]
+        out.append("ENDOFSECTION")
+    Path(path).write_text("\n".join(out) + "\n")
+    return str(path)
+
+
+# ---- binary AVS UCD (the layout vtkAVSucdReader reads) -------------------------------------------
+
+AVS_TYPES = {"triangle": 2, "quad": 3, "tetra": 4, "pyramid": 5, "wedge": 6, "hexahedron": 7}
+
+
+def write_avs_binary(path, points, cell_blocks, node_data: bool = True) -> str:
+    """Binary AVS UCD, little-endian: magic byte 7; six int32 (nodes, cells, node fields, cell
+    fields, model fields, length of the node list); per cell (id, material, nodes, type); the node
+    list (1-based); x, y and z as float32 blocks; then one scalar node field (labels, units, counts,
+    min, max, values, active flags), which a reader of the mesh ignores."""
+    ncells = sum(len(c) for _, c in cell_blocks)
+    nlist = sum(c.size for _, c in cell_blocks)
+    parts = [b"\x07", struct.pack("<6i", len(points), ncells, 1 if node_data else 0, 0, 0, nlist)]
+    desc, conn, cid = [], [], 0
+    for mat, (kind, cells) in enumerate(cell_blocks, 1):
+        for c in cells:
+            cid += 1
+            desc.append((cid, mat, len(c), AVS_TYPES[kind]))
+        conn.append((cells + 1).ravel())
+    parts.append(np.asarray(desc, "<i4").tobytes())
+    parts.append(np.concatenate(conn).astype("<i4").tobytes())
+    pts = np.asarray(points, "<f4")
+    parts += [np.ascontiguousarray(pts[:, a]).tobytes() for a in range(3)]
+    if node_data:
+        value = pts[:, 0].astype("<f4")
+        parts += [
+            b"temperature.".ljust(1024, b"\0"),
+            b"kelvin.".ljust(1024, b"\0"),
+            struct.pack("<i", 1),  # components
+            struct.pack("<i", 1),  # veclen of each
+            struct.pack("<f", float(value.min())),
+            struct.pack("<f", float(value.max())),
+            value.tobytes(),
+            struct.pack("<i", 1),  # active
+        ]
+    Path(path).write_bytes(b"".join(parts))
+    return str(path)
+
+
+# ---- Fluent ASCII mesh (sections 10 nodes, 12 cells, 13 faces, 45 zone names) --------------------
+
+
+def write_fluent(path, points, hexes) -> str:
+    """A Fluent mesh of hexahedra, by faces: each face's nodes (hexadecimal, 1-based) with the
+    right-hand normal pointing into its first cell c0, then c0 and c1 (0 on the boundary)."""
+    faces: dict[tuple, list] = {}
+    for c, h in enumerate(hexes, 1):
+        for f in HEX_FACES:
+            key = tuple(sorted(h[f].tolist()))
+            if key in faces:
+                faces[key][2] = c
+            else:
+                faces[key] = [h[f][::-1], c, 0]  # outward of c reversed: the normal points into c
+    interior = [v for v in faces.values() if v[2]]
+    boundary = [v for v in faces.values() if not v[2]]
+
+    def row(v):
+        return " ".join(f"{n + 1:x}" for n in v[0]) + f" {v[1]:x} {v[2]:x}"
+
+    n, m, k = len(points), len(hexes), len(faces)
+    out = ['(0 "hand-written Fluent mesh")', "(2 3)", f"(10 (0 1 {n:x} 0 3))", f"(12 (0 1 {m:x} 0))"]
+    out += [f"(13 (0 1 {k:x} 0))", f"(10 (1 1 {n:x} 1 3)("]
+    out += [f"{x:.17g} {y:.17g} {z:.17g}" for x, y, z in points]
+    out += ["))", f"(12 (2 1 {m:x} 1 4))", f"(13 (3 1 {len(interior):x} 2 4)("]
+    out += [row(v) for v in interior] + ["))", f"(13 (4 {len(interior) + 1:x} {k:x} 3 4)("]
+    out += [row(v) for v in boundary] + ["))"]
+    out += ["(45 (2 fluid fluid)())", "(45 (3 interior default-interior)())", "(45 (4 wall walls)())"]
+    Path(path).write_text("\n".join(out) + "\n")
+    return str(path)

@@ -1,0 +1,121 @@
+"""The format families beyond VTK's own writers (Exodus II, XDMF + HDF5 and an XDMF time series,
+CGNS, Gambit neutral, binary AVS UCD, Fluent mesh), each file written at test time
+(tests/format_writers.py), read by our dispatch and checked against VTK's own reading of the same
+file: number of cells and total volume (1e-9 relative: planar faces), then agglomerated and our
+output VTU, read back by VTK, holding the same volume.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+vtk = pytest.importorskip("vtk")
+import format_writers as fw  # noqa: E402
+import vtk_corpus as vc  # noqa: E402
+
+from models import pipeline  # noqa: E402
+from models.mesh.read import pick_reader, read_mesh  # noqa: E402
+
+TOL = 1e-9
+
+
+def _exodus(tmp, ext):
+    pytest.importorskip("netCDF4")
+    p, blocks = fw.blocks()
+    return fw.write_exodus(tmp / f"blocks{ext}", p, blocks)
+
+
+def _xdmf(tmp):
+    p, blocks = fw.blocks()
+    return fw.write_xdmf(tmp / "mesh.xdmf", p, blocks)
+
+
+def _cgns(tmp):
+    p, blocks = fw.blocks(4, 2, 2)
+    hexes = blocks[0][1]
+    zones = [(zp, [("hexahedron", zc)]) for zp, zc in fw.split_zones(p, hexes)]
+    # a third zone of two blocks (hexahedra and wedges) on top
+    tp, tblocks = fw.blocks(2, 2, 2)
+    zones.append((tp + [0.0, 0.0, 10.0], tblocks))
+    return fw.write_cgns(tmp / "zones.cgns", zones)
+
+
+def _gambit(tmp):
+    p, blocks = fw.blocks()
+    return fw.write_gambit(tmp / "mesh.neu", p, blocks)
+
+
+def _avs(tmp):
+    p, blocks = fw.blocks()
+    return fw.write_avs_binary(tmp / "mesh.inp", p, blocks)
+
+
+def _fluent(tmp):
+    p, h = fw.grid(3, 2, 2)
+    return fw.write_fluent(tmp / "case.msh", p, h)
+
+
+CASES = {
+    "exodus-exo": lambda t: _exodus(t, ".exo"),
+    "exodus-e": lambda t: _exodus(t, ".e"),
+    "xdmf-hdf5": _xdmf,
+    "cgns-zones": _cgns,
+    "gambit-neu": _gambit,
+    "avs-binary": _avs,
+    "fluent-msh": _fluent,
+}
+FAMILY = {
+    "exodus-exo": "exodus", "exodus-e": "exodus", "xdmf-hdf5": "xdmf", "cgns-zones": "cgns",
+    "gambit-neu": "gambit", "avs-binary": "avs-binary", "fluent-msh": "fluent",
+}  # fmt: skip
+
+
+def _total(mesh) -> float:
+    return float(np.abs(mesh.meta["measures"]).sum())
+
+
+def _agglomerated_volume(mesh, path: str, k: int = 3) -> tuple[int, float]:
+    """Agglomerate with METIS, write our VTU and read it back with VTK: (cells, volume)."""
+    out = path + ".out.vtu"
+    res = pipeline.run(mesh, model="metis", mode="kway", k=k, compute_metrics=False)
+    pipeline.write_outputs(res, vtu=out)
+    return vc.vtk_reference(out)
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_family_matches_vtk_and_agglomerates(tmp_path, name):
+    path = CASES[name](tmp_path)
+    assert pick_reader(path) == ("vtk", FAMILY[name])
+    n_ref, vol_ref = vc.vtk_reference(path)
+    mesh = read_mesh(path)
+    assert mesh.n_cells == n_ref
+    assert _total(mesh) == pytest.approx(vol_ref, rel=TOL)
+    n_out, vol_out = _agglomerated_volume(mesh, path)
+    assert n_out >= 3
+    assert vol_out == pytest.approx(vol_ref, rel=TOL)
+
+
+def test_exodus_blocks_become_groups(tmp_path):
+    path = _exodus(tmp_path, ".exo")
+    mesh = read_mesh(path)
+    types = mesh.cell_type_counts()
+    assert set(types) == {"hexahedron", "wedge"}, types
+    assert len(mesh.physical_groups()) == 2
+
+
+def test_xdmf_time_series_gives_its_mesh_once(tmp_path):
+    """meshio's TimeSeriesWriter writes the mesh once and a grid per time step (all referring to
+    it): the mesh is read once, as the plain XDMF file of the same mesh."""
+    p, blocks = fw.blocks()
+    series = fw.write_xdmf_series(tmp_path / "series.xdmf", p, blocks, steps=3)
+    assert os.path.exists(tmp_path / "series.h5")
+    plain = fw.write_xdmf(tmp_path / "plain.xdmf", p, blocks)
+    n_ref, vol_ref = vc.vtk_reference(plain)
+    mesh = read_mesh(series)
+    assert mesh.n_cells == n_ref
+    assert _total(mesh) == pytest.approx(vol_ref, rel=TOL)
+    n_out, vol_out = _agglomerated_volume(mesh, series)
+    assert vol_out == pytest.approx(vol_ref, rel=TOL)
