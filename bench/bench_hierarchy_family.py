@@ -47,6 +47,8 @@ MODELS = {
     "rtree": ("rtree", None),
     "rtree-measure": ("rtree", {"balance": "measure"}),  # measure-weighted cuts (the default before issue 24)
     "rtree-principal": ("rtree", {"axes": "principal"}),  # cuts across each part's principal axis (numpy)
+    "rtree-r8": ("rtree", None),  # ratio 8 at every level (the default before round three)
+    "rtree-kappa": ("rtree", None),  # cut in the metric of the member's tensor kappa (where it has one)
     "metis": ("metis", None),
     "kmeans": ("kmeans", None),
     "sage-base": ("sage-base", None),
@@ -100,10 +102,12 @@ def box_at(mesh, data, counts=(91, 364)) -> dict:
 
 def row(name, mesh, graph, data, model, kappa, t_metis) -> dict:
     base, opts = MODELS[model]
+    ratio = 8.0 if model == "rtree-r8" else RATIO
+    cut_k = None if model != "rtree-kappa" or kappa is None else np.asarray(kappa, dtype=np.float64)
     t = time.perf_counter()
     try:
         levels, info = build_hierarchy(
-            mesh, data, model=base, ratio=RATIO, coarsest=COARSEST, model_options=opts
+            mesh, data, model=base, ratio=ratio, coarsest=COARSEST, model_options=opts, kappa=cut_k
         )
     except Exception as exc:  # a model that cannot run here (e.g. no weights): say so, go on
         return {"mesh": name, "model": model, "error": str(exc).splitlines()[0]}
@@ -237,6 +241,8 @@ def main() -> None:
         )
         print(HEAD, flush=True)
         for model in models:
+            if model == "rtree-kappa" and kappa is None:
+                continue  # the same levels as rtree
             r = row(name, mesh, graph, data, model, kappa, t_metis)
             if model == "rtree" and mesh.dim == 2 and "error" not in r and not HOLED.get(name, False):
                 r["box_at"] = box_at(mesh, data)
