@@ -3,7 +3,7 @@ a mesh graded 100:1 towards a corner, a 50:1 boundary layer, two materials, quad
 quads; 3D a torus, a genus-two slab, a block with a spherical cavity, a block with two tunnels, a
 thin-walled cup, hexahedra, hexahedra and prisms. All built with gmsh here (bench/family_meshes.py).
 
-For each mesh and model (ratio 8, coarsest 10): the level counts and the worst level ratio against
+For each mesh and model (the default ratio schedule by dimension, or --ratio R at every level; coarsest 10): the level counts and the worst level ratio against
 the requested one, elements that enclose a hole (should be 0), disconnected elements (should be 0),
 PCG iterations and operator complexity against pyamg's standard aggregation (TPFA Poisson as
 `magnet mgcheck`; on the boundary layer also with the matching tensor kappa = diag(50, 1)), box
@@ -32,12 +32,13 @@ from bench_hierarchy import circle_ratio, pieces  # noqa: E402
 from family_meshes import FAMILY  # noqa: E402
 
 from models.hierarchy.multigrid import mgcheck  # noqa: E402
-from models.hierarchy.nested import build_hierarchy  # noqa: E402
+from models.hierarchy.nested import build_hierarchy, default_ratio  # noqa: E402
 from models.mesh.read import mesh_from_arrays  # noqa: E402
+from models.partition.rtree import level_counts  # noqa: E402
 from models.pipeline import prepare  # noqa: E402
 from models.quality.report import box_measures  # noqa: E402
 
-RATIO = 8.0  # --ratio changes it
+RATIO = None  # the default per-level schedule by dimension (models.hierarchy.nested.default_ratio); --ratio R: every level R
 COARSEST = 10
 # 2D members with holes (box ratio / coverage at 91 and 364 are judged on the others)
 HOLED = {"plate-1hole": True, "plate-4holes": True, "plate-16holes": True, "quads": True, "tri+quad": True}
@@ -46,6 +47,8 @@ MODELS = {
     "rtree": ("rtree", None),
     "rtree-measure": ("rtree", {"balance": "measure"}),  # measure-weighted cuts (the default before issue 24)
     "rtree-principal": ("rtree", {"axes": "principal"}),  # cuts across each part's principal axis (numpy)
+    "rtree-r8": ("rtree", None),  # ratio 8 at every level (the default before round three)
+    "rtree-kappa": ("rtree", None),  # cut in the metric of the member's tensor kappa (where it has one)
     "metis": ("metis", None),
     "kmeans": ("kmeans", None),
     "sage-base": ("sage-base", None),
@@ -99,17 +102,19 @@ def box_at(mesh, data, counts=(91, 364)) -> dict:
 
 def row(name, mesh, graph, data, model, kappa, t_metis) -> dict:
     base, opts = MODELS[model]
+    ratio = 8.0 if model == "rtree-r8" else RATIO
+    cut_k = None if model != "rtree-kappa" or kappa is None else np.asarray(kappa, dtype=np.float64)
     t = time.perf_counter()
     try:
         levels, info = build_hierarchy(
-            mesh, data, model=base, ratio=RATIO, coarsest=COARSEST, model_options=opts
+            mesh, data, model=base, ratio=ratio, coarsest=COARSEST, model_options=opts, kappa=cut_k
         )
     except Exception as exc:  # a model that cannot run here (e.g. no weights): say so, go on
         return {"mesh": name, "model": model, "error": str(exc).splitlines()[0]}
     t_build = time.perf_counter() - t
     sizes = [int(lv.max()) + 1 for lv in levels]
     ratios = [b / a for a, b in zip(sizes, sizes[1:] + [mesh.n_cells], strict=True)]
-    # against the requested steps (ceil(n / 8^j): the coarsest step may be shorter than 8), finest up
+    # against the requested steps (level_counts: the coarsest step may be shorter than asked), finest up
     req = [int(c) for c in info["requested"]] + [mesh.n_cells]
     want = [b / a for a, b in zip(req, req[1:], strict=False)]
     worst = max(abs(r / w - 1.0) for r, w in zip(ratios[::-1], want[::-1], strict=False))
@@ -207,7 +212,12 @@ def main() -> None:
     ap.add_argument("--models", default="rtree,metis,kmeans", help=f"comma list of {', '.join(MODELS)}")
     ap.add_argument("--meshes", default=",".join(FAMILY), help="comma list (default: the whole family)")
     ap.add_argument("--json", help="write every number here")
-    ap.add_argument("--ratio", type=float, default=RATIO, help="requested ratio per level (default 8)")
+    ap.add_argument(
+        "--ratio",
+        type=float,
+        default=RATIO,
+        help="requested ratio of every level (default: the schedule by dimension)",
+    )
     a = ap.parse_args()
     globals()["RATIO"] = a.ratio
     models = a.models.split(",")
@@ -222,7 +232,7 @@ def main() -> None:
             p, blocks, tags = make(s)
         mesh = mesh_from_arrays(p, blocks, tags)
         graph, data = prepare(mesh)
-        k = int(np.ceil(mesh.n_cells / RATIO))
+        k = level_counts(mesh.n_cells, RATIO if RATIO is not None else default_ratio(mesh.dim), COARSEST)[-1]
         t_metis = min(metis_time(data, k) for _ in range(2))
         print(
             f"\n{name}: {mesh.n_cells} cells ({mesh.dim}D), made in {time.perf_counter() - t:.1f}s; "
@@ -231,6 +241,8 @@ def main() -> None:
         )
         print(HEAD, flush=True)
         for model in models:
+            if model == "rtree-kappa" and kappa is None:
+                continue  # the same levels as rtree
             r = row(name, mesh, graph, data, model, kappa, t_metis)
             if model == "rtree" and mesh.dim == 2 and "error" not in r and not HOLED.get(name, False):
                 r["box_at"] = box_at(mesh, data)

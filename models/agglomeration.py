@@ -405,28 +405,33 @@ def build_hierarchy(
     cells=None,
     tags=None,
     model: str = "rtree",
-    ratio: float = 8.0,
+    ratio: float | None = None,
     coarsest: int = 10,
     groups: bool = False,
     seed: int = 0,
     physical_tag: str | None = None,
     weld: float | None = None,
+    kappa=None,
 ) -> Hierarchy:
     """Nested levels for multigrid (as `magnet hierarchy`): about `ratio` times fewer elements per
-    level down to at most `coarsest`; every element connected, every level nested in the next finer."""
-    params = validate_params(
-        {
-            "model": model,
-            "nref": 1,
-            "options": {"seed": seed, "hierarchy": True, "ratio": ratio, "coarsest": coarsest},
-        }
-    )
+    level down to at most `coarsest`; every element connected, every level nested in the next finer.
+    ratio None: a schedule by dimension (2D n/5 then 16x fewer per level, 3D n/8 then 16x).
+    kappa: "kx,ky[,kz]" or a sequence, the diagonal diffusion tensor the levels are cut for (rtree)."""
+    opts = {"seed": seed, "hierarchy": True, "coarsest": coarsest}
+    if ratio is not None:
+        opts["ratio"] = ratio
+    params = validate_params({"model": model, "nref": 1, "options": opts})
     from models.hierarchy.nested import build_hierarchy as build
     from models.pipeline import prepare
 
     mesh = read_mesh(source, points=points, cells=cells, tags=tags, physical_tag=physical_tag, weld=weld)
     graph, data = prepare(mesh)
     o = params["options"]
+    if kappa is not None:
+        from models.hierarchy.multigrid import parse_kappa
+
+        text = kappa if isinstance(kappa, str) else ",".join(str(float(v)) for v in kappa)
+        kappa = parse_kappa(text, mesh.dim)
     levels, info = build(
         mesh,
         data,
@@ -435,6 +440,7 @@ def build_hierarchy(
         coarsest=o["coarsest"],
         seed=o["seed"],
         groups=groups,
+        kappa=kappa,
     )
     return Hierarchy(mesh, graph, data, levels, info)
 
@@ -459,7 +465,7 @@ class Hierarchy:
 
         m, g = self.mesh, self.graph
         boundary = fine_boundary(m, g.faces, g.partner) if has_groups(m) else None
-        keys = ("model", "ratio", "coarsest", "method", "build_time", "report")
+        keys = ("model", "ratio", "coarsest", "kappa", "method", "build_time", "report")
         return write_hierarchy(
             os.fspath(folder),
             m,

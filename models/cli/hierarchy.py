@@ -29,7 +29,13 @@ def add_hierarchy_args(p: argparse.ArgumentParser) -> None:
         help="rtree (native, default) | metis | kmeans (agglomerates agglomerated) | "
         "sage-base ... (recursive bisection)",
     )
-    p.add_argument("--ratio", type=float, default=8.0, help="coarsening ratio per level, >= 2 (default 8)")
+    p.add_argument(
+        "--ratio",
+        type=float,
+        default=None,
+        help="coarsening ratio of every level, >= 2 (default: a schedule by dimension, finest step "
+        "first: 2D 5 then 16 per level, 3D 8 then 16)",
+    )
     p.add_argument(
         "--coarsest",
         type=int,
@@ -53,7 +59,9 @@ def add_hierarchy_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--kappa",
         metavar="KX,KY[,KZ]",
-        help="with --mgcheck: anisotropic diffusion tensor diag(kx, ky[, kz]) (default: identity)",
+        help="anisotropic diffusion tensor diag(kx, ky[, kz]) the levels are for: rtree cuts in the "
+        "metric of its couplings (elements sqrt(kx/ky) times longer along x than y); also the tensor "
+        "of --mgcheck (default: identity)",
     )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--physical-tag")
@@ -81,10 +89,11 @@ def hierarchy_main(args) -> int:
     from models.agglomeration import build_hierarchy
 
     out = args.output
+    kappa = None
     if args.kappa is not None:
         from models.hierarchy.multigrid import parse_kappa
 
-        parse_kappa(args.kappa)  # bad values refused before any work
+        kappa = parse_kappa(args.kappa)  # bad values refused before any work
     parent = os.path.dirname(os.path.abspath(out))
     if not os.path.isdir(parent):
         raise ParameterError(f"cannot write the hierarchy to {out!r}: folder {parent!r} does not exist")
@@ -97,6 +106,8 @@ def hierarchy_main(args) -> int:
         seed=args.seed,
         groups=args.groups,
         physical_tag=args.physical_tag,
+        # the levels cut for the operator (rtree; the other models: kappa goes to --mgcheck only)
+        kappa=args.kappa if kappa is not None and args.model == "rtree" else None,
     )
     mesh, data, info = h.mesh, h.data, h.info
     t_read = time.perf_counter() - t0 - info["build_time"]

@@ -407,25 +407,43 @@ def coarse_graph(batch_or_data, labels: np.ndarray):
     )
 
 
+# The default per-level ratios (finest step first, the last repeated) by the mesh's dimension: the
+# finest step near the size of pyamg's finest aggregates, the coarser steps larger, as pyamg's are
+# (issue 24, round three: measured on the whole family, docs/hierarchy.md)
+SCHEDULE = {2: (5.0, 16.0), 3: (8.0, 16.0)}
+
+
+def default_ratio(dim: int) -> tuple[float, ...]:
+    """The per-level ratio schedule `magnet hierarchy` uses without --ratio (finest step first)."""
+    return SCHEDULE[3 if int(dim) >= 3 else 2]
+
+
 def build_hierarchy(
     mesh: Mesh,
     data: CellData,
     model: str = "rtree",
-    ratio: float = 8.0,
+    ratio=None,
     coarsest: int = 10,
     seed: int = 0,
     groups: bool = False,
     model_options: dict | None = None,
     finest: np.ndarray | None = None,
+    kappa: np.ndarray | None = None,
 ) -> tuple[list[np.ndarray], dict]:
     """Exactly nested levels (coarsest first) with about `ratio` times fewer elements per level, from
     n_cells / ratio down to at most `coarsest` elements; every element connected.
+    ratio: a number (every level), a schedule (finest step first, the last repeated: (5, 16) makes
+    n / 5 elements, then 16 times fewer per level), or None: default_ratio(mesh.dim).
 
     rtree: natively (models.partition.rtree.rtree_levels). Models with a k-way mode (metis,
     kmeans): the agglomerates are agglomerated (k-way on each level's coarse dual graph, pieces
     then joined to a neighbour so counts stay exact). Bisection-only models (sage-base, ...): one
     recursive bisection, recorded, and the levels nearest the wanted counts.
-    groups: no element crosses a physical group (rtree only). Returns (levels, info); info["merged"]
+    groups: no element crosses a physical group (rtree only).
+    kappa: the diagonal of the diffusion tensor K the levels are for (rtree only): the cuts are made in
+    the metric of the operator's couplings, x -> K^(-1/2) x, where the TPFA transmissibilities
+    |f| d^T K d / |d|^3 are isotropic: parts are cut across weak couplings and stretched along strong
+    ones (sqrt(kx / ky) times longer along x than along y). Returns (levels, info); info["merged"]
     holds each level's polytopes (pass them to write_hierarchy as `merged`).
     finest: (cells,) labels of an agglomeration already made (a job's k elements): it is the finest
     level, and the coarser ones agglomerate its elements by `ratio` (k-way on each level's coarse
@@ -438,6 +456,8 @@ def build_hierarchy(
 
     t0 = time.perf_counter()
     n = mesh.n_cells
+    if ratio is None:
+        ratio = default_ratio(mesh.dim)
     if finest is not None:
         return _hierarchy_above(
             data, np.asarray(finest, dtype=np.int64), mesh, model, ratio, coarsest, seed, t0
@@ -449,21 +469,35 @@ def build_hierarchy(
         raise ParameterError("respecting physical groups needs a mesh with physical groups")
     if groups and model != "rtree":
         raise ParameterError("physical groups in a hierarchy: model rtree only")
+    if kappa is not None:
+        kappa = np.asarray(kappa, dtype=np.float64).ravel()
+        if model != "rtree":
+            raise ParameterError("levels cut for a diffusion tensor (kappa): model rtree only")
+        if kappa.size != data.centroids.shape[1] or not np.all(np.isfinite(kappa)) or not np.all(kappa > 0):
+            raise ParameterError(
+                f"kappa must be {data.centroids.shape[1]} positive numbers, one per axis of the mesh"
+            )
     if model == "rtree":
         from models.graph.batch import GraphBatch
 
         G = data.graph  # the whole mesh as one graph: make_batch's batch of one label, without its sort
+        cen = data.centroids
+        boxes = cell_boxes(data.points, data.offsets, data.connectivity)
+        if kappa is not None:  # the operator's metric: K^(-1/2) x (a positive scaling: same orders)
+            s = 1.0 / np.sqrt(kappa)
+            cen = cen * s
+            boxes = (boxes[0] * s, boxes[1] * s)
         batch = GraphBatch(
             indptr=G.indptr,
             indices=G.indices,
             weights=G.weights,
             graph_ptr=np.array([0, n], dtype=np.int64),
-            centroids=data.centroids,
+            centroids=cen,
             measures=data.measures,
             tags=data.tags,
             node_ids=np.arange(n),
         )
-        batch.cell_boxes = cell_boxes(data.points, data.offsets, data.connectivity)
+        batch.cell_boxes = boxes
         tags = None if not groups else np.unique(mesh.tags, return_inverse=True)[1].astype(np.int64)
         # count-weighted cuts: an element's size follows the local cell size, so elements hold
         # comparable numbers of cells as algebraic aggregates do (issue 24: on the family, smoothed
@@ -513,8 +547,9 @@ def build_hierarchy(
     levels, polys, report = fix_holes(mesh, data, levels, level_graphs if model == "rtree" else None)
     info = {
         "model": model,
-        "ratio": float(ratio),
+        "ratio": float(ratio) if np.ndim(ratio) == 0 else [float(r) for r in ratio],
         "coarsest": int(coarsest),
+        "kappa": None if kappa is None else [float(v) for v in kappa],
         "requested": counts,
         "method": how,
         "build_time": time.perf_counter() - t0,
@@ -544,8 +579,9 @@ def _hierarchy_above(data, finest, mesh, model, ratio, coarsest, seed, t0):
     levels, polys, report = fix_holes(mesh, data, levels, None)
     info = {
         "model": part.name,
-        "ratio": float(ratio),
+        "ratio": float(ratio) if np.ndim(ratio) == 0 else [float(r) for r in ratio],
         "coarsest": int(coarsest),
+        "kappa": None,
         "requested": [*counts, int(finest.max()) + 1],
         "method": "the job's agglomeration as the finest level, its elements agglomerated (k-way on each coarse dual graph)",
         "build_time": time.perf_counter() - t0,

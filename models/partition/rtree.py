@@ -737,17 +737,22 @@ def _sweep_rank(key: np.ndarray) -> np.ndarray:
     return rank
 
 
-def level_counts(n: int, ratio: float, coarsest: int = 1) -> list[int]:
-    """Element counts of a hierarchy, coarsest first: ceil(n / ratio^j) for j = 1, 2, ... while
-    above `coarsest` (the coarsest level has at most `coarsest` elements, at least 1)."""
-    if not ratio >= 2:
+def level_counts(n: int, ratio, coarsest: int = 1) -> list[int]:
+    """Element counts of a hierarchy, coarsest first: ceil(c / r_j) for the steps j = 1, 2, ... while
+    above `coarsest` (the coarsest level has at most `coarsest` elements, at least 1).
+
+    ratio: one number (every step), or a schedule (finest step first, the last one repeated), e.g.
+    (5, 12): the finest level n / 5 elements, every coarser one 12 times fewer."""
+    steps = [float(r) for r in np.atleast_1d(np.asarray(ratio, dtype=np.float64))]
+    if not steps or not all(r >= 2 for r in steps):
         raise ParameterError(f"ratio must be >= 2, got {ratio!r}")
     if coarsest < 1:
         raise ParameterError(f"coarsest must be >= 1, got {coarsest!r}")
     counts = []
     c = n
     while c > coarsest:
-        c = max(1, int(np.ceil(c / ratio - 1e-9)))
+        r = steps[min(len(counts), len(steps) - 1)]
+        c = max(1, int(np.ceil(c / r - 1e-9)))
         counts.append(c)
     return counts[::-1]
 

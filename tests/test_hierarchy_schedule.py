@@ -1,0 +1,136 @@
+"""Per-level ratio schedules (the default of `magnet hierarchy` without --ratio) and levels cut in the
+metric of an anisotropic operator's couplings (build_hierarchy(kappa=...), `magnet hierarchy --kappa`)."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from conftest import pieces
+from meshes import quads, tets
+
+from models.errors import ParameterError
+from models.hierarchy.multigrid import mgcheck
+from models.hierarchy.nested import build_hierarchy, default_ratio, is_nested
+from models.mesh.read import mesh_from_arrays
+from models.partition.rtree import level_counts
+from models.pipeline import prepare
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ENV = {**os.environ, "PYTHONPATH": f"{ROOT}:{ROOT}/client", "MPLBACKEND": "Agg"}
+
+
+def test_level_counts_schedule():
+    # the finest step first, the last one repeated
+    assert level_counts(10000, (5, 16), 10) == [8, 125, 2000]
+    assert level_counts(10000, [8], 10) == level_counts(10000, 8, 10) == [3, 20, 157, 1250]
+    with pytest.raises(ParameterError, match="ratio must be >= 2"):
+        level_counts(100, (4, 1.5))
+    with pytest.raises(ParameterError, match="ratio must be >= 2"):
+        level_counts(100, ())
+
+
+@pytest.mark.parametrize("make,cell,dim", [(lambda: quads(60), "quad", 2), (lambda: tets(12), "tetra", 3)])
+def test_default_is_the_schedule_by_dimension(make, cell, dim):
+    p, c = make()
+    m = mesh_from_arrays(p, [(cell, c)])
+    g, d = prepare(m)
+    levels, info = build_hierarchy(m, d, model="rtree", coarsest=10)
+    assert info["ratio"] == list(default_ratio(dim)) and info["requested"] == level_counts(
+        m.n_cells, default_ratio(dim), 10
+    )
+    sizes = [int(lv.max()) + 1 for lv in levels]
+    assert sizes == info["requested"] and is_nested(levels)
+    assert all(pieces(g, lv) == s for lv, s in zip(levels, sizes, strict=True))
+    for r in info["report"]:  # every level within 25% of the schedule's own ratio
+        assert abs(r["ratio_vs_requested"] - 1) <= 0.25
+    # a single number still means every level
+    _, info8 = build_hierarchy(m, d, model="rtree", ratio=8, coarsest=10)
+    assert info8["requested"] == level_counts(m.n_cells, 8, 10)
+
+
+def _extent_ratio(d, labels):
+    """Mean over elements of (x extent / y extent) of their cells' centroids."""
+    c = d.centroids
+    k = int(labels.max()) + 1
+    ext = []
+    for a in range(2):
+        hi = np.full(k, -np.inf)
+        lo = np.full(k, np.inf)
+        np.maximum.at(hi, labels, c[:, a])
+        np.minimum.at(lo, labels, c[:, a])
+        ext.append(hi - lo)
+    ok = (ext[0] > 0) & (ext[1] > 0)
+    return float(np.exp(np.mean(np.log(ext[0][ok] / ext[1][ok]))))
+
+
+def test_kappa_cuts_stretch_elements_along_strong_couplings():
+    p, q = quads(64)
+    m = mesh_from_arrays(p, [("quad", q)])
+    g, d = prepare(m)
+    iso, _ = build_hierarchy(m, d, model="rtree", ratio=16, coarsest=4)
+    ani, info = build_hierarchy(m, d, model="rtree", ratio=16, coarsest=4, kappa=np.array([16.0, 1.0]))
+    assert info["kappa"] == [16.0, 1.0] and is_nested(ani)
+    assert all(pieces(g, lv) == int(lv.max()) + 1 for lv in ani)
+    # square elements without kappa; with K = diag(16, 1) about sqrt(16) = 4 times longer along x
+    assert 0.6 < _extent_ratio(d, iso[-1]) < 1.7
+    assert _extent_ratio(d, ani[-1]) > 2.5
+    # and the multigrid on the anisotropic operator is no worse with the levels cut for it
+    k = np.array([16.0, 1.0])
+    it_iso = mgcheck(m, d, iso, kappa=k)["smoothed"]["iterations"]
+    it_ani = mgcheck(m, d, ani, kappa=k)["smoothed"]["iterations"]
+    assert it_ani <= it_iso
+
+
+def test_kappa_refused_for_other_models_and_bad_values():
+    p, q = quads(16)
+    m = mesh_from_arrays(p, [("quad", q)])
+    _, d = prepare(m)
+    with pytest.raises(ParameterError, match="model rtree only"):
+        build_hierarchy(m, d, model="metis", kappa=np.array([2.0, 1.0]))
+    with pytest.raises(ParameterError, match="positive numbers"):
+        build_hierarchy(m, d, model="rtree", kappa=np.array([2.0, 1.0, 1.0]))
+
+
+def test_cli_schedule_and_kappa(tmp_path):
+    import meshio
+
+    p, q = quads(48)
+    src = tmp_path / "q.vtu"
+    meshio.write_points_cells(str(src), np.column_stack([p, np.zeros(len(p))]), [("quad", q)])
+    out = tmp_path / "h"
+    r = subprocess.run(
+        [sys.executable, "-m", "models.cli", "hierarchy", str(src), "-o", str(out), "--kappa", "9,1"],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        cwd=ROOT,
+    )
+    assert r.returncode == 0, r.stderr
+    index = json.load(open(out / "hierarchy.json", encoding="utf-8"))
+    assert index["ratio"] == list(default_ratio(2)) and index["kappa"] == [9.0, 1.0]
+    sizes = [lv["elements"] for lv in index["levels"]]
+    assert sizes == level_counts(48 * 48, default_ratio(2), 10)
+    r = subprocess.run(  # the other models: kappa judges (--mgcheck), the levels are not cut for it
+        [
+            sys.executable,
+            "-m",
+            "models.cli",
+            "hierarchy",
+            str(src),
+            "-o",
+            str(out),
+            "--model",
+            "metis",
+            "--kappa",
+            "9,1",
+        ],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        cwd=ROOT,
+    )
+    assert r.returncode == 0, r.stderr
+    assert json.load(open(out / "hierarchy.json", encoding="utf-8"))["kappa"] is None
