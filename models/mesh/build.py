@@ -41,10 +41,13 @@ def mesh_from_cells(
     dim: int,
     weld: float | None = None,
     meta: dict | None = None,
+    grid: dict | None = None,
 ) -> Mesh:
     """Our cells, as a reader made them (see cells.normalize), into a validated, oriented `Mesh`:
     points (P, 2|3) float64; elements in CSR with our VTK types and tags; poly_faces
-    [(cell ids, faces per cell, face sizes, face nodes)]; bnd (offsets, conn, types, tags) or None."""
+    [(cell ids, faces per cell, face sizes, face nodes)]; bnd (offsets, conn, types, tags) or None.
+    grid: vtk_readers._lattice's hint for a whole 3D structured grid (hexahedra in VTK's lattice
+    order), or None."""
     if points.ndim != 2 or len(points) == 0:
         raise MeshError("the mesh has no points")
     if points.shape[1] == 1:
@@ -100,7 +103,12 @@ def mesh_from_cells(
 
     if dim == 2:
         _project_to_plane(mesh)
-    _orient_and_check(mesh)
+    if grid is not None and weld is None and not poly_faces:
+        from models.mesh.lattice import orient_lattice
+
+        orient_lattice(mesh, grid)
+    else:
+        _orient_and_check(mesh)
     return mesh
 
 
@@ -219,19 +227,7 @@ def _orient_and_check(mesh: Mesh) -> None:
         vol, cen = _measures_and_centroids(mesh, faces)
     mesh.meta["measures"] = np.abs(vol)  # orientation does not change measure or centroid
     mesh.meta["centroids"] = cen
-    lo, hi = _bounds(mesh.points)
-    bbox = hi - lo
-    scale = float(np.linalg.norm(bbox)) ** mesh.dim
-    if scale == 0:
-        raise MeshError("the mesh is degenerate: all points coincide")
-    degenerate = np.abs(vol) <= 1e-14 * scale
-    if degenerate.any():
-        ids = np.flatnonzero(degenerate)
-        kind = "area" if mesh.dim == 2 else "volume"
-        raise MeshError(
-            f"the mesh has {ids.size} degenerate (zero-{kind}) cells, e.g. cell ids {ids[:5].tolist()}; "
-            "remove them (or merge their coincident points with --weld) and retry"
-        )
+    refuse_degenerate(mesh, vol)
     pairing: dict = {}
     if tets:
         # Mirror every negative tetrahedron first (the usual answer), then build the faces and their
@@ -260,6 +256,23 @@ def _orient_and_check(mesh: Mesh) -> None:
         "folded": int(folded.size),
         "folded_cells": folded[:20].tolist(),
     }
+
+
+def refuse_degenerate(mesh: Mesh, vol: np.ndarray) -> None:
+    """MeshError when all points coincide or a cell's measure is below 1e-14 of the bounding box's."""
+    lo, hi = _bounds(mesh.points)
+    bbox = hi - lo
+    scale = float(np.linalg.norm(bbox)) ** mesh.dim
+    if scale == 0:
+        raise MeshError("the mesh is degenerate: all points coincide")
+    degenerate = np.abs(vol) <= 1e-14 * scale
+    if degenerate.any():
+        ids = np.flatnonzero(degenerate)
+        kind = "area" if mesh.dim == 2 else "volume"
+        raise MeshError(
+            f"the mesh has {ids.size} degenerate (zero-{kind}) cells, e.g. cell ids {ids[:5].tolist()}; "
+            "remove them (or merge their coincident points with --weld) and retry"
+        )
 
 
 def _bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
