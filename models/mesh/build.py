@@ -104,9 +104,7 @@ def mesh_from_cells(
     if dim == 2:
         _project_to_plane(mesh)
     if grid is not None and weld is None and not poly_faces:
-        from models.mesh.lattice import orient_lattice
-
-        orient_lattice(mesh, grid)
+        _orient_lattice(mesh, grid)
     else:
         _orient_and_check(mesh)
     return mesh
@@ -203,6 +201,31 @@ def _project_to_plane(mesh: Mesh) -> None:
     mesh.frame = np.array([origin, e1, e2])
 
 
+def _orient_lattice(mesh: Mesh, grid: dict) -> None:
+    """_orient_and_check for a whole 3D structured grid: consistently oriented by construction, so
+    no face keys; each cell's signed volume, the degeneracy check and one global flip (lattice.py)."""
+    from models.mesh.lattice import lattice_flips, lattice_measures
+
+    vol, cen = lattice_measures(mesh, grid)
+    mesh.meta["measures"] = np.abs(vol)
+    mesh.meta["centroids"] = cen
+    refuse_degenerate(mesh, vol)
+    flip = lattice_flips(vol)
+    if flip.any():
+        _flip_cells(mesh, flip)
+    _record_orientation(mesh, np.where(flip, -vol, vol), flip)
+
+
+def _record_orientation(mesh: Mesh, signed: np.ndarray, flip: np.ndarray) -> None:
+    folded = np.flatnonzero(signed < 0)
+    mesh.meta["signed_measures"] = signed
+    mesh.meta["orientation"] = {
+        "flipped": int(np.count_nonzero(flip)),
+        "folded": int(folded.size),
+        "folded_cells": folded[:20].tolist(),
+    }
+
+
 def _orient_and_check(mesh: Mesh) -> None:
     """Reject degenerate cells, orient cells by topology (see orientation.py), record what was fixed."""
     from models.mesh.geometry import (
@@ -249,13 +272,7 @@ def _orient_and_check(mesh: Mesh) -> None:
         _flip_cells(mesh, more)
     if faces is not None:
         _keep_faces(mesh, more, faces, pairing, None if areas is None else tetra_face_areas(areas, flip))
-    folded = np.flatnonzero(signed < 0)
-    mesh.meta["signed_measures"] = signed
-    mesh.meta["orientation"] = {
-        "flipped": int(np.count_nonzero(flip)),
-        "folded": int(folded.size),
-        "folded_cells": folded[:20].tolist(),
-    }
+    _record_orientation(mesh, signed, flip)
 
 
 def refuse_degenerate(mesh: Mesh, vol: np.ndarray) -> None:

@@ -34,26 +34,15 @@ def _box_measures(axes) -> tuple[np.ndarray, np.ndarray]:
     return vol, cen.reshape(-1, 3)
 
 
-def orient_lattice(mesh: Mesh, grid: dict) -> None:
-    """build._orient_and_check for a whole structured grid of hexahedra (see the module's note)."""
-    from models.mesh.build import _flip_cells, refuse_degenerate
+def lattice_measures(mesh: Mesh, grid: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Signed volumes and centroids of a whole structured grid's hexahedra (see the module's note)."""
     from models.mesh.geometry import _measures_and_centroids
 
     if grid.get("axes") is not None:
-        vol, cen = _box_measures(grid["axes"])
-    else:
-        vol, cen = _measures_and_centroids(mesh, None)
-    mesh.meta["measures"] = np.abs(vol)
-    mesh.meta["centroids"] = cen
-    refuse_degenerate(mesh, vol)
-    flip = np.full(vol.size, bool(vol.sum() < 0))
-    if flip.any():
-        _flip_cells(mesh, flip)
-    signed = np.where(flip, -vol, vol)
-    folded = np.flatnonzero(signed < 0)
-    mesh.meta["signed_measures"] = signed
-    mesh.meta["orientation"] = {
-        "flipped": int(np.count_nonzero(flip)),
-        "folded": int(folded.size),
-        "folded_cells": folded[:20].tolist(),
-    }
+        return _box_measures(grid["axes"])
+    return _measures_and_centroids(mesh, None)
+
+
+def lattice_flips(vol: np.ndarray) -> np.ndarray:
+    """(C,) bool: the one global flip of a connected lattice (every cell when the total is negative)."""
+    return np.full(vol.size, bool(vol.sum() < 0))
