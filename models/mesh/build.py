@@ -41,10 +41,13 @@ def mesh_from_cells(
     dim: int,
     weld: float | None = None,
     meta: dict | None = None,
+    grid: dict | None = None,
 ) -> Mesh:
     """Our cells, as a reader made them (see cells.normalize), into a validated, oriented `Mesh`:
     points (P, 2|3) float64; elements in CSR with our VTK types and tags; poly_faces
-    [(cell ids, faces per cell, face sizes, face nodes)]; bnd (offsets, conn, types, tags) or None."""
+    [(cell ids, faces per cell, face sizes, face nodes)]; bnd (offsets, conn, types, tags) or None.
+    grid: vtk_readers._lattice's hint for a whole 3D structured grid (hexahedra in VTK's lattice
+    order), or None."""
     if points.ndim != 2 or len(points) == 0:
         raise MeshError("the mesh has no points")
     if points.shape[1] == 1:
@@ -100,7 +103,10 @@ def mesh_from_cells(
 
     if dim == 2:
         _project_to_plane(mesh)
-    _orient_and_check(mesh)
+    if grid is not None and weld is None and not poly_faces:
+        _orient_lattice(mesh, grid)
+    else:
+        _orient_and_check(mesh)
     return mesh
 
 
@@ -195,6 +201,31 @@ def _project_to_plane(mesh: Mesh) -> None:
     mesh.frame = np.array([origin, e1, e2])
 
 
+def _orient_lattice(mesh: Mesh, grid: dict) -> None:
+    """_orient_and_check for a whole 3D structured grid: consistently oriented by construction, so
+    no face keys; each cell's signed volume, the degeneracy check and one global flip (lattice.py)."""
+    from models.mesh.lattice import lattice_flips, lattice_measures
+
+    vol, cen = lattice_measures(mesh, grid)
+    mesh.meta["measures"] = np.abs(vol)
+    mesh.meta["centroids"] = cen
+    refuse_degenerate(mesh, vol)
+    flip = lattice_flips(vol)
+    if flip.any():
+        _flip_cells(mesh, flip)
+    _record_orientation(mesh, np.where(flip, -vol, vol), flip)
+
+
+def _record_orientation(mesh: Mesh, signed: np.ndarray, flip: np.ndarray) -> None:
+    folded = np.flatnonzero(signed < 0)
+    mesh.meta["signed_measures"] = signed
+    mesh.meta["orientation"] = {
+        "flipped": int(np.count_nonzero(flip)),
+        "folded": int(folded.size),
+        "folded_cells": folded[:20].tolist(),
+    }
+
+
 def _orient_and_check(mesh: Mesh) -> None:
     """Reject degenerate cells, orient cells by topology (see orientation.py), record what was fixed."""
     from models.mesh.geometry import (
@@ -219,19 +250,7 @@ def _orient_and_check(mesh: Mesh) -> None:
         vol, cen = _measures_and_centroids(mesh, faces)
     mesh.meta["measures"] = np.abs(vol)  # orientation does not change measure or centroid
     mesh.meta["centroids"] = cen
-    lo, hi = _bounds(mesh.points)
-    bbox = hi - lo
-    scale = float(np.linalg.norm(bbox)) ** mesh.dim
-    if scale == 0:
-        raise MeshError("the mesh is degenerate: all points coincide")
-    degenerate = np.abs(vol) <= 1e-14 * scale
-    if degenerate.any():
-        ids = np.flatnonzero(degenerate)
-        kind = "area" if mesh.dim == 2 else "volume"
-        raise MeshError(
-            f"the mesh has {ids.size} degenerate (zero-{kind}) cells, e.g. cell ids {ids[:5].tolist()}; "
-            "remove them (or merge their coincident points with --weld) and retry"
-        )
+    refuse_degenerate(mesh, vol)
     pairing: dict = {}
     if tets:
         # Mirror every negative tetrahedron first (the usual answer), then build the faces and their
@@ -253,13 +272,24 @@ def _orient_and_check(mesh: Mesh) -> None:
         _flip_cells(mesh, more)
     if faces is not None:
         _keep_faces(mesh, more, faces, pairing, None if areas is None else tetra_face_areas(areas, flip))
-    folded = np.flatnonzero(signed < 0)
-    mesh.meta["signed_measures"] = signed
-    mesh.meta["orientation"] = {
-        "flipped": int(np.count_nonzero(flip)),
-        "folded": int(folded.size),
-        "folded_cells": folded[:20].tolist(),
-    }
+    _record_orientation(mesh, signed, flip)
+
+
+def refuse_degenerate(mesh: Mesh, vol: np.ndarray) -> None:
+    """MeshError when all points coincide or a cell's measure is below 1e-14 of the bounding box's."""
+    lo, hi = _bounds(mesh.points)
+    bbox = hi - lo
+    scale = float(np.linalg.norm(bbox)) ** mesh.dim
+    if scale == 0:
+        raise MeshError("the mesh is degenerate: all points coincide")
+    degenerate = np.abs(vol) <= 1e-14 * scale
+    if degenerate.any():
+        ids = np.flatnonzero(degenerate)
+        kind = "area" if mesh.dim == 2 else "volume"
+        raise MeshError(
+            f"the mesh has {ids.size} degenerate (zero-{kind}) cells, e.g. cell ids {ids[:5].tolist()}; "
+            "remove them (or merge their coincident points with --weld) and retry"
+        )
 
 
 def _bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

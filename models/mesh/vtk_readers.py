@@ -59,6 +59,7 @@ def read_vtk(path: str, kind: str, physical_tag: str | None = None, weld: float 
     what, cls, _ = READERS[kind]
     data = _run(path, kind)
     pts, offsets, conn, types, cell_data, poly = _arrays(data, path, what, cls)
+    grid = _lattice(data, len(types))
     field = _field_data(data)
     del data
     if len(types) == 0:
@@ -91,6 +92,7 @@ def read_vtk(path: str, kind: str, physical_tag: str | None = None, weld: float 
         norm.dim,
         weld=weld,
         meta=meta,
+        grid=grid if norm.types.size == len(types) and norm.dim == 3 else None,
     )
     from models.mesh.boundary import group_names
 
@@ -412,6 +414,33 @@ def _structured(ds):
     w = corner.size
     offsets = np.arange(0, ncells * w + 1, w, dtype=np.int64)
     return pts, offsets, conn, np.full(ncells, vtk, np.uint8), _cell_data(ds), None
+
+
+def _lattice(data, n_cells: int) -> dict | None:
+    """For a 3D image, rectilinear or structured grid read whole (no blanked cell): the hint that
+    lets the read stage skip the orientation machinery (build._orient_and_check: its hexahedra are
+    consistently oriented by construction). "axes": the x, y, z coordinates of an axis-aligned grid
+    (image data without rotation, rectilinear grids), for measures and centroids in closed form."""
+    if data.IsA("vtkCompositeDataSet") or not (
+        data.IsA("vtkImageData") or data.IsA("vtkStructuredGrid") or data.IsA("vtkRectilinearGrid")
+    ):
+        return None
+    ext = data.GetExtent()
+    dims = [int(ext[2 * a + 1] - ext[2 * a] + 1) for a in range(3)]
+    if min(dims) < 2 or n_cells != (dims[0] - 1) * (dims[1] - 1) * (dims[2] - 1):
+        return None  # 2D, or cells were hidden (blanking): the general path
+    axes = None
+    if data.IsA("vtkImageData"):
+        m = data.GetDirectionMatrix()
+        if all(m.GetElement(i, j) == (i == j) for i in range(3) for j in range(3)):
+            o, h = data.GetOrigin(), data.GetSpacing()
+            axes = [o[a] + (ext[2 * a] + np.arange(dims[a])) * h[a] for a in range(3)]
+    elif data.IsA("vtkRectilinearGrid"):
+        axes = [
+            np.asarray(_np(c), np.float64)
+            for c in (data.GetXCoordinates(), data.GetYCoordinates(), data.GetZCoordinates())
+        ]
+    return {"dims": dims, "axes": axes}
 
 
 def _lower_corners(live, cdims, stride) -> np.ndarray:

@@ -1,0 +1,48 @@
+"""The read stage's validation for a whole 3D structured grid (image data, rectilinear and
+structured grids as vtk_readers._structured turns them into hexahedra).
+
+Its hexahedra are consistently oriented by construction: every cell is the same node template on
+the point lattice, so two neighbours always meet on a shared face in opposite directions. The
+general machinery (a face per cell side, keyed and compared; build._orient_and_check) can only
+find that again. What remains to check is the geometry: each cell's signed volume (the sign of its
+Jacobian), degenerate cells, and the one global flip the topology allows (the lattice is one
+connected piece: flip every cell when the total volume is negative, as orientation_flips does per
+piece). Folded cells (negative after that flip) are counted as there.
+
+Measures and centroids: an axis-aligned grid (image data without rotation, rectilinear grids) in
+closed form, dx * dy * dz and the box's centre (equal to the general path's to rounding, not bit
+for bit); other structured grids by the general fixed-size path (geometry._fixed_measures).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from models.mesh.container import Mesh
+
+
+def _box_measures(axes) -> tuple[np.ndarray, np.ndarray]:
+    """Signed volumes (C,) and centroids (C, 3) of the boxes of a tensor grid, x fastest."""
+    x, y, z = (np.asarray(a, np.float64) for a in axes)
+    dx, dy, dz = np.diff(x), np.diff(y), np.diff(z)
+    vol = ((dz[:, None] * dy[None, :])[:, :, None] * dx[None, None, :]).reshape(-1)
+    mx, my, mz = (x[:-1] + x[1:]) / 2, (y[:-1] + y[1:]) / 2, (z[:-1] + z[1:]) / 2
+    cen = np.empty((mz.size, my.size, mx.size, 3))
+    cen[..., 0] = mx[None, None, :]
+    cen[..., 1] = my[None, :, None]
+    cen[..., 2] = mz[:, None, None]
+    return vol, cen.reshape(-1, 3)
+
+
+def lattice_measures(mesh: Mesh, grid: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Signed volumes and centroids of a whole structured grid's hexahedra (see the module's note)."""
+    from models.mesh.geometry import _measures_and_centroids
+
+    if grid.get("axes") is not None:
+        return _box_measures(grid["axes"])
+    return _measures_and_centroids(mesh, None)
+
+
+def lattice_flips(vol: np.ndarray) -> np.ndarray:
+    """(C,) bool: the one global flip of a connected lattice (every cell when the total is negative)."""
+    return np.full(vol.size, bool(vol.sum() < 0))
