@@ -13,6 +13,7 @@ from defects import OUT, corpus, normalized
 from test_cli import _bad, magnet
 
 from models import pipeline
+from models.errors import ParameterError
 from models.mesh.check import check_file
 from models.mesh.read import mesh_from_arrays, read_mesh
 
@@ -33,7 +34,7 @@ AREA = {  # exact total measure, where the construction fixes it
 REFUSED = {
     "zero_area": ("degenerate (zero-area) cells", "cell ids [3]", "remove them"),
     "repeated_vertex_triangle": ("degenerate (zero-area) cells", "cell ids [3]", "remove them"),
-    "nonplanar_surface": ("non-planar", "surface", "project the surface onto a plane"),
+    "nonplanar_surface": ("non-planar", "surface", "give a volume mesh, or fill the closed surface"),
     "nonmanifold_edge": ("not a manifold", "cells [0, 1, 2]", "remove the overlapping cells"),
 }
 
@@ -133,9 +134,11 @@ def test_weld_merges_the_seam(tmp_path):
     rep = check_file(path("duplicate_seam"), weld=1e-9)
     assert rep["components"] == 1 and rep["duplicate_points"] == 0 and rep["welded_points"] == 7
     assert rep["verdict"] == "ok"
-    apart = pipeline.run(read_mesh(path("duplicate_seam")), k=1, compute_metrics=False)
+    apart = pipeline.run(read_mesh(path("duplicate_seam")), k=1, allow_extra=True, compute_metrics=False)
     welded = pipeline.run(read_mesh(path("duplicate_seam"), weld=1e-9), k=1, compute_metrics=False)
     assert apart.poly.n_elements == 2 and welded.poly.n_elements == 1  # an element can now cross the seam
+    with pytest.raises(ParameterError, match="2 separate pieces"):  # exactly k, or the reason
+        pipeline.run(read_mesh(path("duplicate_seam")), k=1, compute_metrics=False)
     r = magnet("agglomerate", path("duplicate_seam"), "-o", tmp_path / "w.vtu", "--k", 1, "--weld", "1e-9")
     assert r.returncode == 0 and r.stdout.startswith("1 elements"), r.stdout + r.stderr
 

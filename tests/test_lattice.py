@@ -36,7 +36,15 @@ def _cases(tmp):
 
 @pytest.mark.parametrize(
     "case",
-    ["vti", "vti-negative-spacing", "vti-reflected", "structured-points", "vts", "vts-mirrored", "vts-folded"],
+    [
+        "vti",
+        "vti-negative-spacing",
+        "vti-reflected",
+        "structured-points",
+        "vts",
+        "vts-mirrored",
+        "vts-folded",
+    ],
 )
 def test_lattice_path_matches_general_path(tmp_path, monkeypatch, case):
     path = str(_cases(tmp_path)[case])
@@ -46,7 +54,9 @@ def test_lattice_path_matches_general_path(tmp_path, monkeypatch, case):
     assert np.array_equal(fast.connectivity, ref.connectivity)
     assert fast.meta["orientation"] == ref.meta["orientation"]
     for k in ("measures", "centroids", "signed_measures"):
-        np.testing.assert_allclose(fast.meta[k], ref.meta[k], rtol=1e-12, atol=1e-12 * np.abs(ref.meta[k]).max())
+        np.testing.assert_allclose(
+            fast.meta[k], ref.meta[k], rtol=1e-12, atol=1e-12 * np.abs(ref.meta[k]).max()
+        )
     if case == "vts-folded":
         assert ref.meta["orientation"]["folded"] > 0
     if case in ("vti-negative-spacing", "vti-reflected", "vts-mirrored"):

@@ -99,7 +99,7 @@ def wording(message: str, path: str | os.PathLike, file_format: str | None = Non
         return f"cannot read {name} as {fmt}: the file is corrupted or not {fmt}{where}"
     if name in message and fmt in message:
         return message
-    for prefix in (f"cannot read {name} as a mesh: ", f"cannot read {name}: "):
+    for prefix in (f"cannot read {name} as a mesh: ", f"cannot read {name}: ", f"{name}: "):
         if message.startswith(prefix):
             message = message[len(prefix) :]
     return f"cannot read {name} as {fmt}: {message}"
