@@ -5,7 +5,7 @@ import pytest
 from conftest import BRAIN
 from meshes import hexes, mixed_3d, quads, tets, triangles
 
-from models.errors import MeshError
+from models.errors import MeshError, ParameterError
 from models.export.vtu import write_vtu
 from models.mesh.read import mesh_from_arrays, read_mesh
 from models.pipeline import prepare, run, split_holes
@@ -72,7 +72,9 @@ def test_domain_with_hole():
     c = p[q].mean(axis=1)
     keep = np.maximum(abs(c[:, 0] - 0.5), abs(c[:, 1] - 0.5)) > 0.2
     m = mesh_from_arrays(p, [("quad", q[keep])])
-    res = run(m, mode="kway", k=1)  # one element around the domain hole -> must be split
+    with pytest.raises(ParameterError, match="hole|cannot be met"):  # exactly k, or the reason
+        run(m, mode="kway", k=1)
+    res = run(m, mode="kway", k=1, allow_extra=True)  # one element around the domain hole -> must be split
     assert res.holes_split >= 1 and res.poly.n_elements >= 2
     assert np.all(np.diff(res.poly.elem_offsets) == 1)
     assert np.isclose(res.poly.measure.sum(), 1 - 0.5**2)

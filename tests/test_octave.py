@@ -90,7 +90,7 @@ def test_octave_wrapper_returns_every_nested_level(tmp_path):
 RATIO_SCRIPT = r"""
 addpath('{matlab}');
 [region, neighbor, job, levels] = magnet_agglomerate('{mesh}', 'Server', '{url}', 'Token', '{token}', ...
-    'Model', 'rtree', 'Mode', 'kway', 'K', 50, 'Hierarchy', true, 'Ratio', 8, 'Coarsest', 10, ...
+    'Model', 'rtree', 'Mode', 'kway', 'K', 400, 'Hierarchy', true, 'Ratio', 8, 'Coarsest', 10, ...
     'Verbose', false, 'Poll', 0.3);
 ne = cellfun(@(l) l.region.ne, levels);
 ok = true;
@@ -105,7 +105,7 @@ fid = fopen('{result}', 'w'); fprintf(fid, '%s', jsonencode(out)); fclose(fid);
 
 
 def test_octave_wrapper_hierarchy_with_ratio_and_operators(tmp_path):
-    """'Ratio' gives rtree's nested levels of their own (the job itself k-way) with the aggregation operators."""
+    """'Ratio' gives nested levels above the job's k elements (its finest level) with the aggregation operators."""
     octave_cli()  # skip before starting a server
     result = tmp_path / "ratio.json"
     with embedded_server(tmp_path, TOKEN, user="matlab-user") as url:
@@ -113,4 +113,4 @@ def test_octave_wrapper_hierarchy_with_ratio_and_operators(tmp_path):
             matlab=ROOT / "client" / "matlab", mesh=BRAIN, url=url, token=TOKEN, result=result
         )
         r = run_octave(tmp_path / "run_ratio.m", text, result)
-    assert r["ne"] == [4, 29, 225, 1797] and r["ok"] is True and r["cells"] == 14372 and r["final"] == 50
+    assert r["ne"] == [7, 50, 400] and r["ok"] is True and r["cells"] == 14372 and r["final"] == 400

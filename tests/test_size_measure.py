@@ -84,5 +84,9 @@ def test_api_weld_option(tmp_path):
     with pytest.raises(ParameterError, match="weld"):
         validate_params({"k": 1, "options": {"weld": -1}})
     seam = f"{OUT}/duplicate_seam.vtu"
-    assert run_job(seam, tmp_path / "a", {"k": 1})["elements"] == 2  # the seam splits the square
+    with pytest.raises(ParameterError, match="2 separate pieces"):  # exactly k, or the reason
+        run_job(seam, tmp_path / "a0", {"k": 1})
+    assert (
+        run_job(seam, tmp_path / "a", {"k": 1, "options": {"allow_extra": True}})["elements"] == 2
+    )  # the seam splits it
     assert run_job(seam, tmp_path / "b", {"k": 1, "options": {"weld": 1e-9}})["elements"] == 1

@@ -216,7 +216,7 @@ def test_page_builds_a_hierarchy_and_shows_every_level(browser, tmp_path):
         upload_brain(page)
         page.select_option("select[name=model]", "rtree")
         page.select_option("select[name=mode]", "kway")
-        page.fill("input[name=k]", "64")
+        page.fill("input[name=k]", "512")  # the job's 512 elements are the finest level
         assert page.locator(".field[data-field=ratio]").is_hidden()
         page.check("input[name=hierarchy]")
         assert page.inner_text("#submit") == "Build hierarchy"
@@ -234,7 +234,7 @@ def test_page_builds_a_hierarchy_and_shows_every_level(browser, tmp_path):
         r = httpx.get(f"{url}/v1/jobs/{job_id}/hierarchy", timeout=30)
         index = json.loads(zipfile.ZipFile(io.BytesIO(r.content)).read("hierarchy.json"))
         counts = [lv["elements"] for lv in index["levels"]]
-        assert len(counts) >= 3 and counts == sorted(counts) and counts[0] <= 10
+        assert len(counts) >= 3 and counts == sorted(counts) and counts[0] <= 10 and counts[-1] == 512
         # every level drawn, one over the other, coarsest on top: its count, one path per element
         until(
             page,
