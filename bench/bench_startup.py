@@ -6,7 +6,10 @@ Meshes: the 14k-cell brain (tests/data) and a square of about 131k triangles gen
 here. The two commands run in turn (A B A B ...), each whole process timed from outside; the
 ratio is taken pair by pair and its median printed, with min and max.
 
-    python bench/bench_startup.py [--runs 7]
+    python bench/bench_startup.py [--runs 7] [--baseline OTHER_CHECKOUT]
+
+--baseline times the same command from another checkout of the repository too (its compiled
+modules built), in the same interleaved run: the before / after table of docs/benchmarks.md.
 """
 
 from __future__ import annotations
@@ -64,9 +67,10 @@ def square_mesh(path: str, h: float = 0.0042) -> str:
     return out
 
 
-def whole_process(cmd: list[str], env: dict) -> float:
+def whole_process(cmd: list[str], env: dict, cwd: str) -> float:
+    """Wall time of one whole process. cwd: away from any checkout (`python -m` looks there first)."""
     t = time.perf_counter()
-    r = subprocess.run(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    r = subprocess.run(cmd, env=env, cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     dt = time.perf_counter() - t
     if r.returncode != 0:
         raise SystemExit(f"{cmd[:4]} failed: {r.stderr.strip()[-400:]}")
@@ -76,26 +80,46 @@ def whole_process(cmd: list[str], env: dict) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=7)
+    ap.add_argument("--baseline", help="another checkout of the repository, timed alongside")
     args = ap.parse_args()
     env = dict(os.environ, PYTHONPATH=ROOT, OMP_NUM_THREADS="1", MPLBACKEND="Agg")
+    # Both sides import compiled bytecode, as an installed package does (pip writes it at install):
+    # with PYTHONDONTWRITEBYTECODE set (Dockerfile, some shells) models/ would be compiled from
+    # source in every run (~0.1 s) while numpy, scipy and meshio come compiled from site-packages.
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    roots = [ROOT] + ([os.path.abspath(args.baseline)] if args.baseline else [])
+    for root in roots:
+        subprocess.run([sys.executable, "-m", "compileall", "-q", os.path.join(root, "models")], check=True)
     with tempfile.TemporaryDirectory() as tmp:
         meshes = {"brain 14k": BRAIN, "square 131k": square_mesh(os.path.join(tmp, "square.msh"))}
         floor = os.path.join(tmp, "floor.py")
         open(floor, "w").write(FLOOR)
         for name, mesh in meshes.items():
-            ours = [sys.executable, "-m", "models.cli", "agglomerate", mesh, "-o", os.path.join(tmp, "o.vtu")]
-            ours += ["--model", "metis", "--k", "128"]
-            base = [sys.executable, floor, mesh]
-            whole_process(ours, env), whole_process(base, env)  # warm-up (file cache)
-            a, b = [], []
+            out = os.path.join(tmp, "o.vtu")
+            ours = [sys.executable, "-m", "models.cli", "agglomerate", mesh, "-o", out, "--model", "metis"]
+            cmds = {"floor": ([sys.executable, floor, mesh], env)}
+            for label, root in zip(("magnet", "baseline"), roots, strict=False):
+                cmds[label] = (ours + ["--k", "128"], dict(env, PYTHONPATH=root))
+            for cmd, e in cmds.values():
+                whole_process(cmd, e, tmp)  # warm-up (file cache)
+            times: dict[str, list[float]] = {label: [] for label in cmds}
             for _ in range(args.runs):
-                a.append(whole_process(ours, env))
-                b.append(whole_process(base, env))
-            ratios = [x / y for x, y in zip(a, b, strict=True)]
-            print(
-                f"{name}: magnet {statistics.median(a):.3f}s, floor {statistics.median(b):.3f}s, "
-                f"ratio median {statistics.median(ratios):.2f} (min {min(ratios):.2f}, max {max(ratios):.2f})"
-            )
+                for label, (cmd, e) in cmds.items():
+                    times[label].append(whole_process(cmd, e, tmp))
+            line = [f"{name}: floor {statistics.median(times['floor']):.3f}s"]
+            for label in list(cmds)[1:]:
+                line.append(
+                    f"{label} {statistics.median(times[label]):.3f}s x{_ratio(times[label], times['floor'])}"
+                )
+            if "baseline" in times:
+                line.append(f"magnet / baseline x{_ratio(times['magnet'], times['baseline'])}")
+            print("; ".join(line), flush=True)
+
+
+def _ratio(a: list[float], b: list[float]) -> str:
+    """The median of the pairwise ratios a[i] / b[i] (runs of the same round), with min and max."""
+    r = [x / y for x, y in zip(a, b, strict=True)]
+    return f"{statistics.median(r):.2f} (min {min(r):.2f}, max {max(r):.2f})"
 
 
 if __name__ == "__main__":

@@ -8,13 +8,16 @@ key), so a pyramid's quad face meets a hexahedron's and its triangles meet tetra
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.sparse as sp
 
 from models.errors import MeshError
 from models.mesh.container import Mesh
 from models.mesh.geometry import Faces, cell_faces, face_measures
+
+if TYPE_CHECKING:
+    import scipy.sparse as sp
 
 
 @dataclass
@@ -44,6 +47,8 @@ class DualGraph:
         return np.diff(self.indptr)
 
     def matrix(self) -> sp.csr_matrix:
+        import scipy.sparse as sp  # here only: scipy.sparse costs ~0.2 s of a command's start-up
+
         return sp.csr_matrix((self.weights, self.indices, self.indptr), shape=(self.n, self.n))
 
     def edges(self) -> tuple[np.ndarray, np.ndarray]:
@@ -221,6 +226,8 @@ def dual_graph(mesh: Mesh, faces: Faces | None = None, measures: bool = True) ->
     rows = np.concatenate([ca, cb])
     cols = np.concatenate([cb, ca])
     w = np.concatenate([fm, fm])
+    import scipy.sparse as sp  # here only: triangles, quads and tetrahedra take _fixed_csr
+
     a = sp.csr_matrix((w, (rows, cols)), shape=(n, n))
     a.sum_duplicates()  # two cells sharing two faces (possible for polyhedra): one edge, summed measure
     a.sort_indices()

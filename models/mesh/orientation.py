@@ -20,8 +20,6 @@ Cells whose signed measure is still negative afterwards are *folded*: they are k
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import breadth_first_order, connected_components
 
 from models.errors import MeshError
 from models.mesh.geometry import Faces, cell_faces
@@ -236,6 +234,9 @@ def orientation_flips(
 
 def _propagate(n: int, ca: np.ndarray, cb: np.ndarray, parity: np.ndarray, dim: int):
     """Flips from the parities of the pairs: spanning forest + xor along the tree paths."""
+    import scipy.sparse as sp  # here only: a consistently oriented mesh never comes here (~0.2 s of start-up)
+    from scipy.sparse.csgraph import breadth_first_order, connected_components
+
     sym_r, sym_c = np.concatenate([ca, cb]), np.concatenate([cb, ca])
     g = sp.csr_matrix((np.ones(sym_r.size, dtype=np.int8), (sym_r, sym_c)), shape=(n, n))
     n_pieces, piece = connected_components(g, directed=True, connection="weak")

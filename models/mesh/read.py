@@ -160,30 +160,40 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
     return ("meshio", types[0])
 
 
+class NativeReaderNeeded(MeshError):
+    """read_mesh(native=False) met a file that only a native reader (VTK's) reads."""
+
+
 def read_mesh(
     path: str | os.PathLike,
     physical_tag: str | None = None,
     file_format: str | None = None,
     weld: float | None = None,
+    *,
+    native: bool = True,
 ) -> Mesh:
     """Read a mesh file and return a validated, positively oriented `Mesh`: one reader per file
     (pick_reader), which hands its arrays to build.mesh_from_cells.
 
-    weld: merge points closer than this distance first (coincident duplicates that split a mesh)."""
+    weld: merge points closer than this distance first (coincident duplicates that split a mesh).
+    native=False: a VTU that our numpy path does not read raises NativeReaderNeeded instead of
+    going to VTK's reader (the CLI then reads it in the sandbox: models.mesh.sandbox)."""
     path = os.fspath(path)
     if not os.path.exists(path):
         raise MeshError(f"mesh file not found: {path}")
     if os.path.getsize(path) == 0:
         raise MeshError(f"mesh file is empty: {os.path.basename(path)}")
     try:
-        return _read(path, physical_tag, file_format, weld)
+        return _read(path, physical_tag, file_format, weld, native)
+    except NativeReaderNeeded:
+        raise
     except MeshError as exc:
         name = os.path.basename(path)
         msg = str(exc)
         raise MeshError(msg if name in msg else f"{name}: {msg}") from None
 
 
-def _read(path: str, physical_tag, file_format, weld) -> Mesh:
+def _read(path: str, physical_tag, file_format, weld, native: bool = True) -> Mesh:
     family, detail = pick_reader(path, file_format)
     if family == "vtu":
         from models.mesh.vtu import read_vtu_simple
@@ -191,6 +201,8 @@ def _read(path: str, physical_tag, file_format, weld) -> Mesh:
         simple = read_vtu_simple(path)  # the common layout, faster than any XML reader; else None
         if simple is not None:
             return mesh_from_meshio(simple, physical_tag=physical_tag, weld=weld, owned=True)
+        if not native:
+            raise NativeReaderNeeded(f"{os.path.basename(path)} needs VTK's VTU reader")
         family, detail = "vtk", ".vtu"
     if family == "ucd":
         from models.mesh.ucd import read_ucd

@@ -158,10 +158,12 @@ def read_mesh_safe(
     timeout_s: float | None = None,
     memory_bytes: int | None = None,
     in_process: bool = False,
+    native: bool = True,
 ):
     """`models.mesh.read.read_mesh` in a forked child under limits (see the module docstring);
     the same Mesh, or a MeshError / ParameterError worded for users. in_process: read here (the
-    same wording; read_mesh_cli sets it for pure-Python readers)."""
+    same wording; read_mesh_cli sets it for pure-Python readers); with native=False too, a file
+    that needs a native reader raises read.NativeReaderNeeded instead of being read here."""
     from models.mesh import read
 
     path = os.fspath(path)
@@ -186,7 +188,7 @@ def read_mesh_safe(
     kwargs = {"physical_tag": physical_tag, "file_format": file_format, "weld": weld}
     try:
         if in_process or not sandbox_enabled():
-            return read.read_mesh(path, **kwargs)
+            return read.read_mesh(path, **kwargs, **({} if native else {"native": False}))
         return call_in_child(
             _read_in_child,
             (path, kwargs),
@@ -195,6 +197,8 @@ def read_mesh_safe(
             timeout_s=_default_timeout() if timeout_s is None else timeout_s,
             memory_bytes=_default_memory() if memory_bytes is None else memory_bytes,
         )
+    except read.NativeReaderNeeded:
+        raise
     except MeshError as exc:
         raise MeshError(wording(str(exc), path, file_format)) from None
     except ParameterError:
@@ -225,16 +229,33 @@ def pure_python_reader(path: str, file_format: str | None = None) -> bool:
 
 def read_mesh_cli(path, physical_tag=None, file_format=None, weld=None, **limits):
     """read_mesh_safe as the CLI reads: in-process when the reader is pure Python (no fork, no
-    transfer), in the sandbox when it is native (VTK, HDF5, netCDF). The service and the worker
-    always read in the sandbox (read_mesh_safe)."""
-    if (
-        sandbox_enabled()
-        and os.path.isfile(os.fspath(path))
-        and extension(os.fspath(path)) not in ARCHIVES
-        and pure_python_reader(os.fspath(path), file_format)
-    ):
-        limits = {**limits, "in_process": True}
+    transfer), in the sandbox when it is native (VTK, HDF5, netCDF). A VTU is read in-process
+    when our numpy path reads it (models.mesh.vtu.read_vtu_simple: numpy and zlib only), in the
+    sandbox (VTK's reader) otherwise. The service and the worker always read in the sandbox
+    (read_mesh_safe)."""
+    from models.mesh import read
+
+    p = os.fspath(path)
+    if sandbox_enabled() and os.path.isfile(p) and extension(p) not in ARCHIVES:
+        if pure_python_reader(p, file_format):
+            limits = {**limits, "in_process": True}
+        elif _vtu_family(p, file_format):
+            try:
+                return read_mesh_safe(
+                    path, physical_tag, file_format, weld, **limits, in_process=True, native=False
+                )
+            except read.NativeReaderNeeded:
+                pass  # a VTU layout our numpy path does not read: VTK's reader, in the sandbox
     return read_mesh_safe(path, physical_tag, file_format, weld, **limits)
+
+
+def _vtu_family(path: str, file_format: str | None) -> bool:
+    from models.mesh import read
+
+    try:
+        return read.pick_reader(path, file_format)[0] == "vtu"
+    except (MagnetError, OSError):
+        return False
 
 
 def _read_in_child(path, kwargs):

@@ -14,7 +14,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
 
 from models.graph.batch import GraphBatch
 
@@ -92,6 +91,8 @@ def contract(batch: GraphBatch, mate: np.ndarray) -> Level:
     rows = np.repeat(idx, np.diff(batch.indptr))
     cr, cc = cmap[rows], cmap[batch.indices]
     keep = cr != cc
+    import scipy.sparse as sp  # here only: kway runs never coarsen (~0.2 s of start-up)
+
     a = sp.csr_matrix((batch.edge_counts()[keep], (cr[keep], cc[keep])), shape=(nc, nc))
     w = sp.csr_matrix((batch.weights[keep], (cr[keep], cc[keep])), shape=(nc, nc))
     a.sum_duplicates()

@@ -12,12 +12,10 @@ refused with the reason (ParameterError).
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
 
 from models.errors import ParameterError
+from models.graph.csr import connected_components
 from models.mesh.celldata import CellData, compact_labels
-from models.mesh.dual import kept_edges
 
 MAX_ROUNDS = 200
 
@@ -32,9 +30,8 @@ def connected_parts(data: CellData, labels: np.ndarray, nodes: np.ndarray) -> tu
     n = g.n
     lab = np.full(n, -1, dtype=np.int64)
     lab[nodes] = labels
-    kp, e = kept_edges(g.indptr, g.indices, lab)
-    m = sp.csr_matrix((np.ones(int(kp[-1]), dtype=np.int8), g.indices[e], kp), shape=(n, n))
-    _, comp = connected_components(m, directed=False)
+    # the cells outside `nodes` (label -1) form pieces of their own, dropped by the renumbering below
+    _, comp = connected_components(g.indptr, g.indices, lab)
     comp = comp[nodes]
     present = np.zeros(int(comp.max()) + 1, dtype=bool)
     present[comp] = True
@@ -51,9 +48,7 @@ def pieces(data: CellData, nodes: np.ndarray) -> int:
     g = data.graph
     lab = np.full(g.n, -1, dtype=np.int64)
     lab[nodes] = 0
-    kp, e = kept_edges(g.indptr, g.indices, lab)
-    m = sp.csr_matrix((np.ones(int(kp[-1]), dtype=np.int8), g.indices[e], kp), shape=(g.n, g.n))
-    _, comp = connected_components(m, directed=False)
+    _, comp = connected_components(g.indptr, g.indices, lab)
     return int(np.unique(comp[nodes]).size)
 
 
@@ -100,6 +95,8 @@ def _merge_smallest(
     a = np.repeat(lab, np.diff(g.indptr))
     b = lab[g.indices]
     e = (a >= 0) & (b >= 0) & (a != b)
+    import scipy.sparse as sp  # here only: most runs never come here (~0.2 s of start-up)
+
     inter = sp.csr_matrix((g.weights[e], (a[e], b[e])), shape=(k, k)).tocsr()
     inter.sum_duplicates()
     size = np.bincount(labels, weights=data.measures[nodes], minlength=k)

@@ -8,6 +8,7 @@ import numpy as np
 
 from models.errors import ParameterError
 from models.graph.batch import GraphBatch
+from models.graph.csr import connected_components
 from models.partition.base import Partitioner
 
 
@@ -21,14 +22,9 @@ def integer_weights(measures: np.ndarray, resolution: int = 1000) -> np.ndarray:
 
 
 def _connected(indptr: np.ndarray, indices: np.ndarray) -> bool:
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import connected_components
-
-    n = indptr.size - 1
-    if n <= 1:
+    if indptr.size - 1 <= 1:
         return True
-    m = sp.csr_matrix((np.ones(indices.size, dtype=np.int8), indices, indptr), shape=(n, n))
-    return connected_components(m, directed=False)[0] == 1
+    return connected_components(indptr, indices)[0] == 1
 
 
 class MetisPartitioner(Partitioner):

@@ -20,8 +20,6 @@ hierarchy's levels are numbered along the domain's principal axis, for Gauss-Sei
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
 
 from models.errors import ParameterError
 from models.graph.batch import GraphBatch
@@ -315,6 +313,7 @@ def _grow_from_mains(
     """Labels where every fragment cell takes the label of the nearest main-piece cell (hops through
     fragment cells of the same parent; the shortest-path tree keeps each region connected to its
     main piece). Fragment cells no main piece reaches keep their label."""
+    import scipy.sparse as sp  # scipy here only: ~0.2 s of start-up for the runs that never come here
     from scipy.sparse.csgraph import dijkstra
 
     n = labels.size
@@ -384,6 +383,9 @@ def _label_pieces(
         loc = np.empty(labels.size, dtype=np.int64)
         loc[cells] = np.arange(m)
         nb = loc[nb]
+    import scipy.sparse as sp  # the fallback only (no compiled module)
+    from scipy.sparse.csgraph import connected_components
+
     g = sp.csr_matrix((np.ones(nb.size, dtype=np.int8), nb, ptr), shape=(m, m))
     return connected_components(g, directed=False)
 
@@ -485,6 +487,8 @@ def make_connected(
         to_main = main[comp[b]]
         bonus = np.where(to_main, 2.0, 1.0)
         key_p, key_l = comp[a], labels[b]
+        import scipy.sparse as sp  # a fragment to move: scipy's COO sum
+
         m = sp.coo_matrix((weights[e] * bonus + 1e-12, (key_p, key_l)), shape=(nc, k)).tocsr()
         m.sum_duplicates()
         # per row the largest interface, ties: the lowest label (rows sorted by column); no sort
@@ -533,6 +537,8 @@ def cut_and_connect(
 
 def _quotient(indptr: np.ndarray, indices: np.ndarray, weights: np.ndarray, labels: np.ndarray, k: int):
     """CSR (indptr, indices, summed weights) of the graph of the parts `labels` (0..k-1)."""
+    import scipy.sparse as sp
+
     fc = _compiled()
     if (
         fc is not None
@@ -559,8 +565,6 @@ def _quotient(indptr: np.ndarray, indices: np.ndarray, weights: np.ndarray, labe
 
 def components(batch: GraphBatch, within: np.ndarray | None = None) -> np.ndarray:
     """Connected components of the batch graph (only edges inside equal `within` labels)."""
-    from scipy.sparse.csgraph import breadth_first_order
-
     n = batch.n_nodes
     indptr, indices = batch.indptr, batch.indices
     if n and _compiled() is not None:  # one union-find pass in C (the same numbering)
@@ -570,6 +574,9 @@ def components(batch: GraphBatch, within: np.ndarray | None = None) -> np.ndarra
         keep = np.repeat(within, np.diff(indptr)) == within[indices]
         indptr = kept_pointers(keep, indptr)
         indices = indices[keep]
+    import scipy.sparse as sp  # the fallback only (no compiled module)
+    from scipy.sparse.csgraph import breadth_first_order, connected_components
+
     g = sp.csr_matrix((np.ones(indices.size), indices, indptr), shape=(n, n))
     if n == 0 or breadth_first_order(g, 0, directed=True, return_predecessors=False).size == n:
         return np.zeros(n, dtype=np.int64)  # cell 0 reaches every cell: one component (no transpose)

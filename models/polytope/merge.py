@@ -19,10 +19,9 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
 
 from models.errors import MeshError
+from models.graph.csr import connected_components, edge_components
 from models.mesh.container import Mesh, PolyMesh
 from models.mesh.dual import DualGraph, sorted_unique
 
@@ -52,8 +51,7 @@ def boundary_faces(graph: DualGraph, labels: np.ndarray, among: np.ndarray | Non
 def _list_rank(nxt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Cycles of the permutation `nxt`: (cycle id, position in the cycle from its smallest edge)."""
     n = nxt.size
-    g = sp.csr_matrix((np.ones(n), (np.arange(n), nxt)), shape=(n, n))
-    _, cyc = connected_components(g, directed=True, connection="weak")
+    _, cyc = connected_components(np.arange(n + 1), nxt)  # each edge i -> nxt[i], taken either way
     head = np.full(cyc.max() + 1, n, dtype=np.int64)
     np.minimum.at(head, cyc, np.arange(n))
     is_head = np.zeros(n, dtype=bool)
@@ -244,8 +242,7 @@ def _shells(points, face_elem, fo, nodes) -> Holes:
     same = (key_e[s][1:] == key_e[s][:-1]) & (lo[s][1:] == lo[s][:-1]) & (hi[s][1:] == hi[s][:-1])
     i = np.flatnonzero(same)
     fa, fb = face_of[s[i]], face_of[s[i + 1]]
-    g = sp.csr_matrix((np.ones(fa.size), (fa, fb)), shape=(nf, nf))
-    nshell, shell = connected_components(g, directed=False)
+    nshell, shell = edge_components(nf, fa, fb)
     if nf == 0 or nshell == np.count_nonzero(np.bincount(face_elem)):
         return Holes(elements=np.zeros(0, np.int64), centers=np.zeros((0, points.shape[1])))
     owner, tri = fan_triangles(fo, nodes)
@@ -291,7 +288,9 @@ def _majority(labels: np.ndarray, tags: np.ndarray | None, n_elem: int) -> np.nd
     if tags is None:
         return None
     groups, t = sorted_unique(tags, return_inverse=True)
-    counts = sp.csr_matrix((np.ones(labels.size), (labels, t)), shape=(n_elem, groups.size)).toarray()
+    counts = np.bincount(labels * groups.size + t, minlength=n_elem * groups.size).reshape(
+        n_elem, groups.size
+    )
     return groups[counts.argmax(axis=1)]
 
 
