@@ -19,3 +19,18 @@ def compiled(name: str):
         return importlib.import_module(f"models.{name}")
     except ImportError:
         return None
+
+
+def threads() -> int:
+    """Threads for a compiled helper that splits its work: MAGNET_THREADS (a whole number >= 1;
+    anything else counts as 1 here), else the cores this process may use."""
+    env = os.environ.get("MAGNET_THREADS", "").strip()
+    if env:
+        try:
+            return max(1, int(env))
+        except ValueError:
+            return 1
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)

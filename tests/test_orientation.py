@@ -123,9 +123,11 @@ def test_inconsistent_polyhedra_are_refused_with_the_cells():
 
 
 @pytest.mark.parametrize("n", [3, 6])
-def test_faces_kept_by_reading_give_the_same_graph(n):
-    """Reading keeps its faces and face pairing for the dual graph (one sort, not two); with cells
-    flipped by the orientation they must equal the faces and graph built from scratch."""
+def test_faces_kept_by_reading_give_the_same_graph(n, monkeypatch):
+    """Reading without the compiled validation (MAGNET_NO_COMPILED=1: the numpy path) keeps its
+    faces and face pairing for the dual graph (one sort, not two); with cells flipped by the
+    orientation they must equal the faces and graph built from scratch."""
+    monkeypatch.setenv("MAGNET_NO_COMPILED", "1")
     from models.mesh.dual import cached_faces, dual_graph
     from models.mesh.geometry import cell_faces
 
@@ -211,10 +213,11 @@ def test_faces_kept_by_reading_of_a_folded_tetrahedron_give_the_same_graph():
         assert np.array_equal(getattr(g1, a), getattr(g2, a)), a
 
 
-def test_face_areas_kept_by_reading_are_face_measures_bit_for_bit():
-    """All tetrahedra: reading computes every face's area with the volumes (one gather of the
-    corners); with generic coordinates and mirrored cells they must be face_measures' values exactly,
-    and the graph built from them the graph built from fresh faces."""
+def test_face_areas_kept_by_reading_are_face_measures_bit_for_bit(monkeypatch):
+    """All tetrahedra, the numpy path (MAGNET_NO_COMPILED=1): reading computes every face's area with
+    the volumes (one gather of the corners); with generic coordinates and mirrored cells they must
+    be face_measures' values exactly, and the graph built from them the graph built from fresh faces."""
+    monkeypatch.setenv("MAGNET_NO_COMPILED", "1")
     from models.mesh.dual import cached_faces, dual_graph
     from models.mesh.geometry import cell_faces, face_measures
 
@@ -264,3 +267,42 @@ def test_face_areas_kept_by_reading_are_face_measures_bit_for_bit():
     ref.sort_indices()
     assert np.array_equal(g1.indptr, ref.indptr) and np.array_equal(g1.indices, ref.indices)
     assert np.array_equal(g1.weights, ref.data)
+
+
+@pytest.mark.parametrize("n", [3, 6])
+def test_compiled_validation_defers_the_faces_and_gives_the_same_mesh_and_graph(n, monkeypatch):
+    """With models/mesh/_fastmesh.c, reading all tetrahedra (cells mirrored in the input) keeps no
+    faces: the dual graph builds them. Mesh, orientation record and graph are those of the numpy
+    path, which keeps its faces."""
+    from models.mesh.dual import cached_faces, dual_graph
+    from models.native import compiled
+
+    assert compiled("mesh._fastmesh") is not None
+    g = np.linspace(0, 1, n + 1)
+    x, y, z = np.meshgrid(g, g, g, indexing="ij")
+    rng = np.random.default_rng(n)
+    pts = np.column_stack([x.ravel(), y.ravel(), z.ravel()]) + rng.normal(scale=0.02, size=((n + 1) ** 3, 3))
+    m1 = n + 1
+    i, j, k = (a.ravel() for a in np.meshgrid(*(np.arange(n),) * 3, indexing="ij"))
+    c0 = (i * m1 + j) * m1 + k
+    d = [m1 * m1, m1, 1]
+    t = np.vstack(
+        [
+            np.column_stack([c0, c0 + d[a], c0 + d[a] + d[b], c0 + sum(d)])
+            for a, b in ((0, 1), (1, 0), (0, 2), (2, 0), (1, 2), (2, 1))
+        ]
+    )
+    sw = rng.random(len(t)) < 0.3
+    t[sw] = t[sw][:, [1, 0, 2, 3]]
+    fast = mesh_from_arrays(pts, [("tetra", t)])
+    assert cached_faces(fast) is None and fast.meta["orientation"]["flipped"] > 0
+    monkeypatch.setenv("MAGNET_NO_COMPILED", "1")
+    ref = mesh_from_arrays(pts, [("tetra", t)])
+    assert cached_faces(ref) is not None
+    assert np.array_equal(fast.connectivity, ref.connectivity)
+    for key in ("measures", "centroids", "signed_measures"):
+        assert np.array_equal(fast.meta[key], ref.meta[key]), key
+    assert fast.meta["orientation"] == ref.meta["orientation"]
+    g1, g2 = dual_graph(fast), dual_graph(ref)
+    for a in ("indptr", "indices", "weights", "partner"):
+        assert np.array_equal(getattr(g1, a), getattr(g2, a)), a

@@ -6,7 +6,12 @@
  *   fixed_measures  signed volume and centroid of cells of one type with a fixed node count, by the
  *                   divergence theorem on their faces as geometry._measures_and_centroids does it:
  *                   triangles as they are, a face of 4+ nodes fanned from the mean of its nodes,
- *                   every triangle relative to the cell's vertex mean;
+ *                   every triangle relative to the cell's vertex mean, six times its volume summed and
+ *                   divided by 6 once per cell;
+ *   fixed_validate  the read stage's validation of cells of one fixed-size type in one pass per cell
+ *                   (threads over ranges of cells): fixed_measures' volume and centroid (tetrahedra in
+ *                   closed form, as geometry._tetra_measures), the own-sign flip and the face keys of
+ *                   fixed_consistent, then one bucket pass: is flipping each cell by its sign consistent?
  *   consistent      orientation._consistent (fixed_consistent: the same from a cell type's template): with the cells in `flip` reversed, is any face met twice
  *                   in the same direction? (a hash table of directed face keys instead of a sort)
  *
@@ -19,6 +24,85 @@
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+#include <pthread.h>
+
+
+/* One cell's signed volume and centroid (fixed_measures), its k nodes c[0..k-1]: the same float
+ * operations in the same order as geometry._measures_and_centroids. The cell's coordinates are
+ * gathered once (x), every node relative to the vertex mean o once (rel). */
+static inline __attribute__((always_inline)) void measure_cell(const double *P, const int64_t *c, int64_t k,
+                                                               const int64_t *tmpl, const int64_t *tsize,
+                                                               int64_t nf, double *vol, double *cen) {
+    double x[64][3], rel[64][3];
+    double o[3] = {0.0, 0.0, 0.0};
+    for (int64_t j = 0; j < k; j++)
+        for (int d = 0; d < 3; d++) {
+            x[j][d] = P[3 * c[j] + d];
+            o[d] += x[j][d];
+        }
+    if (k == 8)
+        for (int d = 0; d < 3; d++) o[d] *= 0.125; /* exact, as / 8 */
+    else
+        for (int d = 0; d < 3; d++) o[d] /= (double)k;
+    for (int64_t j = 0; j < k; j++)
+        for (int d = 0; d < 3; d++) rel[j][d] = x[j][d] - o[d];
+    double v_sum = 0.0, g_sum[3] = {0.0, 0.0, 0.0};
+    /* one triangle (a, b, c): the numpy path's a - o, b - o, c - o, six times its volume
+       einsum(a, cross(b, c)) (summed x, z, y) and (a + b + c) / 4; one division by 6 per cell */
+#define TRI(A, B, CC)                                                                              \
+    do {                                                                                           \
+        double a0 = (A)[0], a1 = (A)[1], a2 = (A)[2];                                              \
+        double b0 = (B)[0], b1 = (B)[1], b2 = (B)[2];                                              \
+        double c0 = (CC)[0], c1 = (CC)[1], c2 = (CC)[2];                                           \
+        double x0 = b1 * c2 - b2 * c1, x1 = b2 * c0 - b0 * c2, x2 = b0 * c1 - b1 * c0;             \
+        double t0 = a0 * x0, t1 = a1 * x1, t2 = a2 * x2;                                           \
+        double v = (t0 + t2) + t1;                                                                 \
+        v_sum += v;                                                                                \
+        g_sum[0] += v * (((a0 + b0) + c0) * 0.25);                                                 \
+        g_sum[1] += v * (((a1 + b1) + c1) * 0.25);                                                 \
+        g_sum[2] += v * (((a2 + b2) + c2) * 0.25);                                                 \
+    } while (0)
+    int64_t pos = 0;
+    for (int64_t f = 0; f < nf; f++) {
+        int64_t s = tsize[f];
+        const int64_t *t = tmpl + pos;
+        pos += s;
+        if (s == 3) {
+            TRI(rel[t[0]], rel[t[1]], rel[t[2]]);
+            continue;
+        }
+        double m[3] = {0.0, 0.0, 0.0};
+        for (int64_t j = 0; j < s; j++)
+            for (int d = 0; d < 3; d++) m[d] += x[t[j]][d];
+        if (s == 4) /* x / 4 and x * 0.25 are the same number (a power of two): no division */
+            for (int d = 0; d < 3; d++) m[d] = m[d] * 0.25 - o[d];
+        else
+            for (int d = 0; d < 3; d++) m[d] = m[d] / (double)s - o[d];
+        for (int64_t j = 0; j < s; j++) TRI(m, rel[t[j]], rel[t[j + 1 == s ? 0 : j + 1]]);
+    }
+#undef TRI
+    *vol = v_sum / 6.0;
+    for (int d = 0; d < 3; d++) cen[d] = g_sum[d] / v_sum + o[d];
+}
+
+/* A tetrahedron in closed form, as geometry._tetra_measures: a, b, c = p1 - p0, p2 - p0, p3 - p0;
+ * volume a . (b x c) / 6 (summed x, z, y), centroid p0 + ((a + b) + c) / 4. */
+static inline __attribute__((always_inline)) void measure_tet(const double *P, const int64_t *c, double *vol,
+                                                              double *cen) {
+    const double *p0 = P + 3 * c[0], *p1 = P + 3 * c[1], *p2 = P + 3 * c[2], *p3 = P + 3 * c[3];
+    double a[3], b[3], e[3];
+    for (int d = 0; d < 3; d++) {
+        a[d] = p1[d] - p0[d];
+        b[d] = p2[d] - p0[d];
+        e[d] = p3[d] - p0[d];
+    }
+    double x0 = b[1] * e[2] - b[2] * e[1], x1 = b[2] * e[0] - b[0] * e[2], x2 = b[0] * e[1] - b[1] * e[0];
+    double v = a[0] * x0;
+    v += a[2] * x2;
+    v += a[1] * x1;
+    *vol = v / 6.0;
+    for (int d = 0; d < 3; d++) cen[d] = p0[d] + ((a[d] + b[d]) + e[d]) / 4.0;
+}
 
 /* fixed_measures(points, conn, tmpl, tsize, vol, cen)
  *   points (P * 3) float64; conn (C * k) int64; tmpl: the local nodes of the cell's faces, the
@@ -47,51 +131,7 @@ static PyObject *py_fixed_measures(PyObject *self, PyObject *args) {
         return NULL;
     }
     Py_BEGIN_ALLOW_THREADS
-    for (int64_t i = 0; i < C; i++) {
-        const int64_t *c = conn + i * k;
-        double o[3] = {0.0, 0.0, 0.0};
-        for (int64_t j = 0; j < k; j++)
-            for (int d = 0; d < 3; d++) o[d] += P[3 * c[j] + d];
-        for (int d = 0; d < 3; d++) o[d] /= (double)k;
-        double v_sum = 0.0, g_sum[3] = {0.0, 0.0, 0.0};
-        /* one triangle (a, b, c): the numpy path's a - o, b - o, c - o, einsum(a, cross(b, c)) / 6
-           (summed x, z, y), (a + b + c) / 4 */
-        /* every node relative to o once (the same values the numpy path computes per triangle) */
-        double rel[64][3];
-        for (int64_t j = 0; j < k; j++)
-            for (int d = 0; d < 3; d++) rel[j][d] = P[3 * c[j] + d] - o[d];
-#define TRI(A, B, CC)                                                                              \
-    do {                                                                                           \
-        double a0 = (A)[0], a1 = (A)[1], a2 = (A)[2];                                              \
-        double b0 = (B)[0], b1 = (B)[1], b2 = (B)[2];                                              \
-        double c0 = (CC)[0], c1 = (CC)[1], c2 = (CC)[2];                                           \
-        double x0 = b1 * c2 - b2 * c1, x1 = b2 * c0 - b0 * c2, x2 = b0 * c1 - b1 * c0;             \
-        double t0 = a0 * x0, t1 = a1 * x1, t2 = a2 * x2;                                           \
-        double v = ((t0 + t2) + t1) / 6.0;                                                         \
-        v_sum += v;                                                                                \
-        g_sum[0] += v * (((a0 + b0) + c0) / 4.0);                                                  \
-        g_sum[1] += v * (((a1 + b1) + c1) / 4.0);                                                  \
-        g_sum[2] += v * (((a2 + b2) + c2) / 4.0);                                                  \
-    } while (0)
-        int64_t pos = 0;
-        for (int64_t f = 0; f < nf; f++) {
-            int64_t s = tsize[f];
-            const int64_t *t = tmpl + pos;
-            pos += s;
-            if (s == 3) {
-                TRI(rel[t[0]], rel[t[1]], rel[t[2]]);
-                continue;
-            }
-            double m[3] = {0.0, 0.0, 0.0};
-            for (int64_t j = 0; j < s; j++)
-                for (int d = 0; d < 3; d++) m[d] += P[3 * c[t[j]] + d];
-            for (int d = 0; d < 3; d++) m[d] = m[d] / (double)s - o[d];
-            for (int64_t j = 0; j < s; j++) TRI(m, rel[t[j]], rel[t[(j + 1) % s]]);
-        }
-#undef TRI
-        vol[i] = v_sum;
-        for (int d = 0; d < 3; d++) cen[3 * i + d] = g_sum[d] / v_sum + o[d];
-    }
+    for (int64_t i = 0; i < C; i++) measure_cell(P, conn + i * k, k, tmpl, tsize, nf, vol + i, cen + 3 * i);
     Py_END_ALLOW_THREADS
     release_arr(b, 6);
     Py_RETURN_NONE;
@@ -230,7 +270,7 @@ static PyObject *py_fixed_consistent(PyObject *self, PyObject *args) {
                 pos += s;
                 for (int64_t q = 1; q < s; q++)
                     if (c[t[q]] < c[t[j]]) j = q;
-                int64_t nx = c[t[(j + 1) % s]], pv = c[t[(j + s - 1) % s]];
+                int64_t nx = c[t[j + 1 == s ? 0 : j + 1]], pv = c[t[j == 0 ? s - 1 : j - 1]];
                 Rest r = {flip[i] ? pv : nx, flip[i] ? nx : pv, s < 7 ? s : 7};
                 rest[start[mins[i * nf + f] + 1]++] = r;
             }
@@ -256,7 +296,154 @@ static PyObject *py_fixed_consistent(PyObject *self, PyObject *args) {
     return PyBool_FromLong(ok);
 }
 
+
+/* fixed_validate(points, conn, tmpl, tsize, vol, cen, flip, npts, nthreads) -> bool
+ *   The read stage's validation of cells of one type with a fixed node count in one pass per cell:
+ *   fixed_measures' signed volume and centroid (tetrahedra: measure_tet, closed form, as
+ *   geometry._tetra_measures), flip[i] = vol[i] < 0 (uint8), and every face's directed key as
+ *   fixed_consistent makes it with those flips (sharing the gathered nodes). That pass runs in
+ *   nthreads (1,) threads over ranges of cells (each cell's values do not depend on them). Then
+ *   the keys are bucketed by their smallest node (a counting sort over the points) and compared
+ *   in each bucket: True when no face is met twice in the same direction (flipping every cell by
+ *   its own sign is consistent), False otherwise (the caller takes the full path). */
+typedef struct {
+    const double *P;
+    const int64_t *conn, *tmpl, *tsize;
+    int64_t k, nf, lo, hi, npts;
+    double *vol, *cen;
+    uint8_t *flip;
+    int64_t *mins;
+    int bad;
+} Job;
+
+/* a face's directed key less its smallest node: the nodes after and before it, min(size, 7) in
+ * the top bits of the second (point ids < 2^60) */
+typedef struct {
+    int64_t nx, pvs;
+} Key2;
+
+static void *validate_range(void *arg) {
+    Job *J = arg;
+    const int64_t k = J->k, nf = J->nf, *tmpl = J->tmpl, *tsize = J->tsize;
+    for (int64_t i = J->lo; i < J->hi; i++) {
+        const int64_t *c = J->conn + i * k;
+        if (k == 4 && nf == 4)
+            measure_tet(J->P, c, J->vol + i, J->cen + 3 * i);
+        else if (k == 8 && nf == 6) /* hexahedra: the constants let the compiler unroll */
+            measure_cell(J->P, c, 8, tmpl, tsize, 6, J->vol + i, J->cen + 3 * i);
+        else
+            measure_cell(J->P, c, k, tmpl, tsize, nf, J->vol + i, J->cen + 3 * i);
+        int fl = J->vol[i] < 0.0;
+        J->flip[i] = (uint8_t)fl;
+        int64_t pos = 0;
+        for (int64_t f = 0; f < nf; f++) {
+            int64_t s = tsize[f], j = 0;
+            const int64_t *t = tmpl + pos;
+            pos += s;
+            for (int64_t q = 1; q < s; q++)
+                if (c[t[q]] < c[t[j]]) j = q;
+            int64_t m = c[t[j]];
+            if (m < 0 || m >= J->npts) {
+                J->bad = 1;
+                return NULL;
+            }
+            J->mins[i * nf + f] = m;
+        }
+    }
+    return NULL;
+}
+
+static PyObject *py_fixed_validate(PyObject *self, PyObject *args) {
+    static const char *const names[] = {"points", "conn", "tmpl", "tsize", "vol",
+                                        "cen",    "flip", "npts", "nthreads"};
+    static const Py_ssize_t sizes[] = {8, 8, 8, 8, 8, 8, 1, 8, 8};
+    static const int wr[] = {0, 0, 0, 0, 1, 1, 1, 0, 0};
+    Py_buffer b[9];
+    if (parse_bufs(args, 9, "fixed_validate", names, sizes, wr, b) < 0) return NULL;
+    const double *P = b[0].buf;
+    const int64_t *conn = b[1].buf, *tmpl = b[2].buf, *tsize = b[3].buf, *npts = b[7].buf, *nth = b[8].buf;
+    double *vol = b[4].buf, *cen = b[5].buf;
+    uint8_t *flip = b[6].buf;
+    int64_t C = N8(b[4]), nf = N8(b[3]), nt = N8(b[2]), k = C ? N8(b[1]) / C : 0, sum = 0;
+    for (int64_t f = 0; f < nf; f++) sum += tsize[f];
+    int tet = 1;
+    if (nf == 4 && nt == 12)
+        for (int64_t f = 0; f < 4; f++) tet &= tsize[f] == 3;
+    if (N8(b[7]) != 1 || N8(b[8]) != 1 || npts[0] < 0 || npts[0] >= ((int64_t)1 << 60) || C * 3 != N8(b[5]) || (int64_t)b[6].len != C ||
+        (C && k * C != N8(b[1])) || k > 64 || nf > 64 || sum != nt || (k == 4 && nf == 4 && !tet)) {
+        release_arr(b, 9);
+        PyErr_SetString(PyExc_ValueError, "fixed_validate: inconsistent array sizes");
+        return NULL;
+    }
+    int64_t Pn = npts[0], F = C * nf, T = nth[0] < 1 ? 1 : nth[0] > 64 ? 64 : nth[0];
+    if (T > 1 && C / T < 4096) T = C / 4096 > 1 ? C / 4096 : 1; /* threads only for large arrays */
+    int64_t *start = calloc((size_t)Pn + 2, sizeof(int64_t));
+    int64_t *mins = malloc((size_t)(F ? F : 1) * sizeof(int64_t));
+    Key2 *sorted = malloc((size_t)(F ? F : 1) * sizeof(Key2));
+    int ok = 1, err = !start || !mins || !sorted;
+    Py_BEGIN_ALLOW_THREADS
+    if (!err) {
+        Job jobs[64];
+        pthread_t tid[64];
+        int started[64] = {0};
+        for (int64_t t = 0; t < T; t++) {
+            Job j = {P, conn, tmpl, tsize, k, nf, C * t / T, C * (t + 1) / T, Pn, vol, cen, flip, mins, 0};
+            jobs[t] = j;
+        }
+        for (int64_t t = 1; t < T; t++)
+            started[t] = pthread_create(&tid[t], NULL, validate_range, &jobs[t]) == 0;
+        validate_range(&jobs[0]);
+        for (int64_t t = 1; t < T; t++) {
+            if (started[t])
+                pthread_join(tid[t], NULL);
+            else
+                validate_range(&jobs[t]); /* no thread: run it here */
+        }
+        for (int64_t t = 0; t < T; t++)
+            if (jobs[t].bad) err = 2;
+        if (!err) {
+            for (int64_t f = 0; f < F; f++) start[mins[f] + 2]++;
+            for (int64_t p = 2; p < Pn + 2; p++) start[p] += start[p - 1];
+            for (int64_t i = 0; i < C; i++) { /* scattered into the buckets, the flips applied */
+                const int64_t *c = conn + i * k;
+                int64_t pos = 0;
+                for (int64_t f = 0; f < nf; f++) {
+                    int64_t s = tsize[f], j = 0;
+                    const int64_t *t = tmpl + pos;
+                    pos += s;
+                    for (int64_t q = 1; q < s; q++)
+                        if (c[t[q]] < c[t[j]]) j = q;
+                    int64_t nx = c[t[j + 1 == s ? 0 : j + 1]], pv = c[t[j == 0 ? s - 1 : j - 1]];
+                    Key2 r = {flip[i] ? pv : nx, (flip[i] ? nx : pv) | ((s < 7 ? s : 7) << 60)};
+                    sorted[start[mins[i * nf + f] + 1]++] = r;
+                }
+            }
+            for (int64_t p = 0; p < Pn && ok; p++) /* start[p]..start[p+1]: bucket p */
+                for (int64_t x = start[p]; x < start[p + 1] && ok; x++)
+                    for (int64_t y = x + 1; y < start[p + 1]; y++)
+                        if (sorted[x].nx == sorted[y].nx && sorted[x].pvs == sorted[y].pvs) {
+                            ok = 0;
+                            break;
+                        }
+        }
+    }
+    Py_END_ALLOW_THREADS
+    free(start);
+    free(mins);
+    free(sorted);
+    release_arr(b, 9);
+    if (err == 1) return PyErr_NoMemory();
+    if (err) {
+        PyErr_SetString(PyExc_ValueError, "fixed_validate: a point id is out of range");
+        return NULL;
+    }
+    return PyBool_FromLong(ok);
+}
+
 static PyMethodDef methods[] = {
+    {"fixed_validate", py_fixed_validate, METH_VARARGS,
+     "fixed_validate(points, conn, tmpl, tsize, vol, cen, flip, npts, nthreads) -> bool: measures, "
+     "centroids, own-sign flips and the consistency check of cells of one type in one pass."},
     {"fixed_consistent", py_fixed_consistent, METH_VARARGS,
      "fixed_consistent(conn, tmpl, tsize, flip, npts) -> bool: consistent() for cells of one type."},
     {"fixed_measures", py_fixed_measures, METH_VARARGS,
