@@ -1,7 +1,8 @@
 """docs/hierarchy-levels.png: three nested rtree levels of the brain mesh drawn one over the other
 (coarse element boundaries thick, finer ones thinner; colours by the coarsest of the three).
 
-    python scripts/hierarchy_picture.py [MESH] [-o docs/hierarchy-levels.png] [--ratio 8]
+    python scripts/hierarchy_picture.py [MESH] [-o docs/hierarchy-levels.png] [--ratio R]
+    (docs/hierarchy-holes.png: a gmsh plate with four holes, bench/family_meshes.py plate_holes)
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("mesh", nargs="?", default=os.path.join(ROOT, "tests", "data", "BrainCoronalNoHoles.vtu"))
     ap.add_argument("-o", "--output", default=os.path.join(ROOT, "docs", "hierarchy-levels.png"))
-    ap.add_argument("--ratio", type=float, default=8.0)
+    ap.add_argument("--ratio", type=float, default=None, help="default: the schedule by dimension")
     a = ap.parse_args()
     import matplotlib
 
@@ -57,7 +58,8 @@ def main() -> None:
     ax.set_aspect("equal")
     ax.axis("off")
     sizes = " > ".join(str(int(lv.max()) + 1) for lv in three)
-    ax.set_title(f"three nested rtree levels (ratio {a.ratio:g}): {sizes} elements, {mesh.n_cells} cells")
+    how = f"ratio {a.ratio:g}" if a.ratio else "default schedule"
+    ax.set_title(f"three nested rtree levels ({how}): {sizes} elements, {mesh.n_cells} cells")
     fig.savefig(a.output, dpi=110, bbox_inches="tight")
     print(f"wrote {a.output} ({sizes})")
 
