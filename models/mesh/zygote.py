@@ -245,6 +245,18 @@ def shutdown() -> None:
         z.close()
 
 
+def wait_ready(timeout_s: float = 120.0) -> bool:
+    """Start this process's zygote if needed and wait until it serves reads (benches, tests)."""
+    limit = time.monotonic() + timeout_s
+    while time.monotonic() < limit:
+        z = acquire()
+        if z is not None:
+            release(z)
+            return True
+        time.sleep(0.05)
+    return False
+
+
 def pid() -> int | None:
     """The zygote's pid, if this process has one running."""
     z = _ZYGOTE
