@@ -19,10 +19,15 @@ Every message also gets the same wording here, in-process or not (`wording`): it
 and the format, and a library's raw exception text or a Python repr is replaced by a sentence.
 The CLI, the HTTP API and the worker all read through this function, so they word a failure alike.
 
-The CLI reads through `read_mesh_cli`: in-process when the reader is pure Python (it cannot crash
-the interpreter), in the child when it is native (VTK, HDF5, netCDF).
+The child is forked by the reader zygote (models.mesh.zygote: a helper interpreter holding only the
+readers' modules, started in the background at the first sandboxed read) once it is ready, else by
+this process. In-process reads run under the same deadline (SIGALRM, `deadline`).
 
-MAGNET_READ_SANDBOX=0 reads in-process (no fork); MAGNET_READ_TIMEOUT_S and MAGNET_READ_MEMORY_MB
+The CLI reads through `read_mesh_cli`: in-process when the reader is pure Python (it cannot crash
+the interpreter), in a child forked by the CLI itself when it is native (VTK, HDF5, netCDF).
+
+MAGNET_READ_SANDBOX=0 reads in-process (no fork); MAGNET_READ_ZYGOTE=0 forks without a zygote;
+MAGNET_READ_TIMEOUT_S and MAGNET_READ_MEMORY_MB
 change the default limits (600 s; the machine's physical memory).
 """
 
@@ -284,6 +289,9 @@ def read_mesh_cli(path, physical_tag=None, file_format=None, weld=None, **limits
         and pure_python_reader(os.fspath(path), file_format)
     ):
         limits = {**limits, "in_process": True}
+    # one read per CLI process: a direct fork (10-18 ms, bench/bench_fork_cost.py) costs less than
+    # starting a zygote interpreter (about a second of CPU) that would serve no second read
+    limits.setdefault("zygote", False)
     return read_mesh_safe(path, physical_tag, file_format, weld, **limits)
 
 
