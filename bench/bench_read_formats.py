@@ -6,8 +6,8 @@ VTK: the same format's VTK reader, Update(), then vtk_to_numpy of points, offset
 types (the arrays of an unstructured grid; structured datasets: their points only, the cells being
 implicit there). Each side runs --repeat times alternating in this process; the table gives the
 best of each and their ratio. Files of 10,000 cells or more, written here by VTK's writers.
-"ours sandboxed" is read_mesh_safe (a forked child, the Mesh back through a memfd), the way the
-service and the worker read every upload.
+"sandboxed" is read_mesh_safe (a forked child, the Mesh back through a memfd), the way the
+service and the worker read every upload: the child forked by this process, or by its reader zygote.
 
   python bench/bench_read_formats.py            # ~13,824-98,304 cells per file
   python bench/bench_read_formats.py --n 30     # larger
@@ -69,13 +69,14 @@ def ours(path: str) -> float:
     return time.perf_counter() - t
 
 
-def sandboxed(path: str) -> float:
+def sandboxed(path: str, zygote: bool = True) -> float:
     """In a forked child (read_mesh_safe: the service, the worker, the CLI on native readers), the
-    fork, the child's read and the Mesh's way back through the memfd all counted."""
+    fork, the child's read and the Mesh's way back through the memfd all counted; the child forked
+    by the reader zygote (zygote=True), or by this process."""
     from models.mesh.sandbox import read_mesh_safe
 
     t = time.perf_counter()
-    read_mesh_safe(path)
+    read_mesh_safe(path, zygote=zygote)
     return time.perf_counter() - t
 
 
@@ -164,19 +165,26 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         files = corpus(tmp, args.n)
         print(f"# read stage vs VTK reader + vtk_to_numpy, best of {args.repeat} alternating runs")
+        from models.mesh import zygote
+
+        if not zygote.wait_ready():
+            print("# the reader zygote did not start: its column is a direct fork")
         print(
-            "| file | cells | VTK s | ours in-process s | ours sandboxed s | in-process / VTK | sandboxed / VTK |"
+            "| file | cells | VTK s | ours in-process s | sandboxed, direct fork s | sandboxed, zygote s | "
+            "in-process / VTK | direct fork / VTK | zygote / VTK |"
         )
-        print("|---|---|---|---|---|---|---|")
+        print("|---|---|---|---|---|---|---|---|---|")
         for name, path, cells in files:
-            a, b, c = [], [], []
+            a, b, c, d = [], [], [], []
             for _ in range(args.repeat):
                 a.append(vtk_side(path))
                 b.append(ours(path))
-                c.append(sandboxed(path))
-            va, vb, vc_ = min(a), min(b), min(c)
+                c.append(sandboxed(path, zygote=False))
+                d.append(sandboxed(path))
+            va, vb, vc_, vd = min(a), min(b), min(c), min(d)
             print(
-                f"| {name} | {cells:,} | {va:.4f} | {vb:.4f} | {vc_:.4f} | {vb / va:.2f} | {vc_ / va:.2f} |"
+                f"| {name} | {cells:,} | {va:.4f} | {vb:.4f} | {vc_:.4f} | {vd:.4f} | {vb / va:.2f} | "
+                f"{vc_ / va:.2f} | {vd / va:.2f} |"
             )
 
 

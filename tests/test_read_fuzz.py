@@ -360,3 +360,66 @@ def test_cli_and_api_word_a_failure_identically(corpus, crashers, tmp_path):
             assert_sentence(issue["message"], path)
             compared += 1
     assert compared >= 20, compared
+
+
+# ---------------------------------------------------------------- no read runs forever
+
+
+def test_truncated_ply_header_is_refused_not_a_hang(corpus, tmp_path):
+    """meshio's PLY header loop asks for the next line forever at the end of a file cut inside the
+    header (seeded mutant 9 of square.ply): read through a file that refuses, a sentence at once."""
+    data = corpus["square.ply"].read_bytes()
+    cut = tmp_path / "cut.ply"
+    cut.write_bytes(data[: data.index(b"comment") + 20])
+    for in_process in (True, False):
+        with pytest.raises(MeshError) as err:
+            read_mesh_safe(cut, timeout_s=60, in_process=in_process)
+        assert "did not finish" not in str(err.value) and "ends before" in str(err.value), str(err.value)
+        assert_sentence(str(err.value), cut)
+
+
+def test_vtu_with_an_impossible_cell_count_is_refused_not_a_hang(tmp_path):
+    """A bad number in a raw-appended VTU (VTK's writer): NumberOfCells="999999999". VTK's reader
+    believes it and runs for minutes; the count is checked against the file's size first."""
+    import vtk_corpus as vc
+
+    p, h = vc.grid(3, 3, 3)
+    good = Path(
+        vc.write_xml(str(tmp_path / "raw.vtu"), vc.unstructured(p, [(12, h)]), "appended", encode=False)
+    )
+    data = good.read_bytes()
+    assert b'encoding="raw"' in data and b'NumberOfCells="27"' in data
+    bad = tmp_path / "bad.vtu"
+    bad.write_bytes(data.replace(b'NumberOfCells="27"', b'NumberOfCells="999999999"', 1))
+    for in_process in (True, False):
+        with pytest.raises(MeshError) as err:
+            read_mesh_safe(bad, timeout_s=60, in_process=in_process)
+        assert "999,999,999 cells" in str(err.value), str(err.value)
+        assert_sentence(str(err.value), bad)
+    assert read_mesh_safe(good).n_cells == 27
+
+
+def test_an_in_process_read_has_a_deadline_too(corpus, monkeypatch):
+    """The CLI reads pure-Python formats in-process: a reader that never returns (a stand-in for
+    one, looping in Python) ends at the deadline with the sandbox's timeout sentence."""
+    from models.mesh import read
+
+    def forever(*args, **kwargs):
+        while True:
+            pass
+
+    monkeypatch.setattr(read, "read_mesh", forever)
+    path = corpus["gmsh22.msh"]
+    with pytest.raises(MeshError) as err:
+        read_mesh_safe(path, timeout_s=0.5, in_process=True)
+    fmt = format_name(path)
+    assert str(err.value) == (
+        f"cannot read {path.name} as {fmt}: the {fmt} reader did not finish within 0.5 s: "
+        f"the file is corrupted, not {fmt}, or too large for this limit"
+    )
+    import signal
+
+    before = signal.getsignal(signal.SIGALRM)
+    with pytest.raises(MeshError):
+        read_mesh_safe(path, timeout_s=0.2, in_process=True)
+    assert signal.getsignal(signal.SIGALRM) is before  # the caller's handler (pytest-timeout's) is back

@@ -196,11 +196,14 @@ def read_mesh(
 def _read(path: str, physical_tag, file_format, weld, native: bool = True) -> Mesh:
     family, detail = pick_reader(path, file_format)
     if family == "vtu":
-        from models.mesh.vtu import read_vtu_simple
+        from models.mesh.vtu import impossible_counts, read_vtu_simple
 
         simple = read_vtu_simple(path)  # the common layout, faster than any XML reader; else None
         if simple is not None:
             return mesh_from_meshio(simple, physical_tag=physical_tag, weld=weld, owned=True)
+        why = impossible_counts(path)
+        if why:  # VTK's reader would believe the number (and run for minutes)
+            raise MeshError(f"the file is corrupted: {why}")
         if not native:
             raise NativeReaderNeeded(f"{os.path.basename(path)} needs VTK's VTU reader")
         family, detail = "vtk", ".vtu"
@@ -231,11 +234,66 @@ def _read_meshio(path: str, file_type: str):
             contextlib.redirect_stderr(io.StringIO()),
         ):
             warnings.simplefilter("ignore")
-            return reader_map[file_type](path)
+            buffered = _BUFFER_READERS.get(file_type)
+            if buffered is None:
+                return reader_map[file_type](path)
+            import importlib
+
+            module, mode = buffered
+            with _open_guarded(path, mode) as f:  # a parse that no longer advances ends, never hangs
+                return importlib.import_module(module).read_buffer(f)
     except MeshError:
         raise
     except (Exception, SystemExit) as exc:  # noqa: BLE001
         raise MeshError(f"cannot read {name} with meshio's {file_type} reader: {_why(exc, meshio)}") from None
+
+
+# meshio's text readers whose read(path) is open(path) + read_buffer(f): read here through a file
+# that refuses to be read past its end again and again (meshio's PLY header loop, for one, asks
+# for the next line forever on a truncated file)
+_BUFFER_READERS = {
+    "ply": ("meshio.ply._ply", "rb"),
+    "obj": ("meshio.obj._obj", "r"),
+    "abaqus": ("meshio.abaqus._abaqus", "r"),
+    "nastran": ("meshio.nastran._nastran", "r"),
+    "su2": ("meshio.su2._su2", "r"),
+    "tecplot": ("meshio.tecplot._tecplot", "r"),
+    "permas": ("meshio.permas._permas", "r"),
+    "neuroglancer": ("meshio.neuroglancer._neuroglancer", "rb"),
+}
+_EOF_READS = 64  # consecutive reads at the end of the file: a parser that no longer advances
+
+
+class _GuardedBinary(io.BufferedReader):
+    """A binary file whose readline() raises EOFError when asked for a line at the end of the file
+    _EOF_READS times in a row (a real file object: np.fromfile still reads from it)."""
+
+    _at_eof = 0
+
+    def readline(self, size=-1):
+        line = super().readline(size)
+        self._at_eof = 0 if line else self._at_eof + 1
+        if self._at_eof > _EOF_READS:
+            raise EOFError("end of file")
+        return line
+
+
+class _GuardedText(io.TextIOWrapper):
+    """_GuardedBinary for text."""
+
+    _at_eof = 0
+
+    def readline(self, size=-1):
+        line = super().readline(size)
+        self._at_eof = 0 if line else self._at_eof + 1
+        if self._at_eof > _EOF_READS:
+            raise EOFError("end of file")
+        return line
+
+
+def _open_guarded(path: str, mode: str):
+    raw = _GuardedBinary(io.FileIO(path, "rb"))
+    return raw if mode == "rb" else _GuardedText(raw)
 
 
 _LINE = re.compile(r"\bline\s+(\d+)", re.IGNORECASE)

@@ -19,16 +19,22 @@ Every message also gets the same wording here, in-process or not (`wording`): it
 and the format, and a library's raw exception text or a Python repr is replaced by a sentence.
 The CLI, the HTTP API and the worker all read through this function, so they word a failure alike.
 
-The CLI reads through `read_mesh_cli`: in-process when the reader is pure Python (it cannot crash
-the interpreter), in the child when it is native (VTK, HDF5, netCDF).
+The child is forked by the reader zygote (models.mesh.zygote: a helper interpreter holding only the
+readers' modules, started in the background at the first sandboxed read) once it is ready, else by
+this process. In-process reads run under the same deadline (SIGALRM, `deadline`).
 
-MAGNET_READ_SANDBOX=0 reads in-process (no fork); MAGNET_READ_TIMEOUT_S and MAGNET_READ_MEMORY_MB
+The CLI reads through `read_mesh_cli`: in-process when the reader is pure Python (it cannot crash
+the interpreter), in a child forked by the CLI itself when it is native (VTK, HDF5, netCDF).
+
+MAGNET_READ_SANDBOX=0 reads in-process (no fork); MAGNET_READ_ZYGOTE=0 forks without a zygote;
+MAGNET_READ_TIMEOUT_S and MAGNET_READ_MEMORY_MB
 change the default limits (600 s; the machine's physical memory).
 """
 
 from __future__ import annotations
 
 import atexit
+import contextlib
 import mmap
 import os
 import pickle
@@ -36,14 +42,14 @@ import re
 import select
 import signal
 import struct
+import threading
 import time
 
-from models.errors import MagnetError, MeshError, ModelError, ParameterError
+from models.errors import MagnetError, MeshError, ParameterError
 from models.mesh.formats import ARCHIVES, extension, format_name
+from models.mesh.zygote import _ALIGN, _ERRORS, _child
 
 DEFAULT_TIMEOUT_S = 600.0
-_ALIGN = 64
-_ERRORS = {"MeshError": MeshError, "ParameterError": ParameterError, "ModelError": ModelError}
 
 # A library's own text or a Python repr in a message: never shown to a user as it is.
 RAW_TEXT = re.compile(
@@ -159,6 +165,7 @@ def read_mesh_safe(
     memory_bytes: int | None = None,
     in_process: bool = False,
     native: bool = True,
+    zygote: bool = True,
 ):
     """`models.mesh.read.read_mesh` in a forked child under limits (see the module docstring);
     the same Mesh, or a MeshError / ParameterError worded for users. in_process: read here (the
@@ -181,21 +188,24 @@ def read_mesh_safe(
         try:
             inner = unpack(path, folder)
             return read_mesh_safe(
-                inner, physical_tag, None, weld, timeout_s=timeout_s, memory_bytes=memory_bytes
+                inner, physical_tag, None, weld, timeout_s=timeout_s, memory_bytes=memory_bytes, zygote=zygote
             )
         finally:
             shutil.rmtree(folder, ignore_errors=True)
     kwargs = {"physical_tag": physical_tag, "file_format": file_format, "weld": weld}
+    timeout_s = _default_timeout() if timeout_s is None else timeout_s
     try:
         if in_process or not sandbox_enabled():
-            return read.read_mesh(path, **kwargs, **({} if native else {"native": False}))
+            with deadline(timeout_s):
+                return read.read_mesh(path, **kwargs, **({} if native else {"native": False}))
         return call_in_child(
             _read_in_child,
             (path, kwargs),
             path=path,
             file_format=file_format,
-            timeout_s=_default_timeout() if timeout_s is None else timeout_s,
+            timeout_s=timeout_s,
             memory_bytes=_default_memory() if memory_bytes is None else memory_bytes,
+            zygote=zygote,
         )
     except read.NativeReaderNeeded:
         raise
@@ -205,8 +215,53 @@ def read_mesh_safe(
         raise
     except MagnetError as exc:
         raise MeshError(wording(str(exc), path, file_format)) from None
+    except ReadTimeout:  # in-process reading ran past the deadline
+        raise MeshError(timeout_sentence(path, timeout_s, file_format)) from None
     except (Exception, SystemExit):  # a reader's own exception escaped (in-process reading)
         raise MeshError(wording("", path, file_format)) from None
+
+
+class ReadTimeout(BaseException):
+    """Raised by `deadline`'s alarm: a BaseException, so no reader's `except Exception` swallows it."""
+
+
+@contextlib.contextmanager
+def deadline(timeout_s: float | None):
+    """An in-process read that runs past timeout_s raises ReadTimeout (SIGALRM through
+    signal.setitimer, between two Python bytecodes: a loop in Python ends, a call into C ends when
+    it returns). Only in the main thread. A real-time timer the caller set (pytest-timeout's, say)
+    is kept: when it is due first it stays as it is; else it is put back afterwards with the time
+    it has left."""
+    if (
+        not timeout_s
+        or timeout_s <= 0
+        or not hasattr(signal, "setitimer")
+        or threading.current_thread() is not threading.main_thread()
+    ):
+        yield
+        return
+    theirs, interval = signal.getitimer(signal.ITIMER_REAL)
+    if 0 < theirs <= timeout_s:  # the caller's alarm comes first: leave it alone
+        yield
+        return
+
+    def alarm(signum, frame):
+        raise ReadTimeout
+
+    try:
+        old = signal.signal(signal.SIGALRM, alarm)
+    except (ValueError, OSError):  # not the main interpreter's main thread after all
+        yield
+        return
+    start = time.monotonic()
+    try:
+        signal.setitimer(signal.ITIMER_REAL, float(timeout_s))
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+        if theirs > 0:
+            signal.setitimer(signal.ITIMER_REAL, max(theirs - (time.monotonic() - start), 1e-3), interval)
 
 
 # meshio readers that call into compiled libraries (HDF5, netCDF): read in the sandbox, like VTK's
@@ -246,6 +301,9 @@ def read_mesh_cli(path, physical_tag=None, file_format=None, weld=None, **limits
                 )
             except read.NativeReaderNeeded:
                 pass  # a VTU layout our numpy path does not read: VTK's reader, in the sandbox
+    # one read per CLI process: a direct fork (10-18 ms, bench/bench_fork_cost.py) costs less than
+    # starting a zygote interpreter (about a second of CPU) that would serve no second read
+    limits.setdefault("zygote", False)
     return read_mesh_safe(path, physical_tag, file_format, weld, **limits)
 
 
@@ -264,19 +322,21 @@ def _read_in_child(path, kwargs):
     return read.read_mesh(path, **kwargs)
 
 
-def call_in_child(fn, args=(), *, path, file_format=None, timeout_s: float, memory_bytes: int):
+def call_in_child(
+    fn, args=(), *, path, file_format=None, timeout_s: float, memory_bytes: int, zygote: bool = True
+):
     """fn(*args) in a forked child under the limits; its result (numpy arrays out of band, through
-    shared memory), or the MagnetError it raised; a crash, hang or memory blow-up as a MeshError."""
-    shm = os.memfd_create("magnet-read", os.MFD_CLOEXEC)
-    r, w = os.pipe()
+    shared memory), or the MagnetError it raised; a crash, hang or memory blow-up as a MeshError.
+    The child is forked by this process's reader zygote (models.mesh.zygote) when it is running
+    and `zygote`, else by this process."""
+    shm = -1
     try:
-        pid = os.fork()
-        if pid == 0:  # the child: never returns
-            os.close(r)
-            _child(fn, args, shm, w, memory_bytes, timeout_s)
-        os.close(w)
-        w = -1
-        status, answered = _wait(pid, r, timeout_s)
+        found = _via_zygote(fn, args, timeout_s, memory_bytes) if zygote else None
+        if found is None:
+            shm = os.memfd_create("magnet-read", os.MFD_CLOEXEC)
+            status, answered = _direct(fn, args, shm, timeout_s, memory_bytes)
+        else:
+            shm, status, answered = found
         if status == "timeout" or (not answered and status == signal.SIGXCPU):
             raise MeshError(timeout_sentence(path, timeout_s, file_format))
         if not answered:
@@ -288,10 +348,67 @@ def call_in_child(fn, args=(), *, path, file_format=None, timeout_s: float, memo
             raise MeshError(memory_sentence(path, memory_bytes, file_format))
         raise _ERRORS[answer[1]](answer[2])
     finally:
-        os.close(shm)
+        if shm >= 0:
+            os.close(shm)
+
+
+def _direct(fn, args, shm: int, timeout_s: float, memory_bytes: int):
+    """A child forked from this process: (status, answered) as _wait gives."""
+    r, w = os.pipe()
+    try:
+        pid = os.fork()
+        if pid == 0:  # the child: never returns
+            os.close(r)
+            _child(fn, args, shm, w, memory_bytes, timeout_s)
+        os.close(w)
+        w = -1
+        return _wait(pid, r, timeout_s)
+    finally:
         os.close(r)
         if w >= 0:
             os.close(w)
+
+
+def _importable(fn) -> bool:
+    """fn can be named in another interpreter: a module's top-level function, not __main__'s."""
+    module = getattr(fn, "__module__", None)
+    name = getattr(fn, "__qualname__", "")
+    if not module or module == "__main__" or "<" in name or "." in name:
+        return False
+    import sys
+
+    return getattr(sys.modules.get(module), name, None) is fn
+
+
+def _via_zygote(fn, args, timeout_s: float, memory_bytes: int):
+    """(memfd, status, answered) from a child of the zygote, or None where it cannot serve this
+    read (none running yet, busy with another thread's read, fn not importable, zygote lost)."""
+    from models.mesh import zygote
+
+    if not _importable(fn):
+        return None
+    z = zygote.acquire()
+    if z is None:
+        return None
+    try:
+        try:
+            request = pickle.dumps((fn, args, memory_bytes, timeout_s, dict(os.environ), os.getcwd()))
+        except Exception:  # noqa: BLE001  (arguments that do not pickle: a direct fork takes them)
+            return None
+        shm = os.memfd_create("magnet-read", os.MFD_CLOEXEC)
+        try:
+            status, answered = z.run(request, shm, timeout_s)
+        except zygote.ZygoteLost as exc:
+            os.close(shm)
+            zygote.lost(z, str(exc))
+            return None
+        except BaseException:
+            os.close(shm)
+            zygote.lost(z, "a read was interrupted")
+            raise
+        return shm, status, answered
+    finally:
+        zygote.release(z)
 
 
 def _wait(pid: int, r: int, timeout_s: float):
@@ -352,68 +469,6 @@ def _reap_all() -> None:
 
 
 atexit.register(_reap_all)
-
-
-def _child(fn, args, shm: int, w: int, memory_bytes: int, timeout_s: float) -> None:
-    code = 1
-    try:
-        import faulthandler
-        import gc
-
-        gc.disable()  # a collection would touch every object: copy-on-write faults for nothing
-        import resource
-
-        faulthandler.disable()  # its dump would go to a copy of stderr kept apart (pytest, PYTHONFAULTHANDLER)
-        devnull = os.open(os.devnull, os.O_RDWR)
-        for fd in (0, 1, 2):  # a C++ reader's error text never reaches the user's terminal
-            os.dup2(devnull, fd)
-        signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
-        resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
-        _, hard = resource.getrlimit(resource.RLIMIT_AS)
-        with open("/proc/self/statm") as f:
-            used = int(f.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
-        soft = used + int(memory_bytes)
-        if hard != resource.RLIM_INFINITY:
-            soft = min(soft, hard)
-        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
-        cpu = int(timeout_s) + 2
-        _, cpu_hard = resource.getrlimit(resource.RLIMIT_CPU)
-        if cpu_hard == resource.RLIM_INFINITY or cpu < cpu_hard:
-            resource.setrlimit(resource.RLIMIT_CPU, (cpu, cpu_hard))
-        try:
-            answer = ("ok", fn(*args))
-        except MagnetError as exc:
-            answer = ("error", type(exc).__name__ if type(exc).__name__ in _ERRORS else "MeshError", str(exc))
-        except MemoryError:
-            answer = ("memory",)
-        except BaseException:  # a reader's own exception: worded by the parent, never shown raw
-            answer = ("error", "MeshError", "")
-        _dump(answer, shm)
-        os.write(w, b"1")
-        code = 0
-    except BaseException:
-        pass
-    finally:
-        os._exit(code)
-
-
-def _dump(answer, shm: int) -> None:
-    """header (pickle length, buffer count, buffer lengths), the pickle, every buffer 64-byte aligned."""
-    buffers = []
-    data = pickle.dumps(answer, protocol=5, buffer_callback=buffers.append)
-    raws = [b.raw() for b in buffers]
-    head = struct.pack(f"<QQ{len(raws)}Q", len(data), len(raws), *(m.nbytes for m in raws))
-    with os.fdopen(os.dup(shm), "wb", buffering=0) as out:
-        pos = 0
-        for chunk in (head, data, *raws):
-            pad = -pos % _ALIGN
-            if pad:
-                out.write(b"\0" * pad)
-                pos += pad
-            view = memoryview(chunk).cast("B")
-            while view.nbytes:
-                n = out.write(view)
-                view, pos = view[n:], pos + n
 
 
 def _load(shm: int):

@@ -154,6 +154,31 @@ def read_vtu_simple(path: str | os.PathLike):
         return None
 
 
+_PIECE = re.compile(rb"<Piece\b([^>]*)>")
+_COUNT = re.compile(rb'\bNumberOf(Points|Cells)\s*=\s*"\s*(\d+)\s*"')
+_ZLIB_RATIO = 1100  # zlib inflates at most ~1032 bytes per byte
+
+
+def impossible_counts(path: str | os.PathLike, head_bytes: int = 1 << 16) -> str | None:
+    """What is wrong when a Piece in the head of a VTU announces more points or cells than the
+    whole file can hold (each needs at least a byte, zlib's ratio aside), else None. VTK's reader
+    believes such a number and runs for minutes (a seeded mutant: NumberOfCells="999999999")."""
+    size = os.path.getsize(path)
+    with open(os.fspath(path), "rb") as fh:
+        head = fh.read(head_bytes)
+    end = head.find(b"<AppendedData")
+    room = size * (_ZLIB_RATIO if b"compressor=" in head[: max(end, 0) or len(head)] else 1)
+    for piece in _PIECE.finditer(head, 0, end if end >= 0 else len(head)):
+        for what, number in _COUNT.findall(piece.group(1)):
+            n = int(number)
+            if n > room:
+                return (
+                    f"its Piece announces {n:,} {what.decode().lower()}, more than its {size:,} bytes "
+                    "can hold"
+                )
+    return None
+
+
 def _simple_vtu(data: bytes):
     from types import SimpleNamespace
 

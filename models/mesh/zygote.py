@@ -1,0 +1,436 @@
+"""The reader zygote: a small long-lived helper process that forks one short-lived child per read.
+
+A fork costs in proportion to the forking process's page tables: 10-35 ms from a service, worker or
+CLI process of 200-250 MB (numpy, scipy, VTK, torch loaded), more than VTK's whole read of a 10^4-cell
+file. The zygote is a fresh interpreter that imports only numpy, meshio and our readers with VTK's
+reader modules, once; its fork costs about a millisecond.
+
+One zygote per reading process, started lazily in the background at its first sandboxed read (that
+read, and any read while the zygote imports, forks the caller as before). Then, per read, through a
+Unix socket (SOCK_SEQPACKET): the caller sends (fn, args, limits, environment, working folder) and
+a memfd (socket.send_fds); the zygote forks a child that reads under the limits (_child below:
+RLIMIT_AS, RLIMIT_CPU) and writes its answer into the memfd; the zygote enforces the deadline,
+reports the child's pid and then its end (answered, killed by signal N, timed out), so the caller
+words a crash, a hang or a blow-up exactly as for a child of its own. If the zygote dies, the read in
+flight is done by a direct fork, a new zygote is started, and a log line (logger "magnet.read")
+says so; the user never sees it. The zygote exits when its caller closes the socket (exits).
+
+MAGNET_READ_ZYGOTE=0: no zygote (every sandboxed read forks the caller).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import pickle
+import select
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import threading
+import time
+
+from models.errors import MagnetError, MeshError, ModelError, ParameterError
+
+log = logging.getLogger("magnet.read")
+log.addHandler(logging.NullHandler())  # a library's log line: never printed to a CLI user unasked
+
+# what a read imports (the readers, the validation's modules and theirs), imported once in the
+# zygote: a child importing them itself would pay it on every read
+PRELOAD = (
+    "numpy",
+    "scipy.sparse",
+    "scipy.sparse.csgraph",
+    "scipy.sparse.linalg",
+    "scipy.linalg",
+    "meshio",
+    "models.native",
+    "models.mesh.read",
+    "models.mesh.vtu",
+    "models.mesh.ucd",
+    "models.mesh.geometry",
+    "models.mesh.orientation",
+    "models.mesh.boundary",
+    "models.mesh.dual",
+    "models.mesh.vtk_readers",
+    "vtkmodules.vtkCommonCore",
+    "vtkmodules.vtkCommonDataModel",
+    "vtkmodules.vtkIOXML",
+    "vtkmodules.vtkIOLegacy",
+    "vtkmodules.vtkIOExodus",
+    "vtkmodules.vtkIOXdmf2",
+    "vtkmodules.vtkIOCGNSReader",
+    "vtkmodules.vtkIOGeometry",
+    "vtkmodules.util.numpy_support",
+)
+# one tetrahedron, read once by the zygote before it says ready: the first call's costs (VTK's
+# object factories, numpy's and the validation's first paths) are paid there, not by every child
+_WARMUP = (
+    b"# vtk DataFile Version 4.2\nwarm-up\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 4 double\n"
+    b"0 0 0 1 0 0 0 1 0 0 0 1\nCELLS 1 5\n4 0 1 2 3\nCELL_TYPES 1\n10\n"
+)
+_ALIGN = 64
+_ERRORS = {"MeshError": MeshError, "ParameterError": ParameterError, "ModelError": ModelError}
+_MSG = 1 << 20  # the largest request (a pickled environment and a path: a few KB)
+_SLACK_S = 10.0  # the zygote enforces the deadline; the caller waits this much longer for its word
+
+
+class ZygoteLost(Exception):
+    """The zygote did not answer (it died, or its socket broke): read by a direct fork instead."""
+
+
+# ---------------------------------------------------------------- the caller's side
+
+
+class Zygote:
+    """The caller's handle: the zygote process and its socket."""
+
+    def __init__(self) -> None:
+        ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+        code = "import sys; sys.path[:0] = sys.argv[2:]; from models.mesh.zygote import serve; serve(int(sys.argv[1]))"
+        try:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-c", code, str(theirs.fileno()), *[p for p in sys.path if p]],
+                pass_fds=[theirs.fileno()],
+                stdin=subprocess.DEVNULL,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+                cwd=os.getcwd(),
+            )
+        except BaseException:
+            ours.close()
+            raise
+        finally:
+            theirs.close()
+        self.sock = ours
+        self.owner = os.getpid()
+        self.ready = False
+        self.lock = threading.Lock()
+
+    def poll_ready(self) -> bool:
+        """True once the zygote has imported its modules and said so (never blocks)."""
+        if not self.ready:
+            if not select.select([self.sock], [], [], 0)[0]:
+                return False
+            if self.sock.recv(16) != b"R":
+                raise ZygoteLost("the zygote ended while starting")
+            self.ready = True
+        return True
+
+    def run(self, request: bytes, shm: int, timeout_s: float):
+        """Send one read; ('timeout'|signal|0, answered) as sandbox._wait gives for a direct child."""
+        pid = None
+        done = False
+        try:
+            try:
+                socket.send_fds(self.sock, [request], [shm])
+            except OSError as exc:
+                raise ZygoteLost(f"cannot send to the zygote ({exc.strerror})") from None
+            limit = time.monotonic() + timeout_s + _SLACK_S
+            while True:
+                left = limit - time.monotonic()
+                if left <= 0:
+                    raise ZygoteLost("the zygote did not answer within the deadline")
+                try:
+                    if not select.select([self.sock], [], [], left)[0]:
+                        continue
+                    msg = self.sock.recv(4096)
+                except InterruptedError:
+                    continue
+                except OSError as exc:
+                    raise ZygoteLost(f"the zygote's socket broke ({exc.strerror})") from None
+                if not msg:
+                    raise ZygoteLost("the zygote ended")
+                kind, value = pickle.loads(msg)
+                if kind == "pid":
+                    pid = value
+                elif kind == "done":
+                    done = True
+                    return value
+        finally:
+            if not done and pid is not None:  # interrupted or lost: no reader left running
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                except (ProcessLookupError, PermissionError):
+                    pass
+
+    def close(self) -> None:
+        try:
+            self.sock.close()
+        finally:
+            if self.proc.poll() is None:
+                try:
+                    self.proc.wait(2)
+                except subprocess.TimeoutExpired:
+                    self.proc.kill()
+                    self.proc.wait()
+
+
+_ZYGOTE: Zygote | None = None
+_START = threading.Lock()
+
+
+def enabled() -> bool:
+    return os.environ.get("MAGNET_READ_ZYGOTE", "1") != "0"
+
+
+def acquire(start: bool = True) -> Zygote | None:
+    """This process's zygote, ready and locked for one read; None when there is none yet (started
+    now in the background when `start`), it is busy with another thread's read, or it cannot run."""
+    global _ZYGOTE
+    if not enabled():
+        return None
+    with _START:
+        z = _ZYGOTE
+        if z is not None and z.owner != os.getpid():  # inherited through a fork: its socket is the parent's
+            z = _ZYGOTE = None
+        if z is not None and z.proc.poll() is not None:
+            log.warning(
+                "the reader zygote (pid %d) ended (exit status %s); starting a new one",
+                z.proc.pid,
+                z.proc.returncode,
+            )
+            _discard(z)
+            z = _ZYGOTE = None
+        if z is None:
+            if start:
+                try:
+                    _ZYGOTE = Zygote()
+                except OSError as exc:
+                    log.warning("cannot start the reader zygote (%s); reading by direct forks", exc)
+            return None
+    if not z.lock.acquire(blocking=False):
+        return None
+    try:
+        if z.poll_ready():
+            return z
+    except (ZygoteLost, OSError) as exc:
+        lost(z, str(exc))
+    z.lock.release()
+    return None
+
+
+def release(z: Zygote) -> None:
+    z.lock.release()
+
+
+def lost(z: Zygote, why: str) -> None:
+    """The zygote failed a read: drop it (a new one starts at the next read) and say so in the log."""
+    global _ZYGOTE
+    log.warning("the reader zygote (pid %d) was lost: %s; starting a new one", z.proc.pid, why)
+    with _START:
+        if _ZYGOTE is z:
+            _ZYGOTE = None
+    _discard(z)
+
+
+def _discard(z: Zygote) -> None:
+    try:
+        z.sock.close()
+    except OSError:
+        pass
+    if z.proc.poll() is None:
+        z.proc.kill()
+    z.proc.wait()
+
+
+def shutdown() -> None:
+    """End this process's zygote (tests; it also ends by itself when this process exits)."""
+    global _ZYGOTE
+    with _START:
+        z, _ZYGOTE = _ZYGOTE, None
+    if z is not None and z.owner == os.getpid():
+        z.close()
+
+
+def wait_ready(timeout_s: float = 120.0) -> bool:
+    """Start this process's zygote if needed and wait until it serves reads (benches, tests)."""
+    limit = time.monotonic() + timeout_s
+    while time.monotonic() < limit:
+        z = acquire()
+        if z is not None:
+            release(z)
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def pid() -> int | None:
+    """The zygote's pid, if this process has one running."""
+    z = _ZYGOTE
+    return z.proc.pid if z is not None and z.owner == os.getpid() and z.proc.poll() is None else None
+
+
+# ---------------------------------------------------------------- the reading child (forked by
+# the zygote, or by the caller itself: models.mesh.sandbox)
+
+
+def _child(fn, args, shm: int, w: int, memory_bytes: int, timeout_s: float) -> None:
+    code = 1
+    try:
+        import faulthandler
+        import gc
+
+        gc.disable()  # a collection would touch every object: copy-on-write faults for nothing
+        import resource
+
+        faulthandler.disable()  # its dump would go to a copy of stderr kept apart (pytest, PYTHONFAULTHANDLER)
+        devnull = os.open(os.devnull, os.O_RDWR)
+        for fd in (0, 1, 2):  # a C++ reader's error text never reaches the user's terminal
+            os.dup2(devnull, fd)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+        resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+        _, hard = resource.getrlimit(resource.RLIMIT_AS)
+        with open("/proc/self/statm") as f:
+            used = int(f.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+        soft = used + int(memory_bytes)
+        if hard != resource.RLIM_INFINITY:
+            soft = min(soft, hard)
+        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
+        cpu = int(timeout_s) + 2
+        _, cpu_hard = resource.getrlimit(resource.RLIMIT_CPU)
+        if cpu_hard == resource.RLIM_INFINITY or cpu < cpu_hard:
+            resource.setrlimit(resource.RLIMIT_CPU, (cpu, cpu_hard))
+        try:
+            answer = ("ok", fn(*args))
+        except MagnetError as exc:
+            answer = ("error", type(exc).__name__ if type(exc).__name__ in _ERRORS else "MeshError", str(exc))
+        except MemoryError:
+            answer = ("memory",)
+        except BaseException:  # a reader's own exception: worded by the parent, never shown raw
+            answer = ("error", "MeshError", "")
+        _dump(answer, shm)
+        os.write(w, b"1")
+        code = 0
+    except BaseException:
+        pass
+    finally:
+        os._exit(code)
+
+
+def _dump(answer, shm: int) -> None:
+    """header (pickle length, buffer count, buffer lengths), the pickle, every buffer 64-byte aligned."""
+    buffers = []
+    data = pickle.dumps(answer, protocol=5, buffer_callback=buffers.append)
+    raws = [b.raw() for b in buffers]
+    head = struct.pack(f"<QQ{len(raws)}Q", len(data), len(raws), *(m.nbytes for m in raws))
+    with os.fdopen(os.dup(shm), "wb", buffering=0) as out:
+        pos = 0
+        for chunk in (head, data, *raws):
+            pad = -pos % _ALIGN
+            if pad:
+                out.write(b"\0" * pad)
+                pos += pad
+            view = memoryview(chunk).cast("B")
+            while view.nbytes:
+                n = out.write(view)
+                view, pos = view[n:], pos + n
+
+
+# ---------------------------------------------------------------- the zygote's side
+
+
+def serve(fd: int) -> None:
+    """The zygote's loop (in its own interpreter): preload, say ready, fork a child per request."""
+    import gc
+    import importlib
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the caller's to handle
+    sock = socket.socket(fileno=fd)
+    for name in PRELOAD:
+        try:
+            importlib.import_module(name)
+        except Exception:  # noqa: BLE001  (a module missing here is imported by the child that needs it)
+            pass
+    _warm_up()
+    gc.collect()
+    gc.freeze()  # the children never copy these objects' pages for a collection
+    sock.send(b"R")
+    pending: list[int] = []
+    while True:
+        try:
+            msg, fds, _, _ = socket.recv_fds(sock, _MSG, 1)
+        except OSError:
+            break
+        if not msg:  # the caller exited
+            break
+        for f in fds[1:]:
+            os.close(f)
+        if not fds:
+            continue
+        shm = fds[0]
+        fn, args, memory_bytes, timeout_s, env, cwd = pickle.loads(msg)
+        r, w = os.pipe()
+        child = os.fork()
+        if child == 0:  # never returns
+            sock.close()
+            os.close(r)
+            os.environ.clear()
+            os.environ.update(env)
+            try:
+                os.chdir(cwd)
+            except OSError:
+                pass
+            _child(fn, args, shm, w, memory_bytes, timeout_s)
+        os.close(w)
+        os.close(shm)
+        try:
+            sock.send(pickle.dumps(("pid", child)))
+            status = _watch(child, r, sock, timeout_s, pending)
+        finally:
+            os.close(r)
+        if status is None:  # the caller went away mid-read
+            break
+        sock.send(pickle.dumps(("done", status)))
+    sock.close()
+
+
+def _warm_up() -> None:
+    import tempfile
+
+    from models.mesh.read import read_mesh
+
+    try:
+        with tempfile.TemporaryDirectory(prefix="magnet-zygote-") as folder:
+            path = os.path.join(folder, "warm-up.vtk")
+            with open(path, "wb") as f:
+                f.write(_WARMUP)
+            read_mesh(path)
+    except Exception:  # noqa: BLE001  (a warm-up only: the reads work without it)
+        pass
+
+
+def _watch(child: int, r: int, sock: socket.socket, timeout_s: float, pending: list[int]):
+    """Wait for the child's answer byte, its end or the deadline; (status, answered) as
+    sandbox._wait, or None when the caller's socket closed (the child is then killed)."""
+    limit = time.monotonic() + timeout_s
+    while True:
+        left = limit - time.monotonic()
+        if left <= 0:
+            os.kill(child, signal.SIGKILL)
+            os.waitpid(child, 0)
+            return ("timeout", False)
+        try:
+            ready = select.select([r, sock], [], [], left)[0]
+        except InterruptedError:
+            continue
+        if r in ready:
+            break
+        if sock in ready:  # the caller never writes during a read: it closed, or died
+            os.kill(child, signal.SIGKILL)
+            os.waitpid(child, 0)
+            return None
+    answered = os.read(r, 1) == b"1"
+    if answered:  # the child exits on its own; collected at a later request
+        pending.append(child)
+        for p in list(pending):
+            try:
+                if os.waitpid(p, os.WNOHANG)[0]:
+                    pending.remove(p)
+            except ChildProcessError:
+                pending.remove(p)
+        return (0, True)
+    _, code = os.waitpid(child, 0)
+    return ((os.WTERMSIG(code) if os.WIFSIGNALED(code) else 0), False)
