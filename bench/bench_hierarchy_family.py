@@ -47,6 +47,8 @@ MODELS = {
     "rtree": ("rtree", None),
     "rtree-measure": ("rtree", {"balance": "measure"}),  # measure-weighted cuts (the default before issue 24)
     "rtree-principal": ("rtree", {"axes": "principal"}),  # cuts across each part's principal axis (numpy)
+    "rtree-strength": ("rtree", {"axes": "strength"}),  # cut axis across the weakest TPFA couplings (numpy)
+    "rtree-s-total": ("rtree", {"axes": "strength-mincut"}),  # the same, least crossing weight
     "rtree-r8": ("rtree", None),  # ratio 8 at every level (the default before round three)
     "rtree-kappa": ("rtree", None),  # cut in the metric of the member's tensor kappa (where it has one)
     "metis": ("metis", None),

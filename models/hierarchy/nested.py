@@ -508,6 +508,12 @@ def build_hierarchy(
             "balance": "cells",
             **(model_options or {}),
         }  # the tight cuts, as the flat modes make them
+        if (
+            str(opts.get("axes", "")).startswith("strength") and opts.get("coupling") is None
+        ):  # TPFA with K, true coordinates
+            from models.partition.rtree_strength import tpfa_coupling
+
+            opts["coupling"] = tpfa_coupling(G.indptr, G.indices, G.weights, data.centroids, kappa)
         graphs = []  # the graphs of the levels' elements, for the cavity check
         levels = rtree_levels(batch, counts, groups=tags, graphs=graphs, **opts)
         level_graphs = {len(levels) - 1 - j: q for j, q in enumerate(graphs)}

@@ -1,0 +1,98 @@
+"""Strength-aware cut axes for rtree hierarchies (issue 24, round four).
+
+rtree cuts each part across the longest extent of its box. For multigrid the cut should rather cross
+the operator's weak couplings: this module chooses, per part and halving step, among the 2 or 3 axes
+the one whose quantile plane is crossed by the least TPFA transmissibility (face measure / centroid
+distance, times d^T K d / |d|^2 for a diffusion tensor K) per unit of cut measure; near-ties (within
+a factor 1 + tol) keep the longest extent, so isotropic uniform meshes keep their shapes. The crossing
+weight of a plane is a segment sum over the edge list (edges inside the part whose endpoints rank on
+either side of the quantile along the axis). Numpy only: rtree_levels(axes="strength") runs
+split_counts' numpy halving step with this rule (the compiled cuts keep the longest extent).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from models.partition.rtree_split import _count_split
+
+PER_UNIT = True  # score: crossing weight per unit of cut measure (False: the crossing weight alone)
+TOL = 0.5  # the longest extent wins unless another axis' crossing weight per unit of cut is 1.5x smaller
+
+
+def tpfa_coupling(
+    indptr: np.ndarray, indices: np.ndarray, face: np.ndarray, x: np.ndarray, kappa: np.ndarray | None = None
+) -> np.ndarray:
+    """(nnz,) TPFA transmissibility of every CSR entry: |f| d^T K d / |d|^3 (K = diag(kappa), or I),
+    d the centroid-to-centroid vector (as models.hierarchy.multigrid.tpfa_poisson makes them)."""
+    rows = np.repeat(np.arange(indptr.size - 1), np.diff(indptr))
+    d = x[indices] - x[rows]
+    d2 = np.einsum("ij,ij->i", d, d)
+    kd = d2 if kappa is None else np.einsum("ij,ij->i", d * np.asarray(kappa, dtype=np.float64), d)
+    return np.asarray(face, dtype=np.float64) * kd / np.maximum(d2, 1e-300) ** 1.5
+
+
+class StrengthAxes:
+    """The cut-axis rule of _halving_step: called with (P, w, a_start, a_size, m, ext), returns each
+    active part's axis. indptr/indices/coupling: the cells' graph and its transmissibilities;
+    cell_ext (N, dim): the cells' box sizes (the cut measure of a part uses its extent plus one cell);
+    per_unit: score = crossing weight / cut measure (else the crossing weight alone: a min cut)."""
+
+    def __init__(self, indptr, indices, coupling, cell_ext, tol: float = TOL, per_unit: bool = True):
+        n = indptr.size - 1
+        rows = np.repeat(np.arange(n), np.diff(indptr))
+        keep = rows < indices  # each edge once
+        self.u, self.v = rows[keep], np.asarray(indices)[keep]
+        self.t = np.asarray(coupling, dtype=np.float64)[keep]
+        self.cell_ext = np.asarray(cell_ext, dtype=np.float64)
+        self.tol, self.per_unit = float(tol), bool(per_unit)
+
+    def __call__(self, P, w, a_start, a_size, m, ext):
+        dim, n = P.shape
+        na = a_start.size
+        a_off = np.zeros(na + 1, dtype=np.int64)
+        np.cumsum(a_size, out=a_off[1:])
+        tot = int(a_off[-1])
+        s0, e1 = a_off[:-1], a_off[1:] - 1
+        pos = np.repeat(a_start - s0, a_size) + np.arange(tot)
+        local = np.arange(tot) - np.repeat(s0, a_size)
+        owner = np.repeat(np.arange(na), a_size)
+        pid = np.full(n, -1, dtype=np.int64)
+        pid[P[0, pos]] = owner
+        pu = pid[self.u]
+        e = np.flatnonzero((pu >= 0) & (pu == pid[self.v]))  # edges inside an active part
+        eu, ev, et, ep = self.u[e], self.v[e], self.t[e], pu[e]
+        cross = np.empty((na, dim))
+        h = np.empty((na, dim))
+        rk = np.empty(n, dtype=np.int64)
+        for d in range(dim):  # a loop over the axes
+            cells = P[d, pos]
+            ws = w[cells]
+            cum = np.cumsum(ws)
+            base = cum[s0] - ws[s0]
+            vol = cum[e1] - base
+            m1, target = _count_split(m, base, vol, ext[:, d], dim)
+            cut = np.searchsorted(cum - 0.5 * ws, target) - s0
+            n0 = np.clip(cut, m1, a_size - (m - m1))
+            rk[cells] = local
+            split = (rk[eu] >= n0[ep]) != (rk[ev] >= n0[ep])
+            cross[:, d] = np.bincount(ep, weights=et * split, minlength=na)
+            h[:, d] = np.bincount(owner, weights=self.cell_ext[cells, d], minlength=na) / np.maximum(
+                a_size, 1
+            )
+        longest = np.argmax(ext, axis=1)
+        score = cross
+        if self.per_unit:
+            L = np.maximum(ext + h, 1e-300)
+            score = cross / (np.prod(L, axis=1)[:, None] / L)  # per unit of the plane's measure in the part
+        best = np.argmin(score, axis=1)
+        r = np.arange(na)
+        return np.where(score[r, longest] <= (1.0 + self.tol) * score[r, best], longest, best)
+
+
+def strength_rule(batch, coupling, lo, hi, per_unit: bool = PER_UNIT) -> StrengthAxes:
+    """The rule for the cells of `batch` (TPFA couplings of its centroids when `coupling` is None)."""
+    if coupling is None:
+        coupling = tpfa_coupling(batch.indptr, batch.indices, batch.weights, batch.centroids)
+    ext = hi - lo if lo is not None else np.zeros_like(batch.centroids)
+    return StrengthAxes(batch.indptr, batch.indices, coupling, ext, tol=TOL, per_unit=per_unit)
