@@ -11,7 +11,7 @@ from models.errors import ParameterError
 from models.hierarchy.nested import build_hierarchy, is_nested
 from models.mesh.read import mesh_from_arrays
 from models.partition.rtree import rtree_levels
-from models.partition.rtree_strength import tpfa_coupling
+from models.partition.rtree_strength import StrengthAxes, tpfa_coupling
 from models.pipeline import prepare
 
 
@@ -43,7 +43,7 @@ def _batch(m, d):
     )
 
 
-@pytest.mark.parametrize("axes", ["strength", "strength-mincut"])
+@pytest.mark.parametrize("axes", ["strength", "strength-mincut", "strength-position"])
 def test_strength_levels_nested_connected_exact(axes):
     p, c = tets(8)
     m = mesh_from_arrays(p, [("tetra", c)])
@@ -74,3 +74,21 @@ def test_bad_axes_refused():
     _, d = prepare(m)
     with pytest.raises(ParameterError, match="axes must be"):
         rtree_levels(_batch(m, d), [4], axes="diagonal")
+
+
+def test_cut_position_crosses_the_weakest_coupling_in_the_window():
+    # six cells in a row, couplings 5 5 5 1 5: the quantile cut (after 3 cells) would cross a 5;
+    # within the window (one cell either way) the cut after 4 cells crosses the weak 1
+    indptr = np.array([0, 1, 3, 5, 7, 9, 10])
+    indices = np.array([1, 0, 2, 1, 3, 2, 4, 3, 5, 4])
+    t = np.array([5, 5, 5, 5, 5, 5, 1, 1, 5, 5], dtype=float)
+    rule = StrengthAxes(indptr, indices, t, np.zeros((6, 1)))
+    order = np.arange(6)
+    axis = rule(order[None, :], np.ones(6), np.array([0]), np.array([6]), np.array([2]), np.array([[5.0]]))
+    assert axis.tolist() == [0]
+    mid = np.arange(6) + 0.5
+    cut = rule.cut(order, np.array([0]), np.array([5]), mid, np.array([3.0]), np.array([1.2]), np.array([3]))
+    assert cut.tolist() == [4]
+    # an empty window keeps the quantile's cut
+    cut = rule.cut(order, np.array([0]), np.array([5]), mid, np.array([3.0]), np.array([0.1]), np.array([3]))
+    assert cut.tolist() == [3]

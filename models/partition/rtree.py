@@ -211,7 +211,7 @@ def split_counts(
     return labels
 
 
-def _halving_step(P, x, w, a_start, a_size, m, side, lh_t, slack, axis_rule=None):
+def _halving_step(P, x, w, a_start, a_size, m, side, lh_t, slack, rule=None):
     """One halving step of split_counts in numpy (the twin of _fastgraph.cut_prepare + cut_apply;
     a change here needs the same change there, tests/test_fastgraph.py compares them bit for bit):
     every active part (range a_start, a_size of the axis orders P, m parts to make) cut in two, P's
@@ -225,7 +225,7 @@ def _halving_step(P, x, w, a_start, a_size, m, side, lh_t, slack, axis_rule=None
     s0, e1 = a_off[:-1], a_off[1:] - 1
     first, last = a_start, a_start + a_size - 1
     ext = np.column_stack([x[P[d, last], d] - x[P[d, first], d] for d in range(dim)])
-    axis = np.argmax(ext, axis=1) if axis_rule is None else axis_rule(P, w, a_start, a_size, m, ext)
+    axis = np.argmax(ext, axis=1) if rule is None else rule(P, w, a_start, a_size, m, ext)
     length = ext[np.arange(na), axis]
     ar = np.arange(tot)
     pos = np.repeat(a_start - s0, a_size)  # position in the orders of each cell of the active parts
@@ -239,7 +239,9 @@ def _halving_step(P, x, w, a_start, a_size, m, side, lh_t, slack, axis_rule=None
     mid = cum - 0.5 * ws  # measure before each cell's middle (increasing)
     m1, target = _count_split(m, base, vol, length, dim)
     cut = np.searchsorted(mid, target) - s0  # cells whose middle lies below the quantile
-    if lh_t is not None:
+    if getattr(rule, "position", False):  # the least crossing coupling inside the slack window
+        cut = rule.cut(chosen, s0, e1, mid, target, vol / np.maximum(m, 1) * slack, cut)
+    elif lh_t is not None:
         ax_n += chosen
         cut = _tight_cut(ax_n, lh_t, mid, target, vol / np.maximum(m, 1) * slack, s0, e1, cut, slack)
     n0 = np.clip(cut, m1, a_size - (m - m1))  # both sides keep at least as many cells as parts
@@ -640,10 +642,10 @@ def rtree_levels(
     self loops; rows sorted where no sweep renumbered them).
     axes: "box" (the cuts across the longest extent of each part's box, compiled where built) or
     "principal" (split_principal: across each part's own principal axis; numpy only, no tight cuts) or
-    "strength" / "strength-mincut" (rtree_strength: across the least `coupling`, (nnz,) transmissibilities
-    of the batch graph, TPFA when None, per unit of cut / in all; numpy only)."""
-    if axes not in ("box", "principal", "strength", "strength-mincut"):
-        raise ParameterError(f"axes must be box, principal, strength or strength-mincut, got {axes!r}")
+    "strength" / "strength-mincut" / "strength-position" (rtree_strength: axis and position by the least
+    `coupling` (nnz,) of the batch graph, TPFA when None, per unit of cut / in all / position only)."""
+    if axes not in ("box", "principal", "strength", "strength-mincut", "strength-position"):
+        raise ParameterError(f"axes must be box, principal or strength[-mincut|-position], got {axes!r}")
     w = batch.measures if balance == "measure" else np.ones(batch.n_nodes)
     w = np.asarray(w, dtype=np.float64)
     wp = np.maximum(w, 1e-300)
@@ -652,7 +654,7 @@ def rtree_levels(
     n_root = int(root.max()) + 1 if root.size else 0
     principal = axes == "principal"
     seg = None if principal else _Segments(batch.centroids, root, n_root)
-    rule = strength_rule(batch, coupling, lo, hi, axes == "strength") if axes[:8] == "strength" else None
+    rule = strength_rule(batch, coupling, lo, hi, axes) if axes[:8] == "strength" else None
     parent = root
     raw = []
     for c in counts:

@@ -6,8 +6,10 @@ the one whose quantile plane is crossed by the least TPFA transmissibility (face
 distance, times d^T K d / |d|^2 for a diffusion tensor K) per unit of cut measure; near-ties (within
 a factor 1 + tol) keep the longest extent, so isotropic uniform meshes keep their shapes. The crossing
 weight of a plane is a segment sum over the edge list (edges inside the part whose endpoints rank on
-either side of the quantile along the axis). Numpy only: rtree_levels(axes="strength") runs
-split_counts' numpy halving step with this rule (the compiled cuts keep the longest extent).
+either side of the quantile along the axis). Inside the slack window the cut's position is the one the
+least transmissibility crosses (instead of the least box overlap). Numpy only: rtree_levels(axes=
+"strength", "strength-mincut" or "strength-position") runs split_counts' numpy halving step with
+this rule (the compiled cuts keep the longest extent).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import numpy as np
 from models.partition.rtree_split import _count_split
 
 PER_UNIT = True  # score: crossing weight per unit of cut measure (False: the crossing weight alone)
+POSITION = True  # the cut's position inside the slack window: the least crossing coupling
 TOL = 0.5  # the longest extent wins unless another axis' crossing weight per unit of cut is 1.5x smaller
 
 
@@ -38,7 +41,9 @@ class StrengthAxes:
     cell_ext (N, dim): the cells' box sizes (the cut measure of a part uses its extent plus one cell);
     per_unit: score = crossing weight / cut measure (else the crossing weight alone: a min cut)."""
 
-    def __init__(self, indptr, indices, coupling, cell_ext, tol: float = TOL, per_unit: bool = True):
+    def __init__(
+        self, indptr, indices, coupling, cell_ext, tol=TOL, per_unit=True, axis=True, position=POSITION
+    ):
         n = indptr.size - 1
         rows = np.repeat(np.arange(n), np.diff(indptr))
         keep = rows < indices  # each edge once
@@ -46,6 +51,8 @@ class StrengthAxes:
         self.t = np.asarray(coupling, dtype=np.float64)[keep]
         self.cell_ext = np.asarray(cell_ext, dtype=np.float64)
         self.tol, self.per_unit = float(tol), bool(per_unit)
+        self.axis, self.position = bool(axis), bool(position)
+        self._e = None  # the edges inside the active parts of the current step (set by __call__)
 
     def __call__(self, P, w, a_start, a_size, m, ext):
         dim, n = P.shape
@@ -62,6 +69,10 @@ class StrengthAxes:
         pu = pid[self.u]
         e = np.flatnonzero((pu >= 0) & (pu == pid[self.v]))  # edges inside an active part
         eu, ev, et, ep = self.u[e], self.v[e], self.t[e], pu[e]
+        self._e = (eu, ev, et)
+        longest = np.argmax(ext, axis=1)
+        if not self.axis:
+            return longest
         cross = np.empty((na, dim))
         h = np.empty((na, dim))
         rk = np.empty(n, dtype=np.int64)
@@ -80,7 +91,6 @@ class StrengthAxes:
             h[:, d] = np.bincount(owner, weights=self.cell_ext[cells, d], minlength=na) / np.maximum(
                 a_size, 1
             )
-        longest = np.argmax(ext, axis=1)
         score = cross
         if self.per_unit:
             L = np.maximum(ext + h, 1e-300)
@@ -89,10 +99,57 @@ class StrengthAxes:
         r = np.arange(na)
         return np.where(score[r, longest] <= (1.0 + self.tol) * score[r, best], longest, best)
 
+    def cut(self, chosen, s0, e1, mid, target, window, cut):
+        """Per active part (positions s0..e1 of `chosen`, its cells sorted along the chosen axis), the
+        cut (cells before it go to side 0) whose middle measure lies within `window` of the quantile
+        `target` and that the least transmissibility crosses (ties: nearest the quantile); `cut`
+        where the window is empty. The crossing weight of every cut at once: each edge (ranks a < b)
+        crosses the cuts a+1..b, a difference array summed once."""
+        eu, ev, et = self._e
+        tot = chosen.size
+        idx = np.empty(int(chosen.max()) + 1 if tot else 0, dtype=np.int64)
+        idx[chosen] = np.arange(tot)
+        a, b = idx[eu], idx[ev]
+        lo, hi = np.minimum(a, b), np.maximum(a, b)
+        diff = np.bincount(lo + 1, weights=et, minlength=tot + 2) - np.bincount(
+            hi + 1, weights=et, minlength=tot + 2
+        )
+        cross = np.cumsum(diff)  # cross[j]: the weight crossing the cut before position j
+        wl = np.maximum(np.searchsorted(mid, target - window, side="left"), s0)
+        wh = np.minimum(np.searchsorted(mid, target + window, side="right"), e1)
+        wlen = np.maximum(wh - wl, 0)
+        if int(wlen.sum()) == 0:
+            return cut
+        na = s0.size
+        gw = np.repeat(np.arange(na), wlen)
+        w_off = np.zeros(na + 1, dtype=np.int64)
+        np.cumsum(wlen, out=w_off[1:])
+        wpos = np.repeat(wl - w_off[:-1], wlen) + np.arange(gw.size)  # cut after wpos
+        scale = max(float(np.abs(cross).max()), 1e-300)
+        dev = np.abs(mid[wpos] - target[gw]) / np.maximum(window[gw], 1e-300)
+        cost = np.maximum(cross[wpos + 1], 0.0) / scale + 1e-9 * dev
+        has = np.flatnonzero(wlen > 0)
+        cmin = np.minimum.reduceat(cost, w_off[:-1][has])
+        hit = np.flatnonzero(cost == np.repeat(cmin, wlen[has]))
+        best = hit[np.r_[True, gw[hit][1:] != gw[hit][:-1]]]
+        out = cut.copy()
+        out[gw[best]] = wpos[best] - s0[gw[best]] + 1
+        return out
 
-def strength_rule(batch, coupling, lo, hi, per_unit: bool = PER_UNIT) -> StrengthAxes:
-    """The rule for the cells of `batch` (TPFA couplings of its centroids when `coupling` is None)."""
+
+def strength_rule(batch, coupling, lo, hi, axes: str = "strength") -> StrengthAxes:
+    """The rule for the cells of `batch` (TPFA couplings of its centroids when `coupling` is None).
+    axes: "strength" (axis by crossing weight per unit of cut, position by crossing weight),
+    "strength-mincut" (axis by the crossing weight alone), "strength-position" (the longest extent,
+    position by crossing weight)."""
     if coupling is None:
         coupling = tpfa_coupling(batch.indptr, batch.indices, batch.weights, batch.centroids)
     ext = hi - lo if lo is not None else np.zeros_like(batch.centroids)
-    return StrengthAxes(batch.indptr, batch.indices, coupling, ext, tol=TOL, per_unit=per_unit)
+    return StrengthAxes(
+        batch.indptr,
+        batch.indices,
+        coupling,
+        ext,
+        per_unit=axes == "strength",
+        axis=axes != "strength-position",
+    )
