@@ -654,7 +654,7 @@ def rtree_levels(
     n_root = int(root.max()) + 1 if root.size else 0
     principal = axes == "principal"
     seg = None if principal else _Segments(batch.centroids, root, n_root)
-    rule = strength_rule(batch, coupling, lo, hi, axes) if axes[:8] == "strength" else None
+    rule = strength_rule(batch, coupling, lo, hi, axes, slack) if axes[:8] == "strength" else None
     parent = root
     raw = []
     for c in counts:

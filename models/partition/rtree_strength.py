@@ -35,14 +35,69 @@ def tpfa_coupling(
     return np.asarray(face, dtype=np.float64) * kd / np.maximum(d2, 1e-300) ** 1.5
 
 
+def _cross_at_cuts(n: int, cells: np.ndarray, eu, ev, et) -> np.ndarray:
+    """cross[j]: the weight of the edges (eu, ev, et) crossing the cut before position j of `cells`
+    (the active parts' cells, each part's sorted along an axis): an edge at positions a < b crosses
+    the cuts a+1..b, a difference array summed once."""
+    tot = cells.size
+    idx = np.empty(n, dtype=np.int64)
+    idx[cells] = np.arange(tot)
+    a, b = idx[eu], idx[ev]
+    lo, hi = np.minimum(a, b) + 1, np.maximum(a, b) + 1
+    return np.cumsum(
+        np.bincount(lo, weights=et, minlength=tot + 2) - np.bincount(hi, weights=et, minlength=tot + 2)
+    )
+
+
+def _least_in_window(cross, mid, target, window, s0, e1, cut):
+    """Per part (positions s0..e1), among the cuts whose middle measure lies within `window` of the
+    quantile `target`, the one the least weight crosses (ties: nearest the quantile): (weight, cut
+    as cells before it); the quantile's `cut` where the window is empty."""
+    cost = cross[s0 + np.clip(cut, 0, e1 - s0 + 1)].copy()
+    out = cut.copy()
+    wl = np.maximum(np.searchsorted(mid, target - window, side="left"), s0)
+    wh = np.minimum(np.searchsorted(mid, target + window, side="right"), e1)  # the cut after e1 is no cut
+    wlen = np.maximum(wh - wl, 0)
+    if int(wlen.sum()) == 0:
+        return cost, out
+    na = s0.size
+    gw = np.repeat(np.arange(na), wlen)
+    w_off = np.zeros(na + 1, dtype=np.int64)
+    np.cumsum(wlen, out=w_off[1:])
+    wpos = np.repeat(wl - w_off[:-1], wlen) + np.arange(gw.size)  # cut after wpos
+    scale = max(float(np.abs(cross).max()), 1e-300)
+    dev = np.abs(mid[wpos] - target[gw]) / np.maximum(window[gw], 1e-300)
+    c = np.maximum(cross[wpos + 1], 0.0)
+    key = c / scale + 1e-9 * dev
+    has = np.flatnonzero(wlen > 0)
+    kmin = np.minimum.reduceat(key, w_off[:-1][has])
+    hit = np.flatnonzero(key == np.repeat(kmin, wlen[has]))
+    best = hit[np.r_[True, gw[hit][1:] != gw[hit][:-1]]]
+    g = gw[best]
+    cost[g], out[g] = c[best], wpos[best] - s0[g] + 1
+    return cost, out
+
+
 class StrengthAxes:
     """The cut-axis rule of _halving_step: called with (P, w, a_start, a_size, m, ext), returns each
-    active part's axis. indptr/indices/coupling: the cells' graph and its transmissibilities;
-    cell_ext (N, dim): the cells' box sizes (the cut measure of a part uses its extent plus one cell);
-    per_unit: score = crossing weight / cut measure (else the crossing weight alone: a min cut)."""
+    active part's axis; then cut(...) places the cut on it. indptr/indices/coupling: the cells' graph
+    and its transmissibilities; cell_ext (N, dim): the cells' box sizes (the cut measure of a part
+    uses its extent plus one cell); per_unit: score = crossing weight / cut measure (else the
+    crossing weight alone: a min cut); axis: False keeps the longest extent; position: the cut inside
+    the slack window by the least crossing weight (the axis scored at its best cut there; False: at
+    the quantile, and the cut by the least box overlap); slack: rtree's, the window in final parts."""
 
     def __init__(
-        self, indptr, indices, coupling, cell_ext, tol=TOL, per_unit=True, axis=True, position=POSITION
+        self,
+        indptr,
+        indices,
+        coupling,
+        cell_ext,
+        tol=TOL,
+        per_unit=True,
+        axis=True,
+        position=POSITION,
+        slack=0.3,
     ):
         n = indptr.size - 1
         rows = np.repeat(np.arange(n), np.diff(indptr))
@@ -51,7 +106,7 @@ class StrengthAxes:
         self.t = np.asarray(coupling, dtype=np.float64)[keep]
         self.cell_ext = np.asarray(cell_ext, dtype=np.float64)
         self.tol, self.per_unit = float(tol), bool(per_unit)
-        self.axis, self.position = bool(axis), bool(position)
+        self.axis, self.position, self.slack = bool(axis), bool(position), float(slack)
         self._e = None  # the edges inside the active parts of the current step (set by __call__)
 
     def __call__(self, P, w, a_start, a_size, m, ext):
@@ -62,20 +117,18 @@ class StrengthAxes:
         tot = int(a_off[-1])
         s0, e1 = a_off[:-1], a_off[1:] - 1
         pos = np.repeat(a_start - s0, a_size) + np.arange(tot)
-        local = np.arange(tot) - np.repeat(s0, a_size)
         owner = np.repeat(np.arange(na), a_size)
         pid = np.full(n, -1, dtype=np.int64)
         pid[P[0, pos]] = owner
         pu = pid[self.u]
         e = np.flatnonzero((pu >= 0) & (pu == pid[self.v]))  # edges inside an active part
-        eu, ev, et, ep = self.u[e], self.v[e], self.t[e], pu[e]
+        eu, ev, et = self.u[e], self.v[e], self.t[e]
         self._e = (eu, ev, et)
         longest = np.argmax(ext, axis=1)
         if not self.axis:
             return longest
         cross = np.empty((na, dim))
         h = np.empty((na, dim))
-        rk = np.empty(n, dtype=np.int64)
         for d in range(dim):  # a loop over the axes
             cells = P[d, pos]
             ws = w[cells]
@@ -83,11 +136,12 @@ class StrengthAxes:
             base = cum[s0] - ws[s0]
             vol = cum[e1] - base
             m1, target = _count_split(m, base, vol, ext[:, d], dim)
-            cut = np.searchsorted(cum - 0.5 * ws, target) - s0
-            n0 = np.clip(cut, m1, a_size - (m - m1))
-            rk[cells] = local
-            split = (rk[eu] >= n0[ep]) != (rk[ev] >= n0[ep])
-            cross[:, d] = np.bincount(ep, weights=et * split, minlength=na)
+            mid = cum - 0.5 * ws
+            cut = np.clip(np.searchsorted(mid, target) - s0, m1, a_size - (m - m1))
+            window = vol / np.maximum(m, 1) * (self.slack if self.position else 0.0)
+            cross[:, d] = _least_in_window(
+                _cross_at_cuts(n, cells, eu, ev, et), mid, target, window, s0, e1, cut
+            )[0]
             h[:, d] = np.bincount(owner, weights=self.cell_ext[cells, d], minlength=na) / np.maximum(
                 a_size, 1
             )
@@ -103,41 +157,13 @@ class StrengthAxes:
         """Per active part (positions s0..e1 of `chosen`, its cells sorted along the chosen axis), the
         cut (cells before it go to side 0) whose middle measure lies within `window` of the quantile
         `target` and that the least transmissibility crosses (ties: nearest the quantile); `cut`
-        where the window is empty. The crossing weight of every cut at once: each edge (ranks a < b)
-        crosses the cuts a+1..b, a difference array summed once."""
+        where the window is empty."""
         eu, ev, et = self._e
-        tot = chosen.size
-        idx = np.empty(int(chosen.max()) + 1 if tot else 0, dtype=np.int64)
-        idx[chosen] = np.arange(tot)
-        a, b = idx[eu], idx[ev]
-        lo, hi = np.minimum(a, b), np.maximum(a, b)
-        diff = np.bincount(lo + 1, weights=et, minlength=tot + 2) - np.bincount(
-            hi + 1, weights=et, minlength=tot + 2
-        )
-        cross = np.cumsum(diff)  # cross[j]: the weight crossing the cut before position j
-        wl = np.maximum(np.searchsorted(mid, target - window, side="left"), s0)
-        wh = np.minimum(np.searchsorted(mid, target + window, side="right"), e1)
-        wlen = np.maximum(wh - wl, 0)
-        if int(wlen.sum()) == 0:
-            return cut
-        na = s0.size
-        gw = np.repeat(np.arange(na), wlen)
-        w_off = np.zeros(na + 1, dtype=np.int64)
-        np.cumsum(wlen, out=w_off[1:])
-        wpos = np.repeat(wl - w_off[:-1], wlen) + np.arange(gw.size)  # cut after wpos
-        scale = max(float(np.abs(cross).max()), 1e-300)
-        dev = np.abs(mid[wpos] - target[gw]) / np.maximum(window[gw], 1e-300)
-        cost = np.maximum(cross[wpos + 1], 0.0) / scale + 1e-9 * dev
-        has = np.flatnonzero(wlen > 0)
-        cmin = np.minimum.reduceat(cost, w_off[:-1][has])
-        hit = np.flatnonzero(cost == np.repeat(cmin, wlen[has]))
-        best = hit[np.r_[True, gw[hit][1:] != gw[hit][:-1]]]
-        out = cut.copy()
-        out[gw[best]] = wpos[best] - s0[gw[best]] + 1
-        return out
+        n = int(max(chosen.max(), eu.max() if eu.size else 0, ev.max() if ev.size else 0)) + 1
+        return _least_in_window(_cross_at_cuts(n, chosen, eu, ev, et), mid, target, window, s0, e1, cut)[1]
 
 
-def strength_rule(batch, coupling, lo, hi, axes: str = "strength") -> StrengthAxes:
+def strength_rule(batch, coupling, lo, hi, axes: str = "strength", slack: float = 0.3) -> StrengthAxes:
     """The rule for the cells of `batch` (TPFA couplings of its centroids when `coupling` is None).
     axes: "strength" (axis by crossing weight per unit of cut, position by crossing weight),
     "strength-mincut" (axis by the crossing weight alone), "strength-position" (the longest extent,
