@@ -48,6 +48,10 @@ MODELS = {
     "rtree-measure": ("rtree", {"balance": "measure"}),  # measure-weighted cuts (the default before issue 24)
     "rtree-principal": ("rtree", {"axes": "principal"}),  # cuts across each part's principal axis (numpy)
     "rtree-strength": ("rtree", {"axes": "strength"}),  # cut axis across the weakest TPFA couplings (numpy)
+    "rtree-box": (
+        "rtree",
+        {"axes": "box"},
+    ),  # longest extent, least box overlap (the default before round four)
     "rtree-s-total": ("rtree", {"axes": "strength-mincut"}),  # the same, least crossing weight
     "rtree-faces": ("rtree", None),  # finest step 1 + the cells' mean face count (tri 4, quad/tet 5, hex 7)
     "rtree-s-pos": ("rtree", {"axes": "strength-position"}),  # longest extent, cut position by couplings

@@ -92,3 +92,16 @@ def test_cut_position_crosses_the_weakest_coupling_in_the_window():
     # an empty window keeps the quantile's cut
     cut = rule.cut(order, np.array([0]), np.array([5]), mid, np.array([3.0]), np.array([0.1]), np.array([3]))
     assert cut.tolist() == [3]
+
+
+def test_build_hierarchy_default_is_the_min_cut_rule_and_kappa_keeps_box_cuts():
+    p, q = quads(40)
+    m = mesh_from_arrays(p, [("quad", q)])
+    _, d = prepare(m)
+    default, _ = build_hierarchy(m, d, model="rtree", coarsest=10)
+    mincut, _ = build_hierarchy(m, d, model="rtree", coarsest=10, model_options={"axes": "strength-mincut"})
+    assert all(np.array_equal(a, b) for a, b in zip(default, mincut, strict=True))
+    k = np.array([4.0, 1.0])
+    ak, _ = build_hierarchy(m, d, model="rtree", coarsest=10, kappa=k)
+    bk, _ = build_hierarchy(m, d, model="rtree", coarsest=10, kappa=k, model_options={"axes": "box"})
+    assert all(np.array_equal(a, b) for a, b in zip(ak, bk, strict=True))

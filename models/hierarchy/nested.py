@@ -506,6 +506,10 @@ def build_hierarchy(
         opts = {
             "boxes": batch.cell_boxes,
             "balance": "cells",
+            # cut axis and position by the least crossing TPFA transmissibility (issue 24 round four:
+            # layer-50 21 -> 17 iterations vs pyamg's 19, the 2D worst case 1.11 -> 1.09; numpy path);
+            # with kappa the box cuts in the K metric (a 16:1 grid: 18 iterations, min cut 26)
+            "axes": "strength-mincut" if kappa is None else "box",
             **(model_options or {}),
         }  # the tight cuts, as the flat modes make them
         if (
