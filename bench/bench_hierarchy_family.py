@@ -89,7 +89,7 @@ def metis_time(data, k: int) -> float:
     return time.perf_counter() - t
 
 
-def box_at(mesh, data, counts=(91, 364)) -> dict:
+def box_at(mesh, data, counts=(91, 364), axes="strength-mincut") -> dict:
     """Box ratio and coverage of rtree hierarchy levels of exactly `counts` elements (R3MG's measures
     at 91 and 364 elements; count-weighted cuts as build_hierarchy makes them; 2D members without
     holes)."""
@@ -108,7 +108,7 @@ def box_at(mesh, data, counts=(91, 364)) -> dict:
         node_ids=np.arange(n),
     )
     boxes = cell_boxes(data.points, data.offsets, data.connectivity)
-    levels = rtree_levels(batch, list(counts), balance="cells", boxes=boxes)
+    levels = rtree_levels(batch, list(counts), balance="cells", boxes=boxes, axes=axes)
     out = {}
     for c, lv in zip(counts, levels, strict=True):
         bm = box_measures(mesh.points, mesh.offsets, mesh.connectivity, lv, data.measures)
