@@ -47,12 +47,28 @@ MODELS = {
     "rtree": ("rtree", None),
     "rtree-measure": ("rtree", {"balance": "measure"}),  # measure-weighted cuts (the default before issue 24)
     "rtree-principal": ("rtree", {"axes": "principal"}),  # cuts across each part's principal axis (numpy)
+    "rtree-strength": ("rtree", {"axes": "strength"}),  # cut axis across the weakest TPFA couplings (numpy)
+    "rtree-box": (
+        "rtree",
+        {"axes": "box"},
+    ),  # longest extent, least box overlap (the default before round four)
+    "rtree-s-total": ("rtree", {"axes": "strength-mincut"}),  # the same, least crossing weight
+    "rtree-faces": ("rtree", None),  # finest step 1 + the cells' mean face count (tri 4, quad/tet 5, hex 7)
+    "rtree-s-pos": ("rtree", {"axes": "strength-position"}),  # longest extent, cut position by couplings
     "rtree-r8": ("rtree", None),  # ratio 8 at every level (the default before round three)
     "rtree-kappa": ("rtree", None),  # cut in the metric of the member's tensor kappa (where it has one)
     "metis": ("metis", None),
     "kmeans": ("kmeans", None),
     "sage-base": ("sage-base", None),
 }
+
+
+def face_ratio(mesh) -> tuple[float, float]:
+    """(1 + the cells' mean number of faces, 16): pyamg's aggregate of a cell and its face neighbours
+    (VTK ids: triangle 3 faces, quad 4, tetra 4, hexahedron 6, wedge 5, pyramid 5; others 4)."""
+    faces = np.full(256, 4.0)
+    faces[[5, 9, 10, 12, 13, 14]] = [3, 4, 4, 6, 5, 5]
+    return (1.0 + float(faces[mesh.cell_types].mean()), 16.0)
 
 
 def holed(mesh, graph, data, labels) -> int:
@@ -73,7 +89,7 @@ def metis_time(data, k: int) -> float:
     return time.perf_counter() - t
 
 
-def box_at(mesh, data, counts=(91, 364)) -> dict:
+def box_at(mesh, data, counts=(91, 364), axes="strength-mincut") -> dict:
     """Box ratio and coverage of rtree hierarchy levels of exactly `counts` elements (R3MG's measures
     at 91 and 364 elements; count-weighted cuts as build_hierarchy makes them; 2D members without
     holes)."""
@@ -92,7 +108,7 @@ def box_at(mesh, data, counts=(91, 364)) -> dict:
         node_ids=np.arange(n),
     )
     boxes = cell_boxes(data.points, data.offsets, data.connectivity)
-    levels = rtree_levels(batch, list(counts), balance="cells", boxes=boxes)
+    levels = rtree_levels(batch, list(counts), balance="cells", boxes=boxes, axes=axes)
     out = {}
     for c, lv in zip(counts, levels, strict=True):
         bm = box_measures(mesh.points, mesh.offsets, mesh.connectivity, lv, data.measures)
@@ -102,7 +118,7 @@ def box_at(mesh, data, counts=(91, 364)) -> dict:
 
 def row(name, mesh, graph, data, model, kappa, t_metis) -> dict:
     base, opts = MODELS[model]
-    ratio = 8.0 if model == "rtree-r8" else RATIO
+    ratio = 8.0 if model == "rtree-r8" else face_ratio(mesh) if model == "rtree-faces" else RATIO
     cut_k = None if model != "rtree-kappa" or kappa is None else np.asarray(kappa, dtype=np.float64)
     t = time.perf_counter()
     try:

@@ -506,8 +506,18 @@ def build_hierarchy(
         opts = {
             "boxes": batch.cell_boxes,
             "balance": "cells",
+            # cut axis and position by the least crossing TPFA transmissibility (issue 24 round four:
+            # layer-50 21 -> 17 iterations vs pyamg's 19, the 2D worst case 1.11 -> 1.09; numpy path);
+            # with kappa the box cuts in the K metric (a 16:1 grid: 18 iterations, min cut 26)
+            "axes": "strength-mincut" if kappa is None else "box",
             **(model_options or {}),
         }  # the tight cuts, as the flat modes make them
+        if (
+            str(opts.get("axes", "")).startswith("strength") and opts.get("coupling") is None
+        ):  # TPFA with K, true coordinates
+            from models.partition.rtree_strength import tpfa_coupling
+
+            opts["coupling"] = tpfa_coupling(G.indptr, G.indices, G.weights, data.centroids, kappa)
         graphs = []  # the graphs of the levels' elements, for the cavity check
         levels = rtree_levels(batch, counts, groups=tags, graphs=graphs, **opts)
         level_graphs = {len(levels) - 1 - j: q for j, q in enumerate(graphs)}

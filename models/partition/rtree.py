@@ -28,6 +28,7 @@ from models.native import compiled
 from models.partition.base import Partitioner
 from models.partition.rtree_principal import split_principal
 from models.partition.rtree_split import _count_split
+from models.partition.rtree_strength import strength_rule
 
 SLACK = 0.3  # cut moves up to 0.3 x one final part's measure for tighter boxes (BR .881 at 364 on the refined quads; VD .94 -> .83)
 
@@ -143,6 +144,7 @@ def split_counts(
     cell_hi: np.ndarray | None = None,
     slack: float = SLACK,
     segments: _Segments | None = None,
+    rule=None,
 ) -> np.ndarray:
     """Cut every group g (labels `grp` in 0..G-1) into need[g] parts by recursive weighted cuts.
 
@@ -150,6 +152,7 @@ def split_counts(
     the measure of one final part from the quantile to where the two sides' boxes overlap least (tighter
     boxes: higher box ratio, lower coverage; counts stay exact).
     segments: the cells' per-axis orders for these groups (rtree_levels passes them from level to level).
+    rule: None (longest extent) or a callable choosing each part's cut axis (rtree_strength; numpy only).
     Returns (N,) labels in 0..need.sum()-1, the parts of group g numbered need[:g].sum() onwards."""
     n, dim = x.shape
     grp = np.asarray(grp, dtype=np.int64)
@@ -163,7 +166,7 @@ def split_counts(
     tight = cell_lo is not None and slack > 0
     if tight:  # the boxes' bounds axis by axis: (dim * N,), axis d at d * N
         lh_t = seg.bounds(cell_lo, cell_hi)
-    fc = _compiled() if 0 < n and dim <= 3 else None
+    fc = _compiled() if 0 < n and dim <= 3 and rule is None else None
     if fc is not None:  # the per-cell work of every halving step in C (same operations, same results)
         xc = np.ascontiguousarray(x, dtype=np.float64)
         wc = np.ascontiguousarray(w, dtype=np.float64)
@@ -190,7 +193,7 @@ def split_counts(
             args = (Pf, lh_f, chosen_buf, mid_buf, a_start, a_size, axis, target, window, m1, m, slack, n0)
             fc.cut_apply(*args, *scratch)
         else:
-            n0, m1 = _halving_step(P, x, w, a_start, a_size, m, side, lh_t if tight else None, slack)
+            n0, m1 = _halving_step(P, x, w, a_start, a_size, m, side, lh_t if tight else None, slack, rule)
         start = np.concatenate([start, a_start + n0])
         size = np.concatenate([size, a_size - n0])
         size[act] = n0
@@ -208,7 +211,7 @@ def split_counts(
     return labels
 
 
-def _halving_step(P, x, w, a_start, a_size, m, side, lh_t, slack):
+def _halving_step(P, x, w, a_start, a_size, m, side, lh_t, slack, rule=None):
     """One halving step of split_counts in numpy (the twin of _fastgraph.cut_prepare + cut_apply;
     a change here needs the same change there, tests/test_fastgraph.py compares them bit for bit):
     every active part (range a_start, a_size of the axis orders P, m parts to make) cut in two, P's
@@ -222,7 +225,7 @@ def _halving_step(P, x, w, a_start, a_size, m, side, lh_t, slack):
     s0, e1 = a_off[:-1], a_off[1:] - 1
     first, last = a_start, a_start + a_size - 1
     ext = np.column_stack([x[P[d, last], d] - x[P[d, first], d] for d in range(dim)])
-    axis = np.argmax(ext, axis=1)
+    axis = np.argmax(ext, axis=1) if rule is None else rule(P, w, a_start, a_size, m, ext)
     length = ext[np.arange(na), axis]
     ar = np.arange(tot)
     pos = np.repeat(a_start - s0, a_size)  # position in the orders of each cell of the active parts
@@ -236,7 +239,9 @@ def _halving_step(P, x, w, a_start, a_size, m, side, lh_t, slack):
     mid = cum - 0.5 * ws  # measure before each cell's middle (increasing)
     m1, target = _count_split(m, base, vol, length, dim)
     cut = np.searchsorted(mid, target) - s0  # cells whose middle lies below the quantile
-    if lh_t is not None:
+    if getattr(rule, "position", False):  # the least crossing coupling inside the slack window
+        cut = rule.cut(chosen, s0, e1, mid, target, vol / np.maximum(m, 1) * slack, cut)
+    elif lh_t is not None:
         ax_n += chosen
         cut = _tight_cut(ax_n, lh_t, mid, target, vol / np.maximum(m, 1) * slack, s0, e1, cut, slack)
     n0 = np.clip(cut, m1, a_size - (m - m1))  # both sides keep at least as many cells as parts
@@ -620,6 +625,7 @@ def rtree_levels(
     slack: float = SLACK,
     graphs: list | None = None,
     axes: str = "box",
+    coupling: np.ndarray | None = None,
 ) -> list[np.ndarray]:
     """Nested labels for the element counts `counts` (coarsest first), each level connected.
 
@@ -635,9 +641,11 @@ def rtree_levels(
     the numbering of the returned labels (finest first, all levels but the coarsest; no repeats, no
     self loops; rows sorted where no sweep renumbered them).
     axes: "box" (the cuts across the longest extent of each part's box, compiled where built) or
-    "principal" (split_principal: across each part's own principal axis; numpy only, no tight cuts)."""
-    if axes not in ("box", "principal"):
-        raise ParameterError(f"axes must be 'box' or 'principal', got {axes!r}")
+    "principal" (split_principal: across each part's own principal axis; numpy only, no tight cuts) or
+    "strength" / "strength-mincut" / "strength-position" (rtree_strength: axis and position by the least
+    `coupling` (nnz,) of the batch graph, TPFA when None, per unit of cut / in all / position only)."""
+    if axes not in ("box", "principal", "strength", "strength-mincut", "strength-position"):
+        raise ParameterError(f"axes must be box, principal or strength[-mincut|-position], got {axes!r}")
     w = batch.measures if balance == "measure" else np.ones(batch.n_nodes)
     w = np.asarray(w, dtype=np.float64)
     wp = np.maximum(w, 1e-300)
@@ -646,6 +654,7 @@ def rtree_levels(
     n_root = int(root.max()) + 1 if root.size else 0
     principal = axes == "principal"
     seg = None if principal else _Segments(batch.centroids, root, n_root)
+    rule = strength_rule(batch, coupling, lo, hi, axes, slack) if axes[:8] == "strength" else None
     parent = root
     raw = []
     for c in counts:
@@ -654,7 +663,7 @@ def rtree_levels(
         if principal:
             parent = split_principal(parent, need, batch.centroids, wp)
         else:
-            parent = split_counts(parent, need, batch.centroids, wp, lo, hi, slack, segments=seg)
+            parent = split_counts(parent, need, batch.centroids, wp, lo, hi, slack, seg, rule)
         raw.append(parent)
     # element ids stay the raw part ids, so raw parent maps give each element's parents
     up = []  # up[L]: raw part of level L -> its raw part at level L-1 (root group for L = 0)
