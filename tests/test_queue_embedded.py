@@ -19,7 +19,7 @@ def test_embedded_serve_runs_jobs_survives_worker_death_and_restart(tmp_path):
     env = service_env(tmp_path / "data")
     serve, url = start_api(env, tmp_path, embedded_worker=True)
     try:
-        wait_until(lambda: workers_online(url) >= 1, 60, 0.2, "the embedded worker")
+        wait_until(lambda: workers_online(url) >= 1, 180, 0.2, "the embedded worker")
         api = Api(url)
         mesh = api.upload(tiny)
         for k in (2, 5):

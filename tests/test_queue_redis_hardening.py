@@ -63,7 +63,7 @@ def test_queued_jobs_are_resent_as_soon_as_redis_is_back(tmp_path):
     try:
         # a worker on the 'gpu' queue only: it sees the broker restart, but cannot run the cpu jobs
         procs.append(start_worker(env, tmp_path, "watcher", queues="gpu"))
-        wait_until(lambda: workers_online(url) >= 1, 60, 0.5, "the watcher")
+        wait_until(lambda: workers_online(url) >= 1, 180, 0.5, "the watcher")
         time.sleep(3)  # its reaper has seen this Redis
         api = Api(url)
         mesh = api.upload(square_mesh(tmp_path / "sq.vtu", 8))
