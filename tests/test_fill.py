@@ -17,6 +17,8 @@ import pytest
 
 gmsh = pytest.importorskip("gmsh")
 
+from surfaces import enclosed_volume, surface_of  # noqa: E402
+
 from models import api  # noqa: E402
 from models.errors import MeshError, ParameterError  # noqa: E402
 from models.mesh.fill import (  # noqa: E402
@@ -29,26 +31,6 @@ from models.mesh.fill import (  # noqa: E402
 from models.mesh.read import read_mesh  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def surface_of(build, h: float, curvature: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """The boundary triangles of an OCC shape made by build(occ), meshed by gmsh at size h."""
-    gmsh.initialize(readConfigFiles=False, interruptible=False)
-    try:
-        gmsh.option.setNumber("General.Terminal", 0)
-        gmsh.option.setNumber("Mesh.MeshSizeMax", h)
-        gmsh.option.setNumber("Mesh.MeshSizeMin", 0.3 * h)
-        gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", curvature)
-        build(gmsh.model.occ)
-        gmsh.model.occ.synchronize()
-        gmsh.model.mesh.generate(2)
-        tags, coords, _ = gmsh.model.mesh.getNodes()
-        index = np.zeros(int(tags.max()) + 1, dtype=np.int64)
-        index[tags.astype(np.int64)] = np.arange(len(tags))
-        _, nodes = gmsh.model.mesh.getElementsByType(2)
-        return coords.reshape(-1, 3).copy(), index[nodes.astype(np.int64)].reshape(-1, 3)
-    finally:
-        gmsh.finalize()
 
 
 def sphere(occ):
@@ -74,12 +56,6 @@ def cad(occ):
 def _write(path, points, tris):
     meshio.write(str(path), meshio.Mesh(points, [("triangle", tris)]))
     return path
-
-
-def enclosed_volume(points, tris) -> float:
-    """Divergence theorem on the triangles (the reference, computed here, not by the library)."""
-    p = points[tris]
-    return abs(float(np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum()) / 6)
 
 
 def tet_volume(points, tets) -> float:

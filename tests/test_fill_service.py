@@ -11,6 +11,8 @@ from fastapi.testclient import TestClient
 
 pytest.importorskip("gmsh")
 
+from surfaces import enclosed_volume, surface_of  # noqa: E402
+
 from jobqueue.settings import Settings  # noqa: E402
 from service.app import create_app  # noqa: E402
 from worker.tasks import execute_job  # noqa: E402
@@ -21,22 +23,7 @@ H = {"Authorization": "Bearer alice-token"}
 
 def ball(n: int = 12) -> tuple[np.ndarray, np.ndarray]:
     """A closed triangulated unit sphere, surface-meshed by gmsh."""
-    import gmsh
-
-    gmsh.initialize(readConfigFiles=False, interruptible=False)
-    try:
-        gmsh.option.setNumber("General.Terminal", 0)
-        gmsh.option.setNumber("Mesh.MeshSizeMax", 2.0 / n)
-        gmsh.model.occ.addSphere(0, 0, 0, 1)
-        gmsh.model.occ.synchronize()
-        gmsh.model.mesh.generate(2)
-        tags, coords, _ = gmsh.model.mesh.getNodes()
-        index = np.zeros(int(tags.max()) + 1, dtype=np.int64)
-        index[tags.astype(np.int64)] = np.arange(len(tags))
-        _, nodes = gmsh.model.mesh.getElementsByType(2)
-        return coords.reshape(-1, 3).copy(), index[nodes.astype(np.int64)].reshape(-1, 3)
-    finally:
-        gmsh.finalize()
+    return surface_of(lambda occ: occ.addSphere(0, 0, 0, 1), 2.0 / n)
 
 
 def upload(client, name: str, data: bytes):
@@ -50,8 +37,7 @@ def upload(client, name: str, data: bytes):
 
 def test_surface_upload_fill_job_and_open_surface(tmp_path):
     points, tris = ball()
-    p = points[tris]
-    ref = abs(np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6)
+    ref = enclosed_volume(points, tris)
     path = tmp_path / "ball.stl"
     meshio.write(str(path), meshio.Mesh(points, [("triangle", tris)]))
     settings = Settings(data_dir=tmp_path / "data", api_keys=KEYS)
