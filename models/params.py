@@ -241,11 +241,7 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
     boundary_tag = 1 if boundary_tag is None else boundary_tag
     threshold = _int(opts, "threshold", lo=2, hi=1_000_000)
     threshold = 200 if threshold is None else threshold
-    hierarchy = opts.get("hierarchy", False)
-    if hierarchy in ("true", "false"):  # form fields arrive as strings
-        hierarchy = hierarchy == "true"
-    if not isinstance(hierarchy, bool):
-        raise ParameterError(f"options.hierarchy must be true or false, got {hierarchy!r}")
+    hierarchy = _bool(opts, "hierarchy")
     ratio = _float(opts, "ratio")
     if ratio is not None and ratio < 2:
         raise ParameterError(f"options.ratio must be >= 2 (coarsening ratio per level), got {ratio}")
@@ -258,11 +254,7 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
             "coarsen or multilevel), not k-way, or options.ratio (a hierarchy of its own, like "
             "`magnet hierarchy`)"
         )
-    allow_extra = opts.get("allow_extra", False)
-    if allow_extra in ("true", "false"):
-        allow_extra = allow_extra == "true"
-    if not isinstance(allow_extra, bool):
-        raise ParameterError(f"options.allow_extra must be true or false, got {allow_extra!r}")
+    allow_extra = _bool(opts, "allow_extra")
     keep_groups = opts.get("keep_groups")
     if keep_groups is not None and not isinstance(keep_groups, bool):
         raise ParameterError(f"options.keep_groups must be true, false or null (auto), got {keep_groups!r}")
