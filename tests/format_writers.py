@@ -265,3 +265,144 @@ def write_fluent(path, points, hexes) -> str:
     out += ["(45 (2 fluid fluid)())", "(45 (3 interior default-interior)())", "(45 (4 wall walls)())"]
     Path(path).write_text("\n".join(out) + "\n")
     return str(path)
+
+
+# ---- Fluent CFF case (.cas.h5): the HDF5 layout VTK's vtkFLUENTCFFReader reads -------------------
+# /meshes/1 (attributes dimension, node/cell/face Offset and Count), nodes (zoneTopology, coords/<zone>),
+# cells (zoneTopology; ctype/<section> for a mixed zone, cellType 0), faces (zoneTopology,
+# nodes/<section> with nnodes and the flat 1-based node list, c0/<section> and c1/<section>), and
+# a /settings group (the reader's test for a CFF file). Fluent's element types: 1 triangle,
+# 2 tetrahedron, 3 quadrilateral, 4 hexahedron, 5 pyramid, 6 wedge; face types 2 line, 3 triangle,
+# 4 quadrilateral, 0 mixed.
+
+FLUENT_TYPES = {"triangle": 1, "tetra": 2, "quad": 3, "hexahedron": 4, "pyramid": 5, "wedge": 6}
+CELL_FACES = {  # each cell type's faces (edges in 2D), by local node
+    "triangle": [[0, 1], [1, 2], [2, 0]],
+    "quad": [[0, 1], [1, 2], [2, 3], [3, 0]],
+    "tetra": [[0, 1, 2], [0, 1, 3], [1, 2, 3], [0, 2, 3]],
+    "hexahedron": HEX_FACES,
+    "wedge": [[0, 1, 2], [3, 4, 5], [0, 1, 4, 3], [1, 2, 5, 4], [2, 0, 3, 5]],
+    "pyramid": [[0, 1, 2, 3], [0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]],
+}
+
+
+def _fluent_faces(points, cell_blocks):
+    """Every face once: (faces as node lists, c0, c1), interior faces first; cells numbered from 1
+    in block order. A face's nodes are ordered for its first cell c0: in 3D its right-hand normal
+    points into c0 (Fluent's rule), in 2D along c0's counter-clockwise boundary."""
+    dim = points.shape[1]
+    rows, owner = [], []
+    base = 0
+    for kind, cells in cell_blocks:
+        for f in CELL_FACES[kind]:
+            rows += [list(r) for r in cells[:, f]]
+            owner += list(base + 1 + np.arange(len(cells)))
+        base += len(cells)
+    owner = np.asarray(owner)
+    centre = np.concatenate([points[c].mean(axis=1) for _, c in cell_blocks])
+    keys = [tuple(sorted(r)) for r in rows]
+    first: dict = {}
+    faces, c0, c1 = [], [], []
+    for r, key, cell in zip(rows, keys, owner, strict=True):
+        if key in first:
+            c1[first[key]] = cell
+            continue
+        q = points[r]
+        out = q.mean(axis=0) - centre[cell - 1]
+        if dim == 3:
+            normal = sum(np.cross(q[i], q[(i + 1) % len(q)]) for i in range(len(q)))  # Newell
+            outward = float(normal @ out) > 0
+            r = r[::-1] if outward else r  # the right-hand normal into c0
+        else:
+            d = q[1] - q[0]
+            ccw = float(d[1] * out[0] - d[0] * out[1]) > 0  # the outward normal (dy, -dx): c0 on the left
+            r = r if ccw else r[::-1]
+        first[key] = len(faces)
+        faces.append(r)
+        c0.append(cell)
+        c1.append(0)
+    order = sorted(range(len(faces)), key=lambda i: c1[i] == 0)  # interior faces first
+    return [faces[i] for i in order], np.asarray(c0)[order], np.asarray(c1)[order]
+
+
+def write_fluent_h5(path, points, cell_blocks, mixed_zone: bool = False) -> str:
+    """A Fluent CFF case file: one cell zone per block (or, mixed_zone, one zone of cellType 0 whose
+    types come from a ctype section), one interior and one wall face zone; 2D when points are (n, 2)."""
+    import h5py
+
+    points = np.asarray(points, np.float64)
+    dim = points.shape[1]
+    faces, c0, c1 = _fluent_faces(points, cell_blocks)
+    n_cells = sum(len(c) for _, c in cell_blocks)
+    n_int = int((c1 > 0).sum())
+    u8, i4 = np.uint64, np.int32
+
+    def zone_topology(g, ids, mins, maxs, **extra):
+        t = g.create_group("zoneTopology")
+        t.attrs["nZones"] = u8(len(ids))
+        t["id"] = np.asarray(ids, i4)
+        t["minId"] = np.asarray(mins, u8)
+        t["maxId"] = np.asarray(maxs, u8)
+        t["dimension"] = np.full(len(ids), dim, u8)
+        for k, v in extra.items():
+            t[k] = np.asarray(v, i4)
+
+    def section(g, name, data, lo, hi):
+        d = g.create_dataset(name, data=data)
+        d.attrs["minId"], d.attrs["maxId"] = u8(lo), u8(hi)
+        return d
+
+    with h5py.File(str(path), "w") as f:
+        f.create_group("settings")
+        m = f.create_group("meshes").create_group("1")
+        m.attrs["dimension"] = i4(dim)
+        for what, count in (("node", len(points)), ("cell", n_cells), ("face", len(faces))):
+            m.attrs[what + "Offset"], m.attrs[what + "Count"] = u8(0), u8(count)
+        nodes = m.create_group("nodes")
+        zone_topology(nodes, [1], [1], [len(points)])
+        section(nodes.create_group("coords"), "1", points, 1, len(points))
+        cells = m.create_group("cells")
+        if mixed_zone:
+            types = np.concatenate([np.full(len(c), FLUENT_TYPES[k], np.int16) for k, c in cell_blocks])
+            zone_topology(cells, [2], [1], [n_cells], cellType=[0], childZoneId=[0])
+            ct = cells.create_group("ctype")
+            ct.attrs["nSections"] = u8(1)
+            s = ct.create_group("1")
+            s.attrs["elementType"], s.attrs["minId"], s.attrs["maxId"] = np.int16(0), u8(1), u8(n_cells)
+            s["cell-types"] = types
+        else:
+            hi = np.cumsum([len(c) for _, c in cell_blocks])
+            zone_topology(
+                cells,
+                list(range(2, 2 + len(cell_blocks))),
+                hi - [len(c) for _, c in cell_blocks] + 1,
+                hi,
+                cellType=[FLUENT_TYPES[k] for k, _ in cell_blocks],
+                childZoneId=[0] * len(cell_blocks),
+            )
+        fz = m.create_group("faces")
+        nb = len(cell_blocks) if not mixed_zone else 1
+        sizes = {len(r) for r in faces}
+        ftype = sizes.pop() if len(sizes) == 1 else 0
+        zone_topology(
+            fz,
+            [2 + nb, 3 + nb],
+            [1, n_int + 1],
+            [n_int, len(faces)],
+            zoneType=[2, 3],  # interior, wall
+            faceType=[ftype, ftype],
+            childZoneId=[0, 0],
+            shadowZoneId=[0, 0],
+            flags=[0, 0],
+        )
+        fn = fz.create_group("nodes")
+        fn.attrs["nSections"] = u8(1)
+        s = fn.create_group("1")
+        s.attrs["minId"], s.attrs["maxId"] = u8(1), u8(len(faces))
+        s["nnodes"] = np.array([len(r) for r in faces], np.int16)
+        s["nodes"] = (np.concatenate(faces) + 1).astype(np.uint32)
+        for name, cell, lo, hi in (("c0", c0, 1, len(faces)), ("c1", c1[:n_int], 1, n_int)):
+            g = fz.create_group(name)
+            g.attrs["nSections"] = u8(1)
+            section(g, "1", np.asarray(cell, np.uint32), lo, hi)
+    return str(path)

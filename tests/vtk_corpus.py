@@ -317,8 +317,10 @@ def _double(pd):
 
 
 def vtk_read(path: str):
-    ext = os.path.splitext(path)[1].lower()
-    if ext == ".vtk":
+    ext = ".cas.h5" if path.lower().endswith(".cas.h5") else os.path.splitext(path)[1].lower()
+    if ext == ".cas.h5":
+        r = vtk.vtkFLUENTCFFReader()  # cell zones only (no face zones are read by default)
+    elif ext == ".vtk":
         r = vtk.vtkDataSetReader()
     elif ext in (".exo", ".e"):
         r = vtk.vtkExodusIIReader()
