@@ -406,3 +406,87 @@ def write_fluent_h5(path, points, cell_blocks, mixed_zone: bool = False) -> str:
             g.attrs["nSections"] = u8(1)
             section(g, "1", np.asarray(cell, np.uint32), lo, hi)
     return str(path)
+
+
+# ---- CGNS through the CGNS library itself (ADF or HDF5): the one bundled in the vtk wheel ---------
+# libvtkcgns.so exports the mid-level library with a vtkcgns_ prefix (cg_open, cg_base_write,
+# cg_zone_write, cg_coord_write, cg_section_write, cg_poly_section_write, ...), ADF compiled in,
+# cgsize_t 64-bit. CGNS enums used: CG_MODE_WRITE 1; CG_FILE_ADF 1, CG_FILE_HDF5 2; ZoneType
+# Unstructured 3; DataType RealDouble 4; ElementType TRI_3 5, QUAD_4 7, TETRA_4 10, PYRA_5 12,
+# PENTA_6 14, HEXA_8 17, MIXED 20.
+
+CGNS_FILE_TYPES = {"adf": 1, "hdf5": 2}
+CGNS_MIXED = 20
+
+
+def cgns_library():
+    """The CGNS library of the vtk wheel (ctypes), or None when it is not there or lacks a writer."""
+    import ctypes
+
+    import vtkmodules
+
+    path = os.path.join(os.path.dirname(vtkmodules.__file__), "libvtkcgns.so")
+    if not os.path.exists(path):
+        return None
+    lib = ctypes.CDLL(path)
+    need = ("cg_set_file_type", "cg_open", "cg_base_write", "cg_zone_write", "cg_coord_write")
+    need += ("cg_section_write", "cg_poly_section_write", "cg_close", "cg_get_error", "cg_get_file_type")
+    if not all(hasattr(lib, "vtkcgns_" + n) for n in need):
+        return None
+    return lib
+
+
+def write_cgns_lib(path, zones, file_type: str = "adf", mixed: bool = False, cell_dim: int = 3) -> str:
+    """A CGNS file written by the CGNS library (ADF or HDF5 container): zones = [(points,
+    [(meshio type, cells)])], one Elements_t section per block, or (mixed) one MIXED section per
+    zone; 2D zones (cell_dim 2) get CoordinateX and CoordinateY only."""
+    import ctypes
+
+    lib = cgns_library()
+    i, i64, ref = ctypes.c_int, ctypes.c_int64, ctypes.byref
+
+    def call(name, *args):
+        if getattr(lib, "vtkcgns_" + name)(*args) != 0:
+            err = getattr(lib, "vtkcgns_cg_get_error")
+            err.restype = ctypes.c_char_p
+            raise RuntimeError(f"{name}: {err().decode()}")
+
+    def ptr(a):
+        return a.ctypes.data_as(ctypes.c_void_p)
+
+    fn, b, z, c, s = i(), i(), i(), i(), i()
+    call("cg_set_file_type", i(CGNS_FILE_TYPES[file_type]))
+    call("cg_open", str(path).encode(), i(1), ref(fn))
+    try:
+        call("cg_base_write", fn, b"Base", i(cell_dim), i(cell_dim), ref(b))
+        for zi, (pts, cell_blocks) in enumerate(zones, 1):
+            ncell = sum(len(cells) for _, cells in cell_blocks)
+            size = np.array([len(pts), ncell, 0], np.int64)
+            call("cg_zone_write", fn, b, f"Zone{zi}".encode(), ptr(size), i(3), ref(z))
+            for axis in range(cell_dim):
+                x = np.ascontiguousarray(pts[:, axis], np.float64)
+                call("cg_coord_write", fn, b, z, i(4), f"Coordinate{'XYZ'[axis]}".encode(), ptr(x), ref(c))
+            if mixed:
+                rows = [
+                    np.column_stack([np.full(len(cells), CGNS_TYPES[k]), cells + 1])
+                    for k, cells in cell_blocks
+                ]
+                conn = np.concatenate([r.ravel() for r in rows]).astype(np.int64)
+                widths = np.concatenate([np.full(len(r), r.shape[1]) for r in rows])
+                offsets = np.concatenate([[0], np.cumsum(widths)]).astype(np.int64)
+                call(
+                    "cg_poly_section_write", fn, b, z, b"Mixed", i(CGNS_MIXED), i64(1), i64(ncell),
+                    i(0), ptr(conn), ptr(offsets), ref(s),
+                )  # fmt: skip
+                continue
+            start = 1
+            for bi, (kind, cells) in enumerate(cell_blocks):
+                conn = np.ascontiguousarray(cells + 1, np.int64).ravel()
+                call(
+                    "cg_section_write", fn, b, z, f"Elements{bi}".encode(), i(CGNS_TYPES[kind]),
+                    i64(start), i64(start + len(cells) - 1), i(0), ptr(conn), ref(s),
+                )  # fmt: skip
+                start += len(cells)
+    finally:
+        call("cg_close", fn)
+    return str(path)
