@@ -447,7 +447,7 @@ def write_cgns_lib(path, zones, file_type: str = "adf", mixed: bool = False, cel
 
     def call(name, *args):
         if getattr(lib, "vtkcgns_" + name)(*args) != 0:
-            err = getattr(lib, "vtkcgns_cg_get_error")
+            err = lib.vtkcgns_cg_get_error
             err.restype = ctypes.c_char_p
             raise RuntimeError(f"{name}: {err().decode()}")
 
