@@ -197,6 +197,12 @@ def write_corpus(folder: Path) -> dict[str, Path]:
     fw.write_gambit(out("mesh.neu"), bp, bblocks)
     fw.write_avs_binary(out("mesh_bin.inp"), bp, bblocks)
     fw.write_fluent(out("fluent.msh"), *fw.grid(2, 2, 1))
+    fp, fh = fw.grid(2, 2, 1)
+    fw.write_fluent_h5(out("zones_fluent.cas.h5"), fp, [("hexahedron", fh)])  # Fluent CFF (HDF5)
+    if fw.cgns_library() is not None:  # CGNS/ADF by the CGNS library of the vtk wheel
+        fw.write_cgns_lib(
+            out("zones_adf.cgns"), [(zp, [("hexahedron", zc)]) for zp, zc in fw.split_zones(fp, fh)]
+        )
     return files
 
 

@@ -32,7 +32,7 @@ from models.mesh.container import (
     VTK_WEDGE,
     Mesh,
 )
-from models.mesh.formats import MESH_EXTENSIONS, extension
+from models.mesh.formats import MESH_EXTENSIONS, extension, format_name
 
 # meshio cell type name -> (VTK type, topological dimension, number of corner nodes kept)
 _TYPES: dict[str, tuple[int, int, int]] = {
@@ -188,9 +188,47 @@ def read_mesh(
     except NativeReaderNeeded:
         raise
     except MeshError as exc:
-        name = os.path.basename(path)
-        msg = str(exc)
-        raise MeshError(msg if name in msg else f"{name}: {msg}") from None
+        raise MeshError(_refusal(str(exc), path, file_format)) from None
+
+
+def _refusal(msg: str, path: str, file_format: str | None) -> str:
+    """A reader's or a check's refusal as one sentence naming the file, the format tried and,
+    where it can be known, the place."""
+    name, fmt = os.path.basename(path), format_name(path, file_format)
+    msg = _with_place(msg, path, file_format)
+    if name in msg and fmt in msg:
+        return msg
+    for prefix in (f"cannot read {name}: ", f"{name}: "):
+        if msg.startswith(prefix):
+            msg = msg[len(prefix) :]
+    return f"cannot read {name} as {fmt}: {msg}"
+
+
+# the text formats whose structure models.mesh.locate follows: pick_reader's answer -> its kind
+_LOCATABLE = {
+    ("vtk", "legacy"): "legacy",
+    ("meshio", "vtk"): "legacy",
+    ("meshio", "gmsh"): "gmsh",
+    ("ucd", ""): "ucd",
+}
+PLACE = re.compile(r"\b(?:line|byte offset|byte|offset) \d|\bsection [$A-Z]")
+
+
+def _with_place(msg: str, path: str, file_format: str | None) -> str:
+    """A refusal of a text file that says no place gets the place where the file goes wrong, when
+    a scan of its structure finds one (models.mesh.locate): the line, the section, what was expected."""
+    if PLACE.search(msg):
+        return msg
+    try:
+        kind = _LOCATABLE.get(pick_reader(path, file_format))
+    except (MeshError, OSError):
+        return msg
+    if kind is None:
+        return msg
+    from models.mesh.locate import locate
+
+    where = locate(path, kind)
+    return f"{msg.rstrip('.')}; {where}" if where else msg
 
 
 def _read(path: str, physical_tag, file_format, weld, native: bool = True) -> Mesh:
@@ -214,7 +252,9 @@ def _read(path: str, physical_tag, file_format, weld, native: bool = True) -> Me
     if family == "vtk":
         from models.mesh.vtk_readers import read_vtk
 
-        return read_vtk(path, detail, physical_tag=physical_tag, weld=weld)
+        return read_vtk(
+            path, detail, physical_tag=physical_tag, weld=weld, fmt=format_name(path, file_format)
+        )
     return mesh_from_meshio(_read_meshio(path, detail), physical_tag=physical_tag, weld=weld, owned=True)
 
 

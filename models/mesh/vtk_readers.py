@@ -10,7 +10,7 @@ file's point set (Exodus with SqueezePoints off, Fluent zones) keep it, others h
 coincident points merged, as vtkAppendFilter's MergePoints does.
 
 VTK's readers report errors on the output window, not as exceptions: they are captured and turned
-into one sentence of ours (file, reader, what was wrong and where, when VTK says where).
+into one sentence of ours (file, format, what was wrong and where, when VTK says where).
 """
 
 from __future__ import annotations
@@ -52,19 +52,24 @@ EXODUS_EXTENSIONS = (".exo", ".e", ".ex2", ".exii", ".g", ".gen")
 HIDDEN_CELL, HIDDEN_POINT = 32, 2  # vtkDataSetAttributes ghost bits
 
 
-def read_vtk(path: str, kind: str, physical_tag: str | None = None, weld: float | None = None):
-    """Read `path` with VTK's reader for `kind` (a key of READERS) and build our `Mesh`."""
+def read_vtk(
+    path: str, kind: str, physical_tag: str | None = None, weld: float | None = None, fmt: str | None = None
+):
+    """Read `path` with VTK's reader for `kind` (a key of READERS) and build our `Mesh`. fmt: the
+    format's name as users know it (formats.format_name), in every refusal; the reader's own by default.
+    A refusal names the file, the format and, when VTK says it, the place; never VTK's class names."""
     from models.mesh.build import mesh_from_cells
 
     what, cls, _ = READERS[kind]
-    data = _run(path, kind)
-    pts, offsets, conn, types, cell_data, poly = _arrays(data, path, what, cls)
+    fmt = fmt or what
+    data = _run(path, kind, fmt)
+    pts, offsets, conn, types, cell_data, poly = _arrays(data, path, what, fmt)
     grid = _lattice(data, len(types))
     field = _field_data(data)
     del data
     if len(types) == 0:
         raise MeshError(
-            f"cannot read {os.path.basename(path)} with VTK's {cls} ({what}): it holds no cells "
+            f"cannot read {os.path.basename(path)} as {fmt}: it holds no cells "
             f"(is it truncated, or not a {what} file?)"
         )
     tag_key = _tag_key(cell_data, physical_tag)
@@ -74,7 +79,7 @@ def read_vtk(path: str, kind: str, physical_tag: str | None = None, weld: float 
     try:
         norm = normalize(offsets, conn, types, tags=tags, bnd_tags=btags, poly=poly, n_points=len(pts))
     except MeshError as exc:
-        raise MeshError(f"{os.path.basename(path)} ({what}): {exc}") from None
+        raise MeshError(f"cannot read {os.path.basename(path)} as {fmt}: {exc}") from None
     meta = {"reader": f"VTK {cls}", "format": what}
     if norm.notes:
         meta["higher_order"] = "; ".join(norm.notes)
@@ -146,6 +151,8 @@ class _Captured:
         return self
 
     def _on_error(self, _obj, _event, data=None):
+        if isinstance(data, bytes):  # a message quoting the file's bytes that are not UTF-8
+            data = data.decode("utf-8", "replace")
         self.errors.append(str(data or "error"))
 
     _on_error.CallDataType = 8  # VTK_STRING: the message comes as call data
@@ -154,6 +161,8 @@ class _Captured:
         from vtkmodules.vtkCommonCore import vtkLogger, vtkOutputWindow
 
         text = self.win.GetOutput() or ""
+        if isinstance(text, bytes):
+            text = text.decode("utf-8", "replace")
         vtkOutputWindow.SetInstance(self.prev)
         vtkLogger.SetStderrVerbosity(self.verbosity)
         self.text = "\n".join([*self.errors, text])
@@ -161,10 +170,11 @@ class _Captured:
         return False
 
 
-def _run(path: str, kind: str):
+def _run(path: str, kind: str, fmt: str | None = None):
     import importlib
 
     what, cls, module = READERS[kind]
+    fmt = fmt or what
     reader = getattr(importlib.import_module(module), cls)()
     name = os.path.basename(path)
     with _Captured() as cap:
@@ -188,9 +198,9 @@ def _run(path: str, kind: str):
         reader.Update()
         out = reader.GetOutputDataObject(0)
     if cap.failed:
-        raise MeshError(f"cannot read {name} with VTK's {cls} ({what}): {explain(cap.text, what)}")
+        raise MeshError(f"cannot read {name} as {fmt}: {explain(cap.text, what)}")
     if out is None:
-        raise MeshError(f"cannot read {name} with VTK's {cls} ({what}): the reader produced no data")
+        raise MeshError(f"cannot read {name} as {fmt}: the reader produced no data")
     return out
 
 
@@ -283,14 +293,14 @@ def _cell_data(ds) -> dict:
     return out
 
 
-def _arrays(data, path: str, what: str, cls: str):
+def _arrays(data, path: str, what: str, fmt: str):
     """(points, offsets, connectivity, types, cell data {name: array}, polyhedron faces or None)."""
     if data.IsA("vtkCompositeDataSet"):
-        return _composite(data, path, what, cls)
-    return _dataset(data, path, what, cls)
+        return _composite(data, path, what, fmt)
+    return _dataset(data, path, what, fmt)
 
 
-def _dataset(ds, path, what, cls):
+def _dataset(ds, path, what, fmt):
     if ds.IsA("vtkUnstructuredGrid"):
         out = _unstructured(ds)
     elif ds.IsA("vtkPolyData"):
@@ -299,7 +309,7 @@ def _dataset(ds, path, what, cls):
         out = _structured(ds)
     else:
         raise MeshError(
-            f"cannot read {os.path.basename(path)} with VTK's {cls} ({what}): it holds a {ds.GetClassName()[3:]}, not a mesh"
+            f"cannot read {os.path.basename(path)} as {fmt}: it holds a {ds.GetClassName()[3:]}, not a mesh"
         )
     return _hide_blanked(ds, *out)
 
@@ -500,15 +510,13 @@ def _leaves(data) -> list:
     return out
 
 
-def _composite(data, path, what, cls):
+def _composite(data, path, what, fmt):
     """Element blocks / zones joined in one cell set; a `block` tag (1, 2, ...) where the blocks
     carry no tag of their own."""
     leaves = _leaves(data)
     if not leaves:
-        raise MeshError(
-            f"cannot read {os.path.basename(path)} with VTK's {cls} ({what}): the file has no cells"
-        )
-    parts = _distinct([_dataset(ds, path, what, cls) for ds in leaves])
+        raise MeshError(f"cannot read {os.path.basename(path)} as {fmt}: the file has no cells")
+    parts = _distinct([_dataset(ds, path, what, fmt) for ds in leaves])
     if len(parts) == 1:
         pts, off, conn, types, cd, poly = parts[0]
         if not any(k in cd for k in TAG_NAMES):

@@ -1,0 +1,329 @@
+"""Where a text mesh file goes wrong: the line, the section and what was expected there.
+
+Run only after a reader refused a file (or its mesh failed a check) and said no place: a plain
+scan of the file's structure, section by section, for the text formats whose layout is simple
+enough to follow here: legacy VTK ASCII (unstructured grids), gmsh ASCII (2.2 and 4.x) and AVS UCD
+ASCII. It returns a phrase such as "line 12 (section POINTS, from line 5): 'x' where a number is
+expected", or None when it finds nothing wrong (the reader's own reason then stands alone).
+
+A refusal path, not a hot one: a loop over tokens is fine here, files over LIMIT bytes are not
+scanned.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+
+LIMIT = 64 << 20
+_INT = re.compile(rb"[-+]?\d+\Z")
+_FLOAT = re.compile(rb"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?\Z|[-+]?(nan|inf|infinity)\Z", re.IGNORECASE)
+
+
+class _Found(Exception):
+    """The first problem: its phrase."""
+
+
+def _show(tok: bytes) -> str:
+    """A token as a user can read it, quoted; bytes that are not printable text are not shown."""
+    if not tok:
+        return "nothing"
+    text = tok[:24].decode("ascii", "replace")
+    if any(not (32 < ord(c) < 127) for c in text):
+        return "bytes that are not text"
+    return repr(text + ("..." if len(tok) > 24 else ""))
+
+
+class _Tokens:
+    """Whitespace-separated tokens with their line numbers (1-based), and the section being read."""
+
+    def __init__(self, lines: list[bytes], first: int, stop: int | None = None):
+        self.lines, self.i, self.toks, self.k = lines, first, [], 0
+        self.stop = len(lines) if stop is None else stop  # a section's end line (0-based), or the file's
+        self.section, self.since = "", 0
+
+    def enter(self, name: str, since: int | None = None) -> None:
+        """A section starts: on the line read last when tokens are left on it, else on the next."""
+        if since is None:
+            since = self.line if self.k < len(self.toks) else self.line + 1
+        self.section, self.since = name, since
+
+    @property
+    def line(self) -> int:
+        return self.i  # 1-based number of the line the last token came from
+
+    def next(self, what: str) -> bytes:
+        while self.k >= len(self.toks):
+            if self.i >= self.stop:
+                if self.stop < len(self.lines):
+                    raise _Found(
+                        f"line {self.stop + 1:,}: section {self.section} (from line {self.since}) "
+                        f"ends where {what} is expected"
+                    )
+                where = f" in section {self.section} (from line {self.since})" if self.section else ""
+                raise _Found(f"the file ends{where} where {what} is expected")
+            self.toks, self.k = self.lines[self.i].split(), 0
+            self.i += 1
+        self.k += 1
+        return self.toks[self.k - 1]
+
+    def rest_of_line(self) -> list[bytes]:
+        out, self.k = self.toks[self.k :], len(self.toks)
+        return out
+
+    def fail(self, tok: bytes, what: str) -> None:
+        sec = f" (section {self.section}, from line {self.since})" if self.section else ""
+        raise _Found(f"line {self.line:,}{sec}: {_show(tok)} where {what} is expected")
+
+    def int(self, what: str = "an integer", lo: int | None = None, hi: int | None = None) -> int:
+        tok = self.next(what)
+        if not _INT.match(tok):
+            self.fail(tok, what)
+        v = int(tok)
+        if (lo is not None and v < lo) or (hi is not None and v > hi):
+            self.fail(tok, what)
+        return v
+
+    def number(self, what: str = "a number") -> None:
+        tok = self.next(what)
+        if not _FLOAT.match(tok):
+            self.fail(tok, what)
+
+
+def locate(path: str | os.PathLike, kind: str) -> str | None:
+    """The first problem in `path` read as `kind` ("legacy", "gmsh" or "ucd"), or None."""
+    try:
+        if os.path.getsize(path) > LIMIT:
+            return None
+        with open(path, "rb") as fh:
+            data = fh.read()
+    except OSError:
+        return None
+    lines = data.split(b"\n")
+    try:
+        {"legacy": _legacy, "gmsh": _gmsh, "ucd": _ucd}[kind](lines)
+    except _Found as found:
+        return str(found)
+    except (KeyError, ValueError, IndexError, OverflowError):
+        return None
+    return None
+
+
+# ---- legacy VTK ASCII --------------------------------------------------------------------------
+
+_VTK_STOP = (b"POINT_DATA", b"CELL_DATA", b"FIELD", b"METADATA")
+
+
+def _legacy(lines: list[bytes]) -> None:
+    if not lines[0].lower().startswith(b"# vtk datafile version"):
+        raise _Found("line 1: the header '# vtk DataFile Version x.x' is expected")
+    if len(lines) < 4:
+        raise _Found("the file ends before its header does (4 lines: version, title, ASCII, DATASET)")
+    if lines[2].strip().upper() != b"ASCII":
+        return  # binary: not a text scan
+    ds = lines[3].split()
+    if len(ds) != 2 or ds[0].upper() != b"DATASET":
+        raise _Found("line 4: 'DATASET UNSTRUCTURED_GRID' (or another dataset type) is expected")
+    if ds[1].upper() != b"UNSTRUCTURED_GRID":
+        return
+    t = _Tokens(lines, 4)
+    n_points = None
+    while True:
+        try:
+            key = t.next("a section keyword").upper()
+        except _Found:
+            return  # the end of the file between sections
+        if key in _VTK_STOP:
+            return
+        t.enter(key.decode("ascii", "replace"))
+        if key == b"POINTS":
+            n_points = t.int("the number of points", lo=0)
+            t.next("the points' data type")
+            for _ in range(3 * n_points):
+                t.number("a coordinate")
+        elif key == b"CELLS":
+            n = t.int("the number of cells", lo=0)
+            size = t.int("the size of the cell list", lo=0)
+            ids = "a point id" + (f" in 0..{n_points - 1}" if n_points else "")
+            hi = None if n_points is None else n_points - 1
+            save = (t.i, t.toks, t.k)
+            if t.next("the cell list").upper() == b"OFFSETS":  # the 5.x layout
+                t.next("the offsets' data type")
+                for _ in range(n):
+                    t.int("an offset", lo=0, hi=size)
+                if t.next("CONNECTIVITY").upper() != b"CONNECTIVITY":
+                    t.fail(t.toks[t.k - 1], "the keyword CONNECTIVITY")
+                t.next("the connectivity's data type")
+                for _ in range(size):
+                    t.int(ids, lo=0, hi=hi)
+                continue
+            t.i, t.toks, t.k = save
+            used = 0
+            for _ in range(n):
+                k = t.int("a cell's number of points", lo=1)
+                for _ in range(k):
+                    t.int(ids, lo=0, hi=hi)
+                used += k + 1
+                if used > size:
+                    raise _Found(
+                        f"line {t.line:,} (section CELLS, from line {t.since}): the cells hold more "
+                        f"numbers than the {size:,} the header announces"
+                    )
+        elif key == b"CELL_TYPES":
+            n = t.int("the number of cell types", lo=0)
+            for _ in range(n):
+                t.int("a VTK cell type (1..81)", lo=1, hi=81)
+        else:
+            t.section = ""
+            t.fail(key, "a section keyword (POINTS, CELLS, CELL_TYPES, POINT_DATA or CELL_DATA)")
+
+
+# ---- gmsh ASCII ---------------------------------------------------------------------------------
+
+# gmsh element type -> number of nodes
+GMSH_NODES = {1: 2, 2: 3, 3: 4, 4: 4, 5: 8, 6: 6, 7: 5, 8: 3, 9: 6, 10: 9, 11: 10, 12: 27, 13: 18}
+GMSH_NODES.update({14: 14, 15: 1, 16: 8, 17: 20, 18: 15, 19: 13, 20: 9, 21: 10, 22: 12, 23: 15})
+GMSH_NODES.update({24: 15, 25: 21, 26: 4, 27: 5, 28: 6, 29: 20, 30: 35, 31: 56, 92: 64, 93: 125})
+
+
+def _gmsh(lines: list[bytes]) -> None:
+    version, nodes = None, set()
+    i = 0
+    while i < len(lines):
+        head = lines[i].strip()
+        i += 1
+        if not head:
+            continue
+        if not head.startswith(b"$"):
+            raise _Found(f"line {i:,}: {_show(head.split()[0])} where a section ('$Name') is expected")
+        name = head[1:].decode("ascii", "replace")
+        start = i
+        end = next((j for j in range(i, len(lines)) if lines[j].strip().startswith(b"$")), len(lines))
+        if end == len(lines) or lines[end].strip() != b"$End" + head[1:]:
+            found = "the end of the file" if end == len(lines) else f"line {end + 1:,}"
+            raise _Found(f"section ${name} (from line {start:,}) has no $End{name} before {found}")
+        t = _Tokens(lines, i, stop=end)
+        t.enter("$" + name, since=start)
+        if name == "MeshFormat":
+            v = t.next("the format version ('2.2' or '4.1')")
+            if not _FLOAT.match(v):
+                t.fail(v, "the format version ('2.2' or '4.1')")
+            version = float(v)
+            if t.int("the file type (0 ASCII, 1 binary)", lo=0, hi=1) == 1:
+                return  # binary: not a text scan
+        elif name == "Nodes" and version is not None:
+            nodes = _gmsh_nodes(t, version)
+        elif name == "Elements" and version is not None:
+            _gmsh_elements(t, version, nodes)
+        if name in ("Nodes", "Elements") and version is not None:
+            left, at = t.rest_of_line(), t.line
+            for j in range(t.i, end):
+                if left:
+                    break
+                left, at = lines[j].split(), j + 1
+            if left:
+                raise _Found(
+                    f"line {at:,} (section ${name}, from line {start:,}): {_show(left[0])} after the "
+                    f"entries the section announces, where $End{name} is expected"
+                )
+        i = end + 1
+
+
+def _gmsh_nodes(t: _Tokens, version: float) -> set:
+    tags = set()
+    if version < 4:
+        for _ in range(t.int("the number of nodes", lo=0)):
+            tags.add(t.int("a node tag", lo=1))
+            for _ in range(3):
+                t.number("a coordinate")
+        return tags
+    blocks = t.int("the number of entity blocks", lo=0)
+    for _ in range(3):
+        t.int("a node count or tag", lo=0)
+    for _ in range(blocks):
+        t.int("an entity dimension (0..3)", lo=0, hi=3)
+        t.int("an entity tag")
+        param = t.int("the parametric flag (0 or 1)", lo=0, hi=1)
+        n = t.int("the number of nodes in the block", lo=0)
+        block = [t.int("a node tag", lo=1) for _ in range(n)]
+        tags.update(block)
+        for _ in range(n * 3):
+            t.number("a coordinate")
+        if param:
+            return tags  # parametric coordinates: their count depends on the entity; stop here
+    return tags
+
+
+def _gmsh_elements(t: _Tokens, version: float, nodes: set) -> None:
+    def node():
+        v = t.int("a node tag", lo=1)
+        if nodes and v not in nodes:
+            t.fail(str(v).encode(), "a node tag that $Nodes defines")
+
+    if version < 4:
+        for _ in range(t.int("the number of elements", lo=0)):
+            t.int("an element tag", lo=1)
+            etype = t.int("an element type")
+            if etype not in GMSH_NODES:
+                t.fail(str(etype).encode(), "an element type gmsh defines")
+            for _ in range(t.int("the number of tags", lo=0)):
+                t.int("a tag")
+            for _ in range(GMSH_NODES[etype]):
+                node()
+        return
+    blocks = t.int("the number of entity blocks", lo=0)
+    for _ in range(3):
+        t.int("an element count or tag", lo=0)
+    for _ in range(blocks):
+        t.int("an entity dimension (0..3)", lo=0, hi=3)
+        t.int("an entity tag")
+        etype = t.int("an element type")
+        if etype not in GMSH_NODES:
+            t.fail(str(etype).encode(), "an element type gmsh defines")
+        for _ in range(t.int("the number of elements in the block", lo=0)):
+            t.int("an element tag", lo=1)
+            for _ in range(GMSH_NODES[etype]):
+                node()
+
+
+# ---- AVS UCD ASCII -----------------------------------------------------------------------------
+
+_UCD_NODES = {b"pt": 1, b"line": 2, b"tri": 3, b"quad": 4, b"tet": 4, b"pyr": 5, b"prism": 6, b"hex": 8}
+
+
+def _ucd(lines: list[bytes]) -> None:
+    first = next((j for j, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith(b"#")), None)
+    if first is None:
+        raise _Found("the file holds only comments where the header 'n_points n_cells 0 0 0' is expected")
+    t = _Tokens(lines, first)
+    t.enter("header")
+    n_pts = t.int("the number of points", lo=0)
+    n_cells = t.int("the number of cells", lo=0)
+    for _ in range(3):
+        t.int("a data count (0)", lo=0, hi=0)
+    t.enter("points")
+    ids = set()
+    for _ in range(n_pts):
+        ids.add(t.int("a point id"))
+        if len(t.toks) != 4:
+            raise _Found(f"line {t.line:,} (section points, from line {t.since}): 'id x y z' is expected")
+        for _ in range(3):
+            t.number("a coordinate")
+    t.enter("cells")
+    for _ in range(n_cells):
+        t.int("a cell id")
+        t.int("a material id")
+        kind = t.next("a cell type (pt line tri quad tet pyr prism hex)")
+        if kind.lower() not in _UCD_NODES:
+            t.fail(kind, "a cell type (pt line tri quad tet pyr prism hex)")
+        for _ in range(_UCD_NODES[kind.lower()]):
+            v = t.int("a point id")
+            if v not in ids:
+                t.fail(str(v).encode(), "a point id that the points section defines")
+        if t.k != len(t.toks):
+            t.fail(
+                t.toks[t.k], f"the end of the line (a {kind.decode()} has {_UCD_NODES[kind.lower()]} points)"
+            )
+
+
+__all__ = ["locate", "LIMIT"]
