@@ -95,7 +95,17 @@ def format_name(path: str | os.PathLike, file_format: str | None = None) -> str:
         key = "." + file_format.lower().lstrip(".")
         return FORMATS.get(key, COMPOUND.get(key, file_format))
     ext = extension(path)
+    if ext == ".msh" and _first_byte(path) == b"(":  # .msh is gmsh's and Fluent's extension
+        return "Fluent case"
     return FORMATS.get(ext) or COMPOUND.get(ext) or "mesh"
+
+
+def _first_byte(path) -> bytes:
+    try:
+        with open(path, "rb") as f:
+            return f.read(1)
+    except OSError:
+        return b""
 
 
 __all__ = [

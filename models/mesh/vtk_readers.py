@@ -70,7 +70,7 @@ def read_vtk(
     if len(types) == 0:
         raise MeshError(
             f"cannot read {os.path.basename(path)} as {fmt}: it holds no cells "
-            f"(is it truncated, or not a {what} file?)"
+            f"(is it truncated, or not {article(what)} file?)"
         )
     tag_key = _tag_key(cell_data, physical_tag)
     tags = None if tag_key is None else _int_tags(cell_data[tag_key], len(types))
@@ -249,10 +249,15 @@ _KINDS = (
             "not a valid",
             "open file",
         ),
-        "it cannot be opened as a {what} file",
+        "it cannot be opened as {a_what} file",
     ),
     (("netcdf", "hdf5", "h5"), "its binary container (netCDF / HDF5) is corrupted"),
 )
+
+
+def article(what: str) -> str:
+    """'an Exodus II', 'a legacy VTK': the indefinite article by the first letter."""
+    return ("an " if what[:1].lower() in "aeiou" else "a ") + what
 
 
 def explain(text: str, what: str) -> str:
@@ -261,7 +266,7 @@ def explain(text: str, what: str) -> str:
     text = re.sub(r"\b\S+\.(cxx|h|txx|hxx):\d+", "", text)
     low = text.lower()
     said = next(
-        (msg for keys, msg in _KINDS if any(k in low for k in keys)), "it is corrupted or not a {what} file"
+        (msg for keys, msg in _KINDS if any(k in low for k in keys)), "it is corrupted or not {a_what} file"
     )
     where = []
     seen = set()
@@ -270,7 +275,7 @@ def explain(text: str, what: str) -> str:
         if key not in seen and key != "piece":
             seen.add(key)
             where.append(f"{key} {int(m.group(2)):,}")
-    said = said.format(what=what)
+    said = said.format(a_what=article(what))
     return f"{said} (at {', '.join(where[:3])})" if where else said
 
 
