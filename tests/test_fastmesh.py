@@ -22,6 +22,8 @@ def _perturbed(p, seed=0, amount=0.15):
 def _meshes():
     p, h = hexes(6)
     yield "hexahedra", _perturbed(p), [("hexahedron", h)]
+    p7, h7 = hexes(7)  # 343 cells: blocks of four (measure_hex4) and a remainder of three
+    yield "hexahedra, 7^3", _perturbed(p7, 6), [("hexahedron", h7)]
     rng = np.random.default_rng(1)
     mirrored = h.copy()
     sel = rng.random(len(h)) < 0.3  # some cells given inside out: the orientation flips them
