@@ -111,7 +111,7 @@ def _simple(data: bytes):
         rows = flat.reshape(n_cells, k + 1)
         if not np.all(rows[:, 0] == k):
             return None
-        cells = rows[:, 1:]
+        cells = rows.astype(np.int32)[:, 1:]  # byte order first, whole rows (one pass, contiguous)
     words = cur.line()
     if words != [b"CELL_TYPES", words[1] if len(words) == 2 else b""] or _count(words[1]) != n_cells:
         return None
