@@ -218,18 +218,18 @@ def _simple_vtu(data: bytes):
             out = out.reshape(-1, int(attrs[b"NumberOfComponents"]))
         return out
 
-    p_attrs, p_text = sections[b"Points"][0]
-    points = array(p_attrs, p_text).reshape(n_points, int(p_attrs[b"NumberOfComponents"]))
     cells = {attrs[b"Name"]: (attrs, text) for attrs, text in sections.get(b"Cells", ())}
     if set(cells) != {b"connectivity", b"offsets", b"types"}:
         return None
-    types = array(*cells[b"types"])
+    types = array(*cells[b"types"])  # first: a file of other cells is declined before the big arrays
     offsets = array(*cells[b"offsets"])
     if types.shape != (n_cells,) or offsets.shape != (n_cells,) or n_cells == 0:
         return None
     t = int(types[0])
     if t not in _SIMPLE_CELLS or not np.all(types == t):
         return None
+    p_attrs, p_text = sections[b"Points"][0]
+    points = array(p_attrs, p_text).reshape(n_points, int(p_attrs[b"NumberOfComponents"]))
     name, k = _SIMPLE_CELLS[t]
     conn = array(*cells[b"connectivity"])
     if conn.shape != (k * n_cells,) or not np.array_equal(offsets, np.arange(k, k * n_cells + 1, k)):
@@ -270,9 +270,11 @@ def _appended(section, sections: dict) -> dict:
     raw = attrs.get(b"encoding") == b"raw"
     if not raw and attrs.get(b"encoding") != b"base64":
         raise ValueError("unknown AppendedData encoding")
-    blob = body[body.index(b"_") + 1 :]
-    if not raw:
-        blob = blob.rstrip()
+    start = bytes(body[:4096]).index(b"_") + 1
+    stop = len(body)
+    while not raw and stop > start and body[stop - 1] in b" \t\r\n":
+        stop -= 1
+    blob = body[start:stop]  # memoryview slices: the arrays' bytes are not copied
     ends = [*offsets[1:], len(blob)]
     if offsets[0] < 0 or ends[-1] < offsets[-1]:
         raise ValueError("an appended array's offset is past the end of the data")
@@ -338,7 +340,7 @@ def _scan_vtu(data: bytes):
             end = data.rfind(b"</AppendedData>")  # raw bytes may hold '<': the last closing tag
             if end < gt:
                 return None, None
-            sections[b"appended"] = [(attrs, data[gt + 1 : end])]
+            sections[b"appended"] = [(attrs, memoryview(data)[gt + 1 : end])]  # a view, not a copy
             pos = end + len(b"</AppendedData>")
             continue
         if depth >= len(expected) or (expected[depth] is not None and name != expected[depth]):
