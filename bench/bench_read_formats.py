@@ -11,6 +11,7 @@ service and the worker read every upload: the child forked by this process, or b
 
   python bench/bench_read_formats.py            # ~13,824-98,304 cells per file
   python bench/bench_read_formats.py --n 30     # larger
+  python bench/bench_read_formats.py --in-process   # VTK and ours in-process only
 """
 
 from __future__ import annotations
@@ -156,6 +157,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=24, help="cells per side of the hexahedral grids")
     ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument(
+        "--in-process", action="store_true", help="VTK and ours in-process only (no sandboxed columns)"
+    )
     args = ap.parse_args()
     import vtk  # noqa: F401  (imported before the clocks: both sides use it loaded)
 
@@ -165,6 +169,16 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         files = corpus(tmp, args.n)
         print(f"# read stage vs VTK reader + vtk_to_numpy, best of {args.repeat} alternating runs")
+        if args.in_process:
+            print("| file | cells | VTK s | ours in-process s | in-process / VTK |")
+            print("|---|---|---|---|---|")
+            for name, path, cells in files:
+                a, b = [], []
+                for _ in range(args.repeat):
+                    a.append(vtk_side(path))
+                    b.append(ours(path))
+                print(f"| {name} | {cells:,} | {min(a):.4f} | {min(b):.4f} | {min(b) / min(a):.2f} |")
+            return
         from models.mesh import zygote
 
         if not zygote.wait_ready():

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from meshes import hexes, mixed_3d, wedges
+from meshes import hexes, mixed_3d, tets, wedges
 
 from models.errors import MeshError
 from models.mesh.read import mesh_from_arrays
@@ -22,6 +22,8 @@ def _perturbed(p, seed=0, amount=0.15):
 def _meshes():
     p, h = hexes(6)
     yield "hexahedra", _perturbed(p), [("hexahedron", h)]
+    p7, h7 = hexes(7)  # 343 cells: blocks of four (measure_hex4) and a remainder of three
+    yield "hexahedra, 7^3", _perturbed(p7, 6), [("hexahedron", h7)]
     rng = np.random.default_rng(1)
     mirrored = h.copy()
     sel = rng.random(len(h)) < 0.3  # some cells given inside out: the orientation flips them
@@ -83,3 +85,37 @@ def test_a_degenerate_hexahedron_is_still_refused():
     h[3, 4:] = h[3, :4]  # its top on its bottom: zero volume
     with pytest.raises(MeshError, match="degenerate"):
         _read(p, [("hexahedron", h)])
+
+
+def test_compiled_consistency_in_large_buckets_equals_numpy():
+    """Tetrahedra: ~24 faces share a smallest node (the buckets compared by chains of keys, not
+    pairwise); the compiled check answers as orientation._consistent for the cells' own signs and
+    for random flips (most of them contradictions)."""
+    fast = compiled("mesh._fastmesh")
+    from models.mesh.container import VTK_TETRA
+    from models.mesh.geometry import cell_faces, fixed_template
+    from models.mesh.orientation import _consistent
+
+    p, t = tets(5)
+    m = mesh_from_arrays(p, [("tetra", t)])  # oriented: every cell positive
+    c = m.connectivity.reshape(-1, 4)
+    tmpl, tsize = fixed_template(VTK_TETRA)
+    conn = np.ascontiguousarray(c, dtype=np.int64).reshape(-1)
+    npts = np.array([len(p)], dtype=np.int64)
+    faces = cell_faces(m)
+    starts = np.bincount(c[:, tmpl.reshape(4, 3)].min(axis=2).reshape(-1))  # faces per smallest node
+    assert starts.max() > 8  # the chained comparison is exercised
+    rng = np.random.default_rng(7)
+    flips = [np.zeros(len(c), np.uint8), np.ones(len(c), np.uint8)]
+    flips += [(rng.random(len(c)) < q).astype(np.uint8) for q in (0.01, 0.5)]
+    one = np.zeros(len(c), np.uint8)
+    one[len(c) // 2] = 1
+    flips.append(one)
+    answers = []
+    for f in flips:
+        want = _consistent(faces, f.view(bool), len(p))
+        got = fast.fixed_consistent(conn, tmpl, tsize, f, npts)
+        assert want is not None
+        assert got == bool(want)
+        answers.append(got)
+    assert answers[:2] == [True, True] and not any(answers[2:])  # every flip here contradicts

@@ -313,7 +313,8 @@ def _same_as_meshio(path):
 
 
 def test_simple_vtu_reader_gives_meshio_arrays_or_leaves_the_file_to_meshio(tmp_path):
-    """The common VTU layout (meshio's and VTK's inline binary, zlib or not) is read without
+    """The common VTU layout (meshio's and VTK's inline binary, zlib or not; VTK's appended data,
+    base64 or raw, zlib in base64 only) is read without
     meshio's XML tree, with exactly meshio.read's arrays; any other layout is left to meshio."""
     vtk = pytest.importorskip("vtk")
     from vtk.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray
@@ -344,14 +345,19 @@ def test_simple_vtu_reader_gives_meshio_arrays_or_leaves_the_file_to_meshio(tmp_
     arr.SetName("gmsh:physical")
     ug.GetCellData().AddArray(arr)
     for comp in (True, False):  # VTK adds InformationKey children to the points
-        w = vtk.vtkXMLUnstructuredGridWriter()
-        w.SetInputData(ug)
-        w.SetDataModeToBinary()
-        if not comp:
-            w.SetCompressorTypeToNone()
-        fast[f"vtk {comp}"] = str(tmp_path / f"vtk{comp}.vtu")
-        w.SetFileName(fast[f"vtk {comp}"])
-        w.Write()
+        for mode, encode in (("binary", True), ("appended", True), ("appended", False)):
+            if mode == "appended" and comp and not encode:
+                continue  # zlib in raw appended data: left to meshio (below)
+            w = vtk.vtkXMLUnstructuredGridWriter()
+            w.SetInputData(ug)
+            getattr(w, f"SetDataModeTo{mode.capitalize()}")()
+            w.SetEncodeAppendedData(encode)
+            if not comp:
+                w.SetCompressorTypeToNone()
+            key = f"vtk {mode} {'base64' if encode else 'raw'} {comp}"
+            fast[key] = str(tmp_path / f"{key.replace(' ', '_')}.vtu")
+            w.SetFileName(fast[key])
+            w.Write()
     for name, path in fast.items():
         assert _same_as_meshio(path) is not None, name
         assert (
@@ -363,6 +369,7 @@ def test_simple_vtu_reader_gives_meshio_arrays_or_leaves_the_file_to_meshio(tmp_
     w = vtk.vtkXMLUnstructuredGridWriter()
     w.SetInputData(ug)
     w.SetDataModeToAppended()
+    w.SetEncodeAppendedData(False)  # raw bytes, zlib blocks
     w.SetFileName(str(tmp_path / "appended.vtu"))
     w.Write()
     others = [

@@ -12,7 +12,8 @@
  *                   (threads over ranges of cells): fixed_measures' volume and centroid (tetrahedra in
  *                   closed form, as geometry._tetra_measures), the own-sign flip and the face keys of
  *                   fixed_consistent, then one bucket pass: is flipping each cell by its sign consistent?
- *   consistent      orientation._consistent (fixed_consistent: the same from a cell type's template): with the cells in `flip` reversed, is any face met twice
+ *   consistent      orientation._consistent (fixed_consistent: the same from a cell type's template; it and
+ *                   fixed_validate share faces_consistent): with the cells in `flip` reversed, is any face met twice
  *                   in the same direction? (a hash table of directed face keys instead of a sort)
  *
  * Arrays come through the buffer protocol (no numpy headers at build time); point ids are trusted
@@ -85,6 +86,62 @@ static inline __attribute__((always_inline)) void measure_cell(const double *P, 
     for (int d = 0; d < 3; d++) cen[d] = g_sum[d] / v_sum + o[d];
 }
 
+/* Four hexahedra at once (c: their 4 * 8 nodes; tmpl: 6 faces of 4 nodes), measure_cell's float
+ * operations in its order in each lane of a 4-double vector: the same numbers bit for bit (no
+ * reassociation across lanes, -ffp-contract=off: no fused multiply-add). Built for AVX2 and for
+ * the baseline (two SSE2 halves), picked at load time (target_clones). */
+typedef double v4d __attribute__((vector_size(32)));
+
+__attribute__((target_clones("avx2", "default"))) static void measure_hex4(const double *P, const int64_t *c,
+                                                                           const int64_t *tmpl, double *vol,
+                                                                           double *cen) {
+    v4d x[8][3], rel[8][3];
+    v4d o[3] = {{0.0, 0.0, 0.0, 0.0}, {0.0, 0.0, 0.0, 0.0}, {0.0, 0.0, 0.0, 0.0}};
+    for (int j = 0; j < 8; j++)
+        for (int d = 0; d < 3; d++) {
+            v4d v = {P[3 * c[j] + d], P[3 * c[8 + j] + d], P[3 * c[16 + j] + d], P[3 * c[24 + j] + d]};
+            x[j][d] = v;
+            o[d] += v;
+        }
+    for (int d = 0; d < 3; d++) o[d] *= 0.125;
+    for (int j = 0; j < 8; j++)
+        for (int d = 0; d < 3; d++) rel[j][d] = x[j][d] - o[d];
+    v4d v_sum = {0.0, 0.0, 0.0, 0.0}, g0 = v_sum, g1 = v_sum, g2 = v_sum;
+    for (int f = 0; f < 6; f++) {
+        const int64_t *t = tmpl + 4 * f;
+        v4d m[3];
+        for (int d = 0; d < 3; d++) {
+            v4d z = {0.0, 0.0, 0.0, 0.0};
+            for (int j = 0; j < 4; j++) z += x[t[j]][d];
+            m[d] = z * 0.25 - o[d];
+        }
+        for (int j = 0; j < 4; j++) {
+            const v4d *b = rel[t[j]], *cc = rel[t[(j + 1) & 3]];
+            v4d x0 = b[1] * cc[2] - b[2] * cc[1], x1 = b[2] * cc[0] - b[0] * cc[2], x2 = b[0] * cc[1] - b[1] * cc[0];
+            v4d v = (m[0] * x0 + m[2] * x2) + m[1] * x1;
+            v_sum += v;
+            g0 += v * (((m[0] + b[0]) + cc[0]) * 0.25);
+            g1 += v * (((m[1] + b[1]) + cc[1]) * 0.25);
+            g2 += v * (((m[2] + b[2]) + cc[2]) * 0.25);
+        }
+    }
+    v4d vv = v_sum / 6.0, c0 = g0 / v_sum + o[0], c1 = g1 / v_sum + o[1], c2 = g2 / v_sum + o[2];
+    for (int q = 0; q < 4; q++) {
+        vol[q] = vv[q];
+        cen[3 * q] = c0[q];
+        cen[3 * q + 1] = c1[q];
+        cen[3 * q + 2] = c2[q];
+    }
+}
+
+/* The template is six faces of four nodes (hexahedra): measure_hex4 applies. */
+static int hex_template(int64_t k, int64_t nf, const int64_t *tsize) {
+    if (k != 8 || nf != 6) return 0;
+    for (int f = 0; f < 6; f++)
+        if (tsize[f] != 4) return 0;
+    return 1;
+}
+
 /* A tetrahedron in closed form, as geometry._tetra_measures: a, b, c = p1 - p0, p2 - p0, p3 - p0;
  * volume a . (b x c) / 6 (summed x, z, y), centroid p0 + ((a + b) + c) / 4. */
 static inline __attribute__((always_inline)) void measure_tet(const double *P, const int64_t *c, double *vol,
@@ -131,7 +188,10 @@ static PyObject *py_fixed_measures(PyObject *self, PyObject *args) {
         return NULL;
     }
     Py_BEGIN_ALLOW_THREADS
-    for (int64_t i = 0; i < C; i++) measure_cell(P, conn + i * k, k, tmpl, tsize, nf, vol + i, cen + 3 * i);
+    int64_t i = 0;
+    if (hex_template(k, nf, tsize))
+        for (; i + 4 <= C; i += 4) measure_hex4(P, conn + i * 8, tmpl, vol + i, cen + 3 * i);
+    for (; i < C; i++) measure_cell(P, conn + i * k, k, tmpl, tsize, nf, vol + i, cen + 3 * i);
     Py_END_ALLOW_THREADS
     release_arr(b, 6);
     Py_RETURN_NONE;
@@ -210,15 +270,90 @@ static PyObject *py_consistent(PyObject *self, PyObject *args) {
     return PyBool_FromLong(ok);
 }
 
+/* A face's directed key less its smallest node: the nodes after and before it, min(size, 7) in
+ * the top bits of the second (point ids < 2^60; a larger id can only make two keys look alike: a
+ * contradiction where there is none, which sends the caller to the full path, never the reverse). */
+typedef struct {
+    int64_t nx, pvs;
+} Key2;
+
+/* Is a key met twice in sorted[lo..hi) (one bucket: the faces of one smallest node)? Small buckets
+ * pairwise; larger ones (tetrahedra: ~24 faces a point) by chains of the keys of the same next
+ * node: head[n] the last position of the bucket whose key has next node n (a position before lo:
+ * none), prev[x] the one before x (-1: none). 1: a key met twice; -1: a next node out of range. */
+static int bucket_has_twice(const Key2 *sorted, int64_t lo, int64_t hi, int64_t P, int64_t *head, int64_t *prev) {
+    if (hi - lo <= 8 || head == NULL) {
+        for (int64_t x = lo; x < hi; x++)
+            for (int64_t y = x + 1; y < hi; y++)
+                if (sorted[x].nx == sorted[y].nx && sorted[x].pvs == sorted[y].pvs) return 1;
+        return 0;
+    }
+    for (int64_t x = lo; x < hi; x++)
+        if (sorted[x].nx < 0 || sorted[x].nx >= P) return -1;
+    for (int64_t x = lo; x < hi; x++) {
+        int64_t n = sorted[x].nx, y = head[n];
+        prev[x] = y >= lo ? y : -1;
+        for (int64_t z = prev[x]; z >= 0; z = prev[z])
+            if (sorted[z].pvs == sorted[x].pvs) return 1;
+        head[n] = x;
+    }
+    return 0;
+}
+
+/* The check fixed_consistent and fixed_validate share: every face's directed key (the cell's
+ * flip applied) bucketed by its smallest node (a counting sort over the points: cache-friendly,
+ * unlike a hash table of every face), then compared within each bucket. mins (C * nf): each face's
+ * smallest node, in 0..P-1 (the callers check it), used as scratch here. 1: no key met twice
+ * (consistent); 0: one met twice; -1: out of memory. */
+static int faces_consistent(const int64_t *conn, int64_t C, int64_t k, const int64_t *tmpl, const int64_t *tsize,
+                            int64_t nf, const uint8_t *flip, int64_t *mins, int64_t P) {
+    int64_t F = C * nf;
+    int64_t *start = calloc((size_t)P + 2, sizeof(int64_t));
+    Key2 *sorted = malloc((size_t)(F ? F : 1) * sizeof(Key2));
+    int64_t *head = NULL;
+    int ok = 1;
+    if (!start || !sorted) {
+        free(start);
+        free(sorted);
+        return -1;
+    }
+    for (int64_t f = 0; f < F; f++) start[mins[f] + 2]++;
+    for (int64_t p = 2; p < P + 2; p++) start[p] += start[p - 1];
+    for (int64_t i = 0; i < C; i++) { /* scattered into the buckets, the flips applied */
+        const int64_t *c = conn + i * k;
+        int64_t pos = 0;
+        for (int64_t f = 0; f < nf; f++) {
+            int64_t s = tsize[f], j = 0;
+            const int64_t *t = tmpl + pos;
+            pos += s;
+            for (int64_t q = 1; q < s; q++)
+                if (c[t[q]] < c[t[j]]) j = q;
+            int64_t nx = c[t[j + 1 == s ? 0 : j + 1]], pv = c[t[j == 0 ? s - 1 : j - 1]];
+            Key2 r = {flip[i] ? pv : nx, (flip[i] ? nx : pv) | ((s < 7 ? s : 7) << 60)};
+            sorted[start[mins[i * nf + f] + 1]++] = r;
+        }
+    }
+    /* mins is free now: the chains of the large buckets (prev, by position) */
+    for (int64_t p = 0; p < P && ok; p++) { /* start[p]..start[p+1]: bucket p */
+        int64_t lo = start[p], hi = start[p + 1];
+        if (hi - lo > 8 && head == NULL) {
+            head = malloc((size_t)P * sizeof(int64_t));
+            if (head) memset(head, 0xff, (size_t)P * sizeof(int64_t)); /* -1: before every bucket */
+        }
+        int r = bucket_has_twice(sorted, lo, hi, P, head, mins);
+        if (r < 0) r = bucket_has_twice(sorted, lo, hi, P, NULL, NULL);
+        if (r) ok = 0;
+    }
+    free(head);
+    free(start);
+    free(sorted);
+    return ok;
+}
+
 /* fixed_consistent(conn, tmpl, tsize, flip, npts) -> bool
  *   consistent() for cells of one type with a fixed node count, their faces taken from the
- *   template (as fixed_measures) instead of a face array; npts (1,) the number of points. The
- *   faces are bucketed by their smallest node (a counting sort over the points: cache-friendly,
- *   unlike a hash table of every face) and compared within each bucket. */
-typedef struct {
-    int64_t nx, pv, s;
-} Rest;
-
+ *   template (as fixed_measures) instead of a face array; npts (1,) the number of points
+ *   (< 2^60). The faces' smallest nodes here, then faces_consistent. */
 static PyObject *py_fixed_consistent(PyObject *self, PyObject *args) {
     static const char *const names[] = {"conn", "tmpl", "tsize", "flip", "npts"};
     static const Py_ssize_t sizes[] = {8, 8, 8, 1, 8};
@@ -230,19 +365,18 @@ static PyObject *py_fixed_consistent(PyObject *self, PyObject *args) {
     int64_t C = (int64_t)b[3].len, nf = N8(b[2]), nt = N8(b[1]);
     int64_t k = C ? N8(b[0]) / C : 0, sum = 0;
     for (int64_t f = 0; f < nf; f++) sum += tsize[f];
-    if (N8(b[4]) != 1 || npts[0] < 0 || (C && k * C != N8(b[0])) || sum != nt || nf > 64) {
+    if (N8(b[4]) != 1 || npts[0] < 0 || npts[0] >= ((int64_t)1 << 60) || (C && k * C != N8(b[0])) || sum != nt ||
+        nf > 64) {
         release_arr(b, 5);
         PyErr_SetString(PyExc_ValueError, "fixed_consistent: inconsistent array sizes");
         return NULL;
     }
     int64_t P = npts[0], F = C * nf;
-    int64_t *start = calloc((size_t)P + 2, sizeof(int64_t));
     int64_t *mins = malloc((size_t)(F ? F : 1) * sizeof(int64_t));
-    Rest *rest = malloc((size_t)(F ? F : 1) * sizeof(Rest));
-    int ok = 1, err = !start || !mins || !rest;
+    int ok = 1, err = !mins;
     Py_BEGIN_ALLOW_THREADS
     if (!err) {
-        for (int64_t i = 0; i < C && !err; i++) { /* every face's smallest node; counts */
+        for (int64_t i = 0; i < C && !err; i++) { /* every face's smallest node */
             const int64_t *c = conn + i * k;
             int64_t pos = 0;
             for (int64_t f = 0; f < nf; f++) {
@@ -257,36 +391,15 @@ static PyObject *py_fixed_consistent(PyObject *self, PyObject *args) {
                     break;
                 }
                 mins[i * nf + f] = m;
-                start[m + 2]++;
             }
         }
-        for (int64_t p = 2; p < P + 2 && !err; p++) start[p] += start[p - 1];
-        for (int64_t i = 0; i < C && !err; i++) { /* scattered into the buckets */
-            const int64_t *c = conn + i * k;
-            int64_t pos = 0;
-            for (int64_t f = 0; f < nf; f++) {
-                int64_t s = tsize[f], j = 0;
-                const int64_t *t = tmpl + pos;
-                pos += s;
-                for (int64_t q = 1; q < s; q++)
-                    if (c[t[q]] < c[t[j]]) j = q;
-                int64_t nx = c[t[j + 1 == s ? 0 : j + 1]], pv = c[t[j == 0 ? s - 1 : j - 1]];
-                Rest r = {flip[i] ? pv : nx, flip[i] ? nx : pv, s < 7 ? s : 7};
-                rest[start[mins[i * nf + f] + 1]++] = r;
-            }
+        if (!err) {
+            ok = faces_consistent(conn, C, k, tmpl, tsize, nf, flip, mins, P);
+            if (ok < 0) err = 1;
         }
-        for (int64_t p = 0; p < P && ok && !err; p++) /* start[p]..start[p+1]: bucket p */
-            for (int64_t x = start[p]; x < start[p + 1] && ok; x++)
-                for (int64_t y = x + 1; y < start[p + 1]; y++)
-                    if (rest[x].nx == rest[y].nx && rest[x].pv == rest[y].pv && rest[x].s == rest[y].s) {
-                        ok = 0;
-                        break;
-                    }
     }
     Py_END_ALLOW_THREADS
-    free(start);
     free(mins);
-    free(rest);
     release_arr(b, 5);
     if (err == 1) return PyErr_NoMemory();
     if (err) {
@@ -303,8 +416,7 @@ static PyObject *py_fixed_consistent(PyObject *self, PyObject *args) {
  *   geometry._tetra_measures), flip[i] = vol[i] < 0 (uint8), and every face's directed key as
  *   fixed_consistent makes it with those flips (sharing the gathered nodes). That pass runs in
  *   nthreads (1,) threads over ranges of cells (each cell's values do not depend on them). Then
- *   the keys are bucketed by their smallest node (a counting sort over the points) and compared
- *   in each bucket: True when no face is met twice in the same direction (flipping every cell by
+ *   faces_consistent buckets the keys by their smallest node and compares them in each bucket: True when no face is met twice in the same direction (flipping every cell by
  *   its own sign is consistent), False otherwise (the caller takes the full path). */
 typedef struct {
     const double *P;
@@ -316,18 +428,17 @@ typedef struct {
     int bad;
 } Job;
 
-/* a face's directed key less its smallest node: the nodes after and before it, min(size, 7) in
- * the top bits of the second (point ids < 2^60) */
-typedef struct {
-    int64_t nx, pvs;
-} Key2;
-
 static void *validate_range(void *arg) {
     Job *J = arg;
     const int64_t k = J->k, nf = J->nf, *tmpl = J->tmpl, *tsize = J->tsize;
+    const int hex = hex_template(k, nf, tsize);
     for (int64_t i = J->lo; i < J->hi; i++) {
         const int64_t *c = J->conn + i * k;
-        if (k == 4 && nf == 4)
+        if (hex && (i - J->lo) % 4 == 0 && i + 4 <= J->hi) /* hexahedra four at a time */
+            measure_hex4(J->P, c, tmpl, J->vol + i, J->cen + 3 * i);
+        else if (hex && i + 4 - (i - J->lo) % 4 <= J->hi)
+            ; /* measured with its block of four */
+        else if (k == 4 && nf == 4)
             measure_tet(J->P, c, J->vol + i, J->cen + 3 * i);
         else if (k == 8 && nf == 6) /* hexahedra: the constants let the compiler unroll */
             measure_cell(J->P, c, 8, tmpl, tsize, 6, J->vol + i, J->cen + 3 * i);
@@ -377,10 +488,8 @@ static PyObject *py_fixed_validate(PyObject *self, PyObject *args) {
     }
     int64_t Pn = npts[0], F = C * nf, T = nth[0] < 1 ? 1 : nth[0] > 64 ? 64 : nth[0];
     if (T > 1 && C / T < 4096) T = C / 4096 > 1 ? C / 4096 : 1; /* threads only for large arrays */
-    int64_t *start = calloc((size_t)Pn + 2, sizeof(int64_t));
     int64_t *mins = malloc((size_t)(F ? F : 1) * sizeof(int64_t));
-    Key2 *sorted = malloc((size_t)(F ? F : 1) * sizeof(Key2));
-    int ok = 1, err = !start || !mins || !sorted;
+    int ok = 1, err = !mins;
     Py_BEGIN_ALLOW_THREADS
     if (!err) {
         Job jobs[64];
@@ -402,35 +511,12 @@ static PyObject *py_fixed_validate(PyObject *self, PyObject *args) {
         for (int64_t t = 0; t < T; t++)
             if (jobs[t].bad) err = 2;
         if (!err) {
-            for (int64_t f = 0; f < F; f++) start[mins[f] + 2]++;
-            for (int64_t p = 2; p < Pn + 2; p++) start[p] += start[p - 1];
-            for (int64_t i = 0; i < C; i++) { /* scattered into the buckets, the flips applied */
-                const int64_t *c = conn + i * k;
-                int64_t pos = 0;
-                for (int64_t f = 0; f < nf; f++) {
-                    int64_t s = tsize[f], j = 0;
-                    const int64_t *t = tmpl + pos;
-                    pos += s;
-                    for (int64_t q = 1; q < s; q++)
-                        if (c[t[q]] < c[t[j]]) j = q;
-                    int64_t nx = c[t[j + 1 == s ? 0 : j + 1]], pv = c[t[j == 0 ? s - 1 : j - 1]];
-                    Key2 r = {flip[i] ? pv : nx, (flip[i] ? nx : pv) | ((s < 7 ? s : 7) << 60)};
-                    sorted[start[mins[i * nf + f] + 1]++] = r;
-                }
-            }
-            for (int64_t p = 0; p < Pn && ok; p++) /* start[p]..start[p+1]: bucket p */
-                for (int64_t x = start[p]; x < start[p + 1] && ok; x++)
-                    for (int64_t y = x + 1; y < start[p + 1]; y++)
-                        if (sorted[x].nx == sorted[y].nx && sorted[x].pvs == sorted[y].pvs) {
-                            ok = 0;
-                            break;
-                        }
+            ok = faces_consistent(conn, C, k, tmpl, tsize, nf, flip, mins, Pn);
+            if (ok < 0) err = 1;
         }
     }
     Py_END_ALLOW_THREADS
-    free(start);
     free(mins);
-    free(sorted);
     release_arr(b, 9);
     if (err == 1) return PyErr_NoMemory();
     if (err) {

@@ -232,6 +232,14 @@ def _with_place(msg: str, path: str, file_format: str | None) -> str:
 
 
 def _read(path: str, physical_tag, file_format, weld, native: bool = True) -> Mesh:
+    if file_format is None and _extension(path) == ".vtk":
+        from models.mesh.legacy import read_legacy_simple
+
+        simple = read_legacy_simple(path)  # the common binary layout, numpy on the file's bytes; else None
+        if simple is not None:
+            mesh = mesh_from_meshio(simple, physical_tag=physical_tag, weld=weld, owned=True)
+            mesh.meta.update(reader="numpy (models/mesh/legacy.py)", format="legacy VTK")
+            return mesh
     family, detail = pick_reader(path, file_format)
     if family == "vtu":
         from models.mesh.vtu import impossible_counts, read_vtu_simple

@@ -198,31 +198,38 @@ def _simple_vtu(data: bytes):
         return None
     piece, sections = arrays
     n_points, n_cells = int(piece[b"NumberOfPoints"]), int(piece[b"NumberOfCells"])
+    appended = _appended(sections.pop(b"appended", None), sections)
     if sections.get(b"PointData") or set(sections) - _SECTIONS or len(sections.get(b"Points", ())) != 1:
         return None
     decode = _decode_zlib if compressor else _decode_raw
 
-    def array(attrs: dict, text: bytes) -> np.ndarray:
-        if attrs.get(b"format") != b"binary":
+    def array(attrs: dict, text: bytes | None) -> np.ndarray:
+        kind = np.dtype(_NP_TYPES[attrs[b"type"].decode()]).newbyteorder("<")
+        if text is None:  # appended: its slice of AppendedData
+            text, raw = appended[int(attrs[b"offset"])]
+            if raw and compressor:
+                raise ValueError("compressed raw appended data")
+            out = _decode_appended_raw(text, kind, header) if raw else decode(text, kind, header)
+        elif attrs.get(b"format") != b"binary":
             raise ValueError("not inline binary")
-        kind = _NP_TYPES[attrs[b"type"].decode()]
-        out = decode(text.strip(), np.dtype(kind).newbyteorder("<"), header)
+        else:
+            out = decode(text.strip(), kind, header)
         if b"NumberOfComponents" in attrs:
             out = out.reshape(-1, int(attrs[b"NumberOfComponents"]))
         return out
 
-    p_attrs, p_text = sections[b"Points"][0]
-    points = array(p_attrs, p_text).reshape(n_points, int(p_attrs[b"NumberOfComponents"]))
     cells = {attrs[b"Name"]: (attrs, text) for attrs, text in sections.get(b"Cells", ())}
     if set(cells) != {b"connectivity", b"offsets", b"types"}:
         return None
-    types = array(*cells[b"types"])
+    types = array(*cells[b"types"])  # first: a file of other cells is declined before the big arrays
     offsets = array(*cells[b"offsets"])
     if types.shape != (n_cells,) or offsets.shape != (n_cells,) or n_cells == 0:
         return None
     t = int(types[0])
     if t not in _SIMPLE_CELLS or not np.all(types == t):
         return None
+    p_attrs, p_text = sections[b"Points"][0]
+    points = array(p_attrs, p_text).reshape(n_points, int(p_attrs[b"NumberOfComponents"]))
     name, k = _SIMPLE_CELLS[t]
     conn = array(*cells[b"connectivity"])
     if conn.shape != (k * n_cells,) or not np.array_equal(offsets, np.arange(k, k * n_cells + 1, k)):
@@ -248,6 +255,39 @@ def _simple_vtu(data: bytes):
         cell_data=cell_data,
         field_data={},
     )
+
+
+def _appended(section, sections: dict) -> dict:
+    """{offset: (its bytes, raw?)} of the appended DataArrays: AppendedData from its '_' on, cut
+    at the offsets (each array's bytes run to the next array's offset). Raw bytes: uncompressed
+    only (ValueError otherwise, as for any other layout not read here)."""
+    offsets = sorted({int(a[b"offset"]) for items in sections.values() for a, t in items if t is None})
+    if not offsets:
+        return {}
+    if section is None:
+        raise ValueError("appended arrays without AppendedData")
+    attrs, body = section[0]
+    raw = attrs.get(b"encoding") == b"raw"
+    if not raw and attrs.get(b"encoding") != b"base64":
+        raise ValueError("unknown AppendedData encoding")
+    start = bytes(body[:4096]).index(b"_") + 1
+    stop = len(body)
+    while not raw and stop > start and body[stop - 1] in b" \t\r\n":
+        stop -= 1
+    blob = body[start:stop]  # memoryview slices: the arrays' bytes are not copied
+    ends = [*offsets[1:], len(blob)]
+    if offsets[0] < 0 or ends[-1] < offsets[-1]:
+        raise ValueError("an appended array's offset is past the end of the data")
+    return {o: (blob[o:e], raw) for o, e in zip(offsets, ends, strict=True)}
+
+
+def _decode_appended_raw(data: bytes, dtype: np.dtype, header: np.dtype) -> np.ndarray:
+    """An uncompressed appended array in raw encoding: its byte count, then its bytes."""
+    h = header.itemsize
+    total = int(np.frombuffer(data[:h], header)[0])
+    if len(data) < h + total or total % dtype.itemsize:
+        raise ValueError("an appended array is shorter than its header says")
+    return np.frombuffer(data, dtype=dtype, count=total // dtype.itemsize, offset=h)
 
 
 def _scan_vtu(data: bytes):
@@ -296,6 +336,13 @@ def _scan_vtu(data: bytes):
             b"InformationKey",
             b"Value",
         )
+        if depth == 1 and name == b"AppendedData" and not closed and b"appended" not in sections:
+            end = data.rfind(b"</AppendedData>")  # raw bytes may hold '<': the last closing tag
+            if end < gt:
+                return None, None
+            sections[b"appended"] = [(attrs, memoryview(data)[gt + 1 : end])]  # a view, not a copy
+            pos = end + len(b"</AppendedData>")
+            continue
         if depth >= len(expected) or (expected[depth] is not None and name != expected[depth]):
             return None, None
         if depth == 0:
@@ -308,6 +355,8 @@ def _scan_vtu(data: bytes):
             piece = attrs
         elif depth == 3:
             sections.setdefault(name, [])
+        elif depth == 4 and attrs.get(b"format") == b"appended":
+            sections[stack[3]].append((attrs, None))  # its bytes in AppendedData, at its offset
         elif depth == 4:  # its text runs to the next tag (VTK may add InformationKey children)
             end = data.find(b"<", gt + 1)
             if closed or end < 0:

@@ -1,0 +1,129 @@
+"""A fast path for legacy VTK files of the common binary layout: an unstructured grid of one cell
+type (triangles, quads, tetrahedra or hexahedra) and nothing else, as VTK's vtkDataSetWriter writes
+it in BINARY mode (file versions up to 4.2: CELLS as counts and ids; 5.x: OFFSETS and CONNECTIVITY).
+Numpy reads the big-endian arrays straight from the file's bytes (VTK's reader parses them through
+a stream: most of the read stage's time on such a file). Any other file, any doubt: None, and
+VTK's reader reads it (models/mesh/vtk_readers.py), errors and all.
+"""
+
+from __future__ import annotations
+
+import os
+from types import SimpleNamespace
+
+import numpy as np
+
+# VTK cell type -> (meshio name, nodes)
+_CELLS = {5: ("triangle", 3), 9: ("quad", 4), 10: ("tetra", 4), 12: ("hexahedron", 8)}
+_FLOATS = {b"float": ">f4", b"double": ">f8"}
+_INTS = {b"int": ">i4", b"vtktypeint64": ">i8"}
+
+
+class _Decline(Exception):
+    """Not the common layout: VTK's reader reads the file."""
+
+
+class _Cursor:
+    def __init__(self, data: bytes):
+        self.data, self.pos = data, 0
+
+    def line(self) -> list[bytes]:
+        """The next non-blank line's words."""
+        d = self.data
+        while True:
+            end = d.find(b"\n", self.pos)
+            if end < 0:
+                end = len(d)
+            words = d[self.pos : end].split()
+            self.pos = end + 1
+            if words:
+                return words
+            if end >= len(d):
+                raise _Decline
+
+    def array(self, dtype: str, count: int) -> np.ndarray:
+        """`count` big-endian values here (then the line break VTK writes after them)."""
+        n = np.dtype(dtype).itemsize * count
+        if count < 0 or self.pos + n > len(self.data):
+            raise _Decline
+        out = np.frombuffer(self.data, dtype=dtype, count=count, offset=self.pos)
+        self.pos += n
+        return out
+
+
+def read_legacy_simple(path: str | os.PathLike):
+    """A meshio-like object (points, cells [.type, .data], cell_data {}, field_data {}) for a legacy
+    VTK file of the layout above, or None for any other file."""
+    try:
+        with open(os.fspath(path), "rb") as fh:
+            head = fh.read(256)
+            if not head.startswith(b"# vtk DataFile Version") or b"BINARY" not in head:
+                return None
+            data = head + fh.read()
+        return _simple(data)
+    except (_Decline, ValueError, KeyError, IndexError, OSError):
+        return None
+
+
+def _count(word: bytes) -> int:
+    if not word.isdigit():
+        raise _Decline
+    return int(word)
+
+
+def _simple(data: bytes):
+    cur = _Cursor(data)
+    version = cur.line()
+    if version[:4] != [b"#", b"vtk", b"DataFile", b"Version"] or len(version) != 5:
+        return None
+    cur.pos = data.find(b"\n", cur.pos) + 1  # the title line, whatever it says
+    if cur.pos == 0 or cur.line() != [b"BINARY"] or cur.line() != [b"DATASET", b"UNSTRUCTURED_GRID"]:
+        return None
+    words = cur.line()
+    if len(words) != 3 or words[0] != b"POINTS" or words[2] not in _FLOATS:
+        return None
+    n_points = _count(words[1])
+    points = cur.array(_FLOATS[words[2]], 3 * n_points)
+    words = cur.line()
+    if len(words) != 3 or words[0] != b"CELLS":
+        return None
+    a, b = _count(words[1]), _count(words[2])
+    if version[4].split(b".")[0] >= b"5":  # OFFSETS and CONNECTIVITY arrays
+        words = cur.line()
+        if len(words) != 2 or words[0] != b"OFFSETS" or words[1] not in _INTS:
+            return None
+        offsets = cur.array(_INTS[words[1]], a)
+        words = cur.line()
+        if len(words) != 2 or words[0] != b"CONNECTIVITY" or words[1] not in _INTS:
+            return None
+        conn = cur.array(_INTS[words[1]], b)
+        n_cells = a - 1
+        k = b // n_cells if n_cells > 0 else 0
+        if n_cells < 1 or k * n_cells != b or not np.array_equal(offsets, np.arange(0, b + 1, k)):
+            return None
+        cells = conn.reshape(n_cells, k)
+    else:  # counts and ids: n, id_1 .. id_n per cell
+        n_cells = a
+        flat = cur.array(">i4", b)
+        k = b // n_cells - 1 if n_cells > 0 else 0
+        if n_cells < 1 or (k + 1) * n_cells != b:
+            return None
+        rows = flat.reshape(n_cells, k + 1)
+        if not np.all(rows[:, 0] == k):
+            return None
+        cells = rows.astype(np.int32)[:, 1:]  # byte order first, whole rows (one pass, contiguous)
+    words = cur.line()
+    if words != [b"CELL_TYPES", words[1] if len(words) == 2 else b""] or _count(words[1]) != n_cells:
+        return None
+    types = cur.array(">i4", n_cells)
+    t = int(types[0])
+    if _CELLS.get(t, (None, -1))[1] != k or not np.all(types == t):
+        return None
+    if data[cur.pos :].strip():  # cell or point data, field data, another section: VTK's reader
+        return None
+    return SimpleNamespace(
+        points=points.astype(np.float64).reshape(n_points, 3),
+        cells=[SimpleNamespace(type=_CELLS[t][0], data=cells.astype(np.int64))],
+        cell_data={},
+        field_data={},
+    )
