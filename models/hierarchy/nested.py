@@ -604,7 +604,7 @@ def _aggregated_levels(mesh: Mesh, data: CellData, tags, step: float, coarsest: 
         rtree_levels,
     )
     from models.partition.rtree_aggregate import normalized_coupling, standard_aggregates
-    from models.partition.rtree_strength import tpfa_coupling
+    from models.partition.rtree_strength import tpfa_boundary, tpfa_coupling
 
     G = data.graph
     n = G.n
@@ -620,10 +620,12 @@ def _aggregated_levels(mesh: Mesh, data: CellData, tags, step: float, coarsest: 
         ip = np.zeros(n + 1, dtype=np.int64)
         np.cumsum(np.bincount(rows[keep], minlength=n), out=ip[1:])
         ii, cw = indices[keep], coupling[keep]
-    from models.hierarchy.multigrid import tpfa_poisson
-
-    # pyamg's symmetric strength |a_ij| / sqrt(a_ii a_jj) of the TPFA operator (Dirichlet boundary)
-    diag = tpfa_poisson(mesh, data)[0].diagonal()
+    # pyamg's symmetric strength |a_ij| / sqrt(a_ii a_jj) of the TPFA operator (Dirichlet boundary,
+    # as models.hierarchy.multigrid.tpfa_poisson assembles it): the diagonal is the couplings' row sums
+    # plus the boundary faces' transmissibilities
+    owner, tb = tpfa_boundary(mesh, data)
+    rows_all = np.repeat(np.arange(n), np.diff(indptr))
+    diag = np.bincount(rows_all, weights=coupling, minlength=n) + np.bincount(owner, weights=tb, minlength=n)
     agg = standard_aggregates(ip, ii, normalized_coupling(ip, ii, cw, diag))
     k = int(agg.max()) + 1
     cnt = np.bincount(agg, minlength=k).astype(np.float64)

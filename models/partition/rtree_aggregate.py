@@ -90,6 +90,7 @@ def standard_aggregates(
         r, a = rows[e], lab[indices[e]]
         key, inv = np.unique(r * (k + 1) + a, return_inverse=True)
         s = np.bincount(inv, weights=w[e])
+        s = np.round(s / max(float(s.max()), 1e-300), 9)  # ties within rounding: the lowest element
         kr, ka = key // (k + 1), key % (k + 1)
         o = np.lexsort((ka, -s, kr))  # per cell: the largest coupling, ties the lowest element
         f = o[np.r_[True, kr[o][1:] != kr[o][:-1]]]
