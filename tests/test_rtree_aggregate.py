@@ -42,10 +42,10 @@ def test_roots_neighbours_and_connected_elements(make, cell):
     assert pyamg.aggregation.standard_aggregation(C)[0].shape[1] == k
 
 
-def test_default_hierarchy_no_more_iterations_than_pyamg():
+def test_aggregated_hierarchy_no_more_iterations_than_pyamg():
     pytest.importorskip("pyamg")
     m, g, d = _mesh(lambda: tets(10), "tetra")
-    levels, info = build_hierarchy(m, d, model="rtree", coarsest=10)
+    levels, info = build_hierarchy(m, d, model="rtree", coarsest=10, model_options={"finest": "aggregation"})
     assert info["finest"] == "aggregation" and is_nested(levels)
     assert all(pieces(g, lv) == int(lv.max()) + 1 for lv in levels)
     rep = mgcheck(m, d, levels)
