@@ -45,6 +45,10 @@ HOLED = {"plate-1hole": True, "plate-4holes": True, "plate-16holes": True, "quad
 # model name in the table -> (build_hierarchy model, model_options)
 MODELS = {
     "rtree": ("rtree", None),
+    "rtree-cuts": (
+        "rtree",
+        {"finest": "cuts"},
+    ),  # rtree cuts at the finest level too (the default before round five)
     "rtree-measure": ("rtree", {"balance": "measure"}),  # measure-weighted cuts (the default before issue 24)
     "rtree-principal": ("rtree", {"axes": "principal"}),  # cuts across each part's principal axis (numpy)
     "rtree-strength": ("rtree", {"axes": "strength"}),  # cut axis across the weakest TPFA couplings (numpy)

@@ -37,18 +37,27 @@ def test_default_is_the_schedule_by_dimension(make, cell, dim):
     p, c = make()
     m = mesh_from_arrays(p, [(cell, c)])
     g, d = prepare(m)
-    levels, info = build_hierarchy(m, d, model="rtree", coarsest=10)
-    assert info["ratio"] == list(default_ratio(dim)) and info["requested"] == level_counts(
-        m.n_cells, default_ratio(dim), 10
-    )
+    # finest="aggregation" (round five): the finest level a standard aggregation of the cells' graph,
+    # then the schedule's coarser step (16x) by rtree cuts of the aggregates' graph
+    levels, info = build_hierarchy(m, d, model="rtree", coarsest=10, model_options={"finest": "aggregation"})
+    k = info["requested"][-1]
+    assert info["finest"] == "aggregation" and info["requested"][:-1] == level_counts(k, 16, 10)
+    assert info["ratio"] == [m.n_cells / k, default_ratio(dim)[1]]
+    assert 3 < m.n_cells / k < 12  # a root and its neighbours, and a share of the cells left over
     sizes = [int(lv.max()) + 1 for lv in levels]
     assert sizes == info["requested"] and is_nested(levels)
     assert all(pieces(g, lv) == s for lv, s in zip(levels, sizes, strict=True))
     for r in info["report"]:  # every level within 25% of the schedule's own ratio
         assert abs(r["ratio_vs_requested"] - 1) <= 0.25
-    # a single number still means every level
+    # a single number still means every level (cuts at every level)
     _, info8 = build_hierarchy(m, d, model="rtree", ratio=8, coarsest=10)
-    assert info8["requested"] == level_counts(m.n_cells, 8, 10)
+    assert info8["requested"] == level_counts(m.n_cells, 8, 10) and info8["finest"] == "cuts"
+    # the default: the cuts at every level with the schedule by dimension
+    _, infoc = build_hierarchy(m, d, model="rtree", coarsest=10)
+    assert infoc["ratio"] == list(default_ratio(dim)) and infoc["finest"] == "cuts"
+    assert infoc["requested"] == level_counts(m.n_cells, default_ratio(dim), 10)
+    with pytest.raises(ParameterError, match="finest must be aggregation or cuts"):
+        build_hierarchy(m, d, model="rtree", model_options={"finest": "box"})
 
 
 def _extent_ratio(d, labels):

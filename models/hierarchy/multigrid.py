@@ -53,7 +53,7 @@ def tpfa_poisson(
     the centroids (interior faces) or between the centroid and the face centre (boundary faces,
     u = 0), where k_d = d^T K d / |d|^2 along that connecting vector d (K = diag(kappa), identity
     without; exact on K-orthogonal meshes such as axis-aligned boundary layers)."""
-    from models.mesh.geometry import face_measures
+    from models.partition.rtree_strength import tpfa_boundary
 
     g = data.graph
     n = g.n
@@ -68,18 +68,7 @@ def tpfa_poisson(
     dv = c[rows] - c[g.indices]
     d = np.linalg.norm(dv, axis=1)
     t = g.weights * _directional(dv, kappa) / np.maximum(d, 1e-300)
-    f = g.faces
-    fb = np.flatnonzero(g.partner < 0)
-    pts = np.asarray(mesh.points, dtype=np.float64)[:, : c.shape[1]]
-    size = np.diff(f.offsets)[fb]
-    first = np.zeros(fb.size + 1, dtype=np.int64)
-    np.cumsum(size, out=first[1:])
-    idx = np.repeat(f.offsets[fb] - first[:-1], size) + np.arange(first[-1])
-    fsum = np.add.reduceat(pts[f.nodes[idx]], first[:-1], axis=0) if fb.size else np.zeros((0, c.shape[1]))
-    fcen = fsum / np.maximum(size, 1)[:, None]
-    owner = f.cell[fb]
-    bv = c[owner] - fcen
-    tb = face_measures(pts, f, fb) * _directional(bv, kappa) / np.maximum(np.linalg.norm(bv, axis=1), 1e-300)
+    owner, tb = tpfa_boundary(mesh, data, kappa)
     diag = np.bincount(rows, weights=t, minlength=n) + np.bincount(owner, weights=tb, minlength=n)
     A = sp.csr_matrix((-t, g.indices, g.indptr), shape=(n, n)) + sp.diags(diag)
     return A.tocsr(), np.asarray(data.measures, dtype=np.float64).copy()

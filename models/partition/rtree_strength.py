@@ -35,6 +35,36 @@ def tpfa_coupling(
     return np.asarray(face, dtype=np.float64) * kd / np.maximum(d2, 1e-300) ** 1.5
 
 
+def _directional(v: np.ndarray, kappa: np.ndarray | None) -> np.ndarray:
+    """v_hat^T K v_hat for the rows v (K = diag(kappa)); 1 without kappa."""
+    if kappa is None:
+        return np.ones(v.shape[0])
+    sq = v * v
+    return (sq @ np.asarray(kappa, dtype=np.float64)) / np.maximum(sq.sum(axis=1), 1e-300)
+
+
+def tpfa_boundary(mesh, data, kappa: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(owner cell, transmissibility) of every boundary face of the TPFA operator with u = 0 there:
+    |f| k_d / |d|, d from the cell's centroid to the face centre (k_d = d^T K d / |d|^2)."""
+    from models.mesh.geometry import face_measures
+
+    g = data.graph
+    c = data.centroids
+    f = g.faces
+    fb = np.flatnonzero(g.partner < 0)
+    pts = np.asarray(mesh.points, dtype=np.float64)[:, : c.shape[1]]
+    size = np.diff(f.offsets)[fb]
+    first = np.zeros(fb.size + 1, dtype=np.int64)
+    np.cumsum(size, out=first[1:])
+    idx = np.repeat(f.offsets[fb] - first[:-1], size) + np.arange(first[-1])
+    fsum = np.add.reduceat(pts[f.nodes[idx]], first[:-1], axis=0) if fb.size else np.zeros((0, c.shape[1]))
+    fcen = fsum / np.maximum(size, 1)[:, None]
+    owner = f.cell[fb]
+    bv = c[owner] - fcen
+    tb = face_measures(pts, f, fb) * _directional(bv, kappa) / np.maximum(np.linalg.norm(bv, axis=1), 1e-300)
+    return owner, tb
+
+
 def _cross_at_cuts(n: int, cells: np.ndarray, eu, ev, et) -> np.ndarray:
     """cross[j]: the weight of the edges (eu, ev, et) crossing the cut before position j of `cells`
     (the active parts' cells, each part's sorted along an axis): an edge at positions a < b crosses

@@ -1,0 +1,59 @@
+"""The finest level of a default hierarchy: a standard aggregation of the cells' graph
+(models/partition/rtree_aggregate.py, issue 24 round five)."""
+
+import numpy as np
+import pytest
+from conftest import pieces
+from meshes import quads, tets
+
+from models.hierarchy.multigrid import mgcheck, tpfa_poisson
+from models.hierarchy.nested import build_hierarchy, is_nested
+from models.mesh.read import mesh_from_arrays
+from models.partition.rtree_aggregate import normalized_coupling, standard_aggregates
+from models.pipeline import prepare
+
+
+def _mesh(make, cell):
+    p, c = make()
+    m = mesh_from_arrays(p, [(cell, c)])
+    g, d = prepare(m)
+    return m, g, d
+
+
+@pytest.mark.parametrize("make,cell", [(lambda: quads(30), "quad"), (lambda: tets(8), "tetra")])
+def test_roots_neighbours_and_connected_elements(make, cell):
+    m, g, d = _mesh(make, cell)
+    ip, ii = np.asarray(d.graph.indptr, dtype=np.int64), np.asarray(d.graph.indices, dtype=np.int64)
+    A, _ = tpfa_poisson(m, d)
+    lab = standard_aggregates(
+        ip,
+        ii,
+        normalized_coupling(ip, ii, -A[np.repeat(np.arange(m.n_cells), np.diff(ip)), ii].A1, A.diagonal()),
+    )
+    k = int(lab.max()) + 1
+    assert np.array_equal(np.unique(lab), np.arange(k)) and pieces(g, lab) == k
+    # every element holds a root with all its neighbours: a cell whose whole neighbourhood is inside
+    rows = np.repeat(np.arange(m.n_cells), np.diff(ip))
+    outside = np.bincount(rows, weights=(lab[rows] != lab[ii]).astype(float), minlength=m.n_cells)
+    assert np.all(np.bincount(lab, weights=(outside == 0).astype(float), minlength=k) >= 1)
+    # the same roots as pyamg's sequential greedy pass (lowest index first): the same count
+    pyamg = pytest.importorskip("pyamg")
+    C = pyamg.strength.symmetric_strength_of_connection(A, 0.0)
+    assert pyamg.aggregation.standard_aggregation(C)[0].shape[1] == k
+
+
+def test_aggregated_hierarchy_no_more_iterations_than_pyamg():
+    pytest.importorskip("pyamg")
+    m, g, d = _mesh(lambda: tets(10), "tetra")
+    levels, info = build_hierarchy(m, d, model="rtree", coarsest=10, model_options={"finest": "aggregation"})
+    assert info["finest"] == "aggregation" and is_nested(levels)
+    assert all(pieces(g, lv) == int(lv.max()) + 1 for lv in levels)
+    rep = mgcheck(m, d, levels)
+    assert rep["smoothed"]["iterations"] <= rep["pyamg_sa"]["iterations"]
+    assert rep["ratios"]["smoothed_complexity_vs_pyamg"] <= 1.1
+
+
+def test_isolated_nodes_are_their_own_elements():
+    ip = np.array([0, 1, 2, 2])  # 0 - 1, node 2 alone
+    lab = standard_aggregates(ip, np.array([1, 0]), np.ones(2))
+    assert lab[0] == lab[1] and lab[2] != lab[0]
