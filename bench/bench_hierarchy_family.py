@@ -58,10 +58,14 @@ MODELS = {
     "rtree-r8": ("rtree", None),  # ratio 8 at every level (the default before round three)
     "rtree-kappa": ("rtree", None),  # cut in the metric of the member's tensor kappa (where it has one)
     "rtree-boxfit": ("rtree", {"boxfit": True}),  # + models.hierarchy.boxfit (units moved to tighter boxes)
+    "rtree-box-boxfit": ("rtree", {"axes": "box", "boxfit": True}),  # least-overlap cuts + boxfit
     "metis": ("metis", None),
     "kmeans": ("kmeans", None),
     "sage-base": ("sage-base", None),
 }
+
+# the models whose levels at exactly 91 and 364 elements are measured (box_at: their axes and boxfit)
+BOX_AT = ("rtree", "rtree-box", "rtree-boxfit", "rtree-box-boxfit")
 
 
 def face_ratio(mesh) -> tuple[float, float]:
@@ -265,13 +269,11 @@ def main() -> None:
             if model == "rtree-kappa" and kappa is None:
                 continue  # the same levels as rtree
             r = row(name, mesh, graph, data, model, kappa, t_metis)
-            if (
-                model in ("rtree", "rtree-boxfit")
-                and mesh.dim == 2
-                and "error" not in r
-                and not HOLED.get(name, False)
-            ):
-                r["box_at"] = box_at(mesh, data, boxfit=model == "rtree-boxfit")
+            if model in BOX_AT and mesh.dim == 2 and "error" not in r and not HOLED.get(name, False):
+                o = MODELS[model][1] or {}
+                r["box_at"] = box_at(
+                    mesh, data, axes=o.get("axes", "strength-mincut"), boxfit=bool(o.get("boxfit"))
+                )
             rows.append(r)
             print(fmt(r), flush=True)
     ok = [r for r in rows if "error" not in r]

@@ -20,9 +20,7 @@ def delaunay():
     """About 3000 Delaunay triangles of random points in the unit square (seeded)."""
     rng = np.random.default_rng(7)
     s = np.linspace(0.0, 1.0, 31)[:-1]
-    edge = np.vstack(
-        [np.c_[s, 0 * s], np.c_[1 + 0 * s, s], np.c_[1 - s, 1 + 0 * s], np.c_[0 * s, 1 - s]]
-    )
+    edge = np.vstack([np.c_[s, 0 * s], np.c_[1 + 0 * s, s], np.c_[1 - s, 1 + 0 * s], np.c_[0 * s, 1 - s]])
     pts = np.vstack([edge, 0.01 + 0.98 * rng.random((1500, 2))])
     tri = Delaunay(pts).simplices
     mesh = mesh_from_arrays(pts, [("triangle", tri)])
