@@ -290,7 +290,7 @@ def main() -> None:
         for r in at:
             b = r["box_at"]
             print(
-                f"  {r['mesh']:<14}{r['model']:<14} 91: {b['91'][0]:.2f} / {b['91'][1]:.2f}   "
+                f"  {r['mesh']:<14}{r['model']:<18} 91: {b['91'][0]:.2f} / {b['91'][1]:.2f}   "
                 f"364: {b['364'][0]:.2f} / {b['364'][1]:.2f}"
             )
         for model in dict.fromkeys(r["model"] for r in at):
