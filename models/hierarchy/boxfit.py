@@ -174,7 +174,7 @@ def boxfit_levels(
     **options,
 ) -> list[np.ndarray]:
     """Box-fitted nested levels (coarsest first, (cells,) labels each): from the finest level to the
-    coarsest but one, boxfit_units with the finer level's elements as the units (the cells at the
+    coarsest, boxfit_units with the finer level's elements as the units (the cells at the
     finest); the coarser levels follow the moved units. lo, hi: (cells, dim) the cells' bounding boxes;
     indptr, indices: the cells' dual graph; options: boxfit_units' (passes, sweeps, slack, margin)."""
     out = [np.asarray(lv, dtype=np.int64).copy() for lv in levels]
