@@ -61,10 +61,15 @@ MODELS = {
     "rtree-s-pos": ("rtree", {"axes": "strength-position"}),  # longest extent, cut position by couplings
     "rtree-r8": ("rtree", None),  # ratio 8 at every level (the default before round three)
     "rtree-kappa": ("rtree", None),  # cut in the metric of the member's tensor kappa (where it has one)
+    "rtree-boxfit": ("rtree", {"boxfit": True}),  # + models.hierarchy.boxfit (units moved to tighter boxes)
+    "rtree-box-boxfit": ("rtree", {"axes": "box", "boxfit": True}),  # least-overlap cuts + boxfit
     "metis": ("metis", None),
     "kmeans": ("kmeans", None),
     "sage-base": ("sage-base", None),
 }
+
+# the models whose levels at exactly 91 and 364 elements are measured (box_at: their axes and boxfit)
+BOX_AT = ("rtree", "rtree-box", "rtree-boxfit", "rtree-box-boxfit")
 
 
 def face_ratio(mesh) -> tuple[float, float]:
@@ -93,10 +98,10 @@ def metis_time(data, k: int) -> float:
     return time.perf_counter() - t
 
 
-def box_at(mesh, data, counts=(91, 364), axes="strength-mincut") -> dict:
+def box_at(mesh, data, counts=(91, 364), axes="strength-mincut", boxfit=False) -> dict:
     """Box ratio and coverage of rtree hierarchy levels of exactly `counts` elements (R3MG's measures
     at 91 and 364 elements; count-weighted cuts as build_hierarchy makes them; 2D members without
-    holes)."""
+    holes); boxfit: then models.hierarchy.boxfit's pass on them (nested, as build_hierarchy does)."""
     from models.graph.batch import GraphBatch
     from models.partition.rtree import cell_boxes, rtree_levels
 
@@ -113,6 +118,10 @@ def box_at(mesh, data, counts=(91, 364), axes="strength-mincut") -> dict:
     )
     boxes = cell_boxes(data.points, data.offsets, data.connectivity)
     levels = rtree_levels(batch, list(counts), balance="cells", boxes=boxes, axes=axes)
+    if boxfit:
+        from models.hierarchy.boxfit import boxfit_levels
+
+        levels = boxfit_levels(levels, boxes[0], boxes[1], data.measures, G.indptr, G.indices)
     out = {}
     for c, lv in zip(counts, levels, strict=True):
         bm = box_measures(mesh.points, mesh.offsets, mesh.connectivity, lv, data.measures)
@@ -264,8 +273,11 @@ def main() -> None:
             if model == "rtree-kappa" and kappa is None:
                 continue  # the same levels as rtree
             r = row(name, mesh, graph, data, model, kappa, t_metis)
-            if model == "rtree" and mesh.dim == 2 and "error" not in r and not HOLED.get(name, False):
-                r["box_at"] = box_at(mesh, data)
+            if model in BOX_AT and mesh.dim == 2 and "error" not in r and not HOLED.get(name, False):
+                o = MODELS[model][1] or {}
+                r["box_at"] = box_at(
+                    mesh, data, axes=o.get("axes", "strength-mincut"), boxfit=bool(o.get("boxfit"))
+                )
             rows.append(r)
             print(fmt(r), flush=True)
     ok = [r for r in rows if "error" not in r]
@@ -282,12 +294,15 @@ def main() -> None:
         for r in at:
             b = r["box_at"]
             print(
-                f"  {r['mesh']:<14} 91: {b['91'][0]:.2f} / {b['91'][1]:.2f}   364: {b['364'][0]:.2f} / {b['364'][1]:.2f}"
+                f"  {r['mesh']:<14}{r['model']:<18} 91: {b['91'][0]:.2f} / {b['91'][1]:.2f}   "
+                f"364: {b['364'][0]:.2f} / {b['364'][1]:.2f}"
             )
-        print(
-            f"  worst: BR {min(min(r['box_at']['91'][0], r['box_at']['364'][0]) for r in at):.2f}, "
-            f"coverage {max(max(r['box_at']['91'][1], r['box_at']['364'][1]) for r in at):.2f}"
-        )
+        for model in dict.fromkeys(r["model"] for r in at):
+            rs = [r for r in at if r["model"] == model]
+            print(
+                f"  worst {model}: BR {min(min(r['box_at']['91'][0], r['box_at']['364'][0]) for r in rs):.2f}, "
+                f"coverage {max(max(r['box_at']['91'][1], r['box_at']['364'][1]) for r in rs):.2f}"
+            )
     print("\nworst over the family:")
     for line in worst_cases(rows):
         print("  " + line)

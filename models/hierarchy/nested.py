@@ -457,6 +457,8 @@ def build_hierarchy(
     t0 = time.perf_counter()
     n = mesh.n_cells
     default = ratio is None
+    model_options = dict(model_options or {})
+    boxfit = bool(model_options.pop("boxfit", False))  # models.hierarchy.boxfit after the levels
     if ratio is None:
         ratio = default_ratio(mesh.dim)
     if finest is not None:
@@ -575,7 +577,13 @@ def build_hierarchy(
             levels = [cand[i] for i in pick]
             how = "top-down recursive bisection, recorded"
     levels = [np.asarray(lv, dtype=np.int64) for lv in levels]
-    levels, polys, report = fix_holes(mesh, data, levels, level_graphs if model == "rtree" else None)
+    if boxfit:  # boundary units moved towards tighter boxes; the elements' graphs change
+        from models.hierarchy.boxfit import boxfit_levels
+
+        lo, hi = cell_boxes(data.points, data.offsets, data.connectivity)
+        levels = boxfit_levels(levels, lo, hi, data.measures, data.graph.indptr, data.graph.indices)
+    known = level_graphs if model == "rtree" and not boxfit else None
+    levels, polys, report = fix_holes(mesh, data, levels, known)
     info = {
         "model": model,
         "finest": finest_mode,
