@@ -49,6 +49,7 @@ PRELOAD = (
     "models.native",
     "models.mesh.read",
     "models.mesh.vtu",
+    "models.mesh.lattice",
     "models.mesh.ucd",
     "models.mesh.geometry",
     "models.mesh.orientation",
@@ -267,32 +268,49 @@ def pid() -> int | None:
 # the zygote, or by the caller itself: models.mesh.sandbox)
 
 
-def _child(fn, args, shm: int, w: int, memory_bytes: int, timeout_s: float) -> None:
+def _isolate() -> None:
+    """The reading child's setup that needs no request (a spare child does it before one comes)."""
+    import faulthandler
+    import gc
+    import resource
+
+    gc.disable()  # a collection would touch every object: copy-on-write faults for nothing
+    faulthandler.disable()  # its dump would go to a copy of stderr kept apart (pytest, PYTHONFAULTHANDLER)
+    devnull = os.open(os.devnull, os.O_RDWR)
+    for fd in (0, 1, 2):  # a C++ reader's error text never reaches the user's terminal
+        os.dup2(devnull, fd)
+    os.close(devnull)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+
+
+def _limit(memory_bytes: int, timeout_s: float) -> None:
+    """This read's limits: its address space may grow by memory_bytes from here, and it may use
+    timeout_s (+2) seconds of CPU from here (a spare child has used some waiting for its request)."""
+    import resource
+
+    _, hard = resource.getrlimit(resource.RLIMIT_AS)
+    with open("/proc/self/statm") as f:
+        used = int(f.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+    soft = used + int(memory_bytes)
+    if hard != resource.RLIM_INFINITY:
+        soft = min(soft, hard)
+    resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    cpu = int(usage.ru_utime + usage.ru_stime + 0.999) + int(timeout_s) + 2
+    _, cpu_hard = resource.getrlimit(resource.RLIMIT_CPU)
+    if cpu_hard == resource.RLIM_INFINITY or cpu < cpu_hard:
+        resource.setrlimit(resource.RLIMIT_CPU, (cpu, cpu_hard))
+
+
+def _child(fn, args, shm: int, w: int, memory_bytes: int, timeout_s: float, isolated: bool = False) -> None:
+    """One read in this (forked) process under the limits, its answer into the memfd, one byte "1"
+    on w when it is whole; never returns. isolated: _isolate has run already (a spare child)."""
     code = 1
     try:
-        import faulthandler
-        import gc
-
-        gc.disable()  # a collection would touch every object: copy-on-write faults for nothing
-        import resource
-
-        faulthandler.disable()  # its dump would go to a copy of stderr kept apart (pytest, PYTHONFAULTHANDLER)
-        devnull = os.open(os.devnull, os.O_RDWR)
-        for fd in (0, 1, 2):  # a C++ reader's error text never reaches the user's terminal
-            os.dup2(devnull, fd)
-        signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
-        resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
-        _, hard = resource.getrlimit(resource.RLIMIT_AS)
-        with open("/proc/self/statm") as f:
-            used = int(f.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
-        soft = used + int(memory_bytes)
-        if hard != resource.RLIM_INFINITY:
-            soft = min(soft, hard)
-        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
-        cpu = int(timeout_s) + 2
-        _, cpu_hard = resource.getrlimit(resource.RLIMIT_CPU)
-        if cpu_hard == resource.RLIM_INFINITY or cpu < cpu_hard:
-            resource.setrlimit(resource.RLIMIT_CPU, (cpu, cpu_hard))
+        if not isolated:
+            _isolate()
+        _limit(memory_bytes, timeout_s)
         try:
             answer = ("ok", fn(*args))
         except MagnetError as exc:
@@ -333,7 +351,9 @@ def _dump(answer, shm: int) -> None:
 
 
 def serve(fd: int) -> None:
-    """The zygote's loop (in its own interpreter): preload, say ready, fork a child per request."""
+    """The zygote's loop (in its own interpreter): preload, fork the first spare child, say ready;
+    per request, hand it to the spare (or, the spare being dead, to a child forked now), watch that
+    child to its end, answer, then fork the next spare."""
     import gc
     import importlib
 
@@ -347,8 +367,9 @@ def serve(fd: int) -> None:
     _warm_up()
     gc.collect()
     gc.freeze()  # the children never copy these objects' pages for a collection
-    sock.send(b"R")
     pending: list[int] = []
+    spare = _fork_spare(sock)
+    sock.send(b"R")
     while True:
         try:
             msg, fds, _, _ = socket.recv_fds(sock, _MSG, 1)
@@ -361,21 +382,12 @@ def serve(fd: int) -> None:
         if not fds:
             continue
         shm = fds[0]
-        fn, args, memory_bytes, timeout_s, env, cwd = pickle.loads(msg)
-        r, w = os.pipe()
-        child = os.fork()
-        if child == 0:  # never returns
-            sock.close()
-            os.close(r)
-            os.environ.clear()
-            os.environ.update(env)
-            try:
-                os.chdir(cwd)
-            except OSError:
-                pass
-            _child(fn, args, shm, w, memory_bytes, timeout_s)
-        os.close(w)
-        os.close(shm)
+        timeout_s = pickle.loads(msg)[3]
+        try:
+            child, r = _hand(spare, msg, shm, sock)
+        finally:
+            spare = None
+            os.close(shm)
         try:
             sock.send(pickle.dumps(("pid", child)))
             status = _watch(child, r, sock, timeout_s, pending)
@@ -384,22 +396,192 @@ def serve(fd: int) -> None:
         if status is None:  # the caller went away mid-read
             break
         sock.send(pickle.dumps(("done", status)))
+        spare = _fork_spare(sock)  # after the answer: its fork is off the next read's path
+    if spare is not None:
+        spare[1].close()  # the spare's request channel ends: it exits
     sock.close()
 
 
+def _fork_spare(sock: socket.socket):
+    """A child forked ahead of the request (isolated, waiting on its own socket for one request):
+    (pid, the socket to hand it the request, the read end of its answer pipe)."""
+    ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+    r, w = os.pipe()
+    child = os.fork()
+    if child == 0:  # never returns
+        sock.close()
+        ours.close()
+        os.close(r)
+        _spare(theirs, w)
+    theirs.close()
+    os.close(w)
+    return child, ours, r
+
+
+def _spare(conn: socket.socket, w: int) -> None:
+    """The spare child: isolated now, then one request (its read, its answer), then its end.
+    The zygote gone (its socket ended) or a malformed request: it exits without a read."""
+    try:
+        _isolate()
+        msg, fds, _, _ = socket.recv_fds(conn, _MSG, 1)
+        conn.close()
+        for f in fds[1:]:
+            os.close(f)
+        if not msg or not fds:
+            os._exit(0)
+        fn, args, memory_bytes, timeout_s, env, cwd = pickle.loads(msg)
+        os.environ.clear()
+        os.environ.update(env)
+        try:
+            os.chdir(cwd)
+        except OSError:
+            pass
+    except BaseException:
+        os._exit(1)
+    _child(fn, args, fds[0], w, memory_bytes, timeout_s, isolated=True)
+
+
+def _hand(spare, msg: bytes, shm: int, sock: socket.socket):
+    """Give the request to the spare child; a spare that died waiting (its answer pipe at its end)
+    or that cannot take it is collected, and a child forked now takes it. (pid, answer pipe)."""
+    if spare is not None:
+        child, conn, r = spare
+        try:
+            if not select.select([r], [], [], 0)[0]:  # no end of file: the spare is alive
+                socket.send_fds(conn, [msg], [shm])
+                return child, r
+        except OSError:
+            pass
+        finally:
+            conn.close()
+        os.close(r)
+        _end(child)
+    child, conn, r = _fork_spare(sock)
+    try:
+        socket.send_fds(conn, [msg], [shm])
+    finally:
+        conn.close()
+    return child, r
+
+
+def _end(child: int) -> None:
+    try:
+        os.kill(child, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    try:
+        os.waitpid(child, 0)
+    except ChildProcessError:
+        pass
+
+
 def _warm_up() -> None:
+    """Read a small file of each kind the bench and the service meet most (legacy VTK binary and
+    ASCII, VTU appended, VTI, VTS, Exodus II), written here by VTK's and meshio's writers: every
+    module a reader imports lazily is imported here, and each reader's first-call costs are paid
+    here, once, instead of by every child."""
     import tempfile
 
     from models.mesh.read import read_mesh
 
+    with tempfile.TemporaryDirectory(prefix="magnet-zygote-") as folder:
+        path = os.path.join(folder, "warm-up.vtk")
+        with open(path, "wb") as f:
+            f.write(_WARMUP)
+        paths = [path]
+        try:
+            paths += _warm_up_files(folder)
+        except Exception:  # noqa: BLE001  (a warm-up only: the reads work without it)
+            pass
+        for path in paths:
+            try:
+                read_mesh(path)
+            except Exception:  # noqa: BLE001
+                pass
+
+
+def _warm_up_files(folder: str) -> list[str]:
+    import numpy as np
+    from vtkmodules.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray
+    from vtkmodules.vtkCommonCore import VTK_UNSIGNED_CHAR, vtkPoints
+    from vtkmodules.vtkCommonDataModel import (
+        vtkCellArray,
+        vtkImageData,
+        vtkStructuredGrid,
+        vtkUnstructuredGrid,
+    )
+    from vtkmodules.vtkIOLegacy import vtkDataSetWriter
+    from vtkmodules.vtkIOXML import (
+        vtkXMLImageDataWriter,
+        vtkXMLStructuredGridWriter,
+        vtkXMLUnstructuredGridWriter,
+    )
+
+    n = 2  # cells per side
+    g = np.arange(n + 1, dtype=np.float64)
+    z, y, x = np.meshgrid(g, g, g, indexing="ij")  # x fastest
+    points = np.column_stack([x.ravel(), y.ravel(), z.ravel()])
+    i, j, k = (a.ravel() for a in np.meshgrid(*(np.arange(n),) * 3, indexing="ij"))
+    b = i + (n + 1) * (j + (n + 1) * k)
+    sx, sy, sz = 1, n + 1, (n + 1) ** 2
+    hexes = np.stack([b, b + sx, b + sx + sy, b + sy, b + sz, b + sz + sx, b + sz + sx + sy, b + sz + sy], 1)
+    kuhn = [[0, 1, 2, 6], [0, 2, 3, 6], [0, 3, 7, 6], [0, 7, 4, 6], [0, 4, 5, 6], [0, 5, 1, 6]]
+    tets = np.concatenate([hexes[:, q] for q in kuhn])
+
+    def grid(cells, vtk_type):
+        ug = vtkUnstructuredGrid()
+        pts = vtkPoints()
+        pts.SetData(numpy_to_vtk(points, deep=True))
+        ug.SetPoints(pts)
+        offsets = np.arange(len(cells) + 1, dtype=np.int64) * cells.shape[1]
+        ca = vtkCellArray()
+        ca.SetData(
+            numpy_to_vtkIdTypeArray(offsets, deep=True),
+            numpy_to_vtkIdTypeArray(cells.astype(np.int64).ravel(), deep=True),
+        )
+        types = np.full(len(cells), vtk_type, np.uint8)
+        ug.SetCells(numpy_to_vtk(types, deep=True, array_type=VTK_UNSIGNED_CHAR), ca)
+        return ug
+
+    hex_grid, tet_grid = grid(hexes, 12), grid(tets, 10)
+    image = vtkImageData()
+    image.SetDimensions(n + 1, n + 1, n + 1)
+    structured = vtkStructuredGrid()
+    structured.SetDimensions(n + 1, n + 1, n + 1)
+    pts = vtkPoints()
+    pts.SetData(numpy_to_vtk(points, deep=True))
+    structured.SetPoints(pts)
+    out = []
+    for name, writer, data, setup in (
+        ("hex.vtk", vtkDataSetWriter, hex_grid, ("SetFileTypeToBinary",)),
+        ("tet.vtk", vtkDataSetWriter, tet_grid, ()),
+        ("tet.vtu", vtkXMLUnstructuredGridWriter, tet_grid, ("SetDataModeToAppended",)),
+        (
+            "hex.vtu",
+            vtkXMLUnstructuredGridWriter,
+            hex_grid,
+            ("SetDataModeToAppended", "EncodeAppendedDataOff"),
+        ),
+        ("image.vti", vtkXMLImageDataWriter, image, ("SetDataModeToAppended",)),
+        ("grid.vts", vtkXMLStructuredGridWriter, structured, ("SetDataModeToAppended",)),
+    ):
+        path = os.path.join(folder, name)
+        w = writer()
+        w.SetFileName(path)
+        w.SetInputData(data)
+        for call in setup:
+            getattr(w, call)()
+        if w.Write() == 1:
+            out.append(path)
     try:
-        with tempfile.TemporaryDirectory(prefix="magnet-zygote-") as folder:
-            path = os.path.join(folder, "warm-up.vtk")
-            with open(path, "wb") as f:
-                f.write(_WARMUP)
-            read_mesh(path)
-    except Exception:  # noqa: BLE001  (a warm-up only: the reads work without it)
+        import meshio
+
+        path = os.path.join(folder, "hex.exo")
+        meshio.write(path, meshio.Mesh(points, [("hexahedron", hexes)]), file_format="exodus")
+        out.append(path)
+    except Exception:  # noqa: BLE001  (no netCDF4: no Exodus II warm-up)
         pass
+    return out
 
 
 def _watch(child: int, r: int, sock: socket.socket, timeout_s: float, pending: list[int]):
