@@ -56,6 +56,7 @@ PRELOAD = (
     "models.mesh.boundary",
     "models.mesh.dual",
     "models.mesh.vtk_readers",
+    "models.mesh.sandbox",  # sandbox._read_in_child: the function every request names
     "vtkmodules.vtkCommonCore",
     "vtkmodules.vtkCommonDataModel",
     "vtkmodules.vtkIOXML",
@@ -75,6 +76,8 @@ _WARMUP = (
 _ALIGN = 64
 _ERRORS = {"MeshError": MeshError, "ParameterError": ParameterError, "ModelError": ModelError}
 _MSG = 1 << 20  # the largest request (a pickled environment and a path: a few KB)
+_HEAP = 1 << 30  # a spare's blocks up to this size come from its heap, kept when freed
+_PREFAULT = 64 << 20  # heap a spare touches while it waits (its resident memory meanwhile)
 _SLACK_S = 10.0  # the zygote enforces the deadline; the caller waits this much longer for its word
 
 
@@ -364,11 +367,15 @@ def serve(fd: int) -> None:
             importlib.import_module(name)
         except Exception:  # noqa: BLE001  (a module missing here is imported by the child that needs it)
             pass
-    _warm_up()
+    import shutil
+    import tempfile
+
+    folder = tempfile.mkdtemp(prefix="magnet-zygote-")
+    paths = _warm_up(folder)
     gc.collect()
     gc.freeze()  # the children never copy these objects' pages for a collection
     pending: list[int] = []
-    spare = _fork_spare(sock)
+    spare = _fork_spare(sock, paths)
     sock.send(b"R")
     while True:
         try:
@@ -384,7 +391,7 @@ def serve(fd: int) -> None:
         shm = fds[0]
         timeout_s = pickle.loads(msg)[3]
         try:
-            child, r = _hand(spare, msg, shm, sock)
+            child, r = _hand(spare, msg, shm, sock, paths)
         finally:
             spare = None
             os.close(shm)
@@ -396,13 +403,14 @@ def serve(fd: int) -> None:
         if status is None:  # the caller went away mid-read
             break
         sock.send(pickle.dumps(("done", status)))
-        spare = _fork_spare(sock)  # after the answer: its fork is off the next read's path
+        spare = _fork_spare(sock, paths)  # after the answer: its fork is off the next read's path
     if spare is not None:
         spare[1].close()  # the spare's request channel ends: it exits
     sock.close()
+    shutil.rmtree(folder, ignore_errors=True)
 
 
-def _fork_spare(sock: socket.socket):
+def _fork_spare(sock: socket.socket, paths: list[str], warm: bool = True):
     """A child forked ahead of the request (isolated, waiting on its own socket for one request):
     (pid, the socket to hand it the request, the read end of its answer pipe)."""
     ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
@@ -412,17 +420,19 @@ def _fork_spare(sock: socket.socket):
         sock.close()
         ours.close()
         os.close(r)
-        _spare(theirs, w)
+        _spare(theirs, w, paths if warm else [], warm)
     theirs.close()
     os.close(w)
     return child, ours, r
 
 
-def _spare(conn: socket.socket, w: int) -> None:
+def _spare(conn: socket.socket, w: int, paths: list[str], warm: bool) -> None:
     """The spare child: isolated now, then one request (its read, its answer), then its end.
     The zygote gone (its socket ended) or a malformed request: it exits without a read."""
     try:
         _isolate()
+        if warm:
+            _prewarm(conn, paths)
         msg, fds, _, _ = socket.recv_fds(conn, _MSG, 1)
         conn.close()
         for f in fds[1:]:
@@ -430,8 +440,7 @@ def _spare(conn: socket.socket, w: int) -> None:
         if not msg or not fds:
             os._exit(0)
         fn, args, memory_bytes, timeout_s, env, cwd = pickle.loads(msg)
-        os.environ.clear()
-        os.environ.update(env)
+        _environ(env)
         try:
             os.chdir(cwd)
         except OSError:
@@ -441,7 +450,16 @@ def _spare(conn: socket.socket, w: int) -> None:
     _child(fn, args, fds[0], w, memory_bytes, timeout_s, isolated=True)
 
 
-def _hand(spare, msg: bytes, shm: int, sock: socket.socket):
+def _environ(env: dict) -> None:
+    """os.environ made `env`, setting only what differs (each change is a putenv)."""
+    for key in [k for k in os.environ if k not in env]:
+        del os.environ[key]
+    for key, value in env.items():
+        if os.environ.get(key) != value:
+            os.environ[key] = value
+
+
+def _hand(spare, msg: bytes, shm: int, sock: socket.socket, paths: list[str]):
     """Give the request to the spare child; a spare that died waiting (its answer pipe at its end)
     or that cannot take it is collected, and a child forked now takes it. (pid, answer pipe)."""
     if spare is not None:
@@ -456,7 +474,7 @@ def _hand(spare, msg: bytes, shm: int, sock: socket.socket):
             conn.close()
         os.close(r)
         _end(child)
-    child, conn, r = _fork_spare(sock)
+    child, conn, r = _fork_spare(sock, paths, warm=False)  # the request waits: no warm-up
     try:
         socket.send_fds(conn, [msg], [shm])
     finally:
@@ -475,29 +493,70 @@ def _end(child: int) -> None:
         pass
 
 
-def _warm_up() -> None:
-    """Read a small file of each kind the bench and the service meet most (legacy VTK binary and
-    ASCII, VTU appended, VTI, VTS, Exodus II), written here by VTK's and meshio's writers: every
-    module a reader imports lazily is imported here, and each reader's first-call costs are paid
-    here, once, instead of by every child."""
-    import tempfile
-
+def _warm_up(folder: str) -> list[str]:
+    """Write a small file of each kind the bench and the service meet most (legacy VTK binary and
+    ASCII, VTU appended, VTI, VTS, Exodus II; VTK's and meshio's writers) into `folder` and read
+    each: every module a reader imports lazily is imported here, and each reader's first-call
+    costs are paid here, once, instead of by every child. The paths read (the spares read them again)."""
     from models.mesh.read import read_mesh
 
-    with tempfile.TemporaryDirectory(prefix="magnet-zygote-") as folder:
-        path = os.path.join(folder, "warm-up.vtk")
-        with open(path, "wb") as f:
-            f.write(_WARMUP)
-        paths = [path]
+    path = os.path.join(folder, "warm-up.vtk")
+    with open(path, "wb") as f:
+        f.write(_WARMUP)
+    paths = [path]
+    try:
+        paths += _warm_up_files(folder)
+    except Exception:  # noqa: BLE001  (a warm-up only: the reads work without it)
+        pass
+    read = []
+    for path in paths:
         try:
-            paths += _warm_up_files(folder)
-        except Exception:  # noqa: BLE001  (a warm-up only: the reads work without it)
+            read_mesh(path)
+            read.append(path)
+        except Exception:  # noqa: BLE001
             pass
-        for path in paths:
-            try:
-                read_mesh(path)
-            except Exception:  # noqa: BLE001
-                pass
+    return read
+
+
+def _prewarm(conn: socket.socket, paths: list[str]) -> None:
+    """A spare's warm-up while it waits, given up as soon as the request comes (checked between
+    steps of a few milliseconds): the warm-up files read again, so the pages the readers write
+    (reference counts, VTK's and numpy's state) are copied from the zygote's now, not during the
+    read; then heap memory touched once and kept (glibc: blocks up to 1 GiB from the heap, not
+    given back when freed), so the read's arrays land on pages already mapped. Trusted files only
+    (written by the zygote itself)."""
+    from models.mesh.read import read_mesh
+
+    for path in paths:
+        if select.select([conn], [], [], 0)[0]:
+            return
+        try:
+            read_mesh(path)
+        except Exception:  # noqa: BLE001
+            pass
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None)
+        libc.malloc.restype = ctypes.c_void_p
+        libc.malloc.argtypes = [ctypes.c_size_t]
+        libc.free.argtypes = [ctypes.c_void_p]
+        if not (
+            libc.mallopt(-3, _HEAP) and libc.mallopt(-1, 2 * _HEAP)
+        ):  # M_MMAP_THRESHOLD, M_TRIM_THRESHOLD
+            return
+        block = libc.malloc(_PREFAULT)
+    except Exception:  # noqa: BLE001  (not glibc: the read faults its pages in itself)
+        return
+    if block:
+        try:
+            step = 4 << 20
+            for at in range(0, _PREFAULT, step):
+                if select.select([conn], [], [], 0)[0]:
+                    break
+                ctypes.memset(block + at, 0, step)
+        finally:
+            libc.free(block)
 
 
 def _warm_up_files(folder: str) -> list[str]:
