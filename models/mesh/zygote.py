@@ -8,8 +8,11 @@ reader modules, once; its fork costs about a millisecond.
 One zygote per reading process, started lazily in the background at its first sandboxed read (that
 read, and any read while the zygote imports, forks the caller as before). Then, per read, through a
 Unix socket (SOCK_SEQPACKET): the caller sends (fn, args, limits, environment, working folder) and
-a memfd (socket.send_fds); the zygote forks a child that reads under the limits (_child below:
-RLIMIT_AS, RLIMIT_CPU) and writes its answer into the memfd; the zygote enforces the deadline,
+a memfd (socket.send_fds); the zygote hands them to its spare child (forked ahead of the request,
+isolated and warmed up while it waits: _spare, _prewarm), which reads under this read's limits
+(_child below: RLIMIT_AS, RLIMIT_CPU) and writes its answer into the memfd; the next spare is
+forked after the answer (a spare found dead at a request: a child forked then takes the read). One
+child serves one read and exits, as before the spare. The zygote enforces the deadline,
 reports the child's pid and then its end (answered, killed by signal N, timed out), so the caller
 words a crash, a hang or a blow-up exactly as for a child of its own. If the zygote dies, the read in
 flight is done by a direct fork, a new zygote is started, and a log line (logger "magnet.read")
@@ -67,8 +70,9 @@ PRELOAD = (
     "vtkmodules.vtkIOGeometry",
     "vtkmodules.util.numpy_support",
 )
-# one tetrahedron, read once by the zygote before it says ready: the first call's costs (VTK's
-# object factories, numpy's and the validation's first paths) are paid there, not by every child
+# one tetrahedron, read once by the zygote before it says ready (with the files of _warm_up_files):
+# the first call's costs (VTK's object factories, numpy's and the validation's first paths) are
+# paid there, not by every child
 _WARMUP = (
     b"# vtk DataFile Version 4.2\nwarm-up\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 4 double\n"
     b"0 0 0 1 0 0 0 1 0 0 0 1\nCELLS 1 5\n4 0 1 2 3\nCELL_TYPES 1\n10\n"
