@@ -21,7 +21,8 @@ The CLI, the HTTP API and the worker all read through this function, so they wor
 
 The child is forked by the reader zygote (models.mesh.zygote: a helper interpreter holding only the
 readers' modules, started in the background at the first sandboxed read) once it is ready, else by
-this process. In-process reads run under the same deadline (SIGALRM, `deadline`).
+this process. The zygote's child is a spare forked and warmed up ahead of the request (one read per
+child still; the fork off the read's path). In-process reads run under the same deadline (SIGALRM, `deadline`).
 
 The CLI reads through `read_mesh_cli`: in-process when the reader is pure Python (it cannot crash
 the interpreter), in a child forked by the CLI itself when it is native (VTK, HDF5, netCDF).

@@ -8,8 +8,11 @@ reader modules, once; its fork costs about a millisecond.
 One zygote per reading process, started lazily in the background at its first sandboxed read (that
 read, and any read while the zygote imports, forks the caller as before). Then, per read, through a
 Unix socket (SOCK_SEQPACKET): the caller sends (fn, args, limits, environment, working folder) and
-a memfd (socket.send_fds); the zygote forks a child that reads under the limits (_child below:
-RLIMIT_AS, RLIMIT_CPU) and writes its answer into the memfd; the zygote enforces the deadline,
+a memfd (socket.send_fds); the zygote hands them to its spare child (forked ahead of the request,
+isolated and warmed up while it waits: _spare, _prewarm), which reads under this read's limits
+(_child below: RLIMIT_AS, RLIMIT_CPU) and writes its answer into the memfd; the next spare is
+forked after the answer (a spare found dead at a request: a child forked then takes the read). One
+child serves one read and exits, as before the spare. The zygote enforces the deadline,
 reports the child's pid and then its end (answered, killed by signal N, timed out), so the caller
 words a crash, a hang or a blow-up exactly as for a child of its own. If the zygote dies, the read in
 flight is done by a direct fork, a new zygote is started, and a log line (logger "magnet.read")
@@ -49,12 +52,14 @@ PRELOAD = (
     "models.native",
     "models.mesh.read",
     "models.mesh.vtu",
+    "models.mesh.lattice",
     "models.mesh.ucd",
     "models.mesh.geometry",
     "models.mesh.orientation",
     "models.mesh.boundary",
     "models.mesh.dual",
     "models.mesh.vtk_readers",
+    "models.mesh.sandbox",  # sandbox._read_in_child: the function every request names
     "vtkmodules.vtkCommonCore",
     "vtkmodules.vtkCommonDataModel",
     "vtkmodules.vtkIOXML",
@@ -65,8 +70,9 @@ PRELOAD = (
     "vtkmodules.vtkIOGeometry",
     "vtkmodules.util.numpy_support",
 )
-# one tetrahedron, read once by the zygote before it says ready: the first call's costs (VTK's
-# object factories, numpy's and the validation's first paths) are paid there, not by every child
+# one tetrahedron, read once by the zygote before it says ready (with the files of _warm_up_files):
+# the first call's costs (VTK's object factories, numpy's and the validation's first paths) are
+# paid there, not by every child
 _WARMUP = (
     b"# vtk DataFile Version 4.2\nwarm-up\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 4 double\n"
     b"0 0 0 1 0 0 0 1 0 0 0 1\nCELLS 1 5\n4 0 1 2 3\nCELL_TYPES 1\n10\n"
@@ -74,6 +80,8 @@ _WARMUP = (
 _ALIGN = 64
 _ERRORS = {"MeshError": MeshError, "ParameterError": ParameterError, "ModelError": ModelError}
 _MSG = 1 << 20  # the largest request (a pickled environment and a path: a few KB)
+_HEAP = 1 << 30  # a spare's blocks up to this size come from its heap, kept when freed
+_PREFAULT = 64 << 20  # heap a spare touches while it waits (its resident memory meanwhile)
 _SLACK_S = 10.0  # the zygote enforces the deadline; the caller waits this much longer for its word
 
 
@@ -267,32 +275,49 @@ def pid() -> int | None:
 # the zygote, or by the caller itself: models.mesh.sandbox)
 
 
-def _child(fn, args, shm: int, w: int, memory_bytes: int, timeout_s: float) -> None:
+def _isolate() -> None:
+    """The reading child's setup that needs no request (a spare child does it before one comes)."""
+    import faulthandler
+    import gc
+    import resource
+
+    gc.disable()  # a collection would touch every object: copy-on-write faults for nothing
+    faulthandler.disable()  # its dump would go to a copy of stderr kept apart (pytest, PYTHONFAULTHANDLER)
+    devnull = os.open(os.devnull, os.O_RDWR)
+    for fd in (0, 1, 2):  # a C++ reader's error text never reaches the user's terminal
+        os.dup2(devnull, fd)
+    os.close(devnull)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+
+
+def _limit(memory_bytes: int, timeout_s: float) -> None:
+    """This read's limits: its address space may grow by memory_bytes from here, and it may use
+    timeout_s (+2) seconds of CPU from here (a spare child has used some waiting for its request)."""
+    import resource
+
+    _, hard = resource.getrlimit(resource.RLIMIT_AS)
+    with open("/proc/self/statm") as f:
+        used = int(f.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+    soft = used + int(memory_bytes)
+    if hard != resource.RLIM_INFINITY:
+        soft = min(soft, hard)
+    resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    cpu = int(usage.ru_utime + usage.ru_stime + 0.999) + int(timeout_s) + 2
+    _, cpu_hard = resource.getrlimit(resource.RLIMIT_CPU)
+    if cpu_hard == resource.RLIM_INFINITY or cpu < cpu_hard:
+        resource.setrlimit(resource.RLIMIT_CPU, (cpu, cpu_hard))
+
+
+def _child(fn, args, shm: int, w: int, memory_bytes: int, timeout_s: float, isolated: bool = False) -> None:
+    """One read in this (forked) process under the limits, its answer into the memfd, one byte "1"
+    on w when it is whole; never returns. isolated: _isolate has run already (a spare child)."""
     code = 1
     try:
-        import faulthandler
-        import gc
-
-        gc.disable()  # a collection would touch every object: copy-on-write faults for nothing
-        import resource
-
-        faulthandler.disable()  # its dump would go to a copy of stderr kept apart (pytest, PYTHONFAULTHANDLER)
-        devnull = os.open(os.devnull, os.O_RDWR)
-        for fd in (0, 1, 2):  # a C++ reader's error text never reaches the user's terminal
-            os.dup2(devnull, fd)
-        signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
-        resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
-        _, hard = resource.getrlimit(resource.RLIMIT_AS)
-        with open("/proc/self/statm") as f:
-            used = int(f.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
-        soft = used + int(memory_bytes)
-        if hard != resource.RLIM_INFINITY:
-            soft = min(soft, hard)
-        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
-        cpu = int(timeout_s) + 2
-        _, cpu_hard = resource.getrlimit(resource.RLIMIT_CPU)
-        if cpu_hard == resource.RLIM_INFINITY or cpu < cpu_hard:
-            resource.setrlimit(resource.RLIMIT_CPU, (cpu, cpu_hard))
+        if not isolated:
+            _isolate()
+        _limit(memory_bytes, timeout_s)
         try:
             answer = ("ok", fn(*args))
         except MagnetError as exc:
@@ -304,6 +329,10 @@ def _child(fn, args, shm: int, w: int, memory_bytes: int, timeout_s: float) -> N
         _dump(answer, shm)
         os.write(w, b"1")
         code = 0
+        try:  # its exit (unmapping its memory) yields the CPU to the caller taking the answer
+            os.setpriority(os.PRIO_PROCESS, 0, 19)
+        except OSError:
+            pass
     except BaseException:
         pass
     finally:
@@ -333,7 +362,9 @@ def _dump(answer, shm: int) -> None:
 
 
 def serve(fd: int) -> None:
-    """The zygote's loop (in its own interpreter): preload, say ready, fork a child per request."""
+    """The zygote's loop (in its own interpreter): preload, fork the first spare child, say ready;
+    per request, hand it to the spare (or, the spare being dead, to a child forked now), watch that
+    child to its end, answer, then fork the next spare."""
     import gc
     import importlib
 
@@ -344,11 +375,16 @@ def serve(fd: int) -> None:
             importlib.import_module(name)
         except Exception:  # noqa: BLE001  (a module missing here is imported by the child that needs it)
             pass
-    _warm_up()
+    import shutil
+    import tempfile
+
+    folder = tempfile.mkdtemp(prefix="magnet-zygote-")
+    paths = _warm_up(folder)
     gc.collect()
     gc.freeze()  # the children never copy these objects' pages for a collection
-    sock.send(b"R")
     pending: list[int] = []
+    spare = _fork_spare(sock, paths)
+    sock.send(b"R")
     while True:
         try:
             msg, fds, _, _ = socket.recv_fds(sock, _MSG, 1)
@@ -361,21 +397,12 @@ def serve(fd: int) -> None:
         if not fds:
             continue
         shm = fds[0]
-        fn, args, memory_bytes, timeout_s, env, cwd = pickle.loads(msg)
-        r, w = os.pipe()
-        child = os.fork()
-        if child == 0:  # never returns
-            sock.close()
-            os.close(r)
-            os.environ.clear()
-            os.environ.update(env)
-            try:
-                os.chdir(cwd)
-            except OSError:
-                pass
-            _child(fn, args, shm, w, memory_bytes, timeout_s)
-        os.close(w)
-        os.close(shm)
+        timeout_s = pickle.loads(msg)[3]
+        try:
+            child, r = _hand(spare, msg, shm, sock, paths)
+        finally:
+            spare = None
+            os.close(shm)
         try:
             sock.send(pickle.dumps(("pid", child)))
             status = _watch(child, r, sock, timeout_s, pending)
@@ -384,22 +411,244 @@ def serve(fd: int) -> None:
         if status is None:  # the caller went away mid-read
             break
         sock.send(pickle.dumps(("done", status)))
+        spare = _fork_spare(sock, paths)  # after the answer: its fork is off the next read's path
+    if spare is not None:
+        spare[1].close()  # the spare's request channel ends: it exits
     sock.close()
+    shutil.rmtree(folder, ignore_errors=True)
 
 
-def _warm_up() -> None:
-    import tempfile
+def _fork_spare(sock: socket.socket, paths: list[str], warm: bool = True):
+    """A child forked ahead of the request (isolated, waiting on its own socket for one request):
+    (pid, the socket to hand it the request, the read end of its answer pipe)."""
+    ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+    r, w = os.pipe()
+    child = os.fork()
+    if child == 0:  # never returns
+        sock.close()
+        ours.close()
+        os.close(r)
+        _spare(theirs, w, paths if warm else [], warm)
+    theirs.close()
+    os.close(w)
+    return child, ours, r
 
+
+def _spare(conn: socket.socket, w: int, paths: list[str], warm: bool) -> None:
+    """The spare child: isolated now, then one request (its read, its answer), then its end.
+    The zygote gone (its socket ended) or a malformed request: it exits without a read."""
+    try:
+        _isolate()
+        if warm:
+            _prewarm(conn, paths)
+        msg, fds, _, _ = socket.recv_fds(conn, _MSG, 1)
+        conn.close()
+        for f in fds[1:]:
+            os.close(f)
+        if not msg or not fds:
+            os._exit(0)
+        fn, args, memory_bytes, timeout_s, env, cwd = pickle.loads(msg)
+        _environ(env)
+        try:
+            os.chdir(cwd)
+        except OSError:
+            pass
+    except BaseException:
+        os._exit(1)
+    _child(fn, args, fds[0], w, memory_bytes, timeout_s, isolated=True)
+
+
+def _environ(env: dict) -> None:
+    """os.environ made `env`, setting only what differs (each change is a putenv)."""
+    for key in [k for k in os.environ if k not in env]:
+        del os.environ[key]
+    for key, value in env.items():
+        if os.environ.get(key) != value:
+            os.environ[key] = value
+
+
+def _hand(spare, msg: bytes, shm: int, sock: socket.socket, paths: list[str]):
+    """Give the request to the spare child; a spare that died waiting (its answer pipe at its end)
+    or that cannot take it is collected, and a child forked now takes it. (pid, answer pipe)."""
+    if spare is not None:
+        child, conn, r = spare
+        try:
+            if not select.select([r], [], [], 0)[0]:  # no end of file: the spare is alive
+                socket.send_fds(conn, [msg], [shm])
+                return child, r
+        except OSError:
+            pass
+        finally:
+            conn.close()
+        os.close(r)
+        _end(child)
+    child, conn, r = _fork_spare(sock, paths, warm=False)  # the request waits: no warm-up
+    try:
+        socket.send_fds(conn, [msg], [shm])
+    finally:
+        conn.close()
+    return child, r
+
+
+def _end(child: int) -> None:
+    try:
+        os.kill(child, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    try:
+        os.waitpid(child, 0)
+    except ChildProcessError:
+        pass
+
+
+def _warm_up(folder: str) -> list[str]:
+    """Write a small file of each kind the bench and the service meet most (legacy VTK binary and
+    ASCII, VTU appended, VTI, VTS, Exodus II; VTK's and meshio's writers) into `folder` and read
+    each: every module a reader imports lazily is imported here, and each reader's first-call
+    costs are paid here, once, instead of by every child. The paths read (the spares read them again)."""
     from models.mesh.read import read_mesh
 
+    path = os.path.join(folder, "warm-up.vtk")
+    with open(path, "wb") as f:
+        f.write(_WARMUP)
+    paths = [path]
     try:
-        with tempfile.TemporaryDirectory(prefix="magnet-zygote-") as folder:
-            path = os.path.join(folder, "warm-up.vtk")
-            with open(path, "wb") as f:
-                f.write(_WARMUP)
-            read_mesh(path)
+        paths += _warm_up_files(folder)
     except Exception:  # noqa: BLE001  (a warm-up only: the reads work without it)
         pass
+    read = []
+    for path in paths:
+        try:
+            read_mesh(path)
+            read.append(path)
+        except Exception:  # noqa: BLE001
+            pass
+    return read
+
+
+def _prewarm(conn: socket.socket, paths: list[str]) -> None:
+    """A spare's warm-up while it waits, given up as soon as the request comes (checked between
+    steps of a few milliseconds): the warm-up files read again, so the pages the readers write
+    (reference counts, VTK's and numpy's state) are copied from the zygote's now, not during the
+    read; then heap memory touched once and kept (glibc: blocks up to 1 GiB from the heap, not
+    given back when freed), so the read's arrays land on pages already mapped. Trusted files only
+    (written by the zygote itself)."""
+    from models.mesh.read import read_mesh
+
+    for path in paths:
+        if select.select([conn], [], [], 0)[0]:
+            return
+        try:
+            read_mesh(path)
+        except Exception:  # noqa: BLE001
+            pass
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None)
+        libc.malloc.restype = ctypes.c_void_p
+        libc.malloc.argtypes = [ctypes.c_size_t]
+        libc.free.argtypes = [ctypes.c_void_p]
+        if not (
+            libc.mallopt(-3, _HEAP) and libc.mallopt(-1, 2 * _HEAP)
+        ):  # M_MMAP_THRESHOLD, M_TRIM_THRESHOLD
+            return
+        block = libc.malloc(_PREFAULT)
+    except Exception:  # noqa: BLE001  (not glibc: the read faults its pages in itself)
+        return
+    if block:
+        try:
+            step = 4 << 20
+            for at in range(0, _PREFAULT, step):
+                if select.select([conn], [], [], 0)[0]:
+                    break
+                ctypes.memset(block + at, 0, step)
+        finally:
+            libc.free(block)
+
+
+def _warm_up_files(folder: str) -> list[str]:
+    import numpy as np
+    from vtkmodules.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray
+    from vtkmodules.vtkCommonCore import VTK_UNSIGNED_CHAR, vtkPoints
+    from vtkmodules.vtkCommonDataModel import (
+        vtkCellArray,
+        vtkImageData,
+        vtkStructuredGrid,
+        vtkUnstructuredGrid,
+    )
+    from vtkmodules.vtkIOLegacy import vtkDataSetWriter
+    from vtkmodules.vtkIOXML import (
+        vtkXMLImageDataWriter,
+        vtkXMLStructuredGridWriter,
+        vtkXMLUnstructuredGridWriter,
+    )
+
+    n = 2  # cells per side
+    g = np.arange(n + 1, dtype=np.float64)
+    z, y, x = np.meshgrid(g, g, g, indexing="ij")  # x fastest
+    points = np.column_stack([x.ravel(), y.ravel(), z.ravel()])
+    i, j, k = (a.ravel() for a in np.meshgrid(*(np.arange(n),) * 3, indexing="ij"))
+    b = i + (n + 1) * (j + (n + 1) * k)
+    sx, sy, sz = 1, n + 1, (n + 1) ** 2
+    hexes = np.stack([b, b + sx, b + sx + sy, b + sy, b + sz, b + sz + sx, b + sz + sx + sy, b + sz + sy], 1)
+    kuhn = [[0, 1, 2, 6], [0, 2, 3, 6], [0, 3, 7, 6], [0, 7, 4, 6], [0, 4, 5, 6], [0, 5, 1, 6]]
+    tets = np.concatenate([hexes[:, q] for q in kuhn])
+
+    def grid(cells, vtk_type):
+        ug = vtkUnstructuredGrid()
+        pts = vtkPoints()
+        pts.SetData(numpy_to_vtk(points, deep=True))
+        ug.SetPoints(pts)
+        offsets = np.arange(len(cells) + 1, dtype=np.int64) * cells.shape[1]
+        ca = vtkCellArray()
+        ca.SetData(
+            numpy_to_vtkIdTypeArray(offsets, deep=True),
+            numpy_to_vtkIdTypeArray(cells.astype(np.int64).ravel(), deep=True),
+        )
+        types = np.full(len(cells), vtk_type, np.uint8)
+        ug.SetCells(numpy_to_vtk(types, deep=True, array_type=VTK_UNSIGNED_CHAR), ca)
+        return ug
+
+    hex_grid, tet_grid = grid(hexes, 12), grid(tets, 10)
+    image = vtkImageData()
+    image.SetDimensions(n + 1, n + 1, n + 1)
+    structured = vtkStructuredGrid()
+    structured.SetDimensions(n + 1, n + 1, n + 1)
+    pts = vtkPoints()
+    pts.SetData(numpy_to_vtk(points, deep=True))
+    structured.SetPoints(pts)
+    out = []
+    for name, writer, data, setup in (
+        ("hex.vtk", vtkDataSetWriter, hex_grid, ("SetFileTypeToBinary",)),
+        ("tet.vtk", vtkDataSetWriter, tet_grid, ()),
+        ("tet.vtu", vtkXMLUnstructuredGridWriter, tet_grid, ("SetDataModeToAppended",)),
+        (
+            "hex.vtu",
+            vtkXMLUnstructuredGridWriter,
+            hex_grid,
+            ("SetDataModeToAppended", "EncodeAppendedDataOff"),
+        ),
+        ("image.vti", vtkXMLImageDataWriter, image, ("SetDataModeToAppended",)),
+        ("grid.vts", vtkXMLStructuredGridWriter, structured, ("SetDataModeToAppended",)),
+    ):
+        path = os.path.join(folder, name)
+        w = writer()
+        w.SetFileName(path)
+        w.SetInputData(data)
+        for call in setup:
+            getattr(w, call)()
+        if w.Write() == 1:
+            out.append(path)
+    try:
+        import meshio
+
+        path = os.path.join(folder, "hex.exo")
+        meshio.write(path, meshio.Mesh(points, [("hexahedron", hexes)]), file_format="exodus")
+        out.append(path)
+    except Exception:  # noqa: BLE001  (no netCDF4: no Exodus II warm-up)
+        pass
+    return out
 
 
 def _watch(child: int, r: int, sock: socket.socket, timeout_s: float, pending: list[int]):
