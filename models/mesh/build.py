@@ -375,3 +375,56 @@ def _reverse_rows(offsets: np.ndarray, values: np.ndarray, mask: np.ndarray) -> 
     row = np.repeat(np.arange(sizes.size), sizes)
     src = np.where(mask[row], 2 * starts[row] + sizes[row] - 1 - idx, idx)
     return values[src]
+
+
+def mesh_from_image(axes, tags, tag_name, meta: dict) -> Mesh | None:
+    """The Mesh of a whole 3D axis-aligned image (every dimension >= 2 points, no blanking), built
+    directly: the points and hexahedra from the axes (x fastest, VTK's numbering), each cell's signed
+    volume and centroid in closed form, and the one global flip folded into the node template. The
+    same Mesh, field for field, as the general path (normalize, mesh_from_cells, _orient_lattice);
+    None where the coordinates overflow (the general path says which points)."""
+    from models.mesh.lattice import _box_measures
+
+    x, y, z = axes
+    if not (np.isfinite(x).all() and np.isfinite(y).all() and np.isfinite(z).all()):
+        return None
+    nx, ny, nz = x.size, y.size, z.size
+    pts = np.empty((nz, ny, nx, 3))
+    pts[..., 0] = x[None, None, :]
+    pts[..., 1] = y[None, :, None]
+    pts[..., 2] = z[:, None, None]
+    pts = pts.reshape(-1, 3)
+    vol, cen = _box_measures(axes)
+    lo = np.array([x.min(), y.min(), z.min()])
+    hi = np.array([x.max(), y.max(), z.max()])
+    flip = bool(vol.sum() < 0)
+    sx, sy, sz = 1, nx, nx * ny
+    corner = np.array([0, sx, sx + sy, sy, sz, sz + sx, sz + sx + sy, sz + sy], np.int64)
+    if flip:
+        corner = corner[MIRROR[VTK_HEXAHEDRON]]
+    cx, cy, cz = nx - 1, ny - 1, nz - 1
+    n = cx * cy * cz
+    base = (np.arange(cz, dtype=np.int64) * sz)[:, None] + (np.arange(cy, dtype=np.int64) * sy)[None, :]
+    base = base[:, :, None] + np.arange(cx, dtype=np.int64)[None, None, :]
+    base = base.reshape(-1)
+    conn = np.empty((n, 8), np.int64)
+    for k in range(8):  # one column at a time: ~1.6x the (n, 1) + (8,) broadcast
+        np.add(base, corner[k], out=conn[:, k])
+    mesh = Mesh(
+        points=pts,
+        offsets=np.arange(0, 8 * n + 1, 8, dtype=np.int64),
+        connectivity=conn.reshape(-1),
+        cell_types=np.full(n, VTK_HEXAHEDRON, np.uint8),
+        tags=tags,
+        tag_name=tag_name if tags is not None else None,
+    )
+    mesh.meta.update(meta)
+    mesh.meta["lower_dim_cells"] = {}
+    mesh.meta["measures"] = np.abs(vol)
+    mesh.meta["centroids"] = cen
+    scale = float(np.linalg.norm(hi - lo)) ** 3  # refuse_degenerate's bound, from the axes
+    if scale == 0 or np.any(np.abs(vol) <= 1e-14 * scale):
+        refuse_degenerate(mesh, vol)  # says which cells
+    flips = np.full(n, flip)
+    _record_orientation(mesh, -vol if flip else vol, flips)
+    return mesh

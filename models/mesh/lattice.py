@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from models.errors import MeshError
 from models.mesh.container import Mesh
 
 
@@ -46,3 +47,27 @@ def lattice_measures(mesh: Mesh, grid: dict) -> tuple[np.ndarray, np.ndarray]:
 def lattice_flips(vol: np.ndarray) -> np.ndarray:
     """(C,) bool: the one global flip of a connected lattice (every cell when the total is negative)."""
     return np.full(vol.size, bool(vol.sum() < 0))
+
+
+def check_image_geometry(origin, spacing, live) -> None:
+    """MeshError (one sentence) when image data's origin, or its spacing along a live axis, is not a
+    finite number or the spacing is zero: the lattice would have no volume or no place."""
+    o, h = np.asarray(origin, np.float64), np.asarray(spacing, np.float64)
+    if not np.isfinite(o).all():
+        raise MeshError(f"the image data's origin must be finite numbers, found {_triple(o)}")
+    hl = h[list(live)]
+    if not np.isfinite(hl).all() or np.any(hl == 0):
+        raise MeshError(f"the image data's spacing must be finite and nonzero, found {_triple(h)}")
+
+
+def _triple(v) -> str:
+    return "(" + ", ".join(f"{float(x):g}" for x in v) + ")"
+
+
+def image_axes(origin, spacing, extent) -> list[np.ndarray]:
+    """x, y, z point coordinates of axis-aligned image data: origin + index * spacing, indices from
+    the extent (they need not start at 0)."""
+    return [
+        origin[a] + (extent[2 * a] + np.arange(extent[2 * a + 1] - extent[2 * a] + 1)) * spacing[a]
+        for a in range(3)
+    ]

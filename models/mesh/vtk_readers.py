@@ -21,7 +21,7 @@ import re
 import numpy as np
 
 from models.errors import MeshError, ParameterError
-from models.mesh.cells import BOUNDARY_TAG_NAME, TAG_NAMES, normalize, ranges
+from models.mesh.cells import BOUNDARY_TAG_NAME, TAG_NAMES, Normalized, normalize, ranges
 
 # extension -> (what the file is, VTK reader class, its module)
 _XML = "vtkmodules.vtkIOXML"
@@ -63,8 +63,14 @@ def read_vtk(
     what, cls, _ = READERS[kind]
     fmt = fmt or what
     data = _run(path, kind, fmt)
+    meta = {"reader": f"VTK {cls}", "format": what}
+    if weld is None:
+        mesh = _image_mesh(data, physical_tag, meta, path)
+        if mesh is not None:
+            return mesh
     pts, offsets, conn, types, cell_data, poly = _arrays(data, path, what, fmt)
     grid = _lattice(data, len(types))
+    live = _whole_live(data, len(types))
     field = _field_data(data)
     del data
     if len(types) == 0:
@@ -76,11 +82,12 @@ def read_vtk(
     tags = None if tag_key is None else _int_tags(cell_data[tag_key], len(types))
     btags = cell_data.get(BOUNDARY_TAG_NAME)
     btags = None if btags is None else _int_tags(btags, len(types))
-    try:
-        norm = normalize(offsets, conn, types, tags=tags, bnd_tags=btags, poly=poly, n_points=len(pts))
-    except MeshError as exc:
-        raise MeshError(f"cannot read {os.path.basename(path)} as {fmt}: {exc}") from None
-    meta = {"reader": f"VTK {cls}", "format": what}
+    norm = _lattice_cells(live, offsets, conn, types, tags)
+    if norm is None:
+        try:
+            norm = normalize(offsets, conn, types, tags=tags, bnd_tags=btags, poly=poly, n_points=len(pts))
+        except MeshError as exc:
+            raise MeshError(f"cannot read {os.path.basename(path)} as {fmt}: {exc}") from None
     if norm.notes:
         meta["higher_order"] = "; ".join(norm.notes)
         meta["higher_order_unused_points"] = norm.unused_higher
@@ -456,6 +463,104 @@ def _lattice(data, n_cells: int) -> dict | None:
             for c in (data.GetXCoordinates(), data.GetYCoordinates(), data.GetZCoordinates())
         ]
     return {"dims": dims, "axes": axes}
+
+
+def _whole_live(data, n_cells: int) -> int:
+    """The number of live axes (2: quads, 3: hexahedra) of an image, rectilinear or structured grid
+    read whole (no blanked cell); 0 for anything else."""
+    if data.IsA("vtkCompositeDataSet") or not (
+        data.IsA("vtkImageData") or data.IsA("vtkStructuredGrid") or data.IsA("vtkRectilinearGrid")
+    ):
+        return 0
+    ext = data.GetExtent()
+    cdims = [int(ext[2 * a + 1] - ext[2 * a]) for a in range(3)]
+    live = [c for c in cdims if c > 0]
+    if len(live) < 2 or n_cells != int(np.prod(live)):
+        return 0
+    return len(live)
+
+
+def _lattice_cells(live: int, offsets, conn, types, tags) -> Normalized | None:
+    """What normalize makes of a whole structured grid's cells (_structured: quads or hexahedra of
+    one fixed size, our node order already, no lower-dimensional cell), without its checks; None
+    where the grid is not whole (live 0: normalize)."""
+    if not live:
+        return None
+    out = Normalized()
+    out.dim = live
+    out.offsets = np.asarray(offsets, dtype=np.int64)
+    out.connectivity = np.asarray(conn, dtype=np.int64)
+    out.types = np.asarray(types, dtype=np.uint8)
+    out.tags = tags
+    return out
+
+
+_IMAGE_TAG = re.compile(rb"<ImageData\b[^>]*>")
+
+
+def _xml_image_geometry(path: str):
+    """(origin, spacing) as an XML image file's header writes them, floats (nan, inf kept), or None
+    where the file is not XML image data or the header says neither. VTK's XML reader takes a
+    value it cannot parse (nan, inf) for its default (origin 0, spacing 1) without a word."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4096)
+    except OSError:
+        return None
+    tag = _IMAGE_TAG.search(head)
+    if tag is None:
+        return None
+    out = []
+    for name, default in ((rb"Origin", 0.0), (rb"Spacing", 1.0)):
+        m = re.search(rb"\s" + name + rb'="([^"]*)"', tag.group(0))
+        vals = [default] * 3
+        if m is not None:
+            try:
+                got = [float(t) for t in m.group(1).split()]
+            except ValueError:
+                got = [float("nan")] * 3
+            vals = (got + vals)[:3]
+        out.append(vals)
+    return out[0], out[1]
+
+
+def _image_mesh(data, physical_tag, meta: dict, path: str | None = None):
+    """The whole Mesh of image data (legacy STRUCTURED_POINTS too) straight from its origin, spacing
+    and extent (build.mesh_from_image), or None where the general path reads it: not image data, a
+    rotated or 2D image, blanked points or cells. Its origin and spacing are checked first (one
+    sentence: a lattice with a zero, NaN or infinite step has no volume or no place)."""
+    if data.IsA("vtkCompositeDataSet") or not data.IsA("vtkImageData"):
+        return None
+    from models.mesh.build import mesh_from_image
+    from models.mesh.lattice import check_image_geometry, image_axes
+
+    ext = data.GetExtent()
+    live = [a for a in range(3) if ext[2 * a + 1] > ext[2 * a]]
+    if len(live) >= 2:
+        check_image_geometry(data.GetOrigin(), data.GetSpacing(), live)
+        head = _xml_image_geometry(path) if path else None
+        if head is not None:
+            check_image_geometry(*head, live)
+    if len(live) < 3:
+        return None
+    m = data.GetDirectionMatrix()
+    if not all(m.GetElement(i, j) == (i == j) for i in range(3) for j in range(3)):
+        return None
+    if data.GetCellData().GetArray("vtkGhostType") is not None:
+        return None
+    if data.GetPointData().GetArray("vtkGhostType") is not None:
+        return None
+    cell_data = _cell_data(data)
+    n = (ext[1] - ext[0]) * (ext[3] - ext[2]) * (ext[5] - ext[4])
+    tag_key = _tag_key(cell_data, physical_tag)
+    tags = None if tag_key is None else _int_tags(cell_data[tag_key], n)
+    mesh = mesh_from_image(image_axes(data.GetOrigin(), data.GetSpacing(), ext), tags, tag_key, meta)
+    if mesh is None:
+        return None
+    from models.mesh.boundary import group_names
+
+    mesh.meta["group_names"], mesh.meta["boundary_names"] = group_names(_field_data(data), 3)
+    return mesh
 
 
 def _lower_corners(live, cdims, stride) -> np.ndarray:
