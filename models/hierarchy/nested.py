@@ -467,12 +467,13 @@ def build_hierarchy(
     finest_mode = opts_in.pop("finest", None)
     if finest_mode not in (None, "aggregation", "cuts", "pyamg", "luby"):
         raise ParameterError(f"finest must be aggregation, pyamg, luby or cuts, got {finest_mode!r}")
-    # model_options finest="aggregation" (rtree, the default schedule): the finest level a standard
-    # aggregation of the cells' graph, cuts above (issue 24, round five: worst it 1.00 / 1.00 at
-    # complexity 1.04, but its Luby rounds follow the cells' numbering: 163 rounds on layer-50, build
-    # 1.22x METIS, so not the default); the default keeps the cuts at every level
+    # finest="aggregation" (the default for rtree with the default schedule and no kappa; issue 24,
+    # rounds five and six): the finest level a standard aggregation of the cells' graph by pyamg's
+    # compiled pass, rtree cuts above (worst it 1.00 / 1.00 at complexity 1.04, build under one METIS
+    # call); "cuts": rtree cuts at every level (the default before, and with --ratio or kappa, where
+    # the finest step is not the aggregation's own); "pyamg": pyamg's own join; "luby": round five
     if finest_mode is None:
-        finest_mode = "cuts"
+        finest_mode = "aggregation" if model == "rtree" and default and kappa is None else "cuts"
     agg_mode = finest_mode in ("aggregation", "pyamg", "luby")
     if agg_mode and (not default or kappa is not None):
         raise ParameterError("an aggregated finest level goes with the default ratio schedule and no kappa")
