@@ -48,7 +48,12 @@ MODELS = {
     "rtree-cuts": (
         "rtree",
         {"finest": "cuts"},
-    ),  # rtree cuts at the finest level too (the default before round five)
+    ),  # rtree cuts at the finest level too (the default before round six)
+    # the finest level a standard aggregation (round six: pyamg's compiled pass, the rest joined by
+    # strength), rtree cuts above; -pyamg: pyamg's own join (first neighbour); -luby: round five's rounds
+    "rtree-agg": ("rtree", {"finest": "aggregation"}),
+    "rtree-pyamg": ("rtree", {"finest": "pyamg"}),
+    "rtree-luby": ("rtree", {"finest": "luby"}),
     "rtree-measure": ("rtree", {"balance": "measure"}),  # measure-weighted cuts (the default before issue 24)
     "rtree-principal": ("rtree", {"axes": "principal"}),  # cuts across each part's principal axis (numpy)
     "rtree-strength": ("rtree", {"axes": "strength"}),  # cut axis across the weakest TPFA couplings (numpy)

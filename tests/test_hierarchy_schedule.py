@@ -37,9 +37,9 @@ def test_default_is_the_schedule_by_dimension(make, cell, dim):
     p, c = make()
     m = mesh_from_arrays(p, [(cell, c)])
     g, d = prepare(m)
-    # finest="aggregation" (round five): the finest level a standard aggregation of the cells' graph,
-    # then the schedule's coarser step (16x) by rtree cuts of the aggregates' graph
-    levels, info = build_hierarchy(m, d, model="rtree", coarsest=10, model_options={"finest": "aggregation"})
+    # the default (round six): the finest level a standard aggregation of the cells' graph (pyamg's
+    # compiled pass), then the schedule's coarser step (16x) by rtree cuts of the aggregates' graph
+    levels, info = build_hierarchy(m, d, model="rtree", coarsest=10)
     k = info["requested"][-1]
     assert info["finest"] == "aggregation" and info["requested"][:-1] == level_counts(k, 16, 10)
     assert info["ratio"] == [m.n_cells / k, default_ratio(dim)[1]]
@@ -52,11 +52,11 @@ def test_default_is_the_schedule_by_dimension(make, cell, dim):
     # a single number still means every level (cuts at every level)
     _, info8 = build_hierarchy(m, d, model="rtree", ratio=8, coarsest=10)
     assert info8["requested"] == level_counts(m.n_cells, 8, 10) and info8["finest"] == "cuts"
-    # the default: the cuts at every level with the schedule by dimension
-    _, infoc = build_hierarchy(m, d, model="rtree", coarsest=10)
+    # finest="cuts": the cuts at every level with the schedule by dimension (the default before)
+    _, infoc = build_hierarchy(m, d, model="rtree", coarsest=10, model_options={"finest": "cuts"})
     assert infoc["ratio"] == list(default_ratio(dim)) and infoc["finest"] == "cuts"
     assert infoc["requested"] == level_counts(m.n_cells, default_ratio(dim), 10)
-    with pytest.raises(ParameterError, match="finest must be aggregation or cuts"):
+    with pytest.raises(ParameterError, match="finest must be aggregation, pyamg, luby or cuts"):
         build_hierarchy(m, d, model="rtree", model_options={"finest": "box"})
 
 

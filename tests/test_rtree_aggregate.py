@@ -9,7 +9,7 @@ from meshes import quads, tets
 from models.hierarchy.multigrid import mgcheck, tpfa_poisson
 from models.hierarchy.nested import build_hierarchy, is_nested
 from models.mesh.read import mesh_from_arrays
-from models.partition.rtree_aggregate import normalized_coupling, standard_aggregates
+from models.partition.rtree_aggregate import normalized_coupling, pyamg_aggregates, standard_aggregates
 from models.pipeline import prepare
 
 
@@ -57,3 +57,41 @@ def test_isolated_nodes_are_their_own_elements():
     ip = np.array([0, 1, 2, 2])  # 0 - 1, node 2 alone
     lab = standard_aggregates(ip, np.array([1, 0]), np.ones(2))
     assert lab[0] == lab[1] and lab[2] != lab[0]
+
+
+@pytest.mark.parametrize("make,cell", [(lambda: quads(30), "quad"), (lambda: tets(8), "tetra")])
+def test_pyamg_compiled_pass_matches_the_vectorized_one(make, cell):
+    """Round six: pyamg's compiled standard aggregation (one pass, whatever the numbering) with the
+    cells off the stars joined by strength gives exactly the round-five aggregates; without strength
+    it is pyamg's own AggOp (its pass 2 takes the first aggregated neighbour)."""
+    pyamg = pytest.importorskip("pyamg")
+    m, g, d = _mesh(make, cell)
+    ip, ii = np.asarray(d.graph.indptr, dtype=np.int64), np.asarray(d.graph.indices, dtype=np.int64)
+    A, _ = tpfa_poisson(m, d)
+    s = normalized_coupling(ip, ii, -A[np.repeat(np.arange(m.n_cells), np.diff(ip)), ii].A1, A.diagonal())
+    lab = pyamg_aggregates(ip, ii, s)
+    assert np.array_equal(lab, standard_aggregates(ip, ii, s))
+    k = int(lab.max()) + 1
+    assert pieces(g, lab) == k
+    # shuffled numbering: still a valid aggregation (connected elements, one root star each)
+    perm = np.random.default_rng(0).permutation(m.n_cells)
+    inv = np.argsort(perm)
+    B = A[perm][:, perm].tocsr()
+    B.sort_indices()
+    rows = np.repeat(np.arange(m.n_cells), np.diff(B.indptr))
+    off = B.indices != rows
+    bp = np.r_[0, np.cumsum(np.bincount(rows[off], minlength=m.n_cells))]
+    lab_p = pyamg_aggregates(bp, B.indices[off], -B.data[off])[inv]
+    assert pieces(g, lab_p) == int(lab_p.max()) + 1
+    raw = pyamg_aggregates(ip, ii)
+    C = pyamg.strength.symmetric_strength_of_connection(A, 0.0)
+    agg = pyamg.aggregation.standard_aggregation(C)[0]
+    assert np.array_equal(raw, agg.indices) and pieces(g, raw) == agg.shape[1]
+
+
+def test_pyamg_pass_isolated_nodes_are_their_own_elements():
+    pytest.importorskip("pyamg")
+    ip = np.array([0, 1, 2, 2])  # 0 - 1, node 2 alone
+    for s in (None, np.ones(2)):
+        lab = pyamg_aggregates(ip, np.array([1, 0]), s)
+        assert lab[0] == lab[1] and lab[2] != lab[0] and sorted(set(lab.tolist())) == [0, 1]

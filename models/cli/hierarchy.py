@@ -33,8 +33,8 @@ def add_hierarchy_args(p: argparse.ArgumentParser) -> None:
         "--ratio",
         type=float,
         default=None,
-        help="coarsening ratio of every level, >= 2 (default: a schedule by dimension, finest step "
-        "first: 2D 5 then 16 per level, 3D 8 then 16)",
+        help="coarsening ratio of every level, >= 2, rtree cuts at every level (default: rtree's finest "
+        "level a standard aggregation of the cells' graph, then 16 per level)",
     )
     p.add_argument(
         "--coarsest",

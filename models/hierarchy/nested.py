@@ -467,17 +467,19 @@ def build_hierarchy(
         )
     opts_in = dict(model_options or {})
     finest_mode = opts_in.pop("finest", None)
-    if finest_mode not in (None, "aggregation", "cuts"):
-        raise ParameterError(f"finest must be aggregation or cuts, got {finest_mode!r}")
-    # model_options finest="aggregation" (rtree, the default schedule): the finest level a standard
-    # aggregation of the cells' graph, cuts above (issue 24, round five: worst it 1.00 / 1.00 at
-    # complexity 1.04, but its Luby rounds follow the cells' numbering: 163 rounds on layer-50, build
-    # 1.22x METIS, so not the default); the default keeps the cuts at every level
+    if finest_mode not in (None, "aggregation", "cuts", "pyamg", "luby"):
+        raise ParameterError(f"finest must be aggregation, pyamg, luby or cuts, got {finest_mode!r}")
+    # finest="aggregation" (the default for rtree with the default schedule and no kappa; issue 24,
+    # rounds five and six): the finest level a standard aggregation of the cells' graph by pyamg's
+    # compiled pass, rtree cuts above (worst it 1.00 / 1.00 at complexity 1.04, build under one METIS
+    # call); "cuts": rtree cuts at every level (the default before, and with --ratio or kappa, where
+    # the finest step is not the aggregation's own); "pyamg": pyamg's own join; "luby": round five
     if finest_mode is None:
-        finest_mode = "cuts"
-    if finest_mode == "aggregation" and (not default or kappa is not None):
+        finest_mode = "aggregation" if model == "rtree" and default and kappa is None else "cuts"
+    agg_mode = finest_mode in ("aggregation", "pyamg", "luby")
+    if agg_mode and (not default or kappa is not None):
         raise ParameterError("an aggregated finest level goes with the default ratio schedule and no kappa")
-    if finest_mode == "aggregation" and model != "rtree":
+    if agg_mode and model != "rtree":
         raise ParameterError("an aggregated finest level: model rtree only")
     counts = level_counts(n, ratio, coarsest)
     if not counts:
@@ -536,9 +538,9 @@ def build_hierarchy(
 
             opts["coupling"] = tpfa_coupling(G.indptr, G.indices, G.weights, data.centroids, kappa)
         graphs = []  # the graphs of the levels' elements, for the cavity check
-        if finest_mode == "aggregation":
+        if agg_mode:
             levels, counts, level_graphs, ratio = _aggregated_levels(
-                mesh, data, tags, ratio[-1] if np.ndim(ratio) else ratio, coarsest, opts
+                mesh, data, tags, ratio[-1] if np.ndim(ratio) else ratio, coarsest, opts, finest_mode
             )
             how = "native: finest level by standard aggregation of the cells' graph, rtree cuts above"
         else:
@@ -599,7 +601,9 @@ def build_hierarchy(
     return levels, info
 
 
-def _aggregated_levels(mesh: Mesh, data: CellData, tags, step: float, coarsest: int, opts: dict):
+def _aggregated_levels(
+    mesh: Mesh, data: CellData, tags, step: float, coarsest: int, opts: dict, how: str = "aggregation"
+):
     """The default rtree hierarchy (issue 24, round five): the finest level a standard aggregation of
     the cells' graph (models.partition.rtree_aggregate), every coarser level rtree's cuts of the
     graph of the finest elements, `step` times fewer elements per level (count-weighted: a node
@@ -615,7 +619,7 @@ def _aggregated_levels(mesh: Mesh, data: CellData, tags, step: float, coarsest: 
         level_counts,
         rtree_levels,
     )
-    from models.partition.rtree_aggregate import normalized_coupling, standard_aggregates
+    from models.partition.rtree_aggregate import normalized_coupling, pyamg_aggregates, standard_aggregates
     from models.partition.rtree_strength import tpfa_boundary, tpfa_coupling
 
     G = data.graph
@@ -638,7 +642,11 @@ def _aggregated_levels(mesh: Mesh, data: CellData, tags, step: float, coarsest: 
     owner, tb = tpfa_boundary(mesh, data)
     rows_all = np.repeat(np.arange(n), np.diff(indptr))
     diag = np.bincount(rows_all, weights=coupling, minlength=n) + np.bincount(owner, weights=tb, minlength=n)
-    agg = standard_aggregates(ip, ii, normalized_coupling(ip, ii, cw, diag))
+    strength = normalized_coupling(ip, ii, cw, diag)
+    if how == "luby":  # round five: vectorized Luby rounds (as many as the numbering's chains)
+        agg = standard_aggregates(ip, ii, strength)
+    else:  # pyamg's compiled pass; "aggregation": the cells off the stars join by strength
+        agg = pyamg_aggregates(ip, ii, strength if how == "aggregation" else None)
     k = int(agg.max()) + 1
     cnt = np.bincount(agg, minlength=k).astype(np.float64)
     qp, qi, qw = _quotient(indptr, indices, np.asarray(G.weights, dtype=np.float64), agg, k)

@@ -81,12 +81,20 @@ def standard_aggregates(
     rows = np.repeat(np.arange(n), np.diff(indptr))
     e = (state[indices] == 1) & (lab[rows] < 0)  # a root's neighbours (one root each)
     lab[rows[e]] = lab[indices[e]]
+    return _join_rest(rows, indices, lab, k, strength)
+
+
+def _join_rest(rows: np.ndarray, indices: np.ndarray, lab: np.ndarray, k: int, strength) -> np.ndarray:
+    """Cells not yet in an element (lab < 0) join the neighbouring element they couple to most (the
+    summed strength), ties the lowest element; cells that cannot (no neighbour): own elements."""
     w = np.asarray(strength, dtype=np.float64)
     for _ in range(3):  # the rest: adjacent to an element after one round (maximality); a spare round or two
         left = lab < 0
         if not left.any():
             break
         e = left[rows] & (lab[indices] >= 0)
+        if not e.any():
+            break
         r, a = rows[e], lab[indices[e]]
         key, inv = np.unique(r * (k + 1) + a, return_inverse=True)
         s = np.bincount(inv, weights=w[e])
@@ -96,5 +104,41 @@ def standard_aggregates(
         f = o[np.r_[True, kr[o][1:] != kr[o][:-1]]]
         lab[kr[f]] = ka[f]
     left = np.flatnonzero(lab < 0)  # unreachable only for a graph that breaks maximality: own elements
+    lab[left] = k + np.arange(left.size)
+    return lab
+
+
+def pyamg_aggregates(
+    indptr: np.ndarray, indices: np.ndarray, strength: np.ndarray | None = None
+) -> np.ndarray:
+    """(N,) element labels 0..k-1 of pyamg's own compiled standard aggregation of the symmetric graph
+    (indptr, indices) (amg_core.standard_aggregation: one sequential pass in the cells' order, no
+    rounds, whatever the numbering). pyamg's pass 1 makes the same roots and stars as
+    standard_aggregates; its pass 2 puts every other cell into the first aggregated neighbour's
+    element (by column order). With strength ((nnz,) symmetric weights) those cells instead join the
+    element they couple to most, as standard_aggregates does (then the two agree). Cells pyamg leaves
+    out (no neighbour) are elements of their own. Elements are numbered by their roots' order."""
+    from pyamg import amg_core
+
+    indptr = np.asarray(indptr, dtype=np.int64)
+    indices = np.asarray(indices, dtype=np.int64)
+    n = indptr.size - 1
+    if n == 0:
+        return np.zeros(0, dtype=np.int64)
+    it = np.int32 if indices.size < np.iinfo(np.int32).max else np.int64
+    tj = np.empty(n, dtype=it)
+    cpts = np.empty(n, dtype=it)
+    k = int(amg_core.standard_aggregation(n, indptr.astype(it), indices.astype(it), tj, cpts))
+    lab = tj.astype(np.int64)
+    rows = np.repeat(np.arange(n), np.diff(indptr))
+    if strength is not None and k:  # keep the stars (a root and its neighbours), rejoin the rest
+        roots = cpts[:k].astype(np.int64)
+        is_root = np.zeros(n, dtype=bool)
+        is_root[roots] = True
+        star = is_root.copy()
+        star[rows[is_root[indices] & (lab[rows] == lab[indices])]] = True
+        lab[~star] = -1
+        return _join_rest(rows, indices, lab, k, strength)
+    left = np.flatnonzero(lab < 0)  # isolated cells: own elements
     lab[left] = k + np.arange(left.size)
     return lab
