@@ -74,7 +74,8 @@ MODELS = {
 }
 
 # the models whose levels at exactly 91 and 364 elements are measured (box_at: their axes and boxfit)
-BOX_AT = ("rtree", "rtree-box", "rtree-boxfit", "rtree-box-boxfit")
+BOX_AT = ("rtree", "rtree-cuts", "rtree-box", "rtree-boxfit", "rtree-box-boxfit")
+AGGREGATED = ("aggregation", "pyamg", "luby")  # finest modes whose coarser levels cut the aggregates
 
 
 def face_ratio(mesh) -> tuple[float, float]:
@@ -103,32 +104,45 @@ def metis_time(data, k: int) -> float:
     return time.perf_counter() - t
 
 
-def box_at(mesh, data, counts=(91, 364), axes="strength-mincut", boxfit=False) -> dict:
+def box_at(mesh, data, counts=(91, 364), axes="strength-mincut", boxfit=False, aggregated=False) -> dict:
     """Box ratio and coverage of rtree hierarchy levels of exactly `counts` elements (R3MG's measures
-    at 91 and 364 elements; count-weighted cuts as build_hierarchy makes them; 2D members without
-    holes); boxfit: then models.hierarchy.boxfit's pass on them (nested, as build_hierarchy does)."""
+    at 91 and 364 elements; 2D members without holes). aggregated=False: rtree_levels' count-weighted
+    cuts of the cells (as build_hierarchy makes levels with finest="cuts"); aggregated=True: as the
+    default rtree hierarchy makes them (round six: the finest level pyamg's standard aggregation, the
+    levels of 91 and 364 elements cuts of the finest aggregates' graph). boxfit: then
+    models.hierarchy.boxfit's pass on them (nested, as build_hierarchy does)."""
     from models.graph.batch import GraphBatch
     from models.partition.rtree import cell_boxes, rtree_levels
+    from models.partition.rtree_strength import tpfa_coupling
 
     n, G = mesh.n_cells, data.graph
-    batch = GraphBatch(
-        indptr=G.indptr,
-        indices=G.indices,
-        weights=G.weights,
-        graph_ptr=np.array([0, n], dtype=np.int64),
-        centroids=data.centroids,
-        measures=data.measures,
-        tags=data.tags,
-        node_ids=np.arange(n),
-    )
     boxes = cell_boxes(data.points, data.offsets, data.connectivity)
-    levels = rtree_levels(batch, list(counts), balance="cells", boxes=boxes, axes=axes)
+    if aggregated:
+        from models.hierarchy.nested import _aggregated_levels
+
+        opts = {"boxes": boxes, "balance": "cells", "axes": axes}
+        if axes.startswith("strength"):
+            opts["coupling"] = tpfa_coupling(G.indptr, G.indices, G.weights, data.centroids)
+        levels, _, _, _ = _aggregated_levels(mesh, data, None, 16.0, COARSEST, opts, counts=list(counts))
+    else:
+        batch = GraphBatch(
+            indptr=G.indptr,
+            indices=G.indices,
+            weights=G.weights,
+            graph_ptr=np.array([0, n], dtype=np.int64),
+            centroids=data.centroids,
+            measures=data.measures,
+            tags=data.tags,
+            node_ids=np.arange(n),
+        )
+        levels = rtree_levels(batch, list(counts), balance="cells", boxes=boxes, axes=axes)
     if boxfit:
         from models.hierarchy.boxfit import boxfit_levels
 
         levels = boxfit_levels(levels, boxes[0], boxes[1], data.measures, G.indptr, G.indices)
     out = {}
-    for c, lv in zip(counts, levels, strict=True):
+    for c, lv in zip(counts, levels, strict=False):
+        assert int(lv.max()) + 1 == c, (c, int(lv.max()) + 1)
         bm = box_measures(mesh.points, mesh.offsets, mesh.connectivity, lv, data.measures)
         out[str(c)] = [float(bm["box_ratio"].mean()), float(bm["coverage"])]
     return out
@@ -180,6 +194,7 @@ def row(name, mesh, graph, data, model, kappa, t_metis) -> dict:
         "build_time": t_build,
         "metis_time": t_metis,
         "report": info.get("report"),
+        "finest": info.get("finest"),
     }
     if kappa is not None:
         ra = mgcheck(mesh, data, levels, kappa=np.asarray(kappa))
@@ -280,9 +295,14 @@ def main() -> None:
             r = row(name, mesh, graph, data, model, kappa, t_metis)
             if model in BOX_AT and mesh.dim == 2 and "error" not in r and not HOLED.get(name, False):
                 o = MODELS[model][1] or {}
-                r["box_at"] = box_at(
-                    mesh, data, axes=o.get("axes", "strength-mincut"), boxfit=bool(o.get("boxfit"))
-                )
+                ax, bf = o.get("axes", "strength-mincut"), bool(o.get("boxfit"))
+                # levels made as build_hierarchy makes this model's (the default: cuts of the finest
+                # aggregates' graph); the default rtree also as rtree_levels' cuts of the cells
+                agg = r.get("finest") in AGGREGATED
+                r["box_at"] = box_at(mesh, data, axes=ax, boxfit=bf, aggregated=agg)
+                r["box_at_how"] = "aggregates" if agg else "cells"
+                if agg and model == "rtree":
+                    r["box_at_cells"] = box_at(mesh, data, axes=ax, boxfit=bf)
             rows.append(r)
             print(fmt(r), flush=True)
     ok = [r for r in rows if "error" not in r]
@@ -297,11 +317,14 @@ def main() -> None:
             "\nrtree box ratio / coverage at 91 and 364 elements (2D members without holes; goal >= 0.85 / <= 1.15)"
         )
         for r in at:
-            b = r["box_at"]
-            print(
-                f"  {r['mesh']:<14}{r['model']:<18} 91: {b['91'][0]:.2f} / {b['91'][1]:.2f}   "
-                f"364: {b['364'][0]:.2f} / {b['364'][1]:.2f}"
-            )
+            for key, how in (("box_at", r.get("box_at_how", "cells")), ("box_at_cells", "cells")):
+                if key not in r:
+                    continue
+                b = r[key]
+                print(
+                    f"  {r['mesh']:<14}{r['model']:<17}{how:<11} 91: {b['91'][0]:.2f} / {b['91'][1]:.2f}   "
+                    f"364: {b['364'][0]:.2f} / {b['364'][1]:.2f}"
+                )
         for model in dict.fromkeys(r["model"] for r in at):
             rs = [r for r in at if r["model"] == model]
             print(

@@ -602,14 +602,23 @@ def build_hierarchy(
 
 
 def _aggregated_levels(
-    mesh: Mesh, data: CellData, tags, step: float, coarsest: int, opts: dict, how: str = "aggregation"
+    mesh: Mesh,
+    data: CellData,
+    tags,
+    step: float,
+    coarsest: int,
+    opts: dict,
+    how: str = "aggregation",
+    counts: list | None = None,
 ):
     """The default rtree hierarchy (issue 24, round five): the finest level a standard aggregation of
     the cells' graph (models.partition.rtree_aggregate), every coarser level rtree's cuts of the
     graph of the finest elements, `step` times fewer elements per level (count-weighted: a node
     weighs its cells; boxes the union of its cells'; the couplings summed over the cells'), no
     element across a physical group (tags). Returns (levels coarsest first, counts, the graphs of
-    the levels' elements by level, the achieved (finest step, step))."""
+    the levels' elements by level, the achieved (finest step, step)). counts: the coarser levels'
+    element counts (coarsest first, each below the finest's), instead of `step` times fewer per level
+    (bench_hierarchy_family's box measures at exactly 91 and 364 elements)."""
     from models.graph.batch import GraphBatch
     from models.partition.rtree import (
         _quotient,
@@ -678,7 +687,7 @@ def _aggregated_levels(
         tags=None,
         node_ids=np.arange(k),
     )
-    upper_counts = level_counts(k, step, coarsest)
+    upper_counts = level_counts(k, step, coarsest) if counts is None else [int(c) for c in counts if c < k]
     graphs: list = []
     level_graphs = {}
     levels = [agg]
