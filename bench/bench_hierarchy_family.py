@@ -54,6 +54,9 @@ MODELS = {
     "rtree-agg": ("rtree", {"finest": "aggregation"}),
     "rtree-pyamg": ("rtree", {"finest": "pyamg"}),
     "rtree-luby": ("rtree", {"finest": "luby"}),
+    # round seven: Notay's quality-controlled pairwise aggregation (2 matchings in 2D, 3 in 3D, mu < 8)
+    "rtree-quality": ("rtree", {"finest": "quality"}),
+    "rtree-quality-m6": ("rtree", {"finest": "quality", "passes": 3, "maxsize": 6}),
     "rtree-measure": ("rtree", {"balance": "measure"}),  # measure-weighted cuts (the default before issue 24)
     "rtree-principal": ("rtree", {"axes": "principal"}),  # cuts across each part's principal axis (numpy)
     "rtree-strength": ("rtree", {"axes": "strength"}),  # cut axis across the weakest TPFA couplings (numpy)

@@ -95,3 +95,48 @@ def test_pyamg_pass_isolated_nodes_are_their_own_elements():
     for s in (None, np.ones(2)):
         lab = pyamg_aggregates(ip, np.array([1, 0]), s)
         assert lab[0] == lab[1] and lab[2] != lab[0] and sorted(set(lab.tolist())) == [0, 1]
+
+
+def test_pair_quality_closed_form_matches_the_eigenproblem():
+    """mu({i, j}) = sup v^T D (I - Pi) v / v^T A_G v, checked against a dense 2x2 solve."""
+    from models.partition.rtree_aggregate import pair_quality
+
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        c = rng.uniform(0.1, 2.0)
+        e = rng.uniform(0.0, 1.0, 2)
+        d = np.array([c, c]) + e + rng.uniform(0.0, 3.0, 2)  # couplings outside the pair too
+        ex = e  # the row-sum excess: d minus all the row's couplings (c and the ones outside)
+        AG = np.array([[c + ex[0], -c], [-c, c + ex[1]]])
+        D = np.diag(d)
+        one = np.ones(2)
+        N = D - np.outer(D @ one, D @ one) / (one @ D @ one)
+        u = np.array([1.0, -1.0])  # N's range; A_G's pseudo-inverse on it
+        want = (u @ N @ u) / 2.0 * (u @ np.linalg.pinv(AG) @ u) / 2.0
+        got = pair_quality(d, ex, np.array([c]), np.array([0]), np.array([1]))[0]
+        assert abs(got - want) < 1e-9 * max(want, 1.0)
+
+
+def test_quality_aggregates_pairs_then_pairs_of_pairs():
+    """A 1D chain of 16 cells (Dirichlet at both ends): two passes make elements of up to 4 adjacent
+    cells, every element connected, every cell labelled, counts between 16/4 and 16/2."""
+    from models.partition.rtree_aggregate import quality_aggregates
+
+    n = 16
+    rows = np.r_[np.arange(n - 1), np.arange(1, n)]
+    cols = np.r_[np.arange(1, n), np.arange(n - 1)]
+    o = np.lexsort((cols, rows))
+    rows, cols = rows[o], cols[o]
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(rows, minlength=n), out=indptr[1:])
+    c = np.ones(cols.size)
+    diag = np.full(n, 2.0)
+    lab = quality_aggregates(indptr, cols, c, diag, passes=2, bound=8.0)
+    k = int(lab.max()) + 1
+    sizes = np.bincount(lab)
+    assert 4 <= k <= 8 and sizes.max() <= 4 and sizes.min() >= 2
+    for a in range(k):  # contiguous on a chain = connected
+        idx = np.flatnonzero(lab == a)
+        assert idx.max() - idx.min() + 1 == idx.size
+    one = quality_aggregates(indptr, cols, c, diag, passes=2, bound=1.0)  # no pair good enough
+    assert int(one.max()) + 1 == n

@@ -467,8 +467,8 @@ def build_hierarchy(
         )
     opts_in = dict(model_options or {})
     finest_mode = opts_in.pop("finest", None)
-    if finest_mode not in (None, "aggregation", "cuts", "pyamg", "luby"):
-        raise ParameterError(f"finest must be aggregation, pyamg, luby or cuts, got {finest_mode!r}")
+    if finest_mode not in (None, "aggregation", "cuts", "pyamg", "luby", "quality"):
+        raise ParameterError(f"finest must be aggregation, pyamg, luby, quality or cuts, got {finest_mode!r}")
     # finest="aggregation" (the default for rtree with the default schedule and no kappa; issue 24,
     # rounds five and six): the finest level a standard aggregation of the cells' graph by pyamg's
     # compiled pass, rtree cuts above (worst it 1.00 / 1.00 at complexity 1.04, build under one METIS
@@ -476,7 +476,7 @@ def build_hierarchy(
     # the finest step is not the aggregation's own); "pyamg": pyamg's own join; "luby": round five
     if finest_mode is None:
         finest_mode = "aggregation" if model == "rtree" and default and kappa is None else "cuts"
-    agg_mode = finest_mode in ("aggregation", "pyamg", "luby")
+    agg_mode = finest_mode in ("aggregation", "pyamg", "luby", "quality")
     if agg_mode and (not default or kappa is not None):
         raise ParameterError("an aggregated finest level goes with the default ratio schedule and no kappa")
     if agg_mode and model != "rtree":
@@ -654,6 +654,20 @@ def _aggregated_levels(
     strength = normalized_coupling(ip, ii, cw, diag)
     if how == "luby":  # round five: vectorized Luby rounds (as many as the numbering's chains)
         agg = standard_aggregates(ip, ii, strength)
+    elif how == "quality":  # round seven: Notay's quality-controlled pairwise aggregation
+        from models.partition.rtree_aggregate import quality_aggregates
+
+        passes = int(opts.get("passes", 2 if mesh.dim == 2 else 3))
+        agg = quality_aggregates(
+            ip,
+            ii,
+            cw,
+            diag,
+            passes=passes,
+            bound=float(opts.get("bound", 8.0)),
+            join_singletons=bool(opts.get("join", True)),
+            maxsize=opts.get("maxsize"),
+        )
     else:  # pyamg's compiled pass; "aggregation": the cells off the stars join by strength
         agg = pyamg_aggregates(ip, ii, strength if how == "aggregation" else None)
     k = int(agg.max()) + 1
@@ -696,7 +710,11 @@ def _aggregated_levels(
         if tags is not None:
             qtags = np.zeros(k, dtype=np.int64)
             qtags[agg] = tags
-        up_opts = {key_: v for key_, v in opts.items() if key_ not in ("boxes", "balance", "coupling")}
+        up_opts = {
+            key_: v
+            for key_, v in opts.items()
+            if key_ not in ("boxes", "balance", "coupling", "passes", "bound", "join", "maxsize")
+        }
         if str(up_opts.get("axes", "")).startswith("strength"):
             up_opts["coupling"] = qc
         upper = rtree_levels(
