@@ -768,16 +768,20 @@ def _nested_levels(
     from the count k0 of pyamg's standard aggregation of the whole cells' graph (k0 / step, ...);
     the finest level pyamg's standard aggregation (the cells off the stars joined by strength) of the
     cells' graph without the edges that cross an element of the level above, so every aggregate
-    lies inside one element of it. Returns (levels coarsest first, the requested counts (the coarser
+    lies inside one element of it; then (model_options merge, default true) the smallest aggregates
+    (those the cut sides clipped) join the neighbouring aggregate inside the same element they couple
+    to most, until the count is k0 (merge_smallest) where the graph allows. Returns (levels coarsest first, the requested counts (the coarser
     levels', then k0: the finest level's count is measured against the unrestricted aggregation's),
     the graphs of the levels' elements by level, the achieved (finest step, step)).
     counts: the coarser levels' element counts (coarsest first) instead of k0 / step, ..."""
     from models.partition.rtree import _quotient, level_counts, rtree_levels
-    from models.partition.rtree_aggregate import pyamg_aggregates
+    from models.partition.rtree_aggregate import merge_smallest, pyamg_aggregates
 
     G = data.graph
     n = G.n
     indptr, indices = np.asarray(G.indptr, dtype=np.int64), np.asarray(G.indices, dtype=np.int64)
+    opts = dict(opts)
+    merge = bool(opts.pop("merge", True))
     coupling = opts.get("coupling")
     if coupling is None:
         from models.partition.rtree_strength import tpfa_coupling
@@ -796,7 +800,10 @@ def _nested_levels(
         ]
         level_graphs = {len(up_levels) - 1 - j: g for j, g in enumerate(graphs)}
     within = up_levels[-1] if up_levels else tags
-    agg = pyamg_aggregates(*_aggregation_strength(mesh, data, coupling, within))
+    ip, ii, strength = _aggregation_strength(mesh, data, coupling, within)
+    agg = pyamg_aggregates(ip, ii, strength)
+    if merge:  # the aggregates the cut sides clipped: the smallest join a neighbour inside the parent
+        agg = merge_smallest(ip, ii, strength, agg, k0)
     k = int(agg.max()) + 1
     qp, qi, _ = _quotient(indptr, indices, np.ones(indices.size), agg, k)
     level_graphs[len(up_levels)] = (qp, qi)
