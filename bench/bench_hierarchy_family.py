@@ -52,6 +52,10 @@ MODELS = {
     # the finest level a standard aggregation (round six: pyamg's compiled pass, the rest joined by
     # strength), rtree cuts above; -pyamg: pyamg's own join (first neighbour); -luby: round five's rounds
     "rtree-agg": ("rtree", {"finest": "aggregation"}),
+    # round eight: cuts of the cells at every coarser level, the finest level pyamg's aggregation
+    # inside each element of the level above
+    "rtree-nested": ("rtree", {"finest": "nested"}),
+    "rtree-nested-plain": ("rtree", {"finest": "nested", "merge": False}),  # no merge of the clipped
     "rtree-pyamg": ("rtree", {"finest": "pyamg"}),
     "rtree-luby": ("rtree", {"finest": "luby"}),
     # round seven: Notay's quality-controlled pairwise aggregation (2 matchings in 2D, 3 in 3D, mu < 8)
@@ -77,7 +81,15 @@ MODELS = {
 }
 
 # the models whose levels at exactly 91 and 364 elements are measured (box_at: their axes and boxfit)
-BOX_AT = ("rtree", "rtree-cuts", "rtree-box", "rtree-boxfit", "rtree-box-boxfit")
+BOX_AT = (
+    "rtree",
+    "rtree-cuts",
+    "rtree-nested",
+    "rtree-nested-plain",
+    "rtree-box",
+    "rtree-boxfit",
+    "rtree-box-boxfit",
+)
 AGGREGATED = ("aggregation", "pyamg", "luby")  # finest modes whose coarser levels cut the aggregates
 
 

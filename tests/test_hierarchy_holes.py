@@ -183,3 +183,13 @@ def test_cli_hierarchy_report_and_mgcheck_kappa(plate, tmp_path):
         r = magnet("mgcheck", path, out, "--kappa", bad)
         assert r.returncode == 2
         assert r.stderr.strip().count("\n") == 0 and "kappa" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_nested_aggregation_levels_have_no_holed_element(plate):
+    # finest="nested" (round eight): cuts of the cells above, the aggregation inside them
+    mesh, graph, data, _, _ = plate
+    levels, info = build_hierarchy(mesh, data, model="rtree", coarsest=10, model_options={"finest": "nested"})
+    assert info["finest"] == "nested" and is_nested(levels)
+    for lv in levels:
+        assert _holed(mesh, graph, data, lv) == 0
+        assert _label_pieces(graph.indptr, graph.indices, lv)[0] == int(lv.max()) + 1

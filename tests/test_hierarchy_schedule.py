@@ -56,7 +56,9 @@ def test_default_is_the_schedule_by_dimension(make, cell, dim):
     _, infoc = build_hierarchy(m, d, model="rtree", coarsest=10, model_options={"finest": "cuts"})
     assert infoc["ratio"] == list(default_ratio(dim)) and infoc["finest"] == "cuts"
     assert infoc["requested"] == level_counts(m.n_cells, default_ratio(dim), 10)
-    with pytest.raises(ParameterError, match="finest must be aggregation, pyamg, luby, quality or cuts"):
+    with pytest.raises(
+        ParameterError, match="finest must be aggregation, nested, pyamg, luby, quality or cuts"
+    ):
         build_hierarchy(m, d, model="rtree", model_options={"finest": "box"})
 
 

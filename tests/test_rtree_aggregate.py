@@ -9,7 +9,13 @@ from meshes import quads, tets
 from models.hierarchy.multigrid import mgcheck, tpfa_poisson
 from models.hierarchy.nested import build_hierarchy, is_nested
 from models.mesh.read import mesh_from_arrays
-from models.partition.rtree_aggregate import normalized_coupling, pyamg_aggregates, standard_aggregates
+from models.partition.rtree import level_counts
+from models.partition.rtree_aggregate import (
+    merge_smallest,
+    normalized_coupling,
+    pyamg_aggregates,
+    standard_aggregates,
+)
 from models.pipeline import prepare
 
 
@@ -140,3 +146,41 @@ def test_quality_aggregates_pairs_then_pairs_of_pairs():
         assert idx.max() - idx.min() + 1 == idx.size
     one = quality_aggregates(indptr, cols, c, diag, passes=2, bound=1.0)  # no pair good enough
     assert int(one.max()) + 1 == n
+
+
+@pytest.mark.parametrize("make,cell", [(lambda: quads(40), "quad"), (lambda: tets(10), "tetra")])
+def test_nested_aggregation_inside_the_cuts(make, cell):
+    # finest="nested" (round eight): the coarser levels are the cells' cuts, the finest level pyamg's
+    # aggregation inside each element of the level above, merged back to the unrestricted count
+    m, g, d = _mesh(make, cell)
+    levels, info = build_hierarchy(m, d, model="rtree", coarsest=10, model_options={"finest": "nested"})
+    assert info["finest"] == "nested" and is_nested(levels)
+    sizes = [int(lv.max()) + 1 for lv in levels]
+    assert all(pieces(g, lv) == s for lv, s in zip(levels, sizes, strict=True))
+    ip, ii = np.asarray(d.graph.indptr, dtype=np.int64), np.asarray(d.graph.indices, dtype=np.int64)
+    k0 = int(pyamg_aggregates(ip, ii).max()) + 1  # the unrestricted aggregation's count
+    assert info["requested"] == [*level_counts(k0, 16, 10), k0] and sizes == info["requested"]
+    for r in info["report"]:
+        assert abs(r["ratio_vs_requested"] - 1) <= 0.25
+    # the finest aggregates nest in the coarser levels, which are the cells' own cuts (finest="cuts"
+    # with those counts): the same elements as rtree_levels makes them on the cells
+    plain, infop = build_hierarchy(
+        m, d, model="rtree", coarsest=10, model_options={"finest": "nested", "merge": False}
+    )
+    assert is_nested(plain) and all(
+        np.array_equal(a, b) for a, b in zip(plain[:-1], levels[:-1], strict=True)
+    )
+    kp = int(plain[-1].max()) + 1
+    assert kp >= sizes[-1] and np.unique(plain[-1] * sizes[-1] + levels[-1]).size == kp  # merges only
+
+
+def test_merge_smallest_joins_the_smallest_to_the_strongest_neighbour():
+    # a path 0-1-2-3-4, elements {0}, {1, 2}, {3, 4}: the singleton joins its only neighbour
+    ip = np.array([0, 1, 3, 5, 7, 8])
+    ii = np.array([1, 0, 2, 1, 3, 2, 4, 3])
+    lab = merge_smallest(ip, ii, np.ones(8), np.array([0, 1, 1, 2, 2]), 2)
+    assert lab[0] == lab[1] == lab[2] and lab[3] == lab[4] != lab[0]
+    # down to one element at most as far as the graph connects (two components stay two)
+    ip2 = np.array([0, 1, 2, 3, 4])
+    lab2 = merge_smallest(ip2, np.array([1, 0, 3, 2]), np.ones(4), np.arange(4), 1)
+    assert int(lab2.max()) + 1 == 2 and lab2[0] == lab2[1] and lab2[2] == lab2[3]

@@ -467,16 +467,20 @@ def build_hierarchy(
         )
     opts_in = dict(model_options or {})
     finest_mode = opts_in.pop("finest", None)
-    if finest_mode not in (None, "aggregation", "cuts", "pyamg", "luby", "quality"):
-        raise ParameterError(f"finest must be aggregation, pyamg, luby, quality or cuts, got {finest_mode!r}")
+    if finest_mode not in (None, "aggregation", "cuts", "pyamg", "luby", "quality", "nested"):
+        raise ParameterError(
+            f"finest must be aggregation, nested, pyamg, luby, quality or cuts, got {finest_mode!r}"
+        )
     # finest="aggregation" (the default for rtree with the default schedule and no kappa; issue 24,
     # rounds five and six): the finest level a standard aggregation of the cells' graph by pyamg's
     # compiled pass, rtree cuts above (worst it 1.00 / 1.00 at complexity 1.04, build under one METIS
     # call); "cuts": rtree cuts at every level (the default before, and with --ratio or kappa, where
-    # the finest step is not the aggregation's own); "pyamg": pyamg's own join; "luby": round five
+    # the finest step is not the aggregation's own); "pyamg": pyamg's own join; "luby": round five;
+    # "nested" (round eight): cuts of the cells above, the finest level pyamg's aggregation inside
+    # each element of the level above it
     if finest_mode is None:
         finest_mode = "aggregation" if model == "rtree" and default and kappa is None else "cuts"
-    agg_mode = finest_mode in ("aggregation", "pyamg", "luby", "quality")
+    agg_mode = finest_mode in ("aggregation", "pyamg", "luby", "quality", "nested")
     if agg_mode and (not default or kappa is not None):
         raise ParameterError("an aggregated finest level goes with the default ratio schedule and no kappa")
     if agg_mode and model != "rtree":
@@ -538,7 +542,12 @@ def build_hierarchy(
 
             opts["coupling"] = tpfa_coupling(G.indptr, G.indices, G.weights, data.centroids, kappa)
         graphs = []  # the graphs of the levels' elements, for the cavity check
-        if agg_mode:
+        if finest_mode == "nested":
+            levels, counts, level_graphs, ratio = _nested_levels(
+                mesh, data, batch, tags, ratio[-1] if np.ndim(ratio) else ratio, coarsest, opts
+            )
+            how = "native: rtree cuts of the cells, the finest level by standard aggregation inside them"
+        elif agg_mode:
             levels, counts, level_graphs, ratio = _aggregated_levels(
                 mesh, data, tags, ratio[-1] if np.ndim(ratio) else ratio, coarsest, opts, finest_mode
             )
@@ -725,6 +734,80 @@ def _aggregated_levels(
     levels[-1] = rank[agg]
     level_graphs[len(levels) - 1] = _renamed(qp, qi, rank)
     return levels, [*upper_counts, k], level_graphs, (n / k, float(step))
+
+
+def _aggregation_strength(mesh: Mesh, data: CellData, coupling: np.ndarray, keep_label=None):
+    """(indptr, indices, strength) of the cells' graph for pyamg's aggregation: pyamg's symmetric
+    strength |a_ij| / sqrt(a_ii a_jj) of the TPFA operator (Dirichlet boundary, as
+    models.hierarchy.multigrid.tpfa_poisson assembles it: the diagonal the couplings' row sums plus
+    the boundary faces' transmissibilities). keep_label: (cells,) labels; only the edges inside one
+    label are kept (no aggregate crosses a label; the diagonal stays the whole operator's)."""
+    from models.partition.rtree_aggregate import normalized_coupling
+    from models.partition.rtree_strength import tpfa_boundary
+
+    G = data.graph
+    n = G.n
+    indptr, indices = np.asarray(G.indptr, dtype=np.int64), np.asarray(G.indices, dtype=np.int64)
+    rows = np.repeat(np.arange(n), np.diff(indptr))
+    owner, tb = tpfa_boundary(mesh, data)
+    diag = np.bincount(rows, weights=coupling, minlength=n) + np.bincount(owner, weights=tb, minlength=n)
+    ip, ii, cw = indptr, indices, coupling
+    if keep_label is not None:
+        keep = keep_label[rows] == keep_label[indices]
+        ip = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum(np.bincount(rows[keep], minlength=n), out=ip[1:])
+        ii, cw = indices[keep], coupling[keep]
+    return ip, ii, normalized_coupling(ip, ii, cw, diag)
+
+
+def _nested_levels(
+    mesh: Mesh, data: CellData, batch, tags, step: float, coarsest: int, opts: dict, counts=None
+):
+    """finest="nested" (issue 24, round eight): the coarser levels rtree's cuts of the CELLS (as
+    finest="cuts" makes them, so they keep the cut boxes), their counts `step` times fewer per level
+    from the count k0 of pyamg's standard aggregation of the whole cells' graph (k0 / step, ...);
+    the finest level pyamg's standard aggregation (the cells off the stars joined by strength) of the
+    cells' graph without the edges that cross an element of the level above, so every aggregate
+    lies inside one element of it; then (model_options merge, default true) the smallest aggregates
+    (those the cut sides clipped) join the neighbouring aggregate inside the same element they couple
+    to most, until the count is k0 (merge_smallest) where the graph allows. Returns (levels coarsest first, the requested counts (the coarser
+    levels', then k0: the finest level's count is measured against the unrestricted aggregation's),
+    the graphs of the levels' elements by level, the achieved (finest step, step)).
+    counts: the coarser levels' element counts (coarsest first) instead of k0 / step, ..."""
+    from models.partition.rtree import _quotient, level_counts, rtree_levels
+    from models.partition.rtree_aggregate import merge_smallest, pyamg_aggregates
+
+    G = data.graph
+    n = G.n
+    indptr, indices = np.asarray(G.indptr, dtype=np.int64), np.asarray(G.indices, dtype=np.int64)
+    opts = dict(opts)
+    merge = bool(opts.pop("merge", True))
+    coupling = opts.get("coupling")
+    if coupling is None:
+        from models.partition.rtree_strength import tpfa_coupling
+
+        coupling = tpfa_coupling(indptr, indices, G.weights, data.centroids)
+    coupling = np.asarray(coupling, dtype=np.float64)
+    k0 = int(pyamg_aggregates(*_aggregation_strength(mesh, data, coupling, tags)).max()) + 1
+    upper = level_counts(k0, step, coarsest) if counts is None else [int(c) for c in counts if c < k0]
+    graphs: list = []
+    level_graphs = {}
+    up_levels = []
+    if upper:
+        up_levels = [
+            np.asarray(u, dtype=np.int64)
+            for u in rtree_levels(batch, upper, groups=tags, graphs=graphs, **{**opts, "coupling": coupling})
+        ]
+        level_graphs = {len(up_levels) - 1 - j: g for j, g in enumerate(graphs)}
+    within = up_levels[-1] if up_levels else tags
+    ip, ii, strength = _aggregation_strength(mesh, data, coupling, within)
+    agg = pyamg_aggregates(ip, ii, strength)
+    if merge:  # the aggregates the cut sides clipped: the smallest join a neighbour inside the parent
+        agg = merge_smallest(ip, ii, strength, agg, k0)
+    k = int(agg.max()) + 1
+    qp, qi, _ = _quotient(indptr, indices, np.ones(indices.size), agg, k)
+    level_graphs[len(up_levels)] = (qp, qi)
+    return [*up_levels, agg], [*upper, k0], level_graphs, (n / k, float(step))
 
 
 def _hierarchy_above(data, finest, mesh, model, ratio, coarsest, seed, t0):

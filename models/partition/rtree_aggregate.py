@@ -247,3 +247,61 @@ def quality_aggregates(
             lab = _join_rest(rows, indices, lab2, int(lab2.max()) + 1, w)
     _, lab = np.unique(lab, return_inverse=True)
     return lab
+
+
+def merge_smallest(
+    indptr: np.ndarray,
+    indices: np.ndarray,
+    strength: np.ndarray,
+    lab: np.ndarray,
+    k_target: int,
+    rounds: int = 8,
+) -> np.ndarray:
+    """(N,) labels 0..k-1 with k down to k_target where the graph allows: in rounds, the smallest
+    elements (in nodes; as many as the excess) join the neighbouring element they couple to most
+    (the summed strength over the graph (indptr, indices), so only along its edges), ties the lowest
+    element. An element another, smaller, element joins in the same round stays (no cycles); chains
+    are followed to their end. Elements stay connected (each joins a neighbour). Vectorized per
+    round."""
+    indptr = np.asarray(indptr, dtype=np.int64)
+    indices = np.asarray(indices, dtype=np.int64)
+    lab = np.unique(np.asarray(lab, dtype=np.int64), return_inverse=True)[1].astype(np.int64)
+    n = lab.size
+    rows = np.repeat(np.arange(n), np.diff(indptr))
+    w = np.asarray(strength, dtype=np.float64)
+    for _ in range(rounds):
+        k = int(lab.max()) + 1 if n else 0
+        excess = k - int(k_target)
+        if excess <= 0:
+            break
+        a, b = lab[rows], lab[indices]
+        e = a != b
+        if not e.any():
+            break
+        key, inv = np.unique(a[e] * k + b[e], return_inverse=True)
+        s = np.bincount(inv, weights=w[e])
+        ka, kb = key // k, key % k
+        o = np.lexsort((kb, -s, ka))  # per element: the strongest neighbour, ties the lowest
+        f = o[np.r_[True, ka[o][1:] != ka[o][:-1]]]
+        best = np.full(k, -1, dtype=np.int64)
+        best[ka[f]] = kb[f]
+        size = np.bincount(lab, minlength=k)
+        cand = np.flatnonzero(best >= 0)
+        cand = cand[np.lexsort((cand, size[cand]))][:excess]  # the smallest first, ties the lowest
+        rank = np.full(k, np.iinfo(np.int64).max, dtype=np.int64)
+        rank[cand] = np.arange(cand.size)
+        # an element joined by a smaller selected one stays where it is (breaks mutual pairs, cycles)
+        joined_by = np.full(k, np.iinfo(np.int64).max, dtype=np.int64)
+        np.minimum.at(joined_by, best[cand], rank[cand])
+        sel = cand[joined_by[cand] > rank[cand]]
+        if sel.size == 0:
+            break
+        to = np.arange(k)
+        to[sel] = best[sel]
+        for _ in range(64):  # chains to their end (pointer jumping)
+            nxt = to[to]
+            if np.array_equal(nxt, to):
+                break
+            to = nxt
+        lab = np.unique(to[lab], return_inverse=True)[1].astype(np.int64)
+    return lab
