@@ -270,47 +270,75 @@ static PyObject *py_consistent(PyObject *self, PyObject *args) {
     return PyBool_FromLong(ok);
 }
 
-/* A face's directed key less its smallest node: the nodes after and before it, min(size, 7) in
- * the top bits of the second (point ids < 2^60; a larger id can only make two keys look alike: a
- * contradiction where there is none, which sends the caller to the full path, never the reverse). */
-typedef struct {
-    int64_t nx, pvs;
-} Key2;
+/* A face's directed key less its smallest node, packed in one 64-bit word: the node after it (bits
+ * 33..62), the node before it (bits 3..32), min(size, 7) (bits 0..2), the cell's flip applied
+ * (after and before swapped). Exact for point ids < 2^30 (the callers take the check only then);
+ * an id out of range can only make two keys look alike: a contradiction where there is none, which
+ * sends the caller to the full path, never the reverse. */
+#define KEY_ID_LIMIT ((int64_t)1 << 30)
+
+/* One cell's faces: each face's smallest node (mins) and its packed key (keys), in template order.
+ * 1: a smallest node out of 0..P-1. */
+static inline __attribute__((always_inline)) int cell_face_keys(const int64_t *c, const int64_t *tmpl,
+                                                                const int64_t *tsize, int64_t nf, int fl,
+                                                                int64_t P, uint32_t *mins, uint64_t *keys) {
+    int64_t pos = 0;
+    for (int64_t f = 0; f < nf; f++) {
+        int64_t s = tsize[f], j = 0;
+        const int64_t *t = tmpl + pos;
+        pos += s;
+        for (int64_t q = 1; q < s; q++)
+            if (c[t[q]] < c[t[j]]) j = q; /* first of the smallest (argmin) */
+        int64_t m = c[t[j]];
+        if (m < 0 || m >= P) return 1;
+        uint64_t nx = (uint64_t)c[t[j + 1 == s ? 0 : j + 1]], pv = (uint64_t)c[t[j == 0 ? s - 1 : j - 1]];
+        if (fl) {
+            uint64_t x = nx;
+            nx = pv;
+            pv = x;
+        }
+        mins[f] = (uint32_t)m;
+        keys[f] = nx << 33 | pv << 3 | (uint64_t)(s < 7 ? s : 7);
+    }
+    return 0;
+}
 
 /* Is a key met twice in sorted[lo..hi) (one bucket: the faces of one smallest node)? Small buckets
  * pairwise; larger ones (tetrahedra: ~24 faces a point) by chains of the keys of the same next
- * node: head[n] the last position of the bucket whose key has next node n (a position before lo:
- * none), prev[x] the one before x (-1: none). 1: a key met twice; -1: a next node out of range. */
-static int bucket_has_twice(const Key2 *sorted, int64_t lo, int64_t hi, int64_t P, int64_t *head, int64_t *prev) {
+ * node: head[n] the last position of the bucket whose key has next node n (UINT32_MAX or a position
+ * before lo: none), prev[x] the one before x. 1: a key met twice; -1: a next node out of range. */
+#define NONE32 UINT32_MAX
+static int bucket_has_twice(const uint64_t *sorted, uint32_t lo, uint32_t hi, int64_t P, uint32_t *head,
+                            uint32_t *prev) {
     if (hi - lo <= 8 || head == NULL) {
-        for (int64_t x = lo; x < hi; x++)
-            for (int64_t y = x + 1; y < hi; y++)
-                if (sorted[x].nx == sorted[y].nx && sorted[x].pvs == sorted[y].pvs) return 1;
+        for (uint32_t x = lo; x < hi; x++)
+            for (uint32_t y = x + 1; y < hi; y++)
+                if (sorted[x] == sorted[y]) return 1;
         return 0;
     }
-    for (int64_t x = lo; x < hi; x++)
-        if (sorted[x].nx < 0 || sorted[x].nx >= P) return -1;
-    for (int64_t x = lo; x < hi; x++) {
-        int64_t n = sorted[x].nx, y = head[n];
-        prev[x] = y >= lo ? y : -1;
-        for (int64_t z = prev[x]; z >= 0; z = prev[z])
-            if (sorted[z].pvs == sorted[x].pvs) return 1;
+    for (uint32_t x = lo; x < hi; x++)
+        if ((int64_t)(sorted[x] >> 33) >= P) return -1;
+    for (uint32_t x = lo; x < hi; x++) {
+        uint64_t n = sorted[x] >> 33;
+        uint32_t y = head[n];
+        prev[x] = y != NONE32 && y >= lo ? y : NONE32;
+        for (uint32_t z = prev[x]; z != NONE32; z = prev[z])
+            if (sorted[z] == sorted[x]) return 1;
         head[n] = x;
     }
     return 0;
 }
 
-/* The check fixed_consistent and fixed_validate share: every face's directed key (the cell's
- * flip applied) bucketed by its smallest node (a counting sort over the points: cache-friendly,
- * unlike a hash table of every face), then compared within each bucket. mins (C * nf): each face's
- * smallest node, in 0..P-1 (the callers check it), used as scratch here. 1: no key met twice
- * (consistent); 0: one met twice; -1: out of memory. */
-static int faces_consistent(const int64_t *conn, int64_t C, int64_t k, const int64_t *tmpl, const int64_t *tsize,
-                            int64_t nf, const uint8_t *flip, int64_t *mins, int64_t P) {
-    int64_t F = C * nf;
-    int64_t *start = calloc((size_t)P + 2, sizeof(int64_t));
-    Key2 *sorted = malloc((size_t)(F ? F : 1) * sizeof(Key2));
-    int64_t *head = NULL;
+/* The check fixed_consistent and fixed_validate share, on the faces' smallest nodes (mins, in
+ * 0..P-1) and packed keys (F of each): the keys bucketed by smallest node (a counting sort over the
+ * points: cache-friendly, unlike a hash table of every face), then compared within each bucket.
+ * mins is scratch afterwards. 1: no key met twice (consistent); 0: one met twice, or a mesh too
+ * large for the packed keys (P >= 2^30 or F >= 2^32: the full path decides); -1: out of memory. */
+static int faces_consistent(uint32_t *mins, const uint64_t *keys, int64_t F, int64_t P) {
+    if (P >= KEY_ID_LIMIT || F >= (int64_t)NONE32) return 0;
+    uint32_t *start = calloc((size_t)P + 2, sizeof(uint32_t));
+    uint64_t *sorted = malloc((size_t)(F ? F : 1) * sizeof(uint64_t));
+    uint32_t *head = NULL;
     int ok = 1;
     if (!start || !sorted) {
         free(start);
@@ -319,26 +347,22 @@ static int faces_consistent(const int64_t *conn, int64_t C, int64_t k, const int
     }
     for (int64_t f = 0; f < F; f++) start[mins[f] + 2]++;
     for (int64_t p = 2; p < P + 2; p++) start[p] += start[p - 1];
-    for (int64_t i = 0; i < C; i++) { /* scattered into the buckets, the flips applied */
-        const int64_t *c = conn + i * k;
-        int64_t pos = 0;
-        for (int64_t f = 0; f < nf; f++) {
-            int64_t s = tsize[f], j = 0;
-            const int64_t *t = tmpl + pos;
-            pos += s;
-            for (int64_t q = 1; q < s; q++)
-                if (c[t[q]] < c[t[j]]) j = q;
-            int64_t nx = c[t[j + 1 == s ? 0 : j + 1]], pv = c[t[j == 0 ? s - 1 : j - 1]];
-            Key2 r = {flip[i] ? pv : nx, (flip[i] ? nx : pv) | ((s < 7 ? s : 7) << 60)};
-            sorted[start[mins[i * nf + f] + 1]++] = r;
-        }
-    }
+    for (int64_t f = 0; f < F; f++) sorted[start[mins[f] + 1]++] = keys[f];
     /* mins is free now: the chains of the large buckets (prev, by position) */
     for (int64_t p = 0; p < P && ok; p++) { /* start[p]..start[p+1]: bucket p */
-        int64_t lo = start[p], hi = start[p + 1];
-        if (hi - lo > 8 && head == NULL) {
-            head = malloc((size_t)P * sizeof(int64_t));
-            if (head) memset(head, 0xff, (size_t)P * sizeof(int64_t)); /* -1: before every bucket */
+        uint32_t lo = start[p], hi = start[p + 1];
+        if (hi - lo <= 8) { /* the common case, inline */
+            for (uint32_t x = lo; x < hi && ok; x++)
+                for (uint32_t y = x + 1; y < hi; y++)
+                    if (sorted[x] == sorted[y]) {
+                        ok = 0;
+                        break;
+                    }
+            continue;
+        }
+        if (head == NULL) {
+            head = malloc((size_t)P * sizeof(uint32_t));
+            if (head) memset(head, 0xff, (size_t)P * sizeof(uint32_t)); /* NONE32 */
         }
         int r = bucket_has_twice(sorted, lo, hi, P, head, mins);
         if (r < 0) r = bucket_has_twice(sorted, lo, hi, P, NULL, NULL);
@@ -353,7 +377,7 @@ static int faces_consistent(const int64_t *conn, int64_t C, int64_t k, const int
 /* fixed_consistent(conn, tmpl, tsize, flip, npts) -> bool
  *   consistent() for cells of one type with a fixed node count, their faces taken from the
  *   template (as fixed_measures) instead of a face array; npts (1,) the number of points
- *   (< 2^60). The faces' smallest nodes here, then faces_consistent. */
+ *   (< 2^60). The faces' smallest nodes and keys here, then faces_consistent. */
 static PyObject *py_fixed_consistent(PyObject *self, PyObject *args) {
     static const char *const names[] = {"conn", "tmpl", "tsize", "flip", "npts"};
     static const Py_ssize_t sizes[] = {8, 8, 8, 1, 8};
@@ -372,34 +396,23 @@ static PyObject *py_fixed_consistent(PyObject *self, PyObject *args) {
         return NULL;
     }
     int64_t P = npts[0], F = C * nf;
-    int64_t *mins = malloc((size_t)(F ? F : 1) * sizeof(int64_t));
-    int ok = 1, err = !mins;
+    uint32_t *mins = malloc((size_t)(F ? F : 1) * sizeof(uint32_t));
+    uint64_t *keys = malloc((size_t)(F ? F : 1) * sizeof(uint64_t));
+    int ok = 1, err = !mins || !keys;
     Py_BEGIN_ALLOW_THREADS
-    if (!err) {
-        for (int64_t i = 0; i < C && !err; i++) { /* every face's smallest node */
-            const int64_t *c = conn + i * k;
-            int64_t pos = 0;
-            for (int64_t f = 0; f < nf; f++) {
-                int64_t s = tsize[f], j = 0;
-                const int64_t *t = tmpl + pos;
-                pos += s;
-                for (int64_t q = 1; q < s; q++)
-                    if (c[t[q]] < c[t[j]]) j = q;
-                int64_t m = c[t[j]];
-                if (m < 0 || m >= P) {
-                    err = 2;
-                    break;
-                }
-                mins[i * nf + f] = m;
+    if (!err)
+        for (int64_t i = 0; i < C; i++) /* every face's smallest node and key */
+            if (cell_face_keys(conn + i * k, tmpl, tsize, nf, flip[i], P, mins + i * nf, keys + i * nf)) {
+                err = 2;
+                break;
             }
-        }
-        if (!err) {
-            ok = faces_consistent(conn, C, k, tmpl, tsize, nf, flip, mins, P);
-            if (ok < 0) err = 1;
-        }
+    if (!err) {
+        ok = faces_consistent(mins, keys, F, P);
+        if (ok < 0) err = 1;
     }
     Py_END_ALLOW_THREADS
     free(mins);
+    free(keys);
     release_arr(b, 5);
     if (err == 1) return PyErr_NoMemory();
     if (err) {
@@ -413,18 +426,20 @@ static PyObject *py_fixed_consistent(PyObject *self, PyObject *args) {
 /* fixed_validate(points, conn, tmpl, tsize, vol, cen, flip, npts, nthreads) -> bool
  *   The read stage's validation of cells of one type with a fixed node count in one pass per cell:
  *   fixed_measures' signed volume and centroid (tetrahedra: measure_tet, closed form, as
- *   geometry._tetra_measures), flip[i] = vol[i] < 0 (uint8), and every face's directed key as
- *   fixed_consistent makes it with those flips (sharing the gathered nodes). That pass runs in
- *   nthreads (1,) threads over ranges of cells (each cell's values do not depend on them). Then
- *   faces_consistent buckets the keys by their smallest node and compares them in each bucket: True when no face is met twice in the same direction (flipping every cell by
- *   its own sign is consistent), False otherwise (the caller takes the full path). */
+ *   geometry._tetra_measures), flip[i] = vol[i] < 0 (uint8), and every face's smallest node and
+ *   directed key as fixed_consistent makes them with those flips (sharing the gathered nodes).
+ *   That pass runs in nthreads (1,) threads over ranges of cells (each cell's values do not depend
+ *   on them). Then faces_consistent buckets the keys by their smallest node and compares them in
+ *   each bucket: True when no face is met twice in the same direction (flipping every cell by its
+ *   own sign is consistent), False otherwise (the caller takes the full path). */
 typedef struct {
     const double *P;
     const int64_t *conn, *tmpl, *tsize;
     int64_t k, nf, lo, hi, npts;
     double *vol, *cen;
     uint8_t *flip;
-    int64_t *mins;
+    uint32_t *mins;
+    uint64_t *keys;
     int bad;
 } Job;
 
@@ -446,19 +461,16 @@ static void *validate_range(void *arg) {
             measure_cell(J->P, c, k, tmpl, tsize, nf, J->vol + i, J->cen + 3 * i);
         int fl = J->vol[i] < 0.0;
         J->flip[i] = (uint8_t)fl;
-        int64_t pos = 0;
-        for (int64_t f = 0; f < nf; f++) {
-            int64_t s = tsize[f], j = 0;
-            const int64_t *t = tmpl + pos;
-            pos += s;
-            for (int64_t q = 1; q < s; q++)
-                if (c[t[q]] < c[t[j]]) j = q;
-            int64_t m = c[t[j]];
-            if (m < 0 || m >= J->npts) {
-                J->bad = 1;
-                return NULL;
-            }
-            J->mins[i * nf + f] = m;
+        int bad;
+        if (hex) /* the constants let the compiler unroll */
+            bad = cell_face_keys(c, tmpl, tsize, 6, fl, J->npts, J->mins + i * 6, J->keys + i * 6);
+        else if (k == 4 && nf == 4)
+            bad = cell_face_keys(c, tmpl, tsize, 4, fl, J->npts, J->mins + i * 4, J->keys + i * 4);
+        else
+            bad = cell_face_keys(c, tmpl, tsize, nf, fl, J->npts, J->mins + i * nf, J->keys + i * nf);
+        if (bad) {
+            J->bad = 1;
+            return NULL;
         }
     }
     return NULL;
@@ -488,15 +500,16 @@ static PyObject *py_fixed_validate(PyObject *self, PyObject *args) {
     }
     int64_t Pn = npts[0], F = C * nf, T = nth[0] < 1 ? 1 : nth[0] > 64 ? 64 : nth[0];
     if (T > 1 && C / T < 4096) T = C / 4096 > 1 ? C / 4096 : 1; /* threads only for large arrays */
-    int64_t *mins = malloc((size_t)(F ? F : 1) * sizeof(int64_t));
-    int ok = 1, err = !mins;
+    uint32_t *mins = malloc((size_t)(F ? F : 1) * sizeof(uint32_t));
+    uint64_t *keys = malloc((size_t)(F ? F : 1) * sizeof(uint64_t));
+    int ok = 1, err = !mins || !keys;
     Py_BEGIN_ALLOW_THREADS
     if (!err) {
         Job jobs[64];
         pthread_t tid[64];
         int started[64] = {0};
         for (int64_t t = 0; t < T; t++) {
-            Job j = {P, conn, tmpl, tsize, k, nf, C * t / T, C * (t + 1) / T, Pn, vol, cen, flip, mins, 0};
+            Job j = {P, conn, tmpl, tsize, k, nf, C * t / T, C * (t + 1) / T, Pn, vol, cen, flip, mins, keys, 0};
             jobs[t] = j;
         }
         for (int64_t t = 1; t < T; t++)
@@ -511,12 +524,13 @@ static PyObject *py_fixed_validate(PyObject *self, PyObject *args) {
         for (int64_t t = 0; t < T; t++)
             if (jobs[t].bad) err = 2;
         if (!err) {
-            ok = faces_consistent(conn, C, k, tmpl, tsize, nf, flip, mins, Pn);
+            ok = faces_consistent(mins, keys, F, Pn);
             if (ok < 0) err = 1;
         }
     }
     Py_END_ALLOW_THREADS
     free(mins);
+    free(keys);
     release_arr(b, 9);
     if (err == 1) return PyErr_NoMemory();
     if (err) {
