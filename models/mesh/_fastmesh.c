@@ -278,14 +278,16 @@ static PyObject *py_consistent(PyObject *self, PyObject *args) {
  * sends the caller to the full path, never the reverse. */
 #define KEY_ID_LIMIT ((int64_t)1 << 30)
 
-/* One cell's faces: each face's smallest node (mins) and its packed key (keys), in template order.
- * 1: a smallest node out of 0..P-1. */
+/* One cell's faces: each face's smallest node (mins) and its packed key (keys), in template order;
+ * S > 0: every face has S nodes (a constant the compiler unrolls), else tsize says. 1: a smallest
+ * node out of 0..P-1. */
 static inline __attribute__((always_inline)) int cell_face_keys(const int64_t *c, const int64_t *tmpl,
-                                                                const int64_t *tsize, int64_t nf, int fl,
-                                                                int64_t P, uint32_t *mins, uint64_t *keys) {
+                                                                const int64_t *tsize, int64_t nf, int64_t S,
+                                                                int fl, int64_t P, uint32_t *mins,
+                                                                uint64_t *keys) {
     int64_t pos = 0;
     for (int64_t f = 0; f < nf; f++) {
-        int64_t s = tsize[f], j = 0;
+        int64_t s = S > 0 ? S : tsize[f], j = 0;
         const int64_t *t = tmpl + pos;
         pos += s;
         for (int64_t q = 1; q < s; q++)
@@ -403,7 +405,7 @@ static PyObject *py_fixed_consistent(PyObject *self, PyObject *args) {
     Py_BEGIN_ALLOW_THREADS
     if (!err)
         for (int64_t i = 0; i < C; i++) /* every face's smallest node and key */
-            if (cell_face_keys(conn + i * k, tmpl, tsize, nf, flip[i], P, mins + i * nf, keys + i * nf)) {
+            if (cell_face_keys(conn + i * k, tmpl, tsize, nf, 0, flip[i], P, mins + i * nf, keys + i * nf)) {
                 err = 2;
                 break;
             }
@@ -464,11 +466,11 @@ static void *validate_range(void *arg) {
         J->flip[i] = (uint8_t)fl;
         int bad;
         if (hex) /* the constants let the compiler unroll */
-            bad = cell_face_keys(c, tmpl, tsize, 6, fl, J->npts, J->mins + i * 6, J->keys + i * 6);
-        else if (k == 4 && nf == 4)
-            bad = cell_face_keys(c, tmpl, tsize, 4, fl, J->npts, J->mins + i * 4, J->keys + i * 4);
+            bad = cell_face_keys(c, tmpl, tsize, 6, 4, fl, J->npts, J->mins + i * 6, J->keys + i * 6);
+        else if (k == 4 && nf == 4) /* tetrahedra (checked by the caller: four triangles) */
+            bad = cell_face_keys(c, tmpl, tsize, 4, 3, fl, J->npts, J->mins + i * 4, J->keys + i * 4);
         else
-            bad = cell_face_keys(c, tmpl, tsize, nf, fl, J->npts, J->mins + i * nf, J->keys + i * nf);
+            bad = cell_face_keys(c, tmpl, tsize, nf, 0, fl, J->npts, J->mins + i * nf, J->keys + i * nf);
         if (bad) {
             J->bad = 1;
             return NULL;
