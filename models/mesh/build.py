@@ -420,10 +420,10 @@ def mesh_from_image(axes, tags, tag_name, meta: dict) -> Mesh | None:
     )
     mesh.meta.update(meta)
     mesh.meta["lower_dim_cells"] = {}
-    mesh.meta["measures"] = np.abs(vol)
+    mesh.meta["measures"] = measures = np.abs(vol)
     mesh.meta["centroids"] = cen
     scale = float(np.linalg.norm(hi - lo)) ** 3  # refuse_degenerate's bound, from the axes
-    if scale == 0 or np.any(np.abs(vol) <= 1e-14 * scale):
+    if scale == 0 or np.any(measures <= 1e-14 * scale):
         refuse_degenerate(mesh, vol)  # says which cells
     flips = np.full(n, flip)
     _record_orientation(mesh, -vol if flip else vol, flips)
