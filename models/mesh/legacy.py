@@ -80,8 +80,7 @@ def read_legacy_simple(path: str | os.PathLike):
                 b"BINARY" not in head and b"ASCII" not in head
             ):
                 return None
-            fh.seek(0)
-            data = fh.read()  # one read, no copy (head + the rest would copy the whole file)
+            data = head + fh.read()  # (one fh.read() after a seek measured slower here)
         return _simple(data)
     except (_Decline, ValueError, KeyError, IndexError, OSError):
         return None
