@@ -15,6 +15,8 @@
  *   consistent      orientation._consistent (fixed_consistent: the same from a cell type's template; it and
  *                   fixed_validate share faces_consistent): with the cells in `flip` reversed, is any face met twice
  *                   in the same direction? (a hash table of directed face keys instead of a sort)
+ *   ascii_values    the numbers of a legacy VTK ASCII section (models/mesh/legacy.py), integers or
+ *                   correctly rounded decimals; anything else declined (VTK's reader then reads it)
  *
  * Arrays come through the buffer protocol (no numpy headers at build time); point ids are trusted
  * (build.mesh_from_cells checked them before).
