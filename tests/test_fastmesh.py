@@ -119,3 +119,24 @@ def test_compiled_consistency_in_large_buckets_equals_numpy():
         assert got == bool(want)
         answers.append(got)
     assert answers[:2] == [True, True] and not any(answers[2:])  # every flip here contradicts
+
+
+def test_face_check_leaves_huge_meshes_to_the_full_path():
+    """Packed face keys are exact for point ids < 2^30: a mesh with more points gets False (the
+    full path decides), never a wrong True; the measures are still taken."""
+    fast = compiled("mesh._fastmesh")
+    from models.mesh.container import VTK_HEXAHEDRON
+    from models.mesh.geometry import fixed_template
+
+    p, h = hexes(2)
+    tmpl, tsize = fixed_template(VTK_HEXAHEDRON)
+    conn = np.ascontiguousarray(h, dtype=np.int64).reshape(-1)
+    flip = np.zeros(len(h), np.uint8)
+    assert fast.fixed_consistent(conn, tmpl, tsize, flip, np.array([len(p)], dtype=np.int64))
+    huge = np.array([1 << 30], dtype=np.int64)
+    assert not fast.fixed_consistent(conn, tmpl, tsize, flip, huge)
+    vol, cen = np.empty(len(h)), np.empty((len(h), 3))
+    pts = np.ascontiguousarray(p, dtype=np.float64)
+    one = np.array([1], dtype=np.int64)
+    assert not fast.fixed_validate(pts, conn, tmpl, tsize, vol, cen, flip, huge, one)
+    assert np.allclose(vol, 1.0 / 8)

@@ -15,10 +15,13 @@
  *   consistent      orientation._consistent (fixed_consistent: the same from a cell type's template; it and
  *                   fixed_validate share faces_consistent): with the cells in `flip` reversed, is any face met twice
  *                   in the same direction? (a hash table of directed face keys instead of a sort)
+ *   ascii_values    the numbers of a legacy VTK ASCII section (models/mesh/legacy.py), integers or
+ *                   correctly rounded decimals; anything else declined (VTK's reader then reads it)
  *
  * Arrays come through the buffer protocol (no numpy headers at build time); point ids are trusted
  * (build.mesh_from_cells checked them before).
  */
+#define _GNU_SOURCE /* strtod_l */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include "_buffers.h"
@@ -270,75 +273,96 @@ static PyObject *py_consistent(PyObject *self, PyObject *args) {
     return PyBool_FromLong(ok);
 }
 
-/* A face's directed key less its smallest node: the nodes after and before it, min(size, 7) in
- * the top bits of the second (point ids < 2^60; a larger id can only make two keys look alike: a
- * contradiction where there is none, which sends the caller to the full path, never the reverse). */
-typedef struct {
-    int64_t nx, pvs;
-} Key2;
+/* A face's directed key less its smallest node, packed in one 64-bit word: the node after it (bits
+ * 33..62), the node before it (bits 3..32), min(size, 7) (bits 0..2), the cell's flip applied
+ * (after and before swapped). Exact for point ids < 2^30 (the callers take the check only then);
+ * an id out of range can only make two keys look alike: a contradiction where there is none, which
+ * sends the caller to the full path, never the reverse. */
+#define KEY_ID_LIMIT ((int64_t)1 << 30)
+
+/* One cell's faces: each face's smallest node (mins) and its packed key (keys), in template order;
+ * S > 0: every face has S nodes (a constant the compiler unrolls), else tsize says. 1: a smallest
+ * node out of 0..P-1. */
+static inline __attribute__((always_inline)) int cell_face_keys(const int64_t *c, const int64_t *tmpl,
+                                                                const int64_t *tsize, int64_t nf, int64_t S,
+                                                                int fl, int64_t P, uint32_t *mins,
+                                                                uint64_t *keys) {
+    int64_t pos = 0;
+    for (int64_t f = 0; f < nf; f++) {
+        int64_t s = S > 0 ? S : tsize[f], j = 0;
+        const int64_t *t = tmpl + pos;
+        pos += s;
+        for (int64_t q = 1; q < s; q++)
+            if (c[t[q]] < c[t[j]]) j = q; /* first of the smallest (argmin) */
+        int64_t m = c[t[j]];
+        if (m < 0 || m >= P) return 1;
+        uint64_t nx = (uint64_t)c[t[j + 1 == s ? 0 : j + 1]], pv = (uint64_t)c[t[j == 0 ? s - 1 : j - 1]];
+        if (fl) {
+            uint64_t x = nx;
+            nx = pv;
+            pv = x;
+        }
+        mins[f] = (uint32_t)m;
+        keys[f] = nx << 33 | pv << 3 | (uint64_t)(s < 7 ? s : 7);
+    }
+    return 0;
+}
 
 /* Is a key met twice in sorted[lo..hi) (one bucket: the faces of one smallest node)? Small buckets
  * pairwise; larger ones (tetrahedra: ~24 faces a point) by chains of the keys of the same next
- * node: head[n] the last position of the bucket whose key has next node n (a position before lo:
- * none), prev[x] the one before x (-1: none). 1: a key met twice; -1: a next node out of range. */
-static int bucket_has_twice(const Key2 *sorted, int64_t lo, int64_t hi, int64_t P, int64_t *head, int64_t *prev) {
+ * node: head[n] the last position of the bucket whose key has next node n (UINT32_MAX or a position
+ * before lo: none), prev[x] the one before x. 1: a key met twice; -1: a next node out of range. */
+#define NONE32 UINT32_MAX
+static int bucket_has_twice(const uint64_t *sorted, uint32_t lo, uint32_t hi, int64_t P, uint32_t *head,
+                            uint32_t *prev) {
     if (hi - lo <= 8 || head == NULL) {
-        for (int64_t x = lo; x < hi; x++)
-            for (int64_t y = x + 1; y < hi; y++)
-                if (sorted[x].nx == sorted[y].nx && sorted[x].pvs == sorted[y].pvs) return 1;
+        for (uint32_t x = lo; x < hi; x++)
+            for (uint32_t y = x + 1; y < hi; y++)
+                if (sorted[x] == sorted[y]) return 1;
         return 0;
     }
-    for (int64_t x = lo; x < hi; x++)
-        if (sorted[x].nx < 0 || sorted[x].nx >= P) return -1;
-    for (int64_t x = lo; x < hi; x++) {
-        int64_t n = sorted[x].nx, y = head[n];
-        prev[x] = y >= lo ? y : -1;
-        for (int64_t z = prev[x]; z >= 0; z = prev[z])
-            if (sorted[z].pvs == sorted[x].pvs) return 1;
+    for (uint32_t x = lo; x < hi; x++)
+        if ((int64_t)(sorted[x] >> 33) >= P) return -1;
+    for (uint32_t x = lo; x < hi; x++) {
+        uint64_t n = sorted[x] >> 33;
+        uint32_t y = head[n];
+        prev[x] = y != NONE32 && y >= lo ? y : NONE32;
+        for (uint32_t z = prev[x]; z != NONE32; z = prev[z])
+            if (sorted[z] == sorted[x]) return 1;
         head[n] = x;
     }
     return 0;
 }
 
-/* The check fixed_consistent and fixed_validate share: every face's directed key (the cell's
- * flip applied) bucketed by its smallest node (a counting sort over the points: cache-friendly,
- * unlike a hash table of every face), then compared within each bucket. mins (C * nf): each face's
- * smallest node, in 0..P-1 (the callers check it), used as scratch here. 1: no key met twice
- * (consistent); 0: one met twice; -1: out of memory. */
-static int faces_consistent(const int64_t *conn, int64_t C, int64_t k, const int64_t *tmpl, const int64_t *tsize,
-                            int64_t nf, const uint8_t *flip, int64_t *mins, int64_t P) {
-    int64_t F = C * nf;
-    int64_t *start = calloc((size_t)P + 2, sizeof(int64_t));
-    Key2 *sorted = malloc((size_t)(F ? F : 1) * sizeof(Key2));
-    int64_t *head = NULL;
+/* The check fixed_consistent and fixed_validate share, on the faces' smallest nodes (mins, in
+ * 0..P-1) and packed keys (F of each): the keys bucketed by smallest node (a counting sort over the
+ * points: cache-friendly, unlike a hash table of every face), then compared within each bucket.
+ * mins is scratch afterwards. 1: no key met twice (consistent); 0: one met twice, or a mesh too
+ * large for the packed keys (P >= 2^30 or F >= 2^32: the full path decides); -1: out of memory. */
+static int faces_consistent(uint32_t *mins, const uint64_t *keys, uint64_t *sorted, int64_t F, int64_t P) {
+    if (P >= KEY_ID_LIMIT || F >= (int64_t)NONE32) return 0;
+    uint32_t *start = calloc((size_t)P + 2, sizeof(uint32_t));
+    uint32_t *head = NULL;
     int ok = 1;
-    if (!start || !sorted) {
-        free(start);
-        free(sorted);
-        return -1;
-    }
+    if (!start) return -1;
     for (int64_t f = 0; f < F; f++) start[mins[f] + 2]++;
     for (int64_t p = 2; p < P + 2; p++) start[p] += start[p - 1];
-    for (int64_t i = 0; i < C; i++) { /* scattered into the buckets, the flips applied */
-        const int64_t *c = conn + i * k;
-        int64_t pos = 0;
-        for (int64_t f = 0; f < nf; f++) {
-            int64_t s = tsize[f], j = 0;
-            const int64_t *t = tmpl + pos;
-            pos += s;
-            for (int64_t q = 1; q < s; q++)
-                if (c[t[q]] < c[t[j]]) j = q;
-            int64_t nx = c[t[j + 1 == s ? 0 : j + 1]], pv = c[t[j == 0 ? s - 1 : j - 1]];
-            Key2 r = {flip[i] ? pv : nx, (flip[i] ? nx : pv) | ((s < 7 ? s : 7) << 60)};
-            sorted[start[mins[i * nf + f] + 1]++] = r;
-        }
-    }
+    for (int64_t f = 0; f < F; f++) sorted[start[mins[f] + 1]++] = keys[f];
     /* mins is free now: the chains of the large buckets (prev, by position) */
     for (int64_t p = 0; p < P && ok; p++) { /* start[p]..start[p+1]: bucket p */
-        int64_t lo = start[p], hi = start[p + 1];
-        if (hi - lo > 8 && head == NULL) {
-            head = malloc((size_t)P * sizeof(int64_t));
-            if (head) memset(head, 0xff, (size_t)P * sizeof(int64_t)); /* -1: before every bucket */
+        uint32_t lo = start[p], hi = start[p + 1];
+        if (hi - lo <= 8) { /* the common case, inline */
+            for (uint32_t x = lo; x < hi && ok; x++)
+                for (uint32_t y = x + 1; y < hi; y++)
+                    if (sorted[x] == sorted[y]) {
+                        ok = 0;
+                        break;
+                    }
+            continue;
+        }
+        if (head == NULL) {
+            head = malloc((size_t)P * sizeof(uint32_t));
+            if (head) memset(head, 0xff, (size_t)P * sizeof(uint32_t)); /* NONE32 */
         }
         int r = bucket_has_twice(sorted, lo, hi, P, head, mins);
         if (r < 0) r = bucket_has_twice(sorted, lo, hi, P, NULL, NULL);
@@ -346,14 +370,20 @@ static int faces_consistent(const int64_t *conn, int64_t C, int64_t k, const int
     }
     free(head);
     free(start);
-    free(sorted);
     return ok;
+}
+
+/* The face check's scratch in one block (fewer calls, one mapping): F keys, F sorted keys, F
+ * smallest nodes (uint32), in that order; NULL when out of memory. */
+static uint64_t *face_scratch(int64_t F) {
+    if (F < 1) F = 1;
+    return malloc((size_t)F * (2 * sizeof(uint64_t) + sizeof(uint32_t)));
 }
 
 /* fixed_consistent(conn, tmpl, tsize, flip, npts) -> bool
  *   consistent() for cells of one type with a fixed node count, their faces taken from the
  *   template (as fixed_measures) instead of a face array; npts (1,) the number of points
- *   (< 2^60). The faces' smallest nodes here, then faces_consistent. */
+ *   (< 2^60). The faces' smallest nodes and keys here, then faces_consistent. */
 static PyObject *py_fixed_consistent(PyObject *self, PyObject *args) {
     static const char *const names[] = {"conn", "tmpl", "tsize", "flip", "npts"};
     static const Py_ssize_t sizes[] = {8, 8, 8, 1, 8};
@@ -372,34 +402,22 @@ static PyObject *py_fixed_consistent(PyObject *self, PyObject *args) {
         return NULL;
     }
     int64_t P = npts[0], F = C * nf;
-    int64_t *mins = malloc((size_t)(F ? F : 1) * sizeof(int64_t));
-    int ok = 1, err = !mins;
+    uint64_t *keys = face_scratch(F), *sorted = keys + F;
+    uint32_t *mins = (uint32_t *)(sorted + F);
+    int ok = 1, err = !keys;
     Py_BEGIN_ALLOW_THREADS
-    if (!err) {
-        for (int64_t i = 0; i < C && !err; i++) { /* every face's smallest node */
-            const int64_t *c = conn + i * k;
-            int64_t pos = 0;
-            for (int64_t f = 0; f < nf; f++) {
-                int64_t s = tsize[f], j = 0;
-                const int64_t *t = tmpl + pos;
-                pos += s;
-                for (int64_t q = 1; q < s; q++)
-                    if (c[t[q]] < c[t[j]]) j = q;
-                int64_t m = c[t[j]];
-                if (m < 0 || m >= P) {
-                    err = 2;
-                    break;
-                }
-                mins[i * nf + f] = m;
+    if (!err)
+        for (int64_t i = 0; i < C; i++) /* every face's smallest node and key */
+            if (cell_face_keys(conn + i * k, tmpl, tsize, nf, 0, flip[i], P, mins + i * nf, keys + i * nf)) {
+                err = 2;
+                break;
             }
-        }
-        if (!err) {
-            ok = faces_consistent(conn, C, k, tmpl, tsize, nf, flip, mins, P);
-            if (ok < 0) err = 1;
-        }
+    if (!err) {
+        ok = faces_consistent(mins, keys, sorted, F, P);
+        if (ok < 0) err = 1;
     }
     Py_END_ALLOW_THREADS
-    free(mins);
+    free(keys);
     release_arr(b, 5);
     if (err == 1) return PyErr_NoMemory();
     if (err) {
@@ -413,18 +431,20 @@ static PyObject *py_fixed_consistent(PyObject *self, PyObject *args) {
 /* fixed_validate(points, conn, tmpl, tsize, vol, cen, flip, npts, nthreads) -> bool
  *   The read stage's validation of cells of one type with a fixed node count in one pass per cell:
  *   fixed_measures' signed volume and centroid (tetrahedra: measure_tet, closed form, as
- *   geometry._tetra_measures), flip[i] = vol[i] < 0 (uint8), and every face's directed key as
- *   fixed_consistent makes it with those flips (sharing the gathered nodes). That pass runs in
- *   nthreads (1,) threads over ranges of cells (each cell's values do not depend on them). Then
- *   faces_consistent buckets the keys by their smallest node and compares them in each bucket: True when no face is met twice in the same direction (flipping every cell by
- *   its own sign is consistent), False otherwise (the caller takes the full path). */
+ *   geometry._tetra_measures), flip[i] = vol[i] < 0 (uint8), and every face's smallest node and
+ *   directed key as fixed_consistent makes them with those flips (sharing the gathered nodes).
+ *   That pass runs in nthreads (1,) threads over ranges of cells (each cell's values do not depend
+ *   on them). Then faces_consistent buckets the keys by their smallest node and compares them in
+ *   each bucket: True when no face is met twice in the same direction (flipping every cell by its
+ *   own sign is consistent), False otherwise (the caller takes the full path). */
 typedef struct {
     const double *P;
     const int64_t *conn, *tmpl, *tsize;
     int64_t k, nf, lo, hi, npts;
     double *vol, *cen;
     uint8_t *flip;
-    int64_t *mins;
+    uint32_t *mins;
+    uint64_t *keys;
     int bad;
 } Job;
 
@@ -446,19 +466,16 @@ static void *validate_range(void *arg) {
             measure_cell(J->P, c, k, tmpl, tsize, nf, J->vol + i, J->cen + 3 * i);
         int fl = J->vol[i] < 0.0;
         J->flip[i] = (uint8_t)fl;
-        int64_t pos = 0;
-        for (int64_t f = 0; f < nf; f++) {
-            int64_t s = tsize[f], j = 0;
-            const int64_t *t = tmpl + pos;
-            pos += s;
-            for (int64_t q = 1; q < s; q++)
-                if (c[t[q]] < c[t[j]]) j = q;
-            int64_t m = c[t[j]];
-            if (m < 0 || m >= J->npts) {
-                J->bad = 1;
-                return NULL;
-            }
-            J->mins[i * nf + f] = m;
+        int bad;
+        if (hex) /* the constants let the compiler unroll */
+            bad = cell_face_keys(c, tmpl, tsize, 6, 4, fl, J->npts, J->mins + i * 6, J->keys + i * 6);
+        else if (k == 4 && nf == 4) /* tetrahedra (checked by the caller: four triangles) */
+            bad = cell_face_keys(c, tmpl, tsize, 4, 3, fl, J->npts, J->mins + i * 4, J->keys + i * 4);
+        else
+            bad = cell_face_keys(c, tmpl, tsize, nf, 0, fl, J->npts, J->mins + i * nf, J->keys + i * nf);
+        if (bad) {
+            J->bad = 1;
+            return NULL;
         }
     }
     return NULL;
@@ -488,15 +505,16 @@ static PyObject *py_fixed_validate(PyObject *self, PyObject *args) {
     }
     int64_t Pn = npts[0], F = C * nf, T = nth[0] < 1 ? 1 : nth[0] > 64 ? 64 : nth[0];
     if (T > 1 && C / T < 4096) T = C / 4096 > 1 ? C / 4096 : 1; /* threads only for large arrays */
-    int64_t *mins = malloc((size_t)(F ? F : 1) * sizeof(int64_t));
-    int ok = 1, err = !mins;
+    uint64_t *keys = face_scratch(F), *sorted = keys + F;
+    uint32_t *mins = (uint32_t *)(sorted + F);
+    int ok = 1, err = !keys;
     Py_BEGIN_ALLOW_THREADS
     if (!err) {
         Job jobs[64];
         pthread_t tid[64];
         int started[64] = {0};
         for (int64_t t = 0; t < T; t++) {
-            Job j = {P, conn, tmpl, tsize, k, nf, C * t / T, C * (t + 1) / T, Pn, vol, cen, flip, mins, 0};
+            Job j = {P, conn, tmpl, tsize, k, nf, C * t / T, C * (t + 1) / T, Pn, vol, cen, flip, mins, keys, 0};
             jobs[t] = j;
         }
         for (int64_t t = 1; t < T; t++)
@@ -511,12 +529,12 @@ static PyObject *py_fixed_validate(PyObject *self, PyObject *args) {
         for (int64_t t = 0; t < T; t++)
             if (jobs[t].bad) err = 2;
         if (!err) {
-            ok = faces_consistent(conn, C, k, tmpl, tsize, nf, flip, mins, Pn);
+            ok = faces_consistent(mins, keys, sorted, F, Pn);
             if (ok < 0) err = 1;
         }
     }
     Py_END_ALLOW_THREADS
-    free(mins);
+    free(keys);
     release_arr(b, 9);
     if (err == 1) return PyErr_NoMemory();
     if (err) {
@@ -526,7 +544,137 @@ static PyObject *py_fixed_validate(PyObject *self, PyObject *args) {
     return PyBool_FromLong(ok);
 }
 
+
+/* ascii_values(data, pos, out, kind) -> int
+ *   The next len(out) whitespace-separated numbers of legacy VTK ASCII text from data[pos:]
+ *   (models/mesh/legacy.py): kind 0 integers into int64, 1 decimals into float64, 2 decimals into
+ *   float32, each correctly rounded (the value strtod / strtof give, as VTK's reader reads them:
+ *   the exact fast path where the digits and the power of ten are exact doubles, strtod_l in the C
+ *   locale otherwise). Returns the position after the last one, or -1 for anything else (a word
+ *   that is not a plain number: letters, nan, inf, hex, a sign alone, over 18 integer digits, a
+ *   word over 63 bytes; too few numbers): the caller then leaves the file to VTK's reader. */
+#include <locale.h>
+static locale_t c_locale;
+
+static inline int is_space(unsigned char ch) { return ch <= ' ' && (ch == ' ' || ch == '\n' || ch == '\r' || ch == '\t'); }
+
+static const double pow10_exact[23] = {1e0,  1e1,  1e2,  1e3,  1e4,  1e5,  1e6,  1e7,  1e8,  1e9,  1e10, 1e11,
+                                       1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20, 1e21, 1e22};
+
+/* One decimal word w[0..n): 0 and the value in *out, or -1 where it is not [+-]digits[.digits][(e|E)[+-]digits]
+ * (at least one digit before or after the point). */
+static int parse_decimal(const unsigned char *w, int64_t n, int kind, double *dv, float *fv) {
+    int64_t i = 0;
+    int neg = 0;
+    if (i < n && (w[i] == '+' || w[i] == '-')) neg = w[i++] == '-';
+    uint64_t m = 0;
+    int digits = 0, sig = 0, frac = 0, any = 0, exact = 1;
+    for (; i < n && w[i] >= '0' && w[i] <= '9'; i++, any++) {
+        if (m == 0 && w[i] == '0') continue; /* leading zeros: not significant */
+        if (sig < 19) m = m * 10 + (w[i] - '0'), sig++;
+        else exact = 0, digits++; /* dropped digit: strtod decides */
+    }
+    if (i < n && w[i] == '.') {
+        i++;
+        for (; i < n && w[i] >= '0' && w[i] <= '9'; i++, any++) {
+            if (m == 0 && w[i] == '0') {
+                frac++;
+                continue;
+            }
+            if (sig < 19) m = m * 10 + (w[i] - '0'), sig++, frac++;
+            else exact = 0;
+        }
+    }
+    if (!any) return -1;
+    int64_t e = 0;
+    if (i < n && (w[i] == 'e' || w[i] == 'E')) {
+        i++;
+        int eneg = 0;
+        if (i < n && (w[i] == '+' || w[i] == '-')) eneg = w[i++] == '-';
+        if (i >= n) return -1;
+        for (; i < n && w[i] >= '0' && w[i] <= '9'; i++)
+            if (e < 100000) e = e * 10 + (w[i] - '0');
+        if (eneg) e = -e;
+    }
+    if (i != n) return -1;
+    int64_t p = e - frac + digits; /* value = m * 10^p */
+    if (kind == 1 && exact && m <= ((uint64_t)1 << 53) && p >= -22 && p <= 22) {
+        double v = (double)m; /* exact; one correctly rounded operation on exact operands */
+        v = p < 0 ? v / pow10_exact[-p] : v * pow10_exact[p];
+        *dv = neg ? -v : v;
+        return 0;
+    }
+    if (kind == 2 && exact && m <= ((uint64_t)1 << 24) && p >= -10 && p <= 10) {
+        float v = (float)m, t = (float)pow10_exact[p < 0 ? -p : p]; /* 10^10 and below: exact floats */
+        v = p < 0 ? v / t : v * t;
+        *fv = neg ? -v : v;
+        return 0;
+    }
+    char buf[64];
+    memcpy(buf, w, (size_t)n);
+    buf[n] = 0;
+    char *end;
+    if (kind == 1)
+        *dv = strtod_l(buf, &end, c_locale);
+    else
+        *fv = strtof_l(buf, &end, c_locale);
+    return end == buf + n ? 0 : -1;
+}
+
+static PyObject *py_ascii_values(PyObject *self, PyObject *args) {
+    Py_buffer d, o;
+    Py_ssize_t pos;
+    int kind;
+    if (!PyArg_ParseTuple(args, "y*nw*i", &d, &pos, &o, &kind)) return NULL;
+    Py_ssize_t item = kind == 2 ? 4 : 8;
+    if (kind < 0 || kind > 2 || o.len % item || pos < 0 || pos > d.len) {
+        PyBuffer_Release(&d);
+        PyBuffer_Release(&o);
+        PyErr_SetString(PyExc_ValueError, "ascii_values: bad arguments");
+        return NULL;
+    }
+    if (kind && !c_locale) c_locale = newlocale(LC_ALL_MASK, "C", (locale_t)0);
+    const unsigned char *s = d.buf;
+    int64_t n = d.len, count = o.len / item, at = pos, got = 0;
+    int bad = kind && !c_locale;
+    Py_BEGIN_ALLOW_THREADS
+    if (kind == 0) /* integers: one pass over each word */
+        for (; got < count; got++) {
+            while (at < n && is_space(s[at])) at++;
+            int64_t v = 0, neg = 0, w;
+            if (at < n && (s[at] == '-' || s[at] == '+')) neg = s[at++] == '-';
+            for (w = at; at < n; at++) {
+                unsigned d9 = (unsigned)s[at] - '0';
+                if (d9 > 9 || at - w >= 18) break; /* a 19th digit: declined below */
+                v = v * 10 + d9;
+            }
+            if (at == w || (at < n && !is_space(s[at]))) {
+                bad = 1;
+                break;
+            }
+            ((int64_t *)o.buf)[got] = neg ? -v : v;
+        }
+    else
+        for (; got < count; got++) {
+            while (at < n && is_space(s[at])) at++;
+            int64_t w = at;
+            while (at < n && !is_space(s[at])) at++;
+            if (at == w || at - w > 63 ||
+                parse_decimal(s + w, at - w, kind, (double *)o.buf + got, (float *)o.buf + got) < 0) {
+                bad = 1;
+                break;
+            }
+        }
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&d);
+    PyBuffer_Release(&o);
+    return PyLong_FromSsize_t(bad || got < count ? -1 : (Py_ssize_t)at);
+}
+
 static PyMethodDef methods[] = {
+    {"ascii_values", py_ascii_values, METH_VARARGS,
+     "ascii_values(data, pos, out, kind) -> int: the next len(out) numbers of ASCII text into out, "
+     "correctly rounded; the position after them, or -1."},
     {"fixed_validate", py_fixed_validate, METH_VARARGS,
      "fixed_validate(points, conn, tmpl, tsize, vol, cen, flip, npts, nthreads) -> bool: measures, "
      "centroids, own-sign flips and the consistency check of cells of one type in one pass."},

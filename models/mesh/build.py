@@ -404,12 +404,12 @@ def mesh_from_image(axes, tags, tag_name, meta: dict) -> Mesh | None:
         corner = corner[MIRROR[VTK_HEXAHEDRON]]
     cx, cy, cz = nx - 1, ny - 1, nz - 1
     n = cx * cy * cz
-    base = (np.arange(cz, dtype=np.int64) * sz)[:, None] + (np.arange(cy, dtype=np.int64) * sy)[None, :]
-    base = base[:, :, None] + np.arange(cx, dtype=np.int64)[None, None, :]
-    base = base.reshape(-1)
-    conn = np.empty((n, 8), np.int64)
-    for k in range(8):  # one column at a time: ~1.6x the (n, 1) + (8,) broadcast
-        np.add(base, corner[k], out=conn[:, k])
+    # one layer of cells (y, x; 8 nodes each), then every layer as that one plus its offset: one
+    # contiguous pass (~3.5x eight strided columns at 13,824 cells)
+    row = (np.arange(cy, dtype=np.int64) * sy)[:, None] + np.arange(cx, dtype=np.int64)[None, :]
+    layer = row.reshape(-1, 1) + corner[None, :]
+    conn = np.empty((cz, cy * cx, 8), np.int64)
+    np.add(layer[None], (np.arange(cz, dtype=np.int64) * sz)[:, None, None], out=conn)
     mesh = Mesh(
         points=pts,
         offsets=np.arange(0, 8 * n + 1, 8, dtype=np.int64),
@@ -420,10 +420,10 @@ def mesh_from_image(axes, tags, tag_name, meta: dict) -> Mesh | None:
     )
     mesh.meta.update(meta)
     mesh.meta["lower_dim_cells"] = {}
-    mesh.meta["measures"] = np.abs(vol)
+    mesh.meta["measures"] = measures = np.abs(vol)
     mesh.meta["centroids"] = cen
     scale = float(np.linalg.norm(hi - lo)) ** 3  # refuse_degenerate's bound, from the axes
-    if scale == 0 or np.any(np.abs(vol) <= 1e-14 * scale):
+    if scale == 0 or np.any(measures <= 1e-14 * scale):
         refuse_degenerate(mesh, vol)  # says which cells
     flips = np.full(n, flip)
     _record_orientation(mesh, -vol if flip else vol, flips)

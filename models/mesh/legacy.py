@@ -1,9 +1,12 @@
-"""A fast path for legacy VTK files of the common binary layout: an unstructured grid of one cell
-type (triangles, quads, tetrahedra or hexahedra) and nothing else, as VTK's vtkDataSetWriter writes
-it in BINARY mode (file versions up to 4.2: CELLS as counts and ids; 5.x: OFFSETS and CONNECTIVITY).
-Numpy reads the big-endian arrays straight from the file's bytes (VTK's reader parses them through
-a stream: most of the read stage's time on such a file). Any other file, any doubt: None, and
-VTK's reader reads it (models/mesh/vtk_readers.py), errors and all.
+"""A fast path for legacy VTK files of the common layout: an unstructured grid of one cell type
+(triangles, quads, tetrahedra or hexahedra) and nothing else, as VTK's vtkDataSetWriter writes it
+(file versions up to 4.2: CELLS as counts and ids; 5.x: OFFSETS and CONNECTIVITY). BINARY: numpy
+reads the big-endian arrays straight from the file's bytes; ASCII: the compiled
+models/mesh/_fastmesh.c ascii_values parses each section's numbers (plain decimals only, correctly
+rounded: the values VTK's reader gets). VTK's reader parses them through a stream: most of the read
+stage's time on such a file. Any other file, any doubt (a word that is not a plain number, too few
+numbers, the compiled module not built): None, and VTK's reader reads it
+(models/mesh/vtk_readers.py), errors and all.
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ class _Decline(Exception):
 
 class _Cursor:
     def __init__(self, data: bytes):
-        self.data, self.pos = data, 0
+        self.data, self.pos, self.ascii = data, 0, None
 
     def line(self) -> list[bytes]:
         """The next non-blank line's words."""
@@ -42,12 +45,28 @@ class _Cursor:
                 raise _Decline
 
     def array(self, dtype: str, count: int) -> np.ndarray:
-        """`count` big-endian values here (then the line break VTK writes after them)."""
+        """`count` big-endian values here (then the line break VTK writes after them); in an ASCII
+        file, `count` numbers of that type (int64 or the file's float type)."""
+        if self.ascii is not None:
+            return self._text(dtype, count)
         n = np.dtype(dtype).itemsize * count
         if count < 0 or self.pos + n > len(self.data):
             raise _Decline
         out = np.frombuffer(self.data, dtype=dtype, count=count, offset=self.pos)
         self.pos += n
+        return out
+
+    def _text(self, dtype: str, count: int) -> np.ndarray:
+        kind = {">f4": 2, ">f8": 1}.get(dtype, 0)
+        if count < 0 or count > len(self.data) // 2 + 1:  # a number and a separator at least
+            raise _Decline
+        out = np.empty(count, dtype=(np.int64, np.float64, np.float32)[kind])
+        pos = self.ascii.ascii_values(self.data, self.pos, out, kind)
+        if pos < 0:
+            raise _Decline
+        if dtype == ">i4" and count and (out.min() < -(2**31) or out.max() >= 2**31):
+            raise _Decline  # VTK's reader would not take it as an int
+        self.pos = pos
         return out
 
 
@@ -57,9 +76,11 @@ def read_legacy_simple(path: str | os.PathLike):
     try:
         with open(os.fspath(path), "rb") as fh:
             head = fh.read(256)
-            if not head.startswith(b"# vtk DataFile Version") or b"BINARY" not in head:
+            if not head.startswith(b"# vtk DataFile Version") or (
+                b"BINARY" not in head and b"ASCII" not in head
+            ):
                 return None
-            data = head + fh.read()
+            data = head + fh.read()  # (one fh.read() after a seek measured slower here)
         return _simple(data)
     except (_Decline, ValueError, KeyError, IndexError, OSError):
         return None
@@ -77,7 +98,18 @@ def _simple(data: bytes):
     if version[:4] != [b"#", b"vtk", b"DataFile", b"Version"] or len(version) != 5:
         return None
     cur.pos = data.find(b"\n", cur.pos) + 1  # the title line, whatever it says
-    if cur.pos == 0 or cur.line() != [b"BINARY"] or cur.line() != [b"DATASET", b"UNSTRUCTURED_GRID"]:
+    if cur.pos == 0:
+        return None
+    mode = cur.line()
+    if mode == [b"ASCII"]:
+        from models.native import compiled
+
+        cur.ascii = compiled("mesh._fastmesh")
+        if cur.ascii is None:
+            return None
+    elif mode != [b"BINARY"]:
+        return None
+    if cur.line() != [b"DATASET", b"UNSTRUCTURED_GRID"]:
         return None
     words = cur.line()
     if len(words) != 3 or words[0] != b"POINTS" or words[2] not in _FLOATS:
