@@ -36,19 +36,18 @@ from __future__ import annotations
 
 import atexit
 import contextlib
-import mmap
 import os
 import pickle
 import re
 import select
 import signal
-import struct
 import threading
 import time
 
 from models.errors import MagnetError, MeshError, ParameterError
+from models.mesh import answer
 from models.mesh.formats import ARCHIVES, extension, format_name
-from models.mesh.zygote import _ALIGN, _ERRORS, _child
+from models.mesh.zygote import _ERRORS, _child
 
 DEFAULT_TIMEOUT_S = 600.0
 
@@ -342,12 +341,14 @@ def call_in_child(
             raise MeshError(timeout_sentence(path, timeout_s, file_format))
         if not answered:
             raise MeshError(crash_sentence(path, file_format))
-        answer = _load(shm)
-        if answer[0] == "ok":
-            return answer[1]
-        if answer[0] == "memory":
+        got = _load(shm)
+        if got[0] == "ok":
+            return got[1]
+        if got[0] == "memory":
             raise MeshError(memory_sentence(path, memory_bytes, file_format))
-        raise _ERRORS[answer[1]](answer[2])
+        if got[0] == "corrupt":
+            raise MeshError(crash_sentence(path, file_format))
+        raise _ERRORS[got[1]](got[2])
     finally:
         if shm >= 0:
             os.close(shm)
@@ -473,24 +474,12 @@ atexit.register(_reap_all)
 
 
 def _load(shm: int):
-    size = os.fstat(shm).st_size
-    # shared (no copy-on-write fault when an array is edited: the memfd is ours alone now) and
-    # populated in one go (no page fault per 4 KiB page on first touch)
-    flags = mmap.MAP_SHARED | getattr(mmap, "MAP_POPULATE", 0)
-    mem = mmap.mmap(shm, size, flags=flags, prot=mmap.PROT_READ | mmap.PROT_WRITE)
-    view = memoryview(mem)
-    n_data, n_bufs = struct.unpack_from("<QQ", view, 0)
-    lengths = struct.unpack_from(f"<{n_bufs}Q", view, 16)
-    pos = 16 + 8 * n_bufs
-    pos += -pos % _ALIGN
-    data = view[pos : pos + n_data]
-    pos += n_data
-    bufs = []
-    for n in lengths:
-        pos += -pos % _ALIGN
-        bufs.append(view[pos : pos + n])
-        pos += n
-    return pickle.loads(data, buffers=bufs)
+    """The child's answer (models.mesh.answer: a JSON header and raw arrays, every byte checked);
+    a malformed one is worded as a crashed reader."""
+    try:
+        return answer.load(shm)
+    except answer.Corrupt:
+        return ("corrupt",)
 
 
 __all__ = [

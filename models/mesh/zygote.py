@@ -29,13 +29,13 @@ import pickle
 import select
 import signal
 import socket
-import struct
 import subprocess
 import sys
 import threading
 import time
 
 from models.errors import MagnetError, MeshError, ModelError, ParameterError
+from models.mesh.answer import dump
 
 log = logging.getLogger("magnet.read")
 log.addHandler(logging.NullHandler())  # a library's log line: never printed to a CLI user unasked
@@ -77,7 +77,6 @@ _WARMUP = (
     b"# vtk DataFile Version 4.2\nwarm-up\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 4 double\n"
     b"0 0 0 1 0 0 0 1 0 0 0 1\nCELLS 1 5\n4 0 1 2 3\nCELL_TYPES 1\n10\n"
 )
-_ALIGN = 64
 _ERRORS = {"MeshError": MeshError, "ParameterError": ParameterError, "ModelError": ModelError}
 _MSG = 1 << 20  # the largest request (a pickled environment and a path: a few KB)
 _HEAP = 1 << 30  # a spare's blocks up to this size come from its heap, kept when freed
@@ -326,7 +325,10 @@ def _child(fn, args, shm: int, w: int, memory_bytes: int, timeout_s: float, isol
             answer = ("memory",)
         except BaseException:  # a reader's own exception: worded by the parent, never shown raw
             answer = ("error", "MeshError", "")
-        _dump(answer, shm)
+        try:
+            dump(answer, shm)
+        except Exception:  # noqa: BLE001  (a value the raw answer cannot hold: worded as unreadable)
+            dump(("error", "MeshError", ""), shm)
         os.write(w, b"1")
         code = 0
         try:  # its exit (unmapping its memory) yields the CPU to the caller taking the answer
@@ -337,25 +339,6 @@ def _child(fn, args, shm: int, w: int, memory_bytes: int, timeout_s: float, isol
         pass
     finally:
         os._exit(code)
-
-
-def _dump(answer, shm: int) -> None:
-    """header (pickle length, buffer count, buffer lengths), the pickle, every buffer 64-byte aligned."""
-    buffers = []
-    data = pickle.dumps(answer, protocol=5, buffer_callback=buffers.append)
-    raws = [b.raw() for b in buffers]
-    head = struct.pack(f"<QQ{len(raws)}Q", len(data), len(raws), *(m.nbytes for m in raws))
-    with os.fdopen(os.dup(shm), "wb", buffering=0) as out:
-        pos = 0
-        for chunk in (head, data, *raws):
-            pad = -pos % _ALIGN
-            if pad:
-                out.write(b"\0" * pad)
-                pos += pad
-            view = memoryview(chunk).cast("B")
-            while view.nbytes:
-                n = out.write(view)
-                view, pos = view[n:], pos + n
 
 
 # ---------------------------------------------------------------- the zygote's side
