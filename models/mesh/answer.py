@@ -257,7 +257,12 @@ def _ids(a, ndim: int = 1) -> bool:
 
 
 def _in_range(a: np.ndarray, n: int) -> bool:
-    return a.size == 0 or (int(a.min()) >= 0 and int(a.max()) < n)
+    """Every id in [0, n): one pass (signed ids seen as unsigned: a negative one is past n)."""
+    if a.size == 0:
+        return True
+    if a.dtype.kind == "i":
+        a = a.view(np.dtype(f"u{a.dtype.itemsize}"))
+    return int(a.max()) < n
 
 
 def _check_csr(offsets, values, n_ids: int | None) -> None:

@@ -12,9 +12,11 @@ a memfd (socket.send_fds); the zygote hands them to its spare child (forked ahea
 isolated and warmed up while it waits: _spare, _prewarm), which reads under this read's limits
 (_child below: RLIMIT_AS, RLIMIT_CPU) and writes its answer into the memfd; the next spare is
 forked after the answer (a spare found dead at a request: a child forked then takes the read). One
-child serves one read and exits, as before the spare. The zygote enforces the deadline,
-reports the child's pid and then its end (answered, killed by signal N, timed out), so the caller
-words a crash, a hang or a blow-up exactly as for a child of its own. If the zygote dies, the read in
+child serves one read and exits, as before the spare. The caller also hands a pipe of its own with
+the memfd: the child's answer byte goes straight to the caller (one hop less). The zygote enforces
+the deadline, reports the child's pid and then its end (answered, killed by signal N, timed out;
+for a read answered straight to the caller, taken before its next request), so the caller words a
+crash, a hang or a blow-up exactly as for a child of its own. If the zygote dies, the read in
 flight is done by a direct fork, a new zygote is started, and a log line (logger "magnet.read")
 says so; the user never sees it. The zygote exits when its caller closes the socket (exits).
 
