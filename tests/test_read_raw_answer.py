@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import time
 from pathlib import Path
 
 import numpy as np
@@ -66,6 +67,8 @@ def test_the_sandboxed_mesh_is_the_in_process_one_field_by_field(files, use_zygo
                 checked.add("tags")
             if ours.boundary_tags is not None:
                 checked.add("boundary_tags")
+            assert theirs.connectivity.flags.writeable and theirs.points.flags.writeable
+            theirs.points[:1] += 1.0  # edited in place: this mapping's page only (copy-on-write)
             c = theirs.meta.get("cell_faces")
             if c is not None:  # the cache still belongs to the mesh: the same array object
                 assert c["connectivity"] is theirs.connectivity
@@ -79,7 +82,7 @@ def test_the_sandboxed_mesh_is_the_in_process_one_field_by_field(files, use_zygo
 
 
 def _memfd(data: bytes) -> int:
-    fd = os.memfd_create("test-answer", os.MFD_CLOEXEC)
+    fd = os.memfd_create("test-answer", os.MFD_CLOEXEC | os.MFD_ALLOW_SEALING)
     os.write(fd, data)
     return fd
 
@@ -168,11 +171,26 @@ def _out_of_range_dump(value, shm):
     os.write(shm, _raw(header, arrays))
 
 
+def _mapping_kept_dump(value, shm):
+    """A well-formed answer, and a process of the child's own keeping a writable mapping of it (to
+    rewrite an array once the caller has checked it)."""
+    import mmap
+
+    header, arrays = _ok_mesh()
+    os.ftruncate(shm, 0)
+    os.write(shm, _raw(header, arrays))
+    mem = mmap.mmap(shm, os.fstat(shm).st_size)
+    if os.fork() == 0:
+        time.sleep(3)
+        mem[0] = 0
+        os._exit(0)
+
+
 def take_over(how: str):
     """Run in the child: from now on its answer is what `how` writes (a reader exploit's doing)."""
     import models.mesh.zygote as z
 
-    z.dump = {"pickle": _pickle_dump, "range": _out_of_range_dump}[how]
+    z.dump = {"pickle": _pickle_dump, "range": _out_of_range_dump, "mapping": _mapping_kept_dump}[how]
     return 1
 
 
@@ -184,7 +202,7 @@ def test_a_taken_over_child_cannot_run_code_in_the_caller(use_zygote, monkeypatc
     if os.path.isdir(MARKER):
         os.rmdir(MARKER)
     try:
-        for how in ("pickle", "range"):
+        for how in ("pickle", "range", "mapping"):
             with pytest.raises(MeshError) as err:
                 call_in_child(
                     take_over, (how,), path="x.vtk", timeout_s=30, memory_bytes=1 << 30, zygote=use_zygote

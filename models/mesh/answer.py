@@ -152,6 +152,7 @@ def load(fd: int):
 
 
 def _load(fd: int):
+    _seal(fd)  # from here on nobody, the child included, can change a byte of it
     size = os.fstat(fd).st_size
     if size < 16:
         raise Corrupt("short answer")
@@ -189,15 +190,86 @@ def _load(fd: int):
         _need(nbytes == count * dt.itemsize and at % ALIGN == 0 and at >= end and at + nbytes <= size)
         end = at + nbytes
         specs.append((dt, tuple(shape), at, count))
-    mem = None
-    if specs:
-        # shared (no copy-on-write fault when an array is edited: the memfd is ours alone now) and
-        # populated in one go (no page fault per 4 KiB page on first touch)
-        flags = mmap.MAP_SHARED | getattr(mmap, "MAP_POPULATE", 0)
-        mem = mmap.mmap(fd, size, flags=flags, prot=mmap.PROT_READ | mmap.PROT_WRITE)
+    mem = _map(fd, size) if specs else None
     arrays = [np.frombuffer(mem, dt, count, at).reshape(shape) for dt, shape, at, count in specs]
     value = _decode(header.get("value"), arrays, 0)
     return ("ok", value)
+
+
+def _seal(fd: int) -> None:
+    """No more writes to the memfd, by anyone, nor a change of its size: checked and then used,
+    its bytes stay the ones checked (a child that lies could otherwise rewrite an array after the
+    checks, from a mapping kept by it or by a process it forked). A writable shared mapping still
+    open somewhere makes sealing fail (EBUSY): refused. The memfd must allow sealing
+    (MFD_ALLOW_SEALING)."""
+    import fcntl
+
+    try:
+        fcntl.fcntl(
+            fd,
+            fcntl.F_ADD_SEALS,
+            fcntl.F_SEAL_WRITE | fcntl.F_SEAL_SHRINK | fcntl.F_SEAL_GROW | fcntl.F_SEAL_SEAL,
+        )
+    except OSError:
+        raise Corrupt("the answer could not be sealed") from None
+    seals = fcntl.fcntl(fd, fcntl.F_GET_SEALS)
+    _need(seals & fcntl.F_SEAL_WRITE and seals & fcntl.F_SEAL_SHRINK)
+
+
+class _Mapping:
+    """A private mapping of a sealed memfd, populated read-only and then made writable: the pages
+    are the memfd's (no copy, no page fault on first read); an array edited in place copies the
+    pages it writes (copy-on-write), never the memfd's. Unmapped when the last array goes."""
+
+    def __init__(self, fd: int, size: int) -> None:
+        import ctypes
+        import weakref
+
+        libc = _libc()
+        addr = libc.mmap(
+            None, size, mmap.PROT_READ, mmap.MAP_PRIVATE | getattr(mmap, "MAP_POPULATE", 0), fd, 0
+        )
+        if addr in (None, ctypes.c_void_p(-1).value):
+            raise OSError("mmap failed")
+        if libc.mprotect(addr, size, mmap.PROT_READ | mmap.PROT_WRITE) != 0:
+            libc.munmap(addr, size)
+            raise OSError("mprotect failed")
+        self.buffer = (ctypes.c_char * size).from_address(addr)
+        weakref.finalize(self.buffer, libc.munmap, addr, size)
+
+
+_LIBC = None
+
+
+def _libc():
+    global _LIBC
+    if _LIBC is None:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.mmap.restype = ctypes.c_void_p
+        libc.mmap.argtypes = [
+            ctypes.c_void_p,
+            ctypes.c_size_t,
+            ctypes.c_int,
+            ctypes.c_int,
+            ctypes.c_int,
+            ctypes.c_long,
+        ]
+        libc.mprotect.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
+        libc.munmap.argtypes = [ctypes.c_void_p, ctypes.c_size_t]
+        _LIBC = libc
+    return _LIBC
+
+
+def _map(fd: int, size: int):
+    """The sealed memfd's bytes, writable by this process only (see _Mapping); where libc's mmap
+    cannot be called, Python's private mapping (populated: every page copied once)."""
+    try:
+        return _Mapping(fd, size).buffer
+    except (OSError, AttributeError):
+        flags = mmap.MAP_PRIVATE | getattr(mmap, "MAP_POPULATE", 0)
+        return mmap.mmap(fd, size, flags=flags, prot=mmap.PROT_READ | mmap.PROT_WRITE)
 
 
 def _need(ok: bool) -> None:

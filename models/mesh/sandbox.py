@@ -335,7 +335,7 @@ def call_in_child(
     try:
         found = _via_zygote(fn, args, timeout_s, memory_bytes) if zygote else None
         if found is None:
-            shm = os.memfd_create("magnet-read", os.MFD_CLOEXEC)
+            shm = os.memfd_create("magnet-read", os.MFD_CLOEXEC | os.MFD_ALLOW_SEALING)
             status, answered = _direct(fn, args, shm, timeout_s, memory_bytes)
         else:
             shm, status, answered = found
@@ -399,7 +399,7 @@ def _via_zygote(fn, args, timeout_s: float, memory_bytes: int):
             request = pickle.dumps((fn, args, memory_bytes, timeout_s, dict(os.environ), os.getcwd()))
         except Exception:  # noqa: BLE001  (arguments that do not pickle: a direct fork takes them)
             return None
-        shm = os.memfd_create("magnet-read", os.MFD_CLOEXEC)
+        shm = os.memfd_create("magnet-read", os.MFD_CLOEXEC | os.MFD_ALLOW_SEALING)
         try:
             status, answered = z.run(request, shm, timeout_s)
         except zygote.ZygoteLost as exc:
