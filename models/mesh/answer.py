@@ -18,8 +18,11 @@ dataclasses a read returns.
 array's dtype (a whitelist of plain numbers: no objects), shape, offset and length inside the
 memfd without overlap, the tree's tags, depth and field names, and a Mesh's invariants (dtypes and
 shapes of its fields, CSR offsets from 0 to the end, point ids in range, the cached faces' ids in
-range). Any inconsistency raises Corrupt, which the caller words as a crashed reader. The arrays are
-np.frombuffer views of the caller's shared mapping of the memfd: no copy.
+range). Any inconsistency raises Corrupt, which the caller words as a crashed reader. First of all
+the memfd is sealed (no write, no resize, by anyone: the bytes checked stay the bytes used; a
+writable mapping still open elsewhere is refused). The arrays are np.frombuffer views of the
+caller's private mapping of the memfd (populated read-only, then made writable: copy-on-write per
+page an edit touches, never a write to the memfd): no copy.
 """
 
 from __future__ import annotations

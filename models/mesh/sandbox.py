@@ -10,10 +10,11 @@ Exodus II"); the calling process lives on.
 
 The Mesh comes back without a copy per cell and without a pickle (models.mesh.answer): the child
 writes a JSON header and every numpy array raw (each once: an array met twice is one entry) into a
-memfd (shared memory); the parent checks the header and the Mesh's invariants (a child taken over by
-a reader exploit can write any bytes: nothing it writes is run, and anything inconsistent is worded
-as a crashed reader), maps that memory shared and populated (MAP_SHARED | MAP_POPULATE: no page
-fault per page, no copy-on-write when an array is edited in place) and the arrays are views of it. The
+memfd (shared memory); the parent seals the memfd (nobody can write it any more), checks the header
+and the Mesh's invariants (a child taken over by a reader exploit can write any bytes: nothing it
+writes is run, and anything inconsistent is worded as a crashed reader), maps it private and
+populated (no page fault per page on first read; an array edited in place copies the pages it
+writes) and the arrays are views of it. The
 child runs with the garbage collector off (no copy-on-write faults from a collection), and once it
 has answered the parent goes on while it exits (collected at the next read or at exit).
 
