@@ -47,8 +47,16 @@ def same(a, b, where="mesh"):
 
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
-    corpus = write_corpus(tmp_path_factory.mktemp("corpus"))
-    return [*corpus.values(), *sorted(DATA.glob("*.msh")), DATA / "MeshEmilia.vtk"]
+    import vtk_corpus as vc
+
+    folder = tmp_path_factory.mktemp("corpus")
+    corpus = write_corpus(folder)
+    p, h = vc.grid(3, 3, 3)
+    extra = [  # VTK polyhedra (the poly_* fields) and a wedge/pyramid mix
+        vc.write_xml(str(folder / "poly.vtu"), vc.polyhedra(p, h)),
+        vc.write_legacy(str(folder / "prisms.vtk"), vc.prisms(), 51, True),
+    ]
+    return [*corpus.values(), *map(Path, extra), *sorted(DATA.glob("*.msh")), DATA / "MeshEmilia.vtk"]
 
 
 @pytest.mark.parametrize("use_zygote", [True, False])
@@ -63,6 +71,10 @@ def test_the_sandboxed_mesh_is_the_in_process_one_field_by_field(files, use_zygo
             theirs = read_mesh_safe(path, zygote=use_zygote)
             same(ours, theirs, path.name)
             checked |= set(ours.meta)
+            if ours.poly_cells is not None:
+                checked.add("poly_cells")
+            if ours.dim == 2:
+                checked.add("2D")
             if ours.tags is not None:
                 checked.add("tags")
             if ours.boundary_tags is not None:
@@ -76,6 +88,7 @@ def test_the_sandboxed_mesh_is_the_in_process_one_field_by_field(files, use_zygo
         zygote.shutdown()
     # the corpus covers what a Mesh carries: tags, boundary groups, names, measures, the cached faces
     assert {"tags", "boundary_tags", "group_names", "boundary_names", "measures", "cell_faces"} <= checked
+    assert {"poly_cells", "2D"} <= checked
 
 
 # ---------------------------------------------------------------- a child that lies
