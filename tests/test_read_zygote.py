@@ -161,3 +161,16 @@ def test_a_spare_reads_under_this_reads_limits_environment_and_folder(ready, mon
     monkeypatch.delenv("PATH")  # the zygote has one: gone for this read
     monkeypatch.chdir(tmp_path)
     assert _call(_where) == (ready, str(tmp_path), "yes", None)
+
+
+def test_the_answer_comes_straight_from_the_child_and_the_zygotes_word_follows(ready):
+    z = zygote.acquire(start=False)
+    assert z is not None
+    zygote.release(z)
+    assert _call(os.getppid) == ready
+    assert z.owed  # answered on our own pipe: the zygote's "done" not taken yet
+    with pytest.raises(MeshError) as err:  # the next read takes it first, and its crash is worded
+        _call(ctypes.string_at, 0)
+    assert str(err.value) == crash_sentence(PATH)
+    assert not z.owed
+    assert _call(os.getppid) == ready and zygote.pid() == ready

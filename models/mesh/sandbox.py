@@ -8,10 +8,13 @@ deadline. A segfault, an abort, a hang or a memory blow-up becomes one MeshError
 the file and the format ("the Exodus II reader crashed on this file: it is corrupted or not
 Exodus II"); the calling process lives on.
 
-The Mesh comes back without a copy per cell: the child pickles it with protocol 5, every numpy
-array out of band (each once: pickle memoizes an array met twice), into a memfd (shared memory);
-the parent maps that memory shared and populated (MAP_SHARED | MAP_POPULATE: no page fault per
-page, no copy-on-write when an array is edited in place) and the arrays are views of it. The
+The Mesh comes back without a copy per cell and without a pickle (models.mesh.answer): the child
+writes a JSON header and every numpy array raw (each once: an array met twice is one entry) into a
+memfd (shared memory); the parent seals the memfd (nobody can write it any more), checks the header
+and the Mesh's invariants (a child taken over by a reader exploit can write any bytes: nothing it
+writes is run, and anything inconsistent is worded as a crashed reader), maps it private and
+populated (no page fault per page on first read; an array edited in place copies the pages it
+writes) and the arrays are views of it. The
 child runs with the garbage collector off (no copy-on-write faults from a collection), and once it
 has answered the parent goes on while it exits (collected at the next read or at exit).
 
@@ -36,19 +39,18 @@ from __future__ import annotations
 
 import atexit
 import contextlib
-import mmap
 import os
 import pickle
 import re
 import select
 import signal
-import struct
 import threading
 import time
 
 from models.errors import MagnetError, MeshError, ParameterError
+from models.mesh import answer
 from models.mesh.formats import ARCHIVES, extension, format_name
-from models.mesh.zygote import _ALIGN, _ERRORS, _child
+from models.mesh.zygote import _ERRORS, _child
 
 DEFAULT_TIMEOUT_S = 600.0
 
@@ -334,7 +336,7 @@ def call_in_child(
     try:
         found = _via_zygote(fn, args, timeout_s, memory_bytes) if zygote else None
         if found is None:
-            shm = os.memfd_create("magnet-read", os.MFD_CLOEXEC)
+            shm = os.memfd_create("magnet-read", os.MFD_CLOEXEC | os.MFD_ALLOW_SEALING)
             status, answered = _direct(fn, args, shm, timeout_s, memory_bytes)
         else:
             shm, status, answered = found
@@ -342,12 +344,14 @@ def call_in_child(
             raise MeshError(timeout_sentence(path, timeout_s, file_format))
         if not answered:
             raise MeshError(crash_sentence(path, file_format))
-        answer = _load(shm)
-        if answer[0] == "ok":
-            return answer[1]
-        if answer[0] == "memory":
+        got = _load(shm)
+        if got[0] == "ok":
+            return got[1]
+        if got[0] == "memory":
             raise MeshError(memory_sentence(path, memory_bytes, file_format))
-        raise _ERRORS[answer[1]](answer[2])
+        if got[0] == "corrupt":
+            raise MeshError(crash_sentence(path, file_format))
+        raise _ERRORS[got[1]](got[2])
     finally:
         if shm >= 0:
             os.close(shm)
@@ -396,7 +400,7 @@ def _via_zygote(fn, args, timeout_s: float, memory_bytes: int):
             request = pickle.dumps((fn, args, memory_bytes, timeout_s, dict(os.environ), os.getcwd()))
         except Exception:  # noqa: BLE001  (arguments that do not pickle: a direct fork takes them)
             return None
-        shm = os.memfd_create("magnet-read", os.MFD_CLOEXEC)
+        shm = os.memfd_create("magnet-read", os.MFD_CLOEXEC | os.MFD_ALLOW_SEALING)
         try:
             status, answered = z.run(request, shm, timeout_s)
         except zygote.ZygoteLost as exc:
@@ -473,24 +477,12 @@ atexit.register(_reap_all)
 
 
 def _load(shm: int):
-    size = os.fstat(shm).st_size
-    # shared (no copy-on-write fault when an array is edited: the memfd is ours alone now) and
-    # populated in one go (no page fault per 4 KiB page on first touch)
-    flags = mmap.MAP_SHARED | getattr(mmap, "MAP_POPULATE", 0)
-    mem = mmap.mmap(shm, size, flags=flags, prot=mmap.PROT_READ | mmap.PROT_WRITE)
-    view = memoryview(mem)
-    n_data, n_bufs = struct.unpack_from("<QQ", view, 0)
-    lengths = struct.unpack_from(f"<{n_bufs}Q", view, 16)
-    pos = 16 + 8 * n_bufs
-    pos += -pos % _ALIGN
-    data = view[pos : pos + n_data]
-    pos += n_data
-    bufs = []
-    for n in lengths:
-        pos += -pos % _ALIGN
-        bufs.append(view[pos : pos + n])
-        pos += n
-    return pickle.loads(data, buffers=bufs)
+    """The child's answer (models.mesh.answer: a JSON header and raw arrays, every byte checked);
+    a malformed one is worded as a crashed reader."""
+    try:
+        return answer.load(shm)
+    except answer.Corrupt:
+        return ("corrupt",)
 
 
 __all__ = [

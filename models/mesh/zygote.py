@@ -12,9 +12,11 @@ a memfd (socket.send_fds); the zygote hands them to its spare child (forked ahea
 isolated and warmed up while it waits: _spare, _prewarm), which reads under this read's limits
 (_child below: RLIMIT_AS, RLIMIT_CPU) and writes its answer into the memfd; the next spare is
 forked after the answer (a spare found dead at a request: a child forked then takes the read). One
-child serves one read and exits, as before the spare. The zygote enforces the deadline,
-reports the child's pid and then its end (answered, killed by signal N, timed out), so the caller
-words a crash, a hang or a blow-up exactly as for a child of its own. If the zygote dies, the read in
+child serves one read and exits, as before the spare. The caller also hands a pipe of its own with
+the memfd: the child's answer byte goes straight to the caller (one hop less). The zygote enforces
+the deadline, reports the child's pid and then its end (answered, killed by signal N, timed out;
+for a read answered straight to the caller, taken before its next request), so the caller words a
+crash, a hang or a blow-up exactly as for a child of its own. If the zygote dies, the read in
 flight is done by a direct fork, a new zygote is started, and a log line (logger "magnet.read")
 says so; the user never sees it. The zygote exits when its caller closes the socket (exits).
 
@@ -29,13 +31,13 @@ import pickle
 import select
 import signal
 import socket
-import struct
 import subprocess
 import sys
 import threading
 import time
 
 from models.errors import MagnetError, MeshError, ModelError, ParameterError
+from models.mesh.answer import dump
 
 log = logging.getLogger("magnet.read")
 log.addHandler(logging.NullHandler())  # a library's log line: never printed to a CLI user unasked
@@ -77,12 +79,12 @@ _WARMUP = (
     b"# vtk DataFile Version 4.2\nwarm-up\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 4 double\n"
     b"0 0 0 1 0 0 0 1 0 0 0 1\nCELLS 1 5\n4 0 1 2 3\nCELL_TYPES 1\n10\n"
 )
-_ALIGN = 64
 _ERRORS = {"MeshError": MeshError, "ParameterError": ParameterError, "ModelError": ModelError}
 _MSG = 1 << 20  # the largest request (a pickled environment and a path: a few KB)
 _HEAP = 1 << 30  # a spare's blocks up to this size come from its heap, kept when freed
 _PREFAULT = 64 << 20  # heap a spare touches while it waits (its resident memory meanwhile)
 _SLACK_S = 10.0  # the zygote enforces the deadline; the caller waits this much longer for its word
+_SETTLE_S = 5.0  # the most the next read waits for the zygote's word on a read answered straight to it
 
 
 class ZygoteLost(Exception):
@@ -115,6 +117,7 @@ class Zygote:
         self.sock = ours
         self.owner = os.getpid()
         self.ready = False
+        self.owed = False  # a read answered straight to us: the zygote's "done" for it still to come
         self.lock = threading.Lock()
 
     def poll_ready(self) -> bool:
@@ -128,21 +131,36 @@ class Zygote:
         return True
 
     def run(self, request: bytes, shm: int, timeout_s: float):
-        """Send one read; ('timeout'|signal|0, answered) as sandbox._wait gives for a direct child."""
+        """Send one read; ('timeout'|signal|0, answered) as sandbox._wait gives for a direct child.
+        The child's answer byte comes straight to us on a pipe of ours (one hop less); the zygote's
+        word ("done": answered, killed by signal N, timed out) covers every other end, and for an
+        answered read it is taken before the next request (`owed`)."""
+        self._settle()
+        r, w = os.pipe()
         pid = None
         done = False
         try:
             try:
-                socket.send_fds(self.sock, [request], [shm])
+                socket.send_fds(self.sock, [request], [shm, w])
             except OSError as exc:
                 raise ZygoteLost(f"cannot send to the zygote ({exc.strerror})") from None
+            finally:
+                os.close(w)
             limit = time.monotonic() + timeout_s + _SLACK_S
+            watch = [self.sock, r]
             while True:
                 left = limit - time.monotonic()
                 if left <= 0:
                     raise ZygoteLost("the zygote did not answer within the deadline")
                 try:
-                    if not select.select([self.sock], [], [], left)[0]:
+                    ready = select.select(watch, [], [], left)[0]
+                    if not ready:
+                        continue
+                    if r in ready:
+                        if os.read(r, 1) == b"1":  # the answer is whole
+                            done = self.owed = True
+                            return (0, True)
+                        watch = [self.sock]  # the child ended without answering: the zygote says how
                         continue
                     msg = self.sock.recv(4096)
                 except InterruptedError:
@@ -158,11 +176,37 @@ class Zygote:
                     done = True
                     return value
         finally:
+            os.close(r)
             if not done and pid is not None:  # interrupted or lost: no reader left running
                 try:
                     os.kill(pid, signal.SIGKILL)
                 except (ProcessLookupError, PermissionError):
                     pass
+
+    def _settle(self) -> None:
+        """Take the zygote's word on the last read when it answered straight to us (the zygote
+        hears the child's byte microseconds after us; a child stopped between its two bytes is
+        ended by the zygote's deadline, too late for the next read: the zygote is replaced)."""
+        if not self.owed:
+            return
+        limit = time.monotonic() + _SETTLE_S
+        while True:
+            left = limit - time.monotonic()
+            if left <= 0:
+                raise ZygoteLost("the zygote did not report the end of the last read")
+            try:
+                if not select.select([self.sock], [], [], left)[0]:
+                    continue
+                msg = self.sock.recv(4096)
+            except InterruptedError:
+                continue
+            except OSError as exc:
+                raise ZygoteLost(f"the zygote's socket broke ({exc.strerror})") from None
+            if not msg:
+                raise ZygoteLost("the zygote ended")
+            if pickle.loads(msg)[0] == "done":
+                self.owed = False
+                return
 
     def close(self) -> None:
         try:
@@ -310,9 +354,13 @@ def _limit(memory_bytes: int, timeout_s: float) -> None:
         resource.setrlimit(resource.RLIMIT_CPU, (cpu, cpu_hard))
 
 
-def _child(fn, args, shm: int, w: int, memory_bytes: int, timeout_s: float, isolated: bool = False) -> None:
+def _child(
+    fn, args, shm: int, w: int, memory_bytes: int, timeout_s: float, isolated: bool = False, tell: int = -1
+) -> None:
     """One read in this (forked) process under the limits, its answer into the memfd, one byte "1"
-    on w when it is whole; never returns. isolated: _isolate has run already (a spare child)."""
+    on w when it is whole (first on `tell`, the caller's own pipe, when the zygote handed one: the
+    caller goes on without the zygote's hop); never returns. isolated: _isolate has run already (a
+    spare child)."""
     code = 1
     try:
         if not isolated:
@@ -326,7 +374,15 @@ def _child(fn, args, shm: int, w: int, memory_bytes: int, timeout_s: float, isol
             answer = ("memory",)
         except BaseException:  # a reader's own exception: worded by the parent, never shown raw
             answer = ("error", "MeshError", "")
-        _dump(answer, shm)
+        try:
+            dump(answer, shm)
+        except Exception:  # noqa: BLE001  (a value the raw answer cannot hold: worded as unreadable)
+            dump(("error", "MeshError", ""), shm)
+        if tell >= 0:
+            try:
+                os.write(tell, b"1")
+            except OSError:  # the caller went away: the zygote still hears the answer
+                pass
         os.write(w, b"1")
         code = 0
         try:  # its exit (unmapping its memory) yields the CPU to the caller taking the answer
@@ -337,25 +393,6 @@ def _child(fn, args, shm: int, w: int, memory_bytes: int, timeout_s: float, isol
         pass
     finally:
         os._exit(code)
-
-
-def _dump(answer, shm: int) -> None:
-    """header (pickle length, buffer count, buffer lengths), the pickle, every buffer 64-byte aligned."""
-    buffers = []
-    data = pickle.dumps(answer, protocol=5, buffer_callback=buffers.append)
-    raws = [b.raw() for b in buffers]
-    head = struct.pack(f"<QQ{len(raws)}Q", len(data), len(raws), *(m.nbytes for m in raws))
-    with os.fdopen(os.dup(shm), "wb", buffering=0) as out:
-        pos = 0
-        for chunk in (head, data, *raws):
-            pad = -pos % _ALIGN
-            if pad:
-                out.write(b"\0" * pad)
-                pos += pad
-            view = memoryview(chunk).cast("B")
-            while view.nbytes:
-                n = out.write(view)
-                view, pos = view[n:], pos + n
 
 
 # ---------------------------------------------------------------- the zygote's side
@@ -387,22 +424,22 @@ def serve(fd: int) -> None:
     sock.send(b"R")
     while True:
         try:
-            msg, fds, _, _ = socket.recv_fds(sock, _MSG, 1)
+            msg, fds, _, _ = socket.recv_fds(sock, _MSG, 2)
         except OSError:
             break
         if not msg:  # the caller exited
             break
-        for f in fds[1:]:
+        for f in fds[2:]:
             os.close(f)
         if not fds:
             continue
-        shm = fds[0]
         timeout_s = pickle.loads(msg)[3]
         try:
-            child, r = _hand(spare, msg, shm, sock, paths)
+            child, r = _hand(spare, msg, fds[:2], sock, paths)
         finally:
             spare = None
-            os.close(shm)
+            for f in fds[:2]:
+                os.close(f)
         try:
             sock.send(pickle.dumps(("pid", child)))
             status = _watch(child, r, sock, timeout_s, pending)
@@ -441,9 +478,9 @@ def _spare(conn: socket.socket, w: int, paths: list[str], warm: bool) -> None:
         _isolate()
         if warm:
             _prewarm(conn, paths)
-        msg, fds, _, _ = socket.recv_fds(conn, _MSG, 1)
+        msg, fds, _, _ = socket.recv_fds(conn, _MSG, 2)
         conn.close()
-        for f in fds[1:]:
+        for f in fds[2:]:
             os.close(f)
         if not msg or not fds:
             os._exit(0)
@@ -455,7 +492,7 @@ def _spare(conn: socket.socket, w: int, paths: list[str], warm: bool) -> None:
             pass
     except BaseException:
         os._exit(1)
-    _child(fn, args, fds[0], w, memory_bytes, timeout_s, isolated=True)
+    _child(fn, args, fds[0], w, memory_bytes, timeout_s, isolated=True, tell=fds[1] if len(fds) > 1 else -1)
 
 
 def _environ(env: dict) -> None:
@@ -467,14 +504,14 @@ def _environ(env: dict) -> None:
             os.environ[key] = value
 
 
-def _hand(spare, msg: bytes, shm: int, sock: socket.socket, paths: list[str]):
+def _hand(spare, msg: bytes, fds: list[int], sock: socket.socket, paths: list[str]):
     """Give the request to the spare child; a spare that died waiting (its answer pipe at its end)
     or that cannot take it is collected, and a child forked now takes it. (pid, answer pipe)."""
     if spare is not None:
         child, conn, r = spare
         try:
             if not select.select([r], [], [], 0)[0]:  # no end of file: the spare is alive
-                socket.send_fds(conn, [msg], [shm])
+                socket.send_fds(conn, [msg], fds)
                 return child, r
         except OSError:
             pass
@@ -484,7 +521,7 @@ def _hand(spare, msg: bytes, shm: int, sock: socket.socket, paths: list[str]):
         _end(child)
     child, conn, r = _fork_spare(sock, paths, warm=False)  # the request waits: no warm-up
     try:
-        socket.send_fds(conn, [msg], [shm])
+        socket.send_fds(conn, [msg], fds)
     finally:
         conn.close()
     return child, r
