@@ -241,7 +241,7 @@ def run(
         size_measure=o["size_measure"],
         refiner=p["refiner"],
         threshold=o["threshold"],
-        record_levels=o["hierarchy"] and o["ratio"] is None,
+        record_levels=o["hierarchy"] and o["ratio"] is None and o["finest"] is None and not o["boxfit"],
         keep_groups=o["keep_groups"],
         allow_extra=o["allow_extra"],
     )
@@ -412,14 +412,27 @@ def build_hierarchy(
     physical_tag: str | None = None,
     weld: float | None = None,
     kappa=None,
+    finest: str | None = None,
+    boxfit: bool = False,
 ) -> Hierarchy:
     """Nested levels for multigrid (as `magnet hierarchy`): about `ratio` times fewer elements per
     level down to at most `coarsest`; every element connected, every level nested in the next finer.
     ratio None: a schedule by dimension (2D n/5 then 16x fewer per level, 3D n/8 then 16x).
-    kappa: "kx,ky[,kz]" or a sequence, the diagonal diffusion tensor the levels are cut for (rtree)."""
+    kappa: "kx,ky[,kz]" or a sequence, the diagonal diffusion tensor the levels are cut for (rtree).
+    finest: how the finest level is made (rtree; None: "aggregation" with the default schedule and no
+    kappa, else "cuts"): "aggregation" (pyamg's standard aggregation of the cells' graph, rtree cuts
+    above: pyamg's iterations, ragged coarse boxes), "cuts" (rtree cuts of the cells at every level:
+    box-shaped elements, more iterations), "quality" (pairwise quality-controlled aggregates: fewer
+    iterations, higher operator complexity), "nested" (pyamg's aggregation inside the cells' cuts:
+    the cuts' boxes above the finest level). boxfit: then move boundary cells towards tighter boxes
+    (models.hierarchy.boxfit; any model)."""
     opts = {"seed": seed, "hierarchy": True, "coarsest": coarsest}
     if ratio is not None:
         opts["ratio"] = ratio
+    if finest is not None:
+        opts["finest"] = finest
+    if boxfit:
+        opts["boxfit"] = boxfit
     params = validate_params({"model": model, "nref": 1, "options": opts})
     from models.hierarchy.nested import build_hierarchy as build
     from models.pipeline import prepare
@@ -441,6 +454,7 @@ def build_hierarchy(
         seed=o["seed"],
         groups=groups,
         kappa=kappa,
+        model_options={k: o[k] for k in ("finest", "boxfit") if o[k]},
     )
     return Hierarchy(mesh, graph, data, levels, info)
 
@@ -465,7 +479,7 @@ class Hierarchy:
 
         m, g = self.mesh, self.graph
         boundary = fine_boundary(m, g.faces, g.partner) if has_groups(m) else None
-        keys = ("model", "ratio", "coarsest", "kappa", "method", "build_time", "report")
+        keys = ("model", "finest", "boxfit", "ratio", "coarsest", "kappa", "method", "build_time", "report")
         return write_hierarchy(
             os.fspath(folder),
             m,
@@ -475,7 +489,7 @@ class Hierarchy:
             lymph=lymph,
             boundary=boundary,
             merged=self.merged,
-            extra={key: self.info[key] for key in keys},
+            extra={key: self.info[key] for key in keys if key in self.info},
         )
 
 

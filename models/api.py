@@ -13,7 +13,8 @@ inspection) and must never import torch. Neural partitioners are loaded lazily b
   default 1), size_measure ("centroids": a part's size is the largest distance between its cell
   centroids, the paper's measure, default; "vertices": between its vertices), threshold (coarsest
   graph size of mode multilevel, default 200), hierarchy (keep every nested level), ratio / coarsest
-  (with hierarchy: nested levels of their own at this coarsening ratio, as `magnet hierarchy`), weld (merge
+  (with hierarchy: nested levels of their own at this coarsening ratio, as `magnet hierarchy`), finest /
+  boxfit (with hierarchy: levels of their own from the cells, as `magnet hierarchy --finest F --boxfit`), weld (merge
   points closer than this first)}.
 - run_job(mesh_path, out_dir, params, progress=None, should_cancel=None) -> summary dict
   {"elements", "parts_split", "fragments_absorbed", "timings": {stage: seconds}, "outputs": {kind: filename}}
@@ -155,9 +156,12 @@ def _write_hierarchy_zip(
 
     tmp = tempfile.mkdtemp(prefix="hierarchy-", dir=out_dir)
     try:
-        if o is not None and o.get("ratio") is not None:
+        own = o is not None and (o.get("finest") is not None or bool(o.get("boxfit")))
+        if own or (o is not None and o.get("ratio") is not None):
             from models.hierarchy.nested import build_hierarchy, write_hierarchy
 
+            # options.finest / boxfit: levels of their own from the cells, as `magnet hierarchy
+            # --finest F --boxfit`; options.ratio alone: the job's agglomeration is the finest level
             levels, info = build_hierarchy(
                 res.mesh,
                 res.data,
@@ -165,7 +169,8 @@ def _write_hierarchy_zip(
                 ratio=o["ratio"],
                 coarsest=o["coarsest"] or 10,
                 seed=o["seed"],
-                finest=res.agglomeration.labels,  # the job's agglomeration is the finest level
+                model_options={k: o[k] for k in ("finest", "boxfit") if o.get(k)} if own else None,
+                finest=None if own else res.agglomeration.labels,
             )
             write_hierarchy(
                 tmp,
@@ -177,7 +182,20 @@ def _write_hierarchy_zip(
                 boundary=res.boundary,
                 boundary_tag=boundary_tag,
                 merged=info.pop("merged"),
-                extra={k: info[k] for k in ("model", "ratio", "coarsest", "method", "build_time", "report")},
+                extra={
+                    k: info[k]
+                    for k in (
+                        "model",
+                        "finest",
+                        "boxfit",
+                        "ratio",
+                        "coarsest",
+                        "method",
+                        "build_time",
+                        "report",
+                    )
+                    if k in info
+                },
             )
         else:
             pipeline.write_hierarchy(

@@ -16,6 +16,8 @@ from models.errors import ParameterError
 MODEL_VERSION = "0.1.0"
 MODES = ("kway", "nref", "target-size", "mult-factor", "segregated", "coarsen", "multilevel")
 REFINERS = ("fm", "rl-refiner")
+# how a hierarchy's finest level is made (models.hierarchy.nested.build_hierarchy, model_options["finest"])
+FINEST_MODES = ("aggregation", "cuts", "quality", "nested")
 MAX_SUBSET = 50_000_000
 
 MODEL_CARDS = [
@@ -215,6 +217,8 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
         "weld",
         "ratio",
         "coarsest",
+        "finest",
+        "boxfit",
         "allow_extra",
         "keep_groups",
         "fill",
@@ -248,7 +252,22 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
     coarsest = _int(opts, "coarsest", lo=1, hi=10**9)
     if (ratio is not None or coarsest is not None) and not hierarchy:
         raise ParameterError("options.ratio and options.coarsest go with options.hierarchy = true")
-    if hierarchy and ratio is None and (mode == "kway" or (mode == "coarsen" and k is not None)):
+    finest = opts.get("finest")
+    if finest is not None and finest not in FINEST_MODES:
+        raise ParameterError(
+            f"options.finest must be aggregation, cuts, quality or nested (the finest level of the "
+            f"hierarchy), got {finest!r}"
+        )
+    boxfit = _bool(opts, "boxfit")
+    if (finest is not None or boxfit) and not hierarchy:
+        raise ParameterError("options.finest and options.boxfit go with options.hierarchy = true")
+    if finest not in (None, "cuts") and (model != "rtree" or ratio is not None):
+        raise ParameterError(
+            f"options.finest = {finest!r} (an aggregated finest level) needs model rtree and no "
+            "options.ratio (finest 'cuts' goes with any model and ratio)"
+        )
+    own = ratio is not None or finest is not None or boxfit  # a hierarchy of its own
+    if hierarchy and not own and (mode == "kway" or (mode == "coarsen" and k is not None)):
         raise ParameterError(
             "options.hierarchy needs a recursive mode (nref, target-size, mult-factor, segregated, "
             "coarsen or multilevel), not k-way, or options.ratio (a hierarchy of its own, like "
@@ -345,6 +364,8 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
             "weld": weld,
             "ratio": ratio,
             "coarsest": coarsest,
+            "finest": finest,
+            "boxfit": boxfit,
             "allow_extra": allow_extra,
             "keep_groups": keep_groups,
             **(

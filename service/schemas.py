@@ -112,6 +112,18 @@ class JobOptions(BaseModel):
     coarsest: int | None = Field(
         None, ge=1, le=10**9, description="with ratio: at most this many elements on the coarsest level (10)"
     )
+    finest: str | None = Field(
+        None,
+        max_length=40,
+        description="with hierarchy: nested levels of their own from the cells (as `magnet hierarchy "
+        "--finest`), the finest level made by aggregation (rtree, no ratio) | cuts | quality (rtree, no "
+        "ratio) | nested (rtree, no ratio)",
+    )
+    boxfit: bool | None = Field(
+        None,
+        description="with hierarchy: nested levels of their own from the cells, then boundary units moved "
+        "towards tighter boxes (as `magnet hierarchy --boxfit`)",
+    )
     allow_extra: bool | None = Field(
         None,
         description="with k: keep every connected fragment of a part as an element (more than k); "

@@ -598,6 +598,7 @@ def build_hierarchy(
     info = {
         "model": model,
         "finest": finest_mode,
+        "boxfit": boxfit,
         "ratio": float(ratio) if np.ndim(ratio) == 0 else [float(r) for r in ratio],
         "coarsest": int(coarsest),
         "kappa": None if kappa is None else [float(v) for v in kappa],

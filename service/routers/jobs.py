@@ -92,7 +92,7 @@ FORM_FIELDS = {
     "refiner": {"type": "string"},
     "options": {
         "type": "string",
-        "description": "JSON object: seed, absorb_fraction, hole_policy, physical_tag, method, boundary_tag, threshold, hierarchy, ratio, coarsest",
+        "description": "JSON object: seed, absorb_fraction, hole_policy, physical_tag, method, boundary_tag, threshold, hierarchy, ratio, coarsest, finest, boxfit",
     },
     "seed": {"type": "integer"},
     "absorb_fraction": {"type": "number"},
@@ -110,6 +110,14 @@ FORM_FIELDS = {
         "type": "integer",
         "description": "with ratio: at most this many elements on the coarsest level",
     },
+    "finest": {
+        "type": "string",
+        "description": "with hierarchy: levels of their own, the finest made by aggregation | cuts | quality | nested",
+    },
+    "boxfit": {
+        "type": "boolean",
+        "description": "with hierarchy: levels of their own, boundary units moved towards tighter boxes",
+    },
 }
 OPTION_FIELDS = (
     "seed",
@@ -122,6 +130,8 @@ OPTION_FIELDS = (
     "hierarchy",
     "ratio",
     "coarsest",
+    "finest",
+    "boxfit",
 )
 
 
