@@ -70,6 +70,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--coarsest", type=int, help="with --ratio: at most N elements on the coarsest level (default 10)"
     )
+    p.add_argument(
+        "--finest",
+        metavar="{aggregation,cuts,quality,nested}",
+        help="with --hierarchy: nested levels of their own, the finest level made this way "
+        "(as `magnet hierarchy --finest`)",
+    )
+    p.add_argument(
+        "--boxfit",
+        action="store_true",
+        help="with --hierarchy: nested levels of their own, boundary units moved towards tighter boxes",
+    )
     p.add_argument("--k", type=int, help="number of elements (kway)")
     p.add_argument(
         "--allow-extra",
@@ -182,6 +193,8 @@ def cmd_agglomerate(client: Client, args: argparse.Namespace) -> int:
         hierarchy=args.hierarchy,
         ratio=args.ratio,
         coarsest=args.coarsest,
+        finest=args.finest,
+        boxfit=True if args.boxfit else None,
         weld=args.weld,
         allow_extra=True if args.allow_extra else None,
         size_measure=args.size_measure,

@@ -28,6 +28,8 @@ OPTION_NAMES = (
     "hierarchy",
     "ratio",
     "coarsest",
+    "finest",
+    "boxfit",
     "weld",
     "size_measure",
 )
@@ -295,8 +297,9 @@ class Client:
     ) -> dict:
         """Upload, submit, wait, download: the remote `magnet agglomerate`. Returns the finished job.
         hierarchy: a directory to unpack every nested level into (asks the server for them); with
-        ratio=R (and coarsest=N) the levels are a hierarchy of their own, as `magnet hierarchy`
-        (aggregation operators level_L.agg.npz / .mtx included)."""
+        ratio=R (and coarsest=N), finest="aggregation" | "cuts" | "quality" | "nested" or boxfit=True
+        the levels are a hierarchy of their own, as `magnet hierarchy` (aggregation operators
+        level_L.agg.npz / .mtx included)."""
         if hierarchy is not None:
             params["hierarchy"] = True
         mesh = self.upload(mesh_path)
