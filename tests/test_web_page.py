@@ -298,3 +298,40 @@ def test_page_builds_a_hierarchy_and_shows_every_level(browser, tmp_path):
         assert errors == []
     finally:
         proc.stop()
+
+
+def test_page_hierarchy_finest_level_choice(browser, tmp_path):
+    """The finest-level choice of `magnet hierarchy --finest` on the page: an aggregated finest level takes
+    the default schedule (the ratio field goes away and no ratio is sent), and hierarchy.json says so."""
+    import io
+    import json
+    import zipfile
+
+    proc, url = serve(tmp_path)
+    try:
+        page, errors = new_page(browser, url)
+        upload_brain(page)
+        page.select_option("select[name=model]", "rtree")
+        page.select_option("select[name=mode]", "kway")
+        page.fill("input[name=k]", "64")
+        assert page.locator(".field[data-field=finest]").is_hidden()
+        page.check("input[name=hierarchy]")
+        assert page.locator(".field[data-field=ratio]").is_visible()
+        page.select_option("select[name=finest]", "aggregation")
+        assert page.locator(".field[data-field=ratio]").is_hidden()
+        page.fill("input[name=coarsest]", "10")
+        run_job(page)
+        job_id = until(page, "document.querySelector('#hierarchy').dataset.job")
+        assert "finest aggregation" in page.inner_text("#job-rows")
+        job = httpx.get(f"{url}/v1/jobs/{job_id}", timeout=30).json()
+        options = job["params"]["options"]
+        assert options["finest"] == "aggregation" and options.get("ratio") is None
+        r = httpx.get(f"{url}/v1/jobs/{job_id}/hierarchy", timeout=30)
+        index = json.loads(zipfile.ZipFile(io.BytesIO(r.content)).read("hierarchy.json"))
+        assert index["finest"] == "aggregation"
+        counts = [lv["elements"] for lv in index["levels"]]
+        # levels of their own from the cells: the finest about 14372 / 5 triangles, not the job's 64
+        assert counts == sorted(counts) and counts[0] <= 10 and 2000 < counts[-1] < 5000
+        assert errors == []
+    finally:
+        proc.stop()

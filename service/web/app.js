@@ -9,7 +9,8 @@ const FINAL = ["succeeded", "failed", "cancelled"];
 const NUMBER_FIELDS = ["k", "nref", "target_size", "mult_factor"];
 const OPTION_FIELDS = ["seed", "absorb_fraction", "hole_policy", "method", "physical_tag", "boundary_tag"];
 const NUMBER_OPTIONS = ["seed", "absorb_fraction", "boundary_tag"];
-const HIERARCHY_FIELDS = ["ratio", "coarsest"];
+const HIERARCHY_FIELDS = ["ratio", "coarsest", "finest", "boxfit"];
+const SCHEDULED = ["aggregation", "quality", "nested"]; // finest levels that take the default schedule (no ratio)
 const FIELDS = ["model", "mode", ...NUMBER_FIELDS, "subset", "refiner", "hierarchy", ...HIERARCHY_FIELDS, ...OPTION_FIELDS];
 const MODE_FIELDS = {
   kway: ["k"], nref: ["nref"], "target-size": ["target_size"], "mult-factor": ["mult_factor"],
@@ -168,6 +169,7 @@ function onHierarchy() {
   // a hierarchy: nested levels of their own at this ratio (any model), or the levels a recursive mode records
   const on = input("hierarchy").checked;
   for (const name of HIERARCHY_FIELDS) field(name).hidden = !on;
+  if (on && SCHEDULED.includes(input("finest").value)) field("ratio").hidden = true;
   $("#hierarchy-hint").hidden = !on;
   $("#submit").textContent = on ? "Build hierarchy" : "Agglomerate";
   clearErrors();
@@ -235,8 +237,12 @@ function jobBody() {
     options.hierarchy = true;
     const ratio = input("ratio").value.trim();
     const coarsest = input("coarsest").value.trim();
-    if (ratio !== "") options.ratio = Number(ratio);
-    if (ratio !== "" && coarsest !== "") options.coarsest = Number(coarsest);
+    const finest = input("finest").value;
+    const scheduled = SCHEDULED.includes(finest);
+    if (ratio !== "" && !scheduled) options.ratio = Number(ratio);
+    if ((ratio !== "" || finest !== "") && coarsest !== "") options.coarsest = Number(coarsest);
+    if (finest !== "") options.finest = finest;
+    if (input("boxfit").checked) options.boxfit = true;
   }
   body.options = options;
   return body;
@@ -328,7 +334,7 @@ function paramText(params) {
   const value = { kway: `k=${p.k}`, nref: p.nref, "target-size": p.target_size, "mult-factor": p.mult_factor,
     segregated: `f=${p.mult_factor}`, coarsen: `of ${(p.subset || []).length} cells` }[p.mode];
   const o = p.options || {};
-  const levels = o.hierarchy ? ` · hierarchy${o.ratio ? ` ratio ${o.ratio}` : ""}` : "";
+  const levels = o.hierarchy ? ` · hierarchy${o.ratio ? ` ratio ${o.ratio}` : ""}${o.finest ? ` · finest ${o.finest}` : ""}` : "";
   return `${p.mode || ""} ${value ?? ""}`.trim() + levels;
 }
 
@@ -733,6 +739,7 @@ function init() {
   $("#downloads").addEventListener("click", download);
   $("#hierarchy").addEventListener("click", download);
   input("hierarchy").addEventListener("change", onHierarchy);
+  input("finest").addEventListener("change", onHierarchy);
   $("#job-rows").addEventListener("click", onJobRow);
   $("#compare-button").addEventListener("click", compare);
   $("#refresh").addEventListener("click", refreshJobs);
