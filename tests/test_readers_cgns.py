@@ -18,6 +18,7 @@ import vtk_corpus as vc  # noqa: E402
 from models import agglomerate  # noqa: E402
 from models.errors import MeshError  # noqa: E402
 from models.mesh.read import pick_reader, read_mesh  # noqa: E402
+from models.mesh.sandbox import read_mesh_safe  # noqa: E402
 
 TOL = 1e-9
 if fw.cgns_library() is None:
@@ -94,6 +95,8 @@ def test_truncated_cgns_is_one_sentence(tmp_path, file_type):
     with open(path, "wb") as f:
         f.write(data[: len(data) // 3])
     with pytest.raises(MeshError) as err:
-        read_mesh(path)
+        read_mesh_safe(
+            path
+        )  # a damaged file is read as an upload is: in a child (VTK's HDF5 state is process-wide)
     msg = str(err.value)
     assert path.rsplit("/", 1)[-1] in msg and "CGNS" in msg and "\n" not in msg, msg
