@@ -149,27 +149,16 @@ class Zygote:
             limit = time.monotonic() + timeout_s + _SLACK_S
             watch = [self.sock, r]
             while True:
-                left = limit - time.monotonic()
-                if left <= 0:
-                    raise ZygoteLost("the zygote did not answer within the deadline")
-                try:
-                    ready = select.select(watch, [], [], left)[0]
-                    if not ready:
-                        continue
-                    if r in ready:
-                        if os.read(r, 1) == b"1":  # the answer is whole
-                            done = self.owed = True
-                            return (0, True)
-                        watch = [self.sock]  # the child ended without answering: the zygote says how
-                        continue
-                    msg = self.sock.recv(4096)
-                except InterruptedError:
+                got = self._next(watch, limit, "the zygote did not answer within the deadline", r)
+                if got is None:
                     continue
-                except OSError as exc:
-                    raise ZygoteLost(f"the zygote's socket broke ({exc.strerror})") from None
-                if not msg:
-                    raise ZygoteLost("the zygote ended")
-                kind, value = pickle.loads(msg)
+                if got == b"1":  # the answer is whole
+                    done = self.owed = True
+                    return (0, True)
+                if isinstance(got, bytes):
+                    watch = [self.sock]  # the child ended without answering: the zygote says how
+                    continue
+                kind, value = got
                 if kind == "pid":
                     pid = value
                 elif kind == "done":
@@ -191,22 +180,32 @@ class Zygote:
             return
         limit = time.monotonic() + _SETTLE_S
         while True:
-            left = limit - time.monotonic()
-            if left <= 0:
-                raise ZygoteLost("the zygote did not report the end of the last read")
-            try:
-                if not select.select([self.sock], [], [], left)[0]:
-                    continue
-                msg = self.sock.recv(4096)
-            except InterruptedError:
-                continue
-            except OSError as exc:
-                raise ZygoteLost(f"the zygote's socket broke ({exc.strerror})") from None
-            if not msg:
-                raise ZygoteLost("the zygote ended")
-            if pickle.loads(msg)[0] == "done":
+            got = self._next([self.sock], limit, "the zygote did not report the end of the last read")
+            if got is not None and got[0] == "done":
                 self.owed = False
                 return
+
+    def _next(self, watch: list, limit: float, late: str, pipe: int | None = None):
+        """One event before `limit` (monotonic): the byte read from `pipe` when it is ready, else the
+        zygote's next message (kind, value); None when interrupted or nothing came yet. ZygoteLost
+        (`late`) past the limit, and when the socket breaks or the zygote ends."""
+        left = limit - time.monotonic()
+        if left <= 0:
+            raise ZygoteLost(late)
+        try:
+            ready = select.select(watch, [], [], left)[0]
+            if not ready:
+                return None
+            if pipe is not None and pipe in ready:
+                return os.read(pipe, 1)
+            msg = self.sock.recv(4096)
+        except InterruptedError:
+            return None
+        except OSError as exc:
+            raise ZygoteLost(f"the zygote's socket broke ({exc.strerror})") from None
+        if not msg:
+            raise ZygoteLost("the zygote ended")
+        return pickle.loads(msg)
 
     def close(self) -> None:
         try:
