@@ -397,3 +397,13 @@ def vtk_reference(path: str) -> tuple[int, float]:
             vol += np.einsum("ij,ij->", np.broadcast_to(q[0], q[1:-1].shape), np.cross(q[1:-1], q[2:])) / 6
         size[i] = vol
     return int((dims == top).sum()), float(np.abs(size[dims == top]).sum())
+
+
+def agglomerate_read_back(path, k: int, out) -> tuple:
+    """Agglomerate `path` into k elements with METIS through the public API, write our VTU to `out`
+    and read it back with VTK: (the result, the VTU's cells and total measure by VTK)."""
+    from models import agglomerate
+
+    res = agglomerate(path, model="metis", k=k, metrics=False)
+    res.write(str(out))
+    return (res, *vtk_reference(str(out)))
