@@ -413,6 +413,10 @@ def coarse_graph(batch_or_data, labels: np.ndarray):
 SCHEDULE = {2: (5.0, 16.0), 3: (8.0, 16.0)}
 
 
+# the finest levels that are aggregates of the cells (model_options["finest"]; "cuts" is the other)
+AGGREGATED = ("aggregation", "pyamg", "luby", "quality", "nested")
+
+
 def default_ratio(dim: int) -> tuple[float, ...]:
     """The per-level ratio schedule `magnet hierarchy` uses without --ratio (finest step first)."""
     return SCHEDULE[3 if int(dim) >= 3 else 2]
@@ -467,7 +471,7 @@ def build_hierarchy(
         )
     opts_in = dict(model_options or {})
     finest_mode = opts_in.pop("finest", None)
-    if finest_mode not in (None, "aggregation", "cuts", "pyamg", "luby", "quality", "nested"):
+    if finest_mode is not None and finest_mode not in ("cuts", *AGGREGATED):
         raise ParameterError(
             f"finest must be aggregation, nested, pyamg, luby, quality or cuts, got {finest_mode!r}"
         )
@@ -480,7 +484,7 @@ def build_hierarchy(
     # each element of the level above it
     if finest_mode is None:
         finest_mode = "aggregation" if model == "rtree" and default and kappa is None else "cuts"
-    agg_mode = finest_mode in ("aggregation", "pyamg", "luby", "quality", "nested")
+    agg_mode = finest_mode in AGGREGATED
     if agg_mode and (not default or kappa is not None):
         raise ParameterError("an aggregated finest level goes with the default ratio schedule and no kappa")
     if agg_mode and model != "rtree":
