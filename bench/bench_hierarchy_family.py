@@ -133,12 +133,12 @@ def box_at(mesh, data, counts=(91, 364), axes="strength-mincut", boxfit=False, a
     n, G = mesh.n_cells, data.graph
     boxes = cell_boxes(data.points, data.offsets, data.connectivity)
     if aggregated:
-        from models.hierarchy.nested import _aggregated_levels
+        from models.hierarchy.finest import aggregated_levels
 
         opts = {"boxes": boxes, "balance": "cells", "axes": axes}
         if axes.startswith("strength"):
             opts["coupling"] = tpfa_coupling(G.indptr, G.indices, G.weights, data.centroids)
-        levels, _, _, _ = _aggregated_levels(mesh, data, None, 16.0, COARSEST, opts, counts=list(counts))
+        levels, _, _, _ = aggregated_levels(mesh, data, None, 16.0, COARSEST, opts, counts=list(counts))
     else:
         batch = GraphBatch(
             indptr=G.indptr,
