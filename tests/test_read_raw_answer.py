@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from mutants import write_corpus
+from vtkmodules.util.numpy_support import numpy_to_vtk
 
 from models.errors import MeshError
 from models.mesh import answer, zygote
@@ -52,18 +53,41 @@ def files(tmp_path_factory):
     folder = tmp_path_factory.mktemp("corpus")
     corpus = write_corpus(folder)
     p, h = vc.grid(3, 3, 3)
+    tagged = vc.image((6, 5, 4))  # image data with a material array (tags) and a rotated one
+    mat = numpy_to_vtk(np.arange(5 * 4 * 3, dtype=np.int32) % 3, deep=True)
+    mat.SetName("gmsh:physical")
+    tagged.GetCellData().AddArray(mat)
+    rotated = vc.image()
+    rotated.SetDirectionMatrix(0, -1, 0, 1, 0, 0, 0, 0, 1)
     extra = [  # VTK polyhedra (the poly_* fields) and a wedge/pyramid mix
         vc.write_xml(str(folder / "poly.vtu"), vc.polyhedra(p, h)),
         vc.write_legacy(str(folder / "prisms.vtk"), vc.prisms(), 51, True),
+        # structured data: built by the caller from origin, spacing and extent (image data) or from
+        # the points and the lattice's dimensions (models.mesh.deferred)
+        vc.write_xml(str(folder / "image.vti"), tagged),
+        vc.write_xml(str(folder / "rotated.vti"), rotated),
+        vc.write_xml(str(folder / "grid.vts"), vc.structured_grid()),
+        vc.write_xml(str(folder / "grid.vtr"), vc.rectilinear()),
+        vc.write_legacy(str(folder / "points.vtk"), vc.image(), 42, True),
+        vc.write_xml(str(folder / "flat.vti"), vc.image((5, 4, 1))),
+        vc.write_xml(str(folder / "strips.vtp"), vc.plane("strips")),
     ]
     return [*corpus.values(), *map(Path, extra), *sorted(DATA.glob("*.msh")), DATA / "MeshEmilia.vtk"]
 
 
-@pytest.mark.parametrize("use_zygote", [True, False])
+@pytest.mark.parametrize("use_zygote", [True, False, "no-lend"])
 def test_the_sandboxed_mesh_is_the_in_process_one_field_by_field(files, use_zygote, monkeypatch):
+    """Through the zygote (its children lend their arrays where process_vm_readv works, else the
+    memfd carries them: "no-lend"), and through a direct fork (the memfd)."""
     monkeypatch.setenv("MAGNET_READ_ZYGOTE", "1")
+    monkeypatch.setenv("MAGNET_READ_LEND", "0" if use_zygote == "no-lend" else "1")
+    zygote.shutdown()
     if use_zygote:
         assert zygote.wait_ready(120)
+        lends = zygote.acquire(start=False)
+        assert lends is not None
+        zygote.release(lends)
+        assert lends.lend == (use_zygote is True and answer.can_borrow(os.getpid(), *_here()))
     checked = set()
     try:
         for path in files:
@@ -89,6 +113,15 @@ def test_the_sandboxed_mesh_is_the_in_process_one_field_by_field(files, use_zygo
     # the corpus covers what a Mesh carries: tags, boundary groups, names, measures, the cached faces
     assert {"tags", "boundary_tags", "group_names", "boundary_names", "measures", "cell_faces"} <= checked
     assert {"poly_cells", "2D"} <= checked
+
+
+def _here():
+    """(address, bytes) of a buffer of this process (for can_borrow on itself)."""
+    import ctypes
+
+    global _HERE
+    _HERE = ctypes.create_string_buffer(b"here", 4)
+    return ctypes.addressof(_HERE), b"here"
 
 
 # ---------------------------------------------------------------- a child that lies
@@ -170,21 +203,40 @@ class _Evil:
         return (os.mkdir, (MARKER,))
 
 
-def _pickle_dump(value, shm):
+def _pickle_dump(value, shm, lend=False):
     """What a taken-over child could write: the former answer, a pickle, with code in it."""
     import pickle
 
     os.ftruncate(shm, 0)
     os.write(shm, pickle.dumps(("ok", _Evil())))
+    return []
 
 
-def _out_of_range_dump(value, shm):
+def _out_of_range_dump(value, shm, lend=False):
     header, arrays = _ok_mesh(conn_max=1 << 40)
     os.ftruncate(shm, 0)
     os.write(shm, _raw(header, arrays))
+    return []
 
 
-def _mapping_kept_dump(value, shm):
+def _lent(edit):
+    """A lent answer (the header only: each array named by an address of this child) with `edit`
+    applied to its table: what a taken-over child could name instead of its own arrays."""
+
+    def write(value, shm, lend=False):
+        header, arrays = _ok_mesh()
+        keep = [a for _, a in arrays]
+        header["lent"] = True
+        header["arrays"] = [[a.dtype.name, list(a.shape), a.ctypes.data, a.nbytes] for a in keep]
+        edit(header["arrays"])
+        os.ftruncate(shm, 0)
+        os.write(shm, _raw(header))
+        return keep
+
+    return write
+
+
+def _mapping_kept_dump(value, shm, lend=False):
     """A well-formed answer, and a process of the child's own keeping a writable mapping of it (to
     rewrite an array once the caller has checked it)."""
     import mmap
@@ -197,13 +249,23 @@ def _mapping_kept_dump(value, shm):
         time.sleep(3)
         mem[0] = 0
         os._exit(0)
+    return []
 
 
 def take_over(how: str):
     """Run in the child: from now on its answer is what `how` writes (a reader exploit's doing)."""
     import models.mesh.zygote as z
 
-    z.dump = {"pickle": _pickle_dump, "range": _out_of_range_dump, "mapping": _mapping_kept_dump}[how]
+    z.dump = {
+        "pickle": _pickle_dump,
+        "range": _out_of_range_dump,
+        "mapping": _mapping_kept_dump,
+        # lent arrays: an address it does not map, a size past the read's memory limit, a size
+        # past the array (the copy would read on into other memory of the child: still its own)
+        "unmapped": _lent(lambda t: t[0].__setitem__(2, 4096)),
+        "huge": _lent(lambda t: t[2].__setitem__(1, [1 << 40]) or t[2].__setitem__(3, 8 << 40)),
+        "shape": _lent(lambda t: t[0].__setitem__(1, [4, 4]) or t[0].__setitem__(3, 128)),
+    }[how]
     return 1
 
 
@@ -215,7 +277,7 @@ def test_a_taken_over_child_cannot_run_code_in_the_caller(use_zygote, monkeypatc
     if os.path.isdir(MARKER):
         os.rmdir(MARKER)
     try:
-        for how in ("pickle", "range", "mapping"):
+        for how in ("pickle", "range", "mapping", "unmapped", "huge", "shape"):
             with pytest.raises(MeshError) as err:
                 call_in_child(
                     take_over, (how,), path="x.vtk", timeout_s=30, memory_bytes=1 << 30, zygote=use_zygote

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from models.errors import MeshError, ParameterError
+from models.mesh import deferred
 from models.mesh.container import (
     VTK_HEXAHEDRON,
     VTK_POLYGON,
@@ -47,7 +48,12 @@ def mesh_from_cells(
     points (P, 2|3) float64; elements in CSR with our VTK types and tags; poly_faces
     [(cell ids, faces per cell, face sizes, face nodes)]; bnd (offsets, conn, types, tags) or None.
     grid: vtk_readers._lattice's hint for a whole 3D structured grid (hexahedra in VTK's lattice
-    order), or None."""
+    order), or None. In the sandbox's reading child, the arguments as a Deferred (models.mesh.deferred:
+    the caller checks and builds)."""
+    if deferred.DEFER:
+        return deferred.cells(
+            points, offsets, conn, cell_types, tags, tag_name, poly_faces, bnd, lower, dim, weld, meta, grid
+        )
     if points.ndim != 2 or len(points) == 0:
         raise MeshError("the mesh has no points")
     if points.shape[1] == 1:
@@ -388,6 +394,8 @@ def mesh_from_image(axes, tags, tag_name, meta: dict) -> Mesh | None:
     x, y, z = axes
     if not (np.isfinite(x).all() and np.isfinite(y).all() and np.isfinite(z).all()):
         return None
+    if deferred.DEFER:  # the reading child: the caller builds it (models.mesh.deferred)
+        return deferred.image(axes, tags, tag_name, meta)
     nx, ny, nz = x.size, y.size, z.size
     pts = np.empty((nz, ny, nx, 3))
     pts[..., 0] = x[None, None, :]

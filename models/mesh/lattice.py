@@ -71,3 +71,29 @@ def image_axes(origin, spacing, extent) -> list[np.ndarray]:
         origin[a] + (extent[2 * a] + np.arange(extent[2 * a + 1] - extent[2 * a] + 1)) * spacing[a]
         for a in range(3)
     ]
+
+
+def lower_corners(live, cdims, stride) -> np.ndarray:
+    """Point id of each cell's lower corner, cells numbered with the first live axis fastest."""
+    parts = [np.arange(n, dtype=np.int64) * stride[a] for a, n in zip(live, cdims, strict=True)]
+    total = parts[-1]
+    for p in parts[-2::-1]:  # outer axes first: idx[k, j, i] = k*sz + j*sy + i
+        total = (total[:, None] + p[None, :]).reshape(-1)
+    return total
+
+
+def hex_corners(stride) -> np.ndarray:
+    """A hexahedron's eight point-id offsets from its lower corner on a lattice (VTK's node order)."""
+    sx, sy, sz = stride
+    return np.array([0, sx, sx + sy, sy, sz, sz + sx, sz + sx + sy, sz + sy])
+
+
+def hexahedra(dims) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(offsets, connectivity, types) of the hexahedra of a whole 3D lattice of dims points, x
+    fastest: the cells vtk_readers._structured makes of it, bit for bit."""
+    stride = [1, dims[0], dims[0] * dims[1]]
+    cdims = [d - 1 for d in dims]
+    idx = lower_corners([0, 1, 2], cdims, stride)
+    conn = (idx[:, None] + hex_corners(stride)[None, :]).reshape(-1)
+    n = idx.size
+    return np.arange(0, 8 * n + 1, 8, dtype=np.int64), conn, np.full(n, 12, np.uint8)

@@ -188,10 +188,10 @@ def read_mesh(
     except NativeReaderNeeded:
         raise
     except MeshError as exc:
-        raise MeshError(_refusal(str(exc), path, file_format)) from None
+        raise MeshError(refusal(str(exc), path, file_format)) from None
 
 
-def _refusal(msg: str, path: str, file_format: str | None) -> str:
+def refusal(msg: str, path: str, file_format: str | None) -> str:
     """A reader's or a check's refusal as one sentence naming the file, the format tried and,
     where it can be known, the place."""
     name, fmt = os.path.basename(path), format_name(path, file_format)

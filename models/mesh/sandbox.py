@@ -201,15 +201,17 @@ def read_mesh_safe(
         if in_process or not sandbox_enabled():
             with deadline(timeout_s):
                 return read.read_mesh(path, **kwargs, **({} if native else {"native": False}))
-        return call_in_child(
+        memory_bytes = _default_memory() if memory_bytes is None else memory_bytes
+        got = call_in_child(
             _read_in_child,
             (path, kwargs),
             path=path,
             file_format=file_format,
             timeout_s=timeout_s,
-            memory_bytes=_default_memory() if memory_bytes is None else memory_bytes,
+            memory_bytes=memory_bytes,
             zygote=zygote,
         )
+        return _built(got, path, file_format, memory_bytes)
     except read.NativeReaderNeeded:
         raise
     except MeshError as exc:
@@ -320,9 +322,30 @@ def _vtu_family(path: str, file_format: str | None) -> bool:
 
 
 def _read_in_child(path, kwargs):
-    from models.mesh import read  # looked up at call time: whatever read_mesh dispatches to
+    """read_mesh in the reading child, its builders deferred: the reader's arrays come back as a
+    models.mesh.deferred.Deferred, and the caller builds the Mesh (_built)."""
+    from models.mesh import deferred, read  # looked up at call time: whatever read_mesh dispatches to
 
+    deferred.DEFER = True  # (this process serves this one read)
     return read.read_mesh(path, **kwargs)
+
+
+def _built(got, path: str, file_format: str | None, memory_bytes: int):
+    """The Mesh of a read the child answered: built here from its arguments when it is a Deferred
+    (checked first: an inconsistent one is worded as a crashed reader); refused as read_mesh
+    refuses, so the words are the in-process read's."""
+    from models.mesh import deferred, read
+
+    if not isinstance(got, deferred.Deferred):
+        return got
+    try:
+        return got.build(memory_bytes)
+    except deferred.Inconsistent:
+        raise MeshError(crash_sentence(path, file_format)) from None
+    except MemoryError:
+        raise MeshError(memory_sentence(path, memory_bytes, file_format)) from None
+    except MeshError as exc:
+        raise MeshError(read.refusal(str(exc), path, file_format)) from None
 
 
 def call_in_child(
@@ -332,19 +355,22 @@ def call_in_child(
     shared memory), or the MagnetError it raised; a crash, hang or memory blow-up as a MeshError.
     The child is forked by this process's reader zygote (models.mesh.zygote) when it is running
     and `zygote`, else by this process."""
-    shm = -1
+    shm = release = -1
+    pid = None
     try:
         found = _via_zygote(fn, args, timeout_s, memory_bytes) if zygote else None
         if found is None:
             shm = os.memfd_create("magnet-read", os.MFD_CLOEXEC | os.MFD_ALLOW_SEALING)
             status, answered = _direct(fn, args, shm, timeout_s, memory_bytes)
         else:
-            shm, status, answered = found
+            shm, status, answered, pid, release = found
         if status == "timeout" or (not answered and status == signal.SIGXCPU):
             raise MeshError(timeout_sentence(path, timeout_s, file_format))
         if not answered:
             raise MeshError(crash_sentence(path, file_format))
-        got = _load(shm)
+        # a lent answer: its arrays copied from the child (alive until `release` closes), at most
+        # what the child could hold
+        got = _load(shm, pid if release >= 0 else None, memory_bytes)
         if got[0] == "ok":
             return got[1]
         if got[0] == "memory":
@@ -355,6 +381,8 @@ def call_in_child(
     finally:
         if shm >= 0:
             os.close(shm)
+        if release >= 0:
+            os.close(release)  # the child may end now
 
 
 def _direct(fn, args, shm: int, timeout_s: float, memory_bytes: int):
@@ -386,8 +414,10 @@ def _importable(fn) -> bool:
 
 
 def _via_zygote(fn, args, timeout_s: float, memory_bytes: int):
-    """(memfd, status, answered) from a child of the zygote, or None where it cannot serve this
-    read (none running yet, busy with another thread's read, fn not importable, zygote lost)."""
+    """(memfd, status, answered, the child's pid, release) from a child of the zygote, or None
+    where it cannot serve this read (none running yet, busy with another thread's read, fn not
+    importable, zygote lost). release: where the zygote's children lend their answer's arrays
+    (Zygote.lend), the write end of the pipe the child waits on until they are copied (-1 else)."""
     from models.mesh import zygote
 
     if not _importable(fn):
@@ -401,19 +431,29 @@ def _via_zygote(fn, args, timeout_s: float, memory_bytes: int):
         except Exception:  # noqa: BLE001  (arguments that do not pickle: a direct fork takes them)
             return None
         shm = os.memfd_create("magnet-read", os.MFD_CLOEXEC | os.MFD_ALLOW_SEALING)
+        wait, release = os.pipe() if z.lend else (-1, -1)
         try:
-            status, answered = z.run(request, shm, timeout_s)
+            status, answered, pid = z.run(request, shm, timeout_s, wait)
         except zygote.ZygoteLost as exc:
             os.close(shm)
+            _close(release)
             zygote.lost(z, str(exc))
             return None
         except BaseException:
             os.close(shm)
+            _close(release)
             zygote.lost(z, "a read was interrupted")
             raise
-        return shm, status, answered
+        finally:
+            _close(wait)
+        return shm, status, answered, pid, release
     finally:
         zygote.release(z)
+
+
+def _close(fd: int) -> None:
+    if fd >= 0:
+        os.close(fd)
 
 
 def _wait(pid: int, r: int, timeout_s: float):
@@ -476,11 +516,11 @@ def _reap_all() -> None:
 atexit.register(_reap_all)
 
 
-def _load(shm: int):
-    """The child's answer (models.mesh.answer: a JSON header and raw arrays, every byte checked);
-    a malformed one is worded as a crashed reader."""
+def _load(shm: int, pid: int | None = None, limit: int | None = None):
+    """The child's answer (models.mesh.answer: a JSON header and raw arrays, every byte checked;
+    lent arrays copied from the child `pid`); a malformed one is worded as a crashed reader."""
     try:
-        return answer.load(shm)
+        return answer.load(shm, pid, limit)
     except answer.Corrupt:
         return ("corrupt",)
 

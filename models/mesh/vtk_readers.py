@@ -22,6 +22,7 @@ import numpy as np
 
 from models.errors import MeshError, ParameterError
 from models.mesh.cells import BOUNDARY_TAG_NAME, TAG_NAMES, Normalized, normalize, ranges
+from models.mesh.lattice import hex_corners, lower_corners
 
 # extension -> (what the file is, VTK reader class, its module)
 _XML = "vtkmodules.vtkIOXML"
@@ -420,10 +421,9 @@ def _structured(ds):
     ncells = int(np.prod(cdims)) if live else 0
     if not live:
         return pts, np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros(0, np.uint8), {}, None
-    idx = _lower_corners(live, cdims, stride)
+    idx = lower_corners(live, cdims, stride)
     if len(live) == 3:
-        sx, sy, sz = stride
-        corner = np.array([0, sx, sx + sy, sy, sz, sz + sx, sz + sx + sy, sz + sy])
+        corner = hex_corners(stride)
         vtk = 12
     elif len(live) == 2:
         sa, sb = stride[live[0]], stride[live[1]]
@@ -561,15 +561,6 @@ def _image_mesh(data, physical_tag, meta: dict, path: str | None = None):
 
     mesh.meta["group_names"], mesh.meta["boundary_names"] = group_names(_field_data(data), 3)
     return mesh
-
-
-def _lower_corners(live, cdims, stride) -> np.ndarray:
-    """Point id of each cell's lower corner, cells numbered with the first live axis fastest."""
-    parts = [np.arange(n, dtype=np.int64) * stride[a] for a, n in zip(live, cdims, strict=True)]
-    total = parts[-1]
-    for p in parts[-2::-1]:  # outer axes first: idx[k, j, i] = k*sz + j*sy + i
-        total = (total[:, None] + p[None, :]).reshape(-1)
-    return total
 
 
 def _grid_points(axes) -> np.ndarray:

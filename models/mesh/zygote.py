@@ -14,7 +14,10 @@ isolated and warmed up while it waits: _spare, _prewarm), which reads under this
 forked after the answer (a spare found dead at a request: a child forked then takes the read). One
 child serves one read and exits, as before the spare. The caller also hands a pipe of its own with
 the memfd: the child's answer byte goes straight to the caller (one hop less). The zygote enforces
-the deadline, reports the child's pid and then its end (answered, killed by signal N, timed out;
+the deadline, reports the child's pid (the caller copies a lent answer's arrays from that
+process: answer.dump's lend, where the zygote's first word, the address of a probe in its memory,
+shows process_vm_readv allowed; the child waits on a pipe of the caller's until it has) and then
+its end (answered, killed by signal N, timed out;
 for a read answered straight to the caller, taken before its next request), so the caller words a
 crash, a hang or a blow-up exactly as for a child of its own. If the zygote dies, the read in
 flight is done by a direct fork, a new zygote is started, and a log line (logger "magnet.read")
@@ -85,6 +88,20 @@ _HEAP = 1 << 30  # a spare's blocks up to this size come from its heap, kept whe
 _PREFAULT = 64 << 20  # heap a spare touches while it waits (its resident memory meanwhile)
 _SLACK_S = 10.0  # the zygote enforces the deadline; the caller waits this much longer for its word
 _SETTLE_S = 5.0  # the most the next read waits for the zygote's word on a read answered straight to it
+_PROBE = b"magnet zygote: may the caller borrow?"  # read by the caller from the zygote's memory
+
+
+def _zygote_env() -> dict:
+    """The zygote's environment: the caller's, with glibc's heap on transparent huge pages where
+    the kernel offers them (glibc >= 2.35, ignored by older ones): a child's arrays live on its
+    heap (_prewarm), and the caller copies them from there (answer.dump's lend): 2 MiB pages
+    copy several times faster than 4 KiB ones."""
+    env = dict(os.environ)
+    tunables = [
+        t for t in env.get("GLIBC_TUNABLES", "").split(":") if t and not t.startswith("glibc.malloc.hugetlb=")
+    ]
+    env["GLIBC_TUNABLES"] = ":".join([*tunables, "glibc.malloc.hugetlb=1"])
+    return env
 
 
 class ZygoteLost(Exception):
@@ -108,6 +125,7 @@ class Zygote:
                 stdout=subprocess.DEVNULL,
                 stderr=subprocess.DEVNULL,
                 cwd=os.getcwd(),
+                env=_zygote_env(),
             )
         except BaseException:
             ours.close()
@@ -118,6 +136,7 @@ class Zygote:
         self.owner = os.getpid()
         self.ready = False
         self.owed = False  # a read answered straight to us: the zygote's "done" for it still to come
+        self.lend = False  # its children lend their answer's arrays (process_vm_readv works here)
         self.lock = threading.Lock()
 
     def poll_ready(self) -> bool:
@@ -125,36 +144,48 @@ class Zygote:
         if not self.ready:
             if not select.select([self.sock], [], [], 0)[0]:
                 return False
-            if self.sock.recv(16) != b"R":
+            said = self.sock.recv(64)
+            if said[:1] != b"R":
                 raise ZygoteLost("the zygote ended while starting")
+            if len(said) == 9 and os.environ.get("MAGNET_READ_LEND", "1") != "0":
+                from models.mesh.answer import can_borrow
+
+                self.lend = can_borrow(self.proc.pid, int.from_bytes(said[1:], "little"), _PROBE)
             self.ready = True
         return True
 
-    def run(self, request: bytes, shm: int, timeout_s: float):
-        """Send one read; ('timeout'|signal|0, answered) as sandbox._wait gives for a direct child.
-        The child's answer byte comes straight to us on a pipe of ours (one hop less); the zygote's
-        word ("done": answered, killed by signal N, timed out) covers every other end, and for an
-        answered read it is taken before the next request (`owed`)."""
+    def run(self, request: bytes, shm: int, timeout_s: float, release: int = -1):
+        """Send one read; ('timeout'|signal|0, answered, the child's pid) as sandbox._wait gives
+        for a direct child. The child's answer byte comes straight to us on a pipe of ours (one hop
+        less); the zygote's word ("done": answered, killed by signal N, timed out) covers every
+        other end, and for an answered read it is taken before the next request (`owed`).
+        release: the read end of a pipe of ours, handed to the child: it lends its answer's arrays
+        (answer.dump's lend) and waits until the pipe's other end closes (the caller has copied)."""
         self._settle()
         r, w = os.pipe()
         pid = None
         done = False
         try:
             try:
-                socket.send_fds(self.sock, [request], [shm, w])
+                socket.send_fds(self.sock, [request], [shm, w] + ([release] if release >= 0 else []))
             except OSError as exc:
                 raise ZygoteLost(f"cannot send to the zygote ({exc.strerror})") from None
             finally:
                 os.close(w)
             limit = time.monotonic() + timeout_s + _SLACK_S
             watch = [self.sock, r]
+            answered = False
             while True:
+                if answered and pid is not None:
+                    done = self.owed = True
+                    return (0, True, pid)
                 got = self._next(watch, limit, "the zygote did not answer within the deadline", r)
                 if got is None:
                     continue
-                if got == b"1":  # the answer is whole
-                    done = self.owed = True
-                    return (0, True)
+                if got == b"1":  # the answer is whole (its pid, the zygote's word, may follow)
+                    answered = True
+                    watch = [self.sock]
+                    continue
                 if isinstance(got, bytes):
                     watch = [self.sock]  # the child ended without answering: the zygote says how
                     continue
@@ -163,7 +194,7 @@ class Zygote:
                     pid = value
                 elif kind == "done":
                     done = True
-                    return value
+                    return (*value, pid)
         finally:
             os.close(r)
             if not done and pid is not None:  # interrupted or lost: no reader left running
@@ -354,12 +385,21 @@ def _limit(memory_bytes: int, timeout_s: float) -> None:
 
 
 def _child(
-    fn, args, shm: int, w: int, memory_bytes: int, timeout_s: float, isolated: bool = False, tell: int = -1
+    fn,
+    args,
+    shm: int,
+    w: int,
+    memory_bytes: int,
+    timeout_s: float,
+    isolated: bool = False,
+    tell: int = -1,
+    release: int = -1,
 ) -> None:
     """One read in this (forked) process under the limits, its answer into the memfd, one byte "1"
     on w when it is whole (first on `tell`, the caller's own pipe, when the zygote handed one: the
     caller goes on without the zygote's hop); never returns. isolated: _isolate has run already (a
-    spare child)."""
+    spare child). release: the answer's arrays are lent (the memfd holds the header, the caller
+    copies them from this process's memory) and kept until this pipe ends (the caller is done)."""
     code = 1
     try:
         if not isolated:
@@ -374,14 +414,20 @@ def _child(
         except BaseException:  # a reader's own exception: worded by the parent, never shown raw
             answer = ("error", "MeshError", "")
         try:
-            dump(answer, shm)
+            lent = dump(answer, shm, lend=release >= 0)
         except Exception:  # noqa: BLE001  (a value the raw answer cannot hold: worded as unreadable)
-            dump(("error", "MeshError", ""), shm)
+            lent = dump(("error", "MeshError", ""), shm)
         if tell >= 0:
             try:
                 os.write(tell, b"1")
             except OSError:  # the caller went away: the zygote still hears the answer
                 pass
+        if release >= 0:
+            try:  # until the caller has copied the lent arrays (or went away: the pipe ends too)
+                os.read(release, 1)
+            except OSError:
+                pass
+        del lent
         os.write(w, b"1")
         code = 0
         try:  # its exit (unmapping its memory) yields the CPU to the caller taking the answer
@@ -420,24 +466,27 @@ def serve(fd: int) -> None:
     gc.freeze()  # the children never copy these objects' pages for a collection
     pending: list[int] = []
     spare = _fork_spare(sock, paths)
-    sock.send(b"R")
+    import ctypes
+
+    probe = ctypes.create_string_buffer(_PROBE, len(_PROBE))  # the caller reads it: can it borrow?
+    sock.send(b"R" + ctypes.addressof(probe).to_bytes(8, "little"))
     while True:
         try:
-            msg, fds, _, _ = socket.recv_fds(sock, _MSG, 2)
+            msg, fds, _, _ = socket.recv_fds(sock, _MSG, 3)
         except OSError:
             break
         if not msg:  # the caller exited
             break
-        for f in fds[2:]:
+        for f in fds[3:]:
             os.close(f)
         if not fds:
             continue
         timeout_s = pickle.loads(msg)[3]
         try:
-            child, r = _hand(spare, msg, fds[:2], sock, paths)
+            child, r = _hand(spare, msg, fds[:3], sock, paths)
         finally:
             spare = None
-            for f in fds[:2]:
+            for f in fds[:3]:
                 os.close(f)
         try:
             sock.send(pickle.dumps(("pid", child)))
@@ -477,9 +526,9 @@ def _spare(conn: socket.socket, w: int, paths: list[str], warm: bool) -> None:
         _isolate()
         if warm:
             _prewarm(conn, paths)
-        msg, fds, _, _ = socket.recv_fds(conn, _MSG, 2)
+        msg, fds, _, _ = socket.recv_fds(conn, _MSG, 3)
         conn.close()
-        for f in fds[2:]:
+        for f in fds[3:]:
             os.close(f)
         if not msg or not fds:
             os._exit(0)
@@ -491,7 +540,17 @@ def _spare(conn: socket.socket, w: int, paths: list[str], warm: bool) -> None:
             pass
     except BaseException:
         os._exit(1)
-    _child(fn, args, fds[0], w, memory_bytes, timeout_s, isolated=True, tell=fds[1] if len(fds) > 1 else -1)
+    _child(
+        fn,
+        args,
+        fds[0],
+        w,
+        memory_bytes,
+        timeout_s,
+        isolated=True,
+        tell=fds[1] if len(fds) > 1 else -1,
+        release=fds[2] if len(fds) > 2 else -1,
+    )
 
 
 def _environ(env: dict) -> None:

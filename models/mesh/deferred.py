@@ -1,0 +1,231 @@
+"""A build left to the caller: the sandbox's reading child reads, the caller builds.
+
+The reading child (models.mesh.sandbox) runs the part of a read that can crash or hang: VTK's C++
+readers and our parsers, on the file's bytes. The Mesh itself is made by our builders
+(build.mesh_from_cells, build.mesh_from_image), vectorized numpy and our own checks. So in the
+child the builders do not build (DEFER): they hand back their arguments, a `Deferred`, and the
+caller checks them and builds. The answer that crosses the memfd is then the reader's arrays, not
+the Mesh with its orientation records, measures and centroids: about 30% fewer bytes for a
+tetrahedral or hexahedral file, and for image data a few numbers instead of the whole lattice
+(the caller makes its points and hexahedra from origin, spacing and extent); a whole structured
+grid comes as its points and dimensions, its hexahedra made again by the caller (lattice.hexahedra).
+
+The caller trusts nothing the child wrote (a child taken over by a reader exploit may lie):
+`Deferred.build` checks every invariant the builders rely on before any of them runs (dtypes and
+shapes, CSR offsets from 0 to the end, each cell's node count against its type, polyhedra's faces,
+boundary cells, plain metadata) and raises Inconsistent, which the caller words as a crashed
+reader. The builders then check what they check for any reader, before anything indexes with an
+id: point ids in range (refused in the words a bad file gets), then orientation, degenerate and
+folded cells. So a lie that passes is a mesh our own checks accept.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+# set in the reading child only (models.mesh.sandbox._read_in_child): builders return a Deferred
+DEFER = False
+
+_CELLS_3D = (10, 12, 13, 14, 15, 16, 42)
+_CELLS_2D = (5, 7, 9)
+_POLYHEDRA = (15, 16, 42)
+# nodes per cell by type: exactly (> 0), or at least (< 0: -minimum)
+_SIZE = np.zeros(256, np.int64)
+for _t, _n in {5: 3, 9: 4, 7: -3, 10: 4, 12: 8, 13: 6, 14: 5, 15: 10, 16: 12, 42: -4}.items():
+    _SIZE[_t] = _n
+_BSIZE = np.zeros(256, np.int64)  # boundary cells: vertices, lines, triangles, quads, polygons
+for _t, _n in {1: 1, 3: 2, 5: 3, 9: 4, 7: -3}.items():
+    _BSIZE[_t] = _n
+# bytes a built image Mesh takes per point and per cell (points; connectivity, offsets, types,
+# measures, centroids, signed measures, flips): the caller refuses beyond the read's memory limit
+_IMAGE_BYTES = (24, 8 * 8 + 8 + 1 + 8 + 24 + 8 + 1)
+
+
+class Inconsistent(Exception):
+    """The arguments the reading child handed back break an invariant the builders rely on."""
+
+
+@dataclasses.dataclass
+class Deferred:
+    """A builder's arguments from the reading child. builder: "cells" (build.mesh_from_cells) or
+    "image" (build.mesh_from_image); args: its positional arguments (for "cells" with a lattice
+    hint, offsets, connectivity and types are None: the caller makes them); meta: what the reader
+    adds to the Mesh's meta after the build (group names, the reader's name); dim: the Mesh's."""
+
+    builder: str
+    args: tuple
+    meta: dict
+    dim: int
+
+    def build(self, memory_bytes: int | None = None):
+        """The Mesh, built here after every check; Inconsistent for an argument that lies,
+        MemoryError for an image beyond memory_bytes, MeshError as the builder refuses."""
+        from models.mesh import build
+
+        if type(self.builder) is not str or type(self.args) is not tuple or type(self.dim) is not int:
+            raise Inconsistent("malformed build")
+        _plain(self.meta)
+        if self.builder == "cells":
+            mesh = build.mesh_from_cells(*_cells_args(self.args, self.dim))
+        elif self.builder == "image":
+            axes, tags, tag_name, meta = _image_args(self.args, memory_bytes)
+            mesh = build.mesh_from_image(axes, tags, tag_name, meta)
+            if mesh is None:
+                raise Inconsistent("image axes")
+        else:
+            raise Inconsistent("unknown builder")
+        mesh.meta.update(self.meta)
+        return mesh
+
+
+def cells(points, offsets, conn, cell_types, tags, tag_name, poly_faces, bnd, lower, dim, weld, meta, grid):
+    """mesh_from_cells' arguments as a Deferred (in the reading child). A whole lattice whose
+    hexahedra the builder takes from the grid hint goes without them (the caller makes them)."""
+    if grid is not None and weld is None and not poly_faces:
+        offsets = conn = cell_types = None
+    args = (points, offsets, conn, cell_types, tags, tag_name, poly_faces, bnd, lower, dim, weld, meta, grid)
+    return Deferred("cells", args, {}, int(dim))
+
+
+def image(axes, tags, tag_name, meta):
+    """mesh_from_image's arguments as a Deferred (in the reading child)."""
+    return Deferred("image", (list(axes), tags, tag_name, meta), {}, 3)
+
+
+# ---------------------------------------------------------------- the caller's checks
+
+
+def _need(ok) -> None:
+    if not ok:
+        raise Inconsistent("inconsistent build arguments")
+
+
+def _ints(a, ndim: int = 1) -> bool:
+    return isinstance(a, np.ndarray) and a.dtype.kind in "iu" and a.ndim == ndim
+
+
+def _in_range(a: np.ndarray, n: int) -> bool:
+    if a.size == 0:
+        return True
+    return int(a.min()) >= 0 and int(a.max()) < n
+
+
+def _csr(offsets, values) -> np.ndarray:
+    """The sizes of a CSR whose offsets run from 0, never decreasing, to len(values) (its values
+    integers); Inconsistent otherwise. Point ids out of range are the builder's to refuse: it checks
+    them before anything indexes with them, in the words a reader's bad file gets."""
+    _need(_ints(offsets) and _ints(values) and offsets.size >= 1)
+    _need(int(offsets[0]) == 0 and int(offsets[-1]) == values.size)
+    sizes = np.diff(offsets)
+    _need(sizes.size == 0 or int(sizes.min()) >= 0)
+    return sizes
+
+
+def _sizes_fit(types: np.ndarray, sizes: np.ndarray, table: np.ndarray) -> bool:
+    want = table[types]
+    if np.any(want == 0):
+        return False
+    return bool(np.all(np.where(want > 0, sizes == want, sizes >= -want)))
+
+
+def _plain(x, depth: int = 0) -> None:
+    """Metadata: str, numbers, bool, None, and dicts, lists and tuples of them (no arrays)."""
+    _need(depth <= 8)
+    if x is None or type(x) in (bool, int, float, str) or isinstance(x, (np.integer, np.floating, np.bool_)):
+        return
+    if type(x) is dict:
+        for k, v in x.items():
+            _need(k is None or type(k) in (bool, int, float, str))
+            _plain(v, depth + 1)
+        return
+    _need(type(x) in (list, tuple))
+    for v in x:
+        _plain(v, depth + 1)
+
+
+def _cells_args(args: tuple, dim: int) -> tuple:
+    _need(len(args) == 13)
+    points, offsets, conn, types, tags, tag_name, poly_faces, bnd, lower, d, weld, meta, grid = args
+    _need(d == dim and dim in (2, 3))
+    _need(isinstance(points, np.ndarray) and points.dtype == np.float64 and points.ndim == 2)
+    _need(points.shape[1] in (1, 2, 3))
+    n_points = points.shape[0]
+    _need(
+        weld is None
+        or (isinstance(weld, (int, float, np.integer, np.floating)) and np.isfinite(weld) and weld >= 0)
+    )
+    _need(tag_name is None or type(tag_name) is str)
+    _need(meta is None or type(meta) is dict)
+    _plain(meta)
+    _need(type(lower) is dict)
+    _need(all(type(k) is str and isinstance(v, (int, np.integer)) and v >= 0 for k, v in lower.items()))
+    if grid is not None:
+        _need(type(grid) is dict and set(grid) == {"dims", "axes"} and dim == 3)
+        dims = grid["dims"]
+        _need(type(dims) is list and len(dims) == 3 and all(type(v) is int and v >= 2 for v in dims))
+        _need(n_points == dims[0] * dims[1] * dims[2])
+        axes = grid["axes"]
+        if axes is not None:
+            _need(type(axes) is list and len(axes) == 3)
+            _need(
+                all(
+                    isinstance(a, np.ndarray) and a.dtype == np.float64 and a.shape == (v,)
+                    for a, v in zip(axes, dims, strict=True)
+                )
+            )
+        if weld is None and not poly_faces:  # the builder takes the hexahedra for the lattice's:
+            # never the child's (deferred.cells leaves them out): made here
+            _need(offsets is None and conn is None and types is None)
+            from models.mesh.lattice import hexahedra
+
+            offsets, conn, types = hexahedra(dims)
+    _need(isinstance(types, np.ndarray) and types.dtype == np.uint8 and types.ndim == 1)
+    n_cells = types.size
+    _need(_ints(offsets) and offsets.shape == (n_cells + 1,) and conn is not None)
+    sizes = _csr(offsets, conn)
+    _need(_sizes_fit(types, sizes, _SIZE))
+    _need(bool(np.isin(types, _CELLS_3D if dim == 3 else _CELLS_2D).all()))
+    _need(tags is None or (_ints(tags) and tags.shape == (n_cells,)))
+    _need(type(poly_faces) is list)
+    seen = []
+    for piece in poly_faces:
+        _need(type(piece) is tuple and len(piece) == 4)
+        ids, nfaces, fsizes, fnodes = piece
+        _need(_ints(ids) and _ints(nfaces) and _ints(fsizes) and _ints(fnodes))
+        _need(_in_range(ids, n_cells) and nfaces.shape == ids.shape)
+        _need(nfaces.size == 0 or int(nfaces.min()) >= 4)
+        _need(fsizes.size == int(nfaces.sum()) and (fsizes.size == 0 or int(fsizes.min()) >= 3))
+        _need(fnodes.size == int(fsizes.sum()))  # (their point ids: the builder checks them)
+        seen.append(ids)
+    poly = np.flatnonzero(np.isin(types, _POLYHEDRA))
+    got = np.sort(np.concatenate(seen)) if seen else np.zeros(0, np.int64)
+    _need(np.array_equal(got, poly))  # each polyhedron's faces once, and only polyhedra's
+    if bnd is not None:
+        _need(type(bnd) is tuple and len(bnd) == 4)
+        b_off, b_conn, b_types, b_tags = bnd
+        _need(isinstance(b_types, np.ndarray) and b_types.dtype == np.uint8 and b_types.ndim == 1)
+        _need(_ints(b_off) and b_off.shape == (b_types.size + 1,))
+        _need(_sizes_fit(b_types, _csr(b_off, b_conn), _BSIZE))
+        _need(b_tags is None or (_ints(b_tags) and b_tags.shape == b_types.shape))
+    return (points, offsets, conn, types, tags, tag_name, poly_faces, bnd, lower, dim, weld, meta, grid)
+
+
+def _image_args(args: tuple, memory_bytes: int | None) -> tuple:
+    _need(len(args) == 4)
+    axes, tags, tag_name, meta = args
+    _need(type(axes) is list and len(axes) == 3)
+    _need(
+        all(isinstance(a, np.ndarray) and a.dtype == np.float64 and a.ndim == 1 and a.size >= 2 for a in axes)
+    )
+    _need(all(np.isfinite(a).all() for a in axes))
+    n_points = axes[0].size * axes[1].size * axes[2].size
+    n_cells = (axes[0].size - 1) * (axes[1].size - 1) * (axes[2].size - 1)
+    if memory_bytes is not None and n_points * _IMAGE_BYTES[0] + n_cells * _IMAGE_BYTES[1] > memory_bytes:
+        raise MemoryError
+    _need(tags is None or (_ints(tags) and tags.shape == (n_cells,)))
+    _need(tag_name is None or type(tag_name) is str)
+    _need(type(meta) is dict)
+    _plain(meta)
+    return axes, tags, tag_name, meta

@@ -1,0 +1,202 @@
+"""The reading child hands back the builders' arguments (models.mesh.deferred), the caller builds:
+the same Mesh as an in-process read, fewer bytes across, and every argument a lying child could
+send checked before any builder runs (refused as a crashed reader)."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import numpy as np
+import pytest
+import vtk_corpus as vc
+from test_read_raw_answer import same
+
+from models.errors import MeshError
+from models.mesh import deferred, zygote
+from models.mesh.deferred import Deferred, Inconsistent
+from models.mesh.read import read_mesh
+from models.mesh.sandbox import _built, _read_in_child, call_in_child, crash_sentence, memory_sentence
+
+DATA = Path(__file__).parent / "data"
+
+
+def _deferred(path, monkeypatch) -> Deferred:
+    """What the reading child hands back for `path` (read here with the builders deferred)."""
+    monkeypatch.setattr(deferred, "DEFER", True)
+    try:
+        got = read_mesh(path)
+    finally:
+        monkeypatch.setattr(deferred, "DEFER", False)
+    assert isinstance(got, Deferred)
+    return got
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("deferred")
+    p, h = vc.grid(3, 3, 3)
+    return {
+        "image": Path(vc.write_xml(str(folder / "a.vti"), vc.image((6, 5, 4)))),
+        "lattice": Path(vc.write_xml(str(folder / "a.vts"), vc.structured_grid())),
+        "hexes": Path(vc.write_legacy(str(folder / "h.vtk"), vc.unstructured(p, [(12, h)]), 42, True)),
+        "poly": Path(vc.write_xml(str(folder / "poly.vtu"), vc.polyhedra(p, h))),
+        "groups": DATA / "cube_faces.msh",  # boundary groups and names
+        "plane": DATA / "square_sides.msh",
+    }
+
+
+def test_the_child_answers_with_arguments_and_the_caller_builds_the_same_mesh(files):
+    assert zygote.wait_ready(120)
+    try:
+        for name, path in files.items():
+            got = call_in_child(
+                _read_in_child, (str(path), {}), path=str(path), timeout_s=60, memory_bytes=1 << 32
+            )
+            assert isinstance(got, Deferred), name
+            if name == "image":  # a few numbers: the caller makes the points and the hexahedra
+                assert got.builder == "image" and all(a.size <= 6 for a in got.args[0])
+            if name == "lattice":  # the points and the dimensions: no connectivity crosses
+                assert got.builder == "cells" and got.args[1] is None and got.args[2] is None
+            if name == "hexes":
+                assert got.builder == "cells" and got.args[2].size == 27 * 8
+            same(read_mesh(path), _built(got, str(path), None, 1 << 32), name)
+    finally:
+        zygote.shutdown()
+
+
+def _lies(d: Deferred):
+    """(what, a copy of d with that lie) for every argument of a "cells" build."""
+    args = list(d.args)
+    points, offsets, conn, types = args[:4]
+
+    def with_(i, value):
+        a = list(args)
+        a[i] = value
+        return Deferred(d.builder, tuple(a), dict(d.meta), d.dim)
+
+    if conn is not None:
+        c = conn.copy()
+        c[-1] = len(points)
+        yield "a point id past the end", with_(2, c)
+        c = conn.copy()
+        c[3] = -1
+        yield "a negative point id", with_(2, c)
+        o = offsets.copy()
+        o[0] = 1
+        yield "offsets not from 0", with_(1, o)
+        o = offsets.copy()
+        o[-1] += 1
+        yield "offsets past the connectivity", with_(1, o)
+        if len(o) > 2:
+            o = offsets.copy()
+            o[1], o[2] = o[2], o[1]
+            yield "offsets going back", with_(1, o)
+        t = types.copy()
+        t[0] = 12 if t[0] != 12 else 10
+        yield "a cell's node count against its type", with_(3, t)
+        t = types.copy()
+        t[-1] = 99
+        yield "an unknown cell type", with_(3, t)
+        yield "types of the wrong length", with_(3, types[:-1].copy())
+        yield "offsets as floats", with_(1, offsets.astype(np.float64))
+    yield "points as integers", with_(0, points.astype(np.int64))
+    yield "tags of the wrong length", with_(4, np.zeros(len(types) + 1 if types is not None else 1, np.int64))
+    yield "the wrong dimension", with_(9, 5 - d.dim)
+    yield "a weld of NaN", with_(10, float("nan"))
+    yield "an array in the metadata", with_(11, {"reader": np.zeros(3)})
+    yield "lower cells as text", with_(8, {"line": "many"})
+    if args[6]:  # polyhedra's faces
+        ids, nf, fs, fn = args[6][0]
+        bad = fn.copy()
+        bad[0] = len(points) + 5
+        yield "a face node past the end", with_(6, [(ids, nf, fs, bad)])
+        yield (
+            "a polyhedron without its faces",
+            with_(6, [(ids[1:], nf[1:], fs[nf[0] :], fn[fs[: nf[0]].sum() :])]),
+        )
+        yield "too few faces", with_(6, [(ids, np.full_like(nf, 3), fs, fn)])
+    if args[7] is not None:  # boundary cells
+        b_off, b_conn, b_types, b_tags = args[7]
+        bad = b_conn.copy()
+        bad[0] = len(points)
+        yield "a boundary id past the end", with_(7, (b_off, bad, b_types, b_tags))
+        bt = b_types.copy()
+        bt[0] = 10
+        yield "a volume cell among the boundary cells", with_(7, (b_off, b_conn, bt, b_tags))
+    if args[12] is not None:  # a lattice
+        g = copy.deepcopy(args[12])
+        g["dims"] = [g["dims"][0] + 1, *g["dims"][1:]]
+        yield "lattice dimensions that are not the points'", with_(12, g)
+        n = int(np.prod([v - 1 for v in args[12]["dims"]]))
+        a = list(args)
+        a[1:4] = [np.arange(0, 8 * n + 1, 8), np.zeros(8 * n, np.int64), np.full(n, 12, np.uint8)]
+        yield "a lattice's hexahedra sent along", Deferred("cells", tuple(a), {}, 3)
+
+
+def test_every_lie_in_the_arguments_is_refused_before_a_builder_runs(files, monkeypatch):
+    seen = 0
+    for name in ("hexes", "poly", "groups", "plane", "lattice"):
+        d = _deferred(files[name], monkeypatch)
+        d.build()  # the genuine one builds
+        for what, lie in _lies(d):
+            # a point id out of range: the builder's own check, in the words a bad file gets
+            refusal = MeshError if ("past the end" in what or "negative" in what) else Inconsistent
+            with pytest.raises(refusal):
+                lie.build()
+                pytest.fail(f"{name}: {what} was accepted")
+            seen += 1
+    assert seen > 60
+    img = _deferred(files["image"], monkeypatch)
+    axes, tags, tag_name, meta = img.args
+    lies = [
+        [[axes[0], axes[1]], tags, tag_name, meta],  # two axes
+        [[axes[0], axes[1], np.array([0.0, np.inf])], tags, tag_name, meta],
+        [[axes[0], axes[1], np.array([0.0])], tags, tag_name, meta],
+        [axes, np.zeros(7, np.int64), tag_name, meta],
+        [axes, tags, 3, meta],
+        [axes, tags, tag_name, [1]],
+    ]
+    for lie in lies:
+        with pytest.raises(Inconsistent):
+            Deferred("image", tuple(lie), {}, 3).build()
+    with pytest.raises(Inconsistent):
+        Deferred("exec", (), {}, 3).build()
+    with pytest.raises(Inconsistent):
+        Deferred("image", img.args, {"group_names": object()}, 3).build()
+
+
+def test_the_caller_words_a_lie_as_a_crash_and_a_huge_image_as_memory(files, monkeypatch):
+    d = _deferred(files["hexes"], monkeypatch)
+    c = d.args[2].copy()
+    c[0] = 10**9
+    lie = Deferred("cells", (*d.args[:2], c, *d.args[3:]), {}, 3)
+    with pytest.raises(MeshError) as err:  # a point id out of range: the builder's words
+        _built(lie, "h.vtk", None, 1 << 32)
+    assert "cells refer to missing points" in str(err.value) and "h.vtk" in str(err.value)
+    o = d.args[1].copy()
+    o[0] = 1
+    with pytest.raises(MeshError) as err:  # an inconsistent CSR: a crashed reader
+        _built(Deferred("cells", (d.args[0], o, *d.args[2:]), {}, 3), "h.vtk", None, 1 << 32)
+    assert str(err.value) == crash_sentence("h.vtk")
+    img = _deferred(files["image"], monkeypatch)
+    big = [np.arange(2001.0)] * 3  # 8e9 cells
+    with pytest.raises(MeshError) as err:
+        _built(Deferred("image", (big, None, None, img.args[3]), {}, 3), "a.vti", None, 1 << 32)
+    assert str(err.value) == memory_sentence("a.vti", 1 << 32)
+    # and a builder's own refusal is worded as read_mesh words it
+    pts = d.args[0].copy()
+    pts[:, 0] = 0.0  # every hexahedron flat
+    flat = Deferred("cells", (pts, *d.args[1:]), {}, 3)
+    with pytest.raises(MeshError) as err:
+        _built(flat, str(files["hexes"]), None, 1 << 32)
+    with pytest.raises(MeshError) as ref:
+        read_mesh(_write_flat(files["hexes"].parent / "flat.vtk"))
+    assert str(err.value).split(":", 1)[1] == str(ref.value).split(":", 1)[1]
+
+
+def _write_flat(path: Path) -> str:
+    p, h = vc.grid(3, 3, 3)
+    p = p.copy()
+    p[:, 0] = 0.0
+    return vc.write_legacy(str(path), vc.unstructured(p, [(12, h)]), 42, True)
