@@ -14,6 +14,7 @@ from test_read_raw_answer import same
 
 from models.errors import MeshError
 from models.mesh import deferred, zygote
+from models.mesh.build import build_deferred
 from models.mesh.deferred import Deferred, Inconsistent
 from models.mesh.read import read_mesh
 from models.mesh.sandbox import _built, _read_in_child, call_in_child, crash_sentence, memory_sentence
@@ -138,12 +139,12 @@ def test_every_lie_in_the_arguments_is_refused_before_a_builder_runs(files, monk
     seen = 0
     for name in ("hexes", "poly", "groups", "plane", "lattice"):
         d = _deferred(files[name], monkeypatch)
-        d.build()  # the genuine one builds
+        build_deferred(d)  # the genuine one builds
         for what, lie in _lies(d):
             # a point id out of range: the builder's own check, in the words a bad file gets
             refusal = MeshError if ("past the end" in what or "negative" in what) else Inconsistent
             with pytest.raises(refusal):
-                lie.build()
+                build_deferred(lie)
                 pytest.fail(f"{name}: {what} was accepted")
             seen += 1
     assert seen > 60
@@ -159,11 +160,11 @@ def test_every_lie_in_the_arguments_is_refused_before_a_builder_runs(files, monk
     ]
     for lie in lies:
         with pytest.raises(Inconsistent):
-            Deferred("image", tuple(lie), {}, 3).build()
+            build_deferred(Deferred("image", tuple(lie), {}, 3))
     with pytest.raises(Inconsistent):
-        Deferred("exec", (), {}, 3).build()
+        build_deferred(Deferred("exec", (), {}, 3))
     with pytest.raises(Inconsistent):
-        Deferred("image", img.args, {"group_names": object()}, 3).build()
+        build_deferred(Deferred("image", img.args, {"group_names": object()}, 3))
 
 
 def test_the_caller_words_a_lie_as_a_crash_and_a_huge_image_as_memory(files, monkeypatch):

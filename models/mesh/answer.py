@@ -420,7 +420,7 @@ def _decode(x, arrays: list, depth: int):
     if tag == "Mesh":
         check_mesh(obj)
     elif tag == "Deferred":
-        pass  # a builder's arguments: Deferred.build checks them all before building
+        pass  # a builder's arguments: build.build_deferred checks them all before building
     else:
         _check_csr(obj.offsets, obj.nodes, None)
         _need(_ids(obj.cell) and obj.cell.shape == (len(obj.offsets) - 1,))

@@ -383,6 +383,21 @@ def _reverse_rows(offsets: np.ndarray, values: np.ndarray, mask: np.ndarray) -> 
     return values[src]
 
 
+def build_deferred(d, memory_bytes: int | None = None) -> Mesh:
+    """The Mesh of a read whose builder the reading child deferred (models.mesh.deferred), built
+    here after every check of its arguments: deferred.Inconsistent for an argument that lies,
+    MemoryError for an image beyond memory_bytes, MeshError as the builder refuses."""
+    deferred.check(d)
+    if d.builder == "cells":
+        mesh = mesh_from_cells(*deferred.cells_args(d.args, d.dim))
+    else:
+        mesh = mesh_from_image(*deferred.image_args(d.args, memory_bytes))
+        if mesh is None:
+            raise deferred.Inconsistent("image axes")
+    mesh.meta.update(d.meta)
+    return mesh
+
+
 def mesh_from_image(axes, tags, tag_name, meta: dict) -> Mesh | None:
     """The Mesh of a whole 3D axis-aligned image (every dimension >= 2 points, no blanking), built
     directly: the points and hexahedra from the axes (x fastest, VTK's numbering), each cell's signed

@@ -11,7 +11,7 @@ tetrahedral or hexahedral file, and for image data a few numbers instead of the 
 grid comes as its points and dimensions, its hexahedra made again by the caller (lattice.hexahedra).
 
 The caller trusts nothing the child wrote (a child taken over by a reader exploit may lie):
-`Deferred.build` checks every invariant the builders rely on before any of them runs (dtypes and
+`build.build_deferred` checks every invariant the builders rely on before any of them runs (dtypes and
 shapes, CSR offsets from 0 to the end, each cell's node count against its type, polyhedra's faces,
 boundary cells, plain metadata) and raises Inconsistent, which the caller words as a crashed
 reader. The builders then check what they check for any reader, before anything indexes with an
@@ -52,32 +52,20 @@ class Deferred:
     """A builder's arguments from the reading child. builder: "cells" (build.mesh_from_cells) or
     "image" (build.mesh_from_image); args: its positional arguments (for "cells" with a lattice
     hint, offsets, connectivity and types are None: the caller makes them); meta: what the reader
-    adds to the Mesh's meta after the build (group names, the reader's name); dim: the Mesh's."""
+    adds to the Mesh's meta after the build (group names, the reader's name); dim: the Mesh's.
+    build.build_deferred checks and builds it."""
 
     builder: str
     args: tuple
     meta: dict
     dim: int
 
-    def build(self, memory_bytes: int | None = None):
-        """The Mesh, built here after every check; Inconsistent for an argument that lies,
-        MemoryError for an image beyond memory_bytes, MeshError as the builder refuses."""
-        from models.mesh import build
 
-        if type(self.builder) is not str or type(self.args) is not tuple or type(self.dim) is not int:
-            raise Inconsistent("malformed build")
-        _plain(self.meta)
-        if self.builder == "cells":
-            mesh = build.mesh_from_cells(*_cells_args(self.args, self.dim))
-        elif self.builder == "image":
-            axes, tags, tag_name, meta = _image_args(self.args, memory_bytes)
-            mesh = build.mesh_from_image(axes, tags, tag_name, meta)
-            if mesh is None:
-                raise Inconsistent("image axes")
-        else:
-            raise Inconsistent("unknown builder")
-        mesh.meta.update(self.meta)
-        return mesh
+def check(d: Deferred) -> None:
+    """The shape of a Deferred from the child (its builder's arguments: cells_args, image_args)."""
+    _need(type(d) is Deferred and type(d.builder) is str and type(d.args) is tuple and type(d.dim) is int)
+    _need(d.builder in ("cells", "image"))
+    _plain(d.meta)
 
 
 def cells(points, offsets, conn, cell_types, tags, tag_name, poly_faces, bnd, lower, dim, weld, meta, grid):
@@ -145,7 +133,8 @@ def _plain(x, depth: int = 0) -> None:
         _plain(v, depth + 1)
 
 
-def _cells_args(args: tuple, dim: int) -> tuple:
+def cells_args(args: tuple, dim: int) -> tuple:
+    """mesh_from_cells' arguments from the child, checked (Inconsistent); a lattice's hexahedra made here."""
     _need(len(args) == 13)
     points, offsets, conn, types, tags, tag_name, poly_faces, bnd, lower, d, weld, meta, grid = args
     _need(d == dim and dim in (2, 3))
@@ -212,7 +201,9 @@ def _cells_args(args: tuple, dim: int) -> tuple:
     return (points, offsets, conn, types, tags, tag_name, poly_faces, bnd, lower, dim, weld, meta, grid)
 
 
-def _image_args(args: tuple, memory_bytes: int | None) -> tuple:
+def image_args(args: tuple, memory_bytes: int | None) -> tuple:
+    """mesh_from_image's arguments from the child, checked (Inconsistent); MemoryError for an image
+    beyond memory_bytes."""
     _need(len(args) == 4)
     axes, tags, tag_name, meta = args
     _need(type(axes) is list and len(axes) == 3)

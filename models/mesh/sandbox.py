@@ -334,12 +334,12 @@ def _built(got, path: str, file_format: str | None, memory_bytes: int):
     """The Mesh of a read the child answered: built here from its arguments when it is a Deferred
     (checked first: an inconsistent one is worded as a crashed reader); refused as read_mesh
     refuses, so the words are the in-process read's."""
-    from models.mesh import deferred, read
+    from models.mesh import build, deferred, read
 
     if not isinstance(got, deferred.Deferred):
         return got
     try:
-        return got.build(memory_bytes)
+        return build.build_deferred(got, memory_bytes)
     except deferred.Inconsistent:
         raise MeshError(crash_sentence(path, file_format)) from None
     except MemoryError:
