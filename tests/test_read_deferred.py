@@ -5,6 +5,7 @@ send checked before any builder runs (refused as a crashed reader)."""
 from __future__ import annotations
 
 import copy
+import os
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,14 @@ from models.mesh import deferred, zygote
 from models.mesh.build import build_deferred
 from models.mesh.deferred import Deferred, Inconsistent
 from models.mesh.read import read_mesh
-from models.mesh.sandbox import _built, _read_in_child, call_in_child, crash_sentence, memory_sentence
+from models.mesh.sandbox import (
+    _built,
+    _read_in_child,
+    call_in_child,
+    crash_sentence,
+    memory_sentence,
+    read_mesh_safe,
+)
 
 DATA = Path(__file__).parent / "data"
 
@@ -201,3 +209,20 @@ def _write_flat(path: Path) -> str:
     p = p.copy()
     p[:, 0] = 0.0
     return vc.write_legacy(str(path), vc.unstructured(p, [(12, h)]), 42, True)
+
+
+def test_a_held_child_is_released_after_the_build_and_no_descriptor_leaks(files):
+    """read_mesh_safe holds the lending child until its Mesh is built (its exit and the zygote's
+    next fork come after), then closes the pipe: as many open descriptors after reads as before."""
+    assert zygote.wait_ready(120)
+    try:
+        path = str(files["hexes"])
+        read_mesh_safe(path)
+        before = len(os.listdir("/proc/self/fd"))
+        for _ in range(5):
+            read_mesh_safe(path)
+        with pytest.raises(MeshError):
+            read_mesh_safe(str(files["hexes"].parent / "missing.vtk"))
+        assert len(os.listdir("/proc/self/fd")) == before
+    finally:
+        zygote.shutdown()

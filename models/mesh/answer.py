@@ -79,8 +79,7 @@ def dump(answer: tuple, fd: int, lend: bool = False) -> list:
         head["lent"] = True
         table = [[a.dtype.name, list(a.shape), a.ctypes.data, a.nbytes] for a in arrays]
         body = json.dumps({**head, "arrays": table}).encode()
-        os.ftruncate(fd, 16 + len(body))
-        _pwrite(fd, MAGIC + len(body).to_bytes(8, "little") + body, 0)
+        _pwrite(fd, MAGIC + len(body).to_bytes(8, "little") + body, 0)  # (the memfd grows to it)
         return arrays
     table = []
     # the table's offsets depend on the header's length, which depends on the offsets: lay the

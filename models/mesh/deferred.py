@@ -28,9 +28,11 @@ import numpy as np
 # set in the reading child only (models.mesh.sandbox._read_in_child): builders return a Deferred
 DEFER = False
 
-_CELLS_3D = (10, 12, 13, 14, 15, 16, 42)
-_CELLS_2D = (5, 7, 9)
-_POLYHEDRA = (15, 16, 42)
+_ALLOWED = {d: np.zeros(256, bool) for d in (2, 3)}  # element types by dimension
+_ALLOWED[3][[10, 12, 13, 14, 15, 16, 42]] = True
+_ALLOWED[2][[5, 7, 9]] = True
+_POLYHEDRA = np.zeros(256, bool)
+_POLYHEDRA[[15, 16, 42]] = True
 # nodes per cell by type: exactly (> 0), or at least (< 0: -minimum)
 _SIZE = np.zeros(256, np.int64)
 for _t, _n in {5: 3, 9: 4, 7: -3, 10: 4, 12: 8, 13: 6, 14: 5, 15: 10, 16: 12, 42: -4}.items():
@@ -111,6 +113,20 @@ def _csr(offsets, values) -> np.ndarray:
     return sizes
 
 
+def _cells_fit(offsets, values, types: np.ndarray, table: np.ndarray) -> bool:
+    """A CSR (offsets, values) of cells of `types`, each with the node count `table` gives its type.
+    One type of fixed size (the common file): the offsets are 0, k, 2k, ... to len(values)."""
+    _need(_ints(offsets) and _ints(values) and offsets.shape == (types.size + 1,))
+    if types.size:
+        t = int(types[0])
+        k = int(table[t])
+        if k > 0 and bool((types == t).all()):
+            return values.size == k * types.size and bool(
+                (offsets == np.arange(0, k * types.size + 1, k, dtype=offsets.dtype)).all()
+            )
+    return _sizes_fit(types, _csr(offsets, values), table)
+
+
 def _sizes_fit(types: np.ndarray, sizes: np.ndarray, table: np.ndarray) -> bool:
     want = table[types]
     if np.any(want == 0):
@@ -172,10 +188,8 @@ def cells_args(args: tuple, dim: int) -> tuple:
             offsets, conn, types = hexahedra(dims)
     _need(isinstance(types, np.ndarray) and types.dtype == np.uint8 and types.ndim == 1)
     n_cells = types.size
-    _need(_ints(offsets) and offsets.shape == (n_cells + 1,) and conn is not None)
-    sizes = _csr(offsets, conn)
-    _need(_sizes_fit(types, sizes, _SIZE))
-    _need(bool(np.isin(types, _CELLS_3D if dim == 3 else _CELLS_2D).all()))
+    _need(_cells_fit(offsets, conn, types, _SIZE))
+    _need(bool(_ALLOWED[dim][types].all()))
     _need(tags is None or (_ints(tags) and tags.shape == (n_cells,)))
     _need(type(poly_faces) is list)
     seen = []
@@ -188,15 +202,15 @@ def cells_args(args: tuple, dim: int) -> tuple:
         _need(fsizes.size == int(nfaces.sum()) and (fsizes.size == 0 or int(fsizes.min()) >= 3))
         _need(fnodes.size == int(fsizes.sum()))  # (their point ids: the builder checks them)
         seen.append(ids)
-    poly = np.flatnonzero(np.isin(types, _POLYHEDRA))
+    poly = np.flatnonzero(_POLYHEDRA[types]) if poly_faces else np.zeros(0, np.int64)
+    _need(poly_faces or not _POLYHEDRA[types].any())
     got = np.sort(np.concatenate(seen)) if seen else np.zeros(0, np.int64)
     _need(np.array_equal(got, poly))  # each polyhedron's faces once, and only polyhedra's
     if bnd is not None:
         _need(type(bnd) is tuple and len(bnd) == 4)
         b_off, b_conn, b_types, b_tags = bnd
         _need(isinstance(b_types, np.ndarray) and b_types.dtype == np.uint8 and b_types.ndim == 1)
-        _need(_ints(b_off) and b_off.shape == (b_types.size + 1,))
-        _need(_sizes_fit(b_types, _csr(b_off, b_conn), _BSIZE))
+        _need(_cells_fit(b_off, b_conn, b_types, _BSIZE))
         _need(b_tags is None or (_ints(b_tags) and b_tags.shape == b_types.shape))
     return (points, offsets, conn, types, tags, tag_name, poly_faces, bnd, lower, dim, weld, meta, grid)
 

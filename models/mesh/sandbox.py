@@ -44,6 +44,7 @@ import pickle
 import re
 import select
 import signal
+import struct
 import threading
 import time
 
@@ -202,16 +203,22 @@ def read_mesh_safe(
             with deadline(timeout_s):
                 return read.read_mesh(path, **kwargs, **({} if native else {"native": False}))
         memory_bytes = _default_memory() if memory_bytes is None else memory_bytes
-        got = call_in_child(
-            _read_in_child,
-            (path, kwargs),
-            path=path,
-            file_format=file_format,
-            timeout_s=timeout_s,
-            memory_bytes=memory_bytes,
-            zygote=zygote,
-        )
-        return _built(got, path, file_format, memory_bytes)
+        held: list[int] = []
+        try:
+            got = call_in_child(
+                _read_in_child,
+                (path, kwargs),
+                path=path,
+                file_format=file_format,
+                timeout_s=timeout_s,
+                memory_bytes=memory_bytes,
+                zygote=zygote,
+                hold=held,
+            )
+            return _built(got, path, file_format, memory_bytes)
+        finally:  # the child ends now, and the zygote forks its next spare: not during the build
+            for fd in held:
+                os.close(fd)
     except read.NativeReaderNeeded:
         raise
     except MeshError as exc:
@@ -349,12 +356,22 @@ def _built(got, path: str, file_format: str | None, memory_bytes: int):
 
 
 def call_in_child(
-    fn, args=(), *, path, file_format=None, timeout_s: float, memory_bytes: int, zygote: bool = True
+    fn,
+    args=(),
+    *,
+    path,
+    file_format=None,
+    timeout_s: float,
+    memory_bytes: int,
+    zygote: bool = True,
+    hold: list | None = None,
 ):
     """fn(*args) in a forked child under the limits; its result (numpy arrays out of band, through
     shared memory), or the MagnetError it raised; a crash, hang or memory blow-up as a MeshError.
     The child is forked by this process's reader zygote (models.mesh.zygote) when it is running
-    and `zygote`, else by this process."""
+    and `zygote`, else by this process. hold: a child that lent its arrays waits until the pipe
+    put in this list is closed (by the caller, when it is done: the child's exit and the zygote's
+    next fork then do not compete with the caller's work on the result); closed here without it."""
     shm = release = -1
     pid = None
     try:
@@ -382,7 +399,10 @@ def call_in_child(
         if shm >= 0:
             os.close(shm)
         if release >= 0:
-            os.close(release)  # the child may end now
+            if hold is not None:
+                hold.append(release)
+            else:
+                os.close(release)  # the child may end now
 
 
 def _direct(fn, args, shm: int, timeout_s: float, memory_bytes: int):
@@ -427,7 +447,9 @@ def _via_zygote(fn, args, timeout_s: float, memory_bytes: int):
         return None
     try:
         try:
-            request = pickle.dumps((fn, args, memory_bytes, timeout_s, dict(os.environ), os.getcwd()))
+            request = struct.pack("<d", timeout_s) + pickle.dumps(
+                (fn, args, memory_bytes, timeout_s, dict(os.environ), os.getcwd())
+            )  # the deadline first, for the zygote: it never unpickles
         except Exception:  # noqa: BLE001  (arguments that do not pickle: a direct fork takes them)
             return None
         shm = os.memfd_create("magnet-read", os.MFD_CLOEXEC | os.MFD_ALLOW_SEALING)

@@ -34,6 +34,7 @@ import pickle
 import select
 import signal
 import socket
+import struct
 import subprocess
 import sys
 import threading
@@ -365,20 +366,30 @@ def _isolate() -> None:
     resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
 
 
-def _limit(memory_bytes: int, timeout_s: float) -> None:
-    """This read's limits: its address space may grow by memory_bytes from here, and it may use
-    timeout_s (+2) seconds of CPU from here (a spare child has used some waiting for its request)."""
+def _usage() -> tuple[int, float]:
+    """(address space in bytes, CPU seconds) this process uses now."""
     import resource
 
-    _, hard = resource.getrlimit(resource.RLIMIT_AS)
     with open("/proc/self/statm") as f:
         used = int(f.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return used, usage.ru_utime + usage.ru_stime
+
+
+def _limit(memory_bytes: int, timeout_s: float, usage: tuple[int, float] | None = None) -> None:
+    """This read's limits: its address space may grow by memory_bytes from here, and it may use
+    timeout_s (+2) seconds of CPU from here (a spare child has used some waiting for its request).
+    usage: _usage() as a spare read it just before its request came (it does not grow while the
+    spare waits), saving the request those reads."""
+    import resource
+
+    used, cpu_used = usage if usage is not None else _usage()
+    _, hard = resource.getrlimit(resource.RLIMIT_AS)
     soft = used + int(memory_bytes)
     if hard != resource.RLIM_INFINITY:
         soft = min(soft, hard)
     resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
-    usage = resource.getrusage(resource.RUSAGE_SELF)
-    cpu = int(usage.ru_utime + usage.ru_stime + 0.999) + int(timeout_s) + 2
+    cpu = int(cpu_used + 0.999) + int(timeout_s) + 2
     _, cpu_hard = resource.getrlimit(resource.RLIMIT_CPU)
     if cpu_hard == resource.RLIM_INFINITY or cpu < cpu_hard:
         resource.setrlimit(resource.RLIMIT_CPU, (cpu, cpu_hard))
@@ -394,6 +405,7 @@ def _child(
     isolated: bool = False,
     tell: int = -1,
     release: int = -1,
+    usage: tuple[int, float] | None = None,
 ) -> None:
     """One read in this (forked) process under the limits, its answer into the memfd, one byte "1"
     on w when it is whole (first on `tell`, the caller's own pipe, when the zygote handed one: the
@@ -404,7 +416,7 @@ def _child(
     try:
         if not isolated:
             _isolate()
-        _limit(memory_bytes, timeout_s)
+        _limit(memory_bytes, timeout_s, usage)
         try:
             answer = ("ok", fn(*args))
         except MagnetError as exc:
@@ -481,7 +493,7 @@ def serve(fd: int) -> None:
             os.close(f)
         if not fds:
             continue
-        timeout_s = pickle.loads(msg)[3]
+        timeout_s = struct.unpack_from("<d", msg)[0]  # (the request itself is the child's to unpickle)
         try:
             child, r = _hand(spare, msg, fds[:3], sock, paths)
         finally:
@@ -526,13 +538,14 @@ def _spare(conn: socket.socket, w: int, paths: list[str], warm: bool) -> None:
         _isolate()
         if warm:
             _prewarm(conn, paths)
+        usage = _usage()
         msg, fds, _, _ = socket.recv_fds(conn, _MSG, 3)
         conn.close()
         for f in fds[3:]:
             os.close(f)
         if not msg or not fds:
             os._exit(0)
-        fn, args, memory_bytes, timeout_s, env, cwd = pickle.loads(msg)
+        fn, args, memory_bytes, timeout_s, env, cwd = pickle.loads(msg[8:])
         _environ(env)
         try:
             os.chdir(cwd)
@@ -550,6 +563,7 @@ def _spare(conn: socket.socket, w: int, paths: list[str], warm: bool) -> None:
         isolated=True,
         tell=fds[1] if len(fds) > 1 else -1,
         release=fds[2] if len(fds) > 2 else -1,
+        usage=usage,
     )
 
 
@@ -625,18 +639,30 @@ def _prewarm(conn: socket.socket, paths: list[str]) -> None:
     """A spare's warm-up while it waits, given up as soon as the request comes (checked between
     steps of a few milliseconds): the warm-up files read again, so the pages the readers write
     (reference counts, VTK's and numpy's state) are copied from the zygote's now, not during the
-    read; then heap memory touched once and kept (glibc: blocks up to 1 GiB from the heap, not
-    given back when freed), so the read's arrays land on pages already mapped. Trusted files only
-    (written by the zygote itself)."""
+    read, each read as the request's will be (its builder deferred: sandbox._read_in_child) and
+    its answer dumped as the request's will be (lent, into a scratch memfd), and a request's own
+    steps once (unpickled, its environment applied); then heap memory touched once and kept (glibc:
+    blocks up to 1 GiB from the heap, not given back when freed), so the read's arrays land on
+    pages already mapped. Trusted files only (written by the zygote itself)."""
+    from models.mesh import deferred
     from models.mesh.read import read_mesh
 
-    for path in paths:
-        if select.select([conn], [], [], 0)[0]:
-            return
-        try:
-            read_mesh(path)
-        except Exception:  # noqa: BLE001
-            pass
+    deferred.DEFER = True  # as sandbox._read_in_child reads (and only for these reads)
+    scratch = os.memfd_create("magnet-warm", os.MFD_CLOEXEC)
+    try:
+        for path in paths:
+            if select.select([conn], [], [], 0)[0]:
+                return
+            try:
+                dump(("ok", read_mesh(path)), scratch, lend=True)
+                os.ftruncate(scratch, 0)
+            except Exception:  # noqa: BLE001
+                pass
+        request = (read_mesh, ("x", {"weld": None}), 1 << 30, 60.0, dict(os.environ), os.getcwd())
+        _environ(pickle.loads(pickle.dumps(request))[4])
+    finally:
+        deferred.DEFER = False
+        os.close(scratch)
     try:
         import ctypes
 
