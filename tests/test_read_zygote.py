@@ -174,3 +174,42 @@ def test_the_answer_comes_straight_from_the_child_and_the_zygotes_word_follows(r
     assert str(err.value) == crash_sentence(PATH)
     assert not z.owed
     assert _call(os.getppid) == ready and zygote.pid() == ready
+
+
+def _announced(timeout_s: float = 30.0) -> int:
+    """The pid of the spare the zygote announced to this process (its request socket with it)."""
+    z = zygote.acquire(start=False)
+    assert z is not None
+    try:
+        limit = time.monotonic() + timeout_s
+        while time.monotonic() < limit:
+            z._direct_poll()
+            if z.spare is not None:
+                return z.spare[0]
+            time.sleep(0.02)
+    finally:
+        zygote.release(z)
+    raise AssertionError("no spare announced")
+
+
+def test_the_request_goes_straight_to_the_announced_spare_and_the_zygote_watches_it(ready):
+    """The zygote announces each spare (its pid and request socket): the caller hands the request
+    to it without the zygote's hop, and tells the zygote, which still enforces the deadline and
+    words the end; a dead announced spare sends the request the zygote's way."""
+    z = zygote.acquire(start=False)
+    handed = z.used
+    zygote.release(z)
+    for _ in range(3):
+        spare = _announced()
+        assert _call(os.getpid) == spare
+    assert z.used == handed  # none went through the zygote's hands
+    spare = _announced()
+    with pytest.raises(MeshError) as err:  # the zygote's deadline and wording, for a direct request
+        _call(time.sleep, 30, timeout_s=1)
+    assert str(err.value) == timeout_sentence(PATH, 1)
+    spare = _announced()
+    os.kill(spare, signal.SIGKILL)
+    time.sleep(0.1)
+    pid = _call(os.getpid)
+    assert pid != spare and z.used == pid  # a fresh child, through the zygote
+    assert zygote.pid() == ready

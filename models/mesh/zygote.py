@@ -8,7 +8,10 @@ reader modules, once; its fork costs about a millisecond.
 One zygote per reading process, started lazily in the background at its first sandboxed read (that
 read, and any read while the zygote imports, forks the caller as before). Then, per read, through a
 Unix socket (SOCK_SEQPACKET): the caller sends (fn, args, limits, environment, working folder) and
-a memfd (socket.send_fds); the zygote hands them to its spare child (forked ahead of the request,
+a memfd (socket.send_fds) straight to the spare child the zygote announced (its pid and request
+socket, sent to the caller when it is forked), and tells the zygote, which watches it from then on
+(one wake-up less than the zygote's hand: 0.76 ms against 1.3 ms for an empty read here); where no
+spare is announced yet, or it died waiting, the zygote hands the request to its spare child (forked ahead of the request,
 isolated and warmed up while it waits: _spare, _prewarm), which reads under this read's limits
 (_child below: RLIMIT_AS, RLIMIT_CPU) and writes its answer into the memfd; the next spare is
 forked after the answer (a spare found dead at a request: a child forked then takes the read). One
@@ -138,6 +141,8 @@ class Zygote:
         self.ready = False
         self.owed = False  # a read answered straight to us: the zygote's "done" for it still to come
         self.lend = False  # its children lend their answer's arrays (process_vm_readv works here)
+        self.spare: tuple[int, socket.socket] | None = None  # the spare's pid and request socket
+        self.used = 0  # the pid of the last child the zygote handed a request (its announcement is stale)
         self.lock = threading.Lock()
 
     def poll_ready(self) -> bool:
@@ -167,8 +172,11 @@ class Zygote:
         pid = None
         done = False
         try:
+            fds = [shm, w] + ([release] if release >= 0 else [])
             try:
-                socket.send_fds(self.sock, [request], [shm, w] + ([release] if release >= 0 else []))
+                pid = self._direct(request, fds, timeout_s)
+                if pid is None:
+                    socket.send_fds(self.sock, [request], fds)
             except OSError as exc:
                 raise ZygoteLost(f"cannot send to the zygote ({exc.strerror})") from None
             finally:
@@ -192,8 +200,12 @@ class Zygote:
                     continue
                 kind, value = got
                 if kind == "pid":
-                    pid = value
+                    pid = self.used = value
+                    if self.spare is not None and self.spare[0] == value:  # announced, then handed
+                        self._drop_spare()
                 elif kind == "done":
+                    if value[0] == "stale":
+                        raise ZygoteLost("a request went to a spare that had one already")
                     done = True
                     return (*value, pid)
         finally:
@@ -203,6 +215,33 @@ class Zygote:
                     os.kill(pid, signal.SIGKILL)
                 except (ProcessLookupError, PermissionError):
                     pass
+
+    def _direct(self, request: bytes, fds: list[int], timeout_s: float) -> int | None:
+        """Hand the request straight to the spare the zygote announced (one hop less: the zygote
+        is told after, to watch it), and return its pid; None where there is no spare announced
+        yet, or it cannot take it (the zygote then hands the request: to the spare, or a child
+        forked then)."""
+        self._direct_poll()
+        if self.spare is None:
+            return None
+        pid, conn = self.spare
+        self.spare = None
+        try:
+            socket.send_fds(conn, [request], fds)
+        except OSError:  # it died waiting: the zygote's way
+            return None
+        finally:
+            conn.close()
+        self.sock.send(b"S" + struct.pack("<qd", pid, timeout_s))
+        return pid
+
+    def _direct_poll(self) -> None:
+        """Take an announcement that came since the last read (after the zygote's word on that
+        read, when owed: _settle)."""
+        self._settle()
+        while select.select([self.sock], [], [], 0)[0]:
+            if self._next([self.sock], time.monotonic() + _SETTLE_S, "the zygote did not answer") is not None:
+                raise ZygoteLost("the zygote spoke out of turn")
 
     def _settle(self) -> None:
         """Take the zygote's word on the last read when it answered straight to us (the zygote
@@ -230,16 +269,33 @@ class Zygote:
                 return None
             if pipe is not None and pipe in ready:
                 return os.read(pipe, 1)
-            msg = self.sock.recv(4096)
+            msg, fds, _, _ = socket.recv_fds(self.sock, 4096, 1)
         except InterruptedError:
             return None
         except OSError as exc:
             raise ZygoteLost(f"the zygote's socket broke ({exc.strerror})") from None
         if not msg:
             raise ZygoteLost("the zygote ended")
-        return pickle.loads(msg)
+        got = pickle.loads(msg)
+        if got[0] == "spare":  # the next spare's pid and request socket: kept for the next read
+            conn = socket.socket(fileno=fds[0]) if fds else None
+            if conn is not None and got[1] == self.used:  # a spare the zygote handed a request
+                conn.close()
+            elif conn is not None:
+                self._drop_spare()
+                self.spare = (got[1], conn)
+            return None
+        for f in fds:
+            os.close(f)
+        return got
+
+    def _drop_spare(self) -> None:
+        if self.spare is not None:
+            self.spare[1].close()
+            self.spare = None
 
     def close(self) -> None:
+        self._drop_spare()
         try:
             self.sock.close()
         finally:
@@ -311,6 +367,7 @@ def lost(z: Zygote, why: str) -> None:
 
 def _discard(z: Zygote) -> None:
     try:
+        z._drop_spare()
         z.sock.close()
     except OSError:
         pass
@@ -482,6 +539,7 @@ def serve(fd: int) -> None:
 
     probe = ctypes.create_string_buffer(_PROBE, len(_PROBE))  # the caller reads it: can it borrow?
     sock.send(b"R" + ctypes.addressof(probe).to_bytes(8, "little"))
+    _announce(sock, spare)
     while True:
         try:
             msg, fds, _, _ = socket.recv_fds(sock, _MSG, 3)
@@ -491,17 +549,33 @@ def serve(fd: int) -> None:
             break
         for f in fds[3:]:
             os.close(f)
-        if not fds:
-            continue
-        timeout_s = struct.unpack_from("<d", msg)[0]  # (the request itself is the child's to unpickle)
-        try:
-            child, r = _hand(spare, msg, fds[:3], sock, paths)
-        finally:
+        if not fds and msg[:1] == b"S" and len(msg) == 17:
+            if spare is None:
+                sock.send(pickle.dumps(("done", ("stale", False))))
+                continue
+            # the caller handed the request to the spare itself: watch it from here
+            pid, timeout_s = struct.unpack_from("<qd", msg, 1)
+            if pid != spare[0]:  # (cannot happen: the caller drops an announcement once handed)
+                sock.send(pickle.dumps(("done", ("stale", False))))
+                continue
+            child, r = spare[0], spare[2]
+            spare[1].close()
             spare = None
-            for f in fds[:3]:
-                os.close(f)
+            told = True
+        elif not fds:
+            continue
+        else:
+            timeout_s = struct.unpack_from("<d", msg)[0]  # (the request itself is the child's to unpickle)
+            try:
+                child, r = _hand(spare, msg, fds[:3], sock, paths)
+            finally:
+                spare = None
+                for f in fds[:3]:
+                    os.close(f)
+            told = False
         try:
-            sock.send(pickle.dumps(("pid", child)))
+            if not told:
+                sock.send(pickle.dumps(("pid", child)))
             status = _watch(child, r, sock, timeout_s, pending)
         finally:
             os.close(r)
@@ -509,10 +583,20 @@ def serve(fd: int) -> None:
             break
         sock.send(pickle.dumps(("done", status)))
         spare = _fork_spare(sock, paths)  # after the answer: its fork is off the next read's path
+        _announce(sock, spare)
     if spare is not None:
         spare[1].close()  # the spare's request channel ends: it exits
     sock.close()
     shutil.rmtree(folder, ignore_errors=True)
+
+
+def _announce(sock: socket.socket, spare) -> None:
+    """Tell the caller the spare's pid and give it the spare's request socket: its next request
+    goes straight to the spare (Zygote._direct)."""
+    try:
+        socket.send_fds(sock, [pickle.dumps(("spare", spare[0]))], [spare[1].fileno()])
+    except OSError:
+        pass
 
 
 def _fork_spare(sock: socket.socket, paths: list[str], warm: bool = True):
