@@ -226,3 +226,19 @@ def test_a_held_child_is_released_after_the_build_and_no_descriptor_leaks(files)
         assert len(os.listdir("/proc/self/fd")) == before
     finally:
         zygote.shutdown()
+
+
+def test_the_probe_says_whether_arrays_can_be_borrowed():
+    """answer.can_borrow: True where process_vm_readv reads the bytes expected at that address of
+    that process; False for an address not mapped, other bytes, or a process that is not there
+    (the zygote's children then answer through the memfd)."""
+    import ctypes
+
+    from models.mesh import answer
+
+    buf = ctypes.create_string_buffer(b"probe", 5)
+    at = ctypes.addressof(buf)
+    assert answer.can_borrow(os.getpid(), at, b"probe")
+    assert not answer.can_borrow(os.getpid(), at, b"other")
+    assert not answer.can_borrow(os.getpid(), 4096, b"probe")  # the first page is never mapped
+    assert not answer.can_borrow(2**22 + 12345, at, b"probe")  # past the default pid_max: no such process
