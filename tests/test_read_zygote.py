@@ -78,7 +78,7 @@ def _alive_children(pid: int) -> list[int]:
             with open(f"/proc/{k}/stat") as f:
                 if f.read().rsplit(")", 1)[1].split()[0] != "Z":
                     alive.append(k)
-        except FileNotFoundError:
+        except (FileNotFoundError, ProcessLookupError):  # ended and collected meanwhile
             pass
     return alive
 
