@@ -215,6 +215,11 @@ def cells_args(args: tuple, dim: int) -> tuple:
     return (points, offsets, conn, types, tags, tag_name, poly_faces, bnd, lower, dim, weld, meta, grid)
 
 
+def image_bytes(n_points: int, n_cells: int) -> int:
+    """The bytes a built image Mesh of n_points and n_cells takes (_IMAGE_BYTES)."""
+    return n_points * _IMAGE_BYTES[0] + n_cells * _IMAGE_BYTES[1]
+
+
 def image_args(args: tuple, memory_bytes: int | None) -> tuple:
     """mesh_from_image's arguments from the child, checked (Inconsistent); MemoryError for an image
     beyond memory_bytes."""
@@ -227,7 +232,7 @@ def image_args(args: tuple, memory_bytes: int | None) -> tuple:
     _need(all(np.isfinite(a).all() for a in axes))
     n_points = axes[0].size * axes[1].size * axes[2].size
     n_cells = (axes[0].size - 1) * (axes[1].size - 1) * (axes[2].size - 1)
-    if memory_bytes is not None and n_points * _IMAGE_BYTES[0] + n_cells * _IMAGE_BYTES[1] > memory_bytes:
+    if memory_bytes is not None and image_bytes(n_points, n_cells) > memory_bytes:
         raise MemoryError
     _need(tags is None or (_ints(tags) and tags.shape == (n_cells,)))
     _need(tag_name is None or type(tag_name) is str)

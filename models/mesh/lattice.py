@@ -12,9 +12,15 @@ piece). Folded cells (negative after that flip) are counted as there.
 Measures and centroids: an axis-aligned grid (image data without rotation, rectilinear grids) in
 closed form, dx * dy * dz and the box's centre (equal to the general path's to rounding, not bit
 for bit); other structured grids by the general fixed-size path (geometry._fixed_measures).
+
+And the lattice's arrays, for both readers of structured files (vtk_readers, on VTK's dataset;
+xml_grid, on the file's bytes): its cells (structured_cells: hexahedra, quads or lines), its points
+(grid_points, image_points), image data's axes (image_axes).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -91,9 +97,59 @@ def hex_corners(stride) -> np.ndarray:
 def hexahedra(dims) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(offsets, connectivity, types) of the hexahedra of a whole 3D lattice of dims points, x
     fastest: the cells vtk_readers._structured makes of it, bit for bit."""
+    return structured_cells(dims)
+
+
+def structured_cells(dims) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(offsets, connectivity, types) of a lattice of dims points (image data, structured and
+    rectilinear grids): hexahedra (3 axes of 2 points or more), quads (2) or lines (1), VTK's cell
+    numbering (the first live axis fastest) and node order; no cell where no axis is live."""
+    live = [a for a in range(3) if dims[a] > 1]
+    if not live:
+        return np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros(0, np.uint8)
     stride = [1, dims[0], dims[0] * dims[1]]
-    cdims = [d - 1 for d in dims]
-    idx = lower_corners([0, 1, 2], cdims, stride)
-    conn = (idx[:, None] + hex_corners(stride)[None, :]).reshape(-1)
-    n = idx.size
-    return np.arange(0, 8 * n + 1, 8, dtype=np.int64), conn, np.full(n, 12, np.uint8)
+    cdims = [dims[a] - 1 for a in live]
+    if len(live) == 3:
+        corner, vtk = hex_corners(stride), 12
+    elif len(live) == 2:
+        sa, sb = stride[live[0]], stride[live[1]]
+        corner, vtk = np.array([0, sa, sa + sb, sb]), 9
+    else:
+        corner, vtk = np.array([0, stride[live[0]]]), 3
+    conn = cell_nodes(live, cdims, stride, corner)
+    w, n = corner.size, math.prod(cdims)
+    return np.arange(0, n * w + 1, w, dtype=np.int64), conn, np.full(n, vtk, np.uint8)
+
+
+def cell_nodes(live, cdims, stride, corner) -> np.ndarray:
+    """The connectivity of a lattice's cells: each cell's lower corner (cells numbered with the first
+    live axis fastest) plus the node template `corner`, int64. One layer of cells (the last live
+    axis's) first, then every layer as that one plus its offset: one contiguous pass (~3.5x a sum
+    of broadcast columns at 13,824 hexahedra)."""
+    inner = lower_corners(live[:-1], cdims[:-1], stride) if len(live) > 1 else np.zeros(1, np.int64)
+    layer = inner[:, None] + np.asarray(corner, np.int64)[None, :]
+    out = np.empty((cdims[-1], inner.size, layer.shape[1]), np.int64)
+    np.add(layer[None], (np.arange(cdims[-1], dtype=np.int64) * stride[live[-1]])[:, None, None], out=out)
+    return out.reshape(-1)
+
+
+def grid_points(axes) -> np.ndarray:
+    """Points of a tensor grid, x fastest."""
+    x, y, z = axes
+    pts = np.empty((z.size, y.size, x.size, 3))
+    pts[..., 0] = x[None, None, :]
+    pts[..., 1] = y[None, :, None]
+    pts[..., 2] = z[:, None, None]
+    return pts.reshape(-1, 3)
+
+
+def image_points(origin, spacing, extent, direction=None) -> np.ndarray:
+    """Points of image data, x fastest: index * spacing along each axis (indices from the extent),
+    turned by the direction matrix (3, 3) unless it is None or the identity, plus the origin."""
+    axes = [
+        (extent[2 * a] + np.arange(int(extent[2 * a + 1] - extent[2 * a] + 1))) * spacing[a] for a in range(3)
+    ]
+    pts = grid_points(axes)
+    if direction is not None and not np.array_equal(direction, np.eye(3)):
+        pts = pts @ np.asarray(direction).T
+    return pts + np.asarray(origin)

@@ -63,6 +63,7 @@ _VTK_XML = (".vtu", ".pvtu", ".vtp", ".pvtp", ".vti", ".pvti", ".vts", ".pvts", 
 _EXODUS = (".exo", ".e", ".ex2", ".exii", ".g", ".gen")
 _VTK_OTHER = {".xdmf": "xdmf", ".xmf": "xdmf", ".cgns": "cgns", ".cas": "fluent", ".neu": "gambit"}
 _SURFACES = (".stl", ".obj", ".ply", ".off")
+XML_GRIDS = (".vts", ".vtr", ".vti")  # VTK XML structured files: our numpy path first (xml_grid.py)
 SUPPORTED_EXTENSIONS = MESH_EXTENSIONS  # the one list, in models/mesh/formats.py
 
 
@@ -176,8 +177,9 @@ def read_mesh(
     (pick_reader), which hands its arrays to build.mesh_from_cells.
 
     weld: merge points closer than this distance first (coincident duplicates that split a mesh).
-    native=False: a VTU that our numpy path does not read raises NativeReaderNeeded instead of
-    going to VTK's reader (the CLI then reads it in the sandbox: models.mesh.sandbox)."""
+    native=False: a VTU, .vts, .vtr or .vti that our numpy paths (models/mesh/vtu.py, xml_grid.py)
+    do not read raises NativeReaderNeeded instead of going to VTK's reader (the CLI then reads it in
+    the sandbox: models.mesh.sandbox)."""
     path = os.fspath(path)
     if not os.path.exists(path):
         raise MeshError(f"mesh file not found: {path}")
@@ -253,6 +255,17 @@ def _read(path: str, physical_tag, file_format, weld, native: bool = True) -> Me
         if not native:
             raise NativeReaderNeeded(f"{os.path.basename(path)} needs VTK's VTU reader")
         family, detail = "vtk", ".vtu"
+    if family == "vtk" and detail in XML_GRIDS:
+        from models.mesh.xml_grid import read_xml_grid
+
+        # the common layout, numpy on the file's bytes; else None. In-process (native=False): a
+        # lattice beyond the sandbox's memory limit is left to the sandbox
+        limit = None if native else _read_memory()
+        mesh = read_xml_grid(path, physical_tag, weld, memory_bytes=limit)
+        if mesh is not None:
+            return mesh
+        if not native:
+            raise NativeReaderNeeded(f"{os.path.basename(path)} needs VTK's XML reader")
     if family == "ucd":
         from models.mesh.ucd import read_ucd
 
@@ -264,6 +277,13 @@ def _read(path: str, physical_tag, file_format, weld, native: bool = True) -> Me
             path, detail, physical_tag=physical_tag, weld=weld, fmt=format_name(path, file_format)
         )
     return mesh_from_meshio(_read_meshio(path, detail), physical_tag=physical_tag, weld=weld, owned=True)
+
+
+def _read_memory() -> int:
+    """The sandbox's default memory limit for a read (models.mesh.sandbox)."""
+    from models.mesh.sandbox import _default_memory
+
+    return _default_memory()
 
 
 def _read_meshio(path: str, file_type: str):

@@ -296,36 +296,38 @@ def pure_python_reader(path: str, file_format: str | None = None) -> bool:
 
 def read_mesh_cli(path, physical_tag=None, file_format=None, weld=None, **limits):
     """read_mesh_safe as the CLI reads: in-process when the reader is pure Python (no fork, no
-    transfer), in the sandbox when it is native (VTK, HDF5, netCDF). A VTU is read in-process
-    when our numpy path reads it (models.mesh.vtu.read_vtu_simple: numpy and zlib only), in the
-    sandbox (VTK's reader) otherwise. The service and the worker always read in the sandbox
-    (read_mesh_safe)."""
+    transfer), in the sandbox when it is native (VTK, HDF5, netCDF). A VTU, .vts, .vtr or .vti is
+    read in-process when our numpy path reads it (models.mesh.vtu.read_vtu_simple,
+    models.mesh.xml_grid.read_xml_grid: numpy and zlib only), in the sandbox (VTK's reader)
+    otherwise. The service and the worker always read in the sandbox (read_mesh_safe)."""
     from models.mesh import read
 
     p = os.fspath(path)
     if sandbox_enabled() and os.path.isfile(p) and extension(p) not in ARCHIVES:
         if pure_python_reader(p, file_format):
             limits = {**limits, "in_process": True}
-        elif _vtu_family(p, file_format):
+        elif _numpy_family(p, file_format):
             try:
                 return read_mesh_safe(
                     path, physical_tag, file_format, weld, **limits, in_process=True, native=False
                 )
             except read.NativeReaderNeeded:
-                pass  # a VTU layout our numpy path does not read: VTK's reader, in the sandbox
+                pass  # a layout our numpy paths do not read: VTK's reader, in the sandbox
     # one read per CLI process: a direct fork (10-18 ms, bench/bench_fork_cost.py) costs less than
     # starting a zygote interpreter (about a second of CPU) that would serve no second read
     limits.setdefault("zygote", False)
     return read_mesh_safe(path, physical_tag, file_format, weld, **limits)
 
 
-def _vtu_family(path: str, file_format: str | None) -> bool:
+def _numpy_family(path: str, file_format: str | None) -> bool:
+    """The file goes to one of our numpy readers first (read._read): a VTU, or a .vts, .vtr, .vti."""
     from models.mesh import read
 
     try:
-        return read.pick_reader(path, file_format)[0] == "vtu"
+        family, detail = read.pick_reader(path, file_format)
     except (MagnetError, OSError):
         return False
+    return family == "vtu" or (family == "vtk" and detail in read.XML_GRIDS)
 
 
 def _read_in_child(path, kwargs):

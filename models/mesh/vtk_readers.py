@@ -22,7 +22,7 @@ import numpy as np
 
 from models.errors import MeshError, ParameterError
 from models.mesh.cells import BOUNDARY_TAG_NAME, TAG_NAMES, Normalized, normalize, ranges
-from models.mesh.lattice import hex_corners, lower_corners
+from models.mesh.lattice import grid_points, image_points, structured_cells
 
 # extension -> (what the file is, VTK reader class, its module)
 _XML = "vtkmodules.vtkIOXML"
@@ -59,8 +59,6 @@ def read_vtk(
     """Read `path` with VTK's reader for `kind` (a key of READERS) and build our `Mesh`. fmt: the
     format's name as users know it (formats.format_name), in every refusal; the reader's own by default.
     A refusal names the file, the format and, when VTK says it, the place; never VTK's class names."""
-    from models.mesh.build import mesh_from_cells
-
     what, cls, _ = READERS[kind]
     fmt = fmt or what
     data = _run(path, kind, fmt)
@@ -92,6 +90,17 @@ def read_vtk(
     if norm.notes:
         meta["higher_order"] = "; ".join(norm.notes)
         meta["higher_order_unused_points"] = norm.unused_higher
+    grid = grid if norm.types.size == len(types) and norm.dim == 3 else None
+    return mesh_of_cells(pts, norm, tag_key, weld, meta, grid, field)
+
+
+def mesh_of_cells(pts, norm: Normalized, tag_key, weld, meta: dict, grid, field: dict):
+    """build.mesh_from_cells of a reader's points and normalized cells, then the group names of its
+    field data: the end of read_vtk (and of models/mesh/xml_grid.py, which makes the same arrays).
+    grid: _lattice's hint, or None."""
+    from models.mesh.boundary import group_names
+    from models.mesh.build import mesh_from_cells
+
     mesh = mesh_from_cells(
         np.asarray(pts, dtype=np.float64),
         norm.offsets,
@@ -105,10 +114,8 @@ def read_vtk(
         norm.dim,
         weld=weld,
         meta=meta,
-        grid=grid if norm.types.size == len(types) and norm.dim == 3 else None,
+        grid=grid,
     )
-    from models.mesh.boundary import group_names
-
     mesh.meta["group_names"], mesh.meta["boundary_names"] = group_names(field, mesh.dim)
     return mesh
 
@@ -395,47 +402,23 @@ def _polydata(pd):
 
 def _structured(ds):
     """Image data, structured and rectilinear grids: hexahedra (3D), quads (2D) or lines from the
-    point dimensions, VTK's cell numbering (i fastest)."""
+    point dimensions, VTK's cell numbering (i fastest): lattice.structured_cells."""
     ext = ds.GetExtent()
     dims = [int(ext[2 * a + 1] - ext[2 * a] + 1) for a in range(3)]
     if ds.IsA("vtkImageData"):
-        axes = [
-            (ext[2 * a] + np.arange(dims[a])) * ds.GetSpacing()[a] for a in range(3)
-        ]  # index -> distance along each axis
-        grid = _grid_points(axes)
         m = ds.GetDirectionMatrix()
         d = np.array([[m.GetElement(i, j) for j in range(3)] for i in range(3)])
-        pts = grid if np.array_equal(d, np.eye(3)) else grid @ d.T
-        pts = pts + np.asarray(ds.GetOrigin())
+        pts = image_points(ds.GetOrigin(), ds.GetSpacing(), ext, d)
     elif ds.IsA("vtkRectilinearGrid"):
         axes = [
             np.asarray(_np(c), np.float64) if c is not None else np.zeros(1)
             for c in (ds.GetXCoordinates(), ds.GetYCoordinates(), ds.GetZCoordinates())
         ]
-        pts = _grid_points(axes)
+        pts = grid_points(axes)
     else:
         pts = _np(ds.GetPoints().GetData()) if ds.GetNumberOfPoints() else np.zeros((0, 3))
-    live = [a for a in range(3) if dims[a] > 1]
-    stride = [1, dims[0], dims[0] * dims[1]]
-    cdims = [dims[a] - 1 for a in live]
-    ncells = int(np.prod(cdims)) if live else 0
-    if not live:
-        return pts, np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros(0, np.uint8), {}, None
-    idx = lower_corners(live, cdims, stride)
-    if len(live) == 3:
-        corner = hex_corners(stride)
-        vtk = 12
-    elif len(live) == 2:
-        sa, sb = stride[live[0]], stride[live[1]]
-        corner = np.array([0, sa, sa + sb, sb])
-        vtk = 9
-    else:
-        corner = np.array([0, stride[live[0]]])
-        vtk = 3
-    conn = (idx[:, None] + corner[None, :]).reshape(-1)
-    w = corner.size
-    offsets = np.arange(0, ncells * w + 1, w, dtype=np.int64)
-    return pts, offsets, conn, np.full(ncells, vtk, np.uint8), _cell_data(ds), None
+    offsets, conn, types = structured_cells(dims)
+    return pts, offsets, conn, types, _cell_data(ds) if types.size else {}, None
 
 
 def _lattice(data, n_cells: int) -> dict | None:
@@ -531,8 +514,7 @@ def _image_mesh(data, physical_tag, meta: dict, path: str | None = None):
     sentence: a lattice with a zero, NaN or infinite step has no volume or no place)."""
     if data.IsA("vtkCompositeDataSet") or not data.IsA("vtkImageData"):
         return None
-    from models.mesh.build import mesh_from_image
-    from models.mesh.lattice import check_image_geometry, image_axes
+    from models.mesh.lattice import check_image_geometry
 
     ext = data.GetExtent()
     live = [a for a in range(3) if ext[2 * a + 1] > ext[2 * a]]
@@ -554,23 +536,22 @@ def _image_mesh(data, physical_tag, meta: dict, path: str | None = None):
     n = (ext[1] - ext[0]) * (ext[3] - ext[2]) * (ext[5] - ext[4])
     tag_key = _tag_key(cell_data, physical_tag)
     tags = None if tag_key is None else _int_tags(cell_data[tag_key], n)
-    mesh = mesh_from_image(image_axes(data.GetOrigin(), data.GetSpacing(), ext), tags, tag_key, meta)
+    return mesh_of_image(data.GetOrigin(), data.GetSpacing(), ext, tags, tag_key, meta, _field_data(data))
+
+
+def mesh_of_image(origin, spacing, extent, tags, tag_key, meta: dict, field: dict):
+    """build.mesh_from_image of a whole 3D axis-aligned image, then the group names of its field
+    data; None where the builder leaves it to the general path (coordinates that overflow). The end
+    of _image_mesh (and of models/mesh/xml_grid.py's image data)."""
+    from models.mesh.boundary import group_names
+    from models.mesh.build import mesh_from_image
+    from models.mesh.lattice import image_axes
+
+    mesh = mesh_from_image(image_axes(origin, spacing, extent), tags, tag_key, meta)
     if mesh is None:
         return None
-    from models.mesh.boundary import group_names
-
-    mesh.meta["group_names"], mesh.meta["boundary_names"] = group_names(_field_data(data), 3)
+    mesh.meta["group_names"], mesh.meta["boundary_names"] = group_names(field, 3)
     return mesh
-
-
-def _grid_points(axes) -> np.ndarray:
-    """Points of a tensor grid, x fastest."""
-    x, y, z = axes
-    pts = np.empty((z.size, y.size, x.size, 3))
-    pts[..., 0] = x[None, None, :]
-    pts[..., 1] = y[None, :, None]
-    pts[..., 2] = z[:, None, None]
-    return pts.reshape(-1, 3)
 
 
 def _hide_blanked(ds, pts, offsets, conn, types, cell_data, poly):

@@ -4,6 +4,8 @@ single-piece files."""
 from __future__ import annotations
 
 import base64
+import binascii
+import math
 import os
 import re
 import sys
@@ -167,26 +169,31 @@ def impossible_counts(path: str | os.PathLike, head_bytes: int = 1 << 16) -> str
     with open(os.fspath(path), "rb") as fh:
         head = fh.read(head_bytes)
     end = head.find(b"<AppendedData")
-    room = size * (_ZLIB_RATIO if b"compressor=" in head[: max(end, 0) or len(head)] else 1)
+    held = room(size, b"compressor=" in head[: max(end, 0) or len(head)])
     for piece in _PIECE.finditer(head, 0, end if end >= 0 else len(head)):
         for what, number in _COUNT.findall(piece.group(1)):
             n = int(number)
-            if n > room:
-                return (
-                    f"its Piece announces {n:,} {what.decode().lower()}, more than its {size:,} bytes "
-                    "can hold"
-                )
+            if n > held:
+                return more_than_held(n, what.decode().lower(), size)
     return None
 
 
-def _simple_vtu(data: bytes):
-    from types import SimpleNamespace
+def more_than_held(n: int, what: str, size: int) -> str:
+    """impossible_counts' sentence: a Piece announcing n points or cells its size bytes cannot hold."""
+    return f"its Piece announces {n:,} {what}, more than its {size:,} bytes can hold"
 
-    root, arrays = _scan_vtu(data)
-    if root is None:
-        return None
+
+def room(size: int, compressed: bool) -> int:
+    """The most values a file of `size` bytes can hold (each needs at least a byte, zlib's ratio aside)."""
+    return size * (_ZLIB_RATIO if compressed else 1)
+
+
+def layout(root: dict, dataset: str) -> tuple[str | None, np.dtype] | None:
+    """(compressor or None, header dtype) of a VTKFile tag's attributes (scan_xml) when the file is
+    `dataset` ("UnstructuredGrid", "ImageData", ...) in a layout our numpy readers read:
+    little-endian, UInt32 or UInt64 headers, zlib-compressed or not; None for any other."""
     a = {k.decode(): v.decode() for k, v in root.items()}
-    if a.get("type") != "UnstructuredGrid" or a.get("version", "0.1") not in ("0.1", "1.0"):
+    if a.get("type") != dataset or a.get("version", "0.1") not in ("0.1", "1.0"):
         return None
     if a.get("byte_order", "LittleEndian") != "LittleEndian":
         return None
@@ -194,22 +201,22 @@ def _simple_vtu(data: bytes):
     if compressor not in (None, "vtkZLibDataCompressor"):
         return None
     header = {"UInt32": np.dtype("<u4"), "UInt64": np.dtype("<u8")}.get(a.get("header_type", "UInt32"))
-    if header is None:
-        return None
-    piece, sections = arrays
-    n_points, n_cells = int(piece[b"NumberOfPoints"]), int(piece[b"NumberOfCells"])
-    appended = _appended(sections.pop(b"appended", None), sections)
-    if sections.get(b"PointData") or set(sections) - _SECTIONS or len(sections.get(b"Points", ())) != 1:
-        return None
+    return None if header is None else (compressor, header)
+
+
+def array_reader(compressor: str | None, header: np.dtype, appended: dict):
+    """array(attrs, text): a DataArray's values (scan_xml's (attrs, text); text None: appended, its
+    bytes in `appended` (_appended) at its offset), reshaped to (-1, NumberOfComponents) when the
+    tag says it. Inline: binary (base64) only; zlib blocks in base64 or raw bytes. ValueError (or
+    any other exception) for a layout or data not read here: the caller declines the file."""
     decode = _decode_zlib if compressor else _decode_raw
+    decode_raw = _decode_appended_zlib if compressor else _decode_appended_raw
 
     def array(attrs: dict, text: bytes | None) -> np.ndarray:
         kind = np.dtype(_NP_TYPES[attrs[b"type"].decode()]).newbyteorder("<")
         if text is None:  # appended: its slice of AppendedData
             text, raw = appended[int(attrs[b"offset"])]
-            if raw and compressor:
-                raise ValueError("compressed raw appended data")
-            out = _decode_appended_raw(text, kind, header) if raw else decode(text, kind, header)
+            out = decode_raw(text, kind, header) if raw else decode(text, kind, header)
         elif attrs.get(b"format") != b"binary":
             raise ValueError("not inline binary")
         else:
@@ -217,6 +224,28 @@ def _simple_vtu(data: bytes):
         if b"NumberOfComponents" in attrs:
             out = out.reshape(-1, int(attrs[b"NumberOfComponents"]))
         return out
+
+    return array
+
+
+def _simple_vtu(data: bytes):
+    from types import SimpleNamespace
+
+    scanned = scan_xml(data)
+    if scanned is None:
+        return None
+    root, _, piece, sections = scanned
+    file_layout = layout(root, "UnstructuredGrid")
+    if file_layout is None:
+        return None
+    compressor, header = file_layout
+    n_points, n_cells = int(piece[b"NumberOfPoints"]), int(piece[b"NumberOfCells"])
+    appended = _appended(sections.pop(b"appended", None), sections)
+    if sections.get(b"PointData") or set(sections) - _SECTIONS or len(sections.get(b"Points", ())) != 1:
+        return None
+    if compressor and any(raw for _, raw in appended.values()):
+        return None  # zlib blocks in raw appended data: left to the other readers
+    array = array_reader(compressor, header, appended)
 
     cells = {attrs[b"Name"]: (attrs, text) for attrs, text in sections.get(b"Cells", ())}
     if set(cells) != {b"connectivity", b"offsets", b"types"}:
@@ -271,6 +300,8 @@ def _appended(section, sections: dict) -> dict:
     if not raw and attrs.get(b"encoding") != b"base64":
         raise ValueError("unknown AppendedData encoding")
     start = bytes(body[:4096]).index(b"_") + 1
+    if bytes(body[: start - 1]).strip():
+        raise ValueError("AppendedData does not start with '_'")
     stop = len(body)
     while not raw and stop > start and body[stop - 1] in b" \t\r\n":
         stop -= 1
@@ -290,108 +321,201 @@ def _decode_appended_raw(data: bytes, dtype: np.dtype, header: np.dtype) -> np.n
     return np.frombuffer(data, dtype=dtype, count=total // dtype.itemsize, offset=h)
 
 
-def _scan_vtu(data: bytes):
-    """The VTKFile tag's attributes and the Piece's attributes and {section: [(attrs, text)]} of its
-    DataArrays, walking the tags with bytes.find (the base64 text between them is never parsed);
-    (None, None) for any layout but VTKFile/UnstructuredGrid/Piece/section/DataArray (with VTK's
-    InformationKey/Value children)."""
+def scan_xml(data: bytes, dataset: bytes = b"UnstructuredGrid"):
+    """A VTK XML file of one Piece, walking its tags with bytes.find (the base64 text between them
+    is never parsed): (VTKFile's attributes, the `dataset` element's, the Piece's, and
+    {section: [(attrs, text)]} of the DataArrays: the Piece's sections by name, the dataset's
+    FieldData as b"FieldData", AppendedData as b"appended"). None for any other layout than
+    VTKFile/dataset/Piece/section/DataArray and VTKFile/dataset/FieldData/DataArray (DataArrays with
+    the InformationKey/Value children VTK writes: an array's norm range; a string array is an
+    <Array>), for a section given twice, and for what VTK's XML parser would refuse or read otherwise
+    than this scan: characters XML does not allow, text between the tags, an XML declaration not
+    first, an attribute not name="value"."""
     stack: list[bytes] = []
-    root = piece = None
+    root = grid = piece = None
     sections: dict[bytes, list] = {}
+    values: list[int] = []  # the Value children of the open InformationKey
     pos = 0
     while True:
         lt = data.find(b"<", pos)
+        between = data[pos:] if lt < 0 else data[pos:lt]  # (an inline array's text is not here)
+        if stack and stack[-1] == b"Value":
+            if plain_number(between.strip()) is None:
+                return None
+        elif between.strip():
+            return None  # text where VTK's XML has none
         if lt < 0:
             break
         if data.startswith(b"<?", lt):
             pos = data.index(b"?>", lt) + 2
+            if lt != 0 or not _XML_DECLARATION.fullmatch(data[lt:pos]):
+                return None
             continue
         if data.startswith(b"<!--", lt):
             end = data.index(b"-->", lt)
-            if b"<" in data[lt + 4 : end]:
-                return None, None
+            if b"<" in data[lt + 4 : end] or not _xml_chars(data[lt:end]):
+                return None
             pos = end + 3
             continue
         if data.startswith(b"<!", lt):
-            return None, None  # CDATA, DOCTYPE
+            return None  # CDATA, DOCTYPE
         gt = data.index(b">", lt)
         tag = data[lt + 1 : gt]
-        if b"<" in tag or b"&" in tag:
-            return None, None
+        if b"<" in tag or b"&" in tag or not _xml_chars(tag):
+            return None
         if tag.startswith(b"/"):
             if not stack or stack.pop() != tag[1:].strip():
-                return None, None
+                return None
+            if tag[1:].strip() == b"InformationKey" and values.pop() != 2:
+                return None  # fewer Values than its length
             pos = gt + 1
             continue
         closed = tag.endswith(b"/")
         name = tag.rstrip(b"/").split(None, 1)[0]
-        attrs = dict(_ATTR.findall(tag))
+        pairs = _ATTR.findall(tag)
+        attrs = dict(pairs)
+        if len(attrs) != len(pairs) or _ATTR.sub(b"", tag.rstrip(b"/")).split() != [name]:
+            return None  # a repeated attribute, or one not in name="value" form
         depth = len(stack)
-        expected = (
-            b"VTKFile",
-            b"UnstructuredGrid",
-            b"Piece",
-            None,
-            b"DataArray",
-            b"InformationKey",
-            b"Value",
-        )
         if depth == 1 and name == b"AppendedData" and not closed and b"appended" not in sections:
             end = data.rfind(b"</AppendedData>")  # raw bytes may hold '<': the last closing tag
             if end < gt:
-                return None, None
+                return None
             sections[b"appended"] = [(attrs, memoryview(data)[gt + 1 : end])]  # a view, not a copy
             pos = end + len(b"</AppendedData>")
             continue
-        if depth >= len(expected) or (expected[depth] is not None and name != expected[depth]):
-            return None, None
+        if depth > 2 and stack[2] == b"FieldData":
+            expected = (b"VTKFile", dataset, b"FieldData", b"DataArray", b"InformationKey", b"Value")
+        else:
+            expected = (b"VTKFile", dataset, None, None, b"DataArray", b"InformationKey", b"Value")
+        role = b"DataArray" if name == b"Array" else name  # VTK writes a string array as <Array>
+        if depth >= len(expected) or (expected[depth] is not None and role != expected[depth]):
+            return None
         if depth == 0:
             if root is not None:
-                return None, None
+                return None
             root = attrs
-        elif depth == 2:
+        elif depth == 1:
+            grid = attrs
+        elif depth == 2 and name == b"Piece":
             if piece is not None:
-                return None, None  # more than one Piece
+                return None  # more than one Piece
             piece = attrs
-        elif depth == 3:
-            sections.setdefault(name, [])
-        elif depth == 4 and attrs.get(b"format") == b"appended":
-            sections[stack[3]].append((attrs, None))  # its bytes in AppendedData, at its offset
-        elif depth == 4:  # its text runs to the next tag (VTK may add InformationKey children)
+        elif depth == 2 and name != b"FieldData":
+            return None
+        elif depth == 2 or expected[depth] is None:  # a section: the dataset's FieldData, a Piece's
+            if name in sections or (depth == 3 and name == b"FieldData"):
+                return None
+            sections[name] = []
+        elif role == b"DataArray" and attrs.get(b"format") == b"appended":
+            sections[stack[-1]].append((attrs, None))  # its bytes in AppendedData, at its offset
+        elif role == b"DataArray":  # its text runs to the next tag (VTK may add InformationKey children)
             end = data.find(b"<", gt + 1)
             if closed or end < 0:
-                return None, None
-            sections[stack[3]].append((attrs, data[gt + 1 : end]))
+                return None
+            sections[stack[-1]].append((attrs, data[gt + 1 : end]))
+            gt = end - 1  # the scan goes on after its text
+        elif name == b"InformationKey":
+            if (
+                closed
+                or attrs.get(b"name") not in _NORM_RANGES
+                or {**attrs, b"name": None} != _NORM_RANGE_KEY
+            ):
+                return None
+            values.append(0)
+        elif closed or values[-1] >= 2 or attrs != {b"index": b"%d" % values[-1]}:
+            return None  # a Value: the next index, its text a number (above)
+        else:
+            values[-1] += 1
         if not closed:
             stack.append(name)
         pos = gt + 1
-    if stack or root is None or piece is None:
-        return None, None
-    return root, (piece, sections)
+    if stack or root is None or grid is None or piece is None:
+        return None
+    return root, grid, piece, sections
+
+
+# the XML declaration VTK's writers write, and the one InformationKey they write under an array
+_XML_DECLARATION = re.compile(
+    rb"""<\?xml\s+version\s*=\s*(["'])1\.0\1(?:\s+encoding\s*=\s*(["'])(?i:utf-8)\2)?\s*\?>"""
+)
+_NORM_RANGES = (b"L2_NORM_RANGE", b"L2_NORM_FINITE_RANGE")
+_NORM_RANGE_KEY = {b"name": None, b"location": b"vtkDataArray", b"length": b"2"}  # two Values
+_NUMBER = re.compile(rb"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
+
+
+def plain_number(token: bytes) -> float | None:
+    """A number written as VTK writes one, read as every correctly rounded parser reads it (C++
+    streams, Python): a plain decimal, finite, neither overflowing nor underflowing; else None."""
+    if not _NUMBER.fullmatch(token):
+        return None
+    value = float(token)
+    if value == 0:
+        return None if re.search(rb"[1-9]", re.split(rb"[eE]", token)[0]) else value
+    return value if math.isfinite(value) and abs(value) >= sys.float_info.min else None
+
+
+_NOT_XML = re.compile(rb"[\x00-\x08\x0b\x0c\x0e-\x1f]")
+
+
+def _xml_chars(text: bytes) -> bool:
+    """Text an XML parser (VTK's) takes: UTF-8, no control character but tab, newline, return."""
+    try:
+        text.decode("utf-8")
+    except UnicodeDecodeError:
+        return False
+    return _NOT_XML.search(text) is None
 
 
 def _decode_raw(text: bytes, dtype: np.dtype, header: np.dtype) -> np.ndarray:
-    """meshio's read_uncompressed_binary."""
-    raw = base64.b64decode(text)
+    """meshio's read_uncompressed_binary (base64.b64decode is binascii.a2b_base64 on a copy of a
+    memoryview: called directly, an appended array is decoded from the file's bytes)."""
+    raw = binascii.a2b_base64(text)
     h = header.itemsize
     total = int(np.frombuffer(raw[:h], header)[0])
     if len(raw) == h:  # header and data encoded separately
-        raw = base64.b64decode(text[len(base64.b64encode(raw)) :])
+        if len(text) != _b64_chars(h) + _b64_chars(total):
+            raise ValueError("base64 text of another length than its header says")
+        raw = binascii.a2b_base64(text[_b64_chars(h) :])
     else:
-        raw = raw[h:]
+        if len(text) != _b64_chars(h + total):
+            raise ValueError("base64 text of another length than its header says")
+        raw = memoryview(raw)[h:]  # (not a copy)
     return np.frombuffer(raw[:total], dtype=dtype)
 
 
-def _decode_zlib(text: bytes, dtype: np.dtype, header: np.dtype) -> np.ndarray:
-    """meshio's read_compressed_binary (zlib): a header of block sizes, then the blocks."""
-    import zlib
+def _b64_chars(n: int) -> int:
+    """The length of n bytes in base64: a text of another length (a character lost, added, or
+    one the decoder skips) is not decoded as VTK's reader would decode it."""
+    return -(-n // 3) * 4
 
+
+def _decode_zlib(text: bytes, dtype: np.dtype, header: np.dtype) -> np.ndarray:
+    """meshio's read_compressed_binary (zlib): a header of block sizes, then the blocks (base64)."""
     h = header.itemsize
     n_blocks = int(np.frombuffer(base64.b64decode(text[: -(-h // 3) * 4])[:h], header)[0])
     n_chars = -(-(h * (3 + n_blocks)) // 3) * 4
     head = np.frombuffer(base64.b64decode(text[:n_chars]), header)
+    if len(text) != n_chars + _b64_chars(int(head[3 : 3 + n_blocks].sum())):
+        raise ValueError("base64 text of another length than its header says")
+    return _inflate(head, memoryview(binascii.a2b_base64(text[n_chars:])), dtype)
+
+
+def _decode_appended_zlib(data: bytes, dtype: np.dtype, header: np.dtype) -> np.ndarray:
+    """A zlib-compressed appended array in raw encoding: _decode_zlib's header and blocks, as bytes."""
+    h = header.itemsize
+    n_blocks = int(np.frombuffer(data[:h], header)[0])
+    head = np.frombuffer(data, header, count=3 + n_blocks)
+    return _inflate(head, memoryview(data)[h * (3 + n_blocks) :], dtype)
+
+
+def _inflate(head: np.ndarray, raw: memoryview, dtype: np.dtype) -> np.ndarray:
+    """The zlib blocks after a header (number of blocks, block size, last block's size, the blocks'
+    compressed sizes) inflated into one array of dtype."""
+    import zlib
+
+    n_blocks = int(head[0])
     sizes = head[3 : 3 + n_blocks].astype(np.int64)
-    raw = memoryview(base64.b64decode(text[n_chars:]))
     ends = np.cumsum(sizes).tolist()
     starts = [0, *ends[:-1]]
     if n_blocks:  # the blocks inflated straight into the array the header announces

@@ -61,6 +61,7 @@ PRELOAD = (
     "models.native",
     "models.mesh.read",
     "models.mesh.vtu",
+    "models.mesh.xml_grid",
     "models.mesh.lattice",
     "models.mesh.ucd",
     "models.mesh.geometry",
