@@ -260,7 +260,7 @@ def _read(path: str, physical_tag, file_format, weld, native: bool = True) -> Me
 
         # the common layout, numpy on the file's bytes; else None. In-process (native=False): a
         # lattice beyond the sandbox's memory limit is left to the sandbox
-        limit = None if native else _read_memory()
+        limit = None if native else default_memory()
         mesh = read_xml_grid(path, physical_tag, weld, memory_bytes=limit)
         if mesh is not None:
             return mesh
@@ -279,11 +279,16 @@ def _read(path: str, physical_tag, file_format, weld, native: bool = True) -> Me
     return mesh_from_meshio(_read_meshio(path, detail), physical_tag=physical_tag, weld=weld, owned=True)
 
 
-def _read_memory() -> int:
-    """The sandbox's default memory limit for a read (models.mesh.sandbox)."""
-    from models.mesh.sandbox import _default_memory
-
-    return _default_memory()
+def default_memory() -> int:
+    """The default memory budget of a read (the sandbox's limit: models.mesh.sandbox): the
+    environment's MAGNET_READ_MEMORY_MB, else the machine's physical memory."""
+    mb = os.environ.get("MAGNET_READ_MEMORY_MB")
+    if mb and mb.strip().isdigit():
+        return int(mb) << 20
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return 16 << 30
 
 
 def _read_meshio(path: str, file_type: str):

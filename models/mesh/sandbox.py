@@ -137,13 +137,9 @@ def memory_sentence(path, memory_bytes: int, file_format: str | None = None) -> 
 
 
 def _default_memory() -> int:
-    mb = os.environ.get("MAGNET_READ_MEMORY_MB")
-    if mb and mb.strip().isdigit():
-        return int(mb) << 20
-    try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):
-        return 16 << 30
+    from models.mesh.read import default_memory
+
+    return default_memory()
 
 
 def _default_timeout() -> float:
