@@ -140,3 +140,44 @@ def test_face_check_leaves_huge_meshes_to_the_full_path():
     one = np.array([1], dtype=np.int64)
     assert not fast.fixed_validate(pts, conn, tmpl, tsize, vol, cen, flip, huge, one)
     assert np.allclose(vol, 1.0 / 8)
+
+
+@pytest.mark.parametrize("kind", ["hexahedra", "tetrahedra"])
+def test_the_threaded_face_check_answers_as_the_sequential_one(kind):
+    """fixed_validate in 2 threads (meshes of 8,192 cells and 65,536 faces or more: the counting
+    sort per thread, the buckets by ranges of points) gives the measures, flips and answer of one
+    thread: True on a valid mesh, False with a cell repeated (its faces met twice the same way),
+    near the start, in the middle or at the end, in small buckets (hexahedra) and chained ones
+    (tetrahedra: ~24 faces a node)."""
+    fast = compiled("mesh._fastmesh")
+    from models.mesh.container import VTK_HEXAHEDRON, VTK_TETRA
+    from models.mesh.geometry import fixed_template
+
+    if kind == "hexahedra":
+        p, c = hexes(24)
+        t = VTK_HEXAHEDRON
+    else:
+        p, c = tets(15)
+        t = VTK_TETRA
+    p = _perturbed(p, 9, 0.05)
+    tmpl, tsize = fixed_template(t)
+    pts = np.ascontiguousarray(p, dtype=np.float64)
+    npts = np.array([len(p)], dtype=np.int64)
+    assert len(c) * len(tsize) >= 65536 and len(c) >= 8192
+
+    def run(cells, threads):
+        n = len(cells)
+        vol, cen, flip = np.empty(n), np.empty((n, 3)), np.empty(n, np.uint8)
+        conn = np.ascontiguousarray(cells, dtype=np.int64).reshape(-1)
+        ok = fast.fixed_validate(pts, conn, tmpl, tsize, vol, cen, flip, npts, np.array([threads]))
+        return ok, vol, cen, flip
+
+    cases = [c] + [np.concatenate([c, c[i : i + 1]]) for i in (0, len(c) // 2, len(c) - 1)]
+    answers = []
+    for cells in cases:
+        one, two = run(cells, 1), run(cells, 2)
+        assert one[0] == two[0]
+        for a, b in zip(one[1:], two[1:], strict=True):
+            assert np.array_equal(a, b)
+        answers.append(one[0])
+    assert answers == [True, False, False, False]
