@@ -352,15 +352,18 @@ def _libc():
         ]
         libc.mprotect.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
         libc.munmap.argtypes = [ctypes.c_void_p, ctypes.c_size_t]
-        libc.process_vm_readv.restype = ctypes.c_ssize_t
-        libc.process_vm_readv.argtypes = [
-            ctypes.c_int,
-            ctypes.POINTER(_IOVEC),
-            ctypes.c_ulong,
-            ctypes.POINTER(_IOVEC),
-            ctypes.c_ulong,
-            ctypes.c_ulong,
-        ]
+        try:  # (a libc without it: answers are never lent, can_borrow says so)
+            libc.process_vm_readv.restype = ctypes.c_ssize_t
+            libc.process_vm_readv.argtypes = [
+                ctypes.c_int,
+                ctypes.POINTER(_IOVEC),
+                ctypes.c_ulong,
+                ctypes.POINTER(_IOVEC),
+                ctypes.c_ulong,
+                ctypes.c_ulong,
+            ]
+        except AttributeError:
+            pass
         _LIBC = libc
     return _LIBC
 
