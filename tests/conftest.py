@@ -52,3 +52,19 @@ def brain():
     m = read_mesh(BRAIN)
     g, d = prepare(m)
     return m, g, d
+
+
+@pytest.fixture
+def child_calls(monkeypatch):
+    """Every call of models.mesh.sandbox.call_in_child from here on, counted (the real one runs)."""
+    from models.mesh import sandbox
+
+    calls = []
+    real = sandbox.call_in_child
+
+    def counted(*a, **k):
+        calls.append(1)
+        return real(*a, **k)
+
+    monkeypatch.setattr(sandbox, "call_in_child", counted)
+    return calls

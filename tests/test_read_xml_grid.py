@@ -245,16 +245,9 @@ def test_in_process_a_lattice_beyond_the_read_memory_is_left_to_the_sandbox(tmp_
     assert read_mesh(path).meta["reader"] == OURS  # no limit in-process (native=True)
 
 
-def test_cli_reads_ours_in_process_and_the_rest_in_the_sandbox(tmp_path, monkeypatch):
+def test_cli_reads_ours_in_process_and_the_rest_in_the_sandbox(tmp_path, monkeypatch, child_calls):
     monkeypatch.delenv("MAGNET_READ_SANDBOX", raising=False)
-    calls = []
-    real = sandbox.call_in_child
-
-    def counted(*a, **k):
-        calls.append(1)
-        return real(*a, **k)
-
-    monkeypatch.setattr(sandbox, "call_in_child", counted)
+    calls = child_calls
     ours = write(tmp_path / "grid.vts", dataset("vts", (5, 4, 3), tagged=True), "zlib")
     mesh = sandbox.read_mesh_cli(ours)
     assert calls == [] and mesh.meta["reader"] == OURS

@@ -102,7 +102,7 @@ def _ascii_vtu(path) -> None:
     )
 
 
-def test_cli_reads_a_vtu_that_needs_vtk_in_the_sandbox(monkeypatch, tmp_path):
+def test_cli_reads_a_vtu_that_needs_vtk_in_the_sandbox(monkeypatch, tmp_path, child_calls):
     path = tmp_path / "ascii.vtu"
     _ascii_vtu(path)
     from models.mesh.vtu import read_vtu_simple
@@ -110,14 +110,7 @@ def test_cli_reads_a_vtu_that_needs_vtk_in_the_sandbox(monkeypatch, tmp_path):
     assert read_vtu_simple(path) is None  # the case under test: numpy's path declines this file
     with pytest.raises(read.NativeReaderNeeded):
         read.read_mesh(path, native=False)
-    calls = []
-    real = sandbox.call_in_child
-
-    def counted(*a, **k):
-        calls.append(1)
-        return real(*a, **k)
-
-    monkeypatch.setattr(sandbox, "call_in_child", counted)
+    calls = child_calls
     monkeypatch.delenv("MAGNET_READ_SANDBOX", raising=False)
     mesh = sandbox.read_mesh_cli(path)
     assert calls == [1] and mesh.n_cells == 2

@@ -208,23 +208,31 @@ def _load(fd: int, pid: int | None, limit: int | None):
     end = 16 + n
     specs = []
     for entry in table:
-        _need(type(entry) is list and len(entry) == 4)
-        dtype, shape, at, nbytes = entry
-        _need(type(dtype) is str and dtype in _DTYPES)
-        _need(type(shape) is list and len(shape) <= _MAX_NDIM)
-        _need(all(type(s) is int and s >= 0 for s in shape))
-        _need(type(at) is int and type(nbytes) is int)
-        count = 1
-        for s in shape:
-            count *= s
-        dt = np.dtype(dtype)
-        _need(nbytes == count * dt.itemsize and at % ALIGN == 0 and at >= end and at + nbytes <= size)
+        dt, shape, at, nbytes, count = _spec(entry)
+        _need(at % ALIGN == 0 and at >= end and at + nbytes <= size)
         end = at + nbytes
-        specs.append((dt, tuple(shape), at, count))
+        specs.append((dt, shape, at, count))
     mem = _map(fd, size) if specs else None
     arrays = [np.frombuffer(mem, dt, count, at).reshape(shape) for dt, shape, at, count in specs]
     value = _decode(header.get("value"), arrays, 0)
     return ("ok", value)
+
+
+def _spec(entry) -> tuple:
+    """(dtype, shape, where, nbytes, count) of one array of the header's table ([dtype name, shape,
+    where, nbytes]): a whitelisted dtype, at most _MAX_NDIM dimensions, nbytes the shape's."""
+    _need(type(entry) is list and len(entry) == 4)
+    dtype, shape, at, nbytes = entry
+    _need(type(dtype) is str and dtype in _DTYPES)
+    _need(type(shape) is list and len(shape) <= _MAX_NDIM)
+    _need(all(type(s) is int and s >= 0 for s in shape))
+    _need(type(at) is int and type(nbytes) is int)
+    count = 1
+    for s in shape:
+        count *= s
+    dt = np.dtype(dtype)
+    _need(nbytes == count * dt.itemsize)
+    return dt, tuple(shape), at, nbytes, count
 
 
 def _borrow(table: list, pid: int, limit: int | None) -> list:
@@ -234,20 +242,11 @@ def _borrow(table: list, pid: int, limit: int | None) -> list:
     address it does not map fails the copy (Corrupt)."""
     specs, total = [], 0
     for entry in table:
-        _need(type(entry) is list and len(entry) == 4)
-        dtype, shape, at, nbytes = entry
-        _need(type(dtype) is str and dtype in _DTYPES)
-        _need(type(shape) is list and len(shape) <= _MAX_NDIM)
-        _need(all(type(s) is int and s >= 0 for s in shape))
-        _need(type(at) is int and type(nbytes) is int and 0 <= at < 1 << 64)
-        count = 1
-        for s in shape:
-            count *= s
-        dt = np.dtype(dtype)
-        _need(nbytes == count * dt.itemsize)
+        dt, shape, at, nbytes, _ = _spec(entry)
+        _need(0 <= at < 1 << 64)
         total += nbytes
         _need(limit is None or total <= limit)
-        specs.append((dt, tuple(shape), at, nbytes))
+        specs.append((dt, shape, at, nbytes))
     arrays = [np.empty(shape, dt) for dt, shape, _, _ in specs]
     pieces = [
         (a.ctypes.data, at, nbytes) for a, (_, _, at, nbytes) in zip(arrays, specs, strict=True) if nbytes
