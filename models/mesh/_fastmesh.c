@@ -334,24 +334,17 @@ static int bucket_has_twice(const uint64_t *sorted, uint32_t lo, uint32_t hi, in
     return 0;
 }
 
-/* The check fixed_consistent and fixed_validate share, on the faces' smallest nodes (mins, in
- * 0..P-1) and packed keys (F of each): the keys bucketed by smallest node (a counting sort over the
- * points: cache-friendly, unlike a hash table of every face), then compared within each bucket.
- * mins is scratch afterwards. 1: no key met twice (consistent); 0: one met twice, or a mesh too
- * large for the packed keys (P >= 2^30 or F >= 2^32: the full path decides); -1: out of memory. */
-static int faces_consistent(uint32_t *mins, const uint64_t *keys, uint64_t *sorted, int64_t F, int64_t P) {
-    if (P >= KEY_ID_LIMIT || F >= (int64_t)NONE32) return 0;
-    uint32_t *start = calloc((size_t)P + 2, sizeof(uint32_t));
+/* 1 when no key is met twice in any bucket p of plo..phi-1 (sorted[start[p]..start[p+1]): small
+ * buckets pairwise, inline (the common case), larger ones by bucket_has_twice's chains (prev: scratch
+ * by position, one entry per key of these buckets; head: chain heads, P entries, made at the first
+ * large bucket; without memory for it, pairwise); 0 otherwise. */
+static int buckets_once(const uint64_t *sorted, const uint32_t *start, int64_t plo, int64_t phi, int64_t P,
+                        uint32_t *prev) {
     uint32_t *head = NULL;
     int ok = 1;
-    if (!start) return -1;
-    for (int64_t f = 0; f < F; f++) start[mins[f] + 2]++;
-    for (int64_t p = 2; p < P + 2; p++) start[p] += start[p - 1];
-    for (int64_t f = 0; f < F; f++) sorted[start[mins[f] + 1]++] = keys[f];
-    /* mins is free now: the chains of the large buckets (prev, by position) */
-    for (int64_t p = 0; p < P && ok; p++) { /* start[p]..start[p+1]: bucket p */
+    for (int64_t p = plo; p < phi && ok; p++) {
         uint32_t lo = start[p], hi = start[p + 1];
-        if (hi - lo <= 8) { /* the common case, inline */
+        if (hi - lo <= 8) {
             for (uint32_t x = lo; x < hi && ok; x++)
                 for (uint32_t y = x + 1; y < hi; y++)
                     if (sorted[x] == sorted[y]) {
@@ -364,11 +357,28 @@ static int faces_consistent(uint32_t *mins, const uint64_t *keys, uint64_t *sort
             head = malloc((size_t)P * sizeof(uint32_t));
             if (head) memset(head, 0xff, (size_t)P * sizeof(uint32_t)); /* NONE32 */
         }
-        int r = bucket_has_twice(sorted, lo, hi, P, head, mins);
+        int r = bucket_has_twice(sorted, lo, hi, P, head, prev);
         if (r < 0) r = bucket_has_twice(sorted, lo, hi, P, NULL, NULL);
         if (r) ok = 0;
     }
     free(head);
+    return ok;
+}
+
+/* The check fixed_consistent and fixed_validate share, on the faces' smallest nodes (mins, in
+ * 0..P-1) and packed keys (F of each): the keys bucketed by smallest node (a counting sort over the
+ * points: cache-friendly, unlike a hash table of every face), then compared within each bucket.
+ * mins is scratch afterwards. 1: no key met twice (consistent); 0: one met twice, or a mesh too
+ * large for the packed keys (P >= 2^30 or F >= 2^32: the full path decides); -1: out of memory. */
+static int faces_consistent(uint32_t *mins, const uint64_t *keys, uint64_t *sorted, int64_t F, int64_t P) {
+    if (P >= KEY_ID_LIMIT || F >= (int64_t)NONE32) return 0;
+    uint32_t *start = calloc((size_t)P + 2, sizeof(uint32_t));
+    int ok;
+    if (!start) return -1;
+    for (int64_t f = 0; f < F; f++) start[mins[f] + 2]++;
+    for (int64_t p = 2; p < P + 2; p++) start[p] += start[p - 1];
+    for (int64_t f = 0; f < F; f++) sorted[start[mins[f] + 1]++] = keys[f];
+    ok = buckets_once(sorted, start, 0, P, P, mins); /* mins is free now: the chains' prev */
     free(start);
     return ok;
 }
@@ -396,27 +406,7 @@ static void *part_run(void *arg) {
         for (int64_t f = J->flo; f < J->fhi; f++) J->sorted[J->cnt[J->mins[f]]++] = J->keys[f];
         return NULL;
     }
-    uint32_t *head = NULL;
-    for (int64_t p = J->plo; p < J->phi && J->ok; p++) {
-        uint32_t lo = J->start[p], hi = J->start[p + 1];
-        if (hi - lo <= 8) {
-            for (uint32_t x = lo; x < hi && J->ok; x++)
-                for (uint32_t y = x + 1; y < hi; y++)
-                    if (J->sorted[x] == J->sorted[y]) {
-                        J->ok = 0;
-                        break;
-                    }
-            continue;
-        }
-        if (head == NULL) {
-            head = malloc((size_t)J->P * sizeof(uint32_t));
-            if (head) memset(head, 0xff, (size_t)J->P * sizeof(uint32_t));
-        }
-        int r = bucket_has_twice(J->sorted, lo, hi, J->P, head, J->prev);
-        if (r < 0) r = bucket_has_twice(J->sorted, lo, hi, J->P, NULL, NULL);
-        if (r) J->ok = 0;
-    }
-    free(head);
+    J->ok = buckets_once(J->sorted, J->start, J->plo, J->phi, J->P, J->prev);
     return NULL;
 }
 

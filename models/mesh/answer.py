@@ -45,6 +45,8 @@ import os
 
 import numpy as np
 
+from models.mesh.invariants import csr_sizes, ids, in_range
+
 MAGIC = b"MAGNETR1"
 ALIGN = 64
 _DTYPES = frozenset(
@@ -424,33 +426,18 @@ def _decode(x, arrays: list, depth: int):
         pass  # a builder's arguments: build.build_deferred checks them all before building
     else:
         _check_csr(obj.offsets, obj.nodes, None)
-        _need(_ids(obj.cell) and obj.cell.shape == (len(obj.offsets) - 1,))
+        _need(ids(obj.cell) and obj.cell.shape == (len(obj.offsets) - 1,))
     return obj
 
 
 # ---------------------------------------------------------------- a Mesh's invariants
 
 
-def _ids(a, ndim: int = 1) -> bool:
-    return isinstance(a, np.ndarray) and a.dtype.kind in "iu" and a.ndim == ndim
-
-
-def _in_range(a: np.ndarray, n: int) -> bool:
-    """Every id in [0, n): one pass (signed ids seen as unsigned: a negative one is past n)."""
-    if a.size == 0:
-        return True
-    if a.dtype.kind == "i":
-        a = a.view(np.dtype(f"u{a.dtype.itemsize}"))
-    return int(a.max()) < n
-
-
 def _check_csr(offsets, values, n_ids: int | None) -> None:
     """offsets from 0, never decreasing, to len(values); values (ids below n_ids when given)."""
-    _need(_ids(offsets) and _ids(values) and offsets.size >= 1)
-    _need(int(offsets[0]) == 0 and int(offsets[-1]) == values.size)
-    _need(offsets.size < 2 or bool((offsets[1:] >= offsets[:-1]).all()))
+    _need(csr_sizes(offsets, values) is not None)
     if n_ids is not None:
-        _need(_in_range(values, n_ids))
+        _need(in_range(values, n_ids))
 
 
 def check_mesh(mesh) -> None:
@@ -466,18 +453,18 @@ def check_mesh(mesh) -> None:
     types = mesh.cell_types
     _need(isinstance(types, np.ndarray) and types.dtype == np.uint8 and types.ndim == 1)
     n_cells = types.shape[0]
-    _need(_ids(mesh.offsets) and mesh.offsets.shape == (n_cells + 1,))
+    _need(ids(mesh.offsets) and mesh.offsets.shape == (n_cells + 1,))
     _check_csr(mesh.offsets, mesh.connectivity, n_points)
-    _need(mesh.tags is None or (_ids(mesh.tags) and mesh.tags.shape == (n_cells,)))
+    _need(mesh.tags is None or (ids(mesh.tags) and mesh.tags.shape == (n_cells,)))
     _need(mesh.tag_name is None or type(mesh.tag_name) is str)
     f = mesh.frame
     _need(f is None or (isinstance(f, np.ndarray) and f.dtype.kind == "f" and f.shape == (3, 3)))
     poly = (mesh.poly_cells, mesh.poly_cell_faces, mesh.poly_face_offsets, mesh.poly_face_nodes)
     _need(all(a is None for a in poly) or all(a is not None for a in poly))
     if poly[0] is not None:
-        _need(_ids(poly[0]) and _in_range(poly[0], n_cells))
+        _need(ids(poly[0]) and in_range(poly[0], n_cells))
         _need(poly[1].shape == (poly[0].size + 1,))
-        _check_csr(poly[1], poly[2][:-1] if _ids(poly[2]) and poly[2].size else poly[2], None)
+        _check_csr(poly[1], poly[2][:-1] if ids(poly[2]) and poly[2].size else poly[2], None)
         _check_csr(poly[2], poly[3], n_points)
     bnd = (mesh.boundary_offsets, mesh.boundary_connectivity, mesh.boundary_types)
     _need(all(a is None for a in bnd) or all(a is not None for a in bnd))
@@ -487,7 +474,7 @@ def check_mesh(mesh) -> None:
             isinstance(bnd[2], np.ndarray) and bnd[2].dtype == np.uint8 and bnd[2].shape == (bnd[0].size - 1,)
         )
         bt = mesh.boundary_tags
-        _need(bt is None or (_ids(bt) and bt.shape == bnd[2].shape))
+        _need(bt is None or (ids(bt) and bt.shape == bnd[2].shape))
     else:
         _need(mesh.boundary_tags is None)
     _need(type(mesh.meta) is dict)
@@ -506,18 +493,18 @@ def _check_cached_faces(c, mesh, n_points: int, n_cells: int) -> None:
 
     _need(type(c) is dict and set(c) <= {"connectivity", "faces", "order", "same", "pairs", "areas"})
     faces = c.get("faces")
-    _need(type(faces) is Faces and _in_range(faces.nodes, n_points) and _in_range(faces.cell, n_cells))
+    _need(type(faces) is Faces and in_range(faces.nodes, n_points) and in_range(faces.cell, n_cells))
     n_faces = faces.cell.size
     _need(c.get("connectivity") is None or isinstance(c["connectivity"], np.ndarray))
     order, same, pairs, areas = (c.get(k) for k in ("order", "same", "pairs", "areas"))
-    _need(order is None or (_ids(order) and order.size == n_faces and _in_range(order, n_faces)))
+    _need(order is None or (ids(order) and order.size == n_faces and in_range(order, n_faces)))
     _need(
         same is None
         or (isinstance(same, np.ndarray) and same.dtype == bool and same.shape == (max(n_faces - 1, 0),))
     )
     if pairs is not None:
         _need(type(pairs) is tuple and len(pairs) == 2)
-        _need(all(_ids(q) and q.shape == pairs[0].shape and _in_range(q, n_faces) for q in pairs))
+        _need(all(ids(q) and q.shape == pairs[0].shape and in_range(q, n_faces) for q in pairs))
     _need(
         areas is None or (isinstance(areas, np.ndarray) and areas.dtype.kind == "f" and areas.size == n_faces)
     )

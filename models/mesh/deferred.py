@@ -8,7 +8,7 @@ caller checks them and builds. The answer that crosses the memfd is then the rea
 the Mesh with its orientation records, measures and centroids: about 30% fewer bytes for a
 tetrahedral or hexahedral file, and for image data a few numbers instead of the whole lattice
 (the caller makes its points and hexahedra from origin, spacing and extent); a whole structured
-grid comes as its points and dimensions, its hexahedra made again by the caller (lattice.hexahedra).
+grid comes as its points and dimensions, its hexahedra made again by the caller (lattice.structured_cells).
 
 The caller trusts nothing the child wrote (a child taken over by a reader exploit may lie):
 `build.build_deferred` checks every invariant the builders rely on before any of them runs (dtypes and
@@ -24,6 +24,8 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+
+from models.mesh.invariants import csr_sizes, ids, in_range
 
 # set in the reading child only (models.mesh.sandbox._read_in_child): builders return a Deferred
 DEFER = False
@@ -92,31 +94,10 @@ def _need(ok) -> None:
         raise Inconsistent("inconsistent build arguments")
 
 
-def _ints(a, ndim: int = 1) -> bool:
-    return isinstance(a, np.ndarray) and a.dtype.kind in "iu" and a.ndim == ndim
-
-
-def _in_range(a: np.ndarray, n: int) -> bool:
-    if a.size == 0:
-        return True
-    return int(a.min()) >= 0 and int(a.max()) < n
-
-
-def _csr(offsets, values) -> np.ndarray:
-    """The sizes of a CSR whose offsets run from 0, never decreasing, to len(values) (its values
-    integers); Inconsistent otherwise. Point ids out of range are the builder's to refuse: it checks
-    them before anything indexes with them, in the words a reader's bad file gets."""
-    _need(_ints(offsets) and _ints(values) and offsets.size >= 1)
-    _need(int(offsets[0]) == 0 and int(offsets[-1]) == values.size)
-    sizes = np.diff(offsets)
-    _need(sizes.size == 0 or int(sizes.min()) >= 0)
-    return sizes
-
-
 def _cells_fit(offsets, values, types: np.ndarray, table: np.ndarray) -> bool:
     """A CSR (offsets, values) of cells of `types`, each with the node count `table` gives its type.
     One type of fixed size (the common file): the offsets are 0, k, 2k, ... to len(values)."""
-    _need(_ints(offsets) and _ints(values) and offsets.shape == (types.size + 1,))
+    _need(ids(offsets) and ids(values) and offsets.shape == (types.size + 1,))
     if types.size:
         t = int(types[0])
         k = int(table[t])
@@ -124,7 +105,9 @@ def _cells_fit(offsets, values, types: np.ndarray, table: np.ndarray) -> bool:
             return values.size == k * types.size and bool(
                 (offsets == np.arange(0, k * types.size + 1, k, dtype=offsets.dtype)).all()
             )
-    return _sizes_fit(types, _csr(offsets, values), table)
+    sizes = csr_sizes(offsets, values)
+    _need(sizes is not None)
+    return _sizes_fit(types, sizes, table)
 
 
 def _sizes_fit(types: np.ndarray, sizes: np.ndarray, table: np.ndarray) -> bool:
@@ -183,35 +166,33 @@ def cells_args(args: tuple, dim: int) -> tuple:
         if weld is None and not poly_faces:  # the builder takes the hexahedra for the lattice's:
             # never the child's (deferred.cells leaves them out): made here
             _need(offsets is None and conn is None and types is None)
-            from models.mesh.lattice import hexahedra
+            from models.mesh.lattice import structured_cells
 
-            offsets, conn, types = hexahedra(dims)
+            offsets, conn, types = structured_cells(dims)  # (every axis live: hexahedra)
     _need(isinstance(types, np.ndarray) and types.dtype == np.uint8 and types.ndim == 1)
     n_cells = types.size
     _need(_cells_fit(offsets, conn, types, _SIZE))
     _need(bool(_ALLOWED[dim][types].all()))
-    _need(tags is None or (_ints(tags) and tags.shape == (n_cells,)))
+    _need(tags is None or (ids(tags) and tags.shape == (n_cells,)))
     _need(type(poly_faces) is list)
     seen = []
     for piece in poly_faces:
         _need(type(piece) is tuple and len(piece) == 4)
-        ids, nfaces, fsizes, fnodes = piece
-        _need(_ints(ids) and _ints(nfaces) and _ints(fsizes) and _ints(fnodes))
-        _need(_in_range(ids, n_cells) and nfaces.shape == ids.shape)
+        cells_of, nfaces, fsizes, fnodes = piece
+        _need(ids(cells_of) and ids(nfaces) and ids(fsizes) and ids(fnodes))
+        _need(in_range(cells_of, n_cells) and nfaces.shape == cells_of.shape)
         _need(nfaces.size == 0 or int(nfaces.min()) >= 4)
         _need(fsizes.size == int(nfaces.sum()) and (fsizes.size == 0 or int(fsizes.min()) >= 3))
         _need(fnodes.size == int(fsizes.sum()))  # (their point ids: the builder checks them)
-        seen.append(ids)
-    poly = np.flatnonzero(_POLYHEDRA[types]) if poly_faces else np.zeros(0, np.int64)
-    _need(poly_faces or not _POLYHEDRA[types].any())
+        seen.append(cells_of)
     got = np.sort(np.concatenate(seen)) if seen else np.zeros(0, np.int64)
-    _need(np.array_equal(got, poly))  # each polyhedron's faces once, and only polyhedra's
+    _need(np.array_equal(got, np.flatnonzero(_POLYHEDRA[types])))  # each polyhedron's faces once, only theirs
     if bnd is not None:
         _need(type(bnd) is tuple and len(bnd) == 4)
         b_off, b_conn, b_types, b_tags = bnd
         _need(isinstance(b_types, np.ndarray) and b_types.dtype == np.uint8 and b_types.ndim == 1)
         _need(_cells_fit(b_off, b_conn, b_types, _BSIZE))
-        _need(b_tags is None or (_ints(b_tags) and b_tags.shape == b_types.shape))
+        _need(b_tags is None or (ids(b_tags) and b_tags.shape == b_types.shape))
     return (points, offsets, conn, types, tags, tag_name, poly_faces, bnd, lower, dim, weld, meta, grid)
 
 
@@ -234,7 +215,7 @@ def image_args(args: tuple, memory_bytes: int | None) -> tuple:
     n_cells = (axes[0].size - 1) * (axes[1].size - 1) * (axes[2].size - 1)
     if memory_bytes is not None and image_bytes(n_points, n_cells) > memory_bytes:
         raise MemoryError
-    _need(tags is None or (_ints(tags) and tags.shape == (n_cells,)))
+    _need(tags is None or (ids(tags) and tags.shape == (n_cells,)))
     _need(tag_name is None or type(tag_name) is str)
     _need(type(meta) is dict)
     _plain(meta)

@@ -94,12 +94,6 @@ def hex_corners(stride) -> np.ndarray:
     return np.array([0, sx, sx + sy, sy, sz, sz + sx, sz + sx + sy, sz + sy])
 
 
-def hexahedra(dims) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(offsets, connectivity, types) of the hexahedra of a whole 3D lattice of dims points, x
-    fastest: the cells vtk_readers._structured makes of it, bit for bit."""
-    return structured_cells(dims)
-
-
 def structured_cells(dims) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(offsets, connectivity, types) of a lattice of dims points (image data, structured and
     rectilinear grids): hexahedra (3 axes of 2 points or more), quads (2) or lines (1), VTK's cell

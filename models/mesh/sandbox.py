@@ -8,15 +8,16 @@ deadline. A segfault, an abort, a hang or a memory blow-up becomes one MeshError
 the file and the format ("the Exodus II reader crashed on this file: it is corrupted or not
 Exodus II"); the calling process lives on.
 
-The Mesh comes back without a copy per cell and without a pickle (models.mesh.answer): the child
-writes a JSON header and every numpy array raw (each once: an array met twice is one entry) into a
-memfd (shared memory); the parent seals the memfd (nobody can write it any more), checks the header
-and the Mesh's invariants (a child taken over by a reader exploit can write any bytes: nothing it
-writes is run, and anything inconsistent is worded as a crashed reader), maps it private and
-populated (no page fault per page on first read; an array edited in place copies the pages it
-writes) and the arrays are views of it. The
-child runs with the garbage collector off (no copy-on-write faults from a collection), and once it
-has answered the parent goes on while it exits (collected at the next read or at exit).
+The child reads; the parent builds (models.mesh.deferred): in the child the builders hand back
+their arguments, the reader's arrays, and the parent checks them and makes the Mesh with our own
+code (`_built`). The answer is never a pickle (models.mesh.answer): a JSON header in a memfd the
+parent seals (nobody can write it any more), and the arrays, copied by the parent out of the
+child's memory (process_vm_readv, where the zygote's probe allows it: the child waits until the
+parent has built the Mesh) or else raw in the memfd, mapped private. A child taken over by a reader
+exploit can write any bytes: nothing it writes is run, and anything inconsistent is worded as a
+crashed reader. The child runs with the garbage collector off (no copy-on-write faults from a
+collection), and once it is released the parent goes on while it exits (collected at the next read
+or at exit).
 
 Every message also gets the same wording here, in-process or not (`wording`): it names the file
 and the format, and a library's raw exception text or a Python repr is replaced by a sentence.
@@ -136,12 +137,6 @@ def memory_sentence(path, memory_bytes: int, file_format: str | None = None) -> 
     )
 
 
-def _default_memory() -> int:
-    from models.mesh.read import default_memory
-
-    return default_memory()
-
-
 def _default_timeout() -> float:
     try:
         return float(os.environ.get("MAGNET_READ_TIMEOUT_S", DEFAULT_TIMEOUT_S))
@@ -198,7 +193,7 @@ def read_mesh_safe(
         if in_process or not sandbox_enabled():
             with deadline(timeout_s):
                 return read.read_mesh(path, **kwargs, **({} if native else {"native": False}))
-        memory_bytes = _default_memory() if memory_bytes is None else memory_bytes
+        memory_bytes = read.default_memory() if memory_bytes is None else memory_bytes
         held: list[int] = []
         try:
             got = call_in_child(
@@ -364,8 +359,8 @@ def call_in_child(
     zygote: bool = True,
     hold: list | None = None,
 ):
-    """fn(*args) in a forked child under the limits; its result (numpy arrays out of band, through
-    shared memory), or the MagnetError it raised; a crash, hang or memory blow-up as a MeshError.
+    """fn(*args) in a forked child under the limits; its result (models.mesh.answer: arrays copied
+    from the child or through a memfd, never a pickle), or the MagnetError it raised; a crash, hang or memory blow-up as a MeshError.
     The child is forked by this process's reader zygote (models.mesh.zygote) when it is running
     and `zygote`, else by this process. hold: a child that lent its arrays waits until the pipe
     put in this list is closed (by the caller, when it is done: the child's exit and the zygote's

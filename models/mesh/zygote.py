@@ -159,8 +159,8 @@ class Zygote:
         less); the zygote's word ("done": answered, killed by signal N, timed out) covers every
         other end, and for an answered read it is taken before the next request (`owed`).
         release: the read end of a pipe of ours, handed to the child: it lends its answer's arrays
-        (answer.dump's lend) and waits until the pipe's other end closes (the caller has copied)."""
-        self._settle()
+        (answer.dump's lend) and waits until the pipe's other end closes (the caller has copied).
+        The zygote's word on the last read is taken first (_direct's _direct_poll)."""
         r, w = os.pipe()
         pid = None
         done = False
@@ -271,12 +271,13 @@ class Zygote:
             raise ZygoteLost("the zygote ended")
         got = pickle.loads(msg)
         if got[0] == "spare":  # the next spare's pid and request socket: kept for the next read
-            conn = socket.socket(fileno=fds[0]) if fds else None
-            if conn is not None and got[1] == self.used:  # a spare the zygote handed a request
-                conn.close()
-            elif conn is not None:
-                self._drop_spare()
-                self.spare = (got[1], conn)
+            if fds:
+                conn = socket.socket(fileno=fds[0])
+                if got[1] == self.used:  # a spare the zygote handed a request already
+                    conn.close()
+                else:
+                    self._drop_spare()
+                    self.spare = (got[1], conn)
             return None
         for f in fds:
             os.close(f)
