@@ -75,6 +75,13 @@ def upload_brain(page):
     assert "verdict ok" in page.inner_text("#mesh-check")  # the upload's `check` report
 
 
+def kway(page, model: str, k: str):
+    """The form set for `model` in k-way mode with k elements."""
+    page.select_option("select[name=model]", model)
+    page.select_option("select[name=mode]", "kway")
+    page.fill("input[name=k]", k)
+
+
 def drop_brain(page):
     """Drag and drop: a `drop` event carrying the file, as a browser fires it."""
     page.evaluate(
@@ -112,10 +119,8 @@ def test_page_uploads_runs_metis_shows_and_downloads(browser, tmp_path):
     try:
         page, errors = new_page(browser, url)
         upload_brain(page)
-        page.select_option("select[name=model]", "metis")
-        page.select_option("select[name=mode]", "kway")
         # the API's validation errors appear next to the field: the library's, then pydantic's
-        page.fill("input[name=k]", "99999")
+        kway(page, "metis", "99999")
         page.click("button[type=submit]")
         page.wait_for_selector(".field[data-field=k].invalid")
         assert "larger than the number of cells" in page.inner_text(".field[data-field=k] .error")
@@ -214,9 +219,7 @@ def test_page_builds_a_hierarchy_and_shows_every_level(browser, tmp_path):
     try:
         page, errors = new_page(browser, url)
         upload_brain(page)
-        page.select_option("select[name=model]", "rtree")
-        page.select_option("select[name=mode]", "kway")
-        page.fill("input[name=k]", "512")  # the job's 512 elements are the finest level
+        kway(page, "rtree", "512")  # the job's 512 elements are the finest level
         assert page.locator(".field[data-field=ratio]").is_hidden()
         page.check("input[name=hierarchy]")
         assert page.inner_text("#submit") == "Build hierarchy"
@@ -311,9 +314,7 @@ def test_page_hierarchy_finest_level_choice(browser, tmp_path):
     try:
         page, errors = new_page(browser, url)
         upload_brain(page)
-        page.select_option("select[name=model]", "rtree")
-        page.select_option("select[name=mode]", "kway")
-        page.fill("input[name=k]", "64")
+        kway(page, "rtree", "64")
         assert page.locator(".field[data-field=finest]").is_hidden()
         page.check("input[name=hierarchy]")
         assert page.locator(".field[data-field=ratio]").is_visible()
