@@ -175,9 +175,49 @@ def test_the_threaded_face_check_answers_as_the_sequential_one(kind):
     cases = [c] + [np.concatenate([c, c[i : i + 1]]) for i in (0, len(c) // 2, len(c) - 1)]
     answers = []
     for cells in cases:
-        one, two = run(cells, 1), run(cells, 2)
-        assert one[0] == two[0]
-        for a, b in zip(one[1:], two[1:], strict=True):
-            assert np.array_equal(a, b)
+        one = run(cells, 1)
+        for threads in (2, 3, 8):  # helpers claim chunks as they come (one may find none left)
+            other = run(cells, threads)
+            assert one[0] == other[0]
+            for a, b in zip(one[1:], other[1:], strict=True):
+                assert np.array_equal(a, b)
         answers.append(one[0])
     assert answers == [True, False, False, False]
+
+
+def test_concurrent_validations_each_answer_their_own():
+    """Four Python threads validating at once (the scratch arena taken by one, the others'
+    scratch allocated for the call) each get the answer and measures of a call made alone, the
+    meshes of different sizes (the arena grown between calls)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    fast = compiled("mesh._fastmesh")
+    from models.mesh.container import VTK_HEXAHEDRON
+    from models.mesh.geometry import fixed_template
+
+    tmpl, tsize = fixed_template(VTK_HEXAHEDRON)
+    cases = []
+    for n, seed in ((8, 1), (20, 2), (24, 3), (12, 4)):
+        p, c = hexes(n)
+        p = np.ascontiguousarray(_perturbed(p, seed, 0.05), dtype=np.float64)
+        if seed == 3:
+            c = np.concatenate([c, c[:1]])  # a repeated cell: False
+        cases.append((p, np.ascontiguousarray(c, dtype=np.int64).reshape(-1), len(c)))
+
+    def run(case):
+        p, conn, n = case
+        vol, cen, flip = np.empty(n), np.empty((n, 3)), np.empty(n, np.uint8)
+        ok = fast.fixed_validate(
+            p, conn, tmpl, tsize, vol, cen, flip, np.array([len(p)], dtype=np.int64), np.array([2])
+        )
+        return ok, vol, cen, flip
+
+    alone = [run(case) for case in cases]
+    with ThreadPoolExecutor(4) as pool:
+        for _ in range(3):
+            together = list(pool.map(run, cases))
+            for a, b in zip(alone, together, strict=True):
+                assert a[0] == b[0]
+                for x, y in zip(a[1:], b[1:], strict=True):
+                    assert np.array_equal(x, y)
+    assert [a[0] for a in alone] == [True, True, False, True]

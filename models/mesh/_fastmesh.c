@@ -29,6 +29,9 @@
 #include <stdlib.h>
 #include <string.h>
 #include <pthread.h>
+#include <sched.h>
+#include <stdatomic.h>
+#include <sys/mman.h>
 
 
 /* One cell's signed volume and centroid (fixed_measures), its k nodes c[0..k-1]: the same float
@@ -336,11 +339,12 @@ static int bucket_has_twice(const uint64_t *sorted, uint32_t lo, uint32_t hi, in
 
 /* 1 when no key is met twice in any bucket p of plo..phi-1 (sorted[start[p]..start[p+1]): small
  * buckets pairwise, inline (the common case), larger ones by bucket_has_twice's chains (prev: scratch
- * by position, one entry per key of these buckets; head: chain heads, P entries, made at the first
- * large bucket; without memory for it, pairwise); 0 otherwise. */
+ * by position, one entry per key of these buckets; *head: chain heads, P entries, made at the first
+ * large bucket and kept for the caller's later ranges (positions only grow from one range to the next
+ * of one caller: an old head is never taken for this bucket's); without memory for it, pairwise); 0
+ * otherwise. The caller frees *head. */
 static int buckets_once(const uint64_t *sorted, const uint32_t *start, int64_t plo, int64_t phi, int64_t P,
-                        uint32_t *prev) {
-    uint32_t *head = NULL;
+                        uint32_t *prev, uint32_t **head) {
     int ok = 1;
     for (int64_t p = plo; p < phi && ok; p++) {
         uint32_t lo = start[p], hi = start[p + 1];
@@ -353,122 +357,103 @@ static int buckets_once(const uint64_t *sorted, const uint32_t *start, int64_t p
                     }
             continue;
         }
-        if (head == NULL) {
-            head = malloc((size_t)P * sizeof(uint32_t));
-            if (head) memset(head, 0xff, (size_t)P * sizeof(uint32_t)); /* NONE32 */
+        if (*head == NULL) {
+            *head = malloc((size_t)P * sizeof(uint32_t));
+            if (*head) memset(*head, 0xff, (size_t)P * sizeof(uint32_t)); /* NONE32 */
         }
-        int r = bucket_has_twice(sorted, lo, hi, P, head, prev);
+        int r = bucket_has_twice(sorted, lo, hi, P, *head, prev);
         if (r < 0) r = bucket_has_twice(sorted, lo, hi, P, NULL, NULL);
         if (r) ok = 0;
     }
-    free(head);
     return ok;
+}
+
+/* The face check's scratch (Scratch: keys, sorted keys, smallest nodes, chains, bucket starts and
+ * per-thread counts) in one block. Blocks up to ARENA_MAX come from one arena kept between calls
+ * (taken and given back with the GIL held; a call while it is taken, or a larger mesh, mallocs):
+ * freshly mapped pages fault one by one on first touch, and on this kind of machine that cost as
+ * much as the check itself (10^4 hexahedra: ~500 faults, ~0.6 ms of a 1 ms build). The arena is on
+ * transparent huge pages where the kernel allows it (madvise), and stays mapped for the process's
+ * life (at most ARENA_MAX: the scratch of ~400,000 hexahedra). */
+#define ARENA_MAX ((size_t)64 << 20)
+static char *arena = NULL;
+static size_t arena_cap = 0;
+static int arena_busy = 0;
+
+static void *scratch_take(size_t n) {
+    if (n == 0) n = 1;
+    if (arena_busy || n > ARENA_MAX) return malloc(n);
+    if (arena_cap < n) {
+        size_t cap = (n + ((size_t)2 << 20) - 1) & ~(((size_t)2 << 20) - 1); /* whole 2 MiB pages */
+        void *p = mmap(NULL, cap, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+        if (p == MAP_FAILED) return malloc(n);
+#ifdef MADV_HUGEPAGE
+        madvise(p, cap, MADV_HUGEPAGE);
+#endif
+        if (arena) munmap(arena, arena_cap);
+        arena = p;
+        arena_cap = cap;
+    }
+    arena_busy = 1;
+    return arena;
+}
+
+static void scratch_give(void *p) {
+    if (p != NULL && p == (void *)arena)
+        arena_busy = 0;
+    else
+        free(p);
+}
+
+typedef struct {
+    uint64_t *keys, *sorted;
+    uint32_t *mins, *prev, *start, *cnt;
+    void *block;
+} Scratch;
+
+/* The scratch of F faces over P points: keys, sorted keys, smallest nodes, bucket starts; with R > 0
+ * (fixed_validate's staged check) also the chains and R ranges' counts. .block NULL when out of
+ * memory. GIL held. */
+static Scratch face_scratch(int64_t F, int64_t P, int64_t R) {
+    Scratch s = {0};
+    if (F < 1) F = 1;
+    if (P < 0) P = 0;
+    int threaded = R > 0;
+    int64_t T = R;
+    size_t n = (size_t)F * (2 * sizeof(uint64_t) + sizeof(uint32_t)) + ((size_t)P + 2) * sizeof(uint32_t);
+    if (threaded) n += (size_t)F * sizeof(uint32_t) + (size_t)T * (size_t)P * sizeof(uint32_t);
+    char *b = scratch_take(n);
+    if (!b) return s;
+    s.block = b;
+    s.keys = (uint64_t *)b;
+    s.sorted = s.keys + F;
+    s.mins = (uint32_t *)(s.sorted + F);
+    s.start = s.mins + F;
+    if (threaded) {
+        s.prev = s.start + P + 2;
+        s.cnt = s.prev + F;
+    }
+    return s;
 }
 
 /* The check fixed_consistent and fixed_validate share, on the faces' smallest nodes (mins, in
  * 0..P-1) and packed keys (F of each): the keys bucketed by smallest node (a counting sort over the
  * points: cache-friendly, unlike a hash table of every face), then compared within each bucket.
- * mins is scratch afterwards. 1: no key met twice (consistent); 0: one met twice, or a mesh too
- * large for the packed keys (P >= 2^30 or F >= 2^32: the full path decides); -1: out of memory. */
-static int faces_consistent(uint32_t *mins, const uint64_t *keys, uint64_t *sorted, int64_t F, int64_t P) {
+ * mins is scratch afterwards; start: P + 2 entries of scratch. 1: no key met twice (consistent);
+ * 0: one met twice, or a mesh too large for the packed keys (P >= 2^30 or F >= 2^32: the full path
+ * decides); -1: out of memory. */
+static int faces_consistent(uint32_t *mins, const uint64_t *keys, uint64_t *sorted, int64_t F, int64_t P,
+                            uint32_t *start) {
     if (P >= KEY_ID_LIMIT || F >= (int64_t)NONE32) return 0;
-    uint32_t *start = calloc((size_t)P + 2, sizeof(uint32_t));
     int ok;
-    if (!start) return -1;
+    memset(start, 0, ((size_t)P + 2) * sizeof(uint32_t));
     for (int64_t f = 0; f < F; f++) start[mins[f] + 2]++;
     for (int64_t p = 2; p < P + 2; p++) start[p] += start[p - 1];
     for (int64_t f = 0; f < F; f++) sorted[start[mins[f] + 1]++] = keys[f];
-    ok = buckets_once(sorted, start, 0, P, P, mins); /* mins is free now: the chains' prev */
-    free(start);
+    uint32_t *head = NULL;
+    ok = buckets_once(sorted, start, 0, P, P, mins, &head); /* mins is free now: the chains' prev */
+    free(head);
     return ok;
-}
-
-/* faces_consistent in T threads (fixed_validate's, for large meshes): the counting sort with one
- * histogram per thread over its range of faces (the positions then in (point, thread) order: the
- * sorted keys are the sequential pass's, bucket for bucket, in the same order), then the buckets
- * compared per range of points, each thread with its own chain heads. Same answer as faces_consistent. */
-typedef struct {
-    const uint32_t *mins;
-    const uint64_t *keys;
-    uint64_t *sorted;
-    uint32_t *cnt, *start, *prev;
-    int64_t flo, fhi, plo, phi, P;
-    int stage, ok;
-} Part;
-
-static void *part_run(void *arg) {
-    Part *J = arg;
-    if (J->stage == 0) {
-        for (int64_t f = J->flo; f < J->fhi; f++) J->cnt[J->mins[f]]++;
-        return NULL;
-    }
-    if (J->stage == 1) {
-        for (int64_t f = J->flo; f < J->fhi; f++) J->sorted[J->cnt[J->mins[f]]++] = J->keys[f];
-        return NULL;
-    }
-    J->ok = buckets_once(J->sorted, J->start, J->plo, J->phi, J->P, J->prev);
-    return NULL;
-}
-
-static void run_parts(Part *jobs, int64_t T, int stage) {
-    pthread_t tid[64];
-    int started[64] = {0};
-    for (int64_t t = 0; t < T; t++) jobs[t].stage = stage;
-    for (int64_t t = 1; t < T; t++) started[t] = pthread_create(&tid[t], NULL, part_run, &jobs[t]) == 0;
-    part_run(&jobs[0]);
-    for (int64_t t = 1; t < T; t++) {
-        if (started[t])
-            pthread_join(tid[t], NULL);
-        else
-            part_run(&jobs[t]);
-    }
-}
-
-static int faces_consistent_threads(uint32_t *mins, const uint64_t *keys, uint64_t *sorted, int64_t F, int64_t P,
-                                    int64_t T) {
-    if (T <= 1 || F < 65536) return faces_consistent(mins, keys, sorted, F, P);
-    if (P >= KEY_ID_LIMIT || F >= (int64_t)NONE32) return 0;
-    uint32_t *cnt = calloc((size_t)T * (size_t)P, sizeof(uint32_t));
-    uint32_t *start = malloc(((size_t)P + 1) * sizeof(uint32_t));
-    uint32_t *prev = malloc((size_t)F * sizeof(uint32_t));
-    if (!cnt || !start || !prev) {
-        free(cnt);
-        free(start);
-        free(prev);
-        return -1;
-    }
-    Part jobs[64];
-    for (int64_t t = 0; t < T; t++) {
-        Part j = {mins, keys, sorted, cnt + t * P, start, prev, F * t / T, F * (t + 1) / T,
-                  P * t / T, P * (t + 1) / T, P, 0, 1};
-        jobs[t] = j;
-    }
-    run_parts(jobs, T, 0); /* per-thread counts */
-    uint32_t pos = 0;
-    for (int64_t p = 0; p < P; p++) { /* positions in (point, thread) order */
-        start[p] = pos;
-        for (int64_t t = 0; t < T; t++) {
-            uint32_t c = cnt[t * P + p];
-            cnt[t * P + p] = pos;
-            pos += c;
-        }
-    }
-    start[P] = pos;
-    run_parts(jobs, T, 1); /* scatter */
-    run_parts(jobs, T, 2); /* compare, by ranges of points */
-    int ok = 1;
-    for (int64_t t = 0; t < T; t++) ok &= jobs[t].ok;
-    free(cnt);
-    free(start);
-    free(prev);
-    return ok;
-}
-
-/* The face check's scratch in one block (fewer calls, one mapping): F keys, F sorted keys, F
- * smallest nodes (uint32), in that order; NULL when out of memory. */
-static uint64_t *face_scratch(int64_t F) {
-    if (F < 1) F = 1;
-    return malloc((size_t)F * (2 * sizeof(uint64_t) + sizeof(uint32_t)));
 }
 
 /* fixed_consistent(conn, tmpl, tsize, flip, npts) -> bool
@@ -493,9 +478,10 @@ static PyObject *py_fixed_consistent(PyObject *self, PyObject *args) {
         return NULL;
     }
     int64_t P = npts[0], F = C * nf;
-    uint64_t *keys = face_scratch(F), *sorted = keys + F;
-    uint32_t *mins = (uint32_t *)(sorted + F);
-    int ok = 1, err = !keys;
+    Scratch s = face_scratch(F, P, 0);
+    uint64_t *keys = s.keys;
+    uint32_t *mins = s.mins;
+    int ok = 1, err = !s.block;
     Py_BEGIN_ALLOW_THREADS
     if (!err)
         for (int64_t i = 0; i < C; i++) /* every face's smallest node and key */
@@ -504,11 +490,11 @@ static PyObject *py_fixed_consistent(PyObject *self, PyObject *args) {
                 break;
             }
     if (!err) {
-        ok = faces_consistent(mins, keys, sorted, F, P);
+        ok = faces_consistent(mins, keys, s.sorted, F, P, s.start);
         if (ok < 0) err = 1;
     }
     Py_END_ALLOW_THREADS
-    free(keys);
+    scratch_give(s.block);
     release_arr(b, 5);
     if (err == 1) return PyErr_NoMemory();
     if (err) {
@@ -524,10 +510,16 @@ static PyObject *py_fixed_consistent(PyObject *self, PyObject *args) {
  *   fixed_measures' signed volume and centroid (tetrahedra: measure_tet, closed form, as
  *   geometry._tetra_measures), flip[i] = vol[i] < 0 (uint8), and every face's smallest node and
  *   directed key as fixed_consistent makes them with those flips (sharing the gathered nodes).
- *   That pass runs in nthreads (1,) threads over ranges of cells (each cell's values do not depend
- *   on them). Then faces_consistent buckets the keys by their smallest node and compares them in
- *   each bucket: True when no face is met twice in the same direction (flipping every cell by its
- *   own sign is consistent), False otherwise (the caller takes the full path). */
+ *   Then the keys are bucketed by their smallest node (a counting sort over R ranges of faces, the
+ *   positions in (point, range) order: the sequential pass's order, bucket for bucket) and compared
+ *   in each bucket: True when no face is met twice in the same direction (flipping every cell by
+ *   its own sign is consistent), False otherwise (the caller takes the full path).
+ *   The work is cut into chunks (cells, ranges of faces, ranges of points) in five stages; the
+ *   calling thread and up to nthreads - 1 helpers claim chunks from a counter, and no one starts a
+ *   stage before the one before is done. The caller never waits for a helper to start: on a virtual
+ *   machine whose other core is idle a new thread may start milliseconds late (measured here: 0.6-4 ms
+ *   after a sleep, 45 us otherwise), and then the caller does the chunks itself (the sequential
+ *   time, not twice it); a helper that comes late finds nothing left and ends. */
 typedef struct {
     const double *P;
     const int64_t *conn, *tmpl, *tsize;
@@ -572,6 +564,82 @@ static void *validate_range(void *arg) {
     return NULL;
 }
 
+enum { ST_MEASURE, ST_COUNT, ST_PREFIX, ST_SCATTER, ST_COMPARE, ST_N };
+#define MEASURE_CHUNK 2048 /* cells (a multiple of 4: hexahedra four at a time) */
+#define COMPARE_CHUNK 8192 /* points */
+
+typedef struct {
+    atomic_int refs;  /* the caller and each helper started: the last one frees this */
+    atomic_int bad;   /* a point id out of range (measuring) */
+    atomic_int twice; /* a key met twice (comparing) */
+    atomic_long next[ST_N], done[ST_N];
+    long n[ST_N];
+    Job job; /* the measuring pass's arrays (lo, hi per chunk) */
+    Scratch s;
+    int64_t C, F, Pn, R;
+} Stages;
+
+static void stage_chunk(Stages *S, int st, long c, uint32_t **head) {
+    Scratch *s = &S->s;
+    int64_t F = S->F, Pn = S->Pn, R = S->R;
+    if (st == ST_MEASURE) {
+        Job j = S->job;
+        j.lo = (int64_t)c * MEASURE_CHUNK;
+        j.hi = j.lo + MEASURE_CHUNK < S->C ? j.lo + MEASURE_CHUNK : S->C;
+        j.bad = 0;
+        validate_range(&j);
+        if (j.bad) atomic_store(&S->bad, 1);
+    } else if (st == ST_COUNT) {
+        uint32_t *cnt = s->cnt + c * Pn;
+        memset(cnt, 0, (size_t)Pn * sizeof(uint32_t));
+        for (int64_t f = F * c / R; f < F * (c + 1) / R; f++) cnt[s->mins[f]]++;
+    } else if (st == ST_PREFIX) { /* positions in (point, range) order */
+        uint32_t pos = 0;
+        for (int64_t p = 0; p < Pn; p++) {
+            s->start[p] = pos;
+            for (int64_t r = 0; r < R; r++) {
+                uint32_t n = s->cnt[r * Pn + p];
+                s->cnt[r * Pn + p] = pos;
+                pos += n;
+            }
+        }
+        s->start[Pn] = pos;
+    } else if (st == ST_SCATTER) {
+        uint32_t *cnt = s->cnt + c * Pn;
+        for (int64_t f = F * c / R; f < F * (c + 1) / R; f++) s->sorted[cnt[s->mins[f]]++] = s->keys[f];
+    } else {
+        int64_t lo = (int64_t)c * COMPARE_CHUNK, hi = lo + COMPARE_CHUNK < Pn ? lo + COMPARE_CHUNK : Pn;
+        if (!buckets_once(s->sorted, s->start, lo, hi, Pn, s->prev, head)) atomic_store(&S->twice, 1);
+    }
+}
+
+/* Every stage in order: claim chunks until none is left, then wait until the stage's chunks are
+ * done (those other threads claimed), then the next stage. After a bad point id or a key met
+ * twice the remaining chunks are counted done without work. */
+static void run_stages(Stages *S) {
+    uint32_t *head = NULL;
+    for (int st = 0; st < ST_N; st++) {
+        long c;
+        while ((c = atomic_fetch_add(&S->next[st], 1)) < S->n[st]) {
+            if (!atomic_load(&S->bad) && !atomic_load(&S->twice)) stage_chunk(S, st, c, &head);
+            atomic_fetch_add_explicit(&S->done[st], 1, memory_order_release);
+        }
+        for (int spin = 0; atomic_load_explicit(&S->done[st], memory_order_acquire) < S->n[st]; spin++)
+            if (spin > 256) sched_yield();
+    }
+    free(head);
+}
+
+static void stages_drop(Stages *S) {
+    if (atomic_fetch_sub(&S->refs, 1) == 1) free(S);
+}
+
+static void *stage_helper(void *arg) {
+    run_stages(arg);
+    stages_drop(arg);
+    return NULL;
+}
+
 static PyObject *py_fixed_validate(PyObject *self, PyObject *args) {
     static const char *const names[] = {"points", "conn", "tmpl", "tsize", "vol",
                                         "cen",    "flip", "npts", "nthreads"};
@@ -596,36 +664,45 @@ static PyObject *py_fixed_validate(PyObject *self, PyObject *args) {
     }
     int64_t Pn = npts[0], F = C * nf, T = nth[0] < 1 ? 1 : nth[0] > 64 ? 64 : nth[0];
     if (T > 1 && C / T < 4096) T = C / 4096 > 1 ? C / 4096 : 1; /* threads only for large arrays */
-    uint64_t *keys = face_scratch(F), *sorted = keys + F;
-    uint32_t *mins = (uint32_t *)(sorted + F);
-    int ok = 1, err = !keys;
+    int faces = Pn < KEY_ID_LIMIT && F < (int64_t)NONE32; /* else the packed keys cannot hold them */
+    Stages *S = calloc(1, sizeof(Stages));
+    Scratch s = face_scratch(F, Pn, T);
+    int ok = 0, err = !s.block || !S;
+    if (!err) {
+        Job j = {P, conn, tmpl, tsize, k, nf, 0, 0, Pn, vol, cen, flip, s.mins, s.keys, 0};
+        S->job = j;
+        S->s = s;
+        S->C = C, S->F = F, S->Pn = Pn, S->R = T;
+        S->n[ST_MEASURE] = (long)((C + MEASURE_CHUNK - 1) / MEASURE_CHUNK);
+        S->n[ST_COUNT] = S->n[ST_SCATTER] = faces ? (long)T : 0;
+        S->n[ST_PREFIX] = faces ? 1 : 0;
+        S->n[ST_COMPARE] = faces ? (long)((Pn + COMPARE_CHUNK - 1) / COMPARE_CHUNK) : 0;
+        atomic_init(&S->refs, 1);
+    }
     Py_BEGIN_ALLOW_THREADS
     if (!err) {
-        Job jobs[64];
-        pthread_t tid[64];
-        int started[64] = {0};
-        for (int64_t t = 0; t < T; t++) {
-            Job j = {P, conn, tmpl, tsize, k, nf, C * t / T, C * (t + 1) / T, Pn, vol, cen, flip, mins, keys, 0};
-            jobs[t] = j;
+        pthread_attr_t attr;
+        int attr_ok = pthread_attr_init(&attr) == 0 && pthread_attr_setdetachstate(&attr, PTHREAD_CREATE_DETACHED) == 0;
+        for (int64_t t = 1; t < T && attr_ok; t++) {
+            pthread_t tid;
+            atomic_fetch_add(&S->refs, 1);
+            if (pthread_create(&tid, &attr, stage_helper, S) != 0) {
+                atomic_fetch_sub(&S->refs, 1);
+                break;
+            }
         }
-        for (int64_t t = 1; t < T; t++)
-            started[t] = pthread_create(&tid[t], NULL, validate_range, &jobs[t]) == 0;
-        validate_range(&jobs[0]);
-        for (int64_t t = 1; t < T; t++) {
-            if (started[t])
-                pthread_join(tid[t], NULL);
-            else
-                validate_range(&jobs[t]); /* no thread: run it here */
-        }
-        for (int64_t t = 0; t < T; t++)
-            if (jobs[t].bad) err = 2;
-        if (!err) {
-            ok = faces_consistent_threads(mins, keys, sorted, F, Pn, T);
-            if (ok < 0) err = 1;
-        }
+        if (attr_ok) pthread_attr_destroy(&attr);
+    }
+    if (!err) {
+        run_stages(S); /* every chunk done when it returns: a helper still running touches only S */
+        if (atomic_load(&S->bad))
+            err = 2;
+        else
+            ok = faces && !atomic_load(&S->twice);
     }
     Py_END_ALLOW_THREADS
-    free(keys);
+    if (S) stages_drop(S);
+    scratch_give(s.block);
     release_arr(b, 9);
     if (err == 1) return PyErr_NoMemory();
     if (err) {

@@ -50,7 +50,7 @@ import threading
 import time
 
 from models.errors import MagnetError, MeshError, ParameterError
-from models.mesh import answer
+from models.mesh import answer, heap
 from models.mesh.formats import ARCHIVES, extension, format_name
 from models.mesh.zygote import _ERRORS, _child
 
@@ -194,6 +194,7 @@ def read_mesh_safe(
             with deadline(timeout_s):
                 return read.read_mesh(path, **kwargs, **({} if native else {"native": False}))
         memory_bytes = read.default_memory() if memory_bytes is None else memory_bytes
+        heap.keep()  # this process's heap kept between reads: no page faults on the copied arrays
         held: list[int] = []
         try:
             got = call_in_child(

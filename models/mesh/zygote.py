@@ -486,6 +486,7 @@ def _child(
             except OSError:  # the caller went away: the zygote still hears the answer
                 pass
         if release >= 0:
+            _idle()  # woken when released, it runs only on an idle core: the caller's goes on
             try:  # until the caller has copied the lent arrays (or went away: the pipe ends too)
                 os.read(release, 1)
             except OSError:
@@ -493,14 +494,23 @@ def _child(
         del lent
         os.write(w, b"1")
         code = 0
-        try:  # its exit (unmapping its memory) yields the CPU to the caller taking the answer
-            os.setpriority(os.PRIO_PROCESS, 0, 19)
-        except OSError:
-            pass
+        _idle()  # its exit (unmapping its memory) yields the CPU to the caller taking the answer
     except BaseException:
         pass
     finally:
         os._exit(code)
+
+
+def _idle() -> None:
+    """This process scheduled only where a core would idle (SCHED_IDLE; nice 19 where that is not
+    allowed): the answered child's last steps never preempt the caller."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+    except (AttributeError, OSError):
+        try:
+            os.setpriority(os.PRIO_PROCESS, 0, 19)
+        except OSError:
+            pass
 
 
 # ---------------------------------------------------------------- the zygote's side
