@@ -441,9 +441,11 @@ def _via_zygote(fn, args, timeout_s: float, memory_bytes: int):
         return None
     try:
         try:
+            env = dict(os.environ)
             request = struct.pack("<d", timeout_s) + pickle.dumps(
-                (fn, args, memory_bytes, timeout_s, dict(os.environ), os.getcwd())
-            )  # the deadline first, for the zygote: it never unpickles
+                (fn, args, memory_bytes, timeout_s, None if env == z.env else env, os.getcwd())
+            )  # the deadline first, for the zygote: it never unpickles; the environment only
+            # where it changed since the zygote started (its spares have that one already)
         except Exception:  # noqa: BLE001  (arguments that do not pickle: a direct fork takes them)
             return None
         shm = os.memfd_create("magnet-read", os.MFD_CLOEXEC | os.MFD_ALLOW_SEALING)

@@ -131,6 +131,7 @@ class Zygote:
             theirs.close()
         self.sock = ours
         self.owner = os.getpid()
+        self.env = dict(os.environ)  # the caller's, as the zygote got it (a request's None: this one)
         self.ready = False
         self.owed = False  # a read answered straight to us: the zygote's "done" for it still to come
         self.lend = False  # its children lend their answer's arrays (process_vm_readv works here)
@@ -634,7 +635,8 @@ def _spare(conn: socket.socket, w: int, paths: list[str], warm: bool) -> None:
         if not msg or not fds:
             os._exit(0)
         fn, args, memory_bytes, timeout_s, env, cwd = pickle.loads(msg[8:])
-        apply_environ(env)
+        if env is not None:  # None: the caller's environment is the one the zygote started with
+            apply_environ(env)
         try:
             os.chdir(cwd)
         except OSError:
