@@ -9,6 +9,7 @@ import numpy as np
 
 from models.errors import MeshError, ParameterError
 from models.mesh import deferred
+from models.mesh.invariants import in_range
 from models.mesh.container import (
     VTK_HEXAHEDRON,
     VTK_POLYGON,
@@ -60,7 +61,8 @@ def mesh_from_cells(
         raise MeshError("1D meshes are not supported: the mesh has 1D coordinates")
     if points.shape[1] == 2:
         points = np.column_stack([points, np.zeros(len(points))])
-    if not np.isfinite(points).all():
+    bounds = _bounds(points)  # NaN and infinities show in them (min and max propagate NaN)
+    if not (np.isfinite(bounds[0]).all() and np.isfinite(bounds[1]).all()):
         bad = ~np.isfinite(points).all(axis=1)
         raise MeshError(
             f"the mesh has {int(bad.sum())} points with NaN or infinite coordinates (first: point {int(np.flatnonzero(bad)[0])})"
@@ -68,7 +70,7 @@ def mesh_from_cells(
     if tags is not None and len(tags) != len(cell_types):
         raise MeshError("physical group data does not match the number of cells")
 
-    if conn.size and (conn.min() < 0 or conn.max() >= len(points)):
+    if not in_range(conn, len(points)):  # one pass; min and max only to say what was found
         raise MeshError(
             f"cells refer to missing points: point ids must be in 0..{len(points) - 1}, found {int(conn.min())}..{int(conn.max())}"
         )
@@ -112,7 +114,7 @@ def mesh_from_cells(
     if grid is not None and weld is None and not poly_faces:
         _orient_lattice(mesh, grid)
     else:
-        _orient_and_check(mesh)
+        _orient_and_check(mesh, bounds if dim == 3 else None)  # (2D points were projected since)
     return mesh
 
 
@@ -232,8 +234,9 @@ def _record_orientation(mesh: Mesh, signed: np.ndarray, flip: np.ndarray) -> Non
     }
 
 
-def _orient_and_check(mesh: Mesh) -> None:
-    """Reject degenerate cells, orient cells by topology (see orientation.py), record what was fixed."""
+def _orient_and_check(mesh: Mesh, bounds=None) -> None:
+    """Reject degenerate cells, orient cells by topology (see orientation.py), record what was fixed.
+    bounds: the points' (min, max) per coordinate where the caller has them."""
     from models.mesh.geometry import (
         _all_tetrahedra,
         _measures_and_centroids,
@@ -250,7 +253,7 @@ def _orient_and_check(mesh: Mesh) -> None:
         vol, cen, own, consistent = fused
         mesh.meta["measures"] = np.abs(vol)
         mesh.meta["centroids"] = cen
-        refuse_degenerate(mesh, vol)
+        refuse_degenerate(mesh, vol, bounds)
         if consistent:  # every cell by its own sign; faces and their pairing left to the dual graph
             if own.any():
                 _flip_cells(mesh, own)
@@ -268,7 +271,7 @@ def _orient_and_check(mesh: Mesh) -> None:
         vol, cen = _measures_and_centroids(mesh, faces)
     mesh.meta["measures"] = np.abs(vol)  # orientation does not change measure or centroid
     mesh.meta["centroids"] = cen
-    refuse_degenerate(mesh, vol)
+    refuse_degenerate(mesh, vol, bounds)
     pairing: dict = {}
     if tets:
         # Mirror every negative tetrahedron first (the usual answer), then build the faces and their
@@ -293,9 +296,10 @@ def _orient_and_check(mesh: Mesh) -> None:
     _record_orientation(mesh, signed, flip)
 
 
-def refuse_degenerate(mesh: Mesh, vol: np.ndarray) -> None:
-    """MeshError when all points coincide or a cell's measure is below 1e-14 of the bounding box's."""
-    lo, hi = _bounds(mesh.points)
+def refuse_degenerate(mesh: Mesh, vol: np.ndarray, bounds=None) -> None:
+    """MeshError when all points coincide or a cell's measure is below 1e-14 of the bounding box's
+    (bounds: the points' (min, max) per coordinate, where the caller has them)."""
+    lo, hi = _bounds(mesh.points) if bounds is None else bounds
     bbox = hi - lo
     scale = float(np.linalg.norm(bbox)) ** mesh.dim
     if scale == 0:

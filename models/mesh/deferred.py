@@ -110,6 +110,14 @@ def _cells_fit(offsets, values, types: np.ndarray, table: np.ndarray) -> bool:
     return _sizes_fit(types, sizes, table)
 
 
+def _one_type(types: np.ndarray) -> int | None:
+    """The one type of every cell, or None (several types, or none)."""
+    if types.size == 0:
+        return None
+    t = int(types[0])
+    return t if bool((types == t).all()) else None
+
+
 def _sizes_fit(types: np.ndarray, sizes: np.ndarray, table: np.ndarray) -> bool:
     want = table[types]
     if np.any(want == 0):
@@ -172,7 +180,8 @@ def cells_args(args: tuple, dim: int) -> tuple:
     _need(isinstance(types, np.ndarray) and types.dtype == np.uint8 and types.ndim == 1)
     n_cells = types.size
     _need(_cells_fit(offsets, conn, types, _SIZE))
-    _need(bool(_ALLOWED[dim][types].all()))
+    one = _one_type(types)  # (the common file: one pass instead of a lookup per cell, twice)
+    _need(bool(_ALLOWED[dim][one]) if one is not None else bool(_ALLOWED[dim][types].all()))
     _need(tags is None or (ids(tags) and tags.shape == (n_cells,)))
     _need(type(poly_faces) is list)
     seen = []
@@ -186,7 +195,10 @@ def cells_args(args: tuple, dim: int) -> tuple:
         _need(fnodes.size == int(fsizes.sum()))  # (their point ids: the builder checks them)
         seen.append(cells_of)
     got = np.sort(np.concatenate(seen)) if seen else np.zeros(0, np.int64)
-    _need(np.array_equal(got, np.flatnonzero(_POLYHEDRA[types])))  # each polyhedron's faces once, only theirs
+    if one is not None and not _POLYHEDRA[one]:
+        _need(got.size == 0)  # no polyhedra: no polyhedron faces
+    else:
+        _need(np.array_equal(got, np.flatnonzero(_POLYHEDRA[types])))  # each polyhedron's faces once, only theirs
     if bnd is not None:
         _need(type(bnd) is tuple and len(bnd) == 4)
         b_off, b_conn, b_types, b_tags = bnd
