@@ -9,7 +9,6 @@ import numpy as np
 
 from models.errors import MeshError, ParameterError
 from models.mesh import deferred
-from models.mesh.invariants import in_range
 from models.mesh.container import (
     VTK_HEXAHEDRON,
     VTK_POLYGON,
@@ -20,6 +19,7 @@ from models.mesh.container import (
     VTK_WEDGE,
     Mesh,
 )
+from models.mesh.invariants import in_range
 
 # Node permutation that mirrors a cell (turns a negatively oriented cell into a positive one).
 MIRROR = {

@@ -198,7 +198,9 @@ def cells_args(args: tuple, dim: int) -> tuple:
     if one is not None and not _POLYHEDRA[one]:
         _need(got.size == 0)  # no polyhedra: no polyhedron faces
     else:
-        _need(np.array_equal(got, np.flatnonzero(_POLYHEDRA[types])))  # each polyhedron's faces once, only theirs
+        _need(
+            np.array_equal(got, np.flatnonzero(_POLYHEDRA[types]))
+        )  # each polyhedron's faces once, only theirs
     if bnd is not None:
         _need(type(bnd) is tuple and len(bnd) == 4)
         b_off, b_conn, b_types, b_tags = bnd
