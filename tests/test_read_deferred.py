@@ -15,6 +15,7 @@ from test_read_raw_answer import same
 
 from models.errors import MeshError
 from models.mesh import deferred, zygote
+from models.mesh.answer import _native
 from models.mesh.build import build_deferred
 from models.mesh.deferred import Deferred, Inconsistent
 from models.mesh.read import read_mesh
@@ -48,7 +49,10 @@ def files(tmp_path_factory):
     return {
         "image": Path(vc.write_xml(str(folder / "a.vti"), vc.image((6, 5, 4)))),
         "lattice": Path(vc.write_xml(str(folder / "a.vts"), vc.structured_grid())),
-        "hexes": Path(vc.write_legacy(str(folder / "h.vtk"), vc.unstructured(p, [(12, h)]), 42, True)),
+        "hexes": Path(vc.write_xml(str(folder / "h.vtu"), vc.unstructured(p, [(12, h)]))),
+        "legacy": Path(vc.write_legacy(str(folder / "h.vtk"), vc.unstructured(p, [(12, h)]), 42, True)),
+        "legacy51": Path(vc.write_legacy(str(folder / "h51.vtk"), vc.unstructured(p, [(12, h)]), 51, True)),
+        "legacy_ascii": Path(vc.write_legacy(str(folder / "ha.vtk"), vc.unstructured(p, [(12, h)]), 42)),
         "poly": Path(vc.write_xml(str(folder / "poly.vtu"), vc.polyhedra(p, h))),
         "groups": DATA / "cube_faces.msh",  # boundary groups and names
         "plane": DATA / "square_sides.msh",
@@ -69,6 +73,10 @@ def test_the_child_answers_with_arguments_and_the_caller_builds_the_same_mesh(fi
                 assert got.builder == "cells" and got.args[1] is None and got.args[2] is None
             if name == "hexes":
                 assert got.builder == "cells" and got.args[2].size == 27 * 8
+            if name.startswith("legacy"):  # the file's own arrays, in this machine's byte order once here
+                points, cells, counted, t = got.args
+                assert got.builder == "fixed" and t == 12 and cells.shape == (27, 8 + counted)
+                assert counted == (name != "legacy51") and cells.dtype.isnative and points.dtype.isnative
             same(read_mesh(path), _built(got, str(path), None, 1 << 32), name)
     finally:
         zygote.shutdown()
@@ -173,6 +181,61 @@ def test_every_lie_in_the_arguments_is_refused_before_a_builder_runs(files, monk
         build_deferred(Deferred("exec", (), {}, 3))
     with pytest.raises(Inconsistent):
         build_deferred(Deferred("image", img.args, {"group_names": object()}, 3))
+
+
+def test_every_lie_in_a_fixed_answer_is_refused_before_a_builder_runs(files, monkeypatch):
+    """The legacy reader's own arrays ("fixed": points, cells or counted rows, the cell type):
+    each lie is refused (Inconsistent, or the builder's words for a point id out of range)."""
+    for name in ("legacy", "legacy51", "legacy_ascii"):
+        d = _deferred(files[name], monkeypatch)
+        assert d.builder == "fixed"
+        points, cells, counted, t = d.args
+        # big-endian views of the file's bytes: in this machine's order, as the answer's loader gives them
+        points, cells = _native(np.array(points)), _native(np.array(cells))
+        genuine = Deferred("fixed", (points, cells, counted, t), d.meta, 3)
+        same(read_mesh(files[name]), build_deferred(genuine), name)
+        k = cells.shape[1] - counted
+
+        base = {"points": points, "cells": cells, "counted": counted, "t": t, "dim": 3, "meta": d.meta}
+
+        def lie(base=base, **kw):
+            a = {**base, **kw}
+            return Deferred(
+                "fixed", (a["points"], a["cells"], a["counted"], a["t"]), dict(a["meta"]), a["dim"]
+            )
+
+        bad = cells.copy()
+        bad[-1, -1] = len(points)
+        past = lie(cells=bad)
+        bad = cells.copy()
+        bad[0, -1] = -1
+        negative = lie(cells=bad)
+        for builds in (past, negative):
+            with pytest.raises(MeshError):
+                build_deferred(builds)
+        lies = [
+            lie(t=10),  # a tetrahedron of 8 nodes
+            lie(t=5),  # a triangle in 3D
+            lie(t=99),
+            lie(t="12"),
+            lie(dim=2),
+            lie(counted=not counted),
+            lie(counted=int(counted)),
+            lie(points=points.astype(np.int64)),
+            lie(points=points[:, :2].copy()),
+            lie(points=points.reshape(-1)),
+            lie(cells=cells.astype(np.float64)),
+            lie(cells=cells.reshape(-1)),
+            lie(cells=cells[:0]),
+            lie(cells=cells[:, :k].copy()) if counted else lie(cells=np.column_stack([cells, cells[:, :1]])),
+        ]
+        if counted:
+            bad = cells.copy()
+            bad[3, 0] = 7  # a row that says it has 7 nodes
+            lies.append(lie(cells=bad))
+        for one in lies:
+            with pytest.raises(Inconsistent):
+                build_deferred(one)
 
 
 def test_the_caller_words_a_lie_as_a_crash_and_a_huge_image_as_memory(files, monkeypatch):

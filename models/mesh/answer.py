@@ -52,6 +52,9 @@ ALIGN = 64
 _DTYPES = frozenset(
     "bool int8 int16 int32 int64 uint8 uint16 uint32 uint64 float16 float32 float64 complex64 complex128".split()
 )
+# an array's dtype in the table: its code with the byte order ("<i8", ">f4", "|u1"); a reader may
+# hand back a file's big-endian values as they are, and the caller swaps them in place (_native)
+_CODES = frozenset(np.dtype(n).newbyteorder(o).str for n in _DTYPES for o in "<>")
 _MAX_HEADER = 64 << 20
 _MAX_DEPTH = 32
 _MAX_NDIM = 8
@@ -79,7 +82,7 @@ def dump(answer: tuple, fd: int, lend: bool = False) -> list:
         head = {"kind": "memory"}
     if lend and arrays:
         head["lent"] = True
-        table = [[_name(a.dtype), list(a.shape), a.ctypes.data, a.nbytes] for a in arrays]
+        table = [[a.dtype.str, list(a.shape), a.ctypes.data, a.nbytes] for a in arrays]
         body = json.dumps({**head, "arrays": table}).encode()
         _pwrite(fd, MAGIC + len(body).to_bytes(8, "little") + body, 0)  # (the memfd grows to it)
         return arrays
@@ -87,11 +90,11 @@ def dump(answer: tuple, fd: int, lend: bool = False) -> list:
     # the table's offsets depend on the header's length, which depends on the offsets: lay the
     # arrays out after a header size bound, padded (JSON allows trailing whitespace)
     sizes = [a.nbytes for a in arrays]
-    body = json.dumps({**head, "arrays": [[_name(a.dtype), list(a.shape), 0, 0] for a in arrays]}).encode()
+    body = json.dumps({**head, "arrays": [[a.dtype.str, list(a.shape), 0, 0] for a in arrays]}).encode()
     start = _up(16 + len(body) + 24 * len(arrays) + 64)
     pos = start
     for a, n in zip(arrays, sizes, strict=True):
-        table.append([_name(a.dtype), list(a.shape), pos, n])
+        table.append([a.dtype.str, list(a.shape), pos, n])
         pos = _up(pos + n)
     body = json.dumps({**head, "arrays": table}).encode()
     if 16 + len(body) > start:  # cannot happen (the bound above is generous): refuse rather than overlap
@@ -102,17 +105,6 @@ def dump(answer: tuple, fd: int, lend: bool = False) -> list:
         if n:
             _pwrite(fd, memoryview(a).cast("B"), at)
     return []
-
-
-_NAMES: dict = {}
-
-
-def _name(dt: np.dtype) -> str:
-    """dt.name, remembered (numpy makes it in Python at each call: a third of a dump's time)."""
-    name = _NAMES.get(dt)
-    if name is None:
-        name = _NAMES[dt] = dt.name
-    return name
 
 
 def _up(n: int) -> int:
@@ -136,7 +128,7 @@ def _encode(x, arrays: list, seen: dict, depth: int):
     if isinstance(x, np.ndarray):
         i = seen.get(id(x))
         if i is None:
-            if _name(x.dtype) not in _DTYPES:
+            if x.dtype.str not in _CODES:
                 raise ValueError("answer array of an unsupported dtype")
             i = seen[id(x)] = len(arrays)
             arrays.append(np.ascontiguousarray(x))
@@ -226,7 +218,7 @@ def _load(fd: int, pid: int | None, limit: int | None):
         end = at + nbytes
         specs.append((dt, shape, at, count))
     mem = _map(fd, size) if specs else None
-    arrays = [np.frombuffer(mem, dt, count, at).reshape(shape) for dt, shape, at, count in specs]
+    arrays = [_native(np.frombuffer(mem, dt, count, at).reshape(shape)) for dt, shape, at, count in specs]
     value = _decode(header.get("value"), arrays, 0)
     return ("ok", value)
 
@@ -236,7 +228,7 @@ def _spec(entry) -> tuple:
     where, nbytes]): a whitelisted dtype, at most _MAX_NDIM dimensions, nbytes the shape's."""
     _need(type(entry) is list and len(entry) == 4)
     dtype, shape, at, nbytes = entry
-    _need(type(dtype) is str and dtype in _DTYPES)
+    _need(type(dtype) is str and dtype in _CODES)
     _need(type(shape) is list and len(shape) <= _MAX_NDIM)
     _need(all(type(s) is int and s >= 0 for s in shape))
     _need(type(at) is int and type(nbytes) is int)
@@ -266,7 +258,16 @@ def _borrow(table: list, pid: int, limit: int | None) -> list:
     ]
     for i in range(0, len(pieces), 1024):
         _copy_from(pid, pieces[i : i + 1024])
-    return arrays
+    return [_native(a) for a in arrays]
+
+
+def _native(a: np.ndarray) -> np.ndarray:
+    """`a` in this machine's byte order: swapped in place where it came in the other (a file's
+    big-endian values a reader handed back as they are), so nothing past the loader meets one."""
+    if a.dtype.isnative:
+        return a
+    native = a.dtype.newbyteorder("=")
+    return a.byteswap(inplace=True).view(native) if a.flags.writeable else a.astype(native)
 
 
 def _copy_from(pid: int, pieces: list) -> None:

@@ -394,6 +394,8 @@ def build_deferred(d, memory_bytes: int | None = None) -> Mesh:
     deferred.check(d)
     if d.builder == "cells":
         mesh = mesh_from_cells(*deferred.cells_args(d.args, d.dim))
+    elif d.builder == "fixed":
+        mesh = mesh_from_cells(*deferred.fixed_args(d.args, d.dim))
     else:
         mesh = mesh_from_image(*deferred.image_args(d.args, memory_bytes))
         if mesh is None:

@@ -25,6 +25,7 @@ import dataclasses
 
 import numpy as np
 
+from models.mesh.container import VTK_HEXAHEDRON, VTK_QUAD, VTK_TETRA, VTK_TRIANGLE
 from models.mesh.invariants import csr_sizes, ids, in_range
 
 # set in the reading child only (models.mesh.sandbox._read_in_child): builders return a Deferred
@@ -66,9 +67,10 @@ class Deferred:
 
 
 def check(d: Deferred) -> None:
-    """The shape of a Deferred from the child (its builder's arguments: cells_args, image_args)."""
+    """The shape of a Deferred from the child (its builder's arguments: cells_args, fixed_args,
+    image_args)."""
     _need(type(d) is Deferred and type(d.builder) is str and type(d.args) is tuple and type(d.dim) is int)
-    _need(d.builder in ("cells", "image"))
+    _need(d.builder in ("cells", "fixed", "image"))
     _plain(d.meta)
 
 
@@ -79,6 +81,14 @@ def cells(points, offsets, conn, cell_types, tags, tag_name, poly_faces, bnd, lo
         offsets = conn = cell_types = None
     args = (points, offsets, conn, cell_types, tags, tag_name, poly_faces, bnd, lower, dim, weld, meta, grid)
     return Deferred("cells", args, {}, int(dim))
+
+
+def fixed(points, cells, counted: bool, vtk_type: int, meta: dict):
+    """A file of one cell type of fixed size as its reader found it (models/mesh/legacy.py's
+    read_legacy_raw: the file's own arrays, big-endian ones included, no copy made here), as a
+    Deferred: the caller checks them, widens them and builds (fixed_args)."""
+    dim = 3 if vtk_type in (VTK_TETRA, VTK_HEXAHEDRON) else 2
+    return Deferred("fixed", (points, cells, bool(counted), int(vtk_type)), dict(meta), dim)
 
 
 def image(axes, tags, tag_name, meta):
@@ -208,6 +218,31 @@ def cells_args(args: tuple, dim: int) -> tuple:
         _need(_cells_fit(b_off, b_conn, b_types, _BSIZE))
         _need(b_tags is None or (ids(b_tags) and b_tags.shape == b_types.shape))
     return (points, offsets, conn, types, tags, tag_name, poly_faces, bnd, lower, dim, weld, meta, grid)
+
+
+_FIXED = {VTK_TRIANGLE: 2, VTK_QUAD: 2, VTK_TETRA: 3, VTK_HEXAHEDRON: 3}  # fixed's types: their dimension
+
+
+def fixed_args(args: tuple, dim: int) -> tuple:
+    """mesh_from_cells' arguments for a Deferred "fixed" from the child, checked (Inconsistent):
+    points (n, 3) floats, cells (C, k) integer ids or (C, k + 1) rows whose first column is k
+    (counted), one type of k nodes of the Deferred's dimension; widened here to float64 and int64
+    (as legacy.read_legacy_simple widens them in-process), the offsets and types made here."""
+    _need(len(args) == 4)
+    points, cells, counted, t = args
+    _need(type(counted) is bool and type(t) is int and _FIXED.get(t) == dim)
+    k = int(_SIZE[t])
+    _need(isinstance(points, np.ndarray) and points.dtype in (np.float32, np.float64))
+    _need(points.ndim == 2 and points.shape[1] == 3)
+    _need(ids(cells, 2) and cells.shape[1] == k + counted and cells.shape[0] >= 1)
+    if counted:
+        _need(bool((cells[:, 0] == k).all()))
+        cells = cells.astype(np.int32, copy=False)[:, 1:]  # (as the reader does in-process)
+    n = cells.shape[0]
+    offsets = np.arange(0, n * k + 1, k, dtype=np.int64)
+    types = np.full(n, t, np.uint8)
+    conn = cells.astype(np.int64).reshape(-1)
+    return (points.astype(np.float64), offsets, conn, types, None, None, [], None, {}, dim, None, None, None)
 
 
 def image_bytes(n_points: int, n_cells: int) -> int:

@@ -73,6 +73,25 @@ class _Cursor:
 def read_legacy_simple(path: str | os.PathLike):
     """A meshio-like object (points, cells [.type, .data], cell_data {}, field_data {}) for a legacy
     VTK file of the layout above, or None for any other file."""
+    raw = read_legacy_raw(path)
+    if raw is None:
+        return None
+    points, cells, counted, t = raw
+    if counted:  # byte order first, whole rows (one pass, contiguous), then the ids
+        cells = cells.astype(np.int32)[:, 1:]
+    return SimpleNamespace(
+        points=points.astype(np.float64),
+        cells=[SimpleNamespace(type=_CELLS[t][0], data=cells.astype(np.int64))],
+        cell_data={},
+        field_data={},
+    )
+
+
+def read_legacy_raw(path: str | os.PathLike):
+    """The arrays of a legacy VTK file of the layout above as the file holds them (views of its
+    bytes: big-endian in a binary file), or None for any other file: (points (n, 3) float32 or
+    float64, cells (C, k) of k node ids each, or (C, k + 1) rows of the count k and the ids when
+    `counted` (file versions up to 4.2), counted, the cells' VTK type)."""
     try:
         fd = os.open(os.fspath(path), os.O_RDONLY | getattr(os, "O_CLOEXEC", 0))
         try:
@@ -151,17 +170,16 @@ def _simple(data: bytes):
         k = b // n_cells if n_cells > 0 else 0
         if n_cells < 1 or k * n_cells != b or not np.array_equal(offsets, np.arange(0, b + 1, k)):
             return None
-        cells = conn.reshape(n_cells, k)
+        cells, counted = conn.reshape(n_cells, k), False
     else:  # counts and ids: n, id_1 .. id_n per cell
         n_cells = a
         flat = cur.array(">i4", b)
         k = b // n_cells - 1 if n_cells > 0 else 0
         if n_cells < 1 or (k + 1) * n_cells != b:
             return None
-        rows = flat.reshape(n_cells, k + 1)
-        if not np.all(rows[:, 0] == k):
+        cells, counted = flat.reshape(n_cells, k + 1), True
+        if not np.all(cells[:, 0] == k):
             return None
-        cells = rows.astype(np.int32)[:, 1:]  # byte order first, whole rows (one pass, contiguous)
     words = cur.line()
     if words != [b"CELL_TYPES", words[1] if len(words) == 2 else b""] or _count(words[1]) != n_cells:
         return None
@@ -171,9 +189,4 @@ def _simple(data: bytes):
         return None
     if data[cur.pos :].strip():  # cell or point data, field data, another section: VTK's reader
         return None
-    return SimpleNamespace(
-        points=points.astype(np.float64).reshape(n_points, 3),
-        cells=[SimpleNamespace(type=_CELLS[t][0], data=cells.astype(np.int64))],
-        cell_data={},
-        field_data={},
-    )
+    return points.reshape(n_points, 3), cells, counted, t

@@ -235,8 +235,19 @@ def _with_place(msg: str, path: str, file_format: str | None) -> str:
 
 def _read(path: str, physical_tag, file_format, weld, native: bool = True) -> Mesh:
     if file_format is None and _extension(path) == ".vtk":
-        from models.mesh.legacy import read_legacy_simple
+        from models.mesh import deferred
+        from models.mesh.legacy import read_legacy_raw, read_legacy_simple
 
+        if deferred.DEFER and weld is None and physical_tag is None:  # the reading child: the
+            raw = read_legacy_raw(path)  # file's arrays as they are, widened and built by the caller
+            if raw is not None:
+                from models.mesh.boundary import group_names
+
+                dim = 3 if raw[3] in (VTK_TETRA, VTK_HEXAHEDRON) else 2
+                groups, bounds = group_names(None, dim)
+                meta = {"group_names": groups, "boundary_names": bounds}
+                meta.update(reader="numpy (models/mesh/legacy.py)", format="legacy VTK")
+                return deferred.fixed(*raw, meta)
         simple = read_legacy_simple(path)  # the common binary layout, numpy on the file's bytes; else None
         if simple is not None:
             mesh = mesh_from_meshio(simple, physical_tag=physical_tag, weld=weld, owned=True)
