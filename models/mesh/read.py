@@ -239,7 +239,8 @@ def _read(path: str, physical_tag, file_format, weld, native: bool = True) -> Me
         from models.mesh.legacy import read_legacy_raw, read_legacy_simple
 
         if deferred.DEFER and weld is None and physical_tag is None:  # the reading child: the
-            raw = read_legacy_raw(path)  # file's arrays as they are, widened and built by the caller
+            raw = read_legacy_raw(path, mapped=True)  # file's arrays as they are (mapped), widened
+            # and built by the caller
             if raw is not None:
                 from models.mesh.boundary import group_names
 
