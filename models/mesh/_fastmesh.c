@@ -418,10 +418,8 @@ static Scratch face_scratch(int64_t F, int64_t P, int64_t R) {
     Scratch s = {0};
     if (F < 1) F = 1;
     if (P < 0) P = 0;
-    int threaded = R > 0;
-    int64_t T = R;
     size_t n = (size_t)F * (2 * sizeof(uint64_t) + sizeof(uint32_t)) + ((size_t)P + 2) * sizeof(uint32_t);
-    if (threaded) n += (size_t)F * sizeof(uint32_t) + (size_t)T * (size_t)P * sizeof(uint32_t);
+    if (R > 0) n += (size_t)F * sizeof(uint32_t) + (size_t)R * (size_t)P * sizeof(uint32_t);
     char *b = scratch_take(n);
     if (!b) return s;
     s.block = b;
@@ -429,7 +427,7 @@ static Scratch face_scratch(int64_t F, int64_t P, int64_t R) {
     s.sorted = s.keys + F;
     s.mins = (uint32_t *)(s.sorted + F);
     s.start = s.mins + F;
-    if (threaded) {
+    if (R > 0) {
         s.prev = s.start + P + 2;
         s.cnt = s.prev + F;
     }
@@ -441,7 +439,7 @@ static Scratch face_scratch(int64_t F, int64_t P, int64_t R) {
  * points: cache-friendly, unlike a hash table of every face), then compared within each bucket.
  * mins is scratch afterwards; start: P + 2 entries of scratch. 1: no key met twice (consistent);
  * 0: one met twice, or a mesh too large for the packed keys (P >= 2^30 or F >= 2^32: the full path
- * decides); -1: out of memory. */
+ * decides). */
 static int faces_consistent(uint32_t *mins, const uint64_t *keys, uint64_t *sorted, int64_t F, int64_t P,
                             uint32_t *start) {
     if (P >= KEY_ID_LIMIT || F >= (int64_t)NONE32) return 0;
@@ -489,10 +487,7 @@ static PyObject *py_fixed_consistent(PyObject *self, PyObject *args) {
                 err = 2;
                 break;
             }
-    if (!err) {
-        ok = faces_consistent(mins, keys, s.sorted, F, P, s.start);
-        if (ok < 0) err = 1;
-    }
+    if (!err) ok = faces_consistent(mins, keys, s.sorted, F, P, s.start);
     Py_END_ALLOW_THREADS
     scratch_give(s.block);
     release_arr(b, 5);

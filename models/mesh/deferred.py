@@ -27,6 +27,7 @@ import numpy as np
 
 from models.mesh.container import VTK_HEXAHEDRON, VTK_QUAD, VTK_TETRA, VTK_TRIANGLE
 from models.mesh.invariants import csr_sizes, ids, in_range
+from models.mesh.legacy import widen
 
 # set in the reading child only (models.mesh.sandbox._read_in_child): builders return a Deferred
 DEFER = False
@@ -83,12 +84,14 @@ def cells(points, offsets, conn, cell_types, tags, tag_name, poly_faces, bnd, lo
     return Deferred("cells", args, {}, int(dim))
 
 
+FIXED_DIM = {VTK_TRIANGLE: 2, VTK_QUAD: 2, VTK_TETRA: 3, VTK_HEXAHEDRON: 3}  # fixed's types: their dimension
+
+
 def fixed(points, cells, counted: bool, vtk_type: int, meta: dict):
-    """A file of one cell type of fixed size as its reader found it (models/mesh/legacy.py's
-    read_legacy_raw: the file's own arrays, big-endian ones included, no copy made here), as a
-    Deferred: the caller checks them, widens them and builds (fixed_args)."""
-    dim = 3 if vtk_type in (VTK_TETRA, VTK_HEXAHEDRON) else 2
-    return Deferred("fixed", (points, cells, bool(counted), int(vtk_type)), dict(meta), dim)
+    """A file of one cell type of fixed size (a FIXED_DIM type) as its reader found it
+    (models/mesh/legacy.py's read_legacy_raw: the file's own arrays, big-endian ones included, no
+    copy made here), as a Deferred: the caller checks them, widens them and builds (fixed_args)."""
+    return Deferred("fixed", (points, cells, bool(counted), int(vtk_type)), dict(meta), FIXED_DIM[vtk_type])
 
 
 def image(axes, tags, tag_name, meta):
@@ -108,10 +111,10 @@ def _cells_fit(offsets, values, types: np.ndarray, table: np.ndarray) -> bool:
     """A CSR (offsets, values) of cells of `types`, each with the node count `table` gives its type.
     One type of fixed size (the common file): the offsets are 0, k, 2k, ... to len(values)."""
     _need(ids(offsets) and ids(values) and offsets.shape == (types.size + 1,))
-    if types.size:
-        t = int(types[0])
+    t = _one_type(types)
+    if t is not None:
         k = int(table[t])
-        if k > 0 and bool((types == t).all()):
+        if k > 0:
             return values.size == k * types.size and bool(
                 (offsets == np.arange(0, k * types.size + 1, k, dtype=offsets.dtype)).all()
             )
@@ -207,10 +210,8 @@ def cells_args(args: tuple, dim: int) -> tuple:
     got = np.sort(np.concatenate(seen)) if seen else np.zeros(0, np.int64)
     if one is not None and not _POLYHEDRA[one]:
         _need(got.size == 0)  # no polyhedra: no polyhedron faces
-    else:
-        _need(
-            np.array_equal(got, np.flatnonzero(_POLYHEDRA[types]))
-        )  # each polyhedron's faces once, only theirs
+    else:  # each polyhedron's faces once, only theirs
+        _need(np.array_equal(got, np.flatnonzero(_POLYHEDRA[types])))
     if bnd is not None:
         _need(type(bnd) is tuple and len(bnd) == 4)
         b_off, b_conn, b_types, b_tags = bnd
@@ -220,9 +221,6 @@ def cells_args(args: tuple, dim: int) -> tuple:
     return (points, offsets, conn, types, tags, tag_name, poly_faces, bnd, lower, dim, weld, meta, grid)
 
 
-_FIXED = {VTK_TRIANGLE: 2, VTK_QUAD: 2, VTK_TETRA: 3, VTK_HEXAHEDRON: 3}  # fixed's types: their dimension
-
-
 def fixed_args(args: tuple, dim: int) -> tuple:
     """mesh_from_cells' arguments for a Deferred "fixed" from the child, checked (Inconsistent):
     points (n, 3) floats, cells (C, k) integer ids or (C, k + 1) rows whose first column is k
@@ -230,19 +228,17 @@ def fixed_args(args: tuple, dim: int) -> tuple:
     (as legacy.read_legacy_simple widens them in-process), the offsets and types made here."""
     _need(len(args) == 4)
     points, cells, counted, t = args
-    _need(type(counted) is bool and type(t) is int and _FIXED.get(t) == dim)
+    _need(type(counted) is bool and type(t) is int and FIXED_DIM.get(t) == dim)
     k = int(_SIZE[t])
     _need(isinstance(points, np.ndarray) and points.dtype in (np.float32, np.float64))
     _need(points.ndim == 2 and points.shape[1] == 3)
     _need(ids(cells, 2) and cells.shape[1] == k + counted and cells.shape[0] >= 1)
-    if counted:
-        _need(bool((cells[:, 0] == k).all()))
-        cells = cells.astype(np.int32, copy=False)[:, 1:]  # (as the reader does in-process)
+    _need(not counted or bool((cells[:, 0] == k).all()))
+    points, cells = widen(points, cells, counted)  # (as the reader does in-process)
     n = cells.shape[0]
     offsets = np.arange(0, n * k + 1, k, dtype=np.int64)
     types = np.full(n, t, np.uint8)
-    conn = cells.astype(np.int64).reshape(-1)
-    return (points.astype(np.float64), offsets, conn, types, None, None, [], None, {}, dim, None, None, None)
+    return (points, offsets, cells.reshape(-1), types, None, None, [], None, {}, dim, None, None, None)
 
 
 def image_bytes(n_points: int, n_cells: int) -> int:

@@ -78,14 +78,22 @@ def read_legacy_simple(path: str | os.PathLike):
     if raw is None:
         return None
     points, cells, counted, t = raw
-    if counted:  # byte order first, whole rows (one pass, contiguous), then the ids
-        cells = cells.astype(np.int32)[:, 1:]
+    points, cells = widen(points, cells, counted)
     return SimpleNamespace(
-        points=points.astype(np.float64),
-        cells=[SimpleNamespace(type=_CELLS[t][0], data=cells.astype(np.int64))],
+        points=points,
+        cells=[SimpleNamespace(type=_CELLS[t][0], data=cells)],
         cell_data={},
         field_data={},
     )
+
+
+def widen(points: np.ndarray, cells: np.ndarray, counted: bool) -> tuple[np.ndarray, np.ndarray]:
+    """read_legacy_raw's arrays as float64 points and int64 (C, k) cells, the count column of
+    counted rows dropped (in this process's reader and, for the sandbox's reading child's answer,
+    in the caller: models.mesh.deferred.fixed_args; the same values both ways)."""
+    if counted:  # byte order first, whole rows (one pass, contiguous), then the ids
+        cells = cells.astype(np.int32, copy=False)[:, 1:]
+    return points.astype(np.float64), cells.astype(np.int64)
 
 
 def read_legacy_raw(path: str | os.PathLike, mapped: bool = False):

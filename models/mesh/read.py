@@ -244,8 +244,7 @@ def _read(path: str, physical_tag, file_format, weld, native: bool = True) -> Me
             if raw is not None:
                 from models.mesh.boundary import group_names
 
-                dim = 3 if raw[3] in (VTK_TETRA, VTK_HEXAHEDRON) else 2
-                groups, bounds = group_names(None, dim)
+                groups, bounds = group_names(None, deferred.FIXED_DIM[raw[3]])
                 meta = {"group_names": groups, "boundary_names": bounds}
                 meta.update(reader="numpy (models/mesh/legacy.py)", format="legacy VTK")
                 return deferred.fixed(*raw, meta)

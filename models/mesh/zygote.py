@@ -495,7 +495,8 @@ def _child(
         del lent
         os.write(w, b"1")
         code = 0
-        _idle()  # its exit (unmapping its memory) yields the CPU to the caller taking the answer
+        if release < 0:  # (a lending child is idle since its answer)
+            _idle()  # its exit (unmapping its memory) yields the CPU to the caller taking the answer
     except BaseException:
         pass
     finally:
