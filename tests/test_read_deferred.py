@@ -5,6 +5,7 @@ send checked before any builder runs (refused as a crashed reader)."""
 from __future__ import annotations
 
 import copy
+import gc
 import os
 from pathlib import Path
 
@@ -281,11 +282,13 @@ def test_a_held_child_is_released_after_the_build_and_no_descriptor_leaks(files)
     try:
         path = str(files["hexes"])
         read_mesh_safe(path)
+        gc.collect()  # earlier tests' garbage (sockets, files) closed now, not during the count
         before = len(os.listdir("/proc/self/fd"))
         for _ in range(5):
             read_mesh_safe(path)
         with pytest.raises(MeshError):
             read_mesh_safe(str(files["hexes"].parent / "missing.vtk"))
+        gc.collect()
         assert len(os.listdir("/proc/self/fd")) == before
     finally:
         zygote.shutdown()
