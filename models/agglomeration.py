@@ -417,7 +417,7 @@ def build_hierarchy(
 ) -> Hierarchy:
     """Nested levels for multigrid (as `magnet hierarchy`): about `ratio` times fewer elements per
     level down to at most `coarsest`; every element connected, every level nested in the next finer.
-    ratio None: a schedule by dimension (2D n/5 then 16x fewer per level, 3D n/8 then 16x).
+    ratio None: a schedule by dimension (2D n/5 then 8x fewer per level, 3D n/8 then 16x).
     kappa: "kx,ky[,kz]" or a sequence, the diagonal diffusion tensor the levels are cut for (rtree).
     finest: how the finest level is made (rtree; None: "aggregation" with the default schedule and no
     kappa, else "cuts"): "aggregation" (pyamg's standard aggregation of the cells' graph, rtree cuts

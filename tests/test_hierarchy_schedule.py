@@ -38,10 +38,13 @@ def test_default_is_the_schedule_by_dimension(make, cell, dim):
     m = mesh_from_arrays(p, [(cell, c)])
     g, d = prepare(m)
     # the default (round six): the finest level a standard aggregation of the cells' graph (pyamg's
-    # compiled pass), then the schedule's coarser step (16x) by rtree cuts of the aggregates' graph
+    # compiled pass), then the schedule's coarser step (2D 8x, 3D 16x) by rtree cuts of the aggregates' graph
     levels, info = build_hierarchy(m, d, model="rtree", coarsest=10)
     k = info["requested"][-1]
-    assert info["finest"] == "aggregation" and info["requested"][:-1] == level_counts(k, 16, 10)
+    assert default_ratio(dim)[1] == (8.0 if dim == 2 else 16.0)
+    assert info["finest"] == "aggregation" and info["requested"][:-1] == level_counts(
+        k, default_ratio(dim)[1], 10
+    )
     assert info["ratio"] == [m.n_cells / k, default_ratio(dim)[1]]
     assert 3 < m.n_cells / k < 12  # a root and its neighbours, and a share of the cells left over
     sizes = [int(lv.max()) + 1 for lv in levels]

@@ -4,10 +4,10 @@
 import numpy as np
 import pytest
 from conftest import pieces
-from meshes import quads, tets
+from meshes import quads, tets, triangles
 
 from models.hierarchy.multigrid import mgcheck, tpfa_poisson
-from models.hierarchy.nested import build_hierarchy, is_nested
+from models.hierarchy.nested import build_hierarchy, default_ratio, is_nested
 from models.mesh.read import mesh_from_arrays
 from models.partition.rtree import level_counts
 from models.partition.rtree_aggregate import (
@@ -15,6 +15,7 @@ from models.partition.rtree_aggregate import (
     normalized_coupling,
     pyamg_aggregates,
     standard_aggregates,
+    strong_couplings,
 )
 from models.pipeline import prepare
 
@@ -159,7 +160,8 @@ def test_nested_aggregation_inside_the_cuts(make, cell):
     assert all(pieces(g, lv) == s for lv, s in zip(levels, sizes, strict=True))
     ip, ii = np.asarray(d.graph.indptr, dtype=np.int64), np.asarray(d.graph.indices, dtype=np.int64)
     k0 = int(pyamg_aggregates(ip, ii).max()) + 1  # the unrestricted aggregation's count
-    assert info["requested"] == [*level_counts(k0, 16, 10), k0] and sizes == info["requested"]
+    step = default_ratio(m.dim)[1]  # the schedule's coarser step (2D 8, 3D 16)
+    assert info["requested"] == [*level_counts(k0, step, 10), k0] and sizes == info["requested"]
     for r in info["report"]:
         assert abs(r["ratio_vs_requested"] - 1) <= 0.25
     # the finest aggregates nest in the coarser levels, which are the cells' own cuts (finest="cuts"
@@ -184,3 +186,47 @@ def test_merge_smallest_joins_the_smallest_to_the_strongest_neighbour():
     ip2 = np.array([0, 1, 2, 3, 4])
     lab2 = merge_smallest(ip2, np.array([1, 0, 3, 2]), np.ones(4), np.arange(4), 1)
     assert int(lab2.max()) + 1 == 2 and lab2[0] == lab2[1] and lab2[2] == lab2[3]
+
+
+def _stretched(make, cell, sx):
+    p, c = make()
+    p = np.asarray(p, dtype=np.float64).copy()
+    p[:, 0] *= sx  # cells sx times longer along x: couplings along x sx^2 times weaker than across
+    return _mesh(lambda: (p, c), cell)
+
+
+def test_strong_couplings_leave_out_only_the_weak_ones():
+    for sx, kept_all in ((1.0, True), (50.0, False)):
+        m, g, d = _stretched(lambda: quads(12, 10), "quad", sx)
+        ip, ii = np.asarray(d.graph.indptr, dtype=np.int64), np.asarray(d.graph.indices, dtype=np.int64)
+        A, _ = tpfa_poisson(m, d)
+        rows = np.repeat(np.arange(m.n_cells), np.diff(ip))
+        s = normalized_coupling(ip, ii, -A[rows, ii].A1, A.diagonal())
+        sp_, si_, sw_ = strong_couplings(ip, ii, s, 0.05)
+        assert (si_.size == ii.size) == kept_all
+        if not kept_all:  # only the couplings across the long faces (the same column, x index) stay
+            r2 = np.repeat(np.arange(m.n_cells), np.diff(sp_))
+            assert np.allclose(d.centroids[r2, 0], d.centroids[si_, 0]) and si_.size > 0
+        assert np.all(np.diff(sp_) >= 0) and sp_[-1] == si_.size == sw_.size
+
+
+@pytest.mark.parametrize(
+    "make,cell", [(lambda: triangles(40, 40), "triangle"), (lambda: quads(40, 40), "quad")]
+)
+def test_the_default_aggregation_follows_strong_couplings(make, cell):
+    pytest.importorskip("pyamg")
+    for sx in (1.0, 50.0):
+        m, g, d = _stretched(make, cell, sx)
+        levels, info = build_hierarchy(m, d, model="rtree", coarsest=10)
+        plain, _ = build_hierarchy(m, d, model="rtree", coarsest=10, model_options={"theta": 0.0})
+        assert info["finest"] == "aggregation" and is_nested(levels)
+        assert all(pieces(g, lv) == int(lv.max()) + 1 for lv in levels)
+        # the same counts at every level (the strong graph's aggregates merged back to the count)
+        assert [int(lv.max()) + 1 for lv in levels] == [int(lv.max()) + 1 for lv in plain]
+        if sx == 1.0:  # no coupling that weak: the same levels
+            assert all(np.array_equal(a, b) for a, b in zip(levels, plain, strict=True))
+            continue
+        rep, rep0 = mgcheck(m, d, levels), mgcheck(m, d, plain)
+        # pyamg's aggregates and ours without the threshold take about pyamg's ~48 iterations here
+        assert rep0["smoothed"]["iterations"] >= 0.9 * rep0["pyamg_sa"]["iterations"]
+        assert rep["smoothed"]["iterations"] <= 0.6 * rep["pyamg_sa"]["iterations"]

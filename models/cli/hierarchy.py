@@ -34,7 +34,7 @@ def add_hierarchy_args(p: argparse.ArgumentParser) -> None:
         type=float,
         default=None,
         help="coarsening ratio of every level, >= 2, rtree cuts at every level (default: rtree's finest "
-        "level a standard aggregation of the cells' graph, then 16 per level)",
+        "level a standard aggregation of the cells' graph, then 8 per level in 2D, 16 in 3D)",
     )
     p.add_argument(
         "--coarsest",

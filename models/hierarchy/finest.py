@@ -12,6 +12,12 @@ from models.mesh.celldata import CellData
 from models.mesh.container import Mesh
 
 
+# the default aggregation's strength threshold (issue 24, round nine): couplings weaker than 5% of
+# the strongest at either end are left out of the finest aggregation (a 50:1 boundary layer: 19 ->
+# 16 iterations against pyamg's 19; every other member of the family unchanged: no coupling that weak)
+THETA = 0.05
+
+
 def aggregated_levels(
     mesh: Mesh,
     data: CellData,
@@ -81,6 +87,14 @@ def aggregated_levels(
         )
     else:  # pyamg's compiled pass; "aggregation": the cells off the stars join by strength
         agg = pyamg_aggregates(ip, ii, strength if how == "aggregation" else None)
+        theta = float(opts.get("theta", THETA))
+        if how == "aggregation" and theta > 0:  # the weak couplings left out (anisotropic cells):
+            # aggregates of the strong graph, the smallest merged until the count is the whole graph's
+            from models.partition.rtree_aggregate import merge_smallest, strong_couplings
+
+            sp_, si_, sw_ = strong_couplings(ip, ii, strength, theta)
+            if si_.size < ii.size:
+                agg = merge_smallest(ip, ii, strength, pyamg_aggregates(sp_, si_, sw_), int(agg.max()) + 1)
     k = int(agg.max()) + 1
     cnt = np.bincount(agg, minlength=k).astype(np.float64)
     qp, qi, qw = _quotient(indptr, indices, np.asarray(G.weights, dtype=np.float64), agg, k)
@@ -124,7 +138,7 @@ def aggregated_levels(
         up_opts = {
             key_: v
             for key_, v in opts.items()
-            if key_ not in ("boxes", "balance", "coupling", "passes", "bound", "join", "maxsize")
+            if key_ not in ("boxes", "balance", "coupling", "passes", "bound", "join", "maxsize", "theta")
         }
         if str(up_opts.get("axes", "")).startswith("strength"):
             up_opts["coupling"] = qc
