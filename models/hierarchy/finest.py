@@ -11,7 +11,6 @@ import numpy as np
 from models.mesh.celldata import CellData
 from models.mesh.container import Mesh
 
-
 # the default aggregation's strength threshold (issue 24, round nine): couplings weaker than 5% of
 # the strongest at either end are left out of the finest aggregation (a 50:1 boundary layer: 19 ->
 # 16 iterations against pyamg's 19; every other member of the family unchanged: no coupling that weak)
