@@ -119,3 +119,32 @@ def test_xdmf_time_series_gives_its_mesh_once(tmp_path):
     assert _total(mesh) == pytest.approx(vol_ref, rel=TOL)
     n_out, vol_out = _agglomerated_volume(mesh, series)
     assert vol_out == pytest.approx(vol_ref, rel=TOL)
+
+
+def test_multiblock_volume_with_an_unrelated_planar_block(tmp_path):
+    """A .vtm holding a volume block and a 2D block whose cells are no face of it (elsewhere, or a
+    single quad): the 2D cells are ignored with a notice and the volume agglomerates (the 2D block
+    once made the boundary-group matching index an empty selection: a traceback)."""
+    from models.mesh.check import check_file
+
+    p3, h3 = vc.grid(6, 5, 4)
+    p2, q2 = vc.quad_grid(8, 8)
+    vol_ref = vc.vtk_reference(vc.write_xml(str(tmp_path / "hex.vtu"), vc.unstructured(p3, [(12, h3)])))[1]
+    for name, second in (
+        ("far", vc.unstructured(p2 + 50.0, [(9, q2)])),
+        ("one", vc.unstructured(p2, [(9, q2[:1])])),
+    ):
+        mb = vtk.vtkMultiBlockDataSet()
+        mb.SetNumberOfBlocks(2)
+        mb.SetBlock(0, vc.unstructured(p3, [(12, h3)]))
+        mb.SetBlock(1, second)
+        w = vtk.vtkXMLMultiBlockDataWriter()
+        path = str(tmp_path / f"{name}.vtm")
+        w.SetFileName(path)
+        w.SetInputData(mb)
+        assert w.Write() == 1
+        _, n_out, vol_out = vc.agglomerate_read_back(path, 4, tmp_path / f"{name}.vtu")
+        assert n_out == 4 and vol_out == pytest.approx(vol_ref, rel=TOL)
+        report = check_file(path)
+        assert report["verdict"] == "warnings"
+        assert any("no face of any 3D cell" in i["message"] for i in report["issues"])

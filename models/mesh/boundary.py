@@ -111,7 +111,7 @@ def fine_boundary(mesh: Mesh, faces: Faces | None = None, partner: np.ndarray | 
         hit = idx[ok]
         order = np.lexsort((ok, hit))  # by facet, then file order
         hs, ts = hit[order], gt[order]
-        first = np.r_[True, hs[1:] != hs[:-1]]
+        first = np.r_[hs.size > 0, hs[1:] != hs[:-1]][: hs.size]  # (no facet matched: none first)
         tags[hs[first]] = ts[first]
         conflicts = int(np.unique(hs[~first & (ts != tags[hs])]).size)
     on_boundary = partner[rep] < 0
