@@ -242,3 +242,34 @@ def test_refuses_broken_files_in_our_words(tmp_path):
     _refused(tmp_path / "bad.exo", "Exodus II")
     (tmp_path / "bad.msh").write_bytes(b"$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n3\n1 0 0\n$EndNodes\n")
     _refused(tmp_path / "bad.msh", "gmsh")
+
+
+@pytest.mark.parametrize("name,kind", [("tetra10", "quadratic"), ("triangle10", "higher-order")])
+def test_meshio_higher_order_cells_said_in_one_line(tmp_path, name, kind):
+    """gmsh files of quadratic and third-order cells (read by meshio): agglomerated on their corner
+    nodes, said in one line by `check`, not as points that belong to no cell."""
+    meshio = pytest.importorskip("meshio")
+    from models.mesh.check import check_file
+
+    if name == "tetra10":
+        p, cells = vc.higher_order(24)
+    else:  # third-order triangles: each triangle's corners, then 7 nodes of its own
+        p0, q = vc.quad_grid(4, 4)
+        tri = np.vstack([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
+        extra = p0[tri].mean(axis=1)[:, None, :] + 0.01 * np.arange(7)[None, :, None]
+        p = np.vstack([p0, extra.reshape(-1, 3)])
+        cells = np.hstack([tri, len(p0) + np.arange(7 * len(tri)).reshape(-1, 7)])
+    path = str(tmp_path / f"{name}.msh")
+    meshio.write(path, meshio.Mesh(p, [(name, cells)]), file_format="gmsh22", binary=False)
+    mesh = read_mesh(path)
+    corners = np.unique(cells[:, : 4 if name == "tetra10" else 3])
+    unused = len(np.setdiff1d(np.unique(cells), corners))
+    assert mesh.n_cells == len(cells) and mesh.meta["higher_order_unused_points"] == unused
+    assert mesh.meta["higher_order"].startswith(f"{kind} cells ({name})")
+    rep = check_file(path)
+    kinds = {i["kind"]: i for i in rep["issues"]}
+    assert (
+        "higher-order" in kinds
+        and f"{unused:,} higher-order nodes unused" in kinds["higher-order"]["message"]
+    )
+    assert "unused-points" not in kinds and rep["verdict"] == "ok"

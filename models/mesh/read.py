@@ -58,6 +58,22 @@ _TYPES: dict[str, tuple[int, int, int]] = {
     "pyramid13": (VTK_PYRAMID, 3, 5),
     "pyramid14": (VTK_PYRAMID, 3, 5),
 }
+
+
+def _higher_orders() -> None:
+    """meshio's other higher-order names (gmsh's elements of order 3 and up: triangle10, tetra20,
+    hexahedron64, ...) as their linear cell: gmsh and meshio list the corner nodes first."""
+    try:
+        from meshio._mesh import topological_dimension
+    except ImportError:  # (an older meshio: the table above)
+        return
+    for name in topological_dimension:
+        base = name.rstrip("0123456789")
+        if name != base and base in _TYPES and name not in _TYPES and base != "polygon":
+            _TYPES[name] = _TYPES[base]
+
+
+_higher_orders()
 # extension -> the reader family that serves it (docs/formats.md); any other meshio extension: meshio
 _VTK_XML = (".vtu", ".pvtu", ".vtp", ".pvtp", ".vti", ".pvti", ".vts", ".pvts", ".vtr", ".pvtr", ".vtm")
 _EXODUS = (".exo", ".e", ".ex2", ".exii", ".g", ".gen")
@@ -417,7 +433,9 @@ def mesh_from_meshio(
             blocks.append((i, name, VTK_POLYHEDRON, 3, block.data))
             continue
         if name not in _TYPES:
-            raise MeshError(f"unsupported cell type {name!r} in the mesh")
+            raise MeshError(
+                f"it holds cells of a type that cannot be agglomerated ({name}, as meshio names it)"
+            )
         vtk, tdim, _ = _TYPES[name]
         blocks.append((i, name, vtk, tdim, block.data))
     tag_key = _find_tag_key(m.cell_data, physical_tag)
@@ -448,7 +466,7 @@ def mesh_from_arrays(points, cells, tags=None) -> Mesh:
         elif name in _TYPES:
             tdim = _TYPES[name][1]
         else:
-            raise MeshError(f"unsupported cell type {name!r}")
+            raise MeshError(f"cells of a type that cannot be agglomerated ({name}, as meshio names it)")
         blocks.append((name, data, None if tags is None else np.asarray(tags[j]).reshape(-1), tdim))
     return mesh_from_blocks(
         np.asarray(points, dtype=np.float64), blocks, tag_name=None if tags is None else "tags"
@@ -524,6 +542,7 @@ def mesh_from_blocks(
             lower[name] = lower.get(name, 0) + len(data)
 
     types_list, data_list, tag_list = [], [], []
+    higher: list = []  # (name, corner nodes, the other nodes) per higher-order block
     poly_faces = []  # per polyhedron block: (cell ids in elem order, faces per cell, face sizes, face nodes)
     n_so_far = 0
     for name, data, tags in elem:
@@ -538,7 +557,8 @@ def mesh_from_blocks(
             arr = np.asarray(data, dtype=np.int64)
             if arr.ndim != 2:
                 raise MeshError(f"malformed {name} block in the mesh")
-            if keep:
+            if keep and arr.shape[1] > keep:  # a higher-order cell: its corner nodes (listed first)
+                higher.append((name, keep, arr[:, keep:]))
                 arr = arr[:, :keep]
             if vtk == VTK_POLYGON and arr.shape[1] == 3:
                 vtk = VTK_TRIANGLE
@@ -567,9 +587,37 @@ def mesh_from_blocks(
             else None
         )
         bnd_csr = (b_off, b_conn, b_types, b_tags)
-    return mesh_from_cells(
+    mesh = mesh_from_cells(
         points, offsets, conn, cell_types, tags, tag_name, poly_faces, bnd_csr, lower, dim, weld=weld
     )
+    if higher:
+        _note_higher(mesh, higher, conn, len(points))
+    return mesh
+
+
+# meshio's quadratic cell names (the others with more nodes than their corners are of higher order)
+_QUADRATIC = {"triangle6", "triangle7", "quad8", "quad9", "tetra10", "hexahedron20", "hexahedron27"}
+_QUADRATIC |= {"wedge15", "wedge18", "pyramid13", "pyramid14"}
+
+
+def _note_higher(mesh: Mesh, higher: list, corners: np.ndarray, n_points: int) -> None:
+    """The one line a higher-order mesh gets (as models.mesh.cells says it for VTK's cells): agglomerated
+    on the corner nodes, so many nodes (used by no corner) unused; mesh.meta["higher_order"] and
+    ["higher_order_unused_points"] (check and describe report those points so, not as stray ones)."""
+    used = np.zeros(n_points, dtype=bool)
+    for _, _, rest in higher:
+        used[rest[(rest >= 0) & (rest < n_points)]] = True
+    corner = np.zeros(n_points, dtype=bool)
+    corner[corners[(corners >= 0) & (corners < n_points)]] = True
+    unused = int(np.count_nonzero(used & ~corner))
+    names = sorted({name for name, _, _ in higher})
+    kind = "quadratic" if all(name in _QUADRATIC for name in names) else "higher-order"
+    keep = "/".join(str(k) for k in sorted({k for _, k, _ in higher}))
+    mesh.meta["higher_order"] = (
+        f"{kind} cells ({', '.join(names)}): agglomerated on their {keep} corner nodes; "
+        f"{unused:,} higher-order nodes unused"
+    )
+    mesh.meta["higher_order_unused_points"] = unused
 
 
 def _polyhedra(data) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
