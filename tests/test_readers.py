@@ -273,3 +273,34 @@ def test_meshio_higher_order_cells_said_in_one_line(tmp_path, name, kind):
         and f"{unused:,} higher-order nodes unused" in kinds["higher-order"]["message"]
     )
     assert "unused-points" not in kinds and rep["verdict"] == "ok"
+
+
+@pytest.mark.parametrize(
+    "family,brick,name",
+    [
+        (13, [0, 1, 2, 2, 3, 4, 5, 5], "wedge"),  # a wedge as Tecplot's FEBRICK writes it
+        (13, [0, 1, 4, 3, 2, 2, 5, 5], "wedge"),  # collapsed across the other pair of faces
+        (14, [0, 1, 2, 3, 4, 4, 4, 4], "pyramid"),
+        (10, [0, 1, 2, 2, 3, 3, 3, 3], "tetra"),
+    ],
+)
+def test_collapsed_hexahedra_are_the_cells_they_are(tmp_path, family, brick, name):
+    """Wedges, pyramids and tetrahedra written as 8-node hexahedra with repeated nodes (Tecplot's
+    FEBRICK, many finite-element codes; ParaView opens them): read as those cells, the volume VTK
+    gives the file, agglomerated, and said so by `check` (they were refused as inconsistent or
+    non-manifold)."""
+    from models.mesh.check import check_file
+
+    p, cells = vc.linear_cells(family)
+    native = vc.write_xml(tmp_path / "native.vtu", vc.unstructured(p, [(family, cells)]))
+    n_ref, vol_ref = vc.vtk_reference(native)
+    path = vc.write_xml(tmp_path / "bricks.vtu", vc.unstructured(p, [(12, cells[:, brick])]))
+    mesh = read_mesh(path)
+    assert mesh.n_cells == n_ref and set(mesh.cell_type_counts()) == {name}
+    assert mesh.meta["collapsed_hexahedra"] == {name: n_ref}
+    assert float(mesh.meta["measures"].sum()) == pytest.approx(vol_ref, rel=1e-9)
+    assert vc.vtk_reference(path)[1] == pytest.approx(vol_ref, rel=1e-9)  # VTK reads the bricks so too
+    res, n_out, vol_out = vc.agglomerate_read_back(path, 3, tmp_path / "out.vtu")
+    assert n_out == 3 and vol_out == pytest.approx(vol_ref, rel=1e-9)
+    kinds = {i["kind"]: i for i in check_file(path)["issues"]}
+    assert f"({n_ref:,} {name})" in kinds["collapsed-hexahedra"]["message"]

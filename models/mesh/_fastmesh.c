@@ -285,12 +285,13 @@ static PyObject *py_consistent(PyObject *self, PyObject *args) {
 
 /* One cell's faces: each face's smallest node (mins) and its packed key (keys), in template order;
  * S > 0: every face has S nodes (a constant the compiler unrolls), else tsize says. 1: a smallest
- * node out of 0..P-1. */
+ * node out of 0..P-1; 2: all keyed, but a face has a node repeated (a collapsed cell). */
 static inline __attribute__((always_inline)) int cell_face_keys(const int64_t *c, const int64_t *tmpl,
                                                                 const int64_t *tsize, int64_t nf, int64_t S,
                                                                 int fl, int64_t P, uint32_t *mins,
                                                                 uint64_t *keys) {
     int64_t pos = 0;
+    int collapsed = 0;
     for (int64_t f = 0; f < nf; f++) {
         int64_t s = S > 0 ? S : tsize[f], j = 0;
         const int64_t *t = tmpl + pos;
@@ -299,6 +300,8 @@ static inline __attribute__((always_inline)) int cell_face_keys(const int64_t *c
             if (c[t[q]] < c[t[j]]) j = q; /* first of the smallest (argmin) */
         int64_t m = c[t[j]];
         if (m < 0 || m >= P) return 1;
+        for (int64_t q = 0; q < s; q++) /* a node repeated along the face: a collapsed cell */
+            if (c[t[q]] == c[t[q + 1 == s ? 0 : q + 1]]) collapsed = 1;
         uint64_t nx = (uint64_t)c[t[j + 1 == s ? 0 : j + 1]], pv = (uint64_t)c[t[j == 0 ? s - 1 : j - 1]];
         if (fl) {
             uint64_t x = nx;
@@ -308,7 +311,7 @@ static inline __attribute__((always_inline)) int cell_face_keys(const int64_t *c
         mins[f] = (uint32_t)m;
         keys[f] = nx << 33 | pv << 3 | (uint64_t)(s < 7 ? s : 7);
     }
-    return 0;
+    return collapsed ? 2 : 0;
 }
 
 /* Is a key met twice in sorted[lo..hi) (one bucket: the faces of one smallest node)? Small buckets
@@ -483,7 +486,7 @@ static PyObject *py_fixed_consistent(PyObject *self, PyObject *args) {
     Py_BEGIN_ALLOW_THREADS
     if (!err)
         for (int64_t i = 0; i < C; i++) /* every face's smallest node and key */
-            if (cell_face_keys(conn + i * k, tmpl, tsize, nf, 0, flip[i], P, mins + i * nf, keys + i * nf)) {
+            if (cell_face_keys(conn + i * k, tmpl, tsize, nf, 0, flip[i], P, mins + i * nf, keys + i * nf) == 1) {
                 err = 2;
                 break;
             }
@@ -508,7 +511,8 @@ static PyObject *py_fixed_consistent(PyObject *self, PyObject *args) {
  *   Then the keys are bucketed by their smallest node (a counting sort over R ranges of faces, the
  *   positions in (point, range) order: the sequential pass's order, bucket for bucket) and compared
  *   in each bucket: True when no face is met twice in the same direction (flipping every cell by
- *   its own sign is consistent), False otherwise (the caller takes the full path).
+ *   its own sign is consistent), False otherwise (the caller takes the full path), and False where
+ *   a face has a node repeated (a collapsed cell: a wedge written as a hexahedron, say).
  *   The work is cut into chunks (cells, ranges of faces, ranges of points) in five stages; the
  *   calling thread and up to nthreads - 1 helpers claim chunks from a counter, and no one starts a
  *   stage before the one before is done. The caller never waits for a helper to start: on a virtual
@@ -523,7 +527,7 @@ typedef struct {
     uint8_t *flip;
     uint32_t *mins;
     uint64_t *keys;
-    int bad;
+    int bad, collapsed;
 } Job;
 
 static void *validate_range(void *arg) {
@@ -551,7 +555,9 @@ static void *validate_range(void *arg) {
             bad = cell_face_keys(c, tmpl, tsize, 4, 3, fl, J->npts, J->mins + i * 4, J->keys + i * 4);
         else
             bad = cell_face_keys(c, tmpl, tsize, nf, 0, fl, J->npts, J->mins + i * nf, J->keys + i * nf);
-        if (bad) {
+        if (bad == 2) /* measured and keyed, but the caller takes the full path */
+            J->collapsed = 1;
+        else if (bad) {
             J->bad = 1;
             return NULL;
         }
@@ -566,7 +572,7 @@ enum { ST_MEASURE, ST_COUNT, ST_PREFIX, ST_SCATTER, ST_COMPARE, ST_N };
 typedef struct {
     atomic_int refs;  /* the caller and each helper started: the last one frees this */
     atomic_int bad;   /* a point id out of range (measuring) */
-    atomic_int twice; /* a key met twice (comparing) */
+    atomic_int twice; /* a key met twice (comparing), or a face with a node repeated (measuring) */
     atomic_long next[ST_N], done[ST_N];
     long n[ST_N];
     Job job; /* the measuring pass's arrays (lo, hi per chunk) */
@@ -581,9 +587,10 @@ static void stage_chunk(Stages *S, int st, long c, uint32_t **head) {
         Job j = S->job;
         j.lo = (int64_t)c * MEASURE_CHUNK;
         j.hi = j.lo + MEASURE_CHUNK < S->C ? j.lo + MEASURE_CHUNK : S->C;
-        j.bad = 0;
+        j.bad = j.collapsed = 0;
         validate_range(&j);
         if (j.bad) atomic_store(&S->bad, 1);
+        if (j.collapsed) atomic_store(&S->twice, 1);
     } else if (st == ST_COUNT) {
         uint32_t *cnt = s->cnt + c * Pn;
         memset(cnt, 0, (size_t)Pn * sizeof(uint32_t));
@@ -664,7 +671,7 @@ static PyObject *py_fixed_validate(PyObject *self, PyObject *args) {
     Scratch s = face_scratch(F, Pn, T);
     int ok = 0, err = !s.block || !S;
     if (!err) {
-        Job j = {P, conn, tmpl, tsize, k, nf, 0, 0, Pn, vol, cen, flip, s.mins, s.keys, 0};
+        Job j = {P, conn, tmpl, tsize, k, nf, 0, 0, Pn, vol, cen, flip, s.mins, s.keys, 0, 0};
         S->job = j;
         S->s = s;
         S->C = C, S->F = F, S->Pn = Pn, S->R = T;

@@ -259,6 +259,9 @@ def _orient_and_check(mesh: Mesh, bounds=None) -> None:
                 _flip_cells(mesh, own)
             _record_orientation(mesh, np.where(own, -vol, vol), own)
             return
+    if mesh.dim == 3 and _collapse_hexahedra(mesh):  # wedges, pyramids, tetrahedra written as hexahedra
+        vol, cen = _measures_and_centroids(mesh, None)
+        mesh.meta["measures"], mesh.meta["centroids"] = np.abs(vol), cen
     tets = _all_tetrahedra(mesh)
     areas = None  # all tetrahedra: the face areas for the dual graph, from the same corners
     if tets:
@@ -294,6 +297,78 @@ def _orient_and_check(mesh: Mesh, bounds=None) -> None:
     if faces is not None:
         _keep_faces(mesh, more, faces, pairing, None if areas is None else tetra_face_areas(areas, flip))
     _record_orientation(mesh, signed, flip)
+
+
+# a hexahedron's faces (VTK order) and, for each, the opposite face node for node (along the edges
+# that join them): a wedge collapses one edge of two opposite faces, a pyramid one face to a point
+_HEX_FACES = np.array([[0, 1, 2, 3], [4, 5, 6, 7], [0, 1, 5, 4], [3, 2, 6, 7], [0, 3, 7, 4], [1, 2, 6, 5]])
+_HEX_OPPOSITE = np.array([1, 0, 3, 2, 5, 4])
+
+
+def _collapse_hexahedra(mesh: Mesh) -> bool:
+    """Hexahedra with repeated nodes (Tecplot's FEBRICK and many finite-element codes write wedges,
+    pyramids and tetrahedra as 8-node bricks) as the cells they are: 6 distinct nodes with one edge
+    of two opposite faces collapsed -> a wedge; 5 with a face collapsed to one node -> a pyramid on the
+    opposite face; 4 -> a tetrahedron. Orientation is left to the topology (as for any cell). Any other
+    collapse stays a hexahedron. Counted in mesh.meta["collapsed_hexahedra"]; True when any changed."""
+    hexes = np.flatnonzero(mesh.cell_types == VTK_HEXAHEDRON)
+    if hexes.size == 0:
+        return False
+    at = mesh.offsets[hexes][:, None] + np.arange(8)
+    c = mesh.connectivity[at]
+    srt = np.sort(c, axis=1)
+    distinct = 1 + np.count_nonzero(srt[:, 1:] != srt[:, :-1], axis=1)
+    cand = np.flatnonzero(distinct < 8)
+    if cand.size == 0:
+        return False
+    c, d = c[cand], distinct[cand]
+    rows = np.full((cand.size, 8), -1, dtype=np.int64)
+    types = np.full(cand.size, VTK_HEXAHEDRON, dtype=np.uint8)
+    tet = d == 4  # the four distinct nodes in the order they come
+    if tet.any():
+        ct = c[tet]
+        first = ~np.tril(ct[:, :, None] == ct[:, None, :], -1).any(axis=2)
+        rows[tet, :4] = ct[first].reshape(-1, 4)
+        types[tet] = VTK_TETRA
+    for f, face in enumerate(_HEX_FACES):
+        opp = _HEX_FACES[_HEX_OPPOSITE[f]]
+        fc, oc = c[:, face], c[:, opp]
+        pyr = (d == 5) & (types == VTK_HEXAHEDRON) & (oc == oc[:, :1]).all(axis=1)
+        if pyr.any():  # the base as the face, the apex the opposite face's one node
+            rows[pyr, :5] = np.column_stack([fc[pyr], oc[pyr, 0]])
+            types[pyr] = VTK_PYRAMID
+        if f % 2:
+            continue
+        for q in range(4):  # the edge (q, q + 1) of this face and of its opposite collapsed
+            a, b = q, (q + 1) % 4
+            wedge = (d == 6) & (types == VTK_HEXAHEDRON) & (fc[:, a] == fc[:, b]) & (oc[:, a] == oc[:, b])
+            if wedge.any():
+                keep = [j for j in range(4) if j != b]
+                rows[wedge, :6] = np.column_stack([fc[wedge][:, keep], oc[wedge][:, keep]])
+                types[wedge] = VTK_WEDGE
+    done = types != VTK_HEXAHEDRON
+    if not done.any():
+        return False
+    new_types = mesh.cell_types.copy()
+    new_types[hexes[cand[done]]] = types[done]
+    sizes = np.diff(mesh.offsets)
+    sizes[hexes[cand[done]]] = np.count_nonzero(rows[done] >= 0, axis=1)
+    keep = np.ones(mesh.connectivity.size, dtype=bool)
+    keep[at[cand[done]].ravel()] = False
+    conn = mesh.connectivity.copy()
+    cells = hexes[cand[done]]
+    starts = mesh.offsets[cells]
+    r = rows[done]
+    conn[(starts[:, None] + np.arange(8))[r >= 0]] = r[r >= 0]
+    keep[(starts[:, None] + np.arange(8))[r >= 0]] = True
+    mesh.connectivity = conn[keep]
+    mesh.offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    mesh.cell_types = new_types
+    names = {VTK_WEDGE: "wedge", VTK_PYRAMID: "pyramid", VTK_TETRA: "tetra"}
+    mesh.meta["collapsed_hexahedra"] = {
+        names[int(t)]: int(n) for t, n in zip(*np.unique(types[done], return_counts=True), strict=True)
+    }
+    return True
 
 
 def refuse_degenerate(mesh: Mesh, vol: np.ndarray, bounds=None) -> None:

@@ -90,6 +90,19 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
     used[mesh.connectivity] = True
     unused = np.flatnonzero(~used)
     rep["unused_points"] = int(unused.size)
+    collapsed = mesh.meta.get("collapsed_hexahedra") or {}
+    if collapsed:  # bricks with repeated nodes, read as the cells they are
+        n = sum(collapsed.values())
+        kinds = ", ".join(f"{v:,} {k}" for k, v in sorted(collapsed.items()))
+        issues.append(
+            _issue(
+                "collapsed-hexahedra",
+                "info",
+                n,
+                [],
+                f"{n:,} hexahedra with repeated nodes read as the cells they are ({kinds})",
+            )
+        )
     higher = int(mesh.meta.get("higher_order_unused_points", 0) or 0) if mesh.meta.get("higher_order") else 0
     if higher:  # a higher-order mesh: its other nodes said so, in one line (not as stray points)
         issues.append(_issue("higher-order", "info", higher, [], str(mesh.meta["higher_order"])))
