@@ -107,7 +107,7 @@ def test_abaqus_inp_still_goes_to_meshio(tmp_path):
         ("3 1 0 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n1 0 tri 1 2\n", "as many vertices"),
         ("3 1 0 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n1 0 tri 1 2 9\n", "point ids that are not in the file"),
         ("3 1 0 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n1 0 tri 1 2 3 4\n", "as many vertices"),
-        ("3 1 1 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n1 0 tri 1 2 3\n", "node or cell data"),
+        ("3 1 -1 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n1 0 tri 1 2 3\n", "negative data counts"),
         ("3 1 0 0 0\n1 0 0 0\n2 1 x0 0\n3 0 1 0\n1 0 tri 1 2 3\n", "non-numeric|point lines"),
     ],
 )
@@ -189,3 +189,18 @@ def test_boundary_groups_written_as_boundary_cells_and_read_back(tmp_path, name)
         return sorted(rows)
 
     assert facets(back) == facets(m)
+
+
+def test_node_and_cell_data_are_ignored(tmp_path):
+    """AVS UCD with node and cell data after the cells (as AVS and VTK's writers put them): the mesh
+    is read, the data ignored (issue 23: 'with node or cell data present (ignore the data)')."""
+    text = (
+        "# with data\n4 2 2 1 0\n1 0 0 0\n2 1 0 0\n3 1 1 0\n4 0 1 0\n"
+        "1 7 tri 1 2 3\n2 7 tri 1 3 4\n"
+        "2 1 1\npressure, Pa\nvelocity, m/s\n1 0.5 1.0\n2 0.25 2.0\n3 1e-3 3.0\n4 7 4.0\n"
+        "1 1\nmaterial, none\n1 3.5\n2 4.5\n"
+    )
+    path = _write(tmp_path, "data.inp", text)
+    mesh = read_mesh(path)
+    assert mesh.n_cells == 2 and mesh.n_points == 4
+    assert float(np.abs(mesh.meta["measures"]).sum()) == pytest.approx(1.0)

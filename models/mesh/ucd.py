@@ -3,9 +3,10 @@
 Layout (what deal.II's GridOut::write_ucd writes and GridIn::read_ucd reads):
 
     # comment lines
-    n_points n_cells 0 0 0
+    n_points n_cells n_node_data n_cell_data 0
     id x y z                        (n_points lines; ids need not be 0.. or contiguous)
     id material type v1 v2 ...      (n_cells lines; type: pt line tri quad tet pyr prism hex)
+    node and cell data              (where the counts are not 0: ignored)
 
 Quads and hexahedra list their vertices as VTK does (a hexahedron: one face cyclically, then the
 opposite face in the same order), so only the pyramid (apex first in AVS) is permuted. The
@@ -92,10 +93,9 @@ def read_ucd(path: str | os.PathLike):
         ) from None
     if n_pts < 0 or n_cells < 0:
         raise MeshError(f"{name}: negative counts in the UCD header")
-    if n_node_data or n_cell_data:
-        raise MeshError(
-            f"{name}: UCD node or cell data are not supported (header asks for {n_node_data} and {n_cell_data})"
-        )
+    if n_node_data < 0 or n_cell_data < 0:
+        raise MeshError(f"{name}: negative data counts in the UCD header")
+    # node or cell data (n_node_data, n_cell_data > 0) follow the cells: ignored (the mesh is read)
     body = np.frombuffer(text, dtype=np.uint8, offset=pos) if pos < len(text) else np.zeros(0, np.uint8)
     nl = np.flatnonzero(body == ord("\n"))
     ends = np.r_[nl, body.size]
