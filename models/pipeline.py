@@ -273,7 +273,13 @@ def write_outputs(
         )
         out["mesh"] = vtu
     if labels:
-        _atomic_write(labels, json.dumps(res.agglomeration.labels.tolist()))
+        lab = res.agglomeration.labels
+        left_out = res.mesh.meta.get("dropped_cells")
+        if left_out:  # one label per cell of the file: -1 for the few bad cells the read left out
+            full = np.full(int(left_out["file_cells"]), -1, dtype=np.int64)
+            full[np.setdiff1d(np.arange(full.size), np.asarray(left_out["ids_all"], dtype=np.int64))] = lab
+            lab = full
+        _atomic_write(labels, json.dumps(lab.tolist()))
         out["labels"] = labels
     if lymph:
         if res.mesh.dim != 2:

@@ -1,5 +1,6 @@
 """Reading: every format, every cell type, physical groups, and every kind of bad input."""
 
+import json
 import os
 
 import meshio
@@ -423,3 +424,41 @@ def test_zlib_blocks_inflate_to_meshio_concatenation_whatever_the_header_says():
     comp[1] = zlib.compress(blocks[1][:-4])  # 4 bytes short of whole int64 items
     with pytest.raises(ValueError):
         _decode_zlib(encode(32768, len(blocks[-1])), np.dtype("<i8"), u4)
+
+
+@pytest.mark.parametrize("kind", ["degenerate", "missing"])
+def test_a_few_bad_cells_among_many_are_left_out_and_said(tmp_path, kind):
+    """Non-negotiable 3: a few bad cells among thousands are left out and reported, the rest read
+    and agglomerated (labels -1 for them); many bad cells (over 1%) still refuse the file."""
+    from models import agglomerate
+    from models.mesh.build import dropped_sentence
+
+    p, t = triangles(40)  # 3,200 triangles
+    bad_ids = [7, 1000, 2999]
+    for many in (False, True):
+        tt = t.copy()
+        ids = bad_ids if not many else list(range(0, len(t), 50))  # 64 cells: 2%
+        if kind == "degenerate":
+            tt[ids, 2] = tt[ids, 1]  # a repeated node: zero area
+        else:
+            tt[ids, 0] = len(p) + 5
+        if many:
+            with pytest.raises(MeshError, match="degenerate" if kind == "degenerate" else "missing points"):
+                mesh_from_arrays(p, [("triangle", tt)])
+            continue
+        mesh = mesh_from_arrays(p, [("triangle", tt)])
+        assert mesh.n_cells == len(t) - 3 and mesh.meta["dropped_cells"]["ids_all"] == bad_ids
+        assert mesh.meta["dropped_cells"]["file_cells"] == len(t)
+        said = dropped_sentence(mesh.meta)
+        assert said.startswith("3 of the file's 3,200 cells left out") and "[7, 1000, 2999]" in said
+        path = str(tmp_path / f"{kind}.vtu")
+        meshio.write(path, meshio.Mesh(np.column_stack([p, np.zeros(len(p))]), [("triangle", tt)]))
+        res = agglomerate(path, model="metis", k=4, metrics=False, allow_extra=True)
+        out = tmp_path / f"{kind}.labels.json"
+        res.write(str(out), kind="labels")
+        labels = np.array(json.loads(out.read_text()))
+        assert (
+            labels.size == len(t)
+            and np.all(labels[bad_ids] == -1)
+            and np.all(labels[np.setdiff1d(np.arange(len(t)), bad_ids)] >= 0)
+        )

@@ -277,6 +277,11 @@ def cmd_agglomerate(args) -> int:
         extra.append(f"exactly k: {rc['merged']} fragments merged, {rc['split']} elements split again")
     note = f" ({', '.join(extra)})" if extra else ""
     print(f"{s['elements']} elements from {mesh.n_cells} cells{note} | {stages} | total {total:.2f}s")
+    from models.mesh.build import dropped_sentence
+
+    left_out = dropped_sentence(mesh.meta)
+    if left_out:
+        print(f"warning: {left_out} (labels: -1 for them)")
     return 0
 
 

@@ -572,7 +572,8 @@ enum { ST_MEASURE, ST_COUNT, ST_PREFIX, ST_SCATTER, ST_COMPARE, ST_N };
 typedef struct {
     atomic_int refs;  /* the caller and each helper started: the last one frees this */
     atomic_int bad;   /* a point id out of range (measuring) */
-    atomic_int twice; /* a key met twice (comparing), or a face with a node repeated (measuring) */
+    atomic_int twice; /* a key met twice (comparing) */
+    atomic_int collapsed; /* a face with a node repeated (measuring: every cell is still measured) */
     atomic_long next[ST_N], done[ST_N];
     long n[ST_N];
     Job job; /* the measuring pass's arrays (lo, hi per chunk) */
@@ -590,7 +591,7 @@ static void stage_chunk(Stages *S, int st, long c, uint32_t **head) {
         j.bad = j.collapsed = 0;
         validate_range(&j);
         if (j.bad) atomic_store(&S->bad, 1);
-        if (j.collapsed) atomic_store(&S->twice, 1);
+        if (j.collapsed) atomic_store(&S->collapsed, 1);
     } else if (st == ST_COUNT) {
         uint32_t *cnt = s->cnt + c * Pn;
         memset(cnt, 0, (size_t)Pn * sizeof(uint32_t));
@@ -700,7 +701,7 @@ static PyObject *py_fixed_validate(PyObject *self, PyObject *args) {
         if (atomic_load(&S->bad))
             err = 2;
         else
-            ok = faces && !atomic_load(&S->twice);
+            ok = faces && !atomic_load(&S->twice) && !atomic_load(&S->collapsed);
     }
     Py_END_ALLOW_THREADS
     if (S) stages_drop(S);

@@ -70,10 +70,18 @@ def mesh_from_cells(
     if tags is not None and len(tags) != len(cell_types):
         raise MeshError("physical group data does not match the number of cells")
 
+    dropped = None
     if not in_range(conn, len(points)):  # one pass; min and max only to say what was found
-        raise MeshError(
-            f"cells refer to missing points: point ids must be in 0..{len(points) - 1}, found {int(conn.min())}..{int(conn.max())}"
-        )
+        cell = np.repeat(np.arange(cell_types.size), np.diff(offsets))
+        bad = np.bincount(cell[(conn < 0) | (conn >= len(points))], minlength=cell_types.size) > 0
+        if not few_bad(int(bad.sum()), cell_types.size) or poly_faces:
+            raise MeshError(
+                f"cells refer to missing points: point ids must be in 0..{len(points) - 1}, found "
+                f"{int(conn.min())}..{int(conn.max())} in {int(bad.sum()):,} of the {cell_types.size:,} cells"
+            )
+        # a few bad cells among many: left out, the rest agglomerated (and said: meta "dropped_cells")
+        offsets, conn, cell_types, tags = _without_cells(offsets, conn, cell_types, tags, bad)
+        dropped = [("referring to missing points", np.flatnonzero(bad))]
 
     mesh = Mesh(
         points=points,
@@ -85,6 +93,8 @@ def mesh_from_cells(
     )
     if meta:
         mesh.meta.update(meta)
+    if dropped:
+        _record_dropped(mesh, dropped, cell_types.size + dropped[0][1].size)
     welded = None
     if weld is not None:
         welded = weld_points(points, weld)
@@ -253,7 +263,8 @@ def _orient_and_check(mesh: Mesh, bounds=None) -> None:
         vol, cen, own, consistent = fused
         mesh.meta["measures"] = np.abs(vol)
         mesh.meta["centroids"] = cen
-        refuse_degenerate(mesh, vol, bounds)
+        if _drop_degenerate(mesh, vol, bounds):  # a few degenerate cells left out: again without them
+            return _orient_and_check(mesh, bounds)
         if consistent:  # every cell by its own sign; faces and their pairing left to the dual graph
             if own.any():
                 _flip_cells(mesh, own)
@@ -274,7 +285,8 @@ def _orient_and_check(mesh: Mesh, bounds=None) -> None:
         vol, cen = _measures_and_centroids(mesh, faces)
     mesh.meta["measures"] = np.abs(vol)  # orientation does not change measure or centroid
     mesh.meta["centroids"] = cen
-    refuse_degenerate(mesh, vol, bounds)
+    if _drop_degenerate(mesh, vol, bounds):
+        return _orient_and_check(mesh, bounds)
     pairing: dict = {}
     if tets:
         # Mirror every negative tetrahedron first (the usual answer), then build the faces and their
@@ -368,6 +380,76 @@ def _collapse_hexahedra(mesh: Mesh) -> bool:
     mesh.meta["collapsed_hexahedra"] = {
         names[int(t)]: int(n) for t, n in zip(*np.unique(types[done], return_counts=True), strict=True)
     }
+    return True
+
+
+def few_bad(n_bad: int, n: int) -> bool:
+    """A few bad cells among many (non-negotiable: agglomerated and reported, not refused): at most
+    1% of the cells, so a mesh of fewer than 100 cells has none to spare."""
+    return 0 < n_bad <= n // 100
+
+
+def _without_cells(offsets, conn, cell_types, tags, bad: np.ndarray):
+    """The CSR cells without those where `bad` is True (offsets, connectivity, types, tags)."""
+    sizes = np.diff(offsets)[~bad]
+    keep = np.repeat(~bad, np.diff(offsets))
+    new_offsets = np.zeros(sizes.size + 1, dtype=np.int64)
+    np.cumsum(sizes, out=new_offsets[1:])
+    return new_offsets, conn[keep], cell_types[~bad], None if tags is None else tags[~bad]
+
+
+def _record_dropped(mesh: Mesh, dropped: list, n_before: int) -> None:
+    """mesh.meta["dropped_cells"]: per reason the ids of the cells left out, in the numbering of the
+    file's cells (of the mesh's dimension) before any was left out; and "kept" ids' count."""
+    old = mesh.meta.get("dropped_cells") or {}
+    first = np.asarray(old.get("ids_all", []), dtype=np.int64)
+    before = np.setdiff1d(np.arange(n_before + first.size), first) if first.size else np.arange(n_before)
+    reasons = dict(old.get("reasons", {}))
+    ids_all = first.tolist()
+    for why, ids in dropped:
+        orig = before[np.asarray(ids, dtype=np.int64)]
+        reasons[why] = reasons.get(why, []) + orig.tolist()
+        ids_all += orig.tolist()
+    mesh.meta["dropped_cells"] = {
+        "ids_all": sorted(ids_all),
+        "reasons": reasons,
+        "file_cells": int(n_before + first.size),
+    }
+
+
+def dropped_sentence(meta: dict) -> str | None:
+    """One sentence on the cells a read left out, or None."""
+    d = meta.get("dropped_cells")
+    if not d:
+        return None
+    parts = [
+        f"{len(ids):,} {why} (cell ids {ids[:5]}{'...' if len(ids) > 5 else ''})"
+        for why, ids in d["reasons"].items()
+    ]
+    return (
+        f"{len(d['ids_all']):,} of the file's {d['file_cells']:,} cells left out, the rest agglomerated: "
+        + "; ".join(parts)
+    )
+
+
+def _drop_degenerate(mesh: Mesh, vol: np.ndarray, bounds=None) -> bool:
+    """refuse_degenerate, except that a few degenerate cells among many (few_bad) are left out of the
+    mesh (True: the caller orients it again without them)."""
+    lo, hi = _bounds(mesh.points) if bounds is None else bounds
+    scale = float(np.linalg.norm(hi - lo)) ** mesh.dim
+    degenerate = np.abs(vol) <= 1e-14 * scale
+    n = int(degenerate.sum())
+    if scale == 0 or not few_bad(n, degenerate.size) or mesh.poly_cells is not None:
+        refuse_degenerate(mesh, vol, bounds)
+        return False
+    kind = "area" if mesh.dim == 2 else "volume"
+    n_before = mesh.n_cells
+    mesh.offsets, mesh.connectivity, mesh.cell_types, mesh.tags = _without_cells(
+        mesh.offsets, mesh.connectivity, mesh.cell_types, mesh.tags, degenerate
+    )
+    _record_dropped(mesh, [(f"degenerate (zero-{kind})", np.flatnonzero(degenerate))], n_before)
+    for key in ("measures", "centroids"):
+        mesh.meta.pop(key, None)
     return True
 
 

@@ -90,6 +90,12 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
     used[mesh.connectivity] = True
     unused = np.flatnonzero(~used)
     rep["unused_points"] = int(unused.size)
+    from models.mesh.build import dropped_sentence
+
+    left_out = dropped_sentence(mesh.meta)
+    if left_out:  # a few bad cells among many: left out, the rest read (non-negotiable 3)
+        ids = mesh.meta["dropped_cells"]["ids_all"]
+        issues.append(_issue("cells-left-out", "warning", len(ids), [], left_out))
     collapsed = mesh.meta.get("collapsed_hexahedra") or {}
     if collapsed:  # bricks with repeated nodes, read as the cells they are
         n = sum(collapsed.values())
