@@ -60,20 +60,19 @@ _TYPES: dict[str, tuple[int, int, int]] = {
 }
 
 
-def _higher_orders() -> None:
-    """meshio's other higher-order names (gmsh's elements of order 3 and up: triangle10, tetra20,
-    hexahedron64, ...) as their linear cell: gmsh and meshio list the corner nodes first."""
-    try:
-        from meshio._mesh import topological_dimension
-    except ImportError:  # (an older meshio: the table above)
-        return
-    for name in topological_dimension:
-        base = name.rstrip("0123456789")
-        if name != base and base in _TYPES and name not in _TYPES and base != "polygon":
-            _TYPES[name] = _TYPES[base]
+def _known(name: str) -> bool:
+    """A meshio cell type we read: in _TYPES, or a higher-order name of one of them (gmsh's elements
+    of order 3 and up as meshio names them: triangle10, tetra20, hexahedron64, ...: the corner nodes
+    come first), added to _TYPES as its linear cell when first met."""
+    if name in _TYPES:
+        return True
+    base = name.rstrip("0123456789")
+    if name != base and base in _TYPES and base not in ("polygon", "vertex"):
+        _TYPES[name] = _TYPES[base]
+        return True
+    return False
 
 
-_higher_orders()
 # extension -> the reader family that serves it (docs/formats.md); any other meshio extension: meshio
 _VTK_XML = (".vtu", ".pvtu", ".vtp", ".pvtp", ".vti", ".pvti", ".vts", ".pvts", ".vtr", ".pvtr", ".vtm")
 _EXODUS = (".exo", ".e", ".ex2", ".exii", ".g", ".gen")
@@ -432,7 +431,7 @@ def mesh_from_meshio(
         if name.startswith("polyhedron"):
             blocks.append((i, name, VTK_POLYHEDRON, 3, block.data))
             continue
-        if name not in _TYPES:
+        if not _known(name):
             raise MeshError(
                 f"it holds cells of a type that cannot be agglomerated ({name}, as meshio names it)"
             )
@@ -463,7 +462,7 @@ def mesh_from_arrays(points, cells, tags=None) -> Mesh:
     for j, (name, data) in enumerate(cells):
         if name.startswith("polyhedron"):
             tdim = 3
-        elif name in _TYPES:
+        elif _known(name):
             tdim = _TYPES[name][1]
         else:
             raise MeshError(f"cells of a type that cannot be agglomerated ({name}, as meshio names it)")
