@@ -148,3 +148,24 @@ def test_multiblock_volume_with_an_unrelated_planar_block(tmp_path):
         report = check_file(path)
         assert report["verdict"] == "warnings"
         assert any("no face of any 3D cell" in i["message"] for i in report["issues"])
+
+
+@pytest.mark.parametrize("family", [10, 5])
+def test_vtkhdf_reads_as_vtk_writes_it(tmp_path, family):
+    """VTKHDF (ParaView reads it; VTK's vtkHDFWriter writes it): read by VTK's vtkHDFReader, the
+    cells and the measure of the same grid written as VTU, agglomerated."""
+    if not hasattr(vtk, "vtkHDFWriter"):
+        pytest.skip("this vtk wheel has no vtkHDFWriter")
+    p, cells = vc.linear_cells(family)
+    ug = vc.unstructured(p, [(family, cells)])
+    n_ref, vol_ref = vc.vtk_reference(vc.write_xml(str(tmp_path / "ref.vtu"), ug))
+    w = vtk.vtkHDFWriter()
+    path = str(tmp_path / "grid.vtkhdf")
+    w.SetFileName(path)
+    w.SetInputData(ug)
+    assert w.Write() == 1
+    assert pick_reader(path) == ("vtk", "vtkhdf")
+    mesh = read_mesh(path)
+    assert mesh.n_cells == n_ref and _total(mesh) == pytest.approx(vol_ref, rel=TOL)
+    n_out, vol_out = _agglomerated_volume(mesh, path)
+    assert vol_out == pytest.approx(vol_ref, rel=TOL)

@@ -48,6 +48,7 @@ FORMATS: dict[str, str] = {
     ".pvts": "VTK XML parallel structured grid",
     ".pvtr": "VTK XML parallel rectilinear grid",
     ".vtm": "VTK XML multiblock",
+    ".vtkhdf": "VTKHDF",
     ".ex2": "Exodus II",
     ".exii": "Exodus II",
     ".g": "Exodus II",

@@ -77,6 +77,7 @@ def _known(name: str) -> bool:
 _VTK_XML = (".vtu", ".pvtu", ".vtp", ".pvtp", ".vti", ".pvti", ".vts", ".pvts", ".vtr", ".pvtr", ".vtm")
 _EXODUS = (".exo", ".e", ".ex2", ".exii", ".g", ".gen")
 _VTK_OTHER = {".xdmf": "xdmf", ".xmf": "xdmf", ".cgns": "cgns", ".cas": "fluent", ".neu": "gambit"}
+_VTK_OTHER[".vtkhdf"] = "vtkhdf"
 _SURFACES = (".stl", ".obj", ".ply", ".off")
 XML_GRIDS = (".vts", ".vtr", ".vti")  # VTK XML structured files: our numpy path first (xml_grid.py)
 SUPPORTED_EXTENSIONS = MESH_EXTENSIONS  # the one list, in models/mesh/formats.py
@@ -143,6 +144,8 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
     if ext in _VTK_OTHER:
         if ext in (".xdmf", ".xmf") and not xml:
             raise MeshError(f"cannot read {name} as XDMF: the file does not start with an XML tag")
+        if ext == ".vtkhdf" and head[:4] != b"\x89HDF":
+            raise MeshError(f"cannot read {name} as VTKHDF: the file is not HDF5 (byte 0)")
         if ext == ".cas" and not text.startswith(b"("):
             raise MeshError(f"cannot read {name} as a Fluent case: a Fluent case starts with '(' (byte 0)")
         if ext == ".neu" and b"CONTROL INFO" not in head.upper():

@@ -46,6 +46,7 @@ READERS: dict[str, tuple[str, str, str]] = {
     "fluent": ("Fluent case", "vtkFLUENTReader", "vtkmodules.vtkIOGeometry"),
     "fluent-h5": ("Fluent HDF5 case", "vtkFLUENTCFFReader", "vtkmodules.vtkIOFLUENTCFF"),
     "gambit": ("Gambit neutral", "vtkGAMBITReader", "vtkmodules.vtkIOGeometry"),
+    "vtkhdf": ("VTKHDF", "vtkHDFReader", "vtkmodules.vtkIOHDF"),
     "avs-binary": ("binary AVS UCD", "vtkAVSucdReader", "vtkmodules.vtkIOGeometry"),
     "avs": ("AVS UCD", "vtkAVSucdReader", "vtkmodules.vtkIOGeometry"),
 }
