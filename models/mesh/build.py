@@ -210,7 +210,8 @@ def _project_to_plane(mesh: Mesh) -> None:
             f"{int(counts[t]):,} {CELL_TYPE_NAMES.get(int(t), 'cell')}s" for t in np.flatnonzero(counts)
         )
         raise MeshError(
-            f"a curved (non-planar) surface of {held}: only planar 2D meshes and volume meshes are "
+            f"a non-planar surface of {held} (its cells are not in one plane: curved, faceted or on "
+            "several planes): only planar 2D meshes and volume meshes are "
             "agglomerated; give a volume mesh, or fill the closed surface with tetrahedra: "
             "magnet generate stl --stl SURFACE -o volume.vtu"
         )
