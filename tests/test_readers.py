@@ -8,6 +8,7 @@ every face is planar here), and after agglomeration our VTU, read back by VTK, t
 from __future__ import annotations
 
 import os
+import re
 
 import numpy as np
 import pytest
@@ -304,3 +305,32 @@ def test_collapsed_hexahedra_are_the_cells_they_are(tmp_path, family, brick, nam
     assert n_out == 3 and vol_out == pytest.approx(vol_ref, rel=1e-9)
     kinds = {i["kind"]: i for i in check_file(path)["issues"]}
     assert f"({n_ref:,} {name})" in kinds["collapsed-hexahedra"]["message"]
+
+
+def test_parallel_file_pieces_missing_or_outside_are_named(tmp_path):
+    """A .pvtu whose piece file is missing names it; one whose piece lies outside its folder (an
+    absolute path, or '..': an upload naming a file of the server) is refused before any reader
+    opens it; the whole set reads."""
+    p, tets = vc.linear_cells(10)
+    w = vtk.vtkXMLPUnstructuredGridWriter()
+    path = str(tmp_path / "whole.pvtu")
+    w.SetFileName(path)
+    w.SetInputData(vc.unstructured(p, [(10, tets)]))
+    w.SetNumberOfPieces(2)
+    w.SetStartPiece(0)
+    w.SetEndPiece(1)
+    assert w.Write() == 1
+    assert read_mesh(path).n_cells >= len(tets)  # (each piece holds the whole grid here)
+    text = open(path).read()
+    pieces = re.findall(r'Source="([^"]+)"', text)
+    assert len(pieces) == 2
+    for name, source, words in (
+        ("missing.pvtu", pieces[0].replace("_0", "_9"), "is missing"),
+        ("outside.pvtu", "../elsewhere/" + os.path.basename(pieces[0]), "lies outside"),
+        ("absolute.pvtu", "/etc/passwd", "lies outside"),
+    ):
+        bad = tmp_path / name
+        bad.write_text(text.replace(f'Source="{pieces[0]}"', f'Source="{source}"'))
+        with pytest.raises(MeshError, match=words) as err:
+            read_mesh(str(bad))
+        assert name in str(err.value) and source in str(err.value)

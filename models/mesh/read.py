@@ -32,7 +32,7 @@ from models.mesh.container import (
     VTK_WEDGE,
     Mesh,
 )
-from models.mesh.formats import MESH_EXTENSIONS, extension, format_name
+from models.mesh.formats import MESH_EXTENSIONS, MULTI_FILE, extension, format_name
 
 # meshio cell type name -> (VTK type, topological dimension, number of corner nodes kept)
 _TYPES: dict[str, tuple[int, int, int]] = {
@@ -98,6 +98,37 @@ def _other_vtktypes(path: str) -> bool:
         return _VTKTYPE.search(mm) is not None
 
 
+_PIECE = re.compile(rb"""<(?:Piece|DataSet)\b[^>]*?\b(?:Source|file)\s*=\s*["']([^"']+)["']""")
+
+
+def _pieces_present(path: str, ext: str) -> None:
+    """A parallel or multiblock VTK XML file names its pieces' files: say which one is missing (VTK's
+    reader only fails), relative to the file's folder as VTK resolves them; a piece outside that
+    folder (an absolute path, or up with '..') is refused: an upload never makes the reader open
+    another file of the server."""
+    try:
+        if os.path.getsize(path) > (16 << 20):  # (a header file is small: a large one is VTK's to read)
+            return
+        with open(path, "rb") as fh:
+            text = fh.read()
+    except OSError:
+        return
+    folder = os.path.dirname(os.path.abspath(path))
+    for m in _PIECE.finditer(text):
+        piece = m.group(1).decode("utf-8", "replace")
+        where = os.path.normpath(os.path.join(folder, piece))
+        if os.path.isabs(piece) or os.path.commonpath([folder, where]) != folder:
+            raise MeshError(  # (an upload naming files of the server: never read)
+                f"cannot read {os.path.basename(path)} as {format_name(path)}: its piece file {piece} "
+                "lies outside the file's folder; keep the pieces beside it or below it"
+            )
+        if not os.path.exists(where):
+            raise MeshError(
+                f"cannot read {os.path.basename(path)} as {format_name(path)}: its piece file {piece} is "
+                "missing (keep the pieces beside it, or upload them all in one .zip or .tar.gz)"
+            )
+
+
 def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
     """One reader per file, by extension and a look at its first bytes: (family, detail) with
     family "vtu" (our fast VTU path, VTK's reader for any other VTU), "vtk" (detail: a key of
@@ -134,6 +165,8 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
     if ext in _VTK_XML:
         if not xml:
             raise MeshError(f"cannot read {name} as VTK XML ({ext}): the file does not start with an XML tag")
+        if ext in MULTI_FILE:
+            _pieces_present(path, ext)
         return ("vtu", "") if ext == ".vtu" else ("vtk", ext)
     if ext in _EXODUS:
         if head[:3] == b"CDF" or head[:4] == b"\x89HDF":
