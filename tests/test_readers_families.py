@@ -169,3 +169,22 @@ def test_vtkhdf_reads_as_vtk_writes_it(tmp_path, family):
     assert mesh.n_cells == n_ref and _total(mesh) == pytest.approx(vol_ref, rel=TOL)
     n_out, vol_out = _agglomerated_volume(mesh, path)
     assert vol_out == pytest.approx(vol_ref, rel=TOL)
+
+
+def test_xdmf_heavy_data_missing_or_outside_is_named(tmp_path):
+    """XDMF names its HDF5 files: a missing one is named; one outside the file's folder (absolute,
+    or up with '..') is refused before VTK's reader opens it."""
+    p, blocks = fw.blocks()
+    path = fw.write_xdmf(tmp_path / "a.xdmf", p, blocks)
+    text = open(path).read()
+    assert "a.h5:" in text
+    for name, heavy, words in (
+        ("gone.xdmf", "gone.h5", "is missing"),
+        ("up.xdmf", "../a.h5", "lies outside"),
+        ("abs.xdmf", "/etc/secret.h5", "lies outside"),
+    ):
+        bad = tmp_path / name
+        bad.write_text(text.replace("a.h5:", heavy + ":"))
+        with pytest.raises(Exception, match=words) as err:
+            read_mesh(str(bad))
+        assert name in str(err.value) and heavy in str(err.value)

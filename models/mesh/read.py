@@ -99,10 +99,11 @@ def _other_vtktypes(path: str) -> bool:
 
 
 _PIECE = re.compile(rb"""<(?:Piece|DataSet)\b[^>]*?\b(?:Source|file)\s*=\s*["']([^"']+)["']""")
+_HEAVY = re.compile(rb"""(?:>|\s)([^\s<>"':]+\.(?:h5|hdf5|hdf|he5)):/""")  # XDMF's heavy data: file.h5:/path
 
 
 def _pieces_present(path: str, ext: str) -> None:
-    """A parallel or multiblock VTK XML file names its pieces' files: say which one is missing (VTK's
+    """A parallel or multiblock VTK XML file names its pieces' files (XDMF its HDF5 files): say which one is missing (VTK's
     reader only fails), relative to the file's folder as VTK resolves them; a piece outside that
     folder (an absolute path, or up with '..') is refused: an upload never makes the reader open
     another file of the server."""
@@ -114,7 +115,7 @@ def _pieces_present(path: str, ext: str) -> None:
     except OSError:
         return
     folder = os.path.dirname(os.path.abspath(path))
-    for m in _PIECE.finditer(text):
+    for m in (_HEAVY if ext in (".xdmf", ".xmf") else _PIECE).finditer(text):
         piece = m.group(1).decode("utf-8", "replace")
         where = os.path.normpath(os.path.join(folder, piece))
         if os.path.isabs(piece) or os.path.commonpath([folder, where]) != folder:
@@ -177,6 +178,8 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
     if ext in _VTK_OTHER:
         if ext in (".xdmf", ".xmf") and not xml:
             raise MeshError(f"cannot read {name} as XDMF: the file does not start with an XML tag")
+        if ext in (".xdmf", ".xmf"):
+            _pieces_present(path, ext)
         if ext == ".vtkhdf" and head[:4] != b"\x89HDF":
             raise MeshError(f"cannot read {name} as VTKHDF: the file is not HDF5 (byte 0)")
         if ext == ".cas" and not text.startswith(b"("):
