@@ -17,6 +17,7 @@ import format_writers as fw  # noqa: E402
 import vtk_corpus as vc  # noqa: E402
 
 from models import pipeline  # noqa: E402
+from models.errors import MeshError  # noqa: E402
 from models.mesh.read import pick_reader, read_mesh  # noqa: E402
 
 TOL = 1e-9
@@ -185,6 +186,6 @@ def test_xdmf_heavy_data_missing_or_outside_is_named(tmp_path):
     ):
         bad = tmp_path / name
         bad.write_text(text.replace("a.h5:", heavy + ":"))
-        with pytest.raises(Exception, match=words) as err:
+        with pytest.raises(MeshError, match=words) as err:
             read_mesh(str(bad))
         assert name in str(err.value) and heavy in str(err.value)
