@@ -78,6 +78,7 @@ PRELOAD = (
     "vtkmodules.vtkIOExodus",
     "vtkmodules.vtkIOXdmf2",
     "vtkmodules.vtkIOCGNSReader",
+    "vtkmodules.vtkIOHDF",
     "vtkmodules.vtkIOGeometry",
     "vtkmodules.util.numpy_support",
 )
