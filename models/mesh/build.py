@@ -72,7 +72,9 @@ def mesh_from_cells(
 
     dropped = None
     if not in_range(conn, len(points)):  # one pass; min and max only to say what was found
-        cell = np.repeat(np.arange(cell_types.size), np.diff(offsets))
+        from models.mesh.geometry import cell_index
+
+        cell = cell_index(offsets)
         bad = np.bincount(cell[(conn < 0) | (conn >= len(points))], minlength=cell_types.size) > 0
         if not few_bad(int(bad.sum()), cell_types.size) or poly_faces:
             raise MeshError(
@@ -271,9 +273,8 @@ def _orient_and_check(mesh: Mesh, bounds=None) -> None:
                 _flip_cells(mesh, own)
             _record_orientation(mesh, np.where(own, -vol, vol), own)
             return
-    if mesh.dim == 3 and _collapse_hexahedra(mesh):  # wedges, pyramids, tetrahedra written as hexahedra
-        vol, cen = _measures_and_centroids(mesh, None)
-        mesh.meta["measures"], mesh.meta["centroids"] = np.abs(vol), cen
+    if mesh.dim == 3:  # wedges, pyramids, tetrahedra written as hexahedra: as the cells they are
+        _collapse_hexahedra(mesh)  # (measured below, like every cell of the full path)
     tets = _all_tetrahedra(mesh)
     areas = None  # all tetrahedra: the face areas for the dual graph, from the same corners
     if tets:
@@ -366,14 +367,11 @@ def _collapse_hexahedra(mesh: Mesh) -> bool:
     new_types[hexes[cand[done]]] = types[done]
     sizes = np.diff(mesh.offsets)
     sizes[hexes[cand[done]]] = np.count_nonzero(rows[done] >= 0, axis=1)
-    keep = np.ones(mesh.connectivity.size, dtype=bool)
-    keep[at[cand[done]].ravel()] = False
+    r, pos = rows[done], at[cand[done]]  # each new row on its cell's first slots, the rest dropped
     conn = mesh.connectivity.copy()
-    cells = hexes[cand[done]]
-    starts = mesh.offsets[cells]
-    r = rows[done]
-    conn[(starts[:, None] + np.arange(8))[r >= 0]] = r[r >= 0]
-    keep[(starts[:, None] + np.arange(8))[r >= 0]] = True
+    conn[pos[r >= 0]] = r[r >= 0]
+    keep = np.ones(conn.size, dtype=bool)
+    keep[pos[r < 0]] = False
     mesh.connectivity = conn[keep]
     mesh.offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
     mesh.cell_types = new_types
@@ -400,8 +398,10 @@ def _without_cells(offsets, conn, cell_types, tags, bad: np.ndarray):
 
 
 def _record_dropped(mesh: Mesh, dropped: list, n_before: int) -> None:
-    """mesh.meta["dropped_cells"]: per reason the ids of the cells left out, in the numbering of the
-    file's cells (of the mesh's dimension) before any was left out; and "kept" ids' count."""
+    """mesh.meta["dropped_cells"]: per reason the ids of the cells left out ("reasons"), all of them
+    ("ids_all"), in the numbering of the file's cells (of the mesh's dimension) before any was left
+    out, and that count ("file_cells"). A second call (degenerate cells after cells with missing
+    points) maps its ids, counted among the cells kept so far, back to the file's."""
     old = mesh.meta.get("dropped_cells") or {}
     first = np.asarray(old.get("ids_all", []), dtype=np.int64)
     before = np.setdiff1d(np.arange(n_before + first.size), first) if first.size else np.arange(n_before)
@@ -436,12 +436,9 @@ def dropped_sentence(meta: dict) -> str | None:
 def _drop_degenerate(mesh: Mesh, vol: np.ndarray, bounds=None) -> bool:
     """refuse_degenerate, except that a few degenerate cells among many (few_bad) are left out of the
     mesh (True: the caller orients it again without them)."""
-    lo, hi = _bounds(mesh.points) if bounds is None else bounds
-    scale = float(np.linalg.norm(hi - lo)) ** mesh.dim
-    degenerate = np.abs(vol) <= 1e-14 * scale
-    n = int(degenerate.sum())
-    if scale == 0 or not few_bad(n, degenerate.size) or mesh.poly_cells is not None:
-        refuse_degenerate(mesh, vol, bounds)
+    degenerate = _degenerate(mesh, vol, bounds)
+    if not few_bad(int(degenerate.sum()), degenerate.size) or mesh.poly_cells is not None:
+        refuse_degenerate(mesh, vol, bounds, degenerate)
         return False
     kind = "area" if mesh.dim == 2 else "volume"
     n_before = mesh.n_cells
@@ -454,15 +451,20 @@ def _drop_degenerate(mesh: Mesh, vol: np.ndarray, bounds=None) -> bool:
     return True
 
 
-def refuse_degenerate(mesh: Mesh, vol: np.ndarray, bounds=None) -> None:
-    """MeshError when all points coincide or a cell's measure is below 1e-14 of the bounding box's
-    (bounds: the points' (min, max) per coordinate, where the caller has them)."""
+def _degenerate(mesh: Mesh, vol: np.ndarray, bounds=None) -> np.ndarray:
+    """(C,) True where a cell's measure is below 1e-14 of the bounding box's (bounds: the points'
+    (min, max) per coordinate, where the caller has them); MeshError when all points coincide."""
     lo, hi = _bounds(mesh.points) if bounds is None else bounds
-    bbox = hi - lo
-    scale = float(np.linalg.norm(bbox)) ** mesh.dim
+    scale = float(np.linalg.norm(hi - lo)) ** mesh.dim
     if scale == 0:
         raise MeshError("the mesh is degenerate: all points coincide")
-    degenerate = np.abs(vol) <= 1e-14 * scale
+    return np.abs(vol) <= 1e-14 * scale
+
+
+def refuse_degenerate(mesh: Mesh, vol: np.ndarray, bounds=None, degenerate=None) -> None:
+    """MeshError when all points coincide or a cell's measure is below 1e-14 of the bounding box's
+    (_degenerate; degenerate: its answer, where the caller has it)."""
+    degenerate = _degenerate(mesh, vol, bounds) if degenerate is None else degenerate
     if degenerate.any():
         ids = np.flatnonzero(degenerate)
         kind = "area" if mesh.dim == 2 else "volume"

@@ -259,11 +259,8 @@ def normalize(
         out.unused_higher = _unused_higher(offsets, conn, types, elem, n_points)
         names = sorted({type_name(t) for t in np.unique(types[elem[higher]])})
         corners = "/".join(str(k) for k in sorted({int(KEEP[t]) for t in np.unique(types[elem[higher]])}))
-        kind = "quadratic" if all(t < 68 for t in np.unique(types[elem[higher]])) else "higher-order"
-        out.notes.append(
-            f"{kind} cells ({', '.join(names)}): agglomerated on their {corners} corner nodes; "
-            f"{out.unused_higher:,} higher-order nodes unused"
-        )
+        quadratic = all(t < 68 for t in np.unique(types[elem[higher]]))
+        out.notes.append(higher_order_line(quadratic, names, corners, out.unused_higher))
     out.offsets, out.connectivity, out.types, out.tags = _elements(
         out, offsets, conn, types, elem, tags, poly
     )
@@ -378,6 +375,15 @@ def _polyhedra(out, off, c, t, polyh, types, sel, poly):
     new_c[ranges(new_off[ids], dsizes)] = dnodes
     out.poly_faces.append((ids, nfaces, face_sizes, face_nodes_all))
     return new_off, new_c
+
+
+def higher_order_line(quadratic: bool, names: list[str], corners: str, unused: int) -> str:
+    """The one line a mesh of higher-order cells gets (every reader says it so)."""
+    kind = "quadratic" if quadratic else "higher-order"
+    return (
+        f"{kind} cells ({', '.join(names)}): agglomerated on their {corners} corner nodes; "
+        f"{unused:,} higher-order nodes unused"
+    )
 
 
 def _unused_higher(offsets, conn, types, elem, n_points: int) -> int:

@@ -368,9 +368,14 @@ def kept_edges(indptr: np.ndarray, indices: np.ndarray, lab: np.ndarray) -> tupl
     rows = np.repeat(np.arange(n), np.diff(indptr))
     lr = lab[rows]
     e = (lr >= 0) & (lr == lab[indices])
+    return kept_indptr(rows, e, n), e
+
+
+def kept_indptr(rows: np.ndarray, keep: np.ndarray, n: int) -> np.ndarray:
+    """The offsets of a CSR of n rows keeping the edges where `keep` is True (rows: each edge's row)."""
     new_indptr = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(np.bincount(rows[e], minlength=n), out=new_indptr[1:])
-    return new_indptr, e
+    np.cumsum(np.bincount(rows[keep], minlength=n), out=new_indptr[1:])
+    return new_indptr
 
 
 def subgraph_by_labels(

@@ -19,7 +19,7 @@ import numpy as np
 
 from models.errors import MeshError, ParameterError
 from models.mesh.build import MIRROR, _bounds, mesh_from_cells, weld_points  # noqa: F401 (MIRROR, weld_points: API)
-from models.mesh.cells import BOUNDARY_TAG_NAME, TAG_NAMES, distinct_nodes
+from models.mesh.cells import BOUNDARY_TAG_NAME, TAG_NAMES, distinct_nodes, higher_order_line
 from models.mesh.container import (
     CELL_TYPE_NAMES,
     VTK_HEXAHEDRON,
@@ -76,8 +76,14 @@ def _known(name: str) -> bool:
 # extension -> the reader family that serves it (docs/formats.md); any other meshio extension: meshio
 _VTK_XML = (".vtu", ".pvtu", ".vtp", ".pvtp", ".vti", ".pvti", ".vts", ".pvts", ".vtr", ".pvtr", ".vtm")
 _EXODUS = (".exo", ".e", ".ex2", ".exii", ".g", ".gen")
-_VTK_OTHER = {".xdmf": "xdmf", ".xmf": "xdmf", ".cgns": "cgns", ".cas": "fluent", ".neu": "gambit"}
-_VTK_OTHER[".vtkhdf"] = "vtkhdf"
+_VTK_OTHER = {
+    ".xdmf": "xdmf",
+    ".xmf": "xdmf",
+    ".cgns": "cgns",
+    ".cas": "fluent",
+    ".neu": "gambit",
+    ".vtkhdf": "vtkhdf",
+}
 _SURFACES = (".stl", ".obj", ".ply", ".off")
 XML_GRIDS = (".vts", ".vtr", ".vti")  # VTK XML structured files: our numpy path first (xml_grid.py)
 SUPPORTED_EXTENSIONS = MESH_EXTENSIONS  # the one list, in models/mesh/formats.py
@@ -649,12 +655,9 @@ def _note_higher(mesh: Mesh, higher: list, corners: np.ndarray, n_points: int) -
     corner[corners[(corners >= 0) & (corners < n_points)]] = True
     unused = int(np.count_nonzero(used & ~corner))
     names = sorted({name for name, _, _ in higher})
-    kind = "quadratic" if all(name in _QUADRATIC for name in names) else "higher-order"
     keep = "/".join(str(k) for k in sorted({k for _, k, _ in higher}))
-    mesh.meta["higher_order"] = (
-        f"{kind} cells ({', '.join(names)}): agglomerated on their {keep} corner nodes; "
-        f"{unused:,} higher-order nodes unused"
-    )
+    quadratic = all(name in _QUADRATIC for name in names)
+    mesh.meta["higher_order"] = higher_order_line(quadratic, names, keep, unused)
     mesh.meta["higher_order_unused_points"] = unused
 
 

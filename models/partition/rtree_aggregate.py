@@ -324,8 +324,8 @@ def strong_couplings(
     has = np.diff(indptr) > 0
     if w.size:
         top[has] = np.maximum.reduceat(w, indptr[:-1][has])
+    from models.mesh.dual import kept_indptr
+
     rows = np.repeat(np.arange(n), np.diff(indptr))
     keep = w >= theta * np.minimum(top[rows], top[indices])
-    ip = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(np.bincount(rows[keep], minlength=n), out=ip[1:])
-    return ip, indices[keep], w[keep]
+    return kept_indptr(rows, keep, n), indices[keep], w[keep]
