@@ -371,6 +371,7 @@ def _read_meshio(path: str, file_type: str):
     name = os.path.basename(path)
     if file_type not in reader_map:
         raise MeshError(f"unknown mesh format {file_type!r}; use one of: " + ", ".join(sorted(reader_map)))
+    _meshio_dimensions()
     try:
         with (
             warnings.catch_warnings(),
@@ -390,6 +391,18 @@ def _read_meshio(path: str, file_type: str):
         raise
     except (Exception, SystemExit) as exc:  # noqa: BLE001
         raise MeshError(f"cannot read {name} with meshio's {file_type} reader: {_why(exc, meshio)}") from None
+
+
+def _meshio_dimensions() -> None:
+    """meshio's gmsh readers make cells named wedge15 and pyramid13 (gmsh's incomplete quadratic
+    prism and pyramid) whose dimension meshio's own table lacks: every such file failed with
+    KeyError('wedge15'). The names its readers make and the table misses get their dimension (from
+    our cell table) before a read."""
+    from meshio._mesh import topological_dimension
+
+    for name in ("wedge15", "pyramid13"):
+        if name not in topological_dimension and _known(name):
+            topological_dimension[name] = _TYPES[name][1]
 
 
 # meshio's text readers whose read(path) is open(path) + read_buffer(f): read here through a file
