@@ -82,6 +82,36 @@ def plate_holes(s: float, holes: int):
         return _extract(g, 2)
 
 
+def pinholes(s: float, n: int = 10):
+    """Unit square with n x n holes about a cell across (radius 0.4 of the cell size), jittered off
+    the grid: many small holes, the coarse end's hardest case."""
+    rng = np.random.default_rng(1)
+    with _gmsh() as g:
+        occ = g.model.occ
+        sq = occ.addRectangle(0, 0, 0, 1, 1)
+        h = 0.0125 / s
+        r = 0.4 * 0.0125
+        c = (np.arange(n) + 0.5) / n
+        xy = np.stack(np.meshgrid(c, c), -1).reshape(-1, 2) + rng.uniform(-0.25, 0.25, (n * n, 2)) / n
+        disks = [(2, occ.addDisk(x, y, 0, r, r)) for x, y in xy]
+        occ.cut([(2, sq)], disks)
+        occ.synchronize()
+        _size(g, h)
+        g.model.mesh.generate(2)
+        return _extract(g, 2)
+
+
+def cavities(s: float, n: int = 3):
+    """A cube with n x n x n closed spherical cavities (voids: n^3 inner boundary shells)."""
+
+    def build(occ):
+        c = (np.arange(n) + 0.5) / n
+        balls = [(3, occ.addSphere(x, y, z, 0.12 / n * 3 / 3)) for x in c for y in c for z in c]
+        occ.cut([(3, occ.addBox(0, 0, 0, 1, 1, 1))], balls)
+
+    return _solid(s, build, 0.06)
+
+
 def lshape(s: float, graded: float = 1.0):
     """L-shape (unit square minus its upper right quarter); graded > 1: cell size growing linearly
     from h / graded at the re-entrant corner to h (a length ratio `graded`)."""
@@ -285,6 +315,8 @@ FAMILY = {
     "plate-1hole": (lambda s: plate_holes(s, 1), None),
     "plate-4holes": (lambda s: plate_holes(s, 4), None),
     "plate-16holes": (lambda s: plate_holes(s, 16), None),
+    "plate-36holes": (lambda s: plate_holes(s, 36), None),
+    "pinholes-100": (pinholes, None),
     "L-shape": (lambda s: lshape(s), None),
     "slit": (slit, None),
     "graded-100": (lambda s: lshape(s, graded=100.0), None),
@@ -295,6 +327,7 @@ FAMILY = {
     "torus": (torus, None),
     "double-torus": (double_torus, None),
     "cavity": (cavity, None),
+    "cavities-27": (cavities, None),
     "tunnels": (tunnels, None),
     "thin-walled": (thin_walled, None),
     "hexes": (hexes, None),

@@ -479,7 +479,18 @@ class Hierarchy:
 
         m, g = self.mesh, self.graph
         boundary = fine_boundary(m, g.faces, g.partner) if has_groups(m) else None
-        keys = ("model", "finest", "boxfit", "ratio", "coarsest", "kappa", "method", "build_time", "report")
+        keys = (
+            "model",
+            "finest",
+            "boxfit",
+            "ratio",
+            "coarsest",
+            "kappa",
+            "method",
+            "build_time",
+            "report",
+            "notes",
+        )
         return write_hierarchy(
             os.fspath(folder),
             m,

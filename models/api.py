@@ -193,6 +193,7 @@ def _write_hierarchy_zip(
                         "method",
                         "build_time",
                         "report",
+                        "notes",
                     )
                     if k in info
                 },

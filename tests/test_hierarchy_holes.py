@@ -89,12 +89,13 @@ def test_no_element_encloses_a_hole_and_levels_nest(plate, model):
 
 def test_rtree_levels_coarsen_within_25_percent_of_the_ratio(plate):
     mesh, graph, data, _, _ = plate
-    levels, info = build_hierarchy(mesh, data, model="rtree", ratio=8, coarsest=10)
+    # 4 elements at the coarse end: some would surround the holes alone (opened by threading)
+    levels, info = build_hierarchy(mesh, data, model="rtree", ratio=8, coarsest=4)
     assert len(levels) == len(info["requested"])
-    assert int(levels[0].max()) + 1 <= 10  # down to --coarsest
+    assert int(levels[0].max()) + 1 <= 4  # down to --coarsest
     for r in info["report"]:
         assert 0.75 <= r["ratio_vs_requested"] <= 1.25, r
-    assert sum(r["ring_cuts"] for r in info["report"]) >= 1  # the holes were there to be cut
+    assert sum(r["ring_cuts"] + r["holes_threaded"] for r in info["report"]) >= 1  # the holes were there
     assert sum(r["split_into_children"] for r in info["report"]) == 0
 
 
@@ -193,3 +194,47 @@ def test_nested_aggregation_levels_have_no_holed_element(plate):
     for lv in levels:
         assert _holed(mesh, graph, data, lv) == 0
         assert _label_pieces(graph.indptr, graph.indices, lv)[0] == int(lv.max()) + 1
+
+
+def test_a_holed_domain_is_never_planned_as_one_element(plate):
+    """--coarsest 2 on a plate with holes: the plan's last level (1 element) cannot be met without
+    an element around the holes; the plan asks for 2 and says why; no element is holed."""
+    mesh, graph, data, _, _ = plate
+    levels, info = build_hierarchy(mesh, data, model="rtree", ratio=8, coarsest=2)
+    assert info["requested"][0] == 2 and any("cannot surround a hole" in n for n in info["notes"])
+    assert all(_holed(mesh, graph, data, lv) == 0 for lv in levels) and is_nested(levels)
+    _, plain = build_hierarchy(mesh, data, model="rtree", ratio=8, coarsest=10)
+    assert plain["notes"] == []
+
+
+def test_threading_opens_a_hole_without_a_new_element():
+    """An element that alone surrounds a hole of the domain: a path of the finer level's elements from
+    the hole to a neighbour moves to that neighbour; the count stays, the hole lies between two
+    elements, both stay connected."""
+    from models.hierarchy.holes import domain_holes, thread_holes
+
+    pts, tri = _gmsh_2d(_plate, 0.05)
+    mesh = mesh_from_arrays(pts, [("triangle", tri)])
+    graph, data = prepare(mesh)
+    hid, hc = domain_holes(mesh, data)
+    assert hid.size and hid.max() + 1 >= 1
+    # two elements: left and right halves, then the whole ring around the first hole given to one
+    x = data.centroids[:, 0]
+    coarse = (x > np.median(x)).astype(np.int64)
+    first = hc[hid == 0]
+    near = np.linalg.norm(data.centroids - data.centroids[first].mean(axis=0), axis=1)
+    radius = np.linalg.norm(data.centroids[first] - data.centroids[first].mean(axis=0), axis=1).max()
+    ring = near < 1.6 * radius
+    owner = int(np.bincount(coarse[first]).argmax())
+    coarse[ring] = owner
+    from models.partition.rtree import make_connected
+
+    coarse, _ = make_connected(graph.indptr, graph.indices, graph.weights, coarse)
+    coarse = np.asarray(coarse, dtype=np.int64)
+    k = int(coarse.max()) + 1
+    before = np.unique(coarse[first]).size
+    fine = np.arange(mesh.n_cells)
+    out, opened = thread_holes(data, coarse, fine, np.zeros(mesh.n_cells, dtype=np.int64), hid, hc)
+    assert before == 1 and opened >= 1
+    assert int(out.max()) + 1 == k and np.unique(out[first]).size >= 2
+    assert _label_pieces(graph.indptr, graph.indices, out)[0] == k

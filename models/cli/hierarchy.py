@@ -149,6 +149,8 @@ def hierarchy_main(args) -> int:
         mg = "\n" + format_report(rep)
     sizes = " > ".join(str(lv["elements"]) for lv in index["levels"])
     print(format_levels(info["report"]))
+    for note in info.get("notes", []):
+        print(f"note: {note}")
     print(
         f"{len(index['levels'])} nested levels ({sizes} elements) from {mesh.n_cells} cells with {args.model} "
         f"| read {t_read:.2f}s build {info['build_time']:.2f}s write {t_write:.2f}s | total {time.perf_counter() - t0:.2f}s"
@@ -159,17 +161,17 @@ def hierarchy_main(args) -> int:
 
 def format_levels(report: list[dict]) -> str:
     """The per-level report: elements (requested), ratio to the finer level (requested), holed
-    elements found, ring cuts, elements split into their children, pairs merged back."""
+    elements found, holes opened by moving a path to a neighbour (threaded), ring cuts, elements split into their children, pairs merged back."""
     lines = [
-        f"{'level':>5}{'elements':>10}{'requested':>10}{'ratio':>7}{'wanted':>8}{'holed':>7}{'ring cuts':>10}"
-        f"{'splits':>8}{'merged':>8}"
+        f"{'level':>5}{'elements':>10}{'requested':>10}{'ratio':>7}{'wanted':>8}{'holed':>7}{'threaded':>9}"
+        f"{'ring cuts':>10}{'splits':>8}{'merged':>8}"
     ]
     for r in report:
         req = f"{r['requested']}" if "requested" in r else "-"
         want = f"{r['requested_ratio']:.2f}" if "requested_ratio" in r else "-"
         lines.append(
             f"{r['level']:>5}{r['elements']:>10}{req:>10}{r['ratio']:>7.2f}{want:>8}{r['holed_elements']:>7}"
-            f"{r['ring_cuts']:>10}{r['split_into_children']:>8}{r['merged_pairs']:>8}"
+            f"{r.get('holes_threaded', 0):>9}{r['ring_cuts']:>10}{r['split_into_children']:>8}{r['merged_pairs']:>8}"
         )
     return "\n".join(lines)
 

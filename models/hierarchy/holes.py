@@ -19,7 +19,9 @@ from models.mesh.celldata import CellData, compact_labels
 from models.mesh.container import Mesh
 
 RING_ROUNDS = 4  # ring cuts tried per level before an element is replaced by its children
-MERGE_ROUNDS = 4  # rounds of merging pairs back (a round's merges that enclose a hole are undone)
+MERGE_ROUNDS = (
+    12  # rounds of merging pairs back while they merge (a round's merges that enclose a hole are undone)
+)
 
 
 def _without_holes(mesh: Mesh, data: CellData, coarse: np.ndarray, finer: np.ndarray) -> np.ndarray:
@@ -291,11 +293,15 @@ def merge_pairs(
     origin: np.ndarray,
     forbid: set,
     r: int,
+    holes: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, int]:
     """Up to r disjoint pairs of neighbouring elements with the same parent (`parent`: the coarser
     level's label of each cell) merged, the pairs with the fewest cells first; two halves of one
     ring cut (the same `origin`, a label per cell, -1: not cut) never, nor the pairs in `forbid`
-    (pairs of the elements' first cells). Returns (labels compacted, pairs merged)."""
+    (pairs of the elements' first cells), nor two elements that are the only ones along a hole of
+    the domain (`holes`: domain_holes' pairs; their union would surround it: on a domain with many
+    holes most merges would, and were made, found holed and undone round after round). Returns
+    (labels compacted, pairs merged)."""
     from models.partition.rtree import _quotient
 
     g = data.graph
@@ -312,13 +318,29 @@ def merge_pairs(
     qp, qi, _ = _quotient(g.indptr, g.indices, g.weights, labels, k)
     a = np.repeat(np.arange(k), np.diff(qp))
     b = qi
-    ok = (a < b) & (pe[a] == pe[b]) & ((og[a] < 0) | (og[a] != og[b]))
+    ok = (a < b) & (pe[a] == pe[b])
+    if holes is None or not holes[0].size:  # (with the holes known, the rule below decides)
+        ok &= (og[a] < 0) | (og[a] != og[b])
     a, b = a[ok], b[ok]
+    if holes is not None and holes[0].size:
+        hid, hc = holes
+        key = np.unique(hid * np.int64(k) + labels[hc])  # (hole, element) pairs, sorted
+        h, e = key // k, key % k
+        two = np.bincount(h)[h] == 2  # holes along exactly two elements: those two never merge
+        lone = np.unique(e[two][0::2] * np.int64(k) + e[two][1::2])
+        keep = ~np.isin(np.minimum(a, b) * np.int64(k) + np.maximum(a, b), lone)
+        a, b = a[keep], b[keep]
+        import scipy.sparse as sp
+
+        HE = sp.csr_matrix((np.ones(h.size), (h, e)), shape=(int(h[-1]) + 1, k))
+        shared = np.asarray((HE[:, a].multiply(HE[:, b])).sum(axis=0)).ravel()
+    else:
+        shared = np.zeros(a.size)
     if forbid:
         key = np.minimum(rep[a], rep[b]) * labels.size + np.maximum(rep[a], rep[b])
         keep = ~np.isin(key, np.fromiter(forbid, dtype=np.int64, count=len(forbid)))
-        a, b = a[keep], b[keep]
-    order = np.argsort(size[a] + size[b], kind="stable")
+        a, b, shared = a[keep], b[keep], shared[keep]
+    order = np.lexsort((size[a] + size[b], shared))  # the fewest holes between them, then the smallest
     used = np.zeros(k, dtype=bool)
     target = np.arange(k)
     done = 0
@@ -385,12 +407,189 @@ class _Detector:
         return np.unique(be), (be, cen), p, None
 
 
+def domain_holes(mesh: Mesh, data: CellData) -> tuple[np.ndarray, np.ndarray]:
+    """The domain's holes (2D: inner boundary loops; 3D: inner boundary shells, the cavities) and the
+    cells along each: (hole id per pair, cell per pair), sorted by hole, each pair once. The outer
+    boundary of each connected piece (the component holding the piece's boundary point of least x)
+    is no hole. Boundary facets that share a node are one component."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    from models.mesh.geometry import cell_index, next_in_cycle
+    from models.polytope.merge import face_nodes
+
+    g = data.graph
+    empty = np.zeros(0, dtype=np.int64)
+    bf = np.flatnonzero(g.partner < 0)
+    if bf.size == 0:
+        return empty, empty
+    fo, nodes = face_nodes(g.faces, bf)
+    n = mesh.n_points
+    u, v = nodes, nodes[next_in_cycle(fo)]
+    B = sp.csr_matrix((np.ones(u.size, dtype=np.int8), (u, v)), shape=(n, n))
+    _, comp = connected_components(B, directed=False)
+    cells = np.asarray(g.faces.cell[bf], dtype=np.int64)
+    A = sp.csr_matrix(
+        (np.ones(g.indices.size, dtype=np.int8), g.indices, g.indptr), shape=(mesh.n_cells,) * 2
+    )
+    _, body = connected_components(A, directed=False)
+    owner = cell_index(fo)
+    occ_body, occ_comp = body[cells[owner]], comp[nodes]
+    order = np.lexsort((mesh.points[nodes, 0], occ_body))
+    first = np.r_[True, occ_body[order][1:] != occ_body[order][:-1]]
+    outer = np.zeros(int(comp.max()) + 1, dtype=bool)
+    outer[occ_comp[order][first]] = True
+    fcomp = comp[nodes[fo[:-1]]]
+    inner = ~outer[fcomp]
+    if not inner.any():
+        return empty, empty
+    hid = np.unique(fcomp[inner], return_inverse=True)[1].astype(np.int64)
+    key = np.unique(hid * np.int64(mesh.n_cells) + cells[inner])
+    return key // mesh.n_cells, key % mesh.n_cells
+
+
+def fewest_elements(data: CellData, hole_pairs: tuple[np.ndarray, np.ndarray]) -> tuple[int, str]:
+    """The fewest elements a level of this domain can have: one per connected piece, two for a piece
+    with a hole (one element would enclose it); and why, in words ("" where that is 1)."""
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    g = data.graph
+    n = g.indptr.size - 1
+    pieces, body = connected_components(
+        csr_matrix((np.ones(g.indices.size, dtype=np.int8), g.indices, g.indptr), shape=(n, n)),
+        directed=False,
+    )
+    holed = int(np.unique(body[hole_pairs[1]]).size) if hole_pairs[1].size else 0
+    why = []
+    if pieces > 1:
+        why.append(f"the mesh has {pieces} separate pieces")
+    if holed:
+        why.append(
+            "one element cannot surround a hole" + ("" if pieces == 1 else f" ({holed} pieces have one)")
+        )
+    return pieces + holed, "; ".join(why)
+
+
+def thread_holes(
+    data: CellData,
+    coarse: np.ndarray,
+    finer: np.ndarray,
+    parent: np.ndarray,
+    hole_id: np.ndarray,
+    hole_cell: np.ndarray,
+) -> tuple[np.ndarray, int]:
+    """Elements of `coarse` that alone surround a hole of the domain opened without a new element:
+    the shortest path of the finer level's elements from the hole through the element to a
+    neighbouring element of the same coarser parent (`parent`: its label per cell) is moved to that
+    neighbour, so the hole lies between two elements and the level keeps its count (ring cuts add
+    an element per hole; on a domain with many holes the level could not be merged back to its
+    count). A move that would disconnect the element is not made. Returns (labels, holes opened)."""
+    from models.mesh.cells import ranges
+    from models.partition.rtree import _quotient
+
+    if hole_id.size == 0:
+        return coarse, 0
+    g = data.graph
+    coarse = np.asarray(coarse, dtype=np.int64)
+    finer = np.asarray(finer, dtype=np.int64)
+    kf, k = int(finer.max()) + 1, int(coarse.max()) + 1
+    node_to = np.zeros(kf, dtype=np.int64)
+    node_to[finer] = coarse
+    pe = np.zeros(k, dtype=np.int64)
+    pe[coarse] = parent
+    hu = finer[hole_cell]
+    nh = int(hole_id[-1]) + 1
+    lo = np.full(nh, k, dtype=np.int64)
+    hi = np.full(nh, -1, dtype=np.int64)
+    np.minimum.at(lo, hole_id, node_to[hu])
+    np.maximum.at(hi, hole_id, node_to[hu])
+    bad = np.flatnonzero(lo == hi)
+    if bad.size == 0:
+        return coarse, 0
+    qp, qi, _ = _quotient(g.indptr, g.indices, g.weights, finer, kf)
+    hptr = np.searchsorted(hole_id, np.arange(nh + 1))
+    size = np.bincount(node_to, minlength=k)
+    pred = np.full(kf, -2, dtype=np.int64)
+    mark = np.zeros(kf, dtype=bool)
+    opened = 0
+    for h in bad:  # a loop over the holes an element surrounds alone (each a search in that element)
+        units = np.unique(hu[hptr[h] : hptr[h + 1]])
+        grp = int(node_to[units[0]])
+        if np.any(node_to[units] != grp):
+            continue  # opened by an earlier move
+        found, seen = _path_out(qp, qi, node_to, pe, units, grp, pred, ranges)
+        pred[seen] = -2
+        if found is None or found[0].size >= size[grp]:
+            continue
+        path, target = found
+        node_to[path] = target
+        rest = np.setdiff1d(seen, path)
+        if (
+            rest.size == 0
+            or _reach(qp, qi, node_to, grp, int(rest[0]), mark, ranges) != size[grp] - path.size
+        ):
+            node_to[path] = grp  # it would cut the element in two
+            continue
+        size[grp] -= path.size
+        size[target] += path.size
+        opened += 1
+    return compact_labels(node_to)[finer], opened
+
+
+def _path_out(qp, qi, node_to, pe, units, grp, pred, ranges):
+    """Breadth-first from `units` inside element grp to the first unit with a neighbour in another
+    element of grp's parent: ((the path's units, that element), the units searched) or
+    (None, searched). pred: -2 everywhere on entry (set on the searched units)."""
+    frontier = units
+    pred[units] = -1
+    seen = [units]
+    while frontier.size:
+        st = qp[frontier]
+        deg = qp[frontier + 1] - st
+        nb = qi[ranges(st, deg)]
+        src = np.repeat(frontier, deg)
+        other = node_to[nb]
+        out = (other != grp) & (pe[other] == pe[grp])
+        if out.any():
+            i = int(np.flatnonzero(out)[0])
+            path = [int(src[i])]
+            while pred[path[-1]] >= 0:
+                path.append(int(pred[path[-1]]))
+            return (np.array(path, dtype=np.int64), int(other[i])), np.concatenate(seen)
+        inside = (other == grp) & (pred[nb] == -2)
+        nb, first = np.unique(nb[inside], return_index=True)
+        pred[nb] = src[inside][first]
+        seen.append(nb)
+        frontier = nb
+    return None, np.concatenate(seen)
+
+
+def _reach(qp, qi, node_to, grp, start, mark, ranges) -> int:
+    """Units of element grp reached from unit `start` without leaving it (mark: False everywhere on
+    entry and on return)."""
+    frontier = np.array([start], dtype=np.int64)
+    mark[start] = True
+    reached = [frontier]
+    while frontier.size:
+        st = qp[frontier]
+        nb = np.unique(qi[ranges(st, qp[frontier + 1] - st)])
+        nb = nb[(node_to[nb] == grp) & ~mark[nb]]
+        mark[nb] = True
+        reached.append(nb)
+        frontier = nb
+    r = np.concatenate(reached)
+    mark[r] = False
+    return int(r.size)
+
+
 def fix_holes(
     mesh: Mesh,
     data: CellData,
     levels: list[np.ndarray],
     graphs: dict | None = None,
     ratio: float | None = None,
+    hole_pairs: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[list[np.ndarray], list, list[dict]]:
     """No element of any level encloses a hole, finest level first (the levels stay nested): each
     holed element is ring-cut (ring_cut), then as many pairs merged back (merge_pairs) so the level
@@ -408,13 +607,20 @@ def fix_holes(
     report = [None] * len(out)
     finer = np.arange(mesh.n_cells)
     detector = _Detector(mesh, data, graphs)
+    if hole_pairs is None:  # (domain_holes' pairs where the caller has them)
+        hole_pairs = domain_holes(mesh, data)
     G_finer = None  # the finer level's element graph (each level's comes from it, not from the cells)
     for L in range(len(out) - 1, -1, -1):
         k0 = int(out[L].max()) + 1
         poly = G = None
 
         bad, cen, poly, G = detector(out[L], True, L, finer, G_finer)
-        found, cuts, splits, merged, rounds = int(bad.size), 0, 0, 0, 0
+        found, cuts, splits, merged, rounds, threaded = int(bad.size), 0, 0, 0, 0, 0
+        if bad.size and hole_pairs[0].size:  # first a path to a neighbour through each holed element
+            parent = out[L - 1] if L > 0 else np.zeros(mesh.n_cells, dtype=np.int64)
+            out[L], threaded = thread_holes(data, out[L], finer, parent, *hole_pairs)
+            if threaded:
+                bad, cen, poly, G = detector(out[L], False, L, finer, G_finer)
         touched = np.zeros(mesh.n_cells, dtype=bool)  # cells of elements that were cut
         given = out[L]
         while bad.size:
@@ -440,7 +646,7 @@ def fix_holes(
             if extra <= 0:
                 break
             before = out[L]
-            after, m = merge_pairs(data, before, parent, origin, forbid, extra)
+            after, m = merge_pairs(data, before, parent, origin, forbid, extra, hole_pairs)
             if m == 0:
                 break
             bad2, _, p2, G2 = detector(after, False, L, finer, G_finer)
@@ -477,6 +683,7 @@ def fix_holes(
         report[L] = {
             "elements": int(out[L].max()) + 1,
             "holed_elements": found,
+            "holes_threaded": threaded,
             "ring_cuts": cuts,
             "split_into_children": splits,
             "merged_pairs": merged,

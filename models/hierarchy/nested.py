@@ -27,6 +27,8 @@ from models.hierarchy.holes import (  # noqa: F401  (re-exported: tests and call
     _with_outside,
     _without_holes,
     cavity_elements,
+    domain_holes,
+    fewest_elements,
     fix_holes,
 )
 from models.mesh.celldata import CellData, compact_labels
@@ -497,6 +499,8 @@ def build_hierarchy(
     counts = level_counts(n, ratio, coarsest)
     if not counts:
         raise ParameterError(f"the mesh has {n} cells: nothing to coarsen with coarsest = {coarsest}")
+    hole_pairs, notes = domain_holes(mesh, data), []
+    counts = _at_least(counts, *fewest_elements(data, hole_pairs), notes)
     if groups and mesh.tags is None:
         raise ParameterError("respecting physical groups needs a mesh with physical groups")
     if groups and model != "rtree":
@@ -605,7 +609,7 @@ def build_hierarchy(
         lo, hi = cell_boxes(data.points, data.offsets, data.connectivity)
         levels = boxfit_levels(levels, lo, hi, data.measures, data.graph.indptr, data.graph.indices)
     known = level_graphs if model == "rtree" and not boxfit else None
-    levels, polys, report = fix_holes(mesh, data, levels, known)
+    levels, polys, report = fix_holes(mesh, data, levels, known, hole_pairs=hole_pairs)
     info = {
         "model": model,
         "finest": finest_mode,
@@ -618,8 +622,24 @@ def build_hierarchy(
         "build_time": time.perf_counter() - t0,
         "merged": polys,
         "report": _with_requested(report, counts, n),
+        "notes": notes,
     }
     return levels, info
+
+
+def _at_least(counts: list[int], least: int, why: str, notes: list[str]) -> list[int]:
+    """The planned counts (coarsest first) with the coarsest level at least `least` elements (a level
+    that would then not coarsen is dropped), said in `notes`."""
+    if not counts or counts[0] >= least:
+        return counts
+    asked = counts[0]
+    counts = counts[1:] if len(counts) > 1 and counts[1] <= least else [least, *counts[1:]]
+    notes.append(
+        f"the coarsest level has {counts[0]} elements, not the {asked} planned: {why}"
+        if counts[0] != asked
+        else why
+    )
+    return counts
 
 
 def _hierarchy_above(data, finest, mesh, model, ratio, coarsest, seed, t0):
@@ -630,6 +650,8 @@ def _hierarchy_above(data, finest, mesh, model, ratio, coarsest, seed, t0):
     from models.partition.rtree import level_counts, make_connected
 
     counts = level_counts(int(finest.max()) + 1, ratio, coarsest)
+    hole_pairs, notes = domain_holes(mesh, data), []
+    counts = _at_least(counts, *fewest_elements(data, hole_pairs), notes)
     part = get_partitioner(model, seed=seed)
     if not part.supports_kway:
         part = get_partitioner("metis", seed=seed)
@@ -639,7 +661,7 @@ def _hierarchy_above(data, finest, mesh, model, ratio, coarsest, seed, t0):
         raw = np.asarray(part.kway(cg, int(c)), dtype=np.int64)
         raw, _ = make_connected(cg.indptr, cg.indices, cg.weights, compact_labels(raw), measures=cg.measures)
         levels.insert(0, compact_labels(raw)[levels[0]])
-    levels, polys, report = fix_holes(mesh, data, levels, None)
+    levels, polys, report = fix_holes(mesh, data, levels, None, hole_pairs=hole_pairs)
     info = {
         "model": part.name,
         "ratio": float(ratio) if np.ndim(ratio) == 0 else [float(r) for r in ratio],
@@ -650,6 +672,7 @@ def _hierarchy_above(data, finest, mesh, model, ratio, coarsest, seed, t0):
         "build_time": time.perf_counter() - t0,
         "merged": polys,
         "report": _with_requested(report, [*counts, int(finest.max()) + 1], finest.size),
+        "notes": notes,
     }
     return levels, info
 

@@ -753,12 +753,21 @@ def _sweep_rank(key: np.ndarray) -> np.ndarray:
     return rank
 
 
-def level_counts(n: int, ratio, coarsest: int = 1) -> list[int]:
-    """Element counts of a hierarchy, coarsest first: ceil(c / r_j) for the steps j = 1, 2, ... while
-    above `coarsest` (the coarsest level has at most `coarsest` elements, at least 1).
+# how far the repeated steps of a hierarchy may be stretched or shrunk (a fraction of the requested
+# ratio) so that they are even and the coarsest level lands near --coarsest (issue 24: the old plan's
+# last step was whatever was left, e.g. 14 -> 1 elements, and one element cannot hold a holed domain)
+STRETCH = 0.15
+
+
+def level_counts(n: int, ratio, coarsest: int = 1, stretch: float = STRETCH) -> list[int]:
+    """Element counts of a hierarchy, coarsest first, down to at most `coarsest` elements (at least 1).
 
     ratio: one number (every step), or a schedule (finest step first, the last one repeated), e.g.
-    (5, 12): the finest level n / 5 elements, every coarser one 12 times fewer."""
+    (5, 12): the finest level n / 5 elements, every coarser one about 12 times fewer. The head of the
+    schedule (of one number: the finest step) is taken as given; the repeated steps are planned from the coarse end: as few steps of
+    at most ratio * (1 + stretch) as reach `coarsest`, all of one size, no smaller than
+    ratio * (1 - stretch), so that the coarsest level is as near `coarsest` as that allows instead
+    of whatever the last division leaves. stretch = 0: ceil(c / ratio) at every step."""
     steps = [float(r) for r in np.atleast_1d(np.asarray(ratio, dtype=np.float64))]
     if not steps or not all(r >= 2 for r in steps):
         raise ParameterError(f"ratio must be >= 2, got {ratio!r}")
@@ -766,10 +775,22 @@ def level_counts(n: int, ratio, coarsest: int = 1) -> list[int]:
         raise ParameterError(f"coarsest must be >= 1, got {coarsest!r}")
     counts = []
     c = n
-    while c > coarsest:
-        r = steps[min(len(counts), len(steps) - 1)]
+    for r in steps[:-1] or steps:  # the schedule's head (one number: the finest step), as given
+        if c <= coarsest:
+            break
         c = max(1, int(np.ceil(c / r - 1e-9)))
         counts.append(c)
+    if c > coarsest:
+        r = steps[-1]
+        x = c / coarsest
+        s = max(1, int(np.ceil(np.log(x) / np.log(r * (1.0 + stretch)) - 1e-12)))
+        step = max(x ** (1.0 / s), r * (1.0 - stretch))  # even steps, no larger than needed
+        base = c
+        for j in range(1, s + 1):
+            c = min(max(1, int(np.ceil(base / step**j - 1e-9))), max(c - 1, 1))
+            counts.append(c)
+        if counts[-1] > coarsest:  # rounding up at every step (cannot happen with the ceil above)
+            counts.append(max(1, min(coarsest, int(np.ceil(counts[-1] / r - 1e-9)))))
     return counts[::-1]
 
 
