@@ -372,3 +372,38 @@ def test_parallel_file_pieces_missing_or_outside_are_named(tmp_path):
         with pytest.raises(MeshError, match=words) as err:
             read_mesh(str(bad))
         assert name in str(err.value) and source in str(err.value)
+
+
+def test_cells_listing_more_nodes_than_their_kind_are_said(tmp_path):
+    """A legacy file whose cell types and node counts disagree (a hexahedron of 9 nodes, as a
+    hand-rolled writer may make): VTK draws it on its first 8 nodes, we read it so and say it in one
+    line (check's warning), where it was read without a word."""
+    from models.mesh.check import check_file
+    from models.mesh.geometry import cell_measures
+
+    pts = np.array([[x, y, z] for z in range(3) for y in range(3) for x in range(3)], dtype=float)
+
+    def hexa(i, j, k):
+        n = [
+            a + 3 * b + 9 * c for c in (k, k + 1) for b, a in ((j, i), (j, i + 1), (j + 1, i + 1), (j + 1, i))
+        ]
+        return n
+
+    cells = [hexa(i, j, k) for k in range(2) for j in range(2) for i in range(2)]
+    cells[3] = [*cells[3], 0]  # one node too many
+    lines = ["# vtk DataFile Version 4.2", "hand-rolled", "ASCII", "DATASET UNSTRUCTURED_GRID"]
+    lines += [f"POINTS {len(pts)} double", *(" ".join(f"{v:g}" for v in p) for p in pts)]
+    lines += [f"CELLS {len(cells)} {sum(len(c) + 1 for c in cells)}"]
+    lines += [" ".join(map(str, [len(c), *c])) for c in cells]
+    lines += [f"CELL_TYPES {len(cells)}", *["12"] * len(cells)]
+    path = tmp_path / "overlong.vtk"
+    path.write_text("\n".join(lines) + "\n")
+    n_ref, vol_ref = vc.vtk_reference(str(path))
+    mesh = read_mesh(str(path))
+    assert mesh.n_cells == n_ref == 8 and abs(cell_measures(mesh).sum() - 8.0) < TOL
+    assert mesh.meta["overlong_cells"]["count"] == 1
+    rep = check_file(str(path))
+    kinds = {i["kind"]: i for i in rep["issues"]}
+    assert (
+        "cell 3, a hexahedron: 9 nodes" in kinds["overlong-cells"]["message"] and rep["verdict"] == "warnings"
+    )

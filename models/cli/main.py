@@ -282,6 +282,8 @@ def cmd_agglomerate(args) -> int:
     left_out = dropped_sentence(mesh.meta)
     if left_out:
         print(f"warning: {left_out} (labels: -1 for them)")
+    if mesh.meta.get("overlong_cells"):
+        print(f"warning: {mesh.meta['overlong_cells']['message']}")
     return 0
 
 

@@ -193,6 +193,7 @@ class Normalized:
         self.lower: dict[str, int] = {}
         self.notes: list[str] = []
         self.unused_higher = 0
+        self.overlong = None  # linear cells listing more nodes than their kind has ({"count", "message"})
 
 
 def _corner_csr(offsets, conn, types, sel):
@@ -261,6 +262,7 @@ def normalize(
         corners = "/".join(str(k) for k in sorted({int(KEEP[t]) for t in np.unique(types[elem[higher]])}))
         quadratic = all(t < 68 for t in np.unique(types[elem[higher]]))
         out.notes.append(higher_order_line(quadratic, names, corners, out.unused_higher))
+    out.overlong = _overlong(offsets, types, elem)
     out.offsets, out.connectivity, out.types, out.tags = _elements(
         out, offsets, conn, types, elem, tags, poly
     )
@@ -375,6 +377,25 @@ def _polyhedra(out, off, c, t, polyh, types, sel, poly):
     new_c[ranges(new_off[ids], dsizes)] = dnodes
     out.poly_faces.append((ids, nfaces, face_sizes, face_nodes_all))
     return new_off, new_c
+
+
+def _overlong(offsets, types, elem) -> dict | None:
+    """A line for linear cells that list more nodes than their kind has (a 9-node hexahedron, a file
+    whose cell types and node counts disagree): VTK draws such a cell on its first nodes, and so do
+    we: {"count", "message"}, or None when there are none."""
+    t = types[elem]
+    keep = KEEP[t]
+    sizes = offsets[elem + 1] - offsets[elem]
+    over = (keep > 0) & ~HIGHER[t] & (sizes > keep)
+    if not over.any():
+        return None
+    i, n = int(np.flatnonzero(over)[0]), int(over.sum())
+    return {
+        "count": n,
+        "message": f"{n:,} cell{'s' if n > 1 else ''} list{'' if n > 1 else 's'} more nodes than "
+        f"{'their' if n > 1 else 'its'} kind has (cell {int(elem[i])}, a {type_name(t[i])}: "
+        f"{int(sizes[i])} nodes): taken on the first {int(keep[i])}, as VTK draws it",
+    }
 
 
 def higher_order_line(quadratic: bool, names: list[str], corners: str, unused: int) -> str:

@@ -91,6 +91,8 @@ def read_vtk(
     if norm.notes:
         meta["higher_order"] = "; ".join(norm.notes)
         meta["higher_order_unused_points"] = norm.unused_higher
+    if norm.overlong:
+        meta["overlong_cells"] = norm.overlong
     grid = grid if norm.types.size == len(types) and norm.dim == 3 else None
     return mesh_of_cells(pts, norm, tag_key, weld, meta, grid, field)
 
