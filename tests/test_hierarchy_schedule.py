@@ -54,7 +54,7 @@ def test_default_is_the_schedule_by_dimension(make, cell, dim):
     k = info["requested"][-1]
     assert default_ratio(dim)[1] == (8.0 if dim == 2 else 16.0)
     assert info["finest"] == "aggregation" and info["requested"][:-1] == level_counts(
-        k, default_ratio(dim)[1], 10
+        k, default_ratio(dim)[1], 10, given=0
     )
     assert info["ratio"] == [m.n_cells / k, default_ratio(dim)[1]]
     assert 3 < m.n_cells / k < 12  # a root and its neighbours, and a share of the cells left over

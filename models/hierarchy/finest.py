@@ -26,6 +26,7 @@ def aggregated_levels(
     opts: dict,
     how: str = "aggregation",
     counts: list | None = None,
+    least: int = 1,
 ):
     """The default rtree hierarchy (issue 24, round five): the finest level a standard aggregation of
     the cells' graph (models.partition.rtree_aggregate), every coarser level rtree's cuts of the
@@ -125,7 +126,11 @@ def aggregated_levels(
         tags=None,
         node_ids=np.arange(k),
     )
-    upper_counts = level_counts(k, step, coarsest) if counts is None else [int(c) for c in counts if c < k]
+    upper_counts = (
+        level_counts(k, step, coarsest, given=0, least=least)
+        if counts is None
+        else [int(c) for c in counts if c < k]
+    )
     graphs: list = []
     level_graphs = {}
     levels = [agg]
@@ -176,7 +181,15 @@ def aggregation_strength(mesh: Mesh, data: CellData, coupling: np.ndarray, keep_
 
 
 def aggregation_in_cuts(
-    mesh: Mesh, data: CellData, batch, tags, step: float, coarsest: int, opts: dict, counts=None
+    mesh: Mesh,
+    data: CellData,
+    batch,
+    tags,
+    step: float,
+    coarsest: int,
+    opts: dict,
+    counts=None,
+    least: int = 1,
 ):
     """finest="nested" (issue 24, round eight): the coarser levels rtree's cuts of the CELLS (as
     finest="cuts" makes them, so they keep the cut boxes), their counts `step` times fewer per level
@@ -204,7 +217,11 @@ def aggregation_in_cuts(
         coupling = tpfa_coupling(indptr, indices, G.weights, data.centroids)
     coupling = np.asarray(coupling, dtype=np.float64)
     k0 = int(pyamg_aggregates(*aggregation_strength(mesh, data, coupling, tags)).max()) + 1
-    upper = level_counts(k0, step, coarsest) if counts is None else [int(c) for c in counts if c < k0]
+    upper = (
+        level_counts(k0, step, coarsest, given=0, least=least)
+        if counts is None
+        else [int(c) for c in counts if c < k0]
+    )
     graphs: list = []
     level_graphs = {}
     up_levels = []

@@ -500,7 +500,8 @@ def build_hierarchy(
     if not counts:
         raise ParameterError(f"the mesh has {n} cells: nothing to coarsen with coarsest = {coarsest}")
     hole_pairs, notes = domain_holes(mesh, data), []
-    counts = _at_least(counts, *fewest_elements(data, hole_pairs), notes)
+    least, why = fewest_elements(data, hole_pairs)
+    counts = _at_least(counts, least, why, notes)
     if groups and mesh.tags is None:
         raise ParameterError("respecting physical groups needs a mesh with physical groups")
     if groups and model != "rtree":
@@ -559,12 +560,19 @@ def build_hierarchy(
 
         if finest_mode == "nested":
             levels, counts, level_graphs, ratio = aggregation_in_cuts(
-                mesh, data, batch, tags, ratio[-1] if np.ndim(ratio) else ratio, coarsest, opts
+                mesh, data, batch, tags, ratio[-1] if np.ndim(ratio) else ratio, coarsest, opts, least=least
             )
             how = "native: rtree cuts of the cells, the finest level by standard aggregation inside them"
         elif agg_mode:
             levels, counts, level_graphs, ratio = aggregated_levels(
-                mesh, data, tags, ratio[-1] if np.ndim(ratio) else ratio, coarsest, opts, finest_mode
+                mesh,
+                data,
+                tags,
+                ratio[-1] if np.ndim(ratio) else ratio,
+                coarsest,
+                opts,
+                finest_mode,
+                least=least,
             )
             how = "native: finest level by standard aggregation of the cells' graph, rtree cuts above"
         else:

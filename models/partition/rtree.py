@@ -759,7 +759,9 @@ def _sweep_rank(key: np.ndarray) -> np.ndarray:
 STRETCH = 0.15
 
 
-def level_counts(n: int, ratio, coarsest: int = 1, stretch: float = STRETCH) -> list[int]:
+def level_counts(
+    n: int, ratio, coarsest: int = 1, stretch: float = STRETCH, given: int | None = None, least: int = 1
+) -> list[int]:
     """Element counts of a hierarchy, coarsest first, down to at most `coarsest` elements (at least 1).
 
     ratio: one number (every step), or a schedule (finest step first, the last one repeated), e.g.
@@ -767,7 +769,10 @@ def level_counts(n: int, ratio, coarsest: int = 1, stretch: float = STRETCH) -> 
     schedule (of one number: the finest step) is taken as given; the repeated steps are planned from the coarse end: as few steps of
     at most ratio * (1 + stretch) as reach `coarsest`, all of one size, no smaller than
     ratio * (1 - stretch), so that the coarsest level is as near `coarsest` as that allows instead
-    of whatever the last division leaves. stretch = 0: ceil(c / ratio) at every step."""
+    of whatever the last division leaves. stretch = 0: ceil(c / ratio) at every step. given: how
+    many leading steps are taken as given (default: the schedule's head, or 1 for one number; 0: every
+    step planned). least: the fewest elements the coarsest level may have (a domain with a hole: 2;
+    a level that would then not coarsen is left out)."""
     steps = [float(r) for r in np.atleast_1d(np.asarray(ratio, dtype=np.float64))]
     if not steps or not all(r >= 2 for r in steps):
         raise ParameterError(f"ratio must be >= 2, got {ratio!r}")
@@ -775,7 +780,11 @@ def level_counts(n: int, ratio, coarsest: int = 1, stretch: float = STRETCH) -> 
         raise ParameterError(f"coarsest must be >= 1, got {coarsest!r}")
     counts = []
     c = n
-    for r in steps[:-1] or steps:  # the schedule's head (one number: the finest step), as given
+    if given is None:
+        head = steps[:-1] or steps
+    else:
+        head = [steps[min(j, len(steps) - 1)] for j in range(given)]
+    for r in head:  # the schedule's head (one number: the finest step), as given
         if c <= coarsest:
             break
         c = max(1, int(np.ceil(c / r - 1e-9)))
@@ -791,6 +800,11 @@ def level_counts(n: int, ratio, coarsest: int = 1, stretch: float = STRETCH) -> 
             counts.append(c)
         if counts[-1] > coarsest:  # rounding up at every step (cannot happen with the ceil above)
             counts.append(max(1, min(coarsest, int(np.ceil(counts[-1] / r - 1e-9)))))
+    if counts and counts[-1] < least:
+        if len(counts) > 1 and counts[-2] <= least:
+            counts.pop()
+        else:
+            counts[-1] = int(least)
     return counts[::-1]
 
 
