@@ -187,7 +187,11 @@ def row(name, mesh, graph, data, model, kappa, t_metis) -> dict:
     ratios = [b / a for a, b in zip(sizes, sizes[1:] + [mesh.n_cells], strict=True)]
     # against the ratio asked (the schedule: finest step first, the last repeated), every level, finest
     # up; and against the planned counts (level_counts evens the repeated steps within STRETCH)
-    sched = [float(v) for v in np.atleast_1d(ratio if ratio is not None else default_ratio(mesh.dim))]
+    # (the default rtree's finest step is the aggregation's own: build_hierarchy records it in info["ratio"])
+    sched = [
+        float(v)
+        for v in np.atleast_1d(info.get("ratio", ratio if ratio is not None else default_ratio(mesh.dim)))
+    ]
     asked = [sched[min(j, len(sched) - 1)] for j in range(len(ratios))]
     worst = max(abs(r / w - 1.0) for r, w in zip(ratios[::-1], asked, strict=True))
     req = [int(c) for c in info["requested"]] + [mesh.n_cells]

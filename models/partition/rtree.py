@@ -766,10 +766,10 @@ def level_counts(
 
     ratio: one number (every step), or a schedule (finest step first, the last one repeated), e.g.
     (5, 12): the finest level n / 5 elements, every coarser one about 12 times fewer. The head of the
-    schedule (of one number: the finest step) is taken as given; the repeated steps are planned from the coarse end: as few steps of
-    at most ratio * (1 + stretch) as reach `coarsest`, all of one size, no smaller than
-    ratio * (1 - stretch), so that the coarsest level is as near `coarsest` as that allows instead
-    of whatever the last division leaves. stretch = 0: ceil(c / ratio) at every step. given: how
+    schedule (of one number: the finest step) is taken as given; the repeated steps are planned
+    from the coarse end (_even_steps): all of one size, at least ratio * (1 - stretch) and within
+    RATIO_SLACK of the ratio, so that the coarsest level is near `coarsest` instead of whatever the
+    last division leaves (14 -> 1 elements, say). stretch = 0: no step below the ratio. given: how
     many leading steps are taken as given (default: the schedule's head, or 1 for one number; 0: every
     step planned). least: the fewest elements the coarsest level may have (a domain with a hole: 2;
     a level that would then not coarsen is left out)."""
@@ -790,22 +790,41 @@ def level_counts(
         c = max(1, int(np.ceil(c / r - 1e-9)))
         counts.append(c)
     if c > coarsest:
-        r = steps[-1]
-        x = c / coarsest
-        s = max(1, int(np.ceil(np.log(x) / np.log(r * (1.0 + stretch)) - 1e-12)))
-        step = max(x ** (1.0 / s), r * (1.0 - stretch))  # even steps, no larger than needed
-        base = c
-        for j in range(1, s + 1):
-            c = min(max(1, int(np.ceil(base / step**j - 1e-9))), max(c - 1, 1))
-            counts.append(c)
-        if counts[-1] > coarsest:  # rounding up at every step (cannot happen with the ceil above)
-            counts.append(max(1, min(coarsest, int(np.ceil(counts[-1] / r - 1e-9)))))
+        counts += _even_steps(c, steps[-1], coarsest, stretch)
     if counts and counts[-1] < least:
         if len(counts) > 1 and counts[-2] <= least:
             counts.pop()
         else:
             counts[-1] = int(least)
     return counts[::-1]
+
+
+def _even_steps(c: int, r: float, coarsest: int, stretch: float) -> list[int]:
+    """Counts below c (finest first) in even steps near r down to at most `coarsest`: for each number
+    of steps s near log_r(c / coarsest), the step x^(1/s) (x = c / coarsest) raised to r * (1 - stretch)
+    where smaller (the coarsest level then below `coarsest`); the s whose whole-number counts keep
+    every step nearest r (the largest |step / r - 1| least; a step above r * (1 + RATIO_SLACK) never)."""
+    x = c / coarsest
+    s0 = max(1, int(np.ceil(np.log(x) / np.log(r) - 1e-12)))
+    best, best_dev = None, np.inf
+    for s in range(max(1, s0 - 1), s0 + 2):
+        step = max(x ** (1.0 / s), r * (1.0 - stretch))
+        if step > r * (1.0 + RATIO_SLACK) and s < s0 + 1:
+            continue
+        out, prev = [], c
+        for j in range(1, s + 1):
+            prev = min(max(1, int(np.floor(c / step**j + 0.5))), max(prev - 1, 1))  # nearest
+            out.append(prev)
+        if out[-1] > coarsest:  # whole numbers rounded up past it: one step more
+            out.append(max(1, min(coarsest, int(np.ceil(out[-1] / r - 1e-9)))))
+        ratios = np.array([c, *out[:-1]], dtype=np.float64) / np.array(out, dtype=np.float64)
+        dev = float(np.max(np.abs(ratios / r - 1.0)))
+        if dev < best_dev - 1e-12:
+            best, best_dev = out, dev
+    return best
+
+
+RATIO_SLACK = 0.25  # issue 24: every level within 25% of the requested ratio
 
 
 class RTreePartitioner(Partitioner):
