@@ -582,7 +582,7 @@ def build_hierarchy(
     else:
         from models.partition.agglomerate import agglomerate
 
-        part = get_partitioner(model, seed=seed, **(model_options or {}))
+        part = get_partitioner(model, seed=seed, **_count_weighted(model, model_options))
         if part.supports_kway:
             fine = agglomerate(mesh, data, model=part, mode="kway", k=counts[-1], seed=seed).labels
             levels = [fine]
@@ -635,6 +635,18 @@ def build_hierarchy(
     return levels, info
 
 
+def _count_weighted(model: str, options: dict | None) -> dict:
+    """The model's options for a hierarchy: METIS balances cell counts, not measures (unit node
+    weights), as rtree's cuts do, so that an element's size follows the local cell size (issue 24:
+    measure-weighted parts hold thousands of cells where the mesh is fine and a handful where it is
+    coarse; on a 1000:1 graded mesh 101 smoothed iterations against pyamg's 17, with unit weights 11;
+    elongated holes 28 -> 12 against 15; 60 random holes 22 -> 11 against 14)."""
+    out = dict(options or {})
+    if model == "metis":
+        out.setdefault("use_weights", False)
+    return out
+
+
 def _at_least(counts: list[int], least: int, why: str, notes: list[str]) -> list[int]:
     """The planned counts (coarsest first) with the coarsest level at least `least` elements (a level
     that would then not coarsen is dropped), said in `notes`."""
@@ -660,9 +672,9 @@ def _hierarchy_above(data, finest, mesh, model, ratio, coarsest, seed, t0):
     counts = level_counts(int(finest.max()) + 1, ratio, coarsest)
     hole_pairs, notes = domain_holes(mesh, data), []
     counts = _at_least(counts, *fewest_elements(data, hole_pairs), notes)
-    part = get_partitioner(model, seed=seed)
+    part = get_partitioner(model, seed=seed, **_count_weighted(model, None))
     if not part.supports_kway:
-        part = get_partitioner("metis", seed=seed)
+        part = get_partitioner("metis", seed=seed, **_count_weighted("metis", None))
     levels = [finest]
     for c in reversed(counts):
         cg = coarse_graph(data, levels[0])

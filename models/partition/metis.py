@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
 import warnings
 
 import numpy as np
@@ -19,6 +22,33 @@ def integer_weights(measures: np.ndarray, resolution: int = 1000) -> np.ndarray:
     if not np.isfinite(mean) or mean <= 0:
         return np.ones(m.size, dtype=np.int64)
     return np.clip(np.rint(m * (resolution / mean)), 1, 2**30 // max(m.size, 1)).astype(np.int64)
+
+
+@contextlib.contextmanager
+def _quiet_c_stdout():
+    """METIS prints its own complaints ("***You are trying to partition a graph into too many
+    parts!", "***Cannot bisect a graph with 0 vertices!") with C's printf to the process's standard
+    output, where a user would read a library's raw text: for the call, file descriptor 1 goes to a
+    temporary file (C's buffers flushed before it is restored) and what METIS printed is dropped; the
+    partition it returns is checked by the callers (empty and disconnected parts) as any other."""
+    import ctypes
+    import tempfile
+
+    try:
+        sys.stdout.flush()
+        saved = os.dup(1)
+    except (OSError, ValueError, AttributeError):  # no standard output to guard
+        yield
+        return
+    libc = ctypes.CDLL(None)
+    with tempfile.TemporaryFile() as sink:
+        os.dup2(sink.fileno(), 1)
+        try:
+            yield
+        finally:
+            libc.fflush(None)
+            os.dup2(saved, 1)
+            os.close(saved)
 
 
 def _connected(indptr: np.ndarray, indices: np.ndarray) -> bool:
@@ -64,7 +94,7 @@ class MetisPartitioner(Partitioner):
         for i, (w, contig) in enumerate(attempts):
             try:
                 opts = pymetis.Options(seed=self.seed, contig=int(contig))
-                with warnings.catch_warnings():
+                with warnings.catch_warnings(), _quiet_c_stdout():
                     warnings.simplefilter("ignore", DeprecationWarning)
                     res = pymetis.part_graph(nparts, adj, vweights=w, recursive=recursive, options=opts)
                 if i > 0:
