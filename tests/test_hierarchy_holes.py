@@ -260,3 +260,70 @@ def test_hierarchy_elements_hold_comparable_cell_counts_on_a_graded_mesh(model):
     levels, info = build_hierarchy(mesh, data, model=model, coarsest=10)
     counts = np.bincount(levels[-1])
     assert counts.max() <= 4 * np.median(counts), (model, counts.max(), np.median(counts))
+
+
+def _pipe_tets(h=0.12):
+    """A pipe (outer radius 0.5, bore 0.3, length 2 along z) of tetrahedra, by gmsh."""
+    import gmsh
+
+    gmsh.initialize(["-nt", "1"])
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        occ = gmsh.model.occ
+        outer = occ.addCylinder(0, 0, 0, 0, 0, 2, 0.5)
+        bore = occ.addCylinder(0, 0, -0.1, 0, 0, 2.2, 0.3)
+        occ.cut([(3, outer)], [(3, bore)])
+        occ.synchronize()
+        gmsh.option.setNumber("Mesh.MeshSizeMin", h)
+        gmsh.option.setNumber("Mesh.MeshSizeMax", h)
+        gmsh.model.mesh.generate(3)
+        tags, coords, _ = gmsh.model.mesh.getNodes()
+        types, _, nodes = gmsh.model.mesh.getElements(3)
+        tet = np.concatenate(
+            [np.asarray(n).reshape(-1, 4) for t, n in zip(types, nodes, strict=True) if t == 4]
+        )
+    finally:
+        gmsh.finalize()
+    index = np.empty(int(tags.max()) + 1, dtype=np.int64)
+    index[tags.astype(np.int64)] = np.arange(tags.size)
+    return np.asarray(coords).reshape(-1, 3), index[tet.astype(np.int64)]
+
+
+def _tet_euler(tet, labels):
+    """V - E + F - T of each element's tetrahedra (1 - handles for a connected element without a cavity)."""
+    k = int(labels.max()) + 1
+    n = int(tet.max()) + 1
+    V = np.bincount(np.unique(np.repeat(labels, 4) * n + tet.ravel()) // n, minlength=k)
+    out = V - np.bincount(labels, minlength=k)
+    for pick, sign in (
+        ([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]], -1),
+        ([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]], 1),
+    ):
+        s = np.sort(tet[:, pick], axis=2).reshape(-1, len(pick[0]))
+        lab = np.repeat(labels, len(pick))
+        key = np.unique(np.column_stack([lab, s]), axis=0)
+        out = out + sign * np.bincount(key[:, 0], minlength=k)
+    return out
+
+
+def test_rings_around_a_tunnel_are_found_and_cut():
+    """3D: slices of a pipe are rings around its bore (one handle each: no element for a solver, as
+    a polygon around a hole is none). handle_elements finds exactly the elements whose tetrahedra
+    have Euler characteristic below 1, and a hierarchy of the pipe has none at any level."""
+    from models.hierarchy.holes import domain_genus, handle_elements
+
+    pts, tet = _pipe_tets()
+    mesh = mesh_from_arrays(pts, [("tetra", tet)])
+    graph, data = prepare(mesh)
+    assert domain_genus(mesh, graph) == 1
+    rings = np.minimum((data.centroids[:, 2] / 0.5).astype(np.int64), 3)  # 4 slices along the pipe
+    assert _tet_euler(mesh.connectivity.reshape(-1, 4), rings).tolist() == [0, 0, 0, 0]
+    assert handle_elements(mesh, graph, rings).tolist() == [0, 1, 2, 3]
+    halves = rings * 2 + (data.centroids[:, 0] > 0)  # each slice cut in two along the pipe's axis
+    assert handle_elements(mesh, graph, halves).size == 0
+    levels, info = build_hierarchy(mesh, data, model="rtree", coarsest=4)
+    tets = mesh.connectivity.reshape(-1, 4)
+    for lv in levels:
+        assert handle_elements(mesh, graph, lv).size == 0 and _tet_euler(tets, lv).min() >= 1
+    assert is_nested(levels) and int(levels[0].max()) + 1 <= 4
+    assert any("tunnel" in n for n in info["notes"]) or info["requested"][0] >= 2

@@ -55,7 +55,7 @@ def test_default_is_the_schedule_by_dimension(make, cell, dim):
     k = info["requested"][-1]
     assert default_ratio(dim)[1] == (8.0 if dim == 2 else 16.0)
     assert info["finest"] == "aggregation" and info["requested"][:-1] == level_counts(
-        k, default_ratio(dim)[1], 10, given=0
+        k, default_ratio(dim)[1], 10, given=0, stretch=info["stretch"]
     )
     assert info["ratio"] == [m.n_cells / k, default_ratio(dim)[1]]
     assert 3 < m.n_cells / k < 12  # a root and its neighbours, and a share of the cells left over
@@ -66,11 +66,11 @@ def test_default_is_the_schedule_by_dimension(make, cell, dim):
         assert abs(r["ratio_vs_requested"] - 1) <= 0.25
     # a single number still means every level (cuts at every level)
     _, info8 = build_hierarchy(m, d, model="rtree", ratio=8, coarsest=10)
-    assert info8["requested"] == level_counts(m.n_cells, 8, 10) and info8["finest"] == "cuts"
+    assert info8["requested"] == level_counts(m.n_cells, 8, 10, stretch=0) and info8["finest"] == "cuts"
     # finest="cuts": the cuts at every level with the schedule by dimension (the default before)
     _, infoc = build_hierarchy(m, d, model="rtree", coarsest=10, model_options={"finest": "cuts"})
     assert infoc["ratio"] == list(default_ratio(dim)) and infoc["finest"] == "cuts"
-    assert infoc["requested"] == level_counts(m.n_cells, default_ratio(dim), 10)
+    assert infoc["requested"] == level_counts(m.n_cells, default_ratio(dim), 10, stretch=0)
     with pytest.raises(
         ParameterError, match="finest must be aggregation, nested, pyamg, luby, quality or cuts"
     ):
@@ -138,7 +138,7 @@ def test_cli_schedule_and_kappa(tmp_path):
     index = json.load(open(out / "hierarchy.json", encoding="utf-8"))
     assert index["ratio"] == list(default_ratio(2)) and index["kappa"] == [9.0, 1.0]
     sizes = [lv["elements"] for lv in index["levels"]]
-    assert sizes == level_counts(48 * 48, default_ratio(2), 10)
+    assert sizes == level_counts(48 * 48, default_ratio(2), 10, stretch=0)
     r = subprocess.run(  # the other models: kappa judges (--mgcheck), the levels are not cut for it
         [
             sys.executable,

@@ -27,6 +27,7 @@ def aggregated_levels(
     how: str = "aggregation",
     counts: list | None = None,
     least: int = 1,
+    stretch: float | None = None,
 ):
     """The default rtree hierarchy (issue 24, round five): the finest level a standard aggregation of
     the cells' graph (models.partition.rtree_aggregate), every coarser level rtree's cuts of the
@@ -127,7 +128,7 @@ def aggregated_levels(
         node_ids=np.arange(k),
     )
     upper_counts = (
-        level_counts(k, step, coarsest, given=0, least=least)
+        level_counts(k, step, coarsest, given=0, least=least, **_stretch(stretch))
         if counts is None
         else [int(c) for c in counts if c < k]
     )
@@ -190,6 +191,7 @@ def aggregation_in_cuts(
     opts: dict,
     counts=None,
     least: int = 1,
+    stretch: float | None = None,
 ):
     """finest="nested" (issue 24, round eight): the coarser levels rtree's cuts of the CELLS (as
     finest="cuts" makes them, so they keep the cut boxes), their counts `step` times fewer per level
@@ -218,7 +220,7 @@ def aggregation_in_cuts(
     coupling = np.asarray(coupling, dtype=np.float64)
     k0 = int(pyamg_aggregates(*aggregation_strength(mesh, data, coupling, tags)).max()) + 1
     upper = (
-        level_counts(k0, step, coarsest, given=0, least=least)
+        level_counts(k0, step, coarsest, given=0, least=least, **_stretch(stretch))
         if counts is None
         else [int(c) for c in counts if c < k0]
     )
@@ -240,3 +242,8 @@ def aggregation_in_cuts(
     qp, qi, _ = _quotient(indptr, indices, np.ones(indices.size), agg, k)
     level_graphs[len(up_levels)] = (qp, qi)
     return [*up_levels, agg], [*upper, k0], level_graphs, (n / k, float(step))
+
+
+def _stretch(stretch: float | None) -> dict:
+    """level_counts' stretch where the caller gives one (its default otherwise)."""
+    return {} if stretch is None else {"stretch": float(stretch)}

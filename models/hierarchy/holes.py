@@ -195,6 +195,7 @@ def ring_cut(
     centers: np.ndarray | None,
     finer: np.ndarray,
     holes: tuple[np.ndarray, np.ndarray] | None = None,
+    handles: np.ndarray | None = None,
 ) -> tuple[np.ndarray, int]:
     """Every element `bad` of `coarse` cut in two (unions of `finer`'s elements) by the line/plane
     through its hole's centre (`centers[i]` for bad[i]; None or a degenerate cut: the element's own
@@ -204,6 +205,10 @@ def ring_cut(
     passes through the centres' mean and contains their principal direction, its normal the
     element's principal axis made orthogonal to that direction (so several holes are opened by one
     cut instead of one per round).
+    handles: elements among `bad` that are rings around a tunnel (handle_elements): cut through
+    their centroid normal to their SECOND principal axis, a plane that contains the first: a slice of
+    a pipe (its first two axes in the slice's plane) and a sleeve along a pipe (its first axis along
+    the pipe) are both opened, where a cut across the first axis leaves the sleeve two sleeves.
     Returns the labels (compacted) and the number of elements cut."""
     from models.partition.rtree import _quotient, make_connected
 
@@ -230,7 +235,11 @@ def ring_cut(
         for j in range(i, dim):
             C[:, i, j] = C[:, j, i] = np.bincount(e, weights=ma * dx[:, i] * dx[:, j], minlength=k)
     v = np.zeros((k, dim))
-    v[bad] = np.linalg.eigh(C[bad])[1][:, :, -1]  # the principal axis of each bad element
+    vecs = np.linalg.eigh(C[bad])[1]
+    v[bad] = vecs[:, :, -1]  # the principal axis of each bad element
+    if handles is not None and len(handles) and dim == 3:
+        ring = np.isin(bad, handles)
+        v[bad[ring]] = vecs[ring][:, :, -2]
     h = mu.copy()
     if centers is not None and len(centers):
         h[bad] = np.asarray(centers, dtype=np.float64)[:, :dim]
@@ -356,6 +365,73 @@ def merge_pairs(
     return compact_labels(target[labels]), done
 
 
+def handle_elements(mesh: Mesh, graph, labels: np.ndarray) -> np.ndarray:
+    """3D elements with a handle: rings around a tunnel of the domain (a pipe cut into slices along
+    its length, a torus cut across its tube) are no polyhedra a solver's element may be, as a polygon
+    around a hole is none. Candidates: elements whose boundary faces (on the domain's boundary or
+    next to another element) have Euler characteristic V - E + F below 2 (a shell of genus g has
+    2 - 2g; an element touching itself at a vertex also falls below 2). Each candidate is then judged
+    by the Euler characteristic of its cells (V - E + F - C = 1 - handles + cavities for a connected
+    element; a touch at a vertex leaves it 1): fewer than 1 is a handle. No loop over elements."""
+    from models.mesh.geometry import next_in_cycle
+    from models.polytope.merge import boundary_faces, face_nodes
+
+    labels = np.asarray(labels, dtype=np.int64)
+    k = int(labels.max()) + 1
+    n = np.int64(mesh.n_points)
+    f = graph.faces
+
+    def chi(face_ids, el, cells_el=None):
+        fo, nodes = face_nodes(f, face_ids)
+        owner = np.repeat(el, np.diff(fo))
+        V = np.bincount(np.unique(owner * n + nodes) // n, minlength=k)
+        u, v = nodes, nodes[next_in_cycle(fo)]
+        lo, hi = np.minimum(u, v), np.maximum(u, v)
+        order = np.lexsort((hi, lo, owner))
+        so, sl, sh = owner[order], lo[order], hi[order]
+        new = np.r_[True, (so[1:] != so[:-1]) | (sl[1:] != sl[:-1]) | (sh[1:] != sh[:-1])]
+        return V - np.bincount(so[new], minlength=k)
+
+    bf = boundary_faces(graph, labels)
+    bel = labels[f.cell[bf]]
+    nb = np.bincount(bel, minlength=k)
+    cand = np.flatnonzero(chi(bf, bel) + nb < 2)
+    if cand.size == 0:
+        return cand
+    mine = np.zeros(k, dtype=bool)
+    mine[cand] = True
+    fc = np.flatnonzero(mine[labels[f.cell]])  # every face of the candidates' cells
+    fel = labels[f.cell[fc]]
+    # faces of the element's cells: one inside the element is listed twice (once per cell)
+    F = (np.bincount(fel, minlength=k) + nb) // 2
+    C = np.bincount(labels, minlength=k)
+    volume_chi = chi(fc, fel) + F - C
+    return cand[volume_chi[cand] < 1]
+
+
+def domain_genus(mesh: Mesh, graph) -> int:
+    """3D: the summed genus of the domain's boundary shells (a torus 1, a block with two crossing
+    tunnels 2; 0 for a ball, a box with cavities): (2 S - (V - E + F)) / 2 over its boundary faces."""
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from models.mesh.geometry import next_in_cycle
+    from models.polytope.merge import face_nodes
+
+    bf = np.flatnonzero(graph.partner < 0)
+    if bf.size == 0:
+        return 0
+    fo, nodes = face_nodes(graph.faces, bf)
+    u, v = nodes, nodes[next_in_cycle(fo)]
+    n = mesh.n_points
+    used = np.unique(nodes)
+    shells = connected_components(csr_matrix((np.ones(u.size), (u, v)), shape=(n, n)), directed=False)[1]
+    S = np.unique(shells[used]).size
+    E = np.unique(np.minimum(u, v) * np.int64(n) + np.maximum(u, v)).size
+    chi = used.size - E + bf.size
+    return max(int(round((2 * S - chi) / 2)), 0)
+
+
 class _Detector:
     """Finds the holed elements of one level after another (finest first), with fix_holes' fast
     paths: the elements' graph from rtree's quotient or the finer level's graph (3D domains without
@@ -366,6 +442,9 @@ class _Detector:
         self.bf = None  # 2D: the finer level's boundary faces (None: all faces)
         self.bcells = None  # the cells on the domain's boundary
         self.by_graph = mesh.dim == 3 and not _has_voids(mesh, data.graph)
+        # 3D domains with tunnels: elements may be rings around them (handle_elements)
+        self.tunnels = mesh.dim == 3 and domain_genus(mesh, data.graph) > 0
+        self.handles = np.zeros(0, dtype=np.int64)  # the last call's rings around a tunnel
 
     def __call__(self, lab, first, L, finer, G_finer):
         """(bad elements, (their holes' elements, centres) or None, polytopes or None, element graph
@@ -388,6 +467,9 @@ class _Detector:
                 Gl = _coarser_graph(G_finer, node_to, k)
             bad = cavity_elements(data.graph, lab, Gl)
             if bad is not None:
+                if self.tunnels:  # rings around a tunnel: cut through their centroid
+                    self.handles = handle_elements(mesh, data.graph, lab)
+                    bad = np.union1d(bad, self.handles)
                 return bad, None, None, Gl
             self.by_graph = False  # some element never reaches the boundary: merging decides
         if mesh.dim == 2 and first:  # a nested coarser level's boundary edges are among the finer's
@@ -402,8 +484,16 @@ class _Detector:
             p, holes = merge(mesh, data.graph, lab, data.measures)
             self.bf = None if mesh.dim != 2 else boundary_faces(data.graph, lab)
         be = np.asarray(holes.elements, dtype=np.int64)
+        cen = np.asarray(holes.centers, dtype=np.float64)
+        if self.tunnels:  # rings around a tunnel: their centroid as the hole's centre
+            self.handles = handle_elements(mesh, data.graph, lab)
+            hb = np.setdiff1d(self.handles, be)
+            if hb.size:
+                _, x = _atoms(data, lab, int(lab.max()) + 1)
+                cen = cen.reshape(be.size, x.shape[1]) if be.size else np.zeros((0, x.shape[1]))
+                be, cen = np.r_[be, hb], np.vstack([cen, x[hb]])
         order = np.argsort(be, kind="stable")
-        be, cen = be[order], np.asarray(holes.centers)[order]
+        be, cen = be[order], cen[order]
         return np.unique(be), (be, cen), p, None
 
 
@@ -448,9 +538,12 @@ def domain_holes(mesh: Mesh, data: CellData) -> tuple[np.ndarray, np.ndarray]:
     return key // mesh.n_cells, key % mesh.n_cells
 
 
-def fewest_elements(data: CellData, hole_pairs: tuple[np.ndarray, np.ndarray]) -> tuple[int, str]:
+def fewest_elements(
+    data: CellData, hole_pairs: tuple[np.ndarray, np.ndarray], tunnels: bool = False
+) -> tuple[int, str]:
     """The fewest elements a level of this domain can have: one per connected piece, two for a piece
-    with a hole (one element would enclose it); and why, in words ("" where that is 1)."""
+    with a hole (one element would enclose it) or, in 3D, a domain with a tunnel (one element would
+    be a ring); and why, in words ("" where that is 1)."""
     from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -461,6 +554,8 @@ def fewest_elements(data: CellData, hole_pairs: tuple[np.ndarray, np.ndarray]) -
         directed=False,
     )
     holed = int(np.unique(body[hole_pairs[1]]).size) if hole_pairs[1].size else 0
+    if tunnels and not holed:
+        holed = 1
     why = []
     if pieces > 1:
         why.append(f"the mesh has {pieces} separate pieces")
@@ -631,7 +726,7 @@ def fix_holes(
                     be, cc = cen
                     first = np.r_[True, be[1:] != be[:-1]]
                     centres = cc[first]
-                out[L], c = ring_cut(data, out[L], bad, centres, finer, holes=cen)
+                out[L], c = ring_cut(data, out[L], bad, centres, finer, holes=cen, handles=detector.handles)
                 cuts += c
             else:
                 out[L] = _split_elements(out[L], bad, finer)
