@@ -490,6 +490,7 @@ class Hierarchy:
             "build_time",
             "report",
             "notes",
+            "stretch",
         )
         return write_hierarchy(
             os.fspath(folder),

@@ -194,6 +194,7 @@ def _write_hierarchy_zip(
                         "build_time",
                         "report",
                         "notes",
+                        "stretch",
                     )
                     if k in info
                 },

@@ -633,6 +633,7 @@ def build_hierarchy(
         levels = boxfit_levels(levels, lo, hi, data.measures, data.graph.indptr, data.graph.indices)
     known = level_graphs if model == "rtree" and not boxfit else None
     levels, polys, report = fix_holes(mesh, data, levels, known, hole_pairs=hole_pairs)
+    _said_off_plan(levels, report, counts, coarsest, n, notes)
     info = {
         "model": model,
         "finest": finest_mode,
@@ -649,6 +650,26 @@ def build_hierarchy(
         "notes": notes,
     }
     return levels, info
+
+
+def _said_off_plan(levels, report, counts, coarsest: int, n: int, notes: list[str]) -> None:
+    """A note where the levels left the plan (elements around holes cut, not merged back): the
+    coarsest level above --coarsest, levels more than 25% off their planned ratio."""
+    from models.partition.rtree import RATIO_SLACK
+
+    k0 = int(levels[0].max()) + 1
+    if k0 > coarsest:
+        notes.append(
+            f"the coarsest level has {k0} elements, more than --coarsest {coarsest}: elements that would "
+            "surround a hole were cut and could not all be merged back"
+        )
+    off = [
+        f"level {r['level']} {r['ratio']:.1f}x (planned {r['requested_ratio']:.1f}x)"
+        for r in _with_requested(report, counts, n)
+        if "requested_ratio" in r and abs(r["ratio"] / r["requested_ratio"] - 1.0) > RATIO_SLACK
+    ]
+    if off:
+        notes.append("coarsened off the plan by more than 25%: " + ", ".join(off))
 
 
 def _count_weighted(model: str, options: dict | None) -> dict:
@@ -700,6 +721,7 @@ def _hierarchy_above(data, finest, mesh, model, ratio, coarsest, seed, t0):
         raw, _ = make_connected(cg.indptr, cg.indices, cg.weights, compact_labels(raw), measures=cg.measures)
         levels.insert(0, compact_labels(raw)[levels[0]])
     levels, polys, report = fix_holes(mesh, data, levels, None, hole_pairs=hole_pairs)
+    _said_off_plan(levels, report, [*counts, int(finest.max()) + 1], coarsest, finest.size, notes)
     info = {
         "model": part.name,
         "ratio": float(ratio) if np.ndim(ratio) == 0 else [float(r) for r in ratio],
