@@ -257,7 +257,9 @@ def ring_cut(
     lab = node_to.copy()
     lab[sel[side]] = new_id[e[side]]
     qp, qi, qw = _quotient(g.indptr, g.indices, g.weights, finer, kf)
-    lab, _ = make_connected(qp, qi, qw, lab, parent=node_to, measures=m)
+    # compact first: an element wholly on one side of its cut leaves its old id empty, and
+    # make_connected counts parts as max + 1 (it took 45 pieces of 40 labels for 45 parts, done)
+    lab, _ = make_connected(qp, qi, qw, compact_labels(lab), parent=node_to, measures=m)
     lab = compact_labels(lab)
     return lab[finer], int(((n1 > 0) & (n1 < n) & isbad).sum())
 
@@ -437,13 +439,13 @@ class _Detector:
     paths: the elements' graph from rtree's quotient or the finer level's graph (3D domains without
     voids), the finer level's boundary edges (2D)."""
 
-    def __init__(self, mesh: Mesh, data: CellData, graphs: dict | None):
+    def __init__(self, mesh: Mesh, data: CellData, graphs: dict | None, rings: bool = True):
         self.mesh, self.data, self.graphs = mesh, data, dict(graphs or {})
         self.bf = None  # 2D: the finer level's boundary faces (None: all faces)
         self.bcells = None  # the cells on the domain's boundary
         self.by_graph = mesh.dim == 3 and not _has_voids(mesh, data.graph)
         # 3D domains with tunnels: elements may be rings around them (handle_elements)
-        self.tunnels = mesh.dim == 3 and domain_genus(mesh, data.graph) > 0
+        self.tunnels = rings and mesh.dim == 3 and domain_genus(mesh, data.graph) > 0
         self.handles = np.zeros(0, dtype=np.int64)  # the last call's rings around a tunnel
 
     def __call__(self, lab, first, L, finer, G_finer):
@@ -685,6 +687,7 @@ def fix_holes(
     graphs: dict | None = None,
     ratio: float | None = None,
     hole_pairs: tuple[np.ndarray, np.ndarray] | None = None,
+    rings: bool = True,
 ) -> tuple[list[np.ndarray], list, list[dict]]:
     """No element of any level encloses a hole, finest level first (the levels stay nested): each
     holed element is ring-cut (ring_cut), then as many pairs merged back (merge_pairs) so the level
@@ -701,7 +704,7 @@ def fix_holes(
     polys = [None] * len(out)
     report = [None] * len(out)
     finer = np.arange(mesh.n_cells)
-    detector = _Detector(mesh, data, graphs)
+    detector = _Detector(mesh, data, graphs, rings)
     if hole_pairs is None:  # (domain_holes' pairs where the caller has them)
         hole_pairs = domain_holes(mesh, data)
     G_finer = None  # the finer level's element graph (each level's comes from it, not from the cells)
