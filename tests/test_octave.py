@@ -116,4 +116,9 @@ def test_octave_wrapper_hierarchy_with_ratio_and_operators(tmp_path):
     from models.partition.rtree import level_counts
 
     # the brain has no hole: no step shorter than asked (stretch 0) above the job's 400 elements
-    assert r["ne"] == [*level_counts(400, 8, 10, stretch=0), 400] and r["ok"] is True and r["cells"] == 14372 and r["final"] == 400
+    assert (
+        r["ne"] == [*level_counts(400, 8, 10, stretch=0), 400]
+        and r["ok"] is True
+        and r["cells"] == 14372
+        and r["final"] == 400
+    )
