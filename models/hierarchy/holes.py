@@ -367,14 +367,15 @@ def merge_pairs(
     return compact_labels(target[labels]), done
 
 
-def handle_elements(mesh: Mesh, graph, labels: np.ndarray) -> np.ndarray:
+def handle_elements(mesh: Mesh, graph, labels: np.ndarray, only: np.ndarray | None = None) -> np.ndarray:
     """3D elements with a handle: rings around a tunnel of the domain (a pipe cut into slices along
     its length, a torus cut across its tube) are no polyhedra a solver's element may be, as a polygon
     around a hole is none. Candidates: elements whose boundary faces (on the domain's boundary or
     next to another element) have Euler characteristic V - E + F below 2 (a shell of genus g has
     2 - 2g; an element touching itself at a vertex also falls below 2). Each candidate is then judged
     by the Euler characteristic of its cells (V - E + F - C = 1 - handles + cavities for a connected
-    element; a touch at a vertex leaves it 1): fewer than 1 is a handle. No loop over elements."""
+    element; a touch at a vertex leaves it 1): fewer than 1 is a handle. No loop over elements.
+    only: the elements to look at (the others are not handles in the answer)."""
     from models.mesh.geometry import next_in_cycle
     from models.polytope.merge import boundary_faces, face_nodes
 
@@ -395,9 +396,14 @@ def handle_elements(mesh: Mesh, graph, labels: np.ndarray) -> np.ndarray:
         return V - np.bincount(so[new], minlength=k)
 
     bf = boundary_faces(graph, labels)
+    look = np.ones(k, dtype=bool)
+    if only is not None:
+        look[:] = False
+        look[np.asarray(only, dtype=np.int64)] = True
+        bf = bf[look[labels[f.cell[bf]]]]
     bel = labels[f.cell[bf]]
-    nb = np.bincount(bel, minlength=k)
-    cand = np.flatnonzero(chi(bf, bel) + nb < 2)
+    nb = np.bincount(bel, minlength=k)  # (complete for the elements looked at)
+    cand = np.flatnonzero((chi(bf, bel) + nb < 2) & look)
     if cand.size == 0:
         return cand
     mine = np.zeros(k, dtype=bool)
@@ -434,6 +440,19 @@ def domain_genus(mesh: Mesh, graph) -> int:
     return max(int(round((2 * S - chi) / 2)), 0)
 
 
+def _changed(old: np.ndarray, new: np.ndarray) -> np.ndarray:
+    """The elements of `new` that are not exactly one element of `old` (the same cells)."""
+    ko = np.int64(int(old.max()) + 1)
+    pair = np.unique(new * ko + old)
+    e, o = pair // ko, pair % ko
+    k = int(new.max()) + 1
+    single = np.bincount(e, minlength=k) == 1
+    o_of = np.zeros(k, dtype=np.int64)
+    o_of[e[single[e]]] = o[single[e]]
+    same = single & (np.bincount(new, minlength=k) == np.bincount(old, minlength=int(ko))[o_of])
+    return np.flatnonzero(~same)
+
+
 class _Detector:
     """Finds the holed elements of one level after another (finest first), with fix_holes' fast
     paths: the elements' graph from rtree's quotient or the finer level's graph (3D domains without
@@ -447,6 +466,22 @@ class _Detector:
         # 3D domains with tunnels: elements may be rings around them (handle_elements)
         self.tunnels = rings and mesh.dim == 3 and domain_genus(mesh, data.graph) > 0
         self.handles = np.zeros(0, dtype=np.int64)  # the last call's rings around a tunnel
+        self.h_labels = None  # the labels they were found for
+
+    def _handles(self, lab, first):
+        """handle_elements of `lab`, looking only at the elements that changed since the last call
+        on this level (an element is a ring or not by its own cells) and at the last rings still
+        there: the merge rounds check a few merged pairs, not the whole level, each time."""
+        prev = None if first else self.h_labels
+        only = None
+        if prev is not None and prev.size == lab.size:
+            only = _changed(prev, lab)
+            if self.handles.size:  # the last rings, by their first cell, where they are unchanged
+                first_cell = np.full(int(prev.max()) + 1, lab.size, dtype=np.int64)
+                np.minimum.at(first_cell, prev, np.arange(prev.size))
+                only = np.union1d(only, lab[first_cell[self.handles]])
+        self.h_labels = lab
+        return handle_elements(self.mesh, self.data.graph, lab, only)
 
     def __call__(self, lab, first, L, finer, G_finer):
         """(bad elements, (their holes' elements, centres) or None, polytopes or None, element graph
@@ -470,7 +505,7 @@ class _Detector:
             bad = cavity_elements(data.graph, lab, Gl)
             if bad is not None:
                 if self.tunnels:  # rings around a tunnel: cut through their centroid
-                    self.handles = handle_elements(mesh, data.graph, lab)
+                    self.handles = self._handles(lab, first)
                     bad = np.union1d(bad, self.handles)
                 return bad, None, None, Gl
             self.by_graph = False  # some element never reaches the boundary: merging decides
@@ -488,7 +523,7 @@ class _Detector:
         be = np.asarray(holes.elements, dtype=np.int64)
         cen = np.asarray(holes.centers, dtype=np.float64)
         if self.tunnels:  # rings around a tunnel: their centroid as the hole's centre
-            self.handles = handle_elements(mesh, data.graph, lab)
+            self.handles = self._handles(lab, first)
             hb = np.setdiff1d(self.handles, be)
             if hb.size:
                 _, x = _atoms(data, lab, int(lab.max()) + 1)
