@@ -20,7 +20,8 @@ from models.pipeline import prepare
 from models.polytope.merge import merge
 
 
-def _gmsh_2d(build, h):
+def _gmsh_cells(build, h, dim, etype, per):
+    """gmsh's mesh of what `build(occ)` makes, elements of one type: (coordinates, cells by row)."""
     import gmsh
 
     gmsh.initialize(["-nt", "1"])
@@ -30,21 +31,26 @@ def _gmsh_2d(build, h):
         gmsh.model.occ.synchronize()
         gmsh.option.setNumber("Mesh.MeshSizeMin", h)
         gmsh.option.setNumber("Mesh.MeshSizeMax", h)
-        gmsh.model.mesh.generate(2)
+        gmsh.model.mesh.generate(dim)
         tags, coords, _ = gmsh.model.mesh.getNodes()
-        types, _, nodes = gmsh.model.mesh.getElements(2)
-        tri = np.concatenate(
-            [np.asarray(n).reshape(-1, 3) for t, n in zip(types, nodes, strict=True) if t == 2]
+        types, _, nodes = gmsh.model.mesh.getElements(dim)
+        cells = np.concatenate(
+            [np.asarray(n).reshape(-1, per) for t, n in zip(types, nodes, strict=True) if t == etype]
         )
     finally:
         gmsh.finalize()
     index = np.empty(int(tags.max()) + 1, dtype=np.int64)
     index[tags.astype(np.int64)] = np.arange(tags.size)
-    pts = np.asarray(coords).reshape(-1, 3)[:, :2]
-    used = np.unique(index[tri.astype(np.int64)])
+    return np.asarray(coords).reshape(-1, 3), index[cells.astype(np.int64)]
+
+
+def _gmsh_2d(build, h):
+    pts, tri = _gmsh_cells(build, h, 2, 2, 3)
+    pts = pts[:, :2]
+    used = np.unique(tri)
     remap = np.full(pts.shape[0], -1, dtype=np.int64)
     remap[used] = np.arange(used.size)
-    return pts[used], remap[index[tri.astype(np.int64)]]
+    return pts[used], remap[tri]
 
 
 def _plate(occ, holes=2):
@@ -266,29 +272,13 @@ def test_hierarchy_elements_hold_comparable_cell_counts_on_a_graded_mesh(model):
 
 def _pipe_tets(h=0.12):
     """A pipe (outer radius 0.5, bore 0.3, length 2 along z) of tetrahedra, by gmsh."""
-    import gmsh
 
-    gmsh.initialize(["-nt", "1"])
-    try:
-        gmsh.option.setNumber("General.Terminal", 0)
-        occ = gmsh.model.occ
+    def build(occ):
         outer = occ.addCylinder(0, 0, 0, 0, 0, 2, 0.5)
         bore = occ.addCylinder(0, 0, -0.1, 0, 0, 2.2, 0.3)
         occ.cut([(3, outer)], [(3, bore)])
-        occ.synchronize()
-        gmsh.option.setNumber("Mesh.MeshSizeMin", h)
-        gmsh.option.setNumber("Mesh.MeshSizeMax", h)
-        gmsh.model.mesh.generate(3)
-        tags, coords, _ = gmsh.model.mesh.getNodes()
-        types, _, nodes = gmsh.model.mesh.getElements(3)
-        tet = np.concatenate(
-            [np.asarray(n).reshape(-1, 4) for t, n in zip(types, nodes, strict=True) if t == 4]
-        )
-    finally:
-        gmsh.finalize()
-    index = np.empty(int(tags.max()) + 1, dtype=np.int64)
-    index[tags.astype(np.int64)] = np.arange(tags.size)
-    return np.asarray(coords).reshape(-1, 3), index[tet.astype(np.int64)]
+
+    return _gmsh_cells(build, h, 3, 4, 4)
 
 
 def _tet_euler(tet, labels):
