@@ -248,10 +248,11 @@ def test_threading_opens_a_hole_without_a_new_element():
     assert _label_pieces(graph.indptr, graph.indices, out)[0] == k
 
 
-@pytest.mark.parametrize("model", ["metis", "rtree"])
+@pytest.mark.parametrize("model", ["metis", "rtree", "kmeans"])
 def test_hierarchy_elements_hold_comparable_cell_counts_on_a_graded_mesh(model):
     """Cells 100 times wider at one end than at the other: a hierarchy's elements follow the local
-    cell size (count-weighted: METIS with unit node weights, rtree's count-weighted cuts), so the
+    cell size (count-weighted: METIS with unit node weights, rtree's count-weighted cuts, k-means
+    with cells^((d + 2) / d) x measure^(-2 / d) weights), so the
     finest level's elements hold comparable numbers of cells; measure-weighted METIS made elements of
     equal area (thousands of cells against a handful: 5.9x pyamg's iterations on a 1000:1 mesh)."""
     nx, ny = 120, 30

@@ -399,7 +399,7 @@ def coarse_graph(batch_or_data, labels: np.ndarray):
     )
     c /= np.maximum(m, 1e-300)[:, None]
     vol = np.bincount(labels, weights=np.diff(indptr).astype(np.float64), minlength=k)
-    return GraphBatch(
+    out = GraphBatch(
         indptr=W.indptr.astype(np.int64),
         indices=W.indices.astype(np.int64),
         weights=W.data,
@@ -411,6 +411,14 @@ def coarse_graph(batch_or_data, labels: np.ndarray):
         edge_count=C.data,
         volume=vol,
     )
+    # the cells of each node (of the labels' own cells: 1 each where they are the mesh's cells)
+    below = getattr(batch_or_data, "cells", None)
+    out.cells = (
+        np.bincount(labels, weights=below, minlength=k)
+        if below is not None
+        else np.bincount(labels, minlength=k)
+    )
+    return out
 
 
 # The default per-level ratios (finest step first, the last repeated) by the mesh's dimension: the
@@ -687,6 +695,8 @@ def _count_weighted(model: str, options: dict | None) -> dict:
     out = dict(options or {})
     if model == "metis":
         out.setdefault("use_weights", False)
+    if model == "kmeans":
+        out.setdefault("balance", "cells")
     return out
 
 

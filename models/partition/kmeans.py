@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from models.errors import ParameterError
 from models.graph.batch import GraphBatch
 from models.partition.base import Partitioner
 
@@ -276,7 +277,9 @@ def lloyd(
     return centers, labels, float(dist @ (np.ones(len(x)) if w is None else w))
 
 
-def grid_summary(x: np.ndarray, n_bins: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def grid_summary(
+    x: np.ndarray, n_bins: int, weights: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Points binned on a uniform grid of about n_bins cells over their bounding box -> (mean of each
     non-empty bin, number of points in it, bin of each point). k-means on the weighted bin means
     approximates k-means on the points when bins are much smaller than clusters."""
@@ -293,9 +296,14 @@ def grid_summary(x: np.ndarray, n_bins: int) -> tuple[np.ndarray, np.ndarray, np
     remap = np.zeros(counts.size, dtype=np.int64)
     remap[used] = np.arange(used.size)
     bins = remap[lin]
-    w = counts[used].astype(np.float64)
+    if weights is None:
+        w = counts[used].astype(np.float64)
+        wx = [x[:, d] for d in range(dim)]
+    else:  # the points' weights summed per bin, the means weighted
+        w = np.bincount(bins, weights=weights, minlength=used.size)
+        wx = [x[:, d] * weights for d in range(dim)]
     means = (
-        np.stack([np.bincount(bins, weights=x[:, d], minlength=used.size) for d in range(dim)], axis=1)
+        np.stack([np.bincount(bins, weights=wx[d], minlength=used.size) for d in range(dim)], axis=1)
         / w[:, None]
     )
     return means, w, bins
@@ -310,6 +318,7 @@ def kmeans(
     max_iter: int = 30,
     tol: float = 1e-4,
     polish: int = 2,
+    weights: np.ndarray | None = None,
 ) -> np.ndarray:
     """(N,) cluster of each point. On many points: weighted k-means (k-means++ then Lloyd, n_init
     starts, the best kept) on the means of a fine grid of bins (about bins_per_cluster per cluster),
@@ -325,9 +334,9 @@ def kmeans(
         float(x[:, d].mean()) for d in range(x.shape[1])
     ]  # centred: |x|^2 - 2 x.c + |c|^2 keeps its precision
     if n > 2 * bins_per_cluster * k:
-        pts, w, bins = grid_summary(xc, bins_per_cluster * k)
+        pts, w, bins = grid_summary(xc, bins_per_cluster * k, weights)
     else:
-        pts, w, bins = xc, None, None
+        pts, w, bins = xc, weights, None
     best = None
     for _ in range(max(1, n_init)):
         # k-means++ costs O(m k trials) on m points: greedy on a random subset of max(64 k, 32768)
@@ -356,7 +365,7 @@ def kmeans(
         # bound minus the point's distance to its bin's mean (saves a full search on all the points)
         off = np.sqrt(sum((xc[:, d] - pts[bins, d]) ** 2 for d in range(xc.shape[1])))
         start = _BoundedAssign(xc, labels.copy(), state.low[bins] - off)
-    centers, labels, _ = lloyd(xc, centers, polish, 0.0, labels=labels, assign=start)
+    centers, labels, _ = lloyd(xc, centers, polish, 0.0, weights, labels=labels, assign=start)
     return labels
 
 
@@ -415,18 +424,37 @@ class KMeansPartitioner(Partitioner):
         "k-means clustering of cell centroids, seeded; parts split into connected components afterwards."
     )
 
-    def __init__(self, seed: int = 0, n_init: int = 1):
+    def __init__(self, seed: int = 0, n_init: int = 1, balance: str = "space"):
+        if balance not in ("space", "cells"):
+            raise ParameterError(f"balance must be 'space' or 'cells', got {balance!r}")
         self.seed = int(seed)
         self.n_init = int(n_init)
+        self.balance = balance
 
-    def kway_labels(self, x: np.ndarray, k: int) -> np.ndarray:
-        """(N,) k-means clusters of the points x (N, dim)."""
+    def kway_labels(self, x: np.ndarray, k: int, weights: np.ndarray | None = None) -> np.ndarray:
+        """(N,) k-means clusters of the points x (N, dim), weighted by `weights` where given."""
         if k == 1:
             return np.zeros(len(x), dtype=np.int64)
-        return kmeans(x, k, seed=self.seed, n_init=self.n_init)
+        return kmeans(x, k, seed=self.seed, n_init=self.n_init, weights=weights)
 
     def kway(self, batch: GraphBatch, k: int) -> np.ndarray:
-        return self.kway_labels(batch.centroids, k)
+        return self.kway_labels(
+            batch.centroids, k, self.cell_weights(batch) if self.balance == "cells" else None
+        )
+
+    @staticmethod
+    def cell_weights(batch: GraphBatch) -> np.ndarray:
+        """Weights under which k-means' clusters hold about equal numbers of cells (balance="cells",
+        hierarchies): Lloyd's centres settle with a density proportional to (point density x
+        weight)^(d / (d + 2)) (Gersho's asymptotic law), so weights cells^((d + 2) / d) x
+        measure^(-2 / d) per point make it proportional to the density of cells: on a mesh graded
+        100:1 the unweighted clusters hold many more cells where the mesh is fine."""
+        d = batch.centroids.shape[1]
+        m = np.maximum(np.abs(np.asarray(batch.measures, dtype=np.float64)), 1e-300)
+        cells = getattr(batch, "cells", None)
+        c = np.ones(m.size) if cells is None else np.asarray(cells, dtype=np.float64)
+        w = c ** ((d + 2.0) / d) * m ** (-2.0 / d)
+        return w / w.mean()
 
     def bisect_batch(self, batch: GraphBatch) -> np.ndarray:
         return two_means_batch(batch, seed=self.seed)
