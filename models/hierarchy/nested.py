@@ -687,14 +687,15 @@ def _said_off_plan(levels, report, counts, coarsest: int, n: int, notes: list[st
 
 
 def _count_weighted(model: str, options: dict | None) -> dict:
-    """The model's options for a hierarchy: METIS balances cell counts, not measures (unit node
-    weights), as rtree's cuts do, so that an element's size follows the local cell size (issue 24:
+    """The model's options for a hierarchy: METIS balances cell counts, not measures (node weights:
+    the cells a node holds; unit weights on the coarse graphs made 91 of 121 elements of a genus-4
+    plate wrap around a neighbour, cell counts 14, at the same iterations), as rtree's cuts do, so that an element's size follows the local cell size (issue 24:
     measure-weighted parts hold thousands of cells where the mesh is fine and a handful where it is
     coarse; on a 1000:1 graded mesh 101 smoothed iterations against pyamg's 17, with unit weights 11;
     elongated holes 28 -> 12 against 15; 60 random holes 22 -> 11 against 14)."""
     out = dict(options or {})
     if model == "metis":
-        out.setdefault("use_weights", False)
+        out.setdefault("balance", "cells")
     if model == "kmeans":
         out.setdefault("balance", "cells")
     return out

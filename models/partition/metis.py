@@ -65,14 +65,24 @@ class MetisPartitioner(Partitioner):
     description = "METIS multilevel graph partitioning (pymetis): k-way or recursive, cell measures as node weights, contiguous parts."
 
     def __init__(
-        self, method: str = "kway", seed: int = 0, use_weights: bool = True, contiguous: bool = True
+        self,
+        method: str = "kway",
+        seed: int = 0,
+        use_weights: bool = True,
+        contiguous: bool = True,
+        balance: str = "measure",
     ):
         if method not in ("kway", "recursive"):
             raise ParameterError(f"METIS method must be 'kway' or 'recursive', not {method!r}")
+        if balance not in ("measure", "cells"):
+            raise ParameterError(f"balance must be 'measure' or 'cells', got {balance!r}")
         self.method = method
         self.seed = int(seed)
         self.use_weights = use_weights
         self.contiguous = contiguous
+        # "cells" (hierarchies): node weights are the cells each node holds (a coarse graph's
+        # `cells`, 1 per cell of the mesh), so parts hold comparable numbers of cells, not areas
+        self.balance = balance
 
     def _call(self, nparts: int, indptr, indices, measures, recursive: bool) -> np.ndarray:
         import pymetis
@@ -114,9 +124,11 @@ class MetisPartitioner(Partitioner):
         n = batch.n_nodes
         if k == 1 or n == 0:
             return np.zeros(n, dtype=np.int64)
-        return self._call(
-            k, batch.indptr, batch.indices, batch.measures, recursive=self.method == "recursive"
-        )
+        weights = batch.measures
+        if self.balance == "cells":
+            cells = getattr(batch, "cells", None)
+            weights = np.ones(n) if cells is None else np.asarray(cells, dtype=np.float64)
+        return self._call(k, batch.indptr, batch.indices, weights, recursive=self.method == "recursive")
 
     def bisect_batch(self, batch: GraphBatch) -> np.ndarray:
         out = np.zeros(batch.n_nodes, dtype=np.int64)
