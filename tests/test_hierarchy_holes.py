@@ -302,7 +302,8 @@ def _tet_euler(tet, labels):
 def test_rings_around_a_tunnel_are_found_and_cut():
     """3D: slices of a pipe are rings around its bore (one handle each: no element for a solver, as
     a polygon around a hole is none). handle_elements finds exactly the elements whose tetrahedra
-    have Euler characteristic below 1, and a hierarchy of the pipe has none at any level."""
+    have Euler characteristic below 1, and a hierarchy of the pipe asked to cut them (rings=True)
+    has none at any level."""
     from models.hierarchy.holes import domain_genus, handle_elements
 
     pts, tet = _pipe_tets()
@@ -314,7 +315,7 @@ def test_rings_around_a_tunnel_are_found_and_cut():
     assert handle_elements(mesh, graph, rings).tolist() == [0, 1, 2, 3]
     halves = rings * 2 + (data.centroids[:, 0] > 0)  # each slice cut in two along the pipe's axis
     assert handle_elements(mesh, graph, halves).size == 0
-    levels, info = build_hierarchy(mesh, data, model="rtree", coarsest=4)
+    levels, info = build_hierarchy(mesh, data, model="rtree", coarsest=4, model_options={"rings": True})
     tets = mesh.connectivity.reshape(-1, 4)
     for lv in levels:
         assert handle_elements(mesh, graph, lv).size == 0 and _tet_euler(tets, lv).min() >= 1

@@ -479,6 +479,7 @@ def build_hierarchy(
     default = ratio is None
     model_options = dict(model_options or {})
     boxfit = bool(model_options.pop("boxfit", False))  # models.hierarchy.boxfit after the levels
+    rings = bool(model_options.pop("rings", False))  # 3D: rings around a tunnel cut (rtree; opt-in)
     if ratio is None:
         ratio = default_ratio(mesh.dim)
     if finest is not None:
@@ -640,12 +641,14 @@ def build_hierarchy(
         lo, hi = cell_boxes(data.points, data.offsets, data.connectivity)
         levels = boxfit_levels(levels, lo, hi, data.measures, data.graph.indptr, data.graph.indices)
     known = level_graphs if model == "rtree" and not boxfit else None
-    # rings around a tunnel (3D handles) cut for rtree's compact elements; METIS's and k-means'
-    # parts of the coarse graphs wrap around single finer elements of their neighbours (a torus:
-    # 66 of 93 METIS elements with handles, Euler characteristic -3 to 0), and cutting them all stalls
-    # their coarse end (7 -> 34 elements): measured, not done for them (docs/hierarchy.md, round ten)
+    # rings around a tunnel (3D handles): cut only where asked (model_options["rings"], rtree). On
+    # 10^4 cells that removes the rings around a pipe's bore at 0.1-0.6 of a METIS call; from 10^5
+    # the unions of the finest aggregates wrap around neighbouring aggregates too (a torus at 10^5:
+    # 26 of 984 elements, at 10^6 the coarse end stalled at 72 elements and the build took 6.6 METIS
+    # calls), and METIS's parts of coarse graphs do so at 10^4 already (66 of 93 on the torus):
+    # measured, not the default (docs/hierarchy.md, round ten)
     levels, polys, report = fix_holes(
-        mesh, data, levels, known, hole_pairs=hole_pairs, rings=model == "rtree"
+        mesh, data, levels, known, hole_pairs=hole_pairs, rings=rings and model == "rtree"
     )
     _said_off_plan(levels, report, counts, coarsest, n, notes)
     info = {
