@@ -36,6 +36,7 @@ class GraphBatch:
     edge_count: np.ndarray | None = None
     volume: np.ndarray | None = None
     cell_boxes: tuple | None = None  # ((N, dim) lower, (N, dim) upper corners of each cell), if asked
+    cells: np.ndarray | None = None  # (N,) cells of the mesh each node holds (None: one each)
 
     @property
     def n_nodes(self) -> int:
@@ -55,6 +56,10 @@ class GraphBatch:
 
     def degrees(self) -> np.ndarray:
         return np.diff(self.indptr)
+
+    def cell_counts(self) -> np.ndarray:
+        """(N,) cells of the mesh each node holds, as floats (ones on the cells' own graph)."""
+        return np.ones(self.n_nodes) if self.cells is None else np.asarray(self.cells, dtype=np.float64)
 
     def edge_counts(self) -> np.ndarray:
         """(nnz,) fine edges per edge (ones on a fine graph)."""
@@ -87,4 +92,5 @@ class GraphBatch:
             node_ids=self.node_ids[lo:hi],
             edge_count=None if self.edge_count is None else self.edge_count[e0:e1],
             volume=None if self.volume is None else self.volume[lo:hi],
+            cells=None if self.cells is None else self.cells[lo:hi],
         )

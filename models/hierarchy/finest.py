@@ -39,6 +39,7 @@ def aggregated_levels(
     (bench_hierarchy_family's box measures at exactly 91 and 364 elements)."""
     from models.graph.batch import GraphBatch
     from models.partition.rtree import (
+        STRETCH,
         _quotient,
         _renamed,
         _sweep_key,
@@ -128,7 +129,7 @@ def aggregated_levels(
         node_ids=np.arange(k),
     )
     upper_counts = (
-        level_counts(k, step, coarsest, given=0, least=least, **_stretch(stretch))
+        level_counts(k, step, coarsest, given=0, least=least, stretch=STRETCH if stretch is None else stretch)
         if counts is None
         else [int(c) for c in counts if c < k]
     )
@@ -204,7 +205,7 @@ def aggregation_in_cuts(
     levels', then k0: the finest level's count is measured against the unrestricted aggregation's),
     the graphs of the levels' elements by level, the achieved (finest step, step)).
     counts: the coarser levels' element counts (coarsest first) instead of k0 / step, ..."""
-    from models.partition.rtree import _quotient, level_counts, rtree_levels
+    from models.partition.rtree import STRETCH, _quotient, level_counts, rtree_levels
     from models.partition.rtree_aggregate import merge_smallest, pyamg_aggregates
 
     G = data.graph
@@ -220,7 +221,9 @@ def aggregation_in_cuts(
     coupling = np.asarray(coupling, dtype=np.float64)
     k0 = int(pyamg_aggregates(*aggregation_strength(mesh, data, coupling, tags)).max()) + 1
     upper = (
-        level_counts(k0, step, coarsest, given=0, least=least, **_stretch(stretch))
+        level_counts(
+            k0, step, coarsest, given=0, least=least, stretch=STRETCH if stretch is None else stretch
+        )
         if counts is None
         else [int(c) for c in counts if c < k0]
     )
@@ -242,8 +245,3 @@ def aggregation_in_cuts(
     qp, qi, _ = _quotient(indptr, indices, np.ones(indices.size), agg, k)
     level_graphs[len(up_levels)] = (qp, qi)
     return [*up_levels, agg], [*upper, k0], level_graphs, (n / k, float(step))
-
-
-def _stretch(stretch: float | None) -> dict:
-    """level_counts' stretch where the caller gives one (its default otherwise)."""
-    return {} if stretch is None else {"stretch": float(stretch)}

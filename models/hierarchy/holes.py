@@ -19,9 +19,8 @@ from models.mesh.celldata import CellData, compact_labels
 from models.mesh.container import Mesh
 
 RING_ROUNDS = 4  # ring cuts tried per level before an element is replaced by its children
-MERGE_ROUNDS = (
-    12  # rounds of merging pairs back while they merge (a round's merges that enclose a hole are undone)
-)
+# rounds of merging pairs back while they merge (a round's merges that enclose a hole are undone)
+MERGE_ROUNDS = 12
 
 
 def _without_holes(mesh: Mesh, data: CellData, coarse: np.ndarray, finer: np.ndarray) -> np.ndarray:
@@ -384,7 +383,7 @@ def handle_elements(mesh: Mesh, graph, labels: np.ndarray, only: np.ndarray | No
     n = np.int64(mesh.n_points)
     f = graph.faces
 
-    def chi(face_ids, el, cells_el=None):
+    def chi(face_ids, el):
         fo, nodes = face_nodes(f, face_ids)
         owner = np.repeat(el, np.diff(fo))
         V = np.bincount(np.unique(owner * n + nodes) // n, minlength=k)
@@ -458,7 +457,7 @@ class _Detector:
     paths: the elements' graph from rtree's quotient or the finer level's graph (3D domains without
     voids), the finer level's boundary edges (2D)."""
 
-    def __init__(self, mesh: Mesh, data: CellData, graphs: dict | None, rings: bool = True):
+    def __init__(self, mesh: Mesh, data: CellData, graphs: dict | None, rings: bool = False):
         self.mesh, self.data, self.graphs = mesh, data, dict(graphs or {})
         self.bf = None  # 2D: the finer level's boundary faces (None: all faces)
         self.bcells = None  # the cells on the domain's boundary
@@ -542,6 +541,7 @@ def domain_holes(mesh: Mesh, data: CellData) -> tuple[np.ndarray, np.ndarray]:
     import scipy.sparse as sp
     from scipy.sparse.csgraph import connected_components
 
+    from models.graph.csr import connected_components as pieces_of
     from models.mesh.geometry import cell_index, next_in_cycle
     from models.polytope.merge import face_nodes
 
@@ -556,10 +556,7 @@ def domain_holes(mesh: Mesh, data: CellData) -> tuple[np.ndarray, np.ndarray]:
     B = sp.csr_matrix((np.ones(u.size, dtype=np.int8), (u, v)), shape=(n, n))
     _, comp = connected_components(B, directed=False)
     cells = np.asarray(g.faces.cell[bf], dtype=np.int64)
-    A = sp.csr_matrix(
-        (np.ones(g.indices.size, dtype=np.int8), g.indices, g.indptr), shape=(mesh.n_cells,) * 2
-    )
-    _, body = connected_components(A, directed=False)
+    _, body = pieces_of(g.indptr, g.indices)
     owner = cell_index(fo)
     occ_body, occ_comp = body[cells[owner]], comp[nodes]
     order = np.lexsort((mesh.points[nodes, 0], occ_body))
@@ -581,15 +578,9 @@ def fewest_elements(
     """The fewest elements a level of this domain can have: one per connected piece, two for a piece
     with a hole (one element would enclose it) or, in 3D, a domain with a tunnel (one element would
     be a ring); and why, in words ("" where that is 1)."""
-    from scipy.sparse import csr_matrix
-    from scipy.sparse.csgraph import connected_components
+    from models.graph.csr import connected_components
 
-    g = data.graph
-    n = g.indptr.size - 1
-    pieces, body = connected_components(
-        csr_matrix((np.ones(g.indices.size, dtype=np.int8), g.indices, g.indptr), shape=(n, n)),
-        directed=False,
-    )
+    pieces, body = connected_components(data.graph.indptr, data.graph.indices)
     holed = int(np.unique(body[hole_pairs[1]]).size) if hole_pairs[1].size else 0
     if tunnels and not holed:
         holed = 1
@@ -617,7 +608,6 @@ def thread_holes(
     neighbour, so the hole lies between two elements and the level keeps its count (ring cuts add
     an element per hole; on a domain with many holes the level could not be merged back to its
     count). A move that would disconnect the element is not made. Returns (labels, holes opened)."""
-    from models.mesh.cells import ranges
     from models.partition.rtree import _quotient
 
     if hole_id.size == 0:
@@ -650,17 +640,14 @@ def thread_holes(
         grp = int(node_to[units[0]])
         if np.any(node_to[units] != grp):
             continue  # opened by an earlier move
-        found, seen = _path_out(qp, qi, node_to, pe, units, grp, pred, ranges)
+        found, seen = _path_out(qp, qi, node_to, pe, units, grp, pred)
         pred[seen] = -2
         if found is None or found[0].size >= size[grp]:
             continue
         path, target = found
         node_to[path] = target
         rest = np.setdiff1d(seen, path)
-        if (
-            rest.size == 0
-            or _reach(qp, qi, node_to, grp, int(rest[0]), mark, ranges) != size[grp] - path.size
-        ):
+        if rest.size == 0 or _reach(qp, qi, node_to, grp, int(rest[0]), mark) != size[grp] - path.size:
             node_to[path] = grp  # it would cut the element in two
             continue
         size[grp] -= path.size
@@ -669,10 +656,12 @@ def thread_holes(
     return compact_labels(node_to)[finer], opened
 
 
-def _path_out(qp, qi, node_to, pe, units, grp, pred, ranges):
+def _path_out(qp, qi, node_to, pe, units, grp, pred):
     """Breadth-first from `units` inside element grp to the first unit with a neighbour in another
     element of grp's parent: ((the path's units, that element), the units searched) or
     (None, searched). pred: -2 everywhere on entry (set on the searched units)."""
+    from models.mesh.cells import ranges
+
     frontier = units
     pred[units] = -1
     seen = [units]
@@ -697,9 +686,11 @@ def _path_out(qp, qi, node_to, pe, units, grp, pred, ranges):
     return None, np.concatenate(seen)
 
 
-def _reach(qp, qi, node_to, grp, start, mark, ranges) -> int:
+def _reach(qp, qi, node_to, grp, start, mark) -> int:
     """Units of element grp reached from unit `start` without leaving it (mark: False everywhere on
     entry and on return)."""
+    from models.mesh.cells import ranges
+
     frontier = np.array([start], dtype=np.int64)
     mark[start] = True
     reached = [frontier]
@@ -722,7 +713,7 @@ def fix_holes(
     graphs: dict | None = None,
     ratio: float | None = None,
     hole_pairs: tuple[np.ndarray, np.ndarray] | None = None,
-    rings: bool = True,
+    rings: bool = False,
 ) -> tuple[list[np.ndarray], list, list[dict]]:
     """No element of any level encloses a hole, finest level first (the levels stay nested): each
     holed element is ring-cut (ring_cut), then as many pairs merged back (merge_pairs) so the level

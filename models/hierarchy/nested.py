@@ -399,7 +399,8 @@ def coarse_graph(batch_or_data, labels: np.ndarray):
     )
     c /= np.maximum(m, 1e-300)[:, None]
     vol = np.bincount(labels, weights=np.diff(indptr).astype(np.float64), minlength=k)
-    out = GraphBatch(
+    below = getattr(batch_or_data, "cells", None)  # a coarse graph's own cells per node, else one each
+    return GraphBatch(
         indptr=W.indptr.astype(np.int64),
         indices=W.indices.astype(np.int64),
         weights=W.data,
@@ -410,15 +411,8 @@ def coarse_graph(batch_or_data, labels: np.ndarray):
         node_ids=np.arange(k),
         edge_count=C.data,
         volume=vol,
+        cells=np.bincount(labels, weights=below, minlength=k),
     )
-    # the cells of each node (of the labels' own cells: 1 each where they are the mesh's cells)
-    below = getattr(batch_or_data, "cells", None)
-    out.cells = (
-        np.bincount(labels, weights=below, minlength=k)
-        if below is not None
-        else np.bincount(labels, minlength=k)
-    )
-    return out
 
 
 # The default per-level ratios (finest step first, the last repeated) by the mesh's dimension: the
@@ -472,7 +466,7 @@ def build_hierarchy(
 
     from models.errors import ParameterError
     from models.partition import get_partitioner
-    from models.partition.rtree import STRETCH, cell_boxes, level_counts, make_connected, rtree_levels
+    from models.partition.rtree import cell_boxes, level_counts, make_connected, rtree_levels
 
     t0 = time.perf_counter()
     n = mesh.n_cells
@@ -506,13 +500,8 @@ def build_hierarchy(
         raise ParameterError("an aggregated finest level goes with the default ratio schedule and no kappa")
     if agg_mode and model != "rtree":
         raise ParameterError("an aggregated finest level: model rtree only")
-    hole_pairs, notes = domain_holes(mesh, data), []
-    tunnels = mesh.dim == 3 and domain_genus(mesh, data.graph) > 0
-    least, why = fewest_elements(data, hole_pairs, tunnels)
-    # a domain with holes (tunnels): steps down to 15% shorter, so that the coarsest level is near
-    # --coarsest (its elements then surround fewer holes); elsewhere no step shorter than asked
-    # (round ten: on the 2D family at 10^5 the shorter steps cost 1.08 -> 1.11 operator complexity)
-    stretch = STRETCH if (hole_pairs[0].size or tunnels) else 0.0
+    hole_pairs, least, why, stretch = _domain_plan(mesh, data)
+    notes: list[str] = []
     counts = level_counts(n, ratio, coarsest, stretch=stretch)
     if not counts:
         raise ParameterError(f"the mesh has {n} cells: nothing to coarsen with coarsest = {coarsest}")
@@ -650,7 +639,8 @@ def build_hierarchy(
     levels, polys, report = fix_holes(
         mesh, data, levels, known, hole_pairs=hole_pairs, rings=rings and model == "rtree"
     )
-    _said_off_plan(levels, report, counts, coarsest, n, notes)
+    report = _with_requested(report, counts, n)
+    _said_off_plan(levels, report, coarsest, notes)
     info = {
         "model": model,
         "finest": finest_mode,
@@ -663,15 +653,31 @@ def build_hierarchy(
         "method": how,
         "build_time": time.perf_counter() - t0,
         "merged": polys,
-        "report": _with_requested(report, counts, n),
+        "report": report,
         "notes": notes,
     }
     return levels, info
 
 
-def _said_off_plan(levels, report, counts, coarsest: int, n: int, notes: list[str]) -> None:
+def _domain_plan(mesh: Mesh, data: CellData):
+    """What the domain asks of a hierarchy's plan: (domain_holes' pairs, the fewest elements a level
+    may have and why, level_counts' stretch). A domain with holes or tunnels gets steps down to 15%
+    shorter, so that the coarsest level is near --coarsest (its elements then surround fewer holes);
+    elsewhere no step shorter than asked (round ten: on the 2D family at 10^5 the shorter steps cost
+    1.08 -> 1.11 operator complexity)."""
+    from models.partition.rtree import STRETCH
+
+    hole_pairs = domain_holes(mesh, data)
+    tunnels = mesh.dim == 3 and domain_genus(mesh, data.graph) > 0
+    least, why = fewest_elements(data, hole_pairs, tunnels)
+    stretch = STRETCH if (hole_pairs[0].size or tunnels) else 0.0
+    return hole_pairs, least, why, stretch
+
+
+def _said_off_plan(levels, report: list[dict], coarsest: int, notes: list[str]) -> None:
     """A note where the levels left the plan (elements around holes cut, not merged back): the
-    coarsest level above --coarsest, levels more than 25% off their planned ratio."""
+    coarsest level above --coarsest, levels more than 25% off their planned ratio (`report`:
+    _with_requested's)."""
     from models.partition.rtree import RATIO_SLACK
 
     k0 = int(levels[0].max()) + 1
@@ -682,7 +688,7 @@ def _said_off_plan(levels, report, counts, coarsest: int, n: int, notes: list[st
         )
     off = [
         f"level {r['level']} {r['ratio']:.1f}x (planned {r['requested_ratio']:.1f}x)"
-        for r in _with_requested(report, counts, n)
+        for r in report
         if "requested_ratio" in r and abs(r["ratio"] / r["requested_ratio"] - 1.0) > RATIO_SLACK
     ]
     if off:
@@ -690,16 +696,15 @@ def _said_off_plan(levels, report, counts, coarsest: int, n: int, notes: list[st
 
 
 def _count_weighted(model: str, options: dict | None) -> dict:
-    """The model's options for a hierarchy: METIS balances cell counts, not measures (node weights:
-    the cells a node holds; unit weights on the coarse graphs made 91 of 121 elements of a genus-4
-    plate wrap around a neighbour, cell counts 14, at the same iterations), as rtree's cuts do, so that an element's size follows the local cell size (issue 24:
-    measure-weighted parts hold thousands of cells where the mesh is fine and a handful where it is
-    coarse; on a 1000:1 graded mesh 101 smoothed iterations against pyamg's 17, with unit weights 11;
-    elongated holes 28 -> 12 against 15; 60 random holes 22 -> 11 against 14)."""
+    """The model's options for a hierarchy: METIS and k-means balance cell counts, not measures or
+    space (balance="cells"), as rtree's cuts do, so that an element's size follows the local cell
+    size (issue 24: measure-weighted METIS parts hold thousands of cells where the mesh is fine and a
+    handful where it is coarse; on a 1000:1 graded mesh 101 smoothed iterations against pyamg's 17,
+    cell-weighted 11; elongated holes 28 -> 12 against 15; 60 random holes 22 -> 11 against 14.
+    METIS with unit node weights gave the same iterations but on the coarse graphs 91 of 121 elements
+    of a genus-4 plate wrapped around a neighbour, cell counts 16)."""
     out = dict(options or {})
-    if model == "metis":
-        out.setdefault("balance", "cells")
-    if model == "kmeans":
+    if model in ("metis", "kmeans"):
         out.setdefault("balance", "cells")
     return out
 
@@ -724,13 +729,12 @@ def _hierarchy_above(data, finest, mesh, model, ratio, coarsest, seed, t0):
     import time
 
     from models.partition import get_partitioner
-    from models.partition.rtree import STRETCH, level_counts, make_connected
+    from models.partition.rtree import level_counts, make_connected
 
-    hole_pairs, notes = domain_holes(mesh, data), []
-    tunnels = mesh.dim == 3 and domain_genus(mesh, data.graph) > 0
-    stretch = STRETCH if (hole_pairs[0].size or tunnels) else 0.0
+    hole_pairs, least, why, stretch = _domain_plan(mesh, data)
+    notes: list[str] = []
     counts = level_counts(int(finest.max()) + 1, ratio, coarsest, stretch=stretch)
-    counts = _at_least(counts, *fewest_elements(data, hole_pairs, tunnels), notes)
+    counts = _at_least(counts, least, why, notes)
     part = get_partitioner(model, seed=seed, **_count_weighted(model, None))
     if not part.supports_kway:
         part = get_partitioner("metis", seed=seed, **_count_weighted("metis", None))
@@ -740,8 +744,9 @@ def _hierarchy_above(data, finest, mesh, model, ratio, coarsest, seed, t0):
         raw = np.asarray(part.kway(cg, int(c)), dtype=np.int64)
         raw, _ = make_connected(cg.indptr, cg.indices, cg.weights, compact_labels(raw), measures=cg.measures)
         levels.insert(0, compact_labels(raw)[levels[0]])
-    levels, polys, report = fix_holes(mesh, data, levels, None, hole_pairs=hole_pairs, rings=False)
-    _said_off_plan(levels, report, [*counts, int(finest.max()) + 1], coarsest, finest.size, notes)
+    levels, polys, report = fix_holes(mesh, data, levels, None, hole_pairs=hole_pairs)
+    report = _with_requested(report, [*counts, int(finest.max()) + 1], finest.size)
+    _said_off_plan(levels, report, coarsest, notes)
     info = {
         "model": part.name,
         "ratio": float(ratio) if np.ndim(ratio) == 0 else [float(r) for r in ratio],
@@ -752,7 +757,7 @@ def _hierarchy_above(data, finest, mesh, model, ratio, coarsest, seed, t0):
         "method": "the job's agglomeration as the finest level, its elements agglomerated (k-way on each coarse dual graph)",
         "build_time": time.perf_counter() - t0,
         "merged": polys,
-        "report": _with_requested(report, [*counts, int(finest.max()) + 1], finest.size),
+        "report": report,
         "notes": notes,
     }
     return levels, info

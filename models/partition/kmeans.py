@@ -451,9 +451,7 @@ class KMeansPartitioner(Partitioner):
         100:1 the unweighted clusters hold many more cells where the mesh is fine."""
         d = batch.centroids.shape[1]
         m = np.maximum(np.abs(np.asarray(batch.measures, dtype=np.float64)), 1e-300)
-        cells = getattr(batch, "cells", None)
-        c = np.ones(m.size) if cells is None else np.asarray(cells, dtype=np.float64)
-        w = c ** ((d + 2.0) / d) * m ** (-2.0 / d)
+        w = batch.cell_counts() ** ((d + 2.0) / d) * m ** (-2.0 / d)
         return w / w.mean()
 
     def bisect_batch(self, batch: GraphBatch) -> np.ndarray:

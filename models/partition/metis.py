@@ -28,27 +28,31 @@ def integer_weights(measures: np.ndarray, resolution: int = 1000) -> np.ndarray:
 def _quiet_c_stdout():
     """METIS prints its own complaints ("***You are trying to partition a graph into too many
     parts!", "***Cannot bisect a graph with 0 vertices!") with C's printf to the process's standard
-    output, where a user would read a library's raw text: for the call, file descriptor 1 goes to a
-    temporary file (C's buffers flushed before it is restored) and what METIS printed is dropped; the
+    output, where a user would read a library's raw text: for the call, file descriptor 1 goes to the
+    null device (C's buffers flushed before it is restored) and what METIS printed is dropped; the
     partition it returns is checked by the callers (empty and disconnected parts) as any other."""
-    import ctypes
-    import tempfile
-
+    global _SINK
     try:
         sys.stdout.flush()
         saved = os.dup(1)
     except (OSError, ValueError, AttributeError):  # no standard output to guard
         yield
         return
-    libc = ctypes.CDLL(None)
-    with tempfile.TemporaryFile() as sink:
-        os.dup2(sink.fileno(), 1)
-        try:
-            yield
-        finally:
-            libc.fflush(None)
-            os.dup2(saved, 1)
-            os.close(saved)
+    if _SINK is None:  # the null device and C's library, opened once per process
+        import ctypes
+
+        _SINK = (os.open(os.devnull, os.O_WRONLY), ctypes.CDLL(None))
+    sink, libc = _SINK
+    os.dup2(sink, 1)
+    try:
+        yield
+    finally:
+        libc.fflush(None)
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
+_SINK = None  # (null device's descriptor, libc) for _quiet_c_stdout
 
 
 def _connected(indptr: np.ndarray, indices: np.ndarray) -> bool:
@@ -124,10 +128,7 @@ class MetisPartitioner(Partitioner):
         n = batch.n_nodes
         if k == 1 or n == 0:
             return np.zeros(n, dtype=np.int64)
-        weights = batch.measures
-        if self.balance == "cells":
-            cells = getattr(batch, "cells", None)
-            weights = np.ones(n) if cells is None else np.asarray(cells, dtype=np.float64)
+        weights = batch.cell_counts() if self.balance == "cells" else batch.measures
         return self._call(k, batch.indptr, batch.indices, weights, recursive=self.method == "recursive")
 
     def bisect_batch(self, batch: GraphBatch) -> np.ndarray:
