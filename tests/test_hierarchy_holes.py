@@ -219,7 +219,8 @@ def test_threading_opens_a_hole_without_a_new_element():
     """An element that alone surrounds a hole of the domain: a path of the finer level's elements from
     the hole to a neighbour moves to that neighbour; the count stays, the hole lies between two
     elements, both stay connected."""
-    from models.hierarchy.holes import domain_holes, thread_holes
+    from models.hierarchy.holes import thread_holes
+    from models.hierarchy.topology import domain_holes
 
     pts, tri = _gmsh_2d(_plate, 0.05)
     mesh = mesh_from_arrays(pts, [("triangle", tri)])
@@ -304,7 +305,7 @@ def test_rings_around_a_tunnel_are_found_and_cut():
     a polygon around a hole is none). handle_elements finds exactly the elements whose tetrahedra
     have Euler characteristic below 1, and a hierarchy of the pipe asked to cut them (rings=True)
     has none at any level."""
-    from models.hierarchy.holes import domain_genus, handle_elements
+    from models.hierarchy.topology import domain_genus, handle_elements
 
     pts, tet = _pipe_tets()
     mesh = mesh_from_arrays(pts, [("tetra", tet)])

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from models.hierarchy.topology import domain_genus, domain_holes, handle_elements
 from models.mesh.celldata import CellData, compact_labels
 from models.mesh.container import Mesh
 
@@ -366,79 +367,6 @@ def merge_pairs(
     return compact_labels(target[labels]), done
 
 
-def handle_elements(mesh: Mesh, graph, labels: np.ndarray, only: np.ndarray | None = None) -> np.ndarray:
-    """3D elements with a handle: rings around a tunnel of the domain (a pipe cut into slices along
-    its length, a torus cut across its tube) are no polyhedra a solver's element may be, as a polygon
-    around a hole is none. Candidates: elements whose boundary faces (on the domain's boundary or
-    next to another element) have Euler characteristic V - E + F below 2 (a shell of genus g has
-    2 - 2g; an element touching itself at a vertex also falls below 2). Each candidate is then judged
-    by the Euler characteristic of its cells (V - E + F - C = 1 - handles + cavities for a connected
-    element; a touch at a vertex leaves it 1): fewer than 1 is a handle. No loop over elements.
-    only: the elements to look at (the others are not handles in the answer)."""
-    from models.mesh.geometry import next_in_cycle
-    from models.polytope.merge import boundary_faces, face_nodes
-
-    labels = np.asarray(labels, dtype=np.int64)
-    k = int(labels.max()) + 1
-    n = np.int64(mesh.n_points)
-    f = graph.faces
-
-    def chi(face_ids, el):
-        fo, nodes = face_nodes(f, face_ids)
-        owner = np.repeat(el, np.diff(fo))
-        V = np.bincount(np.unique(owner * n + nodes) // n, minlength=k)
-        u, v = nodes, nodes[next_in_cycle(fo)]
-        lo, hi = np.minimum(u, v), np.maximum(u, v)
-        order = np.lexsort((hi, lo, owner))
-        so, sl, sh = owner[order], lo[order], hi[order]
-        new = np.r_[True, (so[1:] != so[:-1]) | (sl[1:] != sl[:-1]) | (sh[1:] != sh[:-1])]
-        return V - np.bincount(so[new], minlength=k)
-
-    bf = boundary_faces(graph, labels)
-    look = np.ones(k, dtype=bool)
-    if only is not None:
-        look[:] = False
-        look[np.asarray(only, dtype=np.int64)] = True
-        bf = bf[look[labels[f.cell[bf]]]]
-    bel = labels[f.cell[bf]]
-    nb = np.bincount(bel, minlength=k)  # (complete for the elements looked at)
-    cand = np.flatnonzero((chi(bf, bel) + nb < 2) & look)
-    if cand.size == 0:
-        return cand
-    mine = np.zeros(k, dtype=bool)
-    mine[cand] = True
-    fc = np.flatnonzero(mine[labels[f.cell]])  # every face of the candidates' cells
-    fel = labels[f.cell[fc]]
-    # faces of the element's cells: one inside the element is listed twice (once per cell)
-    F = (np.bincount(fel, minlength=k) + nb) // 2
-    C = np.bincount(labels, minlength=k)
-    volume_chi = chi(fc, fel) + F - C
-    return cand[volume_chi[cand] < 1]
-
-
-def domain_genus(mesh: Mesh, graph) -> int:
-    """3D: the summed genus of the domain's boundary shells (a torus 1, a block with two crossing
-    tunnels 2; 0 for a ball, a box with cavities): (2 S - (V - E + F)) / 2 over its boundary faces."""
-    from scipy.sparse import csr_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    from models.mesh.geometry import next_in_cycle
-    from models.polytope.merge import face_nodes
-
-    bf = np.flatnonzero(graph.partner < 0)
-    if bf.size == 0:
-        return 0
-    fo, nodes = face_nodes(graph.faces, bf)
-    u, v = nodes, nodes[next_in_cycle(fo)]
-    n = mesh.n_points
-    used = np.unique(nodes)
-    shells = connected_components(csr_matrix((np.ones(u.size), (u, v)), shape=(n, n)), directed=False)[1]
-    S = np.unique(shells[used]).size
-    E = np.unique(np.minimum(u, v) * np.int64(n) + np.maximum(u, v)).size
-    chi = used.size - E + bf.size
-    return max(int(round((2 * S - chi) / 2)), 0)
-
-
 def _changed(old: np.ndarray, new: np.ndarray) -> np.ndarray:
     """The elements of `new` that are not exactly one element of `old` (the same cells)."""
     ko = np.int64(int(old.max()) + 1)
@@ -531,67 +459,6 @@ class _Detector:
         order = np.argsort(be, kind="stable")
         be, cen = be[order], cen[order]
         return np.unique(be), (be, cen), p, None
-
-
-def domain_holes(mesh: Mesh, data: CellData) -> tuple[np.ndarray, np.ndarray]:
-    """The domain's holes (2D: inner boundary loops; 3D: inner boundary shells, the cavities) and the
-    cells along each: (hole id per pair, cell per pair), sorted by hole, each pair once. The outer
-    boundary of each connected piece (the component holding the piece's boundary point of least x)
-    is no hole. Boundary facets that share a node are one component."""
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import connected_components
-
-    from models.graph.csr import connected_components as pieces_of
-    from models.mesh.geometry import cell_index, next_in_cycle
-    from models.polytope.merge import face_nodes
-
-    g = data.graph
-    empty = np.zeros(0, dtype=np.int64)
-    bf = np.flatnonzero(g.partner < 0)
-    if bf.size == 0:
-        return empty, empty
-    fo, nodes = face_nodes(g.faces, bf)
-    n = mesh.n_points
-    u, v = nodes, nodes[next_in_cycle(fo)]
-    B = sp.csr_matrix((np.ones(u.size, dtype=np.int8), (u, v)), shape=(n, n))
-    _, comp = connected_components(B, directed=False)
-    cells = np.asarray(g.faces.cell[bf], dtype=np.int64)
-    _, body = pieces_of(g.indptr, g.indices)
-    owner = cell_index(fo)
-    occ_body, occ_comp = body[cells[owner]], comp[nodes]
-    order = np.lexsort((mesh.points[nodes, 0], occ_body))
-    first = np.r_[True, occ_body[order][1:] != occ_body[order][:-1]]
-    outer = np.zeros(int(comp.max()) + 1, dtype=bool)
-    outer[occ_comp[order][first]] = True
-    fcomp = comp[nodes[fo[:-1]]]
-    inner = ~outer[fcomp]
-    if not inner.any():
-        return empty, empty
-    hid = np.unique(fcomp[inner], return_inverse=True)[1].astype(np.int64)
-    key = np.unique(hid * np.int64(mesh.n_cells) + cells[inner])
-    return key // mesh.n_cells, key % mesh.n_cells
-
-
-def fewest_elements(
-    data: CellData, hole_pairs: tuple[np.ndarray, np.ndarray], tunnels: bool = False
-) -> tuple[int, str]:
-    """The fewest elements a level of this domain can have: one per connected piece, two for a piece
-    with a hole (one element would enclose it) or, in 3D, a domain with a tunnel (one element would
-    be a ring); and why, in words ("" where that is 1)."""
-    from models.graph.csr import connected_components
-
-    pieces, body = connected_components(data.graph.indptr, data.graph.indices)
-    holed = int(np.unique(body[hole_pairs[1]]).size) if hole_pairs[1].size else 0
-    if tunnels and not holed:
-        holed = 1
-    why = []
-    if pieces > 1:
-        why.append(f"the mesh has {pieces} separate pieces")
-    if holed:
-        why.append(
-            "one element cannot surround a hole" + ("" if pieces == 1 else f" ({holed} pieces have one)")
-        )
-    return pieces + holed, "; ".join(why)
 
 
 def thread_holes(

@@ -27,11 +27,9 @@ from models.hierarchy.holes import (  # noqa: F401  (re-exported: tests and call
     _with_outside,
     _without_holes,
     cavity_elements,
-    domain_genus,
-    domain_holes,
-    fewest_elements,
     fix_holes,
 )
+from models.hierarchy.plan import at_least, count_weighted, domain_plan, said_off_plan
 from models.mesh.celldata import CellData, compact_labels
 from models.mesh.container import Mesh
 
@@ -500,12 +498,12 @@ def build_hierarchy(
         raise ParameterError("an aggregated finest level goes with the default ratio schedule and no kappa")
     if agg_mode and model != "rtree":
         raise ParameterError("an aggregated finest level: model rtree only")
-    hole_pairs, least, why, stretch = _domain_plan(mesh, data)
+    hole_pairs, least, why, stretch = domain_plan(mesh, data)
     notes: list[str] = []
     counts = level_counts(n, ratio, coarsest, stretch=stretch)
     if not counts:
         raise ParameterError(f"the mesh has {n} cells: nothing to coarsen with coarsest = {coarsest}")
-    counts = _at_least(counts, least, why, notes)
+    counts = at_least(counts, least, why, notes)
     if groups and mesh.tags is None:
         raise ParameterError("respecting physical groups needs a mesh with physical groups")
     if groups and model != "rtree":
@@ -595,7 +593,7 @@ def build_hierarchy(
     else:
         from models.partition.agglomerate import agglomerate
 
-        part = get_partitioner(model, seed=seed, **_count_weighted(model, model_options))
+        part = get_partitioner(model, seed=seed, **count_weighted(model, model_options))
         if part.supports_kway:
             fine = agglomerate(mesh, data, model=part, mode="kway", k=counts[-1], seed=seed).labels
             levels = [fine]
@@ -640,7 +638,7 @@ def build_hierarchy(
         mesh, data, levels, known, hole_pairs=hole_pairs, rings=rings and model == "rtree"
     )
     report = _with_requested(report, counts, n)
-    _said_off_plan(levels, report, coarsest, notes)
+    said_off_plan(levels, report, coarsest, notes)
     info = {
         "model": model,
         "finest": finest_mode,
@@ -659,71 +657,6 @@ def build_hierarchy(
     return levels, info
 
 
-def _domain_plan(mesh: Mesh, data: CellData):
-    """What the domain asks of a hierarchy's plan: (domain_holes' pairs, the fewest elements a level
-    may have and why, level_counts' stretch). A domain with holes or tunnels gets steps down to 15%
-    shorter, so that the coarsest level is near --coarsest (its elements then surround fewer holes);
-    elsewhere no step shorter than asked (round ten: on the 2D family at 10^5 the shorter steps cost
-    1.08 -> 1.11 operator complexity)."""
-    from models.partition.rtree import STRETCH
-
-    hole_pairs = domain_holes(mesh, data)
-    tunnels = mesh.dim == 3 and domain_genus(mesh, data.graph) > 0
-    least, why = fewest_elements(data, hole_pairs, tunnels)
-    stretch = STRETCH if (hole_pairs[0].size or tunnels) else 0.0
-    return hole_pairs, least, why, stretch
-
-
-def _said_off_plan(levels, report: list[dict], coarsest: int, notes: list[str]) -> None:
-    """A note where the levels left the plan (elements around holes cut, not merged back): the
-    coarsest level above --coarsest, levels more than 25% off their planned ratio (`report`:
-    _with_requested's)."""
-    from models.partition.rtree import RATIO_SLACK
-
-    k0 = int(levels[0].max()) + 1
-    if k0 > coarsest:
-        notes.append(
-            f"the coarsest level has {k0} elements, more than --coarsest {coarsest}: elements that would "
-            "surround a hole were cut and could not all be merged back"
-        )
-    off = [
-        f"level {r['level']} {r['ratio']:.1f}x (planned {r['requested_ratio']:.1f}x)"
-        for r in report
-        if "requested_ratio" in r and abs(r["ratio"] / r["requested_ratio"] - 1.0) > RATIO_SLACK
-    ]
-    if off:
-        notes.append("coarsened off the plan by more than 25%: " + ", ".join(off))
-
-
-def _count_weighted(model: str, options: dict | None) -> dict:
-    """The model's options for a hierarchy: METIS and k-means balance cell counts, not measures or
-    space (balance="cells"), as rtree's cuts do, so that an element's size follows the local cell
-    size (issue 24: measure-weighted METIS parts hold thousands of cells where the mesh is fine and a
-    handful where it is coarse; on a 1000:1 graded mesh 101 smoothed iterations against pyamg's 17,
-    cell-weighted 11; elongated holes 28 -> 12 against 15; 60 random holes 22 -> 11 against 14.
-    METIS with unit node weights gave the same iterations but on the coarse graphs 91 of 121 elements
-    of a genus-4 plate wrapped around a neighbour, cell counts 16)."""
-    out = dict(options or {})
-    if model in ("metis", "kmeans"):
-        out.setdefault("balance", "cells")
-    return out
-
-
-def _at_least(counts: list[int], least: int, why: str, notes: list[str]) -> list[int]:
-    """The planned counts (coarsest first) with the coarsest level at least `least` elements (a level
-    that would then not coarsen is dropped), said in `notes`."""
-    if not counts or counts[0] >= least:
-        return counts
-    asked = counts[0]
-    counts = counts[1:] if len(counts) > 1 and counts[1] <= least else [least, *counts[1:]]
-    notes.append(
-        f"the coarsest level has {counts[0]} elements, not the {asked} planned: {why}"
-        if counts[0] != asked
-        else why
-    )
-    return counts
-
-
 def _hierarchy_above(data, finest, mesh, model, ratio, coarsest, seed, t0):
     """build_hierarchy(..., finest=labels): the given agglomeration and coarser levels above it."""
     import time
@@ -731,13 +664,13 @@ def _hierarchy_above(data, finest, mesh, model, ratio, coarsest, seed, t0):
     from models.partition import get_partitioner
     from models.partition.rtree import level_counts, make_connected
 
-    hole_pairs, least, why, stretch = _domain_plan(mesh, data)
+    hole_pairs, least, why, stretch = domain_plan(mesh, data)
     notes: list[str] = []
     counts = level_counts(int(finest.max()) + 1, ratio, coarsest, stretch=stretch)
-    counts = _at_least(counts, least, why, notes)
-    part = get_partitioner(model, seed=seed, **_count_weighted(model, None))
+    counts = at_least(counts, least, why, notes)
+    part = get_partitioner(model, seed=seed, **count_weighted(model, None))
     if not part.supports_kway:
-        part = get_partitioner("metis", seed=seed, **_count_weighted("metis", None))
+        part = get_partitioner("metis", seed=seed, **count_weighted("metis", None))
     levels = [finest]
     for c in reversed(counts):
         cg = coarse_graph(data, levels[0])
@@ -746,7 +679,7 @@ def _hierarchy_above(data, finest, mesh, model, ratio, coarsest, seed, t0):
         levels.insert(0, compact_labels(raw)[levels[0]])
     levels, polys, report = fix_holes(mesh, data, levels, None, hole_pairs=hole_pairs)
     report = _with_requested(report, [*counts, int(finest.max()) + 1], finest.size)
-    _said_off_plan(levels, report, coarsest, notes)
+    said_off_plan(levels, report, coarsest, notes)
     info = {
         "model": part.name,
         "ratio": float(ratio) if np.ndim(ratio) == 0 else [float(r) for r in ratio],
