@@ -358,7 +358,7 @@ def test_parallel_file_pieces_missing_or_outside_are_named(tmp_path):
     w.SetStartPiece(0)
     w.SetEndPiece(1)
     assert w.Write() == 1
-    assert read_mesh(path).n_cells >= len(tets)  # (each piece holds the whole grid here)
+    assert read_mesh(path).n_cells == len(tets)  # each piece holds the whole grid here: read once
     text = open(path).read()
     pieces = re.findall(r'Source="([^"]+)"', text)
     assert len(pieces) == 2
@@ -372,6 +372,99 @@ def test_parallel_file_pieces_missing_or_outside_are_named(tmp_path):
         with pytest.raises(MeshError, match=words) as err:
             read_mesh(str(bad))
         assert name in str(err.value) and source in str(err.value)
+
+
+def test_parallel_pieces_are_one_mesh(tmp_path):
+    """A .pvtu written by VTK's parallel writer, its grid cut into 3 pieces (each piece its own
+    points, those on the cuts written once per piece): one mesh, whose cells meet across the cuts
+    (one piece of the dual graph), not three meshes side by side as VTK's appended reading has them;
+    the pieces are no physical groups; ghost cells (copies of a neighbour piece's cells) are left
+    out. Volume as VTK reads it; agglomerated and read back. The same for planar polydata pieces."""
+    from vtkmodules.vtkFiltersParallel import vtkExtractUnstructuredGridPiece
+
+    from models.mesh.check import check_file
+
+    p, hexes = vc.grid(6, 5, 4)
+    cut = vtkExtractUnstructuredGridPiece()
+    cut.SetInputData(vc.unstructured(p, [(12, hexes)]))
+    w = vtk.vtkXMLPUnstructuredGridWriter()
+    path = str(tmp_path / "cut.pvtu")
+    w.SetFileName(path)
+    w.SetInputConnection(cut.GetOutputPort())
+    w.SetNumberOfPieces(3)
+    w.SetStartPiece(0)
+    w.SetEndPiece(2)
+    assert w.Write() == 1
+    n_ref, vol_ref = vc.vtk_reference(path)
+    assert n_ref == len(hexes) and vc.vtk_read(path).GetNumberOfPoints() > len(p)  # cut points repeated
+    mesh = read_mesh(path)
+    assert (mesh.n_cells, mesh.n_points) == (len(hexes), len(p))
+    assert mesh.tags is None
+    assert float(mesh.meta["measures"].sum()) == pytest.approx(vol_ref, rel=1e-9)
+    assert check_file(path)["components"] == 1
+    res, n_out, vol_out = vc.agglomerate_read_back(path, 4, tmp_path / "out.vtu")
+    assert n_out == 4 and vol_out == pytest.approx(vol_ref, rel=1e-9)
+
+    cut.CreateGhostCellsOn()  # pieces written with a layer of ghost cells (their neighbours' cells)
+    w.SetGhostLevel(1)
+    path = str(tmp_path / "ghosts.pvtu")
+    w.SetFileName(path)
+    assert w.Write() == 1
+    assert vc.vtk_read(path).GetNumberOfCells() > len(hexes)
+    mesh = read_mesh(path)
+    assert (mesh.n_cells, mesh.n_points) == (len(hexes), len(p))
+    assert float(mesh.meta["measures"].sum()) == pytest.approx(vol_ref, rel=1e-9)
+
+    from vtkmodules.vtkFiltersParallel import vtkExtractPolyDataPiece  # the same for planar polydata
+
+    quads = vc.plane("quads")
+    cut = vtkExtractPolyDataPiece()
+    cut.SetInputData(quads)
+    w = vtk.vtkXMLPPolyDataWriter()
+    path = str(tmp_path / "cut.pvtp")
+    w.SetFileName(path)
+    w.SetInputConnection(cut.GetOutputPort())
+    w.SetNumberOfPieces(2)
+    w.SetStartPiece(0)
+    w.SetEndPiece(1)
+    assert w.Write() == 1
+    mesh = read_mesh(path)
+    assert (mesh.n_cells, mesh.n_points) == (quads.GetNumberOfCells(), quads.GetNumberOfPoints())
+    assert check_file(path)["components"] == 1
+
+
+@pytest.mark.parametrize("writer", ["vtu", "legacy"])
+def test_cell_soup_is_merged_and_said(tmp_path, writer):
+    """A mesh whose cells share no point (each cell its own copies of its corners, as deal.II's
+    DataOut writes its patches): the copies are merged, so that cells meet (one piece), and said in
+    one line; a mesh with one seam of repeated points (a crack) is left as it is."""
+    from models.mesh.check import check_file
+
+    p, hexes = vc.grid(5, 4, 3)
+    soup = p[hexes].reshape(-1, 3)
+    ug = vc.unstructured(soup, [(12, np.arange(len(soup)).reshape(-1, 8))])
+    path = str(tmp_path / "soup.vtu") if writer == "vtu" else str(tmp_path / "soup.vtk")
+    vc.write_xml(path, ug) if writer == "vtu" else vc.write_legacy(path, ug, binary=True)
+    n_ref, vol_ref = vc.vtk_reference(path)
+    mesh = read_mesh(path)
+    assert (mesh.n_cells, mesh.n_points) == (len(hexes), len(p))
+    assert mesh.meta["merged_points"]["count"] == len(soup) - len(p)
+    assert float(mesh.meta["measures"].sum()) == pytest.approx(vol_ref, rel=1e-9)
+    rep = check_file(path)
+    assert rep["components"] == 1
+    said = [i["message"] for i in rep["issues"] if i["kind"] == "merged-points"]
+    assert len(said) == 1 and f"{len(soup) - len(p):,} coincident copies merged" in said[0]
+
+    right = np.arange(len(hexes)) % 5 >= 3  # cells of x index 3, 4 (x runs fastest): cut at x = 3
+    moved = np.unique(hexes[right])
+    copy = np.arange(len(p))
+    copy[moved] = len(p) + np.arange(moved.size)
+    crack = hexes.copy()
+    crack[right] = copy[hexes[right]]
+    pts = np.vstack([p, p[moved]])
+    cpath = str(tmp_path / "crack.vtu")
+    vc.write_xml(cpath, vc.unstructured(pts, [(12, crack)]))
+    assert "merged_points" not in read_mesh(cpath).meta and check_file(cpath)["components"] == 2
 
 
 def test_cells_listing_more_nodes_than_their_kind_are_said(tmp_path):

@@ -284,6 +284,8 @@ def cmd_agglomerate(args) -> int:
         print(f"warning: {left_out} (labels: -1 for them)")
     if mesh.meta.get("overlong_cells"):
         print(f"warning: {mesh.meta['overlong_cells']['message']}")
+    if mesh.meta.get("merged_points"):
+        print(f"note: {mesh.meta['merged_points']['message']}")
     return 0
 
 

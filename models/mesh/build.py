@@ -85,6 +85,9 @@ def mesh_from_cells(
         offsets, conn, cell_types, tags = _without_cells(offsets, conn, cell_types, tags, bad)
         dropped = [("referring to missing points", np.flatnonzero(bad))]
 
+    merged = None
+    if weld is None and _no_shared_points(conn, len(points), cell_types.size):
+        points, conn, bnd, poly_faces, merged = _merge_copies(points, conn, bnd, poly_faces)
     mesh = Mesh(
         points=points,
         offsets=offsets,
@@ -97,6 +100,12 @@ def mesh_from_cells(
         mesh.meta.update(meta)
     if dropped:
         _record_dropped(mesh, dropped, cell_types.size + dropped[0][1].size)
+    if merged:
+        mesh.meta["merged_points"] = {
+            "count": merged,
+            "message": f"no two cells shared a point (each cell had its own copies of its corners, as "
+            f"deal.II's DataOut writes): {merged:,} coincident copies merged, so that cells meet their neighbours",
+        }
     welded = None
     if weld is not None:
         welded = weld_points(points, weld)
@@ -128,6 +137,31 @@ def mesh_from_cells(
     else:
         _orient_and_check(mesh, bounds if dim == 3 else None)  # (2D points were projected since)
     return mesh
+
+
+def _no_shared_points(conn: np.ndarray, n_points: int, n_cells: int) -> bool:
+    """True when no point is a corner of two cells (a "cell soup": every cell has its own copies of
+    its points). Only then are there at least as many points as corner references, so the count is
+    taken only then."""
+    if n_cells < 2 or n_points < conn.size or conn.size == 0:
+        return False
+    return int(np.bincount(conn, minlength=n_points).max()) <= 1
+
+
+def _merge_copies(points, conn, bnd, poly_faces):
+    """A cell soup's bitwise-equal points merged (first copy kept, points in order of first use),
+    applied to the cells, boundary cells and polyhedron faces; (points, conn, bnd, poly_faces,
+    copies merged). Only exact copies: distinct points, however close, stay (no tolerance guessed)."""
+    _, first, inverse = np.unique(points, axis=0, return_index=True, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    order = np.argsort(first, kind="stable")
+    new_id = np.empty(first.size, np.int64)
+    new_id[order] = np.arange(first.size)
+    to = new_id[inverse]
+    if bnd is not None:
+        bnd = (bnd[0], to[bnd[1]], *bnd[2:])
+    poly_faces = [(*f[:3], to[f[3]]) for f in poly_faces] if poly_faces else poly_faces
+    return points[first[order]], to[conn], bnd, poly_faces, int(len(points) - first.size)
 
 
 def weld_points(points: np.ndarray, tol: float) -> np.ndarray:

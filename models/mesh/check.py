@@ -112,6 +112,9 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
     if mesh.meta.get("overlong_cells"):  # cell types and node counts disagree: said, read as VTK draws them
         long = mesh.meta["overlong_cells"]
         issues.append(_issue("overlong-cells", "warning", int(long["count"]), [], str(long["message"])))
+    if mesh.meta.get("merged_points"):  # a cell soup (deal.II's DataOut): its copies merged on reading
+        merged = mesh.meta["merged_points"]
+        issues.append(_issue("merged-points", "info", int(merged["count"]), [], str(merged["message"])))
     higher = int(mesh.meta.get("higher_order_unused_points", 0) or 0) if mesh.meta.get("higher_order") else 0
     if higher:  # a higher-order mesh: its other nodes said so, in one line (not as stray points)
         issues.append(_issue("higher-order", "info", higher, [], str(mesh.meta["higher_order"])))

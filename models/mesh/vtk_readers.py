@@ -50,8 +50,11 @@ READERS: dict[str, tuple[str, str, str]] = {
     "avs-binary": ("binary AVS UCD", "vtkAVSucdReader", "vtkmodules.vtkIOGeometry"),
     "avs": ("AVS UCD", "vtkAVSucdReader", "vtkmodules.vtkIOGeometry"),
 }
+# parallel files whose pieces are separate point sets: read piece by piece, joined as a composite's
+# blocks are (points on the cuts between pieces, written once per piece, merged)
+PIECEWISE = (".pvtu", ".pvtp")
 EXODUS_EXTENSIONS = (".exo", ".e", ".ex2", ".exii", ".g", ".gen")
-HIDDEN_CELL, HIDDEN_POINT = 32, 2  # vtkDataSetAttributes ghost bits
+HIDDEN_CELL, HIDDEN_POINT, DUPLICATE_CELL = 32, 2, 1  # vtkDataSetAttributes ghost bits
 
 
 def read_vtk(
@@ -68,7 +71,7 @@ def read_vtk(
         mesh = _image_mesh(data, physical_tag, meta, path)
         if mesh is not None:
             return mesh
-    pts, offsets, conn, types, cell_data, poly = _arrays(data, path, what, fmt)
+    pts, offsets, conn, types, cell_data, poly = _arrays(data, path, what, fmt, kind not in PIECEWISE)
     grid = _lattice(data, len(types))
     live = _whole_live(data, len(types))
     field = _field_data(data)
@@ -213,12 +216,35 @@ def _run(path: str, kind: str, fmt: str | None = None):
         elif kind == "legacy":
             reader.ReadAllScalarsOn()
             reader.ReadAllFieldsOn()
-        reader.Update()
-        out = reader.GetOutputDataObject(0)
+        if kind in PIECEWISE:
+            out = _pieces(reader)
+        else:
+            reader.Update()
+            out = reader.GetOutputDataObject(0)
     if cap.failed:
         raise MeshError(f"cannot read {name} as {fmt}: {explain(cap.text, what)}")
     if out is None:
         raise MeshError(f"cannot read {name} as {fmt}: the reader produced no data")
+    return out
+
+
+def _pieces(reader):
+    """A parallel reader's pieces, each read on its own, as the blocks of a multiblock dataset
+    (VTK's own reading appends them with every cut point twice, so that the pieces do not touch)."""
+    from vtkmodules.vtkCommonDataModel import vtkMultiBlockDataSet
+
+    reader.UpdateInformation()
+    n = reader.GetNumberOfPieces()
+    if n < 2:
+        reader.Update()
+        return reader.GetOutputDataObject(0)
+    out = vtkMultiBlockDataSet()
+    for i in range(n):
+        reader.UpdatePiece(i, n, 0)
+        piece = reader.GetOutputDataObject(0)
+        block = piece.NewInstance()
+        block.ShallowCopy(piece)
+        out.SetBlock(i, block)
     return out
 
 
@@ -316,14 +342,16 @@ def _cell_data(ds) -> dict:
     return out
 
 
-def _arrays(data, path: str, what: str, fmt: str):
-    """(points, offsets, connectivity, types, cell data {name: array}, polyhedron faces or None)."""
+def _arrays(data, path: str, what: str, fmt: str, groups: bool = True):
+    """(points, offsets, connectivity, types, cell data {name: array}, polyhedron faces or None).
+    groups: a composite's blocks are physical groups (Exodus element blocks, CGNS zones); not a
+    parallel file's pieces, which are one mesh cut for the processes that wrote it."""
     if data.IsA("vtkCompositeDataSet"):
-        return _composite(data, path, what, fmt)
+        return _composite(data, path, what, fmt, groups)
     return _dataset(data, path, what, fmt)
 
 
-def _dataset(ds, path, what, fmt):
+def _dataset(ds, path, what, fmt, piece: bool = False):
     if ds.IsA("vtkUnstructuredGrid"):
         out = _unstructured(ds)
     elif ds.IsA("vtkPolyData"):
@@ -334,7 +362,7 @@ def _dataset(ds, path, what, fmt):
         raise MeshError(
             f"cannot read {os.path.basename(path)} as {fmt}: it holds a {ds.GetClassName()[3:]}, not a mesh"
         )
-    return _hide_blanked(ds, *out)
+    return _hide_blanked(ds, *out, piece=piece)
 
 
 def _unstructured(ug):
@@ -557,13 +585,14 @@ def mesh_of_image(origin, spacing, extent, tags, tag_key, meta: dict, field: dic
     return mesh
 
 
-def _hide_blanked(ds, pts, offsets, conn, types, cell_data, poly):
-    """Drop blanked (hidden) cells, and cells on hidden points, as VTK does when it draws them."""
+def _hide_blanked(ds, pts, offsets, conn, types, cell_data, poly, piece: bool = False):
+    """Drop blanked (hidden) cells, and cells on hidden points, as VTK does when it draws them;
+    in a parallel file's piece, its ghost cells too (copies of another piece's cells)."""
     ghost = ds.GetCellData().GetArray("vtkGhostType")
     pghost = ds.GetPointData().GetArray("vtkGhostType")
     hide = None
     if ghost is not None:
-        hide = (_np(ghost) & HIDDEN_CELL) != 0
+        hide = (_np(ghost) & (HIDDEN_CELL | (DUPLICATE_CELL if piece else 0))) != 0
     if pghost is not None and types.size:
         hp = (_np(pghost) & HIDDEN_POINT) != 0
         if hp.any():
@@ -595,16 +624,16 @@ def _leaves(data) -> list:
     return out
 
 
-def _composite(data, path, what, fmt):
+def _composite(data, path, what, fmt, groups: bool = True):
     """Element blocks / zones joined in one cell set; a `block` tag (1, 2, ...) where the blocks
-    carry no tag of their own."""
+    carry no tag of their own and are groups (not a parallel file's pieces)."""
     leaves = _leaves(data)
     if not leaves:
         raise MeshError(f"cannot read {os.path.basename(path)} as {fmt}: the file has no cells")
-    parts = _distinct([_dataset(ds, path, what, fmt) for ds in leaves])
+    parts = _distinct([_dataset(ds, path, what, fmt, piece=not groups) for ds in leaves])
     if len(parts) == 1:
         pts, off, conn, types, cd, poly = parts[0]
-        if not any(k in cd for k in TAG_NAMES):
+        if groups and not any(k in cd for k in TAG_NAMES):
             cd = {**cd, "block": np.ones(len(types), np.int64)}
         return pts, off, conn, types, cd, poly
     shared = all(len(p[0]) == len(parts[0][0]) for p in parts) and all(
@@ -621,7 +650,8 @@ def _composite(data, path, what, fmt):
         base_p += len(pts)
     keys = set(parts[0][4]).intersection(*(p[4] for p in parts[1:]))
     cd = {k: np.concatenate([p[4][k] for p in parts]) for k in keys}
-    cd["block"] = np.repeat(np.arange(1, len(parts) + 1), [len(p[3]) for p in parts])
+    if groups:
+        cd["block"] = np.repeat(np.arange(1, len(parts) + 1), [len(p[3]) for p in parts])
     poly = _join_polys(polys, [p[0] for p in parts], shared) if any(p is not None for p in polys) else None
     conn = np.concatenate(conns)
     if shared:
