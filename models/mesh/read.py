@@ -222,7 +222,7 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
 
 
 class NativeReaderNeeded(MeshError):
-    """read_mesh(native=False) met a file that only a native reader (VTK's) reads."""
+    """read_mesh(native=False) met a file that only a native reader (VTK's, gmsh's library) reads."""
 
 
 def read_mesh(
@@ -347,7 +347,33 @@ def _read(path: str, physical_tag, file_format, weld, native: bool = True) -> Me
         return read_vtk(
             path, detail, physical_tag=physical_tag, weld=weld, fmt=format_name(path, file_format)
         )
+    if (family, detail) == ("meshio", "gmsh"):
+        return _read_gmsh(path, physical_tag, weld, native)
     return mesh_from_meshio(_read_meshio(path, detail), physical_tag=physical_tag, weld=weld, owned=True)
+
+
+def _read_gmsh(path: str, physical_tag, weld, native: bool) -> Mesh:
+    """A gmsh file by meshio's reader; one that meshio refuses but that looks sound (partitioned,
+    MSH 4.0, saved with SaveAll: models.mesh.gmsh_native) by gmsh's own library, which is native
+    code: with native=False NativeReaderNeeded (the caller reads it in the sandbox). A file gmsh
+    cannot read either keeps meshio's refusal (it says where the file goes wrong)."""
+    try:
+        m = _read_meshio(path, "gmsh")
+    except MeshError as refused:
+        from models.mesh import gmsh_native
+
+        if not gmsh_native.worth_trying(path):
+            raise
+        if not native:
+            raise NativeReaderNeeded(f"{os.path.basename(path)} needs gmsh's library") from None
+        try:
+            m = gmsh_native.read_gmsh(path)
+        except MeshError:
+            raise refused from None
+        mesh = mesh_from_meshio(m, physical_tag=physical_tag, weld=weld, owned=True)
+        mesh.meta.update(reader="gmsh's library (models/mesh/gmsh_native.py)", format="gmsh")
+        return mesh
+    return mesh_from_meshio(m, physical_tag=physical_tag, weld=weld, owned=True)
 
 
 def default_memory() -> int:

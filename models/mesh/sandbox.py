@@ -297,7 +297,12 @@ def read_mesh_cli(path, physical_tag=None, file_format=None, weld=None, **limits
     p = os.fspath(path)
     if sandbox_enabled() and os.path.isfile(p) and extension(p) not in ARCHIVES:
         if pure_python_reader(p, file_format):
-            limits = {**limits, "in_process": True}
+            try:  # (a gmsh file that meshio refuses may need gmsh's library: the sandbox then)
+                return read_mesh_safe(
+                    path, physical_tag, file_format, weld, **limits, in_process=True, native=False
+                )
+            except read.NativeReaderNeeded:
+                pass
         elif _numpy_family(p, file_format):
             try:
                 return read_mesh_safe(

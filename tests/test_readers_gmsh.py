@@ -1,0 +1,138 @@
+"""gmsh's own files that meshio's gmsh readers refuse (models/mesh/gmsh_native.py): partitioned
+meshes (MSH 4.1 ascii and binary, MSH 2.2), MSH 4.0, Mesh.SaveAll beside physical groups, a
+partitioned quadratic mesh; each written by gmsh itself at test time and checked against the same
+model written plainly and read by meshio: cells, points, volume, physical groups. The CLI reads
+them in the sandbox (gmsh's library is native code); a corrupted one keeps meshio's refusal."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from models.errors import MeshError
+from models.mesh.read import NativeReaderNeeded, read_mesh
+from models.mesh.sandbox import read_mesh_cli
+
+gmsh = pytest.importorskip("gmsh")
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def write(path, dim=3, part=0, version=4.1, binary=False, saveall=False, order=1, recombine=False):
+    """A box (3D: volume group 7 'body', one face group 8 'inlet') or a two-material square (2D:
+    groups 5 'left' and 6 'right'), meshed and written by gmsh with these options."""
+    gmsh.initialize(readConfigFiles=False, interruptible=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add("m")
+        occ = gmsh.model.occ
+        if dim == 3:
+            occ.addBox(0, 0, 0, 1, 1, 0.5)
+            occ.synchronize()
+            gmsh.model.addPhysicalGroup(3, [1], 7, name="body")
+            gmsh.model.addPhysicalGroup(2, [1], 8, name="inlet")
+        else:
+            occ.addRectangle(0, 0, 0, 0.5, 1)
+            occ.addRectangle(0.5, 0, 0, 0.5, 1)
+            occ.fragment([(2, 1)], [(2, 2)])
+            occ.synchronize()
+            gmsh.model.addPhysicalGroup(2, [1], 5, name="left")
+            gmsh.model.addPhysicalGroup(2, [2], 6, name="right")
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.12)
+        if recombine:  # (2D) the right material in quads, the left in triangles
+            gmsh.model.mesh.setRecombine(2, 2)
+        gmsh.model.mesh.generate(dim)
+        if order > 1:
+            gmsh.model.mesh.setOrder(order)
+        if part:
+            gmsh.model.mesh.partition(part)
+        gmsh.option.setNumber("Mesh.MshFileVersion", version)
+        gmsh.option.setNumber("Mesh.Binary", int(binary))
+        gmsh.option.setNumber("Mesh.SaveAll", int(saveall))
+        gmsh.write(str(path))
+    finally:
+        gmsh.finalize()
+    return str(path)
+
+
+def summary(mesh):
+    groups = {int(t): float(mesh.meta["measures"][mesh.tags == t].sum()) for t in np.unique(mesh.tags)}
+    return mesh.n_cells, mesh.n_points, float(mesh.meta["measures"].sum()), groups
+
+
+VARIANTS = {
+    "partitioned-4.1": {"part": 4},
+    "partitioned-4.1-binary": {"part": 4, "binary": True},
+    "partitioned-2.2": {"part": 3, "version": 2.2},
+    "msh-4.0": {"version": 4.0},
+    "saveall": {"saveall": True},
+}
+
+
+@pytest.mark.parametrize("variant", sorted(VARIANTS))
+@pytest.mark.parametrize("dim", [3, 2])
+def test_gmsh_files_meshio_refuses_read_as_the_plain_file(tmp_path, variant, dim):
+    opts = dict(VARIANTS[variant], recombine=dim == 2)
+    plain = read_mesh(write(tmp_path / "plain.msh", dim, recombine=dim == 2))
+    assert plain.meta.get("reader") != "gmsh's library (models/mesh/gmsh_native.py)"  # meshio's
+    path = write(tmp_path / f"{variant}.msh", dim, **opts)
+    mesh = read_mesh(path)
+    n, p, vol, groups = summary(mesh)
+    n0, p0, vol0, groups0 = summary(plain)
+    assert (n, p) == (n0, p0)
+    assert vol == pytest.approx(vol0, rel=1e-12)
+    assert groups.keys() == groups0.keys() and all(groups[g] == pytest.approx(groups0[g]) for g in groups)
+    assert mesh.meta["group_names"] == plain.meta["group_names"]
+    if dim == 2:
+        assert sorted(np.unique(mesh.cell_types).tolist()) == [5, 9]  # triangles and quads
+    assert read_mesh_cli(path).n_cells == n0  # the CLI's way: in the sandbox
+
+
+def test_a_partitioned_quadratic_mesh_is_read_on_its_corners(tmp_path):
+    path = write(tmp_path / "o2.msh", 3, part=3, order=2)
+    plain = read_mesh(write(tmp_path / "plain.msh", 3))
+    mesh = read_mesh(path)
+    assert mesh.n_cells == plain.n_cells
+    assert float(mesh.meta["measures"].sum()) == pytest.approx(float(plain.meta["measures"].sum()), rel=1e-12)
+    assert "agglomerated on their 4 corner nodes" in mesh.meta["higher_order"]
+
+
+def test_gmsh_library_only_in_the_sandbox_from_the_cli(tmp_path):
+    """In-process (native=False, the CLI's first try) a file that needs gmsh's library is handed
+    on (NativeReaderNeeded), never read by native code in the CLI's own process; `magnet
+    agglomerate` then reads and agglomerates it."""
+    path = write(tmp_path / "part.msh", 3, part=4)
+    with pytest.raises(NativeReaderNeeded):
+        read_mesh(path, native=False)
+    out = tmp_path / "out.vtu"
+    r = subprocess.run(
+        [sys.executable, "-m", "models.cli", "agglomerate", path, "--k", "6", "-o", str(out)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert r.returncode == 0, r.stderr
+    assert out.exists() and "6 elements" in r.stdout
+
+
+def test_a_corrupted_partitioned_file_keeps_the_refusal_with_its_place(tmp_path):
+    """A partitioned file with a node id beyond its nodes: our scan of its sections finds the place,
+    so gmsh's library is not tried, and the refusal says where."""
+    path = write(tmp_path / "part.msh", 3, part=2)
+    text = open(path).read().splitlines()
+    start = text.index("$Elements")
+    line = start + 3  # the first element line of the first block
+    ids = text[line].split()
+    ids[-1] = "999999"
+    text[line] = " ".join(ids)
+    bad = tmp_path / "bad.msh"
+    bad.write_text("\n".join(text) + "\n")
+    with pytest.raises(MeshError) as err:
+        read_mesh(str(bad))
+    msg = str(err.value)
+    assert "bad.msh" in msg and "gmsh" in msg and "line" in msg, msg
