@@ -88,6 +88,25 @@ def check_archive(
         for m, _, kind in members
         if kind == "file" and (extension(m) in FORMATS or extension(m) in COMPOUND)
     ]
+    foam = (
+        [m for m in meshes if extension(m) == ".foam"]
+        or [  # an OpenFOAM case (its other files
+            m  # may have mesh extensions: constant/triSurface/*.stl): its .foam file, or its controlDict
+            for m, _, kind in members
+            if kind == "file"
+            and m.replace("\\", "/").endswith("system/controlDict")
+            and any(
+                o.replace("\\", "/")
+                in (
+                    m[: -len("system/controlDict")] + "constant/polyMesh/faces",
+                    m[: -len("system/controlDict")] + "constant/polyMesh/faces.gz",
+                )
+                for o, _, _ in members
+            )
+        ]
+    )
+    if len(foam) == 1:
+        return foam[0]
     if not meshes:
         raise MeshError(
             f"cannot read {name}: the archive holds no mesh file (one of {', '.join(FORMATS)} with its data files)"

@@ -37,6 +37,7 @@ FORMATS: dict[str, str] = {
     ".dat": "Tecplot",
     ".tec": "Tecplot",
     ".ugrid": "UGRID",
+    ".foam": "OpenFOAM case",  # an empty file in the case's folder, as ParaView opens a case
     # VTK's other XML datasets and parallel / multiblock files (these name their pieces' files)
     ".vtp": "VTK XML polydata",
     ".vti": "VTK XML image data",
@@ -66,7 +67,7 @@ FORMATS: dict[str, str] = {
 }
 # a mesh file that needs other files beside it (XDMF's heavy data in .h5, a parallel VTK file's
 # pieces, TetGen's .node beside its .ele): uploaded in an archive holding them all
-MULTI_FILE = (".xdmf", ".xmf", ".pvtu", ".pvtp", ".pvti", ".pvts", ".pvtr", ".vtm", ".ele", ".node")
+MULTI_FILE = (".xdmf", ".xmf", ".pvtu", ".pvtp", ".pvti", ".pvts", ".pvtr", ".vtm", ".ele", ".node", ".foam")
 # compound extensions first: "case.cas.h5" is a Fluent case, not an HDF5 file
 COMPOUND = {
     ".cas.h5": "Fluent case (HDF5)",

@@ -83,6 +83,7 @@ _VTK_OTHER = {
     ".cas": "fluent",
     ".neu": "gambit",
     ".vtkhdf": "vtkhdf",
+    ".foam": "openfoam",
 }
 _SURFACES = (".stl", ".obj", ".ply", ".off")
 XML_GRIDS = (".vts", ".vtr", ".vti")  # VTK XML structured files: our numpy path first (xml_grid.py)
@@ -136,6 +137,33 @@ def _pieces_present(path: str, ext: str) -> None:
             )
 
 
+def _openfoam_case(path: str) -> None:
+    """An OpenFOAM case is a folder holding constant/polyMesh (the .foam file, or system/controlDict,
+    names it): MeshError where it does not (VTK's reader would only say it read nothing)."""
+    folder = os.path.dirname(os.path.abspath(path))
+    if os.path.basename(path) == "controlDict":
+        folder = os.path.dirname(folder)
+    mesh = os.path.join(folder, "constant", "polyMesh")
+    if not any(os.path.exists(os.path.join(mesh, f)) for f in ("faces", "faces.gz")):
+        raise MeshError(
+            f"cannot read {os.path.basename(path)} as an OpenFOAM case: its folder has no constant/polyMesh/faces "
+            "(a reconstructed case's mesh; run reconstructParMesh on a decomposed one), or upload the "
+            "case's folder in one .zip or .tar.gz"
+        )
+
+
+def openfoam_file(folder: str) -> str | None:
+    """The file that opens an OpenFOAM case given as its folder: its system/controlDict (a .foam
+    file beside it where there is one); None when the folder is no case."""
+    if not os.path.isdir(os.path.join(folder, "constant", "polyMesh")):
+        return None
+    foams = sorted(f for f in os.listdir(folder) if f.endswith(".foam"))
+    if foams:
+        return os.path.join(folder, foams[0])
+    control = os.path.join(folder, "system", "controlDict")
+    return control if os.path.isfile(control) else None
+
+
 def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
     """One reader per file, by extension and a look at its first bytes: (family, detail) with
     family "vtu" (our fast VTU path, VTK's reader for any other VTU), "vtk" (detail: a key of
@@ -181,6 +209,9 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
         raise MeshError(f"cannot read {name} as Exodus II: the file is neither netCDF nor HDF5 (byte 0)")
     if ext == ".cas.h5":
         return ("vtk", "fluent-h5")
+    if ext == ".foam" or name == "controlDict":
+        _openfoam_case(path)
+        return ("vtk", "openfoam")
     if ext in _VTK_OTHER:
         if ext in (".xdmf", ".xmf") and not xml:
             raise MeshError(f"cannot read {name} as XDMF: the file does not start with an XML tag")
@@ -243,7 +274,9 @@ def read_mesh(
     path = os.fspath(path)
     if not os.path.exists(path):
         raise MeshError(f"mesh file not found: {path}")
-    if os.path.getsize(path) == 0:
+    if os.path.isdir(path) and openfoam_file(path):  # an OpenFOAM case given as its folder
+        path = openfoam_file(path)
+    if os.path.getsize(path) == 0 and _extension(path) != ".foam":  # (a .foam file is empty)
         raise MeshError(f"mesh file is empty: {os.path.basename(path)}")
     try:
         return _read(path, physical_tag, file_format, weld, native)

@@ -172,7 +172,13 @@ def read_mesh_safe(
     if not os.path.exists(path):
         raise MeshError(f"mesh file not found: {path}")
     if os.path.isdir(path):
-        raise MeshError(f"{path} is a folder, not a mesh file")
+        case = read.openfoam_file(path)
+        if case is None:
+            raise MeshError(
+                f"{path} is a folder, not a mesh file (a folder is read only as an OpenFOAM case: "
+                "constant/polyMesh and system/controlDict)"
+            )
+        path = case
     if file_format is None and extension(path) in ARCHIVES:  # XDMF + .h5 and the like, in one upload
         import shutil
         import tempfile

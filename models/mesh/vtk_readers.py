@@ -49,6 +49,7 @@ READERS: dict[str, tuple[str, str, str]] = {
     "vtkhdf": ("VTKHDF", "vtkHDFReader", "vtkmodules.vtkIOHDF"),
     "avs-binary": ("binary AVS UCD", "vtkAVSucdReader", "vtkmodules.vtkIOGeometry"),
     "avs": ("AVS UCD", "vtkAVSucdReader", "vtkmodules.vtkIOGeometry"),
+    "openfoam": ("OpenFOAM case", "vtkOpenFOAMReader", "vtkmodules.vtkIOGeometry"),
 }
 # parallel files whose pieces are separate point sets: read piece by piece, joined as a composite's
 # blocks are (points on the cuts between pieces, written once per piece, merged)
@@ -71,10 +72,13 @@ def read_vtk(
         mesh = _image_mesh(data, physical_tag, meta, path)
         if mesh is not None:
             return mesh
-    pts, offsets, conn, types, cell_data, poly = _arrays(data, path, what, fmt, kind not in PIECEWISE)
+    if kind == "openfoam":
+        pts, offsets, conn, types, cell_data, poly, field = _openfoam(data, path, what, fmt)
+    else:
+        pts, offsets, conn, types, cell_data, poly = _arrays(data, path, what, fmt, kind not in PIECEWISE)
+        field = _field_data(data)
     grid = _lattice(data, len(types))
     live = _whole_live(data, len(types))
-    field = _field_data(data)
     del data
     if len(types) == 0:
         raise MeshError(
@@ -213,6 +217,8 @@ def _run(path: str, kind: str, fmt: str | None = None):
             _fluent_cell_zones_only(reader)
         elif kind == "avs-binary":
             reader.SetBinaryFile(1)
+        elif kind == "openfoam":
+            _openfoam_mesh_only(reader)
         elif kind == "legacy":
             reader.ReadAllScalarsOn()
             reader.ReadAllFieldsOn()
@@ -222,7 +228,8 @@ def _run(path: str, kind: str, fmt: str | None = None):
             reader.Update()
             out = reader.GetOutputDataObject(0)
     if cap.failed:
-        raise MeshError(f"cannot read {name} as {fmt}: {explain(cap.text, what)}")
+        why = _foam_place(cap.text) if kind == "openfoam" else None
+        raise MeshError(f"cannot read {name} as {fmt}: {why or explain(cap.text, what)}")
     if out is None:
         raise MeshError(f"cannot read {name} as {fmt}: the reader produced no data")
     return out
@@ -246,6 +253,84 @@ def _pieces(reader):
         block.ShallowCopy(piece)
         out.SetBlock(i, block)
     return out
+
+
+def _openfoam_mesh_only(reader) -> None:
+    """An OpenFOAM case's mesh at its first time (constant/polyMesh): the internal mesh and every
+    boundary patch (our boundary groups), no zones, no field arrays; polyhedra kept whole."""
+    reader.UpdateInformation()
+    reader.EnableAllPatchArrays()
+    for off in ("DisableAllCellArrays", "DisableAllPointArrays", "DisableAllLagrangianArrays"):
+        getattr(reader, off, lambda: None)()
+    reader.SetReadZones(0)
+    reader.SetCreateCellToPoint(0)
+    if hasattr(reader, "SetDecomposePolyhedra"):
+        reader.SetDecomposePolyhedra(0)
+
+
+def _openfoam(data, path, what, fmt):
+    """The internal mesh's cells (no group) and the boundary patches' faces as boundary cells
+    tagged 1, 2, ... in the case's patch order, their names in the field data (as meshio's
+    field_data: name -> [tag, 2]). The patches' points are found among the internal mesh's by their
+    coordinates (the reader gives every patch its own copy); internal points that coincide (a
+    baffle's two sides) stay apart."""
+    internal, patches = None, []
+    for i in range(data.GetNumberOfBlocks()):
+        name = data.GetMetaData(i).Get(data.NAME()) if data.HasMetaData(i) else ""
+        block = data.GetBlock(i)
+        if block is None:
+            continue
+        if name == "internalMesh":
+            internal = block
+        elif name == "boundary" and block.IsA("vtkMultiBlockDataSet"):
+            for j in range(block.GetNumberOfBlocks()):
+                patch = block.GetBlock(j)
+                if patch is not None and patch.GetNumberOfCells() > 0:
+                    patches.append((block.GetMetaData(j).Get(data.NAME()), patch))
+    if internal is None or internal.GetNumberOfCells() == 0:
+        raise MeshError(
+            f"cannot read {os.path.basename(path)} as {fmt}: its internal mesh has no cells "
+            "(constant/polyMesh: points, faces, owner, neighbour, boundary, are empty or cannot be read)"
+        )
+    pts, offsets, conn, types, _, poly = _dataset(internal, path, what, fmt)
+    pts = np.asarray(pts, np.float64)
+    field = {}
+    if patches:
+        parts = [_dataset(p, path, what, fmt) for _, p in patches]
+        ppts = np.concatenate([np.asarray(p[0], np.float64) for p in parts])
+        _, first, inverse = np.unique(
+            np.concatenate([pts, ppts]), axis=0, return_index=True, return_inverse=True
+        )
+        at = first[inverse.reshape(-1)[len(pts) :]]  # each patch point's first copy
+        new = at >= len(pts)  # (a patch point the internal mesh lacks: kept, at the end)
+        if new.any():
+            keep, where = np.unique(at[new], return_inverse=True)
+            at[new] = len(pts) + where
+            pts = np.concatenate([pts, np.concatenate([pts, ppts])[keep]])
+        base, offs, conns, tps, tags = (
+            0,
+            [np.asarray(offsets, np.int64)],
+            [np.asarray(conn, np.int64)],
+            [types],
+            [],
+        )
+        end = int(offsets[-1])
+        for t, ((name, _), part) in enumerate(zip(patches, parts, strict=True), start=1):
+            _, o, c, ty = part[:4]
+            offs.append(np.asarray(o[1:], np.int64) + end)
+            conns.append(at[np.asarray(c, np.int64) + base])
+            tps.append(ty)
+            tags.append(np.full(len(ty), t, np.int64))
+            end += int(o[-1])
+            base += len(part[0])
+            field[str(name).rsplit("/", 1)[-1]] = np.array([t, 2])
+        offsets, conn, types = np.concatenate(offs), np.concatenate(conns), np.concatenate(tps)
+        cell_data = {
+            BOUNDARY_TAG_NAME: np.concatenate([np.zeros(internal.GetNumberOfCells(), np.int64), *tags])
+        }
+    else:
+        cell_data = {}
+    return pts, offsets, conn, types, cell_data, poly, field
 
 
 # Fluent zone types of cell zones (section 45 "(45 (id type name)())"); the rest are face zones
@@ -297,6 +382,32 @@ _KINDS = (
     ),
     (("netcdf", "hdf5", "h5"), "its binary container (netCDF / HDF5) is corrupted"),
 )
+
+
+_FOAM_FILE = re.compile(r"(constant/polyMesh/\w+|system/\w+)")
+_FOAM_LINE = re.compile(r"line (\d+) of")
+_FOAM_EXPECTED = re.compile(
+    r"Expected ((?:integer|a number|string \"FoamFile\"|integer or '\('|'[^']{1,3}'|[a-z ]{1,30}?)), found"
+)
+
+
+def _foam_place(text: str) -> str | None:
+    """An OpenFOAM case's failing file, line and what was expected there, from VTK's reader's text:
+    "its constant/polyMesh/faces cannot be read at line 43, where an integer or '(' was expected";
+    None where VTK names no file of the case."""
+    f = _FOAM_FILE.search(text)
+    if f is None:
+        return None
+    said = f"its {f.group(1)} cannot be read"
+    line = _FOAM_LINE.search(text)
+    if line:
+        said += f" at line {int(line.group(1)):,}"
+    e = _FOAM_EXPECTED.search(text)
+    if e:
+        want = e.group(1).replace('string "FoamFile"', "its FoamFile header")
+        want = {"integer": "an integer", "integer or '('": "an integer or '('"}.get(want, want)
+        said += f"{',' if line else ':'} where {want} was expected" if line else f": {want} was expected"
+    return said
 
 
 def article(what: str) -> str:

@@ -1,0 +1,132 @@
+"""OpenFOAM cases (constant/polyMesh), read by VTK's vtkOpenFOAMReader as ParaView opens them:
+given as the case's .foam file, its system/controlDict or its folder; over HTTP in an archive.
+Cases written at test time (tests/openfoam_case.py): hexahedra, and polyhedra (pairs of
+hexahedra merged: ten faces each); checked against VTK's own reading (cells, volume), patches as
+named boundary groups, agglomerated and read back."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import zipfile
+
+import meshio
+import numpy as np
+import openfoam_case as oc
+import pytest
+import vtk
+import vtk_corpus as vc
+
+from models.errors import MeshError
+from models.mesh.read import read_mesh
+from models.mesh.sandbox import read_mesh_cli, read_mesh_safe
+
+
+def inlet_or_walls(centre) -> str:
+    return "inlet" if centre[0] < 0.1 * centre[1] + 1e-9 else "walls"  # (the grid is sheared in x)
+
+
+def reference(foam: str, tmp_path) -> tuple[int, float]:
+    """VTK's reading of the case's internal mesh: its cells and volume (vtk_corpus.vtk_reference
+    on it, written as a VTU by VTK)."""
+    w = vtk.vtkXMLUnstructuredGridWriter()
+    w.SetFileName(str(tmp_path / "vtk_internal.vtu"))
+    w.SetInputData(oc.vtk_internal(foam))
+    assert w.Write() == 1
+    return vc.vtk_reference(str(tmp_path / "vtk_internal.vtu"))
+
+
+@pytest.mark.parametrize("cells", ["hexahedra", "polyhedra"])
+def test_openfoam_case_reads_as_vtk_reads_it(tmp_path, cells):
+    p, h = oc.hex_grid(6, 4, 3)
+    faces = oc.hex_cells(h) if cells == "hexahedra" else oc.merged_pairs(h, 6)
+    case = tmp_path / "case"
+    foam = oc.write_case(str(case), p, faces, inlet_or_walls)
+    n_ref, vol_ref = reference(foam, tmp_path)
+    assert n_ref == len(faces)
+    for given in (foam, str(case), str(case / "system" / "controlDict")):
+        mesh = read_mesh(given)
+        assert mesh.n_cells == n_ref
+        assert float(mesh.meta["measures"].sum()) == pytest.approx(vol_ref, rel=1e-9)
+        assert (mesh.poly_cells is not None) == (cells == "polyhedra")
+        names = mesh.meta["boundary_names"]
+        assert sorted(names.values()) == ["inlet", "walls"]
+        inlet = next(t for t, n in names.items() if n == "inlet")
+        assert int(np.count_nonzero(mesh.boundary_tags == inlet)) == 4 * 3  # the x = 0 side's faces
+        assert mesh.tags is None  # (patches are boundary groups, the internal mesh no group)
+    assert read_mesh_cli(str(case)).n_cells == n_ref  # the CLI's way: VTK's reader in the sandbox
+    res, n_out, vol_out = vc.agglomerate_read_back(foam, 5, tmp_path / "out.vtu")
+    assert n_out == 5 and vol_out == pytest.approx(vol_ref, rel=1e-6)  # (VTK's reader: float32 points)
+
+
+def test_openfoam_refusals_are_one_sentence(tmp_path):
+    empty = tmp_path / "nocase"
+    empty.mkdir()
+    with pytest.raises(MeshError, match="is a folder, not a mesh file"):
+        read_mesh_safe(str(empty))
+    (empty / "lonely.foam").write_text("")
+    with pytest.raises(MeshError) as err:
+        read_mesh(str(empty / "lonely.foam"))
+    msg = str(err.value)
+    assert "lonely.foam" in msg and "OpenFOAM case" in msg and "constant/polyMesh" in msg and "\n" not in msg
+
+
+@pytest.mark.parametrize("with_foam", [True, False])
+def test_openfoam_case_in_an_archive(tmp_path, with_foam):
+    """An uploaded case: a .zip of its folder, with or without a .foam file (then its
+    system/controlDict opens it), beside a surface the case was meshed from
+    (constant/triSurface/part.stl, as snappyHexMesh cases hold)."""
+    p, h = oc.hex_grid(4, 2, 2)
+    case = tmp_path / "case"
+    oc.write_case(str(case), p, oc.hex_cells(h))
+    if not with_foam:
+        os.remove(case / "case.foam")
+    (case / "constant" / "triSurface").mkdir()
+    corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float)
+    tris = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]])
+    meshio.write(case / "constant" / "triSurface" / "part.stl", meshio.Mesh(corners, [("triangle", tris)]))
+    archive = tmp_path / "case.zip"
+    with zipfile.ZipFile(archive, "w") as z:
+        for root, _, files in os.walk(case):
+            for f in files:
+                full = os.path.join(root, f)
+                z.write(full, os.path.relpath(full, tmp_path))
+    assert read_mesh_safe(str(archive)).n_cells == len(h)
+
+
+def test_openfoam_mutants_are_a_mesh_or_one_clear_sentence(tmp_path):
+    """The mutation test (tests/mutants.py: flips, truncation, swapped or duplicated lines, bad
+    numbers, zeroed blocks) over each polyMesh file of a case, read in the sandbox as the service
+    reads: a Mesh, or one sentence that names the case's file and the format, with no library text
+    (test_read_fuzz's rules). VTK's reader may crash or hang on some: a sentence too."""
+    import re
+
+    from mutants import mutants
+    from test_read_fuzz import RAW_RE
+
+    from models.errors import ParameterError
+    from models.mesh.container import Mesh
+
+    p, h = oc.hex_grid(3, 2, 2)
+    good = tmp_path / "good"
+    oc.write_case(str(good), p, oc.hex_cells(h), inlet_or_walls)
+    outcomes = {"mesh": 0, "refused": 0}
+    for k, part in enumerate(("points", "faces", "owner", "neighbour", "boundary")):
+        data = (good / "constant" / "polyMesh" / part).read_bytes()
+        for i, (how, bad) in enumerate(mutants(data, seed=2000 + k, n=8)):
+            case = tmp_path / f"m{k}_{i}"
+            shutil.copytree(good, case)
+            (case / "constant" / "polyMesh" / part).write_bytes(bad)
+            try:
+                mesh = read_mesh_safe(str(case / "case.foam"), timeout_s=20, memory_bytes=2 << 30)
+            except (MeshError, ParameterError) as exc:
+                msg = str(exc)
+                outcomes["refused"] += 1
+                assert "case.foam" in msg and "OpenFOAM case" in msg, (part, how, msg)
+                assert not RAW_RE.search(msg) and "\n" not in msg, (part, how, msg)
+                assert not re.search(r"\bvtk[A-Z]|Foam::|\bfound\b|Expected", msg), (part, how, msg)
+            else:
+                assert isinstance(mesh, Mesh) and mesh.n_cells > 0
+                outcomes["mesh"] += 1
+            shutil.rmtree(case)
+    assert outcomes["refused"] >= 10, outcomes
