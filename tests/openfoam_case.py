@@ -54,10 +54,12 @@ def merged_pairs(hexes, nx: int) -> list[list[list[int]]]:
     return cells
 
 
-def write_case(root, points, cells, patch_of=None) -> str:
+def write_case(root, points, cells, patch_of=None, order=(), types=None) -> str:
     """The case in `root` (constant/polyMesh, system/controlDict, an empty root/case.foam); cells:
     per cell its faces (node lists, outward). patch_of(centre) -> patch name of a boundary face by
-    its centre (default: 'walls'). Returns the .foam file's path."""
+    its centre (default: 'walls'). order: patch names first, in this order (written even where
+    empty, as decomposePar keeps every processor's list), then the others sorted; types: patch
+    name -> its boundary entry's lines (default: 'type patch;'). Returns the .foam file's path."""
     keys: dict[tuple, list] = {}
     for c, faces in enumerate(cells):
         for f in faces:
@@ -76,9 +78,9 @@ def write_case(root, points, cells, patch_of=None) -> str:
     owner = [o for o, _, _ in internal]
     neighbour = [n for _, n, _ in internal]
     patches = []
-    for name in sorted(boundary):
-        patches.append((name, len(faces), len(boundary[name])))
-        for c, f in boundary[name]:
+    for name in [*order, *sorted(set(boundary) - set(order))]:
+        patches.append((name, len(faces), len(boundary.get(name, []))))
+        for c, f in boundary.get(name, []):
             faces.append(f)
             owner.append(c)
     mesh = os.path.join(root, "constant", "polyMesh")
@@ -102,7 +104,8 @@ def write_case(root, points, cells, patch_of=None) -> str:
         f.write(f"\n{len(patches)}\n(\n")
         for name, start, n in patches:
             f.write(
-                f"    {name}\n    {{\n        type patch;\n        nFaces {n};\n        startFace {start};\n    }}\n"
+                f"    {name}\n    {{\n        {(types or {}).get(name, 'type patch;')}\n        nFaces {n};\n"
+                f"        startFace {start};\n    }}\n"
             )
         f.write(")\n")
     foam = os.path.join(root, "case.foam")

@@ -130,3 +130,66 @@ def test_openfoam_mutants_are_a_mesh_or_one_clear_sentence(tmp_path):
                 outcomes["mesh"] += 1
             shutil.rmtree(case)
     assert outcomes["refused"] >= 10, outcomes
+
+
+def decomposed_case(root, nx=6, ny=4, nz=3) -> int:
+    """A case as decomposePar leaves it: processor0/ and processor1/ (the grid cut at x = 0.5),
+    each its own points and cells, the same patch list on both (inlet, walls: empty where a
+    processor has none) with the processor patch last; system/controlDict at the root, no
+    constant/polyMesh there. Returns the number of cells."""
+    p, h = oc.hex_grid(nx, ny, nz)
+    cells = oc.hex_cells(h)
+    centre = p[h].mean(axis=1)
+    x = centre[:, 0] - 0.1 * centre[:, 1]  # (the grid is sheared)
+    for proc, sel in enumerate([x < 0.5, x >= 0.5]):
+        ids = np.flatnonzero(sel)
+        used = np.unique(h[ids])
+        new = np.full(len(p), -1)
+        new[used] = np.arange(used.size)
+        local = [[[int(new[n]) for n in f] for f in cells[c]] for c in ids]
+        cut = f"procBoundary{proc}to{1 - proc}"
+
+        def patch(c, cut=cut):
+            x = c[0] - 0.1 * c[1]
+            return cut if abs(x - 0.5) < 1e-9 else inlet_or_walls(c)
+
+        entry = f"type processor;\n        myProcNo {proc};\n        neighbProcNo {1 - proc};"
+        oc.write_case(
+            str(root / f"processor{proc}"), p[used], local, patch, order=("inlet", "walls", cut), types={cut: entry}
+        )
+        shutil.rmtree(root / f"processor{proc}" / "system")
+        os.remove(root / f"processor{proc}" / "case.foam")
+    (root / "system").mkdir()
+    (root / "system" / "controlDict").write_text(
+        oc.HEADER.format(cls="dictionary", loc="system", obj="controlDict") + "startTime 0;\nendTime 1;\ndeltaT 1;\n"
+    )
+    return len(h)
+
+
+def test_decomposed_openfoam_case_is_one_mesh(tmp_path):
+    """A decomposed case (processor*/ only: VTK's vtkPOpenFOAMReader) reads as the whole mesh: the
+    processors' cut points merged (one piece), the processor patches no boundary group, the same
+    cells, points and volume as the case before decomposition; given as its folder, as a .foam file
+    and as a .zip of the folder (its controlDict opens it)."""
+    case = tmp_path / "case"
+    n = decomposed_case(case)
+    p, h = oc.hex_grid(6, 4, 3)
+    whole = read_mesh(oc.write_case(str(tmp_path / "whole"), p, oc.hex_cells(h), inlet_or_walls))
+    (case / "case.foam").write_text("")
+    for given in (str(case), str(case / "case.foam")):
+        mesh = read_mesh(given)
+        assert (mesh.n_cells, mesh.n_points) == (n, whole.n_points)
+        assert float(mesh.meta["measures"].sum()) == pytest.approx(float(whole.meta["measures"].sum()), rel=1e-12)
+        assert sorted(mesh.meta["boundary_names"].values()) == ["inlet", "walls"]
+        assert mesh.boundary_types.size == whole.boundary_types.size  # (no face of the cut)
+    from models.mesh.check import check_file
+
+    assert check_file(str(case))["components"] == 1
+    os.remove(case / "case.foam")
+    archive = tmp_path / "decomposed.zip"
+    with zipfile.ZipFile(archive, "w") as z:
+        for root, _, files in os.walk(case):
+            for f in files:
+                full = os.path.join(root, f)
+                z.write(full, os.path.relpath(full, tmp_path))
+    assert read_mesh_safe(str(archive)).n_cells == n

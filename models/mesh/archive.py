@@ -88,23 +88,7 @@ def check_archive(
         for m, _, kind in members
         if kind == "file" and (extension(m) in FORMATS or extension(m) in COMPOUND)
     ]
-    foam = (
-        [m for m in meshes if extension(m) == ".foam"]
-        or [  # an OpenFOAM case (its other files
-            m  # may have mesh extensions: constant/triSurface/*.stl): its .foam file, or its controlDict
-            for m, _, kind in members
-            if kind == "file"
-            and m.replace("\\", "/").endswith("system/controlDict")
-            and any(
-                o.replace("\\", "/")
-                in (
-                    m[: -len("system/controlDict")] + "constant/polyMesh/faces",
-                    m[: -len("system/controlDict")] + "constant/polyMesh/faces.gz",
-                )
-                for o, _, _ in members
-            )
-        ]
-    )
+    foam = [m for m in meshes if extension(m) == ".foam"] or _control_dicts(members)
     if len(foam) == 1:
         return foam[0]
     if not meshes:
@@ -154,3 +138,26 @@ def unpack(path: str | os.PathLike, dest: str | os.PathLike, max_bytes: int = MA
 
 
 __all__ = ["check_archive", "unpack", "MAX_MEMBERS", "MAX_UNPACKED_BYTES"]
+
+
+def _control_dicts(members) -> list[str]:
+    """The system/controlDict of each OpenFOAM case among the members: one whose folder holds a
+    constant/polyMesh/faces, its own or a processor's (a decomposed case). A case's other files may
+    carry mesh extensions (constant/triSurface/*.stl); its controlDict, or its .foam file, opens it."""
+    names = [m.replace("\\", "/") for m, _, kind in members if kind == "file"]
+    meshes = [n for n in names if n.endswith(("constant/polyMesh/faces", "constant/polyMesh/faces.gz"))]
+    out = []
+    for m, n in zip([m for m, _, kind in members if kind == "file"], names, strict=True):
+        if n.endswith("system/controlDict"):
+            root = n[: -len("system/controlDict")]
+            if any(
+                f.startswith(root) and f[len(root) :].split("/")[0] in ("constant", *_processors(f, root))
+                for f in meshes
+            ):
+                out.append(m)
+    return out
+
+
+def _processors(face_file: str, root: str) -> tuple[str, ...]:
+    first = face_file[len(root) :].split("/")[0]
+    return (first,) if first.startswith("processor") else ()

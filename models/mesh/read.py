@@ -137,25 +137,37 @@ def _pieces_present(path: str, ext: str) -> None:
             )
 
 
-def _openfoam_case(path: str) -> None:
-    """An OpenFOAM case is a folder holding constant/polyMesh (the .foam file, or system/controlDict,
-    names it): MeshError where it does not (VTK's reader would only say it read nothing)."""
+def _polymesh(folder: str) -> bool:
+    mesh = os.path.join(folder, "constant", "polyMesh")
+    return any(os.path.exists(os.path.join(mesh, f)) for f in ("faces", "faces.gz"))
+
+
+def _openfoam_case(path: str) -> str:
+    """The reader of the OpenFOAM case the .foam file or system/controlDict `path` names (its
+    folder): "openfoam" for a case with constant/polyMesh, "openfoam-decomposed" for one whose mesh
+    is only in processor*/constant/polyMesh (decomposePar's); MeshError for neither (VTK's reader
+    would only say it read nothing)."""
     folder = os.path.dirname(os.path.abspath(path))
     if os.path.basename(path) == "controlDict":
         folder = os.path.dirname(folder)
-    mesh = os.path.join(folder, "constant", "polyMesh")
-    if not any(os.path.exists(os.path.join(mesh, f)) for f in ("faces", "faces.gz")):
-        raise MeshError(
-            f"cannot read {os.path.basename(path)} as an OpenFOAM case: its folder has no constant/polyMesh/faces "
-            "(a reconstructed case's mesh; run reconstructParMesh on a decomposed one), or upload the "
-            "case's folder in one .zip or .tar.gz"
-        )
+    if _polymesh(folder):
+        return "openfoam"
+    if any(d.startswith("processor") and _polymesh(os.path.join(folder, d)) for d in os.listdir(folder)):
+        return "openfoam-decomposed"
+    raise MeshError(
+        f"cannot read {os.path.basename(path)} as an OpenFOAM case: its folder has no constant/polyMesh/faces "
+        "(nor processor*/constant/polyMesh/faces of a decomposed case); keep the file in the case's folder, "
+        "or upload the case's folder in one .zip or .tar.gz"
+    )
 
 
 def openfoam_file(folder: str) -> str | None:
     """The file that opens an OpenFOAM case given as its folder: its system/controlDict (a .foam
     file beside it where there is one); None when the folder is no case."""
-    if not os.path.isdir(os.path.join(folder, "constant", "polyMesh")):
+    if not os.path.isdir(os.path.join(folder, "constant", "polyMesh")) and not any(
+        d.startswith("processor") and os.path.isdir(os.path.join(folder, d, "constant", "polyMesh"))
+        for d in os.listdir(folder)
+    ):
         return None
     foams = sorted(f for f in os.listdir(folder) if f.endswith(".foam"))
     if foams:
@@ -210,8 +222,7 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
     if ext == ".cas.h5":
         return ("vtk", "fluent-h5")
     if ext == ".foam" or name == "controlDict":
-        _openfoam_case(path)
-        return ("vtk", "openfoam")
+        return ("vtk", _openfoam_case(path))
     if ext in _VTK_OTHER:
         if ext in (".xdmf", ".xmf") and not xml:
             raise MeshError(f"cannot read {name} as XDMF: the file does not start with an XML tag")

@@ -50,6 +50,7 @@ READERS: dict[str, tuple[str, str, str]] = {
     "avs-binary": ("binary AVS UCD", "vtkAVSucdReader", "vtkmodules.vtkIOGeometry"),
     "avs": ("AVS UCD", "vtkAVSucdReader", "vtkmodules.vtkIOGeometry"),
     "openfoam": ("OpenFOAM case", "vtkOpenFOAMReader", "vtkmodules.vtkIOGeometry"),
+    "openfoam-decomposed": ("OpenFOAM case", "vtkPOpenFOAMReader", "vtkmodules.vtkIOParallel"),
 }
 # parallel files whose pieces are separate point sets: read piece by piece, joined as a composite's
 # blocks are (points on the cuts between pieces, written once per piece, merged)
@@ -72,8 +73,10 @@ def read_vtk(
         mesh = _image_mesh(data, physical_tag, meta, path)
         if mesh is not None:
             return mesh
-    if kind == "openfoam":
-        pts, offsets, conn, types, cell_data, poly, field = _openfoam(data, path, what, fmt)
+    if kind.startswith("openfoam"):
+        pts, offsets, conn, types, cell_data, poly, field = _openfoam(
+            data, path, what, fmt, kind == "openfoam-decomposed"
+        )
     else:
         pts, offsets, conn, types, cell_data, poly = _arrays(data, path, what, fmt, kind not in PIECEWISE)
         field = _field_data(data)
@@ -217,7 +220,9 @@ def _run(path: str, kind: str, fmt: str | None = None):
             _fluent_cell_zones_only(reader)
         elif kind == "avs-binary":
             reader.SetBinaryFile(1)
-        elif kind == "openfoam":
+        elif kind.startswith("openfoam"):
+            if kind == "openfoam-decomposed":
+                reader.SetCaseType(0)  # processor*/ (vtkPOpenFOAMReader's DECOMPOSED_CASE)
             _openfoam_mesh_only(reader)
         elif kind == "legacy":
             reader.ReadAllScalarsOn()
@@ -228,7 +233,7 @@ def _run(path: str, kind: str, fmt: str | None = None):
             reader.Update()
             out = reader.GetOutputDataObject(0)
     if cap.failed:
-        why = _foam_place(cap.text) if kind == "openfoam" else None
+        why = _foam_place(cap.text) if kind.startswith("openfoam") else None
         raise MeshError(f"cannot read {name} as {fmt}: {why or explain(cap.text, what)}")
     if out is None:
         raise MeshError(f"cannot read {name} as {fmt}: the reader produced no data")
@@ -268,12 +273,14 @@ def _openfoam_mesh_only(reader) -> None:
         reader.SetDecomposePolyhedra(0)
 
 
-def _openfoam(data, path, what, fmt):
+def _openfoam(data, path, what, fmt, decomposed: bool = False):
     """The internal mesh's cells (no group) and the boundary patches' faces as boundary cells
     tagged 1, 2, ... in the case's patch order, their names in the field data (as meshio's
     field_data: name -> [tag, 2]). The patches' points are found among the internal mesh's by their
     coordinates (the reader gives every patch its own copy); internal points that coincide (a
-    baffle's two sides) stay apart."""
+    baffle's two sides) stay apart, except in a decomposed case, whose processors' meshes the
+    reader appends with the points on their cuts once per processor: there coincident points
+    are merged (the processors' patches are not boundary groups: VTK's reader leaves them out)."""
     internal, patches = None, []
     for i in range(data.GetNumberOfBlocks()):
         name = data.GetMetaData(i).Get(data.NAME()) if data.HasMetaData(i) else ""
@@ -294,6 +301,12 @@ def _openfoam(data, path, what, fmt):
         )
     pts, offsets, conn, types, _, poly = _dataset(internal, path, what, fmt)
     pts = np.asarray(pts, np.float64)
+    if decomposed:
+        pts, inverse = np.unique(pts, axis=0, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        conn = inverse[np.asarray(conn, np.int64)]
+        if poly is not None:
+            poly = (poly[0], poly[1], inverse[poly[2]])
     field = {}
     if patches:
         parts = [_dataset(p, path, what, fmt) for _, p in patches]
