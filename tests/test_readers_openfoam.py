@@ -155,13 +155,19 @@ def decomposed_case(root, nx=6, ny=4, nz=3) -> int:
 
         entry = f"type processor;\n        myProcNo {proc};\n        neighbProcNo {1 - proc};"
         oc.write_case(
-            str(root / f"processor{proc}"), p[used], local, patch, order=("inlet", "walls", cut), types={cut: entry}
+            str(root / f"processor{proc}"),
+            p[used],
+            local,
+            patch,
+            order=("inlet", "walls", cut),
+            types={cut: entry},
         )
         shutil.rmtree(root / f"processor{proc}" / "system")
         os.remove(root / f"processor{proc}" / "case.foam")
     (root / "system").mkdir()
     (root / "system" / "controlDict").write_text(
-        oc.HEADER.format(cls="dictionary", loc="system", obj="controlDict") + "startTime 0;\nendTime 1;\ndeltaT 1;\n"
+        oc.HEADER.format(cls="dictionary", loc="system", obj="controlDict")
+        + "startTime 0;\nendTime 1;\ndeltaT 1;\n"
     )
     return len(h)
 
@@ -179,7 +185,9 @@ def test_decomposed_openfoam_case_is_one_mesh(tmp_path):
     for given in (str(case), str(case / "case.foam")):
         mesh = read_mesh(given)
         assert (mesh.n_cells, mesh.n_points) == (n, whole.n_points)
-        assert float(mesh.meta["measures"].sum()) == pytest.approx(float(whole.meta["measures"].sum()), rel=1e-12)
+        assert float(mesh.meta["measures"].sum()) == pytest.approx(
+            float(whole.meta["measures"].sum()), rel=1e-12
+        )
         assert sorted(mesh.meta["boundary_names"].values()) == ["inlet", "walls"]
         assert mesh.boundary_types.size == whole.boundary_types.size  # (no face of the cut)
     from models.mesh.check import check_file
