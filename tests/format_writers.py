@@ -56,6 +56,38 @@ def write_exodus(path, points, cell_blocks) -> str:
     return str(path)
 
 
+def add_exodus_sets(path, side_sets=(), block_names=()) -> str:
+    """Side sets and element block names added to an Exodus II file (netCDF4, the Exodus II
+    schema: ss_prop1 ids, elem_ssN / side_ssN 1-based, ss_names, eb_names), as Cubit and MOOSE
+    write them: side_sets = [(name, id, element indices (0-based), local side numbers (1-based,
+    Exodus' numbering))]."""
+    import netCDF4
+
+    with netCDF4.Dataset(str(path), "a") as ds:
+        if "len_name" not in ds.dimensions:
+            ds.createDimension("len_name", 33)
+        if side_sets:
+            ds.createDimension("num_side_sets", len(side_sets))
+            ds.createVariable("ss_status", "i4", ("num_side_sets",))[:] = np.ones(len(side_sets), np.int32)
+            prop = ds.createVariable("ss_prop1", "i4", ("num_side_sets",))
+            prop.setncattr("name", "ID")
+            prop[:] = [sid for _, sid, _, _ in side_sets]
+            for k, (_, _, elems, sides) in enumerate(side_sets, start=1):
+                ds.createDimension(f"num_side_ss{k}", len(elems))
+                ds.createVariable(f"elem_ss{k}", "i4", (f"num_side_ss{k}",))[:] = np.asarray(elems) + 1
+                ds.createVariable(f"side_ss{k}", "i4", (f"num_side_ss{k}",))[:] = np.broadcast_to(
+                    sides, len(elems)
+                )
+            names = np.array([n for n, _, _, _ in side_sets], dtype="S33")
+            ds.createVariable("ss_names", "S1", ("num_side_sets", "len_name"))[:] = netCDF4.stringtochar(
+                names
+            )
+        if block_names:
+            names = np.array(list(block_names), dtype="S33")
+            ds.createVariable("eb_names", "S1", ("num_el_blk", "len_name"))[:] = netCDF4.stringtochar(names)
+    return str(path)
+
+
 def write_xdmf(path, points, cell_blocks) -> str:
     """XDMF 3 with its heavy data in an HDF5 file beside it (meshio's writer)."""
     import meshio

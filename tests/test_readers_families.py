@@ -107,6 +107,44 @@ def test_exodus_blocks_become_groups(tmp_path):
     assert len(mesh.physical_groups()) == 2
 
 
+def test_exodus_side_sets_become_named_boundary_groups(tmp_path):
+    """Side sets (Cubit's and MOOSE's boundary conditions) are boundary groups with their names,
+    element block names name the physical groups; a side set on the faces between two blocks is an
+    interface (check says so), and the file agglomerates."""
+    pytest.importorskip("netCDF4")
+    from models.mesh.check import check_file
+
+    p, hexes = vc.grid(4, 3, 2)
+    i = np.arange(len(hexes)) % 4  # x index (x runs fastest)
+    path = fw.write_exodus(
+        tmp_path / "sets.exo", p, [("hexahedron", hexes[i < 2]), ("hexahedron", hexes[i >= 2])]
+    )
+    first = np.arange(int((i < 2).sum()))  # the first block's cells, in file order
+    x = np.concatenate([i[i < 2], i[i >= 2]])
+    # Exodus' hexahedron sides: 4 is (1, 5, 8, 4), x-min for VTK's node order; 2 is (2, 3, 7, 6), x-max
+    fw.add_exodus_sets(
+        path,
+        side_sets=[
+            ("inlet", 11, np.flatnonzero(x == 0), 4),
+            ("outlet", 12, np.flatnonzero(x == 3), 2),
+            ("interface", 13, first[x[first] == 1], 2),
+        ],
+        block_names=["steel", "copper"],
+    )
+    mesh = read_mesh(path)
+    assert mesh.n_cells == len(hexes)
+    assert sorted(mesh.meta["group_names"].values()) == ["copper", "steel"]
+    names = mesh.meta["boundary_names"]
+    assert sorted(names.values()) == ["inlet", "interface", "outlet"]
+    by_name = {n: int(np.count_nonzero(mesh.boundary_tags == t)) for t, n in names.items()}
+    assert by_name == {"inlet": 6, "outlet": 6, "interface": 6}
+    rep = check_file(path)
+    assert "6 tagged faces lie inside the domain" in " ".join(i["message"] for i in rep["issues"])
+    n_ref, vol_ref = vc.vtk_reference(path)
+    n_out, vol_out = _agglomerated_volume(mesh, path)
+    assert vol_out == pytest.approx(vol_ref, rel=TOL)
+
+
 def test_xdmf_time_series_gives_its_mesh_once(tmp_path):
     """meshio's TimeSeriesWriter writes the mesh once and a grid per time step (all referring to
     it): the mesh is read once, as the plain XDMF file of the same mesh."""

@@ -63,6 +63,7 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
         "cell_types": mesh.cell_type_counts(),
         "points": mesh.n_points,
         "physical_groups": mesh.physical_groups(),
+        "group_names": {int(k): str(v) for k, v in (mesh.meta.get("group_names") or {}).items()},
         "orientation": {"flipped": int(o.get("flipped", 0)), "folded": int(o.get("folded", 0))},
     }
     if mesh.meta.get("welded"):
@@ -375,7 +376,9 @@ def format_report(rep: dict) -> str:
         )
         if rep.get("welded_points"):
             lines.append(f"welded: {rep['welded_points']} points merged into coincident ones")
-        lines.append(f"physical groups: {rep['physical_groups'] or 'none'}")
+        names = rep.get("group_names") or {}
+        groups = [f"{g} {names[g]!r}" if g in names else str(g) for g in rep["physical_groups"]]
+        lines.append(f"physical groups: {', '.join(groups) if names else rep['physical_groups'] or 'none'}")
         lines.extend(rep.get("boundary_notes", []))
     else:
         lines.append(f"{rep.get('file', 'mesh')}: cannot be used")

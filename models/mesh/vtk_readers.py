@@ -80,6 +80,8 @@ def read_vtk(
     else:
         pts, offsets, conn, types, cell_data, poly = _arrays(data, path, what, fmt, kind not in PIECEWISE)
         field = _field_data(data)
+        if kind == "exodus":
+            field.update(_exodus_names(data))
     grid = _lattice(data, len(types))
     live = _whole_live(data, len(types))
     del data
@@ -131,6 +133,22 @@ def mesh_of_cells(pts, norm: Normalized, tag_key, weld, meta: dict, grid, field:
     )
     mesh.meta["group_names"], mesh.meta["boundary_names"] = group_names(field, mesh.dim)
     return mesh
+
+
+def _exodus_names(data) -> dict:
+    """Exodus element blocks' and side sets' names as meshio's field_data {name: [id, dim]} (the
+    id their cells carry as ObjectId; dim: their cells' dimension), those the file names only."""
+    out = {}
+    it = data.NewIterator()
+    it.InitTraversal()
+    while not it.IsDoneWithTraversal():
+        ds, meta = it.GetCurrentDataObject(), it.GetCurrentMetaData()
+        name = meta.Get(data.NAME()) if meta is not None and meta.Has(data.NAME()) else None
+        ids = ds.GetCellData().GetArray("ObjectId") if ds is not None and ds.IsA("vtkDataSet") else None
+        if name and not name.startswith("Unnamed") and ids is not None and ds.GetNumberOfCells():
+            out[str(name)] = np.array([int(ids.GetValue(0)), ds.GetCell(0).GetCellDimension()])
+        it.GoToNextItem()
+    return out
 
 
 def _field_data(data) -> dict:
@@ -212,6 +230,8 @@ def _run(path: str, kind: str, fmt: str | None = None):
             reader.UpdateInformation()
             reader.SetAllArrayStatus(reader.ELEM_BLOCK, 1)
             reader.SetSqueezePoints(False)  # every block keeps the file's node numbering
+            for i in range(reader.GetNumberOfSideSetArrays()):  # side sets: boundary groups
+                reader.SetSideSetArrayStatus(reader.GetSideSetArrayName(i), 1)
         elif kind == "cgns":
             reader.UpdateInformation()
             reader.EnableAllBases()
