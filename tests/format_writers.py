@@ -170,6 +170,32 @@ def write_cgns(path, zones) -> str:
     return str(path)
 
 
+def write_cgns_structured(path, zones) -> str:
+    """A CGNS/HDF5 file of structured zones (as Pointwise and ICEM write multi-block grids):
+    zones = [(X, Y, Z)], each (ni, nj, nk), the zones' touching faces repeating their points."""
+    import h5py
+
+    with h5py.File(str(path), "w", track_order=True) as f:
+        f.attrs.create("name", np.bytes_("HDF5 MotherNode"), dtype="S33")
+        f.attrs.create("label", np.bytes_("Root Node of HDF5 File"), dtype="S33")
+        f.attrs.create("type", np.bytes_("MT"), dtype="S3")
+        f.create_dataset(" format", data=np.frombuffer(b"IEEE_LITTLE_32\0", np.int8))
+        f.create_dataset(" hdf5version", data=np.frombuffer(b"HDF5 Version 1.12.2".ljust(33, b"\0"), np.int8))
+        _node(f, "CGNSLibraryVersion", "CGNSLibraryVersion_t", "R4", np.array([4.2], np.float32))
+        base = _node(f, "Base", "CGNSBase_t", "I4", np.array([3, 3], np.int32))
+        for zi, (X, Y, Z) in enumerate(zones, 1):
+            vertices = np.array(X.shape, np.int32)
+            size = np.stack(
+                [vertices, vertices - 1, np.zeros(3, np.int32)]
+            )  # (vertex, cell, boundary vertex) sizes
+            zone = _node(base, f"Zone{zi}", "Zone_t", "I4", size.T)
+            _node(zone, "ZoneType", "ZoneType_t", "C1", "Structured")
+            coords = _node(zone, "GridCoordinates", "GridCoordinates_t", "MT")
+            for nm, a in zip("XYZ", (X, Y, Z), strict=True):
+                _node(coords, "Coordinate" + nm, "DataArray_t", "R8", np.asarray(a, np.float64))
+    return str(path)
+
+
 def split_zones(points, cells, axis: int = 0):
     """Cells split in two zones by their centres along `axis`, each zone with its own points (the
     interface points repeated, as multi-zone CGNS files have them)."""

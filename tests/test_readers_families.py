@@ -145,6 +145,29 @@ def test_exodus_side_sets_become_named_boundary_groups(tmp_path):
     assert vol_out == pytest.approx(vol_ref, rel=TOL)
 
 
+def test_structured_cgns_zones_are_one_mesh(tmp_path):
+    """Two structured CGNS zones side by side (a multi-block grid): hexahedra from each zone's
+    dimensions, the points of the face they share merged (one piece), the zones the groups; volume
+    as VTK reads it; agglomerated and read back."""
+    pytest.importorskip("h5py")
+    from models.mesh.check import check_file
+
+    def block(x0, x1, n=(5, 4, 3)):
+        x, y, z = np.meshgrid(
+            np.linspace(x0, x1, n[0]), np.linspace(0, 1, n[1]), np.linspace(0, 0.5, n[2]), indexing="ij"
+        )
+        return x + 0.1 * y, y, z
+
+    path = fw.write_cgns_structured(tmp_path / "blocks.cgns", [block(0, 1), block(1, 2)])
+    n_ref, vol_ref = vc.vtk_reference(path)
+    mesh = read_mesh(path)
+    assert (mesh.n_cells, mesh.n_points) == (n_ref, 2 * 60 - 12) and n_ref == 48
+    assert _total(mesh) == pytest.approx(vol_ref, rel=TOL)
+    assert len(mesh.physical_groups()) == 2 and check_file(path)["components"] == 1
+    n_out, vol_out = _agglomerated_volume(mesh, path)
+    assert vol_out == pytest.approx(vol_ref, rel=TOL)
+
+
 def test_xdmf_time_series_gives_its_mesh_once(tmp_path):
     """meshio's TimeSeriesWriter writes the mesh once and a grid per time step (all referring to
     it): the mesh is read once, as the plain XDMF file of the same mesh."""
