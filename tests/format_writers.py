@@ -96,6 +96,56 @@ def write_xdmf(path, points, cell_blocks) -> str:
     return str(path)
 
 
+def write_xdmf_dolfinx(path, points, tets, cell_tags, facets, facet_tags) -> str:
+    """An XDMF file as dolfinx's XDMFFile writes a mesh and its MeshTags: the mesh's grid, then a
+    grid per tag set (the tagged entities' topology, the mesh's geometry by xi:include, the values
+    as a cell attribute); heavy data in an .h5 beside it (h5py, dolfinx's layout)."""
+    import h5py
+
+    path = Path(path)
+    h5 = path.with_suffix(".h5")
+    with h5py.File(h5, "w") as f:
+        f["Mesh/mesh/geometry"] = np.asarray(points, np.float64)
+        f["Mesh/mesh/topology"] = np.asarray(tets, np.int64)
+        f["MeshTags/cells/topology"] = np.asarray(tets, np.int64)
+        f["MeshTags/cells/values"] = np.asarray(cell_tags, np.int32)
+        f["MeshTags/facets/topology"] = np.asarray(facets, np.int64)
+        f["MeshTags/facets/values"] = np.asarray(facet_tags, np.int32)
+    nt, nf, npts, hn = len(tets), len(facets), len(points), h5.name
+
+    def tags(name, kind, n, per, group):
+        return f"""    <Grid Name="{name}" GridType="Uniform">
+      <xi:include xpointer="xpointer(/Xdmf/Domain/Grid[@GridType='Uniform'][1]/Geometry)" />
+      <Topology TopologyType="{kind}" NumberOfElements="{n}" NodesPerElement="{per}">
+        <DataItem Dimensions="{n} {per}" NumberType="Int" Format="HDF">{hn}:/MeshTags/{group}/topology</DataItem>
+      </Topology>
+      <Attribute Name="{name}" AttributeType="Scalar" Center="Cell">
+        <DataItem Dimensions="{n} 1" NumberType="Int" Format="HDF">{hn}:/MeshTags/{group}/values</DataItem>
+      </Attribute>
+    </Grid>
+"""
+
+    path.write_text(
+        f"""<?xml version="1.0"?>
+<!DOCTYPE Xdmf SYSTEM "Xdmf.dtd" []>
+<Xdmf Version="3.0" xmlns:xi="http://www.w3.org/2001/XInclude">
+  <Domain>
+    <Grid Name="mesh" GridType="Uniform">
+      <Topology TopologyType="Tetrahedron" NumberOfElements="{nt}" NodesPerElement="4">
+        <DataItem Dimensions="{nt} 4" NumberType="Int" Format="HDF">{hn}:/Mesh/mesh/topology</DataItem>
+      </Topology>
+      <Geometry GeometryType="XYZ">
+        <DataItem Dimensions="{npts} 3" NumberType="Float" Precision="8" Format="HDF">{hn}:/Mesh/mesh/geometry</DataItem>
+      </Geometry>
+    </Grid>
+"""
+        + tags("cell_tags", "Tetrahedron", nt, 4, "cells")
+        + tags("facet_tags", "Triangle", nf, 3, "facets")
+        + "  </Domain>\n</Xdmf>\n"
+    )
+    return str(path)
+
+
 def write_xdmf_series(path, points, cell_blocks, steps: int = 3) -> str:
     """An XDMF time series (meshio.xdmf.TimeSeriesWriter): the mesh once, point data per step.
     The writer puts its .h5 in the working directory: it is run from the file's folder."""

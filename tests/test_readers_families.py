@@ -168,6 +168,32 @@ def test_structured_cgns_zones_are_one_mesh(tmp_path):
     assert vol_out == pytest.approx(vol_ref, rel=TOL)
 
 
+def test_dolfinx_xdmf_tags_are_groups(tmp_path):
+    """dolfinx's XDMF (its mesh, then a grid of cell tags and a grid of facet tags, the geometry
+    shared by xi:include): the cell tags are the physical groups, the facet tags the boundary
+    groups (the tags grid, a repeat of the mesh's cells, is read once)."""
+    pytest.importorskip("h5py")
+    p, hexes = vc.grid(3, 3, 3)
+    six = np.array([[0, 1, 2, 6], [0, 2, 3, 6], [0, 3, 7, 6], [0, 7, 4, 6], [0, 4, 5, 6], [0, 5, 1, 6]])
+    tets = hexes[:, six].reshape(-1, 4)
+    x = (p @ np.linalg.inv(vc.A).T)[:, 0]  # the grid's own x (the points are an affine image)
+    cell_tags = np.where(x[tets].mean(axis=1) < 1.5, 1, 2)
+    faces = tets[:, [[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]]].reshape(-1, 3)
+    xmin = faces[np.all(np.abs(x[faces]) < 1e-9, axis=1)]  # the x = 0 side: 2 triangles per square
+    assert len(xmin) == 18
+    path = fw.write_xdmf_dolfinx(tmp_path / "mesh.xdmf", p, tets, cell_tags, xmin, np.full(len(xmin), 3))
+    n_ref, vol_ref = vc.vtk_reference(fw.write_xdmf(tmp_path / "plain.xdmf", p, [("tetra", tets)]))
+    assert vc.vtk_reference(path)[0] == 2 * n_ref  # (VTK draws the tags' grid too: the cells twice)
+    mesh = read_mesh(path)
+    assert mesh.n_cells == len(tets) == n_ref
+    assert _total(mesh) == pytest.approx(vol_ref, rel=TOL)
+    assert sorted(mesh.physical_groups()) == [1, 2]
+    assert [int(np.count_nonzero(mesh.tags == g)) for g in (1, 2)] == [
+        int(np.count_nonzero(cell_tags == g)) for g in (1, 2)
+    ]
+    assert int(np.count_nonzero(mesh.boundary_tags == 3)) == 18
+
+
 def test_xdmf_time_series_gives_its_mesh_once(tmp_path):
     """meshio's TimeSeriesWriter writes the mesh once and a grid per time step (all referring to
     it): the mesh is read once, as the plain XDMF file of the same mesh."""

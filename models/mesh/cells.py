@@ -34,6 +34,7 @@ TAG_NAMES = (
     "gmsh:physical",
     "CellEntityIds",
     "cell_tags",
+    "facet_tags",  # dolfinx's XDMF: the tags of its facets (a grid of their own)
     "medit:ref",
     "physical",
     "material",

@@ -794,7 +794,13 @@ def _composite(data, path, what, fmt, groups: bool = True):
         base_p += len(pts)
     keys = set(parts[0][4]).intersection(*(p[4] for p in parts[1:]))
     cd = {k: np.concatenate([p[4][k] for p in parts]) for k in keys}
-    if groups:
+    own = [next((k for k in TAG_NAMES if k in p[4] and len(p[4][k]) == len(p[3])), None) for p in parts]
+    if not any(k in cd for k in TAG_NAMES) and all(own):  # each block tagged under its own name
+        # (an XDMF of dolfinx: its cells' "cell_tags", its facets' "facet_tags"): one tag array
+        cd[own[0]] = np.concatenate(
+            [np.asarray(p[4][k]).reshape(-1) for p, k in zip(parts, own, strict=True)]
+        )
+    elif groups:
         cd["block"] = np.repeat(np.arange(1, len(parts) + 1), [len(p[3]) for p in parts])
     poly = _join_polys(polys, [p[0] for p in parts], shared) if any(p is not None for p in polys) else None
     conn = np.concatenate(conns)
@@ -811,21 +817,31 @@ def _composite(data, path, what, fmt, groups: bool = True):
 
 
 def _distinct(parts: list) -> list:
-    """The blocks, each one repeating an earlier block (same points and cells) dropped: an XDMF time
-    series holds its mesh once as a grid and once per time step, all of them the same mesh."""
+    """The blocks, each one repeating an earlier block (same points and cells) dropped, its cell
+    data given to that block where it lacks them: an XDMF time series holds its mesh once as a grid
+    and once per time step, all of them the same mesh; dolfinx's XDMF holds its cells once more as
+    the grid of their tags."""
     kept: list = []
     for part in parts:
         pts, off, conn, types = part[:4]
-        if not any(
-            len(k[3]) == len(types)
-            and len(k[2]) == len(conn)
-            and np.array_equal(k[3], types)
-            and np.array_equal(k[2], conn)
-            and np.array_equal(k[1], off)
-            and (k[0] is pts or np.array_equal(k[0], pts))
-            for k in kept
-        ):
+        same = next(
+            (
+                k
+                for k in kept
+                if len(k[3]) == len(types)
+                and len(k[2]) == len(conn)
+                and np.array_equal(k[3], types)
+                and np.array_equal(k[2], conn)
+                and np.array_equal(k[1], off)
+                and (k[0] is pts or np.array_equal(k[0], pts))
+            ),
+            None,
+        )
+        if same is None:
             kept.append(part)
+        else:
+            for key, values in part[4].items():
+                same[4].setdefault(key, values)
     return kept
 
 
