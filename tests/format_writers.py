@@ -246,6 +246,41 @@ def write_cgns_structured(path, zones) -> str:
     return str(path)
 
 
+def write_plot3d(path, grids, mode: str = "fortran", iblank=None, dtype="<f8") -> str:
+    """A PLOT3D grid file (the NASA whole-format layout): the number of grids, their dimensions,
+    then per grid x, y (, z) in Fortran order (and its iblank, where given: 0 blanks a point).
+    grids: [(X, Y) or (X, Y, Z)] arrays of one shape; mode "ascii", "c" (raw binary) or "fortran"
+    (unformatted records with their 4-byte lengths, as Fortran codes write it)."""
+    order = np.dtype(dtype).byteorder.replace("=", "<").replace("|", "<")
+    ints = order + "i4"  # (a file's integers and reals in one byte order)
+    dims = np.array([g[0].shape for g in grids], ints)
+    data = [np.concatenate([np.asarray(a, np.float64).ravel("F") for a in g]).astype(dtype) for g in grids]
+    blanks = [None] * len(grids) if iblank is None else [np.asarray(b, ints).ravel("F") for b in iblank]
+    if mode == "ascii":
+        lines = [str(len(grids)), " ".join(map(str, dims.ravel()))]
+        for d, b in zip(data, blanks, strict=True):
+            lines.append(" ".join(f"{v:.17g}" for v in d))
+            if b is not None:
+                lines.append(" ".join(map(str, b)))
+        Path(path).write_text("\n".join(lines) + "\n")
+        return str(path)
+    with open(path, "wb") as f:
+
+        def record(*arrays):
+            raw = b"".join(a.tobytes() for a in arrays)
+            if mode == "fortran":
+                f.write(np.array([len(raw)], ints).tobytes())
+            f.write(raw)
+            if mode == "fortran":
+                f.write(np.array([len(raw)], ints).tobytes())
+
+        record(np.array([len(grids)], ints))
+        record(dims.ravel())
+        for d, b in zip(data, blanks, strict=True):
+            record(d, *([] if b is None else [b]))
+    return str(path)
+
+
 def split_zones(points, cells, axis: int = 0):
     """Cells split in two zones by their centres along `axis`, each zone with its own points (the
     interface points repeated, as multi-zone CGNS files have them)."""

@@ -84,6 +84,9 @@ _VTK_OTHER = {
     ".neu": "gambit",
     ".vtkhdf": "vtkhdf",
     ".foam": "openfoam",
+    ".xyz": "plot3d",
+    ".xy": "plot3d",
+    ".p3d": "plot3d",
 }
 _SURFACES = (".stl", ".obj", ".ply", ".off")
 XML_GRIDS = (".vts", ".vtr", ".vti")  # VTK XML structured files: our numpy path first (xml_grid.py)

@@ -51,6 +51,7 @@ READERS: dict[str, tuple[str, str, str]] = {
     "avs": ("AVS UCD", "vtkAVSucdReader", "vtkmodules.vtkIOGeometry"),
     "openfoam": ("OpenFOAM case", "vtkOpenFOAMReader", "vtkmodules.vtkIOGeometry"),
     "openfoam-decomposed": ("OpenFOAM case", "vtkPOpenFOAMReader", "vtkmodules.vtkIOParallel"),
+    "plot3d": ("PLOT3D grid", "vtkMultiBlockPLOT3DReader", "vtkmodules.vtkIOParallel"),
 }
 # parallel files whose pieces are separate point sets: read piece by piece, joined as a composite's
 # blocks are (points on the cuts between pieces, written once per piece, merged)
@@ -240,6 +241,8 @@ def _run(path: str, kind: str, fmt: str | None = None):
             _fluent_cell_zones_only(reader)
         elif kind == "avs-binary":
             reader.SetBinaryFile(1)
+        elif kind == "plot3d":
+            _plot3d_layout(reader, path)
         elif kind.startswith("openfoam"):
             if kind == "openfoam-decomposed":
                 reader.SetCaseType(0)  # processor*/ (vtkPOpenFOAMReader's DECOMPOSED_CASE)
@@ -278,6 +281,37 @@ def _pieces(reader):
         block.ShallowCopy(piece)
         out.SetBlock(i, block)
     return out
+
+
+def _plot3d_layout(reader, path: str) -> None:
+    """A PLOT3D grid file's layout for VTK's reader: a binary one (C or Fortran records, either byte
+    order, single or double precision, iblanks) its own detection finds; an ASCII one it does not,
+    so the layout is read off its numbers: one grid or several (a first line of one number), 2D or
+    3D (numbers of its dimension line), iblanks or not (the count of the numbers after them)."""
+    with open(path, "rb") as fh:
+        head = fh.read(4096)
+    if not head or any(b > 127 or (b < 32 and b not in b"\t\r\n") for b in head):
+        reader.AutoDetectFormatOn()
+        return
+    with open(path, "rb") as fh:
+        text = fh.read()
+    lines = text.split(b"\n", 2)
+    first = lines[0].split()
+    multi = len(first) == 1
+    grids = int(first[0]) if multi and first[0].isdigit() else 1
+    dims_line = (lines[1] if multi and len(lines) > 1 else lines[0]).split()
+    dim = 2 if len(dims_line) == 2 * grids else 3
+    reader.SetBinaryFile(0)
+    reader.SetDoublePrecision(1)  # (an ASCII file's decimals read as doubles, not floats)
+    reader.SetMultiGrid(int(multi))
+    reader.SetTwoDimensionalGeometry(int(dim == 2))
+    try:
+        sizes = np.array([int(v) for v in dims_line[: dim * grids]], dtype=np.int64).reshape(grids, dim)
+    except ValueError:
+        return  # (VTK's reader says what is wrong)
+    points = int(sizes.prod(axis=1).sum())
+    numbers = len(text.split()) - int(multi) - dim * grids
+    reader.SetIBlanking(int(numbers == (dim + 1) * points))
 
 
 def _openfoam_mesh_only(reader) -> None:
