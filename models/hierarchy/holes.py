@@ -581,6 +581,7 @@ def fix_holes(
     ratio: float | None = None,
     hole_pairs: tuple[np.ndarray, np.ndarray] | None = None,
     rings: bool = False,
+    groups: np.ndarray | None = None,
 ) -> tuple[list[np.ndarray], list, list[dict]]:
     """No element of any level encloses a hole, finest level first (the levels stay nested): each
     holed element is ring-cut (ring_cut), then as many pairs merged back (merge_pairs) so the level
@@ -590,7 +591,8 @@ def fix_holes(
     level (coarsest first): elements, ratio to the finer level, holed elements found, ring cuts,
     elements split into their children, pairs merged back. graphs: level -> the CSR (indptr,
     indices) of the graph of that level's elements where known (rtree_levels'), no repeats or self
-    loops."""
+    loops. groups: (N,) a compact physical group per cell where no element may cross one: holes are
+    threaded, and pairs merged back, within a group only."""
     from models.polytope.merge import merge
 
     out = list(levels)
@@ -608,7 +610,7 @@ def fix_holes(
         bad, cen, poly, G = detector(out[L], True, L, finer, G_finer)
         found, cuts, splits, merged, rounds, threaded = int(bad.size), 0, 0, 0, 0, 0
         if bad.size and hole_pairs[0].size:  # first a path to a neighbour through each holed element
-            parent = out[L - 1] if L > 0 else np.zeros(mesh.n_cells, dtype=np.int64)
+            parent = _parent(out, L, groups, mesh.n_cells)
             out[L], threaded = thread_holes(data, out[L], finer, parent, *hole_pairs)
             if threaded:
                 bad, cen, poly, G = detector(out[L], False, L, finer, G_finer)
@@ -629,7 +631,7 @@ def fix_holes(
                 splits += int(bad.size)
             rounds += 1
             bad, cen, poly, G = detector(out[L], False, L, finer, G_finer)
-        parent = out[L - 1] if L > 0 else np.zeros(mesh.n_cells, dtype=np.int64)
+        parent = _parent(out, L, groups, mesh.n_cells)
         origin = np.where(touched, given, -1)  # the element each cut cell came from
         forbid: set = set()  # pairs (of first cells) whose merge enclosed a hole
         for _ in range(MERGE_ROUNDS):  # merge back as many pairs, inside the coarser level's elements
@@ -684,6 +686,15 @@ def fix_holes(
         below = mesh.n_cells if L + 1 == len(out) else report[L + 1]["elements"]
         r["ratio"] = below / max(r["elements"], 1)
     return out, polys, report
+
+
+def _parent(levels: list, L: int, groups: np.ndarray | None, n: int) -> np.ndarray:
+    """The label per cell that a move or a merge at level L must keep: the coarser level's element
+    (none above the coarsest), with `groups` (physical groups no element crosses) and the group."""
+    parent = levels[L - 1] if L > 0 else np.zeros(n, dtype=np.int64)
+    if groups is None:
+        return parent
+    return parent * (int(groups.max()) + 1) + groups
 
 
 def _split_elements(coarse: np.ndarray, bad: np.ndarray, finer: np.ndarray) -> np.ndarray:

@@ -430,6 +430,27 @@ def default_ratio(dim: int) -> tuple[float, ...]:
     return SCHEDULE[3 if int(dim) >= 3 else 2]
 
 
+def _group_pieces(mesh: Mesh, data: CellData, least: int, why: str) -> tuple[int, str]:
+    """With --groups a level has at least one element per connected piece of a physical group (no
+    element crosses a group): (the fewest elements, why), the domain's own where it asks for more;
+    ParameterError where the groups leave nothing to coarsen (every piece one cell)."""
+    from models.errors import ParameterError
+    from models.graph.csr import connected_components
+
+    tags = np.unique(mesh.tags, return_inverse=True)[1].reshape(-1)
+    pieces = connected_components(data.graph.indptr, data.graph.indices, tags)[0]
+    if pieces >= mesh.n_cells:
+        raise ParameterError(
+            f"the physical groups leave nothing to coarsen: each of the {mesh.n_cells:,} cells is a piece of its "
+            "group on its own, and no element crosses a group (--groups); drop --groups"
+        )
+    if pieces <= least:
+        return least, why
+    return pieces, (
+        f"no element crosses a physical group (--groups), and the groups form {pieces:,} separate pieces"
+    )
+
+
 def build_hierarchy(
     mesh: Mesh,
     data: CellData,
@@ -503,11 +524,13 @@ def build_hierarchy(
     counts = level_counts(n, ratio, coarsest, stretch=stretch)
     if not counts:
         raise ParameterError(f"the mesh has {n} cells: nothing to coarsen with coarsest = {coarsest}")
-    counts = at_least(counts, least, why, notes)
     if groups and mesh.tags is None:
         raise ParameterError("respecting physical groups needs a mesh with physical groups")
     if groups and model != "rtree":
         raise ParameterError("physical groups in a hierarchy: model rtree only")
+    if groups:
+        least, why = _group_pieces(mesh, data, least, why)
+    counts = at_least(counts, least, why, notes)
     if kappa is not None:
         kappa = np.asarray(kappa, dtype=np.float64).ravel()
         if model != "rtree":
@@ -635,7 +658,13 @@ def build_hierarchy(
     # calls), and METIS's parts of coarse graphs do so at 10^4 already (66 of 93 on the torus):
     # measured, not the default (docs/hierarchy.md, round ten)
     levels, polys, report = fix_holes(
-        mesh, data, levels, known, hole_pairs=hole_pairs, rings=rings and model == "rtree"
+        mesh,
+        data,
+        levels,
+        known,
+        hole_pairs=hole_pairs,
+        rings=rings and model == "rtree",
+        groups=np.unique(mesh.tags, return_inverse=True)[1].reshape(-1) if groups else None,
     )
     report = _with_requested(report, counts, n)
     said_off_plan(levels, report, coarsest, notes)

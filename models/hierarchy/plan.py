@@ -31,10 +31,17 @@ def said_off_plan(levels, report: list[dict], coarsest: int, notes: list[str]) -
     from models.partition.rtree import RATIO_SLACK
 
     k0 = int(levels[0].max()) + 1
-    if k0 > coarsest:
+    top = report[0] if report else {}
+    if k0 > coarsest and (top.get("ring_cuts") or top.get("split_into_children")):
         notes.append(
             f"the coarsest level has {k0} elements, more than --coarsest {coarsest}: elements that would "
             "surround a hole were cut and could not all be merged back"
+        )
+    elif k0 > coarsest and k0 > top.get(
+        "requested", coarsest
+    ):  # (where the plan asked for more, its note said why)
+        notes.append(
+            f"the coarsest level has {k0} elements, more than --coarsest {coarsest} and than planned"
         )
     off = [
         f"level {r['level']} {r['ratio']:.1f}x (planned {r['requested_ratio']:.1f}x)"

@@ -427,15 +427,22 @@ def make_connected(
     parent: np.ndarray | None = None,
     measures: np.ndarray | None = None,
     max_rounds: int = 100,
+    within: np.ndarray | None = None,
 ) -> tuple[np.ndarray, int]:
     """Every part keeps its largest connected piece; other pieces join the neighbouring part (of
     the same parent) that touches them along the longest interface, preferring parts' main pieces.
     Pieces with no neighbour in their parent (possible when the parent is itself disconnected) then
-    join any neighbouring part. Returns (labels, pieces moved). Parts stay non-empty."""
+    join any neighbouring part, or with `within` (a label per node: physical groups) any
+    neighbouring part of their own `within`, never another's. Returns (labels, pieces moved).
+    Parts stay non-empty."""
     n = labels.size
     labels = np.asarray(labels, dtype=np.int64).copy()
     mes = np.ones(n) if measures is None else np.asarray(measures, dtype=np.float64)
     par = np.zeros(n, dtype=np.int64) if parent is None else np.asarray(parent, dtype=np.int64)
+    # the last resort's parent: none, or the node's `within` (its part may not leave it)
+    last = np.zeros(n, dtype=np.int64) if within is None else np.asarray(within, dtype=np.int64)
+    if parent is None and within is not None:
+        par = last
     moved_total = 0
     free = parent is None
     rnd = 0
@@ -473,7 +480,7 @@ def make_connected(
         if e.size == 0:
             if free:
                 break
-            free, par, rnd = True, np.zeros(n, dtype=np.int64), 0  # last resort: any neighbour
+            free, par, rnd = True, last, 0  # last resort: any neighbour
             continue
         if rnd >= 1:
             # what is left after one round: every fragment cell joins the main piece it reaches first
@@ -482,7 +489,7 @@ def make_connected(
             if np.array_equal(new, labels):
                 if free:
                     break
-                free, par, rnd = True, np.zeros(n, dtype=np.int64), 0
+                free, par, rnd = True, last, 0
                 continue
             moved_total += int(np.count_nonzero(new != labels))
             labels = new
@@ -512,7 +519,7 @@ def make_connected(
         if not go.any():
             if free:
                 break
-            free, par, rnd = True, np.zeros(n, dtype=np.int64), 0
+            free, par, rnd = True, last, 0
             continue
         mv = go[comp]
         labels = labels.copy()
@@ -671,9 +678,14 @@ def rtree_levels(
         pm = np.zeros(int(lab.max()) + 1 if lab.size else 0, dtype=np.int64)
         pm[lab] = raw[L - 1] if L > 0 else root
         up.append(pm)
+    # each raw part's root (a connected piece of one group): no repair moves a piece out of it
+    roots = [up[0]]
+    for L in range(1, len(raw)):
+        roots.append(roots[L - 1][up[L]])
+    within = None if groups is None else root
     # finest level: pieces of a part join a neighbouring part of the same (raw) parent
     fine, _ = make_connected(
-        batch.indptr, batch.indices, batch.weights, raw[-1], parent=up[-1][raw[-1]], measures=w
+        batch.indptr, batch.indices, batch.weights, raw[-1], parent=up[-1][raw[-1]], measures=w, within=within
     )
     sweep = len(raw) > 1  # a hierarchy: every level's elements numbered along one sweep (_sweep_key)
     node_lab, node_w = fine, w  # nodes of the graph at hand: cells, then elements of the finer level
@@ -686,7 +698,15 @@ def rtree_levels(
         qp, qi, qw = _quotient(qp, qi, qw, node_lab, k_f)  # graph of level L+1's elements
         node_w = np.bincount(node_lab, weights=node_w, minlength=k_f)
         init = up[L + 1]  # raw level-L part of each level-(L+1) element
-        lab, _ = make_connected(qp, qi, qw, init, parent=up[L][init], measures=node_w)
+        lab, _ = make_connected(
+            qp,
+            qi,
+            qw,
+            init,
+            parent=up[L][init],
+            measures=node_w,
+            within=None if groups is None else roots[L + 1],
+        )
         if sweep:
             node_s = np.bincount(node_lab, weights=node_s, minlength=k_f)
             rank[L + 1] = _sweep_rank(node_s / np.maximum(node_w, 1e-300))

@@ -1,0 +1,81 @@
+"""Hierarchies that respect physical groups (`magnet hierarchy --groups`, rtree): no element of any
+level holds cells of two groups, on groups that are islands inside another group and groups of
+several separate pieces; every element connected, the levels nested. A mesh whose groups leave
+nothing to coarsen (a checkerboard: every cell a group piece of its own) is refused in one
+sentence. Notes say the real reason a coarsest level is above --coarsest."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from meshes import quads, triangles
+
+from models.agglomeration import build_hierarchy
+from models.errors import ParameterError
+from models.hierarchy.nested import is_nested
+
+
+def centres(p, cells):
+    return p[cells].mean(axis=1)
+
+
+def materials_quads(n=60):
+    """Quads of [0, 1]^2: group 1 around, 2 a disk inside it (an island), 3 two corner squares
+    (one group in two separate pieces)."""
+    p, q = quads(n)
+    c = centres(p, q)
+    tags = np.ones(len(q), np.int64)
+    tags[np.hypot(c[:, 0] - 0.5, c[:, 1] - 0.5) < 0.2] = 2
+    tags[(c[:, 0] < 0.15) & (c[:, 1] < 0.15)] = 3
+    tags[(c[:, 0] > 0.85) & (c[:, 1] > 0.85)] = 3
+    return p, [("quad", q)], [tags]
+
+
+def rings_triangles(n=70):
+    """Triangles: nested rings of groups 1, 2, 3 and group 1 again at the centre (two pieces)."""
+    p, t = triangles(n)
+    r = np.hypot(*(centres(p, t) - 0.5).T)
+    tags = np.ones(len(t), np.int64)
+    tags[r < 0.35] = 2
+    tags[r < 0.2] = 3
+    tags[r < 0.08] = 1
+    return p, [("triangle", t)], [tags]
+
+
+def assert_pure(h, tags):
+    for L, lv in enumerate(h.levels):
+        k = int(lv.max()) + 1
+        per = np.unique(lv * (int(tags.max()) + 1) + tags)
+        assert per.size == k, f"level {L}: {per.size - k} elements cross a group"
+    assert is_nested(h.levels)
+    for r in h.info["report"]:
+        assert r.get("extra_pieces", 0) == 0
+
+
+@pytest.mark.parametrize("make", [materials_quads, rings_triangles])
+@pytest.mark.parametrize("finest", [None, "cuts"])
+def test_no_element_crosses_a_group(make, finest):
+    p, cells, tags = make()
+    h = build_hierarchy(points=p, cells=cells, tags=tags, groups=True, finest=finest)
+    assert len(h.levels) >= 3
+    assert_pure(h, tags[0])
+
+
+def test_groups_leaving_nothing_to_coarsen_are_refused():
+    p, q = quads(20)
+    c = centres(p, q)
+    checker = ((np.floor(c[:, 0] * 20) + np.floor(c[:, 1] * 20)) % 2).astype(np.int64) + 1
+    with pytest.raises(ParameterError, match="leave nothing to coarsen") as err:
+        build_hierarchy(points=p, cells=[("quad", q)], tags=[checker], groups=True)
+    assert "400 cells" in str(err.value) and "\n" not in str(err.value)
+
+
+def test_a_note_gives_the_real_reason():
+    """Two separate bodies asked down to one element: the note says the bodies, not holes cut."""
+    p, q = quads(30, 10)
+    far = p.copy()
+    far[:, 1] += 2.0  # a second body, apart from the first
+    pts = np.vstack([p, far])
+    h = build_hierarchy(points=pts, cells=[("quad", np.vstack([q, q + len(p)]))], coarsest=1)
+    notes = " ".join(h.info["notes"])
+    assert "2 separate pieces" in notes and "could not all be merged back" not in notes
