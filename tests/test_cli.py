@@ -187,11 +187,11 @@ def test_bad_subset(tmp_path):
 
 
 def test_bad_files(tmp_path):
-    (tmp_path / "a.xyz").write_text("hello")
+    (tmp_path / "a.qqq").write_text("hello")
     _bad(
         tmp_path,
         "agglomerate",
-        tmp_path / "a.xyz",
+        tmp_path / "a.qqq",
         "-o",
         tmp_path / "x.vtu",
         "--k",

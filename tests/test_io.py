@@ -202,9 +202,9 @@ def test_empty_file(tmp_path):
 
 
 def test_unknown_format(tmp_path):
-    (tmp_path / "m.xyz").write_text("1 2 3\n")
+    (tmp_path / "m.qqq").write_text("1 2 3\n")
     with pytest.raises(MeshError, match="unknown mesh format"):
-        read_mesh(tmp_path / "m.xyz")
+        read_mesh(tmp_path / "m.qqq")
 
 
 def test_truncated_file(tmp_path):
