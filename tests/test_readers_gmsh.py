@@ -22,7 +22,9 @@ gmsh = pytest.importorskip("gmsh")
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def write(path, dim=3, part=0, version=4.1, binary=False, saveall=False, order=1, recombine=False):
+def write(
+    path, dim=3, part=0, version=4.1, binary=False, saveall=False, order=1, recombine=False, ghosts=False
+):
     """A box (3D: volume group 7 'body', one face group 8 'inlet') or a two-material square (2D:
     groups 5 'left' and 6 'right'), meshed and written by gmsh with these options."""
     gmsh.initialize(readConfigFiles=False, interruptible=False)
@@ -49,6 +51,7 @@ def write(path, dim=3, part=0, version=4.1, binary=False, saveall=False, order=1
         if order > 1:
             gmsh.model.mesh.setOrder(order)
         if part:
+            gmsh.option.setNumber("Mesh.PartitionCreateGhostCells", int(ghosts))
             gmsh.model.mesh.partition(part)
         gmsh.option.setNumber("Mesh.MshFileVersion", version)
         gmsh.option.setNumber("Mesh.Binary", int(binary))
@@ -68,6 +71,7 @@ VARIANTS = {
     "partitioned-4.1": {"part": 4},
     "partitioned-4.1-binary": {"part": 4, "binary": True},
     "partitioned-2.2": {"part": 3, "version": 2.2},
+    "partitioned-ghosts": {"part": 3, "ghosts": True},  # (ghost cells: copies of neighbours' cells)
     "msh-4.0": {"version": 4.0},
     "saveall": {"saveall": True},
 }

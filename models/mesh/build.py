@@ -74,6 +74,12 @@ def mesh_from_cells(
     if not in_range(conn, len(points)):  # one pass; min and max only to say what was found
         from models.mesh.geometry import cell_index
 
+        if conn.size and int(conn.min()) >= 1 and int(conn.max()) == len(points):
+            raise MeshError(  # every cell's ids one too high: written from a 1-based list
+                f"the cells number their points from 1 (ids 1..{len(points):,}, as Matlab and Fortran count), "
+                f"but the file's format numbers them from 0 (0..{len(points) - 1:,}): subtract 1 from every point id"
+            )
+
         cell = cell_index(offsets)
         bad = np.bincount(cell[(conn < 0) | (conn >= len(points))], minlength=cell_types.size) > 0
         if not few_bad(int(bad.sum()), cell_types.size) or poly_faces:

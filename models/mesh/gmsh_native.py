@@ -2,7 +2,9 @@
 wheel, a default dependency: `magnet generate` meshes with it): partitioned meshes (MSH 4.1's
 $PartitionedEntities, written by `gmsh -part N` and Mesh.PartitionCreateTopology), MSH 4.0 files
 (parametric nodes), and files saved with Mesh.SaveAll beside physical groups (elements outside
-every group: meshio's cell data then do not match its cell blocks).
+every group: meshio's cell data then do not match its cell blocks). A partitioned mesh's ghost
+cells (Mesh.PartitionCreateGhostCells: each partition's copies of its neighbours' cells) are left
+out.
 
 meshio stays the first reader of every .msh file (models/mesh/read.py); this one reads a file
 meshio refused only where the file itself looks sound (models.mesh.locate finds no place where it
@@ -89,8 +91,8 @@ def _as_meshio(name: str):
     points = points[first]
     cells, physical, geometrical = [], [], []
     for dim, tag in gmsh.model.getEntities():
-        if dim < 1:
-            continue
+        if dim < 1 or gmsh.model.getType(dim, tag).startswith("Ghost"):
+            continue  # (a partition's ghost cells: copies of its neighbours' cells)
         types, _, nodes = gmsh.model.mesh.getElements(dim, tag)
         if not len(types):
             continue
