@@ -140,3 +140,34 @@ def test_a_corrupted_partitioned_file_keeps_the_refusal_with_its_place(tmp_path)
         read_mesh(str(bad))
     msg = str(err.value)
     assert "bad.msh" in msg and "gmsh" in msg and "line" in msg, msg
+
+
+@pytest.mark.parametrize("ext", [".inp", ".su2", ".med"])
+def test_groups_of_gmsh_exports_keep_their_names(tmp_path, ext):
+    """The same model exported by gmsh as Abaqus (*ELSET sets), SU2 (MARKER_TAG markers) and MED
+    (families of groups): the groups and boundary groups, with their names and sizes, are those of
+    the .msh file. Before, none were read from .inp and .su2 (meshio keeps them apart from a tag
+    array, and drops the markers' names), and MED gave its family numbers (-1 ... -7)."""
+    if ext == ".med":
+        pytest.importorskip("h5py")
+    msh = read_mesh(write(tmp_path / "box.msh", 3))
+    gmsh.initialize(readConfigFiles=False, interruptible=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.merge(str(tmp_path / "box.msh"))
+        gmsh.write(str(tmp_path / f"box{ext}"))
+    finally:
+        gmsh.finalize()
+    mesh = read_mesh(str(tmp_path / f"box{ext}"))
+    assert mesh.n_cells == msh.n_cells
+
+    def named(m, tags, names):
+        return {names[int(t)]: int(np.count_nonzero(tags == t)) for t in np.unique(tags) if int(t) in names}
+
+    assert (
+        named(mesh, mesh.boundary_tags, mesh.meta["boundary_names"])
+        == named(msh, msh.boundary_tags, msh.meta["boundary_names"])
+        == {"inlet": named(msh, msh.boundary_tags, msh.meta["boundary_names"])["inlet"]}
+    )
+    if ext != ".su2":  # (SU2 has no volume groups)
+        assert sorted(mesh.meta["group_names"].values()) == ["body"]

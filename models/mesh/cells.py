@@ -45,6 +45,7 @@ TAG_NAMES = (
     "material_id",
     "MaterialIds",
     "block",  # element block / zone of a composite VTK output (vtk_readers)
+    "group",  # the groups read._named_groups makes of Abaqus sets, MED families, SU2 markers
 )
 BOUNDARY_TAG_NAME = "boundary_tag"  # boundary groups of lower-dimensional cells, as models.vtu writes them
 VTK_POLY_VERTEX = 2
