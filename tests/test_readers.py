@@ -513,3 +513,51 @@ def test_one_based_point_ids_are_refused_as_such(tmp_path, binary):
         read_mesh(path)
     msg = str(err.value)
     assert "one_based.vtk" in msg and "number their points from 1" in msg and "subtract 1" in msg, msg
+
+
+def test_paraview_collections_read_their_first_mesh(tmp_path):
+    """A .pvd (a time series, as FEniCS and many solvers write it: a DataSet per time step and
+    part) reads the mesh of its first time step, its parts joined as one mesh; a .vtpc (VTK's
+    partitioned dataset collection) reads as one mesh too. Before: 'unknown mesh format'."""
+    from vtkmodules.vtkCommonDataModel import vtkPartitionedDataSet, vtkPartitionedDataSetCollection
+    from vtkmodules.vtkFiltersParallel import vtkExtractUnstructuredGridPiece
+
+    from models.mesh.check import check_file
+
+    p, hexes = vc.grid(6, 4, 3)
+    whole = vc.unstructured(p, [(12, hexes)])
+    parts = []
+    for i in range(2):  # two processes' parts, each its own points
+        cut = vtkExtractUnstructuredGridPiece()
+        cut.SetInputData(whole)
+        cut.UpdatePiece(i, 2, 0)
+        parts.append(cut.GetOutput())
+        for step in (0, 1):
+            vc.write_xml(tmp_path / f"u{step}_p{i}.vtu", parts[-1])
+    lines = ['<?xml version="1.0"?>', '<VTKFile type="Collection" version="0.1">', "<Collection>"]
+    lines += [
+        f'<DataSet timestep="{t}" group="" part="{i}" file="u{s}_p{i}.vtu"/>'
+        for s, t in ((1, 0.5), (0, 0.0))  # (the steps need not be in order)
+        for i in range(2)
+    ]
+    (tmp_path / "u.pvd").write_text("\n".join([*lines, "</Collection>", "</VTKFile>"]))
+    vc.write_xml(tmp_path / "u1_p1.vtu", vc.unstructured(p, [(12, hexes[:5])]))  # a later step: not read
+    refs = [vc.vtk_reference(str(tmp_path / f"u0_p{i}.vtu")) for i in range(2)]  # (the parts' own points)
+    n_ref, vol_ref = sum(r[0] for r in refs), sum(r[1] for r in refs)
+    assert n_ref == len(hexes)
+    mesh = read_mesh(str(tmp_path / "u.pvd"))
+    assert (mesh.n_cells, mesh.n_points) == (n_ref, len(p)) and mesh.tags is None
+    assert float(mesh.meta["measures"].sum()) == pytest.approx(vol_ref, rel=1e-9)
+    assert check_file(str(tmp_path / "u.pvd"))["components"] == 1
+
+    coll = vtkPartitionedDataSetCollection()
+    for i, part in enumerate(parts):
+        pds = vtkPartitionedDataSet()
+        pds.SetPartition(0, part)
+        coll.SetPartitionedDataSet(i, pds)
+    w = vtk.vtkXMLPartitionedDataSetCollectionWriter()  # (in vtkIOParallelXML)
+    w.SetFileName(str(tmp_path / "c.vtpc"))
+    w.SetInputData(coll)
+    assert w.Write() == 1
+    mesh = read_mesh(str(tmp_path / "c.vtpc"))
+    assert mesh.n_cells == n_ref and float(mesh.meta["measures"].sum()) == pytest.approx(vol_ref, rel=1e-9)

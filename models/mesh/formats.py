@@ -52,6 +52,9 @@ FORMATS: dict[str, str] = {
     ".pvts": "VTK XML parallel structured grid",
     ".pvtr": "VTK XML parallel rectilinear grid",
     ".vtm": "VTK XML multiblock",
+    ".vtpc": "VTK XML partitioned dataset collection",
+    ".vtpd": "VTK XML partitioned dataset",
+    ".pvd": "ParaView data collection",
     ".vtkhdf": "VTKHDF",
     ".ex2": "Exodus II",
     ".exii": "Exodus II",
@@ -70,7 +73,22 @@ FORMATS: dict[str, str] = {
 }
 # a mesh file that needs other files beside it (XDMF's heavy data in .h5, a parallel VTK file's
 # pieces, TetGen's .node beside its .ele): uploaded in an archive holding them all
-MULTI_FILE = (".xdmf", ".xmf", ".pvtu", ".pvtp", ".pvti", ".pvts", ".pvtr", ".vtm", ".ele", ".node", ".foam")
+MULTI_FILE = (
+    ".xdmf",
+    ".xmf",
+    ".pvtu",
+    ".pvtp",
+    ".pvti",
+    ".pvts",
+    ".pvtr",
+    ".vtm",
+    ".vtpc",
+    ".vtpd",
+    ".pvd",
+    ".ele",
+    ".node",
+    ".foam",
+)
 # compound extensions first: "case.cas.h5" is a Fluent case, not an HDF5 file
 COMPOUND = {
     ".cas.h5": "Fluent case (HDF5)",

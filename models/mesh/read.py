@@ -74,7 +74,22 @@ def _known(name: str) -> bool:
 
 
 # extension -> the reader family that serves it (docs/formats.md); any other meshio extension: meshio
-_VTK_XML = (".vtu", ".pvtu", ".vtp", ".pvtp", ".vti", ".pvti", ".vts", ".pvts", ".vtr", ".pvtr", ".vtm")
+_VTK_XML = (
+    ".vtu",
+    ".pvtu",
+    ".vtp",
+    ".pvtp",
+    ".vti",
+    ".pvti",
+    ".vts",
+    ".pvts",
+    ".vtr",
+    ".pvtr",
+    ".vtm",
+    ".vtpc",
+    ".vtpd",
+    ".pvd",
+)
 _EXODUS = (".exo", ".e", ".ex2", ".exii", ".g", ".gen")
 _VTK_OTHER = {
     ".xdmf": "xdmf",

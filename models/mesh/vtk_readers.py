@@ -39,6 +39,9 @@ READERS: dict[str, tuple[str, str, str]] = {
     ".vtr": ("VTK XML rectilinear grid", "vtkXMLRectilinearGridReader", _XML),
     ".pvtr": ("VTK XML parallel rectilinear grid", "vtkXMLPRectilinearGridReader", _XML),
     ".vtm": ("VTK XML multiblock", "vtkXMLMultiBlockDataReader", _XML),
+    ".vtpc": ("VTK XML partitioned dataset collection", "vtkXMLPartitionedDataSetCollectionReader", _XML),
+    ".vtpd": ("VTK XML partitioned dataset", "vtkXMLPartitionedDataSetReader", _XML),
+    ".pvd": ("ParaView data collection", "vtkXMLGenericDataObjectReader", _XML),
     "xml": ("VTK XML", "vtkXMLGenericDataObjectReader", _XML),
     "exodus": ("Exodus II", "vtkExodusIIReader", "vtkmodules.vtkIOExodus"),
     "xdmf": ("XDMF", "vtkXdmfReader", "vtkmodules.vtkIOXdmf2"),
@@ -55,7 +58,7 @@ READERS: dict[str, tuple[str, str, str]] = {
 }
 # parallel files whose pieces are separate point sets: read piece by piece, joined as a composite's
 # blocks are (points on the cuts between pieces, written once per piece, merged)
-PIECEWISE = (".pvtu", ".pvtp")
+PIECEWISE = (".pvtu", ".pvtp", ".vtpd", ".pvd")
 EXODUS_EXTENSIONS = (".exo", ".e", ".ex2", ".exii", ".g", ".gen")
 HIDDEN_CELL, HIDDEN_POINT, DUPLICATE_CELL = 32, 2, 1  # vtkDataSetAttributes ghost bits
 
@@ -224,6 +227,8 @@ def _run(path: str, kind: str, fmt: str | None = None):
     fmt = fmt or what
     reader = getattr(importlib.import_module(module), cls)()
     name = os.path.basename(path)
+    if kind == ".pvd":
+        return _collection(path, fmt)
     with _Captured() as cap:
         reader.AddObserver("ErrorEvent", cap._on_error)
         reader.SetFileName(path)
@@ -260,6 +265,52 @@ def _run(path: str, kind: str, fmt: str | None = None):
         raise MeshError(f"cannot read {name} as {fmt}: {why or explain(cap.text, what)}")
     if out is None:
         raise MeshError(f"cannot read {name} as {fmt}: the reader produced no data")
+    return out
+
+
+_PVD_DATASET = re.compile(rb"<DataSet\b([^>]*)>")
+_PVD_ATTR = re.compile(rb"""\b(timestep|part|file)\s*=\s*["']([^"']*)["']""")
+
+
+def _collection(path: str, fmt: str):
+    """A ParaView data collection (.pvd, a time series as FEniCS and many solvers write it): the
+    mesh of its first time step, that step's parts (a part per process) read by VTK's XML readers
+    and joined as a parallel file's pieces. read._pieces_present has checked that the files are
+    there, inside the file's folder."""
+    from vtkmodules.vtkCommonDataModel import vtkMultiBlockDataSet
+    from vtkmodules.vtkIOXML import vtkXMLGenericDataObjectReader
+
+    name = os.path.basename(path)
+    with open(path, "rb") as fh:
+        text = fh.read()
+    steps = []
+    for m in _PVD_DATASET.finditer(text):
+        attrs = {k.decode(): v.decode("utf-8", "replace") for k, v in _PVD_ATTR.findall(m.group(1))}
+        if "file" in attrs:
+            try:
+                t = float(attrs.get("timestep", "0") or 0)
+            except ValueError:
+                t = 0.0
+            steps.append((t, attrs["file"]))
+    if not steps:
+        raise MeshError(f"cannot read {name} as {fmt}: it lists no data set (no <DataSet file=...>)")
+    first = min(t for t, _ in steps)
+    files = [f for t, f in steps if t == first]
+    folder = os.path.dirname(os.path.abspath(path))
+    out = vtkMultiBlockDataSet()
+    with _Captured() as cap:
+        for i, f in enumerate(files):
+            reader = vtkXMLGenericDataObjectReader()
+            reader.AddObserver("ErrorEvent", cap._on_error)
+            reader.SetFileName(os.path.join(folder, f))
+            reader.Update()
+            data = reader.GetOutputDataObject(0)
+            if data is not None:
+                out.SetBlock(i, data)
+    if cap.failed:
+        raise MeshError(
+            f"cannot read {name} as {fmt}: its data set {files[0]}: {explain(cap.text, 'VTK XML')}"
+        )
     return out
 
 
