@@ -171,3 +171,20 @@ def test_groups_of_gmsh_exports_keep_their_names(tmp_path, ext):
     )
     if ext != ".su2":  # (SU2 has no volume groups)
         assert sorted(mesh.meta["group_names"].values()) == ["body"]
+
+
+def test_gmsh_nastran_export_without_begin_bulk(tmp_path):
+    """gmsh's Nastran export is bulk data only (no BEGIN BULK line, which meshio's reader looks
+    for first, and refused it): read as the bulk data it is."""
+    msh = read_mesh(write(tmp_path / "box.msh", 3))
+    gmsh.initialize(readConfigFiles=False, interruptible=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.merge(str(tmp_path / "box.msh"))
+        gmsh.write(str(tmp_path / "box.bdf"))
+    finally:
+        gmsh.finalize()
+    assert b"BEGIN BULK" not in (tmp_path / "box.bdf").read_bytes()
+    mesh = read_mesh(str(tmp_path / "box.bdf"))
+    assert mesh.n_cells == msh.n_cells
+    assert float(mesh.meta["measures"].sum()) == pytest.approx(float(msh.meta["measures"].sum()), rel=1e-5)

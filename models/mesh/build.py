@@ -65,7 +65,8 @@ def mesh_from_cells(
     if not (np.isfinite(bounds[0]).all() and np.isfinite(bounds[1]).all()):
         bad = ~np.isfinite(points).all(axis=1)
         raise MeshError(
-            f"the mesh has {int(bad.sum())} points with NaN or infinite coordinates (first: point {int(np.flatnonzero(bad)[0])})"
+            f"the mesh has {'a point' if int(bad.sum()) == 1 else f'{int(bad.sum()):,} points'} with NaN or "
+            f"infinite coordinates (first: point {int(np.flatnonzero(bad)[0])})"
         )
     if tags is not None and len(tags) != len(cell_types):
         raise MeshError("physical group data does not match the number of cells")

@@ -242,7 +242,8 @@ def normalize(
     if np.any(dims < 0):
         bad = types[dims < 0]
         found = ", ".join(sorted({type_name(t) for t in np.unique(bad)}))
-        raise MeshError(f"the mesh has {bad.size:,} cells of a kind without an area or a volume ({found})")
+        what = "a cell" if bad.size == 1 else f"{bad.size:,} cells"
+        raise MeshError(f"the mesh has {what} of a kind without an area or a volume ({found})")
     if types.size == 0:
         raise MeshError("the mesh has no cells")
     dim = int(dims.max())

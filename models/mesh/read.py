@@ -553,8 +553,11 @@ def _read_meshio(path: str, file_type: str):
             import importlib
 
             module, mode = buffered
-            with _open_guarded(path, mode) as f:  # a parse that no longer advances ends, never hangs
-                return importlib.import_module(module).read_buffer(f)
+            with _open_guarded(
+                path, mode, bulk=file_type == "nastran" and not _has(path, b"BEGIN BULK")
+            ) as f:
+                return importlib.import_module(module).read_buffer(f)  # (a parse that no longer advances
+                # ends, never hangs)
     except MeshError:
         raise
     except (Exception, SystemExit) as exc:  # noqa: BLE001
@@ -604,11 +607,15 @@ class _GuardedBinary(io.BufferedReader):
 
 
 class _GuardedText(io.TextIOWrapper):
-    """_GuardedBinary for text."""
+    """_GuardedBinary for text (_first: a line given before the file's own)."""
 
     _at_eof = 0
+    _first = None
 
     def readline(self, size=-1):
+        if self._first is not None:
+            line, self._first = self._first, None
+            return line
         line = super().readline(size)
         self._at_eof = 0 if line else self._at_eof + 1
         if self._at_eof > _EOF_READS:
@@ -616,9 +623,26 @@ class _GuardedText(io.TextIOWrapper):
         return line
 
 
-def _open_guarded(path: str, mode: str):
+def _open_guarded(path: str, mode: str, bulk: bool = False):
+    """bulk: a Nastran file of bulk data only (gmsh's export has no executive and case control
+    sections, and no BEGIN BULK line, which meshio's reader looks for first): the line given first."""
     raw = _GuardedBinary(io.FileIO(path, "rb"))
-    return raw if mode == "rb" else _GuardedText(raw)
+    if mode == "rb":
+        return raw
+    text = _GuardedText(raw)
+    if bulk:
+        text._first = "BEGIN BULK\n"
+    return text
+
+
+def _has(path: str, word: bytes) -> bool:
+    import mmap
+
+    with open(path, "rb") as fh:
+        if os.fstat(fh.fileno()).st_size == 0:
+            return False
+        with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+            return mm.find(word) >= 0
 
 
 _LINE = re.compile(r"\bline\s+(\d+)", re.IGNORECASE)
