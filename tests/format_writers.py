@@ -281,6 +281,27 @@ def write_plot3d(path, grids, mode: str = "fortran", iblank=None, dtype="<f8") -
     return str(path)
 
 
+def write_ensight(folder, name, points, parts) -> str:
+    """An EnSight Gold case in ASCII, as CFD codes export it: name.case and name.geo, one part per
+    entry of parts = [(description, EnSight element type ("hexa8", "quad4", ...), cells as point
+    ids into `points`)], each part with its own coordinates (1-based, the spec's fixed widths)."""
+    folder = Path(folder)
+    lines = ["EnSight Gold geometry", "written at test time", "node id off", "element id off"]
+    for k, (desc, kind, cells) in enumerate(parts, start=1):
+        cells = np.asarray(cells)
+        used, local = np.unique(cells, return_inverse=True)
+        xyz = np.asarray(points, np.float64)[used]
+        lines += ["part", f"{k:10d}", desc, "coordinates", f"{len(used):10d}"]
+        for axis in range(3):
+            lines += [f"{v:12.5e}" for v in xyz[:, axis]]
+        lines += [kind, f"{len(cells):10d}"]
+        lines += ["".join(f"{i + 1:10d}" for i in row) for row in local.reshape(cells.shape)]
+    (folder / f"{name}.geo").write_text("\n".join(lines) + "\n")
+    case = folder / f"{name}.case"
+    case.write_text(f"FORMAT\ntype: ensight gold\n\nGEOMETRY\nmodel: {name}.geo\n")
+    return str(case)
+
+
 def split_zones(points, cells, axis: int = 0):
     """Cells split in two zones by their centres along `axis`, each zone with its own points (the
     interface points repeated, as multi-zone CGNS files have them)."""

@@ -194,6 +194,61 @@ def test_dolfinx_xdmf_tags_are_groups(tmp_path):
     assert int(np.count_nonzero(mesh.boundary_tags == 3)) == 18
 
 
+def test_ensight_cases_read_with_their_parts(tmp_path):
+    """EnSight Gold (ParaView opens it; Fluent, CFX and STAR-CCM+ export it): VTK's own binary
+    writer's case, and an ASCII case of a volume part and a surface part (each part its own
+    coordinates): the volume part a named group, the surface part a named boundary group, the
+    parts' shared points merged; cells and volume as VTK reads them. A case naming a file outside
+    its folder is refused before any reader opens it."""
+    from vtkmodules.vtkIOEnSight import vtkGenericEnSightReader
+
+    from models.mesh.check import check_file
+
+    def vtk_volume(case):
+        r = vtkGenericEnSightReader()
+        r.SetCaseFileName(case)
+        r.Update()
+        block = r.GetOutput().GetBlock(0)
+        out = tmp_path / "vtk_part.vtu"
+        w = vtk.vtkXMLUnstructuredGridWriter()
+        w.SetFileName(str(out))
+        w.SetInputData(block)
+        assert w.Write() == 1
+        return vc.vtk_reference(str(out))
+
+    p, hexes = vc.grid(4, 3, 2)
+    ug = vc.unstructured(p, [(12, hexes)])
+    w = vtk.vtkEnSightWriter()
+    w.SetInputData(ug)
+    w.SetPath(str(tmp_path) + "/")
+    w.SetBaseName("vtkw")
+    w.SetTimeStep(0)
+    w.Write()
+    w.WriteCaseFile(1)
+    case = str(tmp_path / "vtkw.0.case")
+    n_ref, vol_ref = vtk_volume(case)
+    mesh = read_mesh(case)
+    assert mesh.n_cells == n_ref == len(hexes) and _total(mesh) == pytest.approx(vol_ref, rel=TOL)
+
+    x = (p @ np.linalg.inv(vc.A).T)[:, 0]
+    faces = hexes[:, [0, 4, 7, 3]][np.arange(len(hexes)) % 4 == 0]  # the x = 0 side's quads
+    assert np.all(np.abs(x[faces]) < 1e-9)
+    case = fw.write_ensight(tmp_path, "two", p, [("fluid", "hexa8", hexes), ("inlet", "quad4", faces)])
+    mesh = read_mesh(case)
+    n_ref, vol_ref = vtk_volume(case)
+    assert (mesh.n_cells, mesh.n_points) == (len(hexes), len(p))
+    assert _total(mesh) == pytest.approx(vol_ref, rel=TOL)
+    assert sorted(mesh.meta["group_names"].values()) == ["fluid"]
+    names = mesh.meta["boundary_names"]
+    assert [names[int(t)] for t in np.unique(mesh.boundary_tags) if int(t) in names] == ["inlet"]
+    assert int(np.count_nonzero(mesh.boundary_tags == next(iter(names)))) == len(faces)
+    assert check_file(case)["components"] == 1
+    bad = tmp_path / "bad.case"
+    bad.write_text("FORMAT\ntype: ensight gold\n\nGEOMETRY\nmodel: ../../etc/passwd\n")
+    with pytest.raises(MeshError, match="lies outside"):
+        read_mesh(str(bad))
+
+
 def test_xdmf_time_series_gives_its_mesh_once(tmp_path):
     """meshio's TimeSeriesWriter writes the mesh once and a grid per time step (all referring to
     it): the mesh is read once, as the plain XDMF file of the same mesh."""
@@ -276,3 +331,32 @@ def test_xdmf_heavy_data_missing_or_outside_is_named(tmp_path):
         with pytest.raises(MeshError, match=words) as err:
             read_mesh(str(bad))
         assert name in str(err.value) and heavy in str(err.value)
+
+
+def test_ensight_mutants_are_a_mesh_or_one_clear_sentence(tmp_path):
+    """The mutation test (tests/mutants.py) over an ASCII EnSight geometry file, read in the sandbox
+    as the service reads: a Mesh, or one sentence naming the case and the format with no library
+    text; a crash or a hang of VTK's reader is a sentence too."""
+    from mutants import mutants
+    from test_read_fuzz import RAW_RE
+
+    from models.errors import ParameterError
+    from models.mesh.container import Mesh
+    from models.mesh.sandbox import read_mesh_safe
+
+    p, hexes = vc.grid(3, 2, 2)
+    case = fw.write_ensight(tmp_path, "good", p, [("fluid", "hexa8", hexes)])
+    data = (tmp_path / "good.geo").read_bytes()
+    refused = 0
+    for i, (how, bad) in enumerate(mutants(data, seed=4000, n=14)):
+        (tmp_path / "good.geo").write_bytes(bad)
+        try:
+            mesh = read_mesh_safe(case, timeout_s=20, memory_bytes=2 << 30)
+        except (MeshError, ParameterError) as exc:
+            msg = str(exc)
+            refused += 1
+            assert "good.case" in msg and "EnSight" in msg, (i, how, msg)
+            assert not RAW_RE.search(msg) and "\n" not in msg, (i, how, msg)
+        else:
+            assert isinstance(mesh, Mesh) and mesh.n_cells > 0
+    assert refused >= 5

@@ -38,6 +38,8 @@ FORMATS: dict[str, str] = {
     ".tec": "Tecplot",
     ".ugrid": "UGRID",
     ".foam": "OpenFOAM case",
+    ".case": "EnSight case",
+    ".encas": "EnSight case",
     ".xyz": "PLOT3D grid",
     ".xy": "PLOT3D grid",
     ".p3d": "PLOT3D grid",  # an empty file in the case's folder, as ParaView opens a case

@@ -99,6 +99,8 @@ _VTK_OTHER = {
     ".neu": "gambit",
     ".vtkhdf": "vtkhdf",
     ".foam": "openfoam",
+    ".case": "ensight",
+    ".encas": "ensight",
     ".xyz": "plot3d",
     ".xy": "plot3d",
     ".p3d": "plot3d",
@@ -152,6 +154,40 @@ def _pieces_present(path: str, ext: str) -> None:
             raise MeshError(
                 f"cannot read {os.path.basename(path)} as {format_name(path)}: its piece file {piece} is "
                 "missing (keep the pieces beside it, or upload them all in one .zip or .tar.gz)"
+            )
+
+
+_ENSIGHT_FILE = re.compile(
+    rb"^\s*(?:model|measured|[a-z ]+per (?:node|element|case))\s*:\s*(?:[\d\s]*?)(\S+)\s*$",
+    re.MULTILINE | re.IGNORECASE,
+)
+
+
+def _ensight_files(path: str) -> None:
+    """An EnSight case names its geometry (and variable) files: one outside the case's folder (an
+    absolute path, or up with '..': an upload naming a file of the server) is refused before VTK's
+    reader opens it; a missing geometry file is named."""
+    try:
+        with open(path, "rb") as fh:
+            text = fh.read(1 << 20)
+    except OSError:
+        return
+    name = os.path.basename(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    if b"FORMAT" not in text.upper():
+        raise MeshError(f"cannot read {name} as an EnSight case: it has no FORMAT section")
+    for m in _ENSIGHT_FILE.finditer(text):
+        ref = m.group(1).decode("utf-8", "replace")
+        where = os.path.normpath(os.path.join(folder, ref))
+        if os.path.isabs(ref) or os.path.commonpath([folder, where]) != folder:
+            raise MeshError(
+                f"cannot read {name} as an EnSight case: its file {ref} lies outside the case's folder; keep "
+                "the case's files beside it or below it"
+            )
+        if m.group(0).lstrip().lower().startswith(b"model") and "*" not in ref and not os.path.exists(where):
+            raise MeshError(
+                f"cannot read {name} as an EnSight case: its geometry file {ref} is missing (keep it beside "
+                "the case file, or upload them all in one .zip or .tar.gz)"
             )
 
 
@@ -239,6 +275,8 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
         raise MeshError(f"cannot read {name} as Exodus II: the file is neither netCDF nor HDF5 (byte 0)")
     if ext == ".cas.h5":
         return ("vtk", "fluent-h5")
+    if ext in (".case", ".encas"):
+        _ensight_files(path)
     if ext == ".foam" or name == "controlDict":
         return ("vtk", _openfoam_case(path))
     if ext in _VTK_OTHER:

@@ -55,6 +55,7 @@ READERS: dict[str, tuple[str, str, str]] = {
     "openfoam": ("OpenFOAM case", "vtkOpenFOAMReader", "vtkmodules.vtkIOGeometry"),
     "openfoam-decomposed": ("OpenFOAM case", "vtkPOpenFOAMReader", "vtkmodules.vtkIOParallel"),
     "plot3d": ("PLOT3D grid", "vtkMultiBlockPLOT3DReader", "vtkmodules.vtkIOParallel"),
+    "ensight": ("EnSight case", "vtkGenericEnSightReader", "vtkmodules.vtkIOEnSight"),
 }
 # parallel files whose pieces are separate point sets: read piece by piece, joined as a composite's
 # blocks are (points on the cuts between pieces, written once per piece, merged)
@@ -86,6 +87,8 @@ def read_vtk(
         field = _field_data(data)
         if kind == "exodus":
             field.update(_exodus_names(data))
+        elif kind == "ensight":
+            field.update(_part_names(data))
     grid = _lattice(data, len(types))
     live = _whole_live(data, len(types))
     del data
@@ -151,6 +154,25 @@ def _exodus_names(data) -> dict:
         ids = ds.GetCellData().GetArray("ObjectId") if ds is not None and ds.IsA("vtkDataSet") else None
         if name and not name.startswith("Unnamed") and ids is not None and ds.GetNumberOfCells():
             out[str(name)] = np.array([int(ids.GetValue(0)), ds.GetCell(0).GetCellDimension()])
+        it.GoToNextItem()
+    return out
+
+
+def _part_names(data) -> dict:
+    """An EnSight case's part descriptions as the names of its blocks (_composite numbers the
+    non-empty leaves 1, 2, ... in order): {name: [block, dim of its cells]}."""
+    out = {}
+    it = data.NewIterator()
+    it.SkipEmptyNodesOn()
+    it.InitTraversal()
+    block = 0
+    while not it.IsDoneWithTraversal():
+        ds, meta = it.GetCurrentDataObject(), it.GetCurrentMetaData()
+        if ds is not None and ds.IsA("vtkDataSet") and ds.GetNumberOfCells() > 0:
+            block += 1
+            name = meta.Get(data.NAME()) if meta is not None and meta.Has(data.NAME()) else None
+            if name:
+                out[str(name).strip()] = np.array([block, ds.GetCell(0).GetCellDimension()])
         it.GoToNextItem()
     return out
 
@@ -231,7 +253,11 @@ def _run(path: str, kind: str, fmt: str | None = None):
         return _collection(path, fmt)
     with _Captured() as cap:
         reader.AddObserver("ErrorEvent", cap._on_error)
-        reader.SetFileName(path)
+        if kind == "ensight":  # (its parts: our blocks; no variable read)
+            reader.SetCaseFileName(path)
+            reader.ReadAllVariablesOff()
+        else:
+            reader.SetFileName(path)
         if kind == "exodus":
             reader.UpdateInformation()
             reader.SetAllArrayStatus(reader.ELEM_BLOCK, 1)
