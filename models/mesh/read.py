@@ -18,6 +18,7 @@ from itertools import chain
 import numpy as np
 
 from models.errors import MeshError, ParameterError
+from models.mesh import case_files
 from models.mesh.build import MIRROR, _bounds, mesh_from_cells, weld_points  # noqa: F401 (MIRROR, weld_points: API)
 from models.mesh.cells import BOUNDARY_TAG_NAME, TAG_NAMES, distinct_nodes, higher_order_line
 from models.mesh.container import (
@@ -157,79 +158,6 @@ def _pieces_present(path: str, ext: str) -> None:
             )
 
 
-_ENSIGHT_FILE = re.compile(
-    rb"^\s*(?:model|measured|[a-z ]+per (?:node|element|case))\s*:\s*(?:[\d\s]*?)(\S+)\s*$",
-    re.MULTILINE | re.IGNORECASE,
-)
-
-
-def _ensight_files(path: str) -> None:
-    """An EnSight case names its geometry (and variable) files: one outside the case's folder (an
-    absolute path, or up with '..': an upload naming a file of the server) is refused before VTK's
-    reader opens it; a missing geometry file is named."""
-    try:
-        with open(path, "rb") as fh:
-            text = fh.read(1 << 20)
-    except OSError:
-        return
-    name = os.path.basename(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    if b"FORMAT" not in text.upper():
-        raise MeshError(f"cannot read {name} as an EnSight case: it has no FORMAT section")
-    for m in _ENSIGHT_FILE.finditer(text):
-        ref = m.group(1).decode("utf-8", "replace")
-        where = os.path.normpath(os.path.join(folder, ref))
-        if os.path.isabs(ref) or os.path.commonpath([folder, where]) != folder:
-            raise MeshError(
-                f"cannot read {name} as an EnSight case: its file {ref} lies outside the case's folder; keep "
-                "the case's files beside it or below it"
-            )
-        if m.group(0).lstrip().lower().startswith(b"model") and "*" not in ref and not os.path.exists(where):
-            raise MeshError(
-                f"cannot read {name} as an EnSight case: its geometry file {ref} is missing (keep it beside "
-                "the case file, or upload them all in one .zip or .tar.gz)"
-            )
-
-
-def _polymesh(folder: str) -> bool:
-    mesh = os.path.join(folder, "constant", "polyMesh")
-    return any(os.path.exists(os.path.join(mesh, f)) for f in ("faces", "faces.gz"))
-
-
-def _openfoam_case(path: str) -> str:
-    """The reader of the OpenFOAM case the .foam file or system/controlDict `path` names (its
-    folder): "openfoam" for a case with constant/polyMesh, "openfoam-decomposed" for one whose mesh
-    is only in processor*/constant/polyMesh (decomposePar's); MeshError for neither (VTK's reader
-    would only say it read nothing)."""
-    folder = os.path.dirname(os.path.abspath(path))
-    if os.path.basename(path) == "controlDict":
-        folder = os.path.dirname(folder)
-    if _polymesh(folder):
-        return "openfoam"
-    if any(d.startswith("processor") and _polymesh(os.path.join(folder, d)) for d in os.listdir(folder)):
-        return "openfoam-decomposed"
-    raise MeshError(
-        f"cannot read {os.path.basename(path)} as an OpenFOAM case: its folder has no constant/polyMesh/faces "
-        "(nor processor*/constant/polyMesh/faces of a decomposed case); keep the file in the case's folder, "
-        "or upload the case's folder in one .zip or .tar.gz"
-    )
-
-
-def openfoam_file(folder: str) -> str | None:
-    """The file that opens an OpenFOAM case given as its folder: its system/controlDict (a .foam
-    file beside it where there is one); None when the folder is no case."""
-    if not os.path.isdir(os.path.join(folder, "constant", "polyMesh")) and not any(
-        d.startswith("processor") and os.path.isdir(os.path.join(folder, d, "constant", "polyMesh"))
-        for d in os.listdir(folder)
-    ):
-        return None
-    foams = sorted(f for f in os.listdir(folder) if f.endswith(".foam"))
-    if foams:
-        return os.path.join(folder, foams[0])
-    control = os.path.join(folder, "system", "controlDict")
-    return control if os.path.isfile(control) else None
-
-
 def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
     """One reader per file, by extension and a look at its first bytes: (family, detail) with
     family "vtu" (our fast VTU path, VTK's reader for any other VTU), "vtk" (detail: a key of
@@ -276,9 +204,9 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
     if ext == ".cas.h5":
         return ("vtk", "fluent-h5")
     if ext in (".case", ".encas"):
-        _ensight_files(path)
+        case_files.ensight_files(path)
     if ext == ".foam" or name == "controlDict":
-        return ("vtk", _openfoam_case(path))
+        return ("vtk", case_files.openfoam_case(path))
     if ext in _VTK_OTHER:
         if ext in (".xdmf", ".xmf") and not xml:
             raise MeshError(f"cannot read {name} as XDMF: the file does not start with an XML tag")
@@ -341,8 +269,8 @@ def read_mesh(
     path = os.fspath(path)
     if not os.path.exists(path):
         raise MeshError(f"mesh file not found: {path}")
-    if os.path.isdir(path) and openfoam_file(path):  # an OpenFOAM case given as its folder
-        path = openfoam_file(path)
+    if os.path.isdir(path) and case_files.openfoam_file(path):  # an OpenFOAM case given as its folder
+        path = case_files.openfoam_file(path)
     if os.path.getsize(path) == 0 and _extension(path) != ".foam":  # (a .foam file is empty)
         raise MeshError(f"mesh file is empty: {os.path.basename(path)}")
     try:
@@ -449,87 +377,11 @@ def _read(path: str, physical_tag, file_format, weld, native: bool = True) -> Me
         )
     if (family, detail) == ("meshio", "gmsh"):
         return _read_gmsh(path, physical_tag, weld, native)
-    m = _named_groups(_read_meshio(path, detail), detail, path)
+    from models.mesh.meshio_groups import named_groups
+
+    m = _read_meshio(path, detail)
+    m = named_groups(m, detail, path, [_TYPES[c.type][1] if _known(c.type) else 3 for c in m.cells])
     return mesh_from_meshio(m, physical_tag=physical_tag, weld=weld, owned=True)
-
-
-_AUTO_SET = re.compile(r"^(Point|Curve|Line|Surface|Volume)\d+$")  # gmsh's per-entity set names
-_SU2_MARKER = re.compile(rb"^\s*MARKER_TAG\s*=\s*(\S+)", re.MULTILINE)
-
-
-def _named_groups(m, file_type: str, path: str):
-    """Groups that meshio's readers hand over as something other than a tag array, made one (a
-    `group` cell data and field_data names), where the file has no tag array of ours:
-    Abaqus element sets (*ELSET, meshio's cell_sets; gmsh's per-entity sets 'Surface1' ... only for
-    cells in no named set), MED families (meshio's cell_tags: family -> group names) and SU2 markers
-    (meshio numbers them 1, 2, ... and drops their MARKER_TAG names: read back from the file)."""
-    import numpy as np
-
-    families = getattr(m, "cell_tags", None)
-    med = file_type == "med" and "cell_tags" in m.cell_data and bool(families)
-    if not med and any(k in m.cell_data for k in TAG_NAMES):
-        return m
-    dims = [_TYPES[c.type][1] if _known(c.type) else 3 for c in m.cells]
-    if file_type == "su2" and "su2:tag" in m.cell_data:
-        top = max(dims)
-        with open(path, "rb") as fh:
-            names = [n.decode("utf-8", "replace") for n in _SU2_MARKER.findall(fh.read())]
-        if not names:
-            return m
-        m.cell_data["group"] = [np.asarray(t, dtype=np.int64) for t in m.cell_data["su2:tag"]]
-        m.field_data = {**m.field_data, **{n: np.array([i + 1, top - 1]) for i, n in enumerate(names)}}
-        return m
-    if med:  # MED: a family per cell, its groups' names
-        groups: dict[str, int] = {}
-        fam_to = {}
-        for fam, names in families.items():
-            if names:
-                fam_to[int(fam)] = groups.setdefault(str(names[0]), len(groups) + 1)
-        keys = np.fromiter(fam_to, dtype=np.int64, count=len(fam_to))
-        vals = np.fromiter(fam_to.values(), dtype=np.int64, count=len(fam_to))
-        order = np.argsort(keys)
-        keys, vals = keys[order], vals[order]
-        tags = []
-        for block in m.cell_data["cell_tags"]:
-            fam = np.asarray(block, dtype=np.int64).reshape(-1)
-            if not keys.size:
-                tags.append(np.zeros(fam.size, dtype=np.int64))
-                continue
-            at = np.clip(np.searchsorted(keys, fam), 0, keys.size - 1)
-            tags.append(np.where(keys[at] == fam, vals[at], 0))
-        del m.cell_data["cell_tags"]  # (the families' numbers: no groups of the user's)
-        m.cell_data["group"] = tags
-        m.field_data = {**m.field_data, **_set_dims(groups, tags, dims)}
-        return m
-    sets = getattr(m, "cell_sets", None) or {}
-    if sets:  # Abaqus *ELSET: the named sets first, then gmsh's per-entity ones
-        names = sorted(sets, key=lambda n: bool(_AUTO_SET.match(n)))
-        tags = [np.zeros(len(c.data), dtype=np.int64) for c in m.cells]
-        groups = {}
-        for name in names:
-            for b, idx in enumerate(sets[name][: len(tags)]):
-                idx = np.asarray(idx, dtype=np.int64).reshape(-1)
-                if idx.size == 0 or idx.max() >= tags[b].size or idx.min() < 0:
-                    continue
-                free = idx[tags[b][idx] == 0]
-                if free.size:
-                    tags[b][free] = groups.setdefault(str(name), len(groups) + 1)
-        if groups:
-            m.cell_data["group"] = tags
-            m.field_data = {**m.field_data, **_set_dims(groups, tags, dims)}
-    return m
-
-
-def _set_dims(groups: dict, tags: list, dims: list) -> dict:
-    """field_data {name: [id, dim]}: each group's dimension that of the cells it holds."""
-    import numpy as np
-
-    out = {}
-    for name, gid in groups.items():
-        dim = next((d for t, d in zip(tags, dims, strict=True) if np.any(t == gid)), None)
-        if dim is not None:
-            out[name] = np.array([gid, dim])
-    return out
 
 
 def _read_gmsh(path: str, physical_tag, weld, native: bool) -> Mesh:

@@ -172,7 +172,9 @@ def read_mesh_safe(
     if not os.path.exists(path):
         raise MeshError(f"mesh file not found: {path}")
     if os.path.isdir(path):
-        case = read.openfoam_file(path)
+        from models.mesh import case_files
+
+        case = case_files.openfoam_file(path)
         if case is None:
             raise MeshError(
                 f"{path} is a folder, not a mesh file (a folder is read only as an OpenFOAM case: "
