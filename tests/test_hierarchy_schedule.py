@@ -160,3 +160,25 @@ def test_cli_schedule_and_kappa(tmp_path):
     )
     assert r.returncode == 0, r.stderr
     assert json.load(open(out / "hierarchy.json", encoding="utf-8"))["kappa"] is None
+
+
+def test_the_last_step_ends_on_a_whole_count_within_the_slack():
+    """The hexahedral plate of the family at 10^6 cells: 86,265 finest aggregates planned as
+    3 > 34 > 466 > 6343 (the steps at their 15% stretch, the last count rounded: 34 / 3 = 11.3
+    against 16, 29% off). Steps that end exactly on a whole coarsest count are tried where the
+    plain plan leaves one more than 25% off: 2 > 29 > 415 > 5986 (14.4 each)."""
+    from models.partition.rtree import RATIO_SLACK, level_counts
+
+    def worst(k, counts, r):
+        full = [*counts, k]
+        return max(abs(full[i + 1] / full[i] / r - 1) for i in range(len(counts)))
+
+    plan = level_counts(86265, 16.0, 10, given=0, least=2, stretch=0.15)
+    assert plan[0] == 2 and worst(86265, plan, 16.0) <= RATIO_SLACK
+    # never a plan more off than before, and a level below `least` never planned
+    for k in range(1000, 200000, 331):
+        for r, stretch, least in ((16.0, 0.15, 2), (8.0, 0.15, 2), (16.0, 0.0, 1), (8.0, 0.0, 1)):
+            plan = level_counts(k, r, 10, given=0, least=least, stretch=stretch)
+            assert plan[0] >= least and plan == sorted(plan)
+            if r == 8.0 or least == 1:
+                assert worst(k, plan, r) <= RATIO_SLACK, (k, r, plan)
