@@ -183,19 +183,24 @@ def _node(parent, name: str, label: str, dtype: str, data=None):
     return g
 
 
+def _cgns_base(f):
+    """A CGNS/HDF5 file's root (its HDF5 mother node, format, library version) and its 3D base."""
+    f.attrs.create("name", np.bytes_("HDF5 MotherNode"), dtype="S33")
+    f.attrs.create("label", np.bytes_("Root Node of HDF5 File"), dtype="S33")
+    f.attrs.create("type", np.bytes_("MT"), dtype="S3")
+    f.create_dataset(" format", data=np.frombuffer(b"IEEE_LITTLE_32\0", np.int8))
+    f.create_dataset(" hdf5version", data=np.frombuffer(b"HDF5 Version 1.12.2".ljust(33, b"\0"), np.int8))
+    _node(f, "CGNSLibraryVersion", "CGNSLibraryVersion_t", "R4", np.array([4.2], np.float32))
+    return _node(f, "Base", "CGNSBase_t", "I4", np.array([3, 3], np.int32))
+
+
 def write_cgns(path, zones) -> str:
     """A CGNS/HDF5 file of unstructured zones: zones = [(points, [(meshio type, cells)])], one
     Elements_t node per block, 1-based connectivity, each zone with its own points."""
     import h5py
 
     with h5py.File(str(path), "w", track_order=True) as f:
-        f.attrs.create("name", np.bytes_("HDF5 MotherNode"), dtype="S33")
-        f.attrs.create("label", np.bytes_("Root Node of HDF5 File"), dtype="S33")
-        f.attrs.create("type", np.bytes_("MT"), dtype="S3")
-        f.create_dataset(" format", data=np.frombuffer(b"IEEE_LITTLE_32\0", np.int8))
-        f.create_dataset(" hdf5version", data=np.frombuffer(b"HDF5 Version 1.12.2".ljust(33, b"\0"), np.int8))
-        _node(f, "CGNSLibraryVersion", "CGNSLibraryVersion_t", "R4", np.array([4.2], np.float32))
-        base = _node(f, "Base", "CGNSBase_t", "I4", np.array([3, 3], np.int32))
+        base = _cgns_base(f)
         for zi, (pts, cell_blocks) in enumerate(zones, 1):
             ncell = sum(len(c) for _, c in cell_blocks)
             zone = _node(base, f"Zone{zi}", "Zone_t", "I4", np.array([[len(pts), ncell, 0]], np.int32))
@@ -226,13 +231,7 @@ def write_cgns_structured(path, zones) -> str:
     import h5py
 
     with h5py.File(str(path), "w", track_order=True) as f:
-        f.attrs.create("name", np.bytes_("HDF5 MotherNode"), dtype="S33")
-        f.attrs.create("label", np.bytes_("Root Node of HDF5 File"), dtype="S33")
-        f.attrs.create("type", np.bytes_("MT"), dtype="S3")
-        f.create_dataset(" format", data=np.frombuffer(b"IEEE_LITTLE_32\0", np.int8))
-        f.create_dataset(" hdf5version", data=np.frombuffer(b"HDF5 Version 1.12.2".ljust(33, b"\0"), np.int8))
-        _node(f, "CGNSLibraryVersion", "CGNSLibraryVersion_t", "R4", np.array([4.2], np.float32))
-        base = _node(f, "Base", "CGNSBase_t", "I4", np.array([3, 3], np.int32))
+        base = _cgns_base(f)
         for zi, (X, Y, Z) in enumerate(zones, 1):
             vertices = np.array(X.shape, np.int32)
             size = np.stack(

@@ -387,14 +387,7 @@ def test_parallel_pieces_are_one_mesh(tmp_path):
     p, hexes = vc.grid(6, 5, 4)
     cut = vtkExtractUnstructuredGridPiece()
     cut.SetInputData(vc.unstructured(p, [(12, hexes)]))
-    w = vtk.vtkXMLPUnstructuredGridWriter()
-    path = str(tmp_path / "cut.pvtu")
-    w.SetFileName(path)
-    w.SetInputConnection(cut.GetOutputPort())
-    w.SetNumberOfPieces(3)
-    w.SetStartPiece(0)
-    w.SetEndPiece(2)
-    assert w.Write() == 1
+    path = vc.write_pieces(tmp_path / "cut.pvtu", vtk.vtkXMLPUnstructuredGridWriter(), cut, 3)
     n_ref, vol_ref = vc.vtk_reference(path)
     assert n_ref == len(hexes) and vc.vtk_read(path).GetNumberOfPoints() > len(p)  # cut points repeated
     mesh = read_mesh(path)
@@ -406,10 +399,9 @@ def test_parallel_pieces_are_one_mesh(tmp_path):
     assert n_out == 4 and vol_out == pytest.approx(vol_ref, rel=1e-9)
 
     cut.CreateGhostCellsOn()  # pieces written with a layer of ghost cells (their neighbours' cells)
-    w.SetGhostLevel(1)
-    path = str(tmp_path / "ghosts.pvtu")
-    w.SetFileName(path)
-    assert w.Write() == 1
+    path = vc.write_pieces(
+        tmp_path / "ghosts.pvtu", vtk.vtkXMLPUnstructuredGridWriter(), cut, 3, ghost_level=1
+    )
     assert vc.vtk_read(path).GetNumberOfCells() > len(hexes)
     mesh = read_mesh(path)
     assert (mesh.n_cells, mesh.n_points) == (len(hexes), len(p))
@@ -420,14 +412,7 @@ def test_parallel_pieces_are_one_mesh(tmp_path):
     quads = vc.plane("quads")
     cut = vtkExtractPolyDataPiece()
     cut.SetInputData(quads)
-    w = vtk.vtkXMLPPolyDataWriter()
-    path = str(tmp_path / "cut.pvtp")
-    w.SetFileName(path)
-    w.SetInputConnection(cut.GetOutputPort())
-    w.SetNumberOfPieces(2)
-    w.SetStartPiece(0)
-    w.SetEndPiece(1)
-    assert w.Write() == 1
+    path = vc.write_pieces(tmp_path / "cut.pvtp", vtk.vtkXMLPPolyDataWriter(), cut, 2)
     mesh = read_mesh(path)
     assert (mesh.n_cells, mesh.n_points) == (quads.GetNumberOfCells(), quads.GetNumberOfPoints())
     assert check_file(path)["components"] == 1

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import zipfile
 
 import meshio
 import numpy as np
@@ -85,13 +84,8 @@ def test_openfoam_case_in_an_archive(tmp_path, with_foam):
     corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float)
     tris = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]])
     meshio.write(case / "constant" / "triSurface" / "part.stl", meshio.Mesh(corners, [("triangle", tris)]))
-    archive = tmp_path / "case.zip"
-    with zipfile.ZipFile(archive, "w") as z:
-        for root, _, files in os.walk(case):
-            for f in files:
-                full = os.path.join(root, f)
-                z.write(full, os.path.relpath(full, tmp_path))
-    assert read_mesh_safe(str(archive)).n_cells == len(h)
+    archive = shutil.make_archive(str(tmp_path / "upload"), "zip", root_dir=tmp_path, base_dir="case")
+    assert read_mesh_safe(archive).n_cells == len(h)
 
 
 def test_openfoam_mutants_are_a_mesh_or_one_clear_sentence(tmp_path):
@@ -194,10 +188,5 @@ def test_decomposed_openfoam_case_is_one_mesh(tmp_path):
 
     assert check_file(str(case))["components"] == 1
     os.remove(case / "case.foam")
-    archive = tmp_path / "decomposed.zip"
-    with zipfile.ZipFile(archive, "w") as z:
-        for root, _, files in os.walk(case):
-            for f in files:
-                full = os.path.join(root, f)
-                z.write(full, os.path.relpath(full, tmp_path))
-    assert read_mesh_safe(str(archive)).n_cells == n
+    archive = shutil.make_archive(str(tmp_path / "decomposed"), "zip", root_dir=tmp_path, base_dir="case")
+    assert read_mesh_safe(archive).n_cells == n

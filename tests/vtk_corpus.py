@@ -230,6 +230,19 @@ def write_xml(
     return str(path)
 
 
+def write_pieces(path, writer, source, pieces: int, ghost_level: int = 0) -> str:
+    """A parallel XML file (writer: a vtkXMLP*Writer) of what `source` (a piece-extracting filter)
+    makes, cut into `pieces` pieces, each with `ghost_level` layers of ghost cells."""
+    writer.SetFileName(str(path))
+    writer.SetInputConnection(source.GetOutputPort())
+    writer.SetNumberOfPieces(pieces)
+    writer.SetStartPiece(0)
+    writer.SetEndPiece(pieces - 1)
+    writer.SetGhostLevel(ghost_level)
+    assert writer.Write() == 1
+    return str(path)
+
+
 def write_exodus(path, ug) -> str:
     """Exodus II through vtkExodusIIWriter (it wants the block ids as an ObjectId cell array)."""
     if ug.GetCellData().GetArray("ObjectId") is None:

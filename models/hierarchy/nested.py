@@ -29,7 +29,7 @@ from models.hierarchy.holes import (  # noqa: F401  (re-exported: tests and call
     cavity_elements,
     fix_holes,
 )
-from models.hierarchy.plan import at_least, count_weighted, domain_plan, said_off_plan
+from models.hierarchy.plan import at_least, count_weighted, domain_plan, group_pieces, said_off_plan
 from models.mesh.celldata import CellData, compact_labels
 from models.mesh.container import Mesh
 
@@ -430,27 +430,6 @@ def default_ratio(dim: int) -> tuple[float, ...]:
     return SCHEDULE[3 if int(dim) >= 3 else 2]
 
 
-def _group_pieces(mesh: Mesh, data: CellData, least: int, why: str) -> tuple[int, str]:
-    """With --groups a level has at least one element per connected piece of a physical group (no
-    element crosses a group): (the fewest elements, why), the domain's own where it asks for more;
-    ParameterError where the groups leave nothing to coarsen (every piece one cell)."""
-    from models.errors import ParameterError
-    from models.graph.csr import connected_components
-
-    tags = np.unique(mesh.tags, return_inverse=True)[1].reshape(-1)
-    pieces = connected_components(data.graph.indptr, data.graph.indices, tags)[0]
-    if pieces >= mesh.n_cells:
-        raise ParameterError(
-            f"the physical groups leave nothing to coarsen: each of the {mesh.n_cells:,} cells is a piece of its "
-            "group on its own, and no element crosses a group (--groups); drop --groups"
-        )
-    if pieces <= least:
-        return least, why
-    return pieces, (
-        f"no element crosses a physical group (--groups), and the groups form {pieces:,} separate pieces"
-    )
-
-
 def build_hierarchy(
     mesh: Mesh,
     data: CellData,
@@ -528,8 +507,10 @@ def build_hierarchy(
         raise ParameterError("respecting physical groups needs a mesh with physical groups")
     if groups and model != "rtree":
         raise ParameterError("physical groups in a hierarchy: model rtree only")
+    # each cell's physical group where no element may cross one (--groups), compact
+    group_of = np.unique(mesh.tags, return_inverse=True)[1].reshape(-1).astype(np.int64) if groups else None
     if groups:
-        least, why = _group_pieces(mesh, data, least, why)
+        least, why = group_pieces(data, group_of, least, why)
     counts = at_least(counts, least, why, notes)
     if kappa is not None:
         kappa = np.asarray(kappa, dtype=np.float64).ravel()
@@ -560,7 +541,7 @@ def build_hierarchy(
             node_ids=np.arange(n),
         )
         batch.cell_boxes = boxes
-        tags = None if not groups else np.unique(mesh.tags, return_inverse=True)[1].astype(np.int64)
+        tags = group_of
         # count-weighted cuts: an element's size follows the local cell size, so elements hold
         # comparable numbers of cells as algebraic aggregates do (issue 24: on the family, smoothed
         # PCG iterations vs pyamg worst case 4.20x (graded 100:1) with measure-weighted cuts, 1.26x
@@ -664,7 +645,7 @@ def build_hierarchy(
         known,
         hole_pairs=hole_pairs,
         rings=rings and model == "rtree",
-        groups=np.unique(mesh.tags, return_inverse=True)[1].reshape(-1) if groups else None,
+        groups=group_of,
     )
     report = _with_requested(report, counts, n)
     said_off_plan(levels, report, coarsest, notes)

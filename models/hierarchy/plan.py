@@ -79,3 +79,25 @@ def at_least(counts: list[int], least: int, why: str, notes: list[str]) -> list[
         else why
     )
     return counts
+
+
+def group_pieces(data: CellData, groups, least: int, why: str) -> tuple[int, str]:
+    """With --groups a level has at least one element per connected piece of a physical group (no
+    element crosses a group): (the fewest elements, why), the domain's own where it asks for more;
+    ParameterError where the groups leave nothing to coarsen (every piece one cell). groups: each
+    cell's group (compact labels)."""
+    from models.errors import ParameterError
+    from models.graph.csr import connected_components
+
+    n = int(groups.size)
+    pieces = connected_components(data.graph.indptr, data.graph.indices, groups)[0]
+    if pieces >= n:
+        raise ParameterError(
+            f"the physical groups leave nothing to coarsen: each of the {n:,} cells is a piece of its "
+            "group on its own, and no element crosses a group (--groups); drop --groups"
+        )
+    if pieces <= least:
+        return least, why
+    return pieces, (
+        f"no element crosses a physical group (--groups), and the groups form {pieces:,} separate pieces"
+    )

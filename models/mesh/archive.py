@@ -144,20 +144,14 @@ def _control_dicts(members) -> list[str]:
     """The system/controlDict of each OpenFOAM case among the members: one whose folder holds a
     constant/polyMesh/faces, its own or a processor's (a decomposed case). A case's other files may
     carry mesh extensions (constant/triSurface/*.stl); its controlDict, or its .foam file, opens it."""
-    names = [m.replace("\\", "/") for m, _, kind in members if kind == "file"]
-    meshes = [n for n in names if n.endswith(("constant/polyMesh/faces", "constant/polyMesh/faces.gz"))]
+    files = [m for m, _, kind in members if kind == "file"]
+    names = [m.replace("\\", "/") for m in files]
+    faces = [n for n in names if n.endswith(("constant/polyMesh/faces", "constant/polyMesh/faces.gz"))]
     out = []
-    for m, n in zip([m for m, _, kind in members if kind == "file"], names, strict=True):
+    for m, n in zip(files, names, strict=True):
         if n.endswith("system/controlDict"):
             root = n[: -len("system/controlDict")]
-            if any(
-                f.startswith(root) and f[len(root) :].split("/")[0] in ("constant", *_processors(f, root))
-                for f in meshes
-            ):
+            tops = {f[len(root) :].split("/")[0] for f in faces if f.startswith(root)}
+            if any(t == "constant" or t.startswith("processor") for t in tops):
                 out.append(m)
     return out
-
-
-def _processors(face_file: str, root: str) -> tuple[str, ...]:
-    first = face_file[len(root) :].split("/")[0]
-    return (first,) if first.startswith("processor") else ()

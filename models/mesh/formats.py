@@ -37,12 +37,12 @@ FORMATS: dict[str, str] = {
     ".dat": "Tecplot",
     ".tec": "Tecplot",
     ".ugrid": "UGRID",
-    ".foam": "OpenFOAM case",
+    ".foam": "OpenFOAM case",  # an empty file in the case's folder, as ParaView opens a case
     ".case": "EnSight case",
     ".encas": "EnSight case",
     ".xyz": "PLOT3D grid",
     ".xy": "PLOT3D grid",
-    ".p3d": "PLOT3D grid",  # an empty file in the case's folder, as ParaView opens a case
+    ".p3d": "PLOT3D grid",
     # VTK's other XML datasets and parallel / multiblock files (these name their pieces' files)
     ".vtp": "VTK XML polydata",
     ".vti": "VTK XML image data",

@@ -120,10 +120,7 @@ _VTKTYPE = re.compile(rb"vtktype(?!u?int64\b)[a-z0-9]+")
 
 def _other_vtktypes(path: str) -> bool:
     """A legacy VTK file naming a vtktype* data type other than (u)int64 (one regex pass, mmap)."""
-    import mmap
-
-    with open(path, "rb") as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as mm:
-        return _VTKTYPE.search(mm) is not None
+    return _found(path, _VTKTYPE)
 
 
 _PIECE = re.compile(rb"""<(?:Piece|DataSet)\b[^>]*?\b(?:Source|file)\s*=\s*["']([^"']+)["']""")
@@ -269,8 +266,8 @@ def read_mesh(
     path = os.fspath(path)
     if not os.path.exists(path):
         raise MeshError(f"mesh file not found: {path}")
-    if os.path.isdir(path) and case_files.openfoam_file(path):  # an OpenFOAM case given as its folder
-        path = case_files.openfoam_file(path)
+    if os.path.isdir(path):  # an OpenFOAM case given as its folder
+        path = case_files.openfoam_file(path) or path
     if os.path.getsize(path) == 0 and _extension(path) != ".foam":  # (a .foam file is empty)
         raise MeshError(f"mesh file is empty: {os.path.basename(path)}")
     try:
@@ -444,7 +441,7 @@ def _read_meshio(path: str, file_type: str):
 
             module, mode = buffered
             with _open_guarded(
-                path, mode, bulk=file_type == "nastran" and not _has(path, b"BEGIN BULK")
+                path, mode, bulk=file_type == "nastran" and not _found(path, _BEGIN_BULK)
             ) as f:
                 return importlib.import_module(module).read_buffer(f)  # (a parse that no longer advances
                 # ends, never hangs)
@@ -525,14 +522,18 @@ def _open_guarded(path: str, mode: str, bulk: bool = False):
     return text
 
 
-def _has(path: str, word: bytes) -> bool:
+_BEGIN_BULK = re.compile(rb"BEGIN BULK")
+
+
+def _found(path: str, pattern: re.Pattern) -> bool:
+    """The bytes pattern occurs in the file (one pass over its mapping; an empty file: no)."""
     import mmap
 
     with open(path, "rb") as fh:
         if os.fstat(fh.fileno()).st_size == 0:
             return False
         with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as mm:
-            return mm.find(word) >= 0
+            return pattern.search(mm) is not None
 
 
 _LINE = re.compile(r"\bline\s+(\d+)", re.IGNORECASE)

@@ -208,10 +208,10 @@ def _run(path: str, kind: str, fmt: str | None = None):
 
     what, cls, module = READERS[kind]
     fmt = fmt or what
+    if kind == ".pvd":  # (a reader per data set it lists)
+        return _collection(path, fmt)
     reader = getattr(importlib.import_module(module), cls)()
     name = os.path.basename(path)
-    if kind == ".pvd":
-        return _collection(path, fmt)
     with _Captured() as cap:
         reader.AddObserver("ErrorEvent", cap._on_error)
         if kind == "ensight":  # (its parts: our blocks; no variable read)

@@ -678,14 +678,20 @@ def rtree_levels(
         pm = np.zeros(int(lab.max()) + 1 if lab.size else 0, dtype=np.int64)
         pm[lab] = raw[L - 1] if L > 0 else root
         up.append(pm)
-    # each raw part's root (a connected piece of one group): no repair moves a piece out of it
-    roots = [up[0]]
-    for L in range(1, len(raw)):
-        roots.append(roots[L - 1][up[L]])
-    within = None if groups is None else root
+    roots = None  # with groups: each raw part's root (a connected piece of one group), per level:
+    if groups is not None:  # no repair moves a piece out of it
+        roots = [up[0]]
+        for L in range(1, len(raw)):
+            roots.append(roots[L - 1][up[L]])
     # finest level: pieces of a part join a neighbouring part of the same (raw) parent
     fine, _ = make_connected(
-        batch.indptr, batch.indices, batch.weights, raw[-1], parent=up[-1][raw[-1]], measures=w, within=within
+        batch.indptr,
+        batch.indices,
+        batch.weights,
+        raw[-1],
+        parent=up[-1][raw[-1]],
+        measures=w,
+        within=None if roots is None else root,
     )
     sweep = len(raw) > 1  # a hierarchy: every level's elements numbered along one sweep (_sweep_key)
     node_lab, node_w = fine, w  # nodes of the graph at hand: cells, then elements of the finer level
@@ -705,7 +711,7 @@ def rtree_levels(
             init,
             parent=up[L][init],
             measures=node_w,
-            within=None if groups is None else roots[L + 1],
+            within=None if roots is None else roots[L + 1],
         )
         if sweep:
             node_s = np.bincount(node_lab, weights=node_s, minlength=k_f)
