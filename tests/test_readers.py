@@ -546,3 +546,13 @@ def test_paraview_collections_read_their_first_mesh(tmp_path):
     assert w.Write() == 1
     mesh = read_mesh(str(tmp_path / "c.vtpc"))
     assert mesh.n_cells == n_ref and float(mesh.meta["measures"].sum()) == pytest.approx(vol_ref, rel=1e-9)
+
+    pds = vtkPartitionedDataSet()  # one partitioned dataset (.vtpd): its partitions one mesh
+    for i, part in enumerate(parts):
+        pds.SetPartition(i, part)
+    w = vtk.vtkXMLPartitionedDataSetWriter()
+    w.SetFileName(str(tmp_path / "d.vtpd"))
+    w.SetInputData(pds)
+    assert w.Write() == 1
+    mesh = read_mesh(str(tmp_path / "d.vtpd"))
+    assert (mesh.n_cells, mesh.n_points) == (n_ref, len(p)) and mesh.tags is None

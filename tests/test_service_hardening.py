@@ -300,3 +300,12 @@ def test_processes_meeting_a_fresh_store_all_create_its_schema(tmp_path):
             p.join(60)
         assert [p.exitcode for p in procs] == [0] * 6
         assert set(inspect(Database(url).engine).get_table_names()) >= set(Base.metadata.tables)
+
+
+def test_files_that_name_other_files_are_asked_for_in_an_archive(app):
+    """A file whose mesh lies in other files beside it (XDMF's .h5, a parallel file's pieces, an
+    OpenFOAM or EnSight case's files) uploaded alone: 422, asking for a .zip or .tar.gz of them all."""
+    client, _ = app
+    for name in ("mesh.xdmf", "mesh.pvtu", "case.foam", "flow.case", "flow.encas", "u.pvd"):
+        r = client.post("/v1/meshes", params={"filename": name}, content=b"x", headers=auth("alice"))
+        assert r.status_code == 422 and "upload a .zip or .tar.gz" in r.json()["detail"], (name, r.text)

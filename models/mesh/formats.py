@@ -90,6 +90,8 @@ MULTI_FILE = (
     ".ele",
     ".node",
     ".foam",
+    ".case",
+    ".encas",
 )
 # compound extensions first: "case.cas.h5" is a Fluent case, not an HDF5 file
 COMPOUND = {

@@ -65,9 +65,11 @@ READERS: dict[str, tuple[str, str, str]] = {
     "plot3d": ("PLOT3D grid", "vtkMultiBlockPLOT3DReader", "vtkmodules.vtkIOParallel"),
     "ensight": ("EnSight case", "vtkGenericEnSightReader", "vtkmodules.vtkIOEnSight"),
 }
-# parallel files whose pieces are separate point sets: read piece by piece, joined as a composite's
-# blocks are (points on the cuts between pieces, written once per piece, merged)
-PIECEWISE = (".pvtu", ".pvtp", ".vtpd", ".pvd")
+# parallel files whose pieces are separate point sets: read piece by piece (_pieces), joined as a
+# composite's blocks are (points on the cuts between pieces, written once per piece, merged)
+PIECEWISE = (".pvtu", ".pvtp")
+# files whose blocks are pieces of one mesh, not physical groups
+PIECES = (*PIECEWISE, ".vtpd", ".pvd")
 EXODUS_EXTENSIONS = (".exo", ".e", ".ex2", ".exii", ".g", ".gen")
 
 
@@ -90,7 +92,7 @@ def read_vtk(
             data, path, what, fmt, kind == "openfoam-decomposed"
         )
     else:
-        pts, offsets, conn, types, cell_data, poly = _arrays(data, path, what, fmt, kind not in PIECEWISE)
+        pts, offsets, conn, types, cell_data, poly = _arrays(data, path, what, fmt, kind not in PIECES)
         field = _field_data(data)
         if kind == "exodus":
             field.update(_exodus_names(data))
