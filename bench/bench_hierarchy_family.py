@@ -33,6 +33,7 @@ from family_meshes import FAMILY  # noqa: E402
 
 from models.hierarchy.multigrid import mgcheck  # noqa: E402
 from models.hierarchy.nested import build_hierarchy, default_ratio  # noqa: E402
+from models.hierarchy.topology import handle_elements  # noqa: E402
 from models.mesh.read import mesh_from_arrays  # noqa: E402
 from models.partition.rtree import level_counts  # noqa: E402
 from models.pipeline import prepare  # noqa: E402
@@ -214,6 +215,9 @@ def row(name, mesh, graph, data, model, kappa, t_metis) -> dict:
         "worst_vs_plan": worst_plan,
         "coarsest_ok": sizes[0] <= COARSEST,
         "holed": sum(holed(mesh, graph, data, lv) for lv in levels),
+        # 3D elements with a handle (a ring around a tunnel or around a neighbour, or touching
+        # themselves along an edge), summed over the levels; not fixed by default (rings: opt-in)
+        "handles": sum(handle_elements(mesh, graph, lv).size for lv in levels) if mesh.dim == 3 else 0,
         "extra_pieces": sum(pieces(graph, lv) - s for lv, s in zip(levels, sizes, strict=True)),
         "it_S": rep["smoothed"]["iterations"],
         "it_S_pyamg": rep["pyamg_sa"]["iterations"],
@@ -239,7 +243,7 @@ def row(name, mesh, graph, data, model, kappa, t_metis) -> dict:
 
 
 HEAD = (
-    f"{'mesh':<14}{'model':<12}{'cells':>7} {'levels (coarse > fine)':<28}{'worst r':>8}{'holed':>6}{'pcs+':>5}"
+    f"{'mesh':<14}{'model':<12}{'cells':>7} {'levels (coarse > fine)':<28}{'worst r':>8}{'holed':>6}{'hdl':>5}{'pcs+':>5}"
     f"{'itS/pa':>8}{'ocS/pa':>7}{'itU/pa':>7}{'ocU/pa':>7}{'aniso S':>8}{'BR f/m':>11}{'cov f/m':>11}{'CR f':>6}"
     f"{'build/metis':>12}"
 )
@@ -253,7 +257,7 @@ def fmt(r: dict) -> str:
     br, cv = r["box_ratio_fine_mid"], r["coverage_fine_mid"]
     return (
         f"{r['mesh']:<14}{r['model']:<12}{r['cells']:>7} {lv:<28}{r['worst_ratio_deviation']:>8.2f}{r['holed']:>6}"
-        f"{r['extra_pieces']:>5}{r['it_S_ratio']:>8.2f}{r['oc_S_ratio']:>7.2f}{r['it_U_ratio']:>7.2f}"
+        f"{r['handles'] if r['dim'] == 3 else '-':>5}{r['extra_pieces']:>5}{r['it_S_ratio']:>8.2f}{r['oc_S_ratio']:>7.2f}{r['it_U_ratio']:>7.2f}"
         f"{r['oc_U_ratio']:>7.2f}{an:>8}{br[0]:>6.2f}/{br[1]:.2f}{cv[0]:>6.2f}/{cv[1]:.2f}{r['cr_fine']:>6.2f}"
         f"{r['build_time'] / max(r['metis_time'], 1e-9):>12.2f}"
     )
@@ -276,7 +280,7 @@ def worst_cases(rows: list[dict]) -> list[str]:
 
         out.append(
             f"{model}: worst level ratio deviation {arg('worst_ratio_deviation')}; holed elements "
-            f"{arg('holed')}; extra pieces {arg('extra_pieces')}; smoothed iterations / pyamg 2D "
+            f"{arg('holed')}; 3D elements with a handle {arg('handles', dim=3)}; extra pieces {arg('extra_pieces')}; smoothed iterations / pyamg 2D "
             f"{arg('it_S_ratio', dim=2)}, 3D {arg('it_S_ratio', dim=3)}; op. complexity / pyamg "
             f"{arg('oc_S_ratio')}; unsmoothed iterations / pyamg 2D {arg('it_U_ratio', dim=2)}, 3D "
             f"{arg('it_U_ratio', dim=3)}; finest BR {arg('box_ratio_fine_mid', min)}; finest coverage "
