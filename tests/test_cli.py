@@ -264,3 +264,37 @@ def test_lymph_on_3d_refused(tmp_path):
         tmp_path / "x.mat",
         match="2D",
     )
+
+
+def test_an_internal_error_is_one_sentence_not_a_traceback(tmp_path, capsys, monkeypatch):
+    """A bug of ours (here: the partition stage raising an IndexError, as a one-cell mesh once did)
+    reaches the user as one sentence and exit status 70; MAGNET_TRACEBACK=1 re-raises it."""
+    import meshio
+
+    import models.pipeline as pipeline
+    from models.cli.main import EXIT_INTERNAL, main
+
+    src = tmp_path / "square.vtu"
+    n = 6
+    x, y = np.meshgrid(np.linspace(0, 1, n + 1), np.linspace(0, 1, n + 1))
+    q = (np.arange(n)[:, None] * (n + 1) + np.arange(n)).ravel()
+    meshio.write(
+        src,
+        meshio.Mesh(
+            np.c_[x.ravel(), y.ravel(), 0 * x.ravel()], [("quad", np.c_[q, q + 1, q + n + 2, q + n + 1])]
+        ),
+    )
+
+    def broken(*args, **kwargs):
+        raise IndexError("index 9223372036854775807 is out of bounds for axis 0 with size 4")
+
+    monkeypatch.setattr(pipeline, "split_holes", broken)
+    monkeypatch.delenv("MAGNET_TRACEBACK", raising=False)
+    rc = main(["agglomerate", str(src), "--k", "2", "-o", str(tmp_path / "out.vtu")])
+    err = capsys.readouterr().err
+    assert rc == EXIT_INTERNAL
+    assert "internal error in 'agglomerate'" in err
+    assert "Traceback" not in err and "9223372036854775807" not in err and "IndexError" not in err
+    monkeypatch.setenv("MAGNET_TRACEBACK", "1")
+    with pytest.raises(IndexError):
+        main(["agglomerate", str(src), "--k", "2", "-o", str(tmp_path / "out.vtu")])

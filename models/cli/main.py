@@ -15,6 +15,7 @@ import time
 from models.errors import MagnetError, ParameterError
 
 EXIT_USER_ERROR = 2
+EXIT_INTERNAL = 70  # sysexits' EX_SOFTWARE: our bug, not the user's input
 
 
 def _add_job_args(p: argparse.ArgumentParser) -> None:
@@ -551,6 +552,15 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("magnet: interrupted", file=sys.stderr)
         return 130
+    except Exception:  # noqa: BLE001  (a bug of ours: one sentence, the traceback on request)
+        if os.environ.get("MAGNET_TRACEBACK", "0") not in ("", "0"):
+            raise
+        print(
+            f"magnet: internal error in '{args.command}': this is a bug in magnet, not a fault of your "
+            "input; please report it with the command and the file (MAGNET_TRACEBACK=1 shows the details)",
+            file=sys.stderr,
+        )
+        return EXIT_INTERNAL
     return int(rc or 0)
 
 

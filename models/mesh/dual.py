@@ -269,7 +269,9 @@ def _fixed_csr(k: int, partner: np.ndarray, w: np.ndarray, nnz: int):
     pos = 0
     chunk = 1 << 15
     for s in range(0, n, chunk):
-        c = [np.ascontiguousarray(p[s : s + chunk, j]) for j in range(k)]
+        # copies (written below): a one-row chunk's column is contiguous, and ascontiguousarray would
+        # hand back a view of `partner` itself (a mesh of one cell got int64 max for its partners)
+        c = [p[s : s + chunk, j].copy() for j in range(k)]
         has = [x >= 0 for x in c]
         for j in range(k):
             c[j][~has[j]] = big  # the domain boundary sorts last
