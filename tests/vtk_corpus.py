@@ -350,6 +350,8 @@ def vtk_read(path: str):
         r.EnableAllBases()
     elif ext == ".neu":
         r = vtk.vtkGAMBITReader()
+    elif ext in (".dat", ".tec", ".tp", ".plt"):
+        r = vtk.vtkTecplotReader()  # ASCII Tecplot, as ParaView reads it
     elif ext in (".inp", ".ucd", ".avs"):
         r = vtk.vtkAVSucdReader()
     elif ext in (".msh", ".cas"):

@@ -36,6 +36,9 @@ FORMATS: dict[str, str] = {
     ".f3grid": "FLAC3D",
     ".dat": "Tecplot",
     ".tec": "Tecplot",
+    ".tp": "Tecplot",
+    ".plt": "Tecplot",
+    ".szplt": "Tecplot",
     ".ugrid": "UGRID",
     ".foam": "OpenFOAM case",  # an empty file in the case's folder, as ParaView opens a case
     ".case": "EnSight case",

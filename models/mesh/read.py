@@ -105,6 +105,11 @@ _VTK_OTHER = {
     ".xyz": "plot3d",
     ".xy": "plot3d",
     ".p3d": "plot3d",
+    ".dat": "tecplot",
+    ".tec": "tecplot",
+    ".tp": "tecplot",
+    ".plt": "tecplot",
+    ".szplt": "tecplot",
 }
 _SURFACES = (".stl", ".obj", ".ply", ".off")
 XML_GRIDS = (".vts", ".vtr", ".vti")  # VTK XML structured files: our numpy path first (xml_grid.py)
@@ -176,7 +181,7 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
             return ("vtk", "legacy") if legacy else ("vtk", "xml")
         if fmt == "exodus":
             return ("vtk", "exodus")
-        if fmt in ("xdmf", "cgns", "fluent", "gambit"):
+        if fmt in ("xdmf", "cgns", "fluent", "gambit", "tecplot"):
             return ("vtk", fmt)
         return ("meshio", fmt)
     if ext == ".vtk" or (legacy and ext in _VTK_XML):
@@ -213,6 +218,8 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
             raise MeshError(f"cannot read {name} as VTKHDF: the file is not HDF5 (byte 0)")
         if ext == ".cas" and not text.startswith(b"("):
             raise MeshError(f"cannot read {name} as a Fluent case: a Fluent case starts with '(' (byte 0)")
+        if _VTK_OTHER[ext] == "tecplot":
+            _tecplot_ascii(name, ext, head, text)
         if ext == ".neu" and b"CONTROL INFO" not in head.upper():
             raise MeshError(
                 f"cannot read {name} as Gambit neutral: no 'CONTROL INFO' section at the start of the file"
@@ -242,6 +249,23 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
             f"unknown mesh format {ext or '(no extension)'!r}; use one of: " + ", ".join(SUPPORTED_EXTENSIONS)
         )
     return ("meshio", types[0])
+
+
+def _tecplot_ascii(name: str, ext: str, head: bytes, text: bytes) -> None:
+    """Refuses what VTK's Tecplot reader (ASCII only, as ParaView's) cannot read, in our words: a
+    binary Tecplot file (.plt's '#!TDV' header, SZL's .szplt) or a file with no Tecplot record."""
+    if head[:5] == b"#!TDV" or ext == ".szplt" or head[:8] == b"#!SZPLT":
+        raise MeshError(
+            f"cannot read {name} as Tecplot: it is a binary Tecplot file, and only Tecplot's ASCII "
+            "format is read; save it from Tecplot as ASCII data (.dat), or convert it with Tecplot's "
+            "preplot/szl tools"
+        )
+    upper = text[:4096].upper()
+    if not any(word in upper for word in (b"ZONE", b"VARIABLES", b"TITLE")):
+        raise MeshError(
+            f"cannot read {name} as Tecplot: no TITLE, VARIABLES or ZONE record at the start of the "
+            "file (is it a Tecplot ASCII data file?)"
+        )
 
 
 class NativeReaderNeeded(MeshError):
@@ -472,7 +496,6 @@ _BUFFER_READERS = {
     "abaqus": ("meshio.abaqus._abaqus", "r"),
     "nastran": ("meshio.nastran._nastran", "r"),
     "su2": ("meshio.su2._su2", "r"),
-    "tecplot": ("meshio.tecplot._tecplot", "r"),
     "permas": ("meshio.permas._permas", "r"),
     "neuroglancer": ("meshio.neuroglancer._neuroglancer", "rb"),
 }

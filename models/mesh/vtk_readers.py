@@ -64,6 +64,7 @@ READERS: dict[str, tuple[str, str, str]] = {
     "openfoam-decomposed": ("OpenFOAM case", "vtkPOpenFOAMReader", "vtkmodules.vtkIOParallel"),
     "plot3d": ("PLOT3D grid", "vtkMultiBlockPLOT3DReader", "vtkmodules.vtkIOParallel"),
     "ensight": ("EnSight case", "vtkGenericEnSightReader", "vtkmodules.vtkIOEnSight"),
+    "tecplot": ("Tecplot", "vtkTecplotReader", "vtkmodules.vtkIOGeometry"),
 }
 # parallel files whose pieces are separate point sets: read piece by piece (_pieces), joined as a
 # composite's blocks are (points on the cuts between pieces, written once per piece, merged)
@@ -96,7 +97,7 @@ def read_vtk(
         field = _field_data(data)
         if kind == "exodus":
             field.update(_exodus_names(data))
-        elif kind == "ensight":
+        elif kind in ("ensight", "tecplot"):  # parts, zones: named blocks (their T="...")
             field.update(_part_names(data))
     grid = _lattice(data, len(types))
     live = _whole_live(data, len(types))
