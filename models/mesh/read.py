@@ -18,7 +18,7 @@ from itertools import chain
 import numpy as np
 
 from models.errors import MeshError, ParameterError
-from models.mesh import case_files
+from models.mesh import abaqus_types, case_files
 from models.mesh.build import MIRROR, _bounds, mesh_from_cells, weld_points  # noqa: F401 (MIRROR, weld_points: API)
 from models.mesh.cells import BOUNDARY_TAG_NAME, TAG_NAMES, distinct_nodes, higher_order_line
 from models.mesh.container import (
@@ -451,6 +451,8 @@ def _read_meshio(path: str, file_type: str):
     if file_type not in reader_map:
         raise MeshError(f"unknown mesh format {file_type!r}; use one of: " + ", ".join(sorted(reader_map)))
     _meshio_dimensions()
+    if file_type == "abaqus":
+        abaqus_types.extend()
     try:
         with (
             warnings.catch_warnings(),
@@ -472,7 +474,13 @@ def _read_meshio(path: str, file_type: str):
     except MeshError:
         raise
     except (Exception, SystemExit) as exc:  # noqa: BLE001
-        raise MeshError(f"cannot read {name} with meshio's {file_type} reader: {_why(exc, meshio)}") from None
+        odd = abaqus_types.unknown(path) if file_type == "abaqus" else []
+        why = (
+            f"it holds elements of a type it does not know ({', '.join(odd[:6])})"
+            if odd
+            else _why(exc, meshio)
+        )
+        raise MeshError(f"cannot read {name} with meshio's {file_type} reader: {why}") from None
 
 
 def _meshio_dimensions() -> None:
