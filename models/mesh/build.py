@@ -346,6 +346,10 @@ def _orient_and_check(mesh: Mesh, bounds=None) -> None:
         flip = own ^ more
     else:
         more = flip = orientation_flips(mesh, vol, faces, pairing)
+    # a cell written twice meets its twin's faces in their direction: one of the two is flipped
+    # against its own sign (or, in 3D, a face is met 3+ times); only then are repeats looked for
+    if ("order" in pairing or np.any(flip != (vol < 0))) and _drop_repeated(mesh):
+        return _orient_and_check(mesh, bounds)
     signed = np.where(flip, -vol, vol)
     if more.any():
         _flip_cells(mesh, more)
@@ -488,6 +492,42 @@ def _drop_degenerate(mesh: Mesh, vol: np.ndarray, bounds=None) -> bool:
     )
     _record_dropped(mesh, [(f"degenerate (zero-{kind})", np.flatnonzero(degenerate))], n_before)
     for key in ("measures", "centroids"):
+        mesh.meta.pop(key, None)
+    return True
+
+
+def _drop_repeated(mesh: Mesh) -> bool:
+    """Cells written twice (the same type and the same nodes as an earlier cell): a few among many
+    (few_bad) are left out and said (True: the caller orients the mesh again without them); more is
+    refused in one sentence. Looked for only where the orientation had to flip cells or met a face
+    3+ times (a repeated cell does both); polyhedra are not compared."""
+    if mesh.poly_cells is not None or mesh.n_cells < 2:
+        return False
+    sizes = np.diff(mesh.offsets)
+    repeated = np.zeros(mesh.n_cells, dtype=bool)
+    for k in np.unique(sizes):  # (a loop over cell sizes, not cells)
+        sel = np.flatnonzero(sizes == k)
+        rows = np.sort(mesh.connectivity[mesh.offsets[sel][:, None] + np.arange(k)], axis=1)
+        rows = np.column_stack([mesh.cell_types[sel].astype(np.int64), rows])
+        _, first = np.unique(rows, axis=0, return_index=True)
+        twin = np.ones(sel.size, dtype=bool)
+        twin[first] = False
+        repeated[sel[twin]] = True
+    n = int(repeated.sum())
+    if n == 0:
+        return False
+    ids = np.flatnonzero(repeated)
+    if not few_bad(n, mesh.n_cells):
+        raise MeshError(
+            f"{'a cell is' if n == 1 else f'{n:,} cells are'} written twice (the same nodes as an earlier cell), "
+            f"e.g. cell{'s' if n > 1 else ''} {ids[:6].tolist()}: remove the repeats"
+        )
+    n_before = mesh.n_cells
+    mesh.offsets, mesh.connectivity, mesh.cell_types, mesh.tags = _without_cells(
+        mesh.offsets, mesh.connectivity, mesh.cell_types, mesh.tags, repeated
+    )
+    _record_dropped(mesh, [("written twice (the same nodes as an earlier cell)", ids)], n_before)
+    for key in ("measures", "centroids", "cell_faces"):
         mesh.meta.pop(key, None)
     return True
 
