@@ -82,6 +82,7 @@ def handle_elements(mesh: Mesh, graph, labels: np.ndarray, only: np.ndarray | No
     by the Euler characteristic of its cells (V - E + F - C = 1 - handles + cavities for a connected
     element; a touch at a vertex leaves it 1): fewer than 1 is a handle. No loop over elements.
     only: the elements to look at (the others are not handles in the answer)."""
+    from models.mesh.dual import sorted_unique
     from models.mesh.geometry import next_in_cycle
     from models.polytope.merge import boundary_faces, face_nodes
 
@@ -90,16 +91,14 @@ def handle_elements(mesh: Mesh, graph, labels: np.ndarray, only: np.ndarray | No
     n = np.int64(mesh.n_points)
     f = graph.faces
 
-    def chi(face_ids, el):
+    def chi(face_ids, el):  # V - E of each element's faces (sorts, not numpy's hash-based unique)
         fo, nodes = face_nodes(f, face_ids)
         owner = np.repeat(el, np.diff(fo))
-        V = np.bincount(np.unique(owner * n + nodes) // n, minlength=k)
+        V = np.bincount(sorted_unique(owner * n + nodes) // n, minlength=k)
         u, v = nodes, nodes[next_in_cycle(fo)]
-        lo, hi = np.minimum(u, v), np.maximum(u, v)
-        order = np.lexsort((hi, lo, owner))
-        so, sl, sh = owner[order], lo[order], hi[order]
-        new = np.r_[True, (so[1:] != so[:-1]) | (sl[1:] != sl[:-1]) | (sh[1:] != sh[:-1])]
-        return V - np.bincount(so[new], minlength=k)
+        edge = sorted_unique(np.minimum(u, v) * n + np.maximum(u, v), return_inverse=True)[1]
+        m = np.int64(edge.max() + 1) if edge.size else np.int64(1)
+        return V - np.bincount(sorted_unique(owner * m + edge) // m, minlength=k)
 
     bf = boundary_faces(graph, labels)
     look = np.ones(k, dtype=bool)
