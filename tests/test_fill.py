@@ -329,3 +329,38 @@ def test_job_option_fill(tmp_path, shapes):
     ref = enclosed_volume(points, tris)
     assert abs(s["fill"]["volume"] - ref) <= 1e-9 * ref
     assert abs(read_mesh(tmp_path / "job" / "mesh.vtu").meta["signed_measures"].sum() - ref) <= 1e-9 * ref
+
+
+def _nested(shapes, radii):
+    """Concentric copies of the sphere's triangles scaled by `radii` (largest first), each with
+    outward normals as gmsh makes them (a writer that orients every shell outward), as one surface."""
+    points, tris = shapes["sphere"]
+    pts, tri = [], []
+    for r in radii:
+        tri.append(tris + sum(len(p) for p in pts))
+        pts.append(points * r)
+    return np.concatenate(pts), np.concatenate(tri)
+
+
+@pytest.mark.parametrize("radii", [(2.0, 0.5), (2.0, 1.0, 0.4)])
+def test_inner_shells_bound_cavities_and_stay_empty(tmp_path, shapes, radii):
+    """A hollow body (a shell inside a shell) is filled between them, its cavity left empty; a ball
+    inside that cavity (three shells) is filled again. Sweep T: the cavity was filled, a volume of
+    the outer sphere's (1.6% too much), whichever way the inner shell's normals pointed."""
+    points, tris = _nested(shapes, radii)
+    vols = [enclosed_volume(*_nested(shapes, (r,))) for r in radii]
+    ref = vols[0] - vols[1] + (vols[2] if len(vols) > 2 else 0.0)
+    for flip_inner in (False, True):
+        t = tris.copy()
+        if flip_inner:  # the cavity's normals into it, as a careful writer makes them
+            n0 = len(shapes["sphere"][1])
+            t[n0 : 2 * n0] = t[n0 : 2 * n0, ::-1]
+        f = fill_surface(_write(tmp_path / "hollow.stl", points, t))
+        assert tet_volume(f.points, f.tets) == pytest.approx(ref, rel=1e-9)
+        assert f.info["enclosed_volume"] == pytest.approx(ref, rel=1e-9)
+        c = f.points[f.tets].mean(axis=1)
+        r = np.linalg.norm(c, axis=1)
+        empty = (r < 0.97 * radii[1]) & (r > 1.03 * radii[2]) if len(radii) > 2 else r < 0.97 * radii[1]
+        assert not empty.any()  # no tetrahedron inside the cavity
+    with pytest.raises(ParameterError, match="cavities"):
+        fill_surface(_write(tmp_path / "hollow.stl", points, tris), remesh=True)

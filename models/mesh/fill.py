@@ -47,6 +47,9 @@ class Surface:
     points: np.ndarray
     triangles: np.ndarray
     info: dict = field(default_factory=dict)
+    shells: np.ndarray | None = None  # (T,) the shell of each triangle (check_closed)
+    depth: np.ndarray | None = None  # (S,) how many shells enclose each (odd: it bounds a cavity)
+    inside: np.ndarray | None = None  # (S, S) shell i inside shell j
 
     @property
     def diagonal(self) -> float:
@@ -281,11 +284,16 @@ def _outward(s: Surface) -> float | None:
     p = s.points[t] - s.points.mean(0)
     per = np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])) / 6.0
     vol = np.bincount(comp, weights=per)
-    inward = vol[comp] < 0
-    if inward.any():
+    s.shells = comp
+    s.inside = _enclosing(s.points, t, comp, vol.size)
+    s.depth = depth = s.inside.sum(axis=1)
+    # a shell inside an odd number of others bounds a cavity: its normals point into it (inward)
+    outward = depth % 2 == 0
+    wrong = (vol < 0) == outward
+    if wrong.any():
         s.triangles = t.copy()
-        s.triangles[inward] = t[inward][:, [0, 2, 1]]
-    return float(np.abs(vol).sum())
+        s.triangles[wrong[comp]] = t[wrong[comp]][:, [0, 2, 1]]
+    return float(np.where(outward, np.abs(vol), -np.abs(vol)).sum())
 
 
 def estimate_cells(s: Surface, h: float | None = None) -> int:
@@ -446,6 +454,49 @@ def _surface_into_gmsh(gmsh, s: Surface) -> int:
     return tag
 
 
+def _volumes_with_cavities(gmsh, s: Surface) -> None:
+    """One discrete surface per shell and one volume per solid: a shell at even depth bounds a solid,
+    the shells one level deeper inside it its cavities (gmsh fills a single loop of every shell
+    through its cavities). The shells share no point (they are the surface's point-connected parts)."""
+    tags = []
+    for j in range(s.depth.size):  # a loop over shells
+        tri = s.triangles[s.shells == j]
+        used = np.unique(tri)
+        tag = gmsh.model.addDiscreteEntity(2)
+        gmsh.model.mesh.addNodes(2, tag, used + 1, s.points[used].reshape(-1))
+        gmsh.model.mesh.addElementsByType(tag, 2, [], (tri + 1).reshape(-1))
+        tags.append(gmsh.model.geo.addSurfaceLoop([tag]))
+    for j in np.flatnonzero(s.depth % 2 == 0):
+        holes = [tags[c] for c in np.flatnonzero((s.depth == s.depth[j] + 1) & s.inside[:, j])]
+        gmsh.model.geo.addVolume([tags[j], *holes])
+
+
+def _enclosing(points: np.ndarray, t: np.ndarray, comp: np.ndarray, n: int) -> np.ndarray:
+    """(S, S) bool: shell i lies inside shell j. The winding number of shell j at a point of shell i
+    (the solid angle its triangles make there over 4 pi, Van Oosterom & Strackee's formula: 1 inside a
+    closed shell, 0 outside; the shells share no point). A loop over shells (a file holds a few) and
+    chunks of triangles, not over triangles."""
+    out = np.zeros((n, n), dtype=bool)
+    if n < 2:
+        return out
+    first = np.zeros(n, dtype=np.int64)
+    first[comp[::-1]] = np.arange(len(t))[::-1]
+    probe = points[t[first, 0]]  # a point of each shell
+    step = max(1, 4_000_000 // n)
+    for j in range(n):
+        mine = t[comp == j]
+        w = np.zeros(n)
+        for k in range(0, len(mine), step):
+            a, b, c = (points[mine[k : k + step, i]][None] - probe[:, None] for i in range(3))
+            la, lb, lc = (np.linalg.norm(v, axis=2) for v in (a, b, c))
+            num = np.einsum("pti,pti->pt", a, np.cross(b, c))
+            den = la * lb * lc + (a * b).sum(2) * lc + (b * c).sum(2) * la + (c * a).sum(2) * lb
+            w += np.arctan2(num, den).sum(axis=1)
+        out[:, j] = np.abs(w / (2 * np.pi)) > 0.5
+        out[j, j] = False
+    return out
+
+
 def _tets_out(gmsh) -> tuple[np.ndarray, np.ndarray]:
     node_tags, coords, _ = gmsh.model.mesh.getNodes()
     coords = coords.reshape(-1, 3)
@@ -521,6 +572,12 @@ def fill_surface(
             f"filling {s.name} would make about {estimate:,} tetrahedra, more than the limit of {max_cells:,}: "
             f"use {how}, or raise the limit (--max-cells)"
         )
+    cavities = s.depth is not None and bool((s.depth % 2 == 1).any())
+    if remesh and cavities:
+        raise ParameterError(
+            f"{s.name} has inner shells that bound cavities: it is filled as it stands (its cavities left "
+            "empty), not re-meshed; drop --remesh / the fill size"
+        )
     if remesh:  # re-meshing a surface that crosses itself can end in a wrong volume without an error
         crossing = _crossing_error(s)
         if crossing is not None:
@@ -528,23 +585,24 @@ def fill_surface(
     expected = estimate / 60_000.0  # seconds: gmsh makes about 40-80k tetrahedra a second here
     t1 = time.perf_counter()
     with _gmsh(seed) as gmsh:
-        tag = _surface_into_gmsh(gmsh, s)
-        if remesh:
-            gmsh.option.setNumber("Mesh.MeshSizeMin", 0.5 * h)
-            gmsh.option.setNumber("Mesh.MeshSizeMax", h)
-            gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
-            gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
-            gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
-            try:
-                gmsh.model.mesh.classifySurfaces(np.radians(angle_deg), True, True, np.pi)
-                gmsh.model.mesh.createGeometry()
-            except Exception as exc:  # gmsh raises plain Exception
-                raise _gmsh_failure(s, exc) from None
-            surfaces = [e for _, e in gmsh.model.getEntities(2)]
+        if cavities:  # a volume per solid, its cavities left empty (never re-meshed: refused above)
+            _volumes_with_cavities(gmsh, s)
         else:
+            tag = _surface_into_gmsh(gmsh, s)
             surfaces = [tag]
-        loop = gmsh.model.geo.addSurfaceLoop(surfaces)
-        gmsh.model.geo.addVolume([loop])
+            if remesh:
+                gmsh.option.setNumber("Mesh.MeshSizeMin", 0.5 * h)
+                gmsh.option.setNumber("Mesh.MeshSizeMax", h)
+                gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
+                gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
+                gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
+                try:
+                    gmsh.model.mesh.classifySurfaces(np.radians(angle_deg), True, True, np.pi)
+                    gmsh.model.mesh.createGeometry()
+                except Exception as exc:  # gmsh raises plain Exception
+                    raise _gmsh_failure(s, exc) from None
+                surfaces = [e for _, e in gmsh.model.getEntities(2)]
+            gmsh.model.geo.addVolume([gmsh.model.geo.addSurfaceLoop(surfaces)])
         gmsh.model.geo.synchronize()
         try:
             with _ticking(progress, "fill", expected):
