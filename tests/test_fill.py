@@ -364,3 +364,72 @@ def test_inner_shells_bound_cavities_and_stay_empty(tmp_path, shapes, radii):
         assert not empty.any()  # no tetrahedron inside the cavity
     with pytest.raises(ParameterError, match="cavities"):
         fill_surface(_write(tmp_path / "hollow.stl", points, tris), remesh=True)
+
+
+def _box_quads(n=4):
+    """A unit cube's surface as n x n quads per side: (points, quads), as a writer with no care for
+    orientation makes them."""
+    import itertools
+
+    g = np.linspace(0.0, 1.0, n + 1)
+    pts, quads = [], []
+    for axis, side in itertools.product(range(3), (0.0, 1.0)):
+        u, v = [a for a in range(3) if a != axis]
+        base = len(pts)
+        for j, i in itertools.product(range(n + 1), range(n + 1)):
+            p = [0.0, 0.0, 0.0]
+            p[axis], p[u], p[v] = side, g[i], g[j]
+            pts.append(p)
+        for j, i in itertools.product(range(n), range(n)):
+            q = [
+                base + j * (n + 1) + i,
+                base + j * (n + 1) + i + 1,
+                base + (j + 1) * (n + 1) + i + 1,
+                base + (j + 1) * (n + 1) + i,
+            ]
+            quads.append(q)  # (orientation: the fill turns each shell outward itself)
+    return np.array(pts), np.array(quads)
+
+
+def test_off_and_obj_as_other_tools_write_them(tmp_path):
+    """Sweep T: OFF with quads or with a colour after each face, and OBJ faces 'v/vt/vn' with fewer
+    texture coordinates than points and negative (relative) indices, were refused as corrupted
+    (meshio's readers). Each now fills the cube to volume 1 (the quads cut into triangles)."""
+    pts, quads = _box_quads()
+    off = tmp_path / "cube.off"
+    lines = ["OFF", "# a comment", f"{len(pts)} {len(quads)} 0"]
+    lines += [f"{x:.17g} {y:.17g} {z:.17g}" for x, y, z in pts]
+    lines += ["4 " + " ".join(map(str, q)) + " 255 0 0" for q in quads]  # a colour after each face
+    off.write_text("\n".join(lines) + "\n")
+    obj = tmp_path / "cube.obj"
+    lines = ["mtllib cube.mtl", "o cube"] + [f"v {x:.17g} {y:.17g} {z:.17g}" for x, y, z in pts]
+    lines += ["vt 0 0", "vt 1 0", "vt 1 1", "vn 0 0 1"]
+    for q in quads:  # negative indices: counted back from the last point
+        lines.append("f " + " ".join(f"{int(i) - len(pts)}/{1 + k % 3}/1" for k, i in enumerate(q)))
+    obj.write_text("\n".join(lines) + "\n")
+    for path in (off, obj):
+        f = fill_surface(path)
+        assert tet_volume(f.points, f.tets) == pytest.approx(1.0, rel=1e-12)
+        assert f.info["enclosed_volume"] == pytest.approx(1.0, rel=1e-12)
+    # one face of the cube alone is a planar mesh of quads: read as quads, not refused
+    face = tmp_path / "face.obj"
+    keep = quads[:16]
+    used = np.unique(keep)
+    remap = np.full(len(pts), -1)
+    remap[used] = np.arange(used.size)
+    face.write_text(
+        "\n".join(
+            [f"v {x} {y} {z}" for x, y, z in pts[used]]
+            + ["f " + " ".join(str(i + 1) for i in remap[q]) for q in keep]
+        )
+    )
+    mesh = read_mesh(str(face))
+    assert (
+        mesh.dim == 2
+        and mesh.n_cells == 16
+        and float(np.abs(mesh.meta["measures"]).sum()) == pytest.approx(1.0)
+    )
+    bad = tmp_path / "bad.off"
+    bad.write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n")
+    with pytest.raises(MeshError, match=r"cannot read bad\.off as OFF: it announces 3 points and 1 faces"):
+        read_surface(bad)

@@ -123,16 +123,24 @@ def read_surface(path) -> Surface:
         raise MeshError(f"surface file is empty: {name}")
     import meshio
 
+    from models.mesh import surface_text
+
     fmt = ext.lstrip(".").upper()
+    own = {".off": surface_text.read_off, ".obj": surface_text.read_obj}.get(ext)
     try:
-        with (
-            warnings.catch_warnings(),
-            contextlib.redirect_stdout(io.StringIO()),
-            contextlib.redirect_stderr(io.StringIO()),
-            np.errstate(all="ignore"),
-        ):
-            warnings.simplefilter("ignore")
-            m = meshio.read(path, file_format=ext.lstrip("."))
+        if own is not None:  # (meshio's readers refuse OFF polygons, colours, OBJ's v/vt/vn and -1)
+            m = surface_text.as_meshio(*own(path))
+        else:
+            with (
+                warnings.catch_warnings(),
+                contextlib.redirect_stdout(io.StringIO()),
+                contextlib.redirect_stderr(io.StringIO()),
+                np.errstate(all="ignore"),
+            ):
+                warnings.simplefilter("ignore")
+                m = meshio.read(path, file_format=ext.lstrip("."))
+    except MeshError as exc:  # ours: what is wrong in the file
+        raise MeshError(f"cannot read {name} as {fmt}: {exc}") from None
     except (Exception, SystemExit):  # meshio raises many kinds (even SystemExit) on broken input
         raise MeshError(f"cannot read {name} as {fmt}: the file is corrupted or not {fmt}") from None
     tris, volume_cells = [], 0

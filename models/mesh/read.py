@@ -398,6 +398,16 @@ def _read(path: str, physical_tag, file_format, weld, native: bool = True) -> Me
         )
     if (family, detail) == ("meshio", "gmsh"):
         return _read_gmsh(path, physical_tag, weld, native)
+    if family == "meshio" and detail in ("obj", "off"):  # (meshio refuses OFF polygons, OBJ's v/vt/vn)
+        from models.mesh import surface_text
+
+        try:
+            faces = (surface_text.read_obj if detail == "obj" else surface_text.read_off)(path)
+        except MeshError as exc:
+            raise MeshError(f"cannot read {os.path.basename(path)} as {detail.upper()}: {exc}") from None
+        return mesh_from_meshio(
+            surface_text.as_meshio(*faces), physical_tag=physical_tag, weld=weld, owned=True
+        )
     from models.mesh.meshio_groups import named_groups
 
     m = _read_meshio(path, detail)
@@ -500,7 +510,6 @@ def _meshio_dimensions() -> None:
 # for the next line forever on a truncated file)
 _BUFFER_READERS = {
     "ply": ("meshio.ply._ply", "rb"),
-    "obj": ("meshio.obj._obj", "r"),
     "abaqus": ("meshio.abaqus._abaqus", "r"),
     "nastran": ("meshio.nastran._nastran", "r"),
     "su2": ("meshio.su2._su2", "r"),
