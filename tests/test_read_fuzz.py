@@ -450,3 +450,16 @@ def test_an_in_process_read_has_a_deadline_too(corpus, monkeypatch):
     with pytest.raises(MeshError):
         read_mesh_safe(path, timeout_s=0.2, in_process=True)
     assert signal.getsignal(signal.SIGALRM) is before  # the caller's handler (pytest-timeout's) is back
+
+
+def test_a_refusal_names_the_file_once(tmp_path):
+    """Sweep T: a gmsh file named .vtu was refused as 'cannot read x.vtu as VTK XML (VTU): cannot
+    read x.vtu as VTK XML (.vtu): ...'. A sentence that names the file and a format already is kept."""
+    from models.mesh.read import read_mesh
+
+    path = tmp_path / "wrongext.vtu"
+    path.write_text("$MeshFormat\n2.2 0 8\n$EndMeshFormat\n")
+    for read in (read_mesh, read_mesh_safe):
+        with pytest.raises(MeshError) as err:
+            read(str(path))
+        assert str(err.value).count("cannot read wrongext.vtu") == 1, str(err.value)

@@ -307,7 +307,7 @@ def refusal(msg: str, path: str, file_format: str | None) -> str:
     where it can be known, the place."""
     name, fmt = os.path.basename(path), format_name(path, file_format)
     msg = _with_place(msg, path, file_format)
-    if name in msg and fmt in msg:
+    if (name in msg and fmt in msg) or msg.startswith(f"cannot read {name} as "):  # (said already)
         return msg
     for prefix in (f"cannot read {name}: ", f"{name}: "):
         if msg.startswith(prefix):
@@ -404,7 +404,9 @@ def _read(path: str, physical_tag, file_format, weld, native: bool = True) -> Me
         try:
             faces = (surface_text.read_obj if detail == "obj" else surface_text.read_off)(path)
         except MeshError as exc:
-            raise MeshError(f"cannot read {os.path.basename(path)} as {detail.upper()}: {exc}") from None
+            raise MeshError(
+                f"cannot read {os.path.basename(path)} as {format_name(path, file_format)}: {exc}"
+            ) from None
         return mesh_from_meshio(
             surface_text.as_meshio(*faces), physical_tag=physical_tag, weld=weld, owned=True
         )
