@@ -113,3 +113,26 @@ def test_ucd_cell_line_with_an_unknown_point(tmp_path):
     with pytest.raises(MeshError) as err:
         read_mesh(path)
     assert str(err.value).startswith("cannot read m.ucd") and where in str(err.value)
+
+
+def test_ucd_with_data_sections_is_placed_where_it_goes_wrong(tmp_path):
+    """Sweep T: a UCD file whose header announces node or cell data (deal.II writes them) was
+    blamed at its header ('3' where a data count (0) is expected) whatever was wrong; a repeated
+    point id had no place of its own."""
+    body = "".join(f"{i + 1} {x} {y} {z}\n" for i, (x, y, z) in enumerate(PTS))
+    data = "1 1\nu, none\n" + "".join(f"{i + 1} 0.5\n" for i in range(5))
+    path = tmp_path / "m.ucd"
+    path.write_text(
+        "5 2 1 0 0\n" + body.replace("2 1.0", "2 1,0", 1) + "1 1 tet 1 2 3 4\n2 1 tet 2 3 4 5\n" + data
+    )
+    assert locate(path, "ucd").startswith("line 3 (section points, from line 2): '1,0' where a coordinate")
+    path.write_text(
+        "5 2 1 0 0\n" + body.replace("2 1.0", "1 1.0", 1) + "1 1 tet 1 2 3 4\n2 1 tet 2 3 4 5\n" + data
+    )
+    where = locate(path, "ucd")
+    assert (
+        where == "line 3 (section points, from line 2): '1' where a point id no earlier point has is expected"
+    )
+    with pytest.raises(MeshError) as err:
+        read_mesh(path)
+    assert where in str(err.value)

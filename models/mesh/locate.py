@@ -299,12 +299,15 @@ def _ucd(lines: list[bytes]) -> None:
     t.enter("header")
     n_pts = t.int("the number of points", lo=0)
     n_cells = t.int("the number of cells", lo=0)
-    for _ in range(3):
-        t.int("a data count (0)", lo=0, hi=0)
+    for what in ("node data", "cell data", "model data"):  # (their sections follow the cells)
+        t.int(f"the number of {what} components", lo=0)
     t.enter("points")
     ids = set()
     for _ in range(n_pts):
-        ids.add(t.int("a point id"))
+        i = t.int("a point id")
+        if i in ids:
+            t.fail(str(i).encode(), "a point id no earlier point has")
+        ids.add(i)
         if len(t.toks) != 4:
             raise _Found(f"line {t.line:,} (section points, from line {t.since}): 'id x y z' is expected")
         for _ in range(3):
