@@ -51,7 +51,7 @@ def extension_of(filename: str | None) -> str:
             f"of {', '.join('.' + e for e in ALLOWED_EXTENSIONS)}",
             "filename",
         )
-    if "." + ext in formats.MULTI_FILE:
+    if "." + ext in formats.ARCHIVE_ONLY:
         shown = os.path.basename((filename or "").replace("\\", "/"))[:100]
         fmt = formats.format_name(shown)
         raise UploadRejected(
@@ -63,12 +63,12 @@ def extension_of(filename: str | None) -> str:
     if ext not in ALLOWED_EXTENSIONS:
         shown = os.path.basename((filename or "").replace("\\", "/"))[:100]
         what = f"the file name {shown}" if shown else "the upload has no file name: it"
-        multi = f" ({', '.join(formats.MULTI_FILE)} with its data files: a .zip or .tar.gz holding them)"
+        multi = f" ({', '.join(formats.ARCHIVE_ONLY)} with its data files: a .zip or .tar.gz holding them)"
         raise UploadRejected(
             422,
             f"{what} has no mesh format extension we read; use one of: "
             f"{', '.join('.' + e for e in ALLOWED_EXTENSIONS)}"
-            + (multi if "." + ext in formats.MULTI_FILE else ""),
+            + (multi if "." + ext in formats.ARCHIVE_ONLY else ""),
             "filename",
         )
     return ext

@@ -316,10 +316,24 @@ def test_service_takes_a_zip_upload_and_the_page_lists_the_readers_formats(tmp_p
             "/v1/meshes", params={"filename": "case.zip"}, content=archive.read_bytes(), headers=head
         )
         assert r.status_code == 201 and r.json()["cells"] == 135, r.text
-        r = client.post("/v1/meshes", params={"filename": "case.xdmf"}, content=b"<Xdmf/>", headers=head)
-        assert r.status_code == 422 and ".zip" in r.json()["detail"] and r.json()["field"] == "filename", (
-            r.text
+        # the XDMF alone, its data in the .h5 left behind: the data file named, an archive asked for
+        xdmf = next(p for p in files if p.suffix == ".xdmf")
+        r = client.post(
+            "/v1/meshes", params={"filename": "case.xdmf"}, content=xdmf.read_bytes(), headers=head
         )
+        assert r.status_code == 422 and ".zip" in r.json()["detail"], r.text
+        assert "data file" in r.json()["detail"] and ".h5" in r.json()["detail"], r.text
+        # an XDMF holding its data inline (sweep T: it was asked for in an archive all the same)
+        import meshio
+        from mutants import _grid
+
+        pts, tets, _ = _grid()
+        inline = tmp_path / "inline.xdmf"
+        meshio.write(inline, meshio.Mesh(pts, [("tetra", tets)]), data_format="XML")
+        r = client.post(
+            "/v1/meshes", params={"filename": "inline.xdmf"}, content=inline.read_bytes(), headers=head
+        )
+        assert r.status_code == 201 and r.json()["cells"] == len(tets), r.text
         page = client.get("/").text
         for ext in UPLOAD_EXTENSIONS:
             assert ext in page, ext

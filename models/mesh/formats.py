@@ -96,6 +96,9 @@ MULTI_FILE = (
     ".case",
     ".encas",
 )
+# of those, files that may hold all their data themselves (an XDMF with its DataItems inline, as
+# Format="XML"): taken alone over HTTP, the reader naming any data file that is not beside them
+MAY_STAND_ALONE = (".xdmf", ".xmf")
 # compound extensions first: "case.cas.h5" is a Fluent case, not an HDF5 file
 COMPOUND = {
     ".cas.h5": "Fluent case (HDF5)",
@@ -107,7 +110,11 @@ COMPOUND = {
 MESH_EXTENSIONS = tuple(sorted({*FORMATS, *COMPOUND}))
 ARCHIVES = (".zip", ".tar.gz", ".tgz", ".tar")
 # what the HTTP API and the web page accept: every single-file format, and archives holding the rest
-UPLOAD_EXTENSIONS = tuple(e for e in FORMATS if e not in MULTI_FILE) + tuple(COMPOUND) + ARCHIVES
+UPLOAD_EXTENSIONS = (
+    tuple(e for e in FORMATS if e not in MULTI_FILE or e in MAY_STAND_ALONE) + tuple(COMPOUND) + ARCHIVES
+)
+# what is asked for in an archive when uploaded alone
+ARCHIVE_ONLY = tuple(e for e in MULTI_FILE if e not in MAY_STAND_ALONE)
 
 
 def extension(path: str | os.PathLike) -> str:
@@ -142,6 +149,8 @@ __all__ = [
     "FORMATS",
     "MESH_EXTENSIONS",
     "MULTI_FILE",
+    "MAY_STAND_ALONE",
+    "ARCHIVE_ONLY",
     "ARCHIVES",
     "UPLOAD_EXTENSIONS",
     "extension",

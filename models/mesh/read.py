@@ -154,9 +154,10 @@ def _pieces_present(path: str, ext: str) -> None:
                 "lies outside the file's folder; keep the pieces beside it or below it"
             )
         if not os.path.exists(where):
+            what = "data file" if ext in (".xdmf", ".xmf") else "piece file"
             raise MeshError(
-                f"cannot read {os.path.basename(path)} as {format_name(path)}: its piece file {piece} is "
-                "missing (keep the pieces beside it, or upload them all in one .zip or .tar.gz)"
+                f"cannot read {os.path.basename(path)} as {format_name(path)}: its {what} {piece} is "
+                f"missing (keep the {what}s beside it, or upload them all in one .zip or .tar.gz)"
             )
 
 

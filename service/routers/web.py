@@ -48,11 +48,12 @@ def mount_page(app: FastAPI) -> None:
 def index() -> HTMLResponse:
     """The web page (no auth: the page itself asks for the API key and sends it with every call),
     its list of accepted extensions the readers' (models.mesh.formats, as the upload check)."""
-    from models.mesh.formats import MULTI_FILE
+    from models.mesh.formats import ARCHIVE_ONLY, MAY_STAND_ALONE
     from service.mesh_check import ALLOWED_EXTENSIONS
 
     shown = " ".join("." + e for e in ALLOWED_EXTENSIONS)
-    shown += f" ({' '.join(MULTI_FILE)} with its data files: in a .zip or .tar.gz)"
+    shown += f" ({' '.join(ARCHIVE_ONLY)} with its data files: in a .zip or .tar.gz;"
+    shown += f" {' '.join(MAY_STAND_ALONE)} alone when its data are inline)"
     page = (WEB_DIR / "index.html").read_text()
     page = page.replace("{{EXTENSIONS}}", html.escape(shown))
     return HTMLResponse(
