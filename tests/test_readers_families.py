@@ -333,6 +333,27 @@ def test_xdmf_heavy_data_missing_or_outside_is_named(tmp_path):
         assert name in str(err.value) and heavy in str(err.value)
 
 
+def test_xdmf_binary_and_included_files_outside_are_refused(tmp_path):
+    """An XDMF taken alone over HTTP (its data may be inline) names files by more than HDF5
+    references: a Binary data item's file, an xi:include's href, an HDF file of any name. One outside
+    the file's folder is refused before VTK's reader opens it (an upload never reads a server file)."""
+    p, blocks = fw.blocks()
+    text = open(fw.write_xdmf(tmp_path / "a.xdmf", p, blocks)).read()
+    binary = '<DataItem Dimensions="3" NumberType="Float" Format="Binary">/etc/hostname</DataItem>'
+    include = '<xi:include href="../other.xmf" xpointer="xpointer(//Xdmf/Domain/Grid)"/>'
+    odd_hdf = '<DataItem Dimensions="3" Format="HDF">/srv/data/mesh.dat:/coords</DataItem>'
+    for name, extra, named in (
+        ("bin.xdmf", binary, "/etc/hostname"),
+        ("inc.xdmf", include, "../other.xmf"),
+        ("hdf.xdmf", odd_hdf, "/srv/data/mesh.dat"),
+    ):
+        bad = tmp_path / name
+        bad.write_text(text.replace("<Domain>", "<Domain>" + extra, 1))
+        with pytest.raises(MeshError, match="lies outside") as err:
+            read_mesh(str(bad))
+        assert name in str(err.value) and named in str(err.value)
+
+
 def test_ensight_mutants_are_a_mesh_or_one_clear_sentence(tmp_path):
     """The mutation test (tests/mutants.py) over an ASCII EnSight geometry file, read in the sandbox
     as the service reads: a Mesh, or one sentence naming the case and the format with no library

@@ -130,31 +130,51 @@ def _other_vtktypes(path: str) -> bool:
 
 _PIECE = re.compile(rb"""<(?:Piece|DataSet)\b[^>]*?\b(?:Source|file)\s*=\s*["']([^"']+)["']""")
 _HEAVY = re.compile(rb"""(?:>|\s)([^\s<>"':]+\.(?:h5|hdf5|hdf|he5)):/""")  # XDMF's heavy data: file.h5:/path
+_XI_HREF = re.compile(rb"""<xi:include\b[^>]*?\bhref\s*=\s*["']([^"'#]+)""")  # XDMF's included files
+# XDMF's data items that name a file: Binary (the file) and HDF (file:/path), whatever the file's name
+_XDMF_FILE_ITEM = re.compile(
+    rb"""<DataItem\b[^>]*?\bFormat\s*=\s*["'](?:Binary|HDF)["'][^>]*>\s*([^<\s][^<]*?)\s*<""", re.IGNORECASE
+)
 
 
 def _pieces_present(path: str, ext: str) -> None:
-    """A parallel or multiblock VTK XML file names its pieces' files (XDMF its HDF5 files): say which one is missing (VTK's
-    reader only fails), relative to the file's folder as VTK resolves them; a piece outside that
-    folder (an absolute path, or up with '..') is refused: an upload never makes the reader open
-    another file of the server."""
+    """A parallel or multiblock VTK XML file names its pieces' files (XDMF its data files): say
+    which one is missing (VTK's reader only fails), relative to the file's folder as VTK resolves
+    them; a piece outside that folder (an absolute path, or up with '..') is refused: an upload never
+    makes the reader open another file of the server. An XDMF is scanned whole (its data may be
+    inline, and large): its HDF5 files, its Binary data files and its xi:include files."""
+    import mmap
+
+    xdmf = ext in (".xdmf", ".xmf")
     try:
-        if os.path.getsize(path) > (16 << 20):  # (a header file is small: a large one is VTK's to read)
+        if not xdmf and os.path.getsize(path) > (16 << 20):  # (a header file is small)
             return
         with open(path, "rb") as fh:
-            text = fh.read()
-    except OSError:
+            if os.fstat(fh.fileno()).st_size == 0:
+                return
+            text = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
+    except (OSError, ValueError):
         return
     folder = os.path.dirname(os.path.abspath(path))
-    for m in (_HEAVY if ext in (".xdmf", ".xmf") else _PIECE).finditer(text):
-        piece = m.group(1).decode("utf-8", "replace")
+    try:
+        if xdmf:
+            found = [m.group(1) for m in _HEAVY.finditer(text)]
+            found += [m.group(1) for m in _XI_HREF.finditer(text)]
+            found += [m.group(1).split(b":/", 1)[0] for m in _XDMF_FILE_ITEM.finditer(text)]
+        else:
+            found = [m.group(1) for m in _PIECE.finditer(text)]
+    finally:
+        text.close()
+    what = "data file" if xdmf else "piece file"
+    for raw in dict.fromkeys(found):
+        piece = raw.decode("utf-8", "replace").strip()
         where = os.path.normpath(os.path.join(folder, piece))
         if os.path.isabs(piece) or os.path.commonpath([folder, where]) != folder:
             raise MeshError(  # (an upload naming files of the server: never read)
-                f"cannot read {os.path.basename(path)} as {format_name(path)}: its piece file {piece} "
-                "lies outside the file's folder; keep the pieces beside it or below it"
+                f"cannot read {os.path.basename(path)} as {format_name(path)}: its {what} {piece} "
+                f"lies outside the file's folder; keep the {what}s beside it or below it"
             )
         if not os.path.exists(where):
-            what = "data file" if ext in (".xdmf", ".xmf") else "piece file"
             raise MeshError(
                 f"cannot read {os.path.basename(path)} as {format_name(path)}: its {what} {piece} is "
                 f"missing (keep the {what}s beside it, or upload them all in one .zip or .tar.gz)"
