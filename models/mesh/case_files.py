@@ -1,6 +1,7 @@
 """Formats whose file names other files, checked before a reader opens any: an OpenFOAM case
-(its folder, .foam file or system/controlDict; reconstructed or decomposed) and an EnSight case
-(its geometry and variable files, never outside its folder)."""
+(its folder, .foam file or system/controlDict; reconstructed or decomposed), an EnSight case
+(its geometry and variable files, never outside its folder), VTK's parallel and multiblock files
+(their pieces) and XDMF (its data files)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import os
 import re
 
 from models.errors import MeshError
+from models.mesh.formats import format_name
 
 _ENSIGHT_FILE = re.compile(
     rb"^\s*(?:model|measured|[a-z ]+per (?:node|element|case))\s*:\s*(?:[\d\s]*?)(\S+)\s*$",
@@ -80,3 +82,56 @@ def openfoam_file(folder: str) -> str | None:
         return os.path.join(folder, foams[0])
     control = os.path.join(folder, "system", "controlDict")
     return control if os.path.isfile(control) else None
+
+
+_PIECE = re.compile(rb"""<(?:Piece|DataSet)\b[^>]*?\b(?:Source|file)\s*=\s*["']([^"']+)["']""")
+_HEAVY = re.compile(rb"""(?:>|\s)([^\s<>"':]+\.(?:h5|hdf5|hdf|he5)):/""")  # XDMF's heavy data: file.h5:/path
+_XI_HREF = re.compile(rb"""<xi:include\b[^>]*?\bhref\s*=\s*["']([^"'#]+)""")  # XDMF's included files
+# XDMF's data items that name a file: Binary (the file) and HDF (file:/path), whatever the file's name
+_XDMF_FILE_ITEM = re.compile(
+    rb"""<DataItem\b[^>]*?\bFormat\s*=\s*["'](?:Binary|HDF)["'][^>]*>\s*([^<\s][^<]*?)\s*<""", re.IGNORECASE
+)
+
+
+def pieces_present(path: str, ext: str) -> None:
+    """A parallel or multiblock VTK XML file names its pieces' files (XDMF its data files): say
+    which one is missing (VTK's reader only fails), relative to the file's folder as VTK resolves
+    them; a piece outside that folder (an absolute path, or up with '..') is refused: an upload never
+    makes the reader open another file of the server. An XDMF is scanned whole (its data may be
+    inline, and large): its HDF5 files, its Binary data files and its xi:include files."""
+    import mmap
+
+    xdmf = ext in (".xdmf", ".xmf")
+    try:
+        if not xdmf and os.path.getsize(path) > (16 << 20):  # (a header file is small)
+            return
+        with open(path, "rb") as fh:
+            if os.fstat(fh.fileno()).st_size == 0:
+                return
+            text = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
+    except (OSError, ValueError):
+        return
+    folder = os.path.dirname(os.path.abspath(path))
+    try:
+        if xdmf:
+            found = [m.group(1) for m in _HEAVY.finditer(text)]
+            found += [m.group(1) for m in _XI_HREF.finditer(text)]
+            found += [m.group(1).split(b":/", 1)[0] for m in _XDMF_FILE_ITEM.finditer(text)]
+        else:
+            found = [m.group(1) for m in _PIECE.finditer(text)]
+    finally:
+        text.close()
+    what = "data file" if xdmf else "piece file"
+    for raw in dict.fromkeys(found):
+        piece = raw.decode("utf-8", "replace").strip()
+        where = os.path.normpath(os.path.join(folder, piece))
+        if os.path.isabs(piece) or os.path.commonpath([folder, where]) != folder:
+            raise MeshError(  # (an upload naming files of the server: never read)
+                f"cannot read {os.path.basename(path)} as {format_name(path)}: its {what} {piece} "
+                f"lies outside the file's folder; keep the {what}s beside it or below it"
+            )
+        if not os.path.exists(where):
+            raise MeshError(
+                f"cannot read {os.path.basename(path)} as {format_name(path)}: its {what} {piece} is "
+                f"missing (keep the {what}s beside it, or upload them all in one .zip or .tar.gz)"
+            )

@@ -128,59 +128,6 @@ def _other_vtktypes(path: str) -> bool:
     return _found(path, _VTKTYPE)
 
 
-_PIECE = re.compile(rb"""<(?:Piece|DataSet)\b[^>]*?\b(?:Source|file)\s*=\s*["']([^"']+)["']""")
-_HEAVY = re.compile(rb"""(?:>|\s)([^\s<>"':]+\.(?:h5|hdf5|hdf|he5)):/""")  # XDMF's heavy data: file.h5:/path
-_XI_HREF = re.compile(rb"""<xi:include\b[^>]*?\bhref\s*=\s*["']([^"'#]+)""")  # XDMF's included files
-# XDMF's data items that name a file: Binary (the file) and HDF (file:/path), whatever the file's name
-_XDMF_FILE_ITEM = re.compile(
-    rb"""<DataItem\b[^>]*?\bFormat\s*=\s*["'](?:Binary|HDF)["'][^>]*>\s*([^<\s][^<]*?)\s*<""", re.IGNORECASE
-)
-
-
-def _pieces_present(path: str, ext: str) -> None:
-    """A parallel or multiblock VTK XML file names its pieces' files (XDMF its data files): say
-    which one is missing (VTK's reader only fails), relative to the file's folder as VTK resolves
-    them; a piece outside that folder (an absolute path, or up with '..') is refused: an upload never
-    makes the reader open another file of the server. An XDMF is scanned whole (its data may be
-    inline, and large): its HDF5 files, its Binary data files and its xi:include files."""
-    import mmap
-
-    xdmf = ext in (".xdmf", ".xmf")
-    try:
-        if not xdmf and os.path.getsize(path) > (16 << 20):  # (a header file is small)
-            return
-        with open(path, "rb") as fh:
-            if os.fstat(fh.fileno()).st_size == 0:
-                return
-            text = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
-    except (OSError, ValueError):
-        return
-    folder = os.path.dirname(os.path.abspath(path))
-    try:
-        if xdmf:
-            found = [m.group(1) for m in _HEAVY.finditer(text)]
-            found += [m.group(1) for m in _XI_HREF.finditer(text)]
-            found += [m.group(1).split(b":/", 1)[0] for m in _XDMF_FILE_ITEM.finditer(text)]
-        else:
-            found = [m.group(1) for m in _PIECE.finditer(text)]
-    finally:
-        text.close()
-    what = "data file" if xdmf else "piece file"
-    for raw in dict.fromkeys(found):
-        piece = raw.decode("utf-8", "replace").strip()
-        where = os.path.normpath(os.path.join(folder, piece))
-        if os.path.isabs(piece) or os.path.commonpath([folder, where]) != folder:
-            raise MeshError(  # (an upload naming files of the server: never read)
-                f"cannot read {os.path.basename(path)} as {format_name(path)}: its {what} {piece} "
-                f"lies outside the file's folder; keep the {what}s beside it or below it"
-            )
-        if not os.path.exists(where):
-            raise MeshError(
-                f"cannot read {os.path.basename(path)} as {format_name(path)}: its {what} {piece} is "
-                f"missing (keep the {what}s beside it, or upload them all in one .zip or .tar.gz)"
-            )
-
-
 def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
     """One reader per file, by extension and a look at its first bytes: (family, detail) with
     family "vtu" (our fast VTU path, VTK's reader for any other VTU), "vtk" (detail: a key of
@@ -218,7 +165,7 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
         if not xml:
             raise MeshError(f"cannot read {name} as VTK XML ({ext}): the file does not start with an XML tag")
         if ext in MULTI_FILE:
-            _pieces_present(path, ext)
+            case_files.pieces_present(path, ext)
         return ("vtu", "") if ext == ".vtu" else ("vtk", ext)
     if ext in _EXODUS:
         if head[:3] == b"CDF" or head[:4] == b"\x89HDF":
@@ -234,7 +181,7 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
         if ext in (".xdmf", ".xmf") and not xml:
             raise MeshError(f"cannot read {name} as XDMF: the file does not start with an XML tag")
         if ext in (".xdmf", ".xmf"):
-            _pieces_present(path, ext)
+            case_files.pieces_present(path, ext)
         if ext == ".vtkhdf" and head[:4] != b"\x89HDF":
             raise MeshError(f"cannot read {name} as VTKHDF: the file is not HDF5 (byte 0)")
         if ext == ".cas" and not text.startswith(b"("):

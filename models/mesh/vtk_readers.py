@@ -265,7 +265,7 @@ _PVD_ATTR = re.compile(rb"""\b(timestep|part|file)\s*=\s*["']([^"']*)["']""")
 def _collection(path: str, fmt: str):
     """A ParaView data collection (.pvd, a time series as FEniCS and many solvers write it): the
     mesh of its first time step, that step's parts (a part per process) read by VTK's XML readers
-    and joined as a parallel file's pieces. read._pieces_present has checked that the files are
+    and joined as a parallel file's pieces. case_files.pieces_present has checked that the files are
     there, inside the file's folder."""
     from vtkmodules.vtkCommonDataModel import vtkMultiBlockDataSet
     from vtkmodules.vtkIOXML import vtkXMLGenericDataObjectReader
