@@ -231,3 +231,30 @@ def vtk_read(path: str) -> int:
     r.SetFileName(path)
     r.Update()
     return r.GetOutput().GetNumberOfCells()
+
+
+def read_mutants(folder: Path, data: bytes, stem: str, suffix: str, fmt: str, seed: int, n: int) -> dict:
+    """n mutants of `data` written as folder/{stem}{i}{suffix}, each read in the sandbox as the
+    service reads: a Mesh, or one sentence naming the file and `fmt` with no library text (a crash or
+    a hang of a native reader is a sentence too). Returns {"mesh": count, "refused": count}."""
+    from test_read_fuzz import RAW_RE
+
+    from models.errors import MeshError, ParameterError
+    from models.mesh.container import Mesh
+    from models.mesh.sandbox import read_mesh_safe
+
+    out = {"mesh": 0, "refused": 0}
+    for i, (how, bad) in enumerate(mutants(data, seed=seed, n=n)):
+        path = folder / f"{stem}{i}{suffix}"
+        path.write_bytes(bad)
+        try:
+            mesh = read_mesh_safe(str(path), timeout_s=20, memory_bytes=2 << 30)
+        except (MeshError, ParameterError) as exc:
+            msg = str(exc)
+            out["refused"] += 1
+            assert path.name in msg and fmt in msg, (how, msg)
+            assert not RAW_RE.search(msg) and "\n" not in msg, (how, msg)
+        else:
+            assert isinstance(mesh, Mesh) and mesh.n_cells > 0
+            out["mesh"] += 1
+    return out
