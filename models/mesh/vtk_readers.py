@@ -358,8 +358,9 @@ _KINDS = (
 
 
 def article(what: str) -> str:
-    """'an Exodus II', 'a legacy VTK': the indefinite article by the first letter."""
-    return ("an " if what[:1].lower() in "aeiou" else "a ") + what
+    """'an Exodus II', 'a legacy VTK', 'an XDMF': the indefinite article by the first sound (a vowel,
+    or an X said as a letter)."""
+    return ("an " if what[:1].lower() in "aeiou" or what[:2] in ("XD", "XM") else "a ") + what
 
 
 def explain(text: str, what: str) -> str:
