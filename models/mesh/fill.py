@@ -482,26 +482,35 @@ def _volumes_with_cavities(gmsh, s: Surface) -> None:
 def _enclosing(points: np.ndarray, t: np.ndarray, comp: np.ndarray, n: int) -> np.ndarray:
     """(S, S) bool: shell i lies inside shell j. The winding number of shell j at a point of shell i
     (the solid angle its triangles make there over 4 pi, Van Oosterom & Strackee's formula: 1 inside a
-    closed shell, 0 outside; the shells share no point). A loop over shells (a file holds a few) and
-    chunks of triangles, not over triangles."""
+    closed shell, 0 outside; the shells share no point), for the shells within shell j's bounding box
+    only. A loop over shells and chunks of triangles, not over triangles."""
     out = np.zeros((n, n), dtype=bool)
     if n < 2:
         return out
     first = np.zeros(n, dtype=np.int64)
     first[comp[::-1]] = np.arange(len(t))[::-1]
     probe = points[t[first, 0]]  # a point of each shell
-    step = max(1, 4_000_000 // n)
+    corner = np.repeat(comp, 3)
+    lo = np.full((n, 3), np.inf)
+    hi = np.full((n, 3), -np.inf)
+    np.minimum.at(lo, corner, points[t.reshape(-1)])
+    np.maximum.at(hi, corner, points[t.reshape(-1)])
     for j in range(n):
+        # only shells inside shell j's box can be inside it (many bodies side by side: none is)
+        cand = np.flatnonzero((lo >= lo[j]).all(1) & (hi <= hi[j]).all(1))
+        cand = cand[cand != j]
+        if cand.size == 0:
+            continue
         mine = t[comp == j]
-        w = np.zeros(n)
+        w = np.zeros(cand.size)
+        step = max(1, 4_000_000 // cand.size)
         for k in range(0, len(mine), step):
-            a, b, c = (points[mine[k : k + step, i]][None] - probe[:, None] for i in range(3))
+            a, b, c = (points[mine[k : k + step, i]][None] - probe[cand][:, None] for i in range(3))
             la, lb, lc = (np.linalg.norm(v, axis=2) for v in (a, b, c))
             num = np.einsum("pti,pti->pt", a, np.cross(b, c))
             den = la * lb * lc + (a * b).sum(2) * lc + (b * c).sum(2) * la + (c * a).sum(2) * lb
             w += np.arctan2(num, den).sum(axis=1)
-        out[:, j] = np.abs(w / (2 * np.pi)) > 0.5
-        out[j, j] = False
+        out[cand, j] = np.abs(w / (2 * np.pi)) > 0.5
     return out
 
 
