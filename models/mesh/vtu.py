@@ -450,9 +450,13 @@ def plain_number(token: bytes) -> float | None:
     if not _NUMBER.fullmatch(token):
         return None
     value = float(token)
-    if value == 0:
-        return None if re.search(rb"[1-9]", re.split(rb"[eE]", token)[0]) else value
+    if value == 0:  # (a zero written with a non-zero digit before its exponent underflowed)
+        return None if _NONZERO.search(_EXPONENT.split(token, 1)[0]) else value
     return value if math.isfinite(value) and abs(value) >= sys.float_info.min else None
+
+
+_NONZERO = re.compile(rb"[1-9]")
+_EXPONENT = re.compile(rb"[eE]")
 
 
 _NOT_XML = re.compile(rb"[\x00-\x08\x0b\x0c\x0e-\x1f]")
