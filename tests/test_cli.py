@@ -298,3 +298,23 @@ def test_an_internal_error_is_one_sentence_not_a_traceback(tmp_path, capsys, mon
     monkeypatch.setenv("MAGNET_TRACEBACK", "1")
     with pytest.raises(IndexError):
         main(["agglomerate", str(src), "--k", "2", "-o", str(tmp_path / "out.vtu")])
+
+
+def test_running_out_of_memory_is_said_as_such(tmp_path, capsys, monkeypatch):
+    """A MemoryError is no bug of ours: the user is told the mesh needs more memory (exit 2)."""
+    import meshio
+
+    import models.pipeline as pipeline
+    from models.cli.main import EXIT_USER_ERROR, main
+
+    src = tmp_path / "square.vtu"
+    pts = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0], [2, 1, 0]])
+    meshio.write(src, meshio.Mesh(pts, [("quad", np.array([[0, 1, 2, 3], [1, 4, 5, 2]]))]))
+
+    def hungry(*args, **kwargs):
+        raise MemoryError
+
+    monkeypatch.setattr(pipeline, "split_holes", hungry)
+    rc = main(["agglomerate", str(src), "--k", "2", "-o", str(tmp_path / "out.vtu")])
+    err = capsys.readouterr().err
+    assert rc == EXIT_USER_ERROR and "out of memory in 'agglomerate'" in err and "bug" not in err

@@ -552,6 +552,13 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("magnet: interrupted", file=sys.stderr)
         return 130
+    except MemoryError:
+        print(
+            f"magnet: error: out of memory in '{args.command}': the mesh needs more memory than this "
+            "machine has free; try a smaller mesh or a machine with more memory",
+            file=sys.stderr,
+        )
+        return EXIT_USER_ERROR
     except Exception:  # noqa: BLE001  (a bug of ours: one sentence, the traceback on request)
         if os.environ.get("MAGNET_TRACEBACK", "0") not in ("", "0"):
             raise
