@@ -126,7 +126,7 @@ def read_surface(path) -> Surface:
     from models.mesh import surface_text
 
     fmt = ext.lstrip(".").upper()
-    own = {".off": surface_text.read_off, ".obj": surface_text.read_obj}.get(ext)
+    own = surface_text.READERS.get(ext)
     try:
         if own is not None:  # (meshio's readers refuse OFF polygons, colours, OBJ's v/vt/vn and -1)
             m = surface_text.as_meshio(*own(path))

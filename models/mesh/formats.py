@@ -109,12 +109,10 @@ COMPOUND = {
 # every extension a mesh file may have (the one list: read.py's dispatch, the CLI's help, the page)
 MESH_EXTENSIONS = tuple(sorted({*FORMATS, *COMPOUND}))
 ARCHIVES = (".zip", ".tar.gz", ".tgz", ".tar")
-# what the HTTP API and the web page accept: every single-file format, and archives holding the rest
-UPLOAD_EXTENSIONS = (
-    tuple(e for e in FORMATS if e not in MULTI_FILE or e in MAY_STAND_ALONE) + tuple(COMPOUND) + ARCHIVES
-)
 # what is asked for in an archive when uploaded alone
 ARCHIVE_ONLY = tuple(e for e in MULTI_FILE if e not in MAY_STAND_ALONE)
+# what the HTTP API and the web page accept: every single-file format, and archives holding the rest
+UPLOAD_EXTENSIONS = tuple(e for e in FORMATS if e not in ARCHIVE_ONLY) + tuple(COMPOUND) + ARCHIVES
 
 
 def extension(path: str | os.PathLike) -> str:

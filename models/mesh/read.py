@@ -370,7 +370,7 @@ def _read(path: str, physical_tag, file_format, weld, native: bool = True) -> Me
         from models.mesh import surface_text
 
         try:
-            faces = (surface_text.read_obj if detail == "obj" else surface_text.read_off)(path)
+            faces = surface_text.READERS["." + detail](path)
         except MeshError as exc:
             raise MeshError(
                 f"cannot read {os.path.basename(path)} as {format_name(path, file_format)}: {exc}"

@@ -34,17 +34,6 @@ def _faces(counts: np.ndarray, words: list[bytes]) -> tuple[np.ndarray, np.ndarr
     return offsets, np.asarray(words)
 
 
-def triangles(offsets: np.ndarray, nodes: np.ndarray) -> np.ndarray:
-    """(T, 3) fans of polygons (offsets, nodes) from each one's first corner, grouped by size."""
-    sizes = np.diff(offsets)
-    out = []
-    for k in np.unique(sizes[sizes >= 3]):  # a loop over polygon sizes, not polygons
-        rows = nodes[offsets[:-1][sizes == k][:, None] + np.arange(k)]
-        fan = np.stack([np.repeat(rows[:, :1], k - 2, 1), rows[:, 1:-1], rows[:, 2:]], axis=2)
-        out.append(fan.reshape(-1, 3))
-    return np.concatenate(out) if out else np.zeros((0, 3), dtype=np.int64)
-
-
 def read_off(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(points (P, 3), face offsets (F + 1), face nodes) of an OFF file: the header OFF / COFF / NOFF / CNOFF (its
     counts on the same line or the next), then the points (extra words: colours, normals, ignored),
@@ -120,3 +109,6 @@ def as_meshio(points: np.ndarray, offsets: np.ndarray, nodes: np.ndarray):
         name = {3: "triangle", 4: "quad"}.get(int(k), "polygon")
         blocks.append(SimpleNamespace(type=name, data=rows))
     return SimpleNamespace(points=points, cells=blocks, cell_data={}, field_data={})
+
+
+READERS = {".obj": read_obj, ".off": read_off}  # extension -> (points, face offsets, face nodes)
