@@ -11,7 +11,6 @@ refuses the job instead, naming the elements.
 from __future__ import annotations
 
 import json
-import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -20,6 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from models.errors import MeshError, ParameterError
+from models.export import atomic
 from models.mesh.boundary import FineBoundary, annotate, fine_boundary, has_groups
 from models.mesh.celldata import CellData, compact_labels
 from models.mesh.container import Mesh, PolyMesh
@@ -284,7 +284,7 @@ def write_outputs(
             full = np.full(int(left_out["file_cells"]), -1, dtype=np.int64)
             full[np.setdiff1d(np.arange(full.size), np.asarray(left_out["ids_all"], dtype=np.int64))] = lab
             lab = full
-        _atomic_write(labels, json.dumps(lab.tolist()))
+        atomic.write_text(labels, json.dumps(lab.tolist()))
         out["labels"] = labels
     if lymph:
         if res.mesh.dim != 2:
@@ -313,7 +313,7 @@ def write_outputs(
         from models.mesh.check import mesh_report
 
         report["mesh_report"] = mesh_report(res.mesh, res.graph)  # what `magnet check` says of the input
-        _atomic_write(metrics, json.dumps(report, indent=1))
+        atomic.write_text(metrics, json.dumps(report, indent=1))
         out["metrics"] = metrics
     return out
 
@@ -325,13 +325,6 @@ def _group_names(mesh: Mesh) -> dict[str, tuple[int, int]]:
         for tag, name in mesh.meta.get(key, {}).items():
             out.setdefault(name, (int(tag), dim))
     return out
-
-
-def _atomic_write(path: str, text: str) -> None:
-    tmp = f"{path}.tmp"
-    with open(tmp, "w", encoding="utf-8") as fh:
-        fh.write(text)
-    os.replace(tmp, path)
 
 
 def write_hierarchy(

@@ -318,3 +318,43 @@ def test_running_out_of_memory_is_said_as_such(tmp_path, capsys, monkeypatch):
     rc = main(["agglomerate", str(src), "--k", "2", "-o", str(tmp_path / "out.vtu")])
     err = capsys.readouterr().err
     assert rc == EXIT_USER_ERROR and "out of memory in 'agglomerate'" in err and "bug" not in err
+
+
+def test_output_names_at_the_file_name_limit(tmp_path):
+    """A name of the file system's longest (255 bytes) has no room for a `.tmp` sibling: each
+    output is still written whole, through a short sibling, and nothing is left beside it."""
+    limit = os.pathconf(tmp_path, "PC_NAME_MAX")
+    names = {ext: "e" * (limit - len(ext)) + ext for ext in (".vtu", ".json", ".mat")}
+    metrics = tmp_path / ("m" * (limit - 5) + ".json")
+    r = magnet(
+        "agglomerate", EMILIA, "-o", tmp_path / names[".vtu"], "--model", "metis", "--k", 8,
+        "--labels", tmp_path / names[".json"], "--lymph", tmp_path / names[".mat"], "--metrics", metrics,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([*names.values(), metrics.name])
+    assert len(set(json.loads((tmp_path / names[".json"]).read_text()))) == 8
+    assert json.loads(metrics.read_text())["elements"] == 8
+    from scipy.io import loadmat
+
+    assert "region" in loadmat(tmp_path / names[".mat"])
+    import vtk
+
+    reader = vtk.vtkXMLUnstructuredGridReader()
+    reader.SetFileName(str(tmp_path / names[".vtu"]))
+    reader.Update()
+    assert reader.GetOutput().GetNumberOfCells() == 8
+
+
+def test_a_failed_write_leaves_the_old_file_and_no_sibling(tmp_path):
+    from models.export import atomic
+
+    for name in ("out.json", "x" * (os.pathconf(tmp_path, "PC_NAME_MAX") - 2) + ".j"):
+        path = tmp_path / name
+        path.write_text("old")
+        with pytest.raises(RuntimeError), atomic.replacing(path, "w") as fh:
+            fh.write("half")
+            raise RuntimeError("disk full")
+        assert path.read_text() == "old" and [p.name for p in tmp_path.iterdir()] == [name]
+        atomic.write_text(path, "new")
+        assert path.read_text() == "new" and [p.name for p in tmp_path.iterdir()] == [name]
+        path.unlink()

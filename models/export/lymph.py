@@ -32,11 +32,11 @@ from __future__ import annotations
 
 import json
 import warnings
-from pathlib import Path
 
 import numpy as np
 
 from models.errors import MeshError, ParameterError
+from models.export import atomic
 from models.mesh.boundary import edge_tags
 from models.mesh.container import PolyMesh
 from models.mesh.dual import sorted_unique
@@ -446,7 +446,8 @@ def write_lymph_mat(path, region: dict, neighbor: dict) -> str:
         "neigh": _cell(neighbor["neigh"]),
         "neighedges": _cell(neighbor["neighedges"]),
     }
-    savemat(str(path), {"region": reg, "neighbor": nb}, do_compression=True, oned_as="row")
+    with atomic.replacing(path) as fh:
+        savemat(fh, {"region": reg, "neighbor": nb}, do_compression=True, oned_as="row")
     return str(path)
 
 
@@ -481,7 +482,7 @@ def _as_jsonable(region: dict, neighbor: dict) -> dict:
 
 def write_lymph_json(path, region: dict, neighbor: dict) -> str:
     """Write {"region": ..., "neighbor": ...} as JSON with plain lists (1-based ids)."""
-    Path(path).write_text(json.dumps(_as_jsonable(region, neighbor)))
+    atomic.write_text(path, json.dumps(_as_jsonable(region, neighbor)))
     return str(path)
 
 

@@ -7,6 +7,7 @@ import os
 import numpy as np
 
 from models.errors import MeshError
+from models.export import atomic
 from models.mesh.ucd import _PYR_TO_UCD
 
 
@@ -83,7 +84,4 @@ def write_ucd(path: str | os.PathLike, mesh, material: np.ndarray | None = None,
             map(fmt.__mod__, map(tuple, np.column_stack([rows + 1, mat[rows], v]).tolist()))
         )
     out.append("".join(cell_lines.tolist()))
-    tmp = f"{os.fspath(path)}.tmp"
-    with open(tmp, "w", encoding="ascii") as fh:
-        fh.write("".join(out))
-    os.replace(tmp, path)
+    atomic.write_lines(path, out)

@@ -13,6 +13,7 @@ import os
 import numpy as np
 
 from models.errors import MeshError
+from models.export import atomic
 from models.mesh.container import VTK_POLYGON, VTK_POLYHEDRON, PolyMesh
 from models.mesh.dual import sorted_unique
 
@@ -136,10 +137,7 @@ def write_vtu(
             )
         )
     parts.append("</CellData>\n</Piece>\n</UnstructuredGrid>\n</VTKFile>\n")
-    tmp = os.fspath(path) + ".tmp"
-    with open(tmp, "w", encoding="ascii") as fh:
-        fh.writelines(parts)
-    os.replace(tmp, path)
+    atomic.write_lines(path, parts)
 
 
 def _field_data(names: dict[str, tuple[int, int]] | None) -> str:

@@ -20,6 +20,7 @@ import os
 
 import numpy as np
 
+from models.export import atomic
 from models.hierarchy.holes import (  # noqa: F401  (re-exported: tests and callers import them from here)
     _element_graph,
     _has_voids,
@@ -775,20 +776,14 @@ def _write_mtx(path: str, cols: np.ndarray, k: int, comment: str) -> None:
         ).tobytes()
     else:
         body = b""
-    tmp = f"{path}.tmp"
-    with open(tmp, "wb") as fh:
-        fh.write(head.encode("ascii") + body)
-    os.replace(tmp, path)
+    atomic.write_bytes(path, head.encode("ascii") + body)
 
 
 def _write_json(path: str, obj) -> None:
-    tmp = f"{path}.tmp"
     if isinstance(obj, np.ndarray):
         text = _int_list_json(obj)
     else:
         text = json.dumps(
             obj, indent=None if isinstance(obj, list) else 1
         )  # dumps: the C encoder (dump is pure Python)
-    with open(tmp, "w", encoding="utf-8") as fh:
-        fh.write(text)
-    os.replace(tmp, path)
+    atomic.write_text(path, text)
