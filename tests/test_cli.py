@@ -244,6 +244,22 @@ def test_bad_files(tmp_path):
     _bad(tmp_path, "agglomerate", tmp_path / "line.vtk", "-o", tmp_path / "x.vtu", "--k", 1, match="1D")
     (tmp_path / "empty.vtu").write_bytes(b"")
     _bad(tmp_path, "agglomerate", tmp_path / "empty.vtu", "-o", tmp_path / "x.vtu", "--k", 1, match="empty")
+    os.mkfifo(tmp_path / "pipe.vtu")  # no size and no end: said as what it is, not "empty", and no wait
+    _bad(
+        tmp_path,
+        "agglomerate",
+        tmp_path / "pipe.vtu",
+        "-o",
+        tmp_path / "x.vtu",
+        "--k",
+        2,
+        match="pipe.vtu is a named pipe",
+    )
+    r = magnet("check", tmp_path / "pipe.vtu")
+    assert r.returncode == 2 and "error: pipe.vtu is a named pipe, not a mesh file" in r.stdout, (
+        r.stdout,
+        r.stderr,
+    )
 
 
 def test_lymph_on_3d_refused(tmp_path):

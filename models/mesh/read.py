@@ -12,6 +12,7 @@ import contextlib
 import io
 import os
 import re
+import stat
 import warnings
 from itertools import chain
 
@@ -260,6 +261,7 @@ def read_mesh(
         raise MeshError(f"mesh file not found: {path}")
     if os.path.isdir(path):  # an OpenFOAM case given as its folder
         path = case_files.openfoam_file(path) or path
+    special_file(path)
     if os.path.getsize(path) == 0 and _extension(path) != ".foam":  # (a .foam file is empty)
         raise MeshError(f"mesh file is empty: {os.path.basename(path)}")
     try:
@@ -268,6 +270,21 @@ def read_mesh(
         raise
     except MeshError as exc:
         raise MeshError(refusal(str(exc), path, file_format)) from None
+
+
+_SPECIAL = ((stat.S_ISFIFO, "a named pipe"), (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a device"),
+            (stat.S_ISBLK, "a device"))  # fmt: skip
+
+
+def special_file(path: str) -> None:
+    """Refuse a path that is no regular file (a pipe or a device has no size and may never end:
+    the readers seek and map their files)."""
+    mode = os.stat(path).st_mode
+    for test, what in _SPECIAL:
+        if test(mode):
+            raise MeshError(
+                f"{os.path.basename(path)} is {what}, not a mesh file: save the mesh to a file and give that"
+            )
 
 
 def refusal(msg: str, path: str, file_format: str | None) -> str:

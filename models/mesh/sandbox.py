@@ -184,6 +184,7 @@ def read_mesh_safe(
                 "constant/polyMesh and system/controlDict)"
             )
         path = case
+    read.special_file(path)
     if file_format is None and extension(path) in ARCHIVES:  # XDMF + .h5 and the like, in one upload
         import shutil
         import tempfile
