@@ -70,3 +70,166 @@ def test_an_unknown_type_is_named(tmp_path):
         read_mesh(path)
     msg = str(err.value)
     assert "odd.inp" in msg and "CPE9Q" in msg and "corrupted" not in msg
+
+
+# --- parts, assemblies and instances, as Abaqus/CAE writes every model ---------------------------
+
+
+def _block(nx, ny, nz, scale=(1.0, 1.0, 1.0)):
+    p, h = vc.grid(nx, ny, nz)
+    return p @ np.linalg.inv(vc.A).T / [nx, ny, nz] * scale, h
+
+
+def _part(name, points, cells, etype="C3D8R", sets=()):
+    rows = [f"*Part, name={name}", "*Node"]
+    rows += [f"{i + 1:7d}, " + ", ".join(f"{v:13.6g}" for v in q) for i, q in enumerate(points)]
+    rows.append(f"*Element, type={etype}")
+    rows += [f"{i + 1}, " + ", ".join(str(int(v) + 1) for v in c) for i, c in enumerate(cells)]
+    rows += [
+        f"*Nset, nset=Set-1, generate\n 1, {len(points)}, 1",
+        f"*Elset, elset=Set-1, generate\n 1, {len(cells)}, 1",
+    ]
+    for set_name, ids in sets:
+        rows += [f"*Elset, elset={set_name}", ", ".join(str(i) for i in ids)]
+    rows += ["** Section: Section-1", "*Solid Section, elset=Set-1, material=Steel", ",", "*End Part", "**"]
+    return "\n".join(rows) + "\n"
+
+
+def _assembly(*instances):
+    rows = ["**", "** ASSEMBLY", "**", "*Assembly, name=Assembly", "**"]
+    for name, part, placement in instances:
+        rows.append(f"*Instance, name={name}, part={part}")
+        rows += [", ".join(f"{v:12.6g}" for v in row) for row in placement]
+        rows += ["*End Instance", "**"]
+    rows += ["*Nset, nset=Fixed, instance=Block-1", " 1, 2, 3", "*End Assembly"]
+    return "\n".join(rows) + "\n"
+
+
+HEAD = "*Heading\n** Job name: Job-1 Model name: Model-1\n*Preprint, echo=NO, model=NO, history=NO\n**\n** PARTS\n**\n"
+
+
+def _boxes(mesh):
+    conn = mesh.connectivity.reshape(mesh.n_cells, -1)
+    out = {}
+    for gid, name in mesh.meta["group_names"].items():
+        p = mesh.points[np.unique(conn[mesh.tags == gid])]
+        vol = float(np.abs(mesh.meta["measures"][mesh.tags == gid]).sum())
+        out[name] = (p.min(0).round(9).tolist(), p.max(0).round(9).tolist(), round(vol, 9))
+    return out
+
+
+def test_an_assembly_places_each_instance_of_each_part(tmp_path):
+    """Two parts, one instanced twice (the second moved), the other moved and turned 90 degrees
+    about the z axis through (0, 5, 0): every instance where Abaqus puts it, each a group. meshio's
+    reader let the second part's *Node replace the first's points and refused the file."""
+    pb, hb = _block(4, 4, 4)
+    pr, hr = _block(2, 3, 5, (1.0, 1.0, 2.0))
+    text = HEAD + _part("Block", pb, hb) + _part("Bar", pr, hr)
+    text += _assembly(
+        ("Block-1", "Block", []),
+        ("Block-2", "Block", [[3.0, 0.0, 0.0]]),
+        ("Bar-1", "Bar", [[0.0, 5.0, 0.0], [0.0, 5.0, 0.0, 0.0, 5.0, 1.0, 90.0]]),
+    )
+    path = tmp_path / "model.inp"
+    path.write_text(text)
+    mesh = read_mesh(str(path))
+    assert mesh.n_cells == 2 * len(hb) + len(hr) and mesh.dim == 3
+    assert _boxes(mesh) == {
+        "Block-1": ([0, 0, 0], [1, 1, 1], 1.0),
+        "Block-2": ([3, 0, 0], [4, 1, 1], 1.0),
+        "Bar-1": ([-1, 5, 0], [0, 6, 2], 2.0),
+    }
+    from models import agglomerate
+
+    res = agglomerate(str(path), model="metis", k=9, metrics=False)
+    assert res.n_elements == 9 and set(res.labels[mesh.tags == 3]) != set(res.labels[mesh.tags == 1])
+
+
+def test_parts_without_an_assembly_and_flat_files_of_several_node_blocks(tmp_path):
+    """Parts and no *Assembly: each part once, as written. A flat file whose nodes come in several
+    *NODE blocks (a pre-processor writes one per component): all of them (meshio kept the last)."""
+    pb, hb = _block(3, 3, 3)
+    pr, hr = _block(2, 2, 2)
+    path = tmp_path / "parts.inp"
+    path.write_text(HEAD + _part("A", pb, hb) + _part("B", pr + [2, 0, 0], hr))
+    mesh = read_mesh(str(path))
+    assert mesh.n_cells == len(hb) + len(hr)
+    assert _boxes(mesh) == {"A": ([0, 0, 0], [1, 1, 1], 1.0), "B": ([2, 0, 0], [3, 1, 1], 1.0)}
+    n = len(pb)
+    rows = ["*HEADING", "*NODE"] + [f"{i + 1}, {x}, {y}, {z}" for i, (x, y, z) in enumerate(pb[: n // 2])]
+    rows += ["*NODE, NSET=REST"] + [
+        f"{i + 1 + n // 2}, {x}, {y}, {z}" for i, (x, y, z) in enumerate(pb[n // 2 :])
+    ]
+    rows += ["*ELEMENT, TYPE=C3D8, ELSET=EB1"] + [
+        f"{i + 1}, " + ", ".join(str(v + 1) for v in c) for i, c in enumerate(hb)
+    ]
+    flat = tmp_path / "flat.inp"
+    flat.write_text("\n".join(rows) + "\n")
+    mesh = read_mesh(str(flat))
+    assert mesh.n_cells == len(hb) and float(np.abs(mesh.meta["measures"]).sum()) == pytest.approx(1.0)
+
+
+def test_continued_rows_sets_of_sets_includes_and_point_elements(tmp_path):
+    """20-node bricks whose rows go on over two lines; an *ELSET made of other sets; the nodes in
+    an *INCLUDE file beside it; a MASS element (a type no table knows, one node: a point, not a
+    reason to refuse). An *INCLUDE of a file outside the folder is refused in one sentence."""
+    p, h = vc.grid(2, 2, 2)
+    ref = read_mesh(write_inp(tmp_path / "linear.inp", p, h, "C3D8"))
+    # a C3D20 block: corners of the grid's hexahedra plus 12 mid-edge nodes each, on two lines
+    edges = [(0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4), (0, 4), (1, 5), (2, 6), (3, 7)]
+    mids = {}
+    pts = [tuple(q) for q in p]
+    rows20 = []
+    for c in h:
+        extra = []
+        for a, b in edges:
+            key = tuple(sorted((int(c[a]), int(c[b]))))
+            if key not in mids:
+                mids[key] = len(pts)
+                pts.append(tuple((p[key[0]] + p[key[1]]) / 2))
+            extra.append(mids[key])
+        rows20.append([int(v) + 1 for v in c] + [v + 1 for v in extra])
+    (tmp_path / "nodes.inp").write_text(
+        "*NODE\n"
+        + "".join(f"{i + 1}, {float(x)!r}, {float(y)!r}, {float(z)!r}\n" for i, (x, y, z) in enumerate(pts))
+    )
+    body = ["*HEADING", "** nodes beside it", "*INCLUDE, INPUT=nodes.inp", "*ELEMENT, TYPE=C3D20R, ELSET=LOW"]
+    for i, r in enumerate(rows20[:4]):
+        body += [f"{i + 1}, " + ", ".join(map(str, r[:15])) + ",", ", ".join(map(str, r[15:]))]
+    body += ["*ELEMENT, TYPE=C3D20R, ELSET=HIGH"]
+    for i, r in enumerate(rows20[4:]):
+        body += [f"{i + 5}, " + ", ".join(map(str, r[:15])) + ",", ", ".join(map(str, r[15:]))]
+    body += [
+        "*ELSET, ELSET=ALL",
+        "LOW, HIGH",
+        "*ELEMENT, TYPE=MASS, ELSET=M",
+        "100, 1",
+        "*MASS, ELSET=M",
+        "1.0",
+    ]
+    path = tmp_path / "c3d20.inp"
+    path.write_text("\n".join(body) + "\n")
+    mesh = read_mesh(str(path))
+    assert mesh.n_cells == len(h)
+    assert np.allclose(np.sort(np.abs(mesh.meta["measures"])), np.sort(np.abs(ref.meta["measures"])))
+    assert set(mesh.meta["group_names"].values()) == {"LOW", "HIGH"}
+    outside = tmp_path / "sub"
+    outside.mkdir()
+    (outside / "bad.inp").write_text("*HEADING\n*INCLUDE, INPUT=../nodes.inp\n" + "\n".join(body[3:]) + "\n")
+    with pytest.raises(
+        MeshError, match=r"^cannot read bad.inp as Abaqus: line 2 includes ../nodes.inp, which is outside"
+    ):
+        read_mesh(str(outside / "bad.inp"))
+
+
+def test_assembly_mutants_are_read_or_refused_in_one_sentence(tmp_path):
+    from mutants import read_mutants
+
+    pb, hb = _block(3, 3, 3)
+    text = (
+        HEAD
+        + _part("Block", pb, hb)
+        + _assembly(("Block-1", "Block", []), ("Block-2", "Block", [[2.0, 0, 0]]))
+    )
+    seen = read_mutants(tmp_path, text.encode(), "asm", ".inp", "Abaqus", seed=23, n=120)
+    assert seen["mesh"] > 10 and seen["refused"] > 10

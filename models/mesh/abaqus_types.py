@@ -1,17 +1,14 @@
-"""Abaqus element types meshio's reader lacks, and the ones a file names that no table knows.
+"""Abaqus element types meshio's reader lacks, added to its table by the shape of their nodes.
 
 meshio's Abaqus reader knows some 60 element types and exits (SystemExit, after printing "Element
 type not available") on any other: outside sweep S met plane-strain CPE4 refused as "corrupted".
 Abaqus names an element by its family, its nodes and its options (reduced integration R, hybrid H,
 incompatible modes I, modified M, coupled temperature T, ...); what matters here is the shape its
 nodes make. `extend()` adds the common continuum, heat-transfer and axisymmetric types to meshio's
-table (by that shape; called before every Abaqus read); `unknown(path)` lists the types a file
-names that the table still lacks, for the refusal's sentence.
+table (by that shape; called before every Abaqus read: models.mesh.abaqus).
 """
 
 from __future__ import annotations
-
-import re
 
 # meshio's cell type -> Abaqus types of that shape
 _MORE = {
@@ -34,8 +31,6 @@ _MORE = {
     "hexahedron20": "C3D20 C3D20H C3D20R C3D20RH C3D20T C3D20RT C3D20HT C3D20RHT DC3D20",
     "hexahedron27": "C3D27 C3D27H C3D27R C3D27RH",
 }
-_ELEMENT = re.compile(rb"^\s*\*ELEMENT\s*,([^\n]*)", re.IGNORECASE | re.MULTILINE)
-_TYPE = re.compile(rb"\bTYPE\s*=\s*([A-Za-z0-9_]+)", re.IGNORECASE)
 
 
 def extend() -> None:
@@ -46,22 +41,3 @@ def extend() -> None:
     for cell, names in _MORE.items():
         for name in names.split():
             table.setdefault(name, cell)
-
-
-def unknown(path: str, limit: int = 64 << 20) -> list[str]:
-    """The element types (TYPE= of *ELEMENT lines) in the file's first `limit` bytes that meshio's
-    Abaqus table does not know, sorted; [] for none (or a file that cannot be read)."""
-    from meshio.abaqus import _abaqus
-
-    try:
-        with open(path, "rb") as fh:
-            text = fh.read(limit)
-    except OSError:
-        return []
-    table = _abaqus.abaqus_to_meshio_type
-    found = set()
-    for line in _ELEMENT.findall(text):
-        m = _TYPE.search(line)
-        if m:
-            found.add(m.group(1).decode("ascii", "replace").upper())
-    return sorted(t for t in found if t not in table)

@@ -19,7 +19,7 @@ from itertools import chain
 import numpy as np
 
 from models.errors import MeshError, ParameterError
-from models.mesh import abaqus_types, case_files
+from models.mesh import case_files
 from models.mesh.build import MIRROR, _bounds, mesh_from_cells, weld_points  # noqa: F401 (MIRROR, weld_points: API)
 from models.mesh.cells import BOUNDARY_TAG_NAME, TAG_NAMES, distinct_nodes, higher_order_line
 from models.mesh.container import (
@@ -397,7 +397,15 @@ def _read(path: str, physical_tag, file_format, weld, native: bool = True) -> Me
         )
     from models.mesh.meshio_groups import named_groups
 
-    m = _read_meshio(path, detail)
+    if detail == "abaqus":
+        from models.mesh.abaqus import read_abaqus
+
+        try:
+            m = read_abaqus(path)
+        except MeshError as exc:
+            raise MeshError(f"cannot read {os.path.basename(path)} as Abaqus: {exc}") from None
+    else:
+        m = _read_meshio(path, detail)
     m = named_groups(m, detail, path, [_TYPES[c.type][1] if _known(c.type) else 3 for c in m.cells])
     return mesh_from_meshio(m, physical_tag=physical_tag, weld=weld, owned=True)
 
@@ -448,8 +456,6 @@ def _read_meshio(path: str, file_type: str):
     if file_type not in reader_map:
         raise MeshError(f"unknown mesh format {file_type!r}; use one of: " + ", ".join(sorted(reader_map)))
     _meshio_dimensions()
-    if file_type == "abaqus":
-        abaqus_types.extend()
     try:
         with (
             warnings.catch_warnings(),
@@ -471,12 +477,7 @@ def _read_meshio(path: str, file_type: str):
     except MeshError:
         raise
     except (Exception, SystemExit) as exc:  # noqa: BLE001
-        odd = abaqus_types.unknown(path) if file_type == "abaqus" else []
-        why = (
-            f"it holds elements of a type it does not know ({', '.join(odd[:6])})"
-            if odd
-            else _why(exc, meshio)
-        )
+        why = _why(exc, meshio)
         raise MeshError(f"cannot read {name} with meshio's {file_type} reader: {why}") from None
 
 
@@ -497,7 +498,6 @@ def _meshio_dimensions() -> None:
 # for the next line forever on a truncated file)
 _BUFFER_READERS = {
     "ply": ("meshio.ply._ply", "rb"),
-    "abaqus": ("meshio.abaqus._abaqus", "r"),
     "nastran": ("meshio.nastran._nastran", "r"),
     "su2": ("meshio.su2._su2", "r"),
     "permas": ("meshio.permas._permas", "r"),
