@@ -213,6 +213,14 @@ def test_continued_rows_sets_of_sets_includes_and_point_elements(tmp_path):
     assert mesh.n_cells == len(h)
     assert np.allclose(np.sort(np.abs(mesh.meta["measures"])), np.sort(np.abs(ref.meta["measures"])))
     assert set(mesh.meta["group_names"].values()) == {"LOW", "HIGH"}
+    import zipfile
+
+    from models.mesh.sandbox import read_mesh_safe
+
+    with zipfile.ZipFile(tmp_path / "model.zip", "w") as zf:  # over HTTP: the file and its include
+        zf.write(tmp_path / "nodes.inp", "nodes.inp")
+        zf.write(path, "c3d20.inp")
+    assert read_mesh_safe(str(tmp_path / "model.zip")).n_cells == len(h)
     outside = tmp_path / "sub"
     outside.mkdir()
     (outside / "bad.inp").write_text("*HEADING\n*INCLUDE, INPUT=../nodes.inp\n" + "\n".join(body[3:]) + "\n")

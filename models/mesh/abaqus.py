@@ -92,7 +92,10 @@ def _included(path: str, name, folder: str, line: int) -> str:
     if os.path.commonpath([target, folder]) != folder:
         raise MeshError(f"line {line} includes {name}, which is outside the file's folder")
     if not os.path.isfile(target):
-        raise MeshError(f"line {line} includes {name}, which is not beside it")
+        raise MeshError(
+            f"line {line} includes {name}, which is not beside it (give it too: over HTTP, both in one "
+            ".zip or .tar.gz)"
+        )
     return target
 
 

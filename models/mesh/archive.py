@@ -6,6 +6,7 @@ then unpacked into a folder; the mesh file inside is picked by its extension (mo
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import stat
 import tarfile
@@ -95,6 +96,8 @@ def check_archive(
         raise MeshError(
             f"cannot read {name}: the archive holds no mesh file (one of {', '.join(FORMATS)} with its data files)"
         )
+    if len(meshes) > 1 and all(extension(m) == ".inp" for m in meshes):
+        meshes = _not_included(path, meshes)  # an Abaqus file and the files it *INCLUDEs
     if len(meshes) > 1:
         raise MeshError(
             f"cannot read {name}: the archive holds {len(meshes)} mesh files ({', '.join(meshes[:5])}); send one"
@@ -138,6 +141,29 @@ def unpack(path: str | os.PathLike, dest: str | os.PathLike, max_bytes: int = MA
 
 
 __all__ = ["check_archive", "unpack", "MAX_MEMBERS", "MAX_UNPACKED_BYTES"]
+
+
+_INCLUDE = re.compile(rb"^[ \t]*\*[ \t]*[A-Za-z][^\n]*?\bINPUT[ \t]*=[ \t]*\"?([^\",\r\n]+)", re.I | re.M)
+
+
+def _not_included(path: Path, meshes: list[str], limit: int = 64 << 20) -> list[str]:
+    """The members that no other member names in an INPUT= parameter (Abaqus *INCLUDE, *NODE,
+    INPUT=...): the main file of a model split over several .inp files."""
+    named = set()
+    try:
+        for m in meshes:
+            if extension(path) == ".zip":
+                with zipfile.ZipFile(path) as zf, zf.open(m) as fh:
+                    head = fh.read(limit)
+            else:
+                with tarfile.open(path, "r:*") as tf:
+                    head = tf.extractfile(m).read(limit)
+            folder = PurePosixPath(m.replace("\\", "/")).parent
+            for ref in _INCLUDE.findall(head):
+                named.add(str(folder / ref.decode("utf-8", "replace").strip()))
+    except (OSError, EOFError, zipfile.BadZipFile, tarfile.TarError, ValueError, AttributeError):
+        return meshes
+    return [m for m in meshes if str(PurePosixPath(m.replace("\\", "/"))) not in named] or meshes
 
 
 def _control_dicts(members) -> list[str]:
