@@ -125,3 +125,22 @@ def vtk_internal(path: str):
         if out.GetMetaData(i).Get(out.NAME()) == "internalMesh":
             return out.GetBlock(i)
     raise AssertionError("no internal mesh")
+
+
+def write_cell_zones(root, zones: dict) -> None:
+    """constant/polyMesh/cellZones as OpenFOAM's tools (topoSet, setsToZones, snappyHexMesh)
+    write it: zone name -> cell labels; short lists on one line, long ones a line per label."""
+    rows = [
+        HEADER.format(cls="regIOobject", loc="constant/polyMesh", obj="cellZones"),
+        f"\n{len(zones)}\n(\n",
+    ]
+    for name, labels in zones.items():
+        labels = [int(c) for c in labels]
+        if len(labels) < 11:
+            body = f"List<label> {len(labels)}(" + " ".join(map(str, labels)) + ")"
+        else:
+            body = f"List<label> {len(labels)}\n(\n" + "\n".join(map(str, labels)) + "\n)\n"
+        rows.append(f"{name}\n{{\n    type cellZone;\ncellLabels      {body};\n}}\n\n")
+    rows.append(")\n")
+    with open(os.path.join(root, "constant", "polyMesh", "cellZones"), "w") as f:
+        f.write("".join(rows))

@@ -190,3 +190,47 @@ def test_decomposed_openfoam_case_is_one_mesh(tmp_path):
     os.remove(case / "case.foam")
     archive = shutil.make_archive(str(tmp_path / "decomposed"), "zip", root_dir=tmp_path, base_dir="case")
     assert read_mesh_safe(archive).n_cells == n
+
+
+@pytest.mark.parametrize("cells", ["hexahedra", "polyhedra", "decomposed"])
+def test_cell_zones_are_the_groups(tmp_path, cells):
+    """constant/polyMesh/cellZones (a CFD case's regions: porous, MRF, solid) are the physical
+    groups, named as the zones: a cell in two zones goes to the first; a cell in none to no group.
+    In a decomposed case each processor's zones list its own cells."""
+    p, h = oc.hex_grid(6, 4, 3)
+    centre = p[h].mean(axis=1)
+    x = centre[:, 0] - 0.1 * centre[:, 1]
+    faces = oc.hex_cells(h) if cells != "polyhedra" else oc.merged_pairs(h, 6)
+    if cells == "polyhedra":
+        x = (x[0::2] + x[1::2]) / 2
+    want = np.where(x < 0.34, 1, np.where(x > 0.66, 2, 0))  # left, right, the middle in none
+    zones = {
+        "left": np.flatnonzero(x < 0.34),
+        "right": np.flatnonzero(x > 0.66),
+        "tiny": np.flatnonzero(x < 0.2),
+    }
+    case = tmp_path / "case"
+    if cells == "decomposed":
+        decomposed_case(case)
+        for proc, sel in enumerate([x < 0.5, x >= 0.5]):
+            ids = np.flatnonzero(sel)
+            local = {name: np.flatnonzero(np.isin(ids, z)) for name, z in zones.items()}
+            oc.write_cell_zones(case / f"processor{proc}", local)
+        given = str(case)
+    else:
+        given = oc.write_case(str(case), p, faces, inlet_or_walls)
+        oc.write_cell_zones(str(case), zones)
+    mesh = read_mesh(given)
+    assert sorted(mesh.meta["group_names"].values()) == ["left", "right"]  # ('tiny': all in 'left')
+    names = {n: t for t, n in mesh.meta["group_names"].items()}
+    tags = np.select([mesh.tags == names["left"], mesh.tags == names["right"]], [1, 2], 0)
+    if cells != "decomposed":  # the case's cell order is kept
+        assert np.array_equal(tags, want)
+    else:  # the processors' cells one after the other: the cells' centres say which is which
+        c = (
+            np.add.reduceat(mesh.points[mesh.connectivity], mesh.offsets[:-1])
+            / np.diff(mesh.offsets)[:, None]
+        )
+        got = c[:, 0] - 0.1 * c[:, 1]
+        assert np.array_equal(tags, np.where(got < 0.34, 1, np.where(got > 0.66, 2, 0)))
+    assert np.bincount(tags, minlength=3).tolist() == np.bincount(want, minlength=3).tolist()

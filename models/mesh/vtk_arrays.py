@@ -293,7 +293,7 @@ def _openfoam(data, path, what, fmt, decomposed: bool = False):
     baffle's two sides) stay apart, except in a decomposed case, whose processors' meshes the
     reader appends with the points on their cuts once per processor: there coincident points
     are merged (the processors' patches are not boundary groups: VTK's reader leaves them out)."""
-    internal, patches = None, []
+    internal, patches, zones = None, [], []
     for i in range(data.GetNumberOfBlocks()):
         name = data.GetMetaData(i).Get(data.NAME()) if data.HasMetaData(i) else ""
         block = data.GetBlock(i)
@@ -306,6 +306,15 @@ def _openfoam(data, path, what, fmt, decomposed: bool = False):
                 patch = block.GetBlock(j)
                 if patch is not None and patch.GetNumberOfCells() > 0:
                     patches.append((block.GetMetaData(j).Get(data.NAME()), patch))
+        elif name == "zones" and block.IsA("vtkMultiBlockDataSet"):
+            for j in range(block.GetNumberOfBlocks()):
+                kind = block.GetMetaData(j).Get(data.NAME()) if block.HasMetaData(j) else ""
+                inner = block.GetBlock(j)
+                if kind == "cellZones" and inner is not None and inner.IsA("vtkMultiBlockDataSet"):
+                    for z in range(inner.GetNumberOfBlocks()):
+                        grid = inner.GetBlock(z)
+                        if grid is not None and grid.GetNumberOfCells() > 0:
+                            zones.append((inner.GetMetaData(z).Get(data.NAME()), grid))
     if internal is None or internal.GetNumberOfCells() == 0:
         raise MeshError(
             f"cannot read {os.path.basename(path)} as {fmt}: its internal mesh has no cells "
@@ -320,6 +329,7 @@ def _openfoam(data, path, what, fmt, decomposed: bool = False):
         if poly is not None:
             poly = (poly[0], poly[1], inverse[poly[2]])
     field = {}
+    zone_tags = _cell_zones(zones, pts, offsets, conn, path, what, fmt, field)
     if patches:
         parts = [_dataset(p, path, what, fmt) for _, p in patches]
         ppts = np.concatenate([np.asarray(p[0], np.float64) for p in parts])
@@ -355,4 +365,59 @@ def _openfoam(data, path, what, fmt, decomposed: bool = False):
         }
     else:
         cell_data = {}
+    if zone_tags is not None:
+        cell_data["group"] = np.concatenate([zone_tags, np.zeros(len(types) - len(zone_tags), np.int64)])
     return pts, offsets, conn, types, cell_data, poly, field
+
+
+def _cell_zones(zones, pts, offsets, conn, path, what, fmt, field) -> np.ndarray | None:
+    """The case's cellZones as groups: a tag per internal cell (1, 2, ... in the zones' order; 0
+    in none, the first zone where a cell is in several), the names in `field` (dimension 3).
+    VTK's reader gives each zone as a grid of its own with copies of its cells and no cell ids:
+    a zone's cell is found among the internal mesh's by its points (found by their coordinates),
+    keyed by their number, sum, sum of squares and smallest id."""
+    if not zones:
+        return None
+    n = len(offsets) - 1
+    offsets = np.asarray(offsets, np.int64)
+    ids = np.asarray(conn, np.int64)
+
+    def keys(o, c):
+        counts = np.diff(o)
+        if counts.size == 0 or np.any(counts == 0):
+            return np.zeros((counts.size, 4), np.int64)
+        at = o[:-1]
+        c = c.astype(np.int64)
+        return np.column_stack(
+            [counts, np.add.reduceat(c, at), np.add.reduceat(c * c, at), np.minimum.reduceat(c, at)]
+        )
+
+    mine = keys(offsets, ids)
+    tags = np.zeros(n, np.int64)
+    for t, (name, grid) in enumerate(zones, start=1):
+        zpts, zoff, zconn = _dataset(grid, path, what, fmt)[:3]
+        zpts = np.asarray(zpts, np.float64)
+        _, first, inverse = np.unique(
+            np.concatenate([pts, zpts]), axis=0, return_index=True, return_inverse=True
+        )
+        at = first[inverse.reshape(-1)[len(pts) :]]
+        if np.any(at >= len(pts)):
+            continue  # (a zone with points the internal mesh lacks: not of this mesh)
+        theirs = keys(np.asarray(zoff, np.int64), at[np.asarray(zconn, np.int64)])
+        pos = _lex_find(mine, theirs)
+        cells = pos[pos >= 0]
+        free = cells[tags[cells] == 0]
+        tags[free] = t
+        if free.size:
+            field[str(name)] = np.array([t, 3])
+    return tags if tags.any() else None
+
+
+def _lex_find(table: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """The index in `table` of each of `rows` (its first equal row), -1 where absent."""
+    both = np.concatenate([table, rows])
+    _, inverse = np.unique(both, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    where = np.full(inverse.max() + 1 if inverse.size else 0, -1, np.int64)
+    where[inverse[: len(table)][::-1]] = np.arange(len(table))[::-1]
+    return where[inverse[len(table) :]]

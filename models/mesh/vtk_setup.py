@@ -78,12 +78,13 @@ def _plot3d_layout(reader, path: str) -> None:
 
 def _openfoam_mesh_only(reader) -> None:
     """An OpenFOAM case's mesh at its first time (constant/polyMesh): the internal mesh and every
-    boundary patch (our boundary groups), no zones, no field arrays; polyhedra kept whole."""
+    boundary patch (our boundary groups), the zones (cellZones: our groups), no field arrays;
+    polyhedra kept whole."""
     reader.UpdateInformation()
     reader.EnableAllPatchArrays()
     for off in ("DisableAllCellArrays", "DisableAllPointArrays", "DisableAllLagrangianArrays"):
         getattr(reader, off, lambda: None)()
-    reader.SetReadZones(0)
+    reader.SetReadZones(1)  # (cellZones: the groups; point and face zones are not read)
     reader.SetCreateCellToPoint(0)
     if hasattr(reader, "SetDecomposePolyhedra"):
         reader.SetDecomposePolyhedra(0)
