@@ -29,13 +29,15 @@ GMSH_HEAD = 4096  # bytes of the head that hold $MeshFormat
 
 
 def worth_trying(path: str) -> bool:
-    """True when a .msh file that meshio refused looks sound: MSH 4.0, or a file in which our scan
+    """True when a .msh file that meshio refused looks sound: MSH 1.0 or 4.0, or a file in which our scan
     of its sections (models.mesh.locate) finds nothing wrong."""
     try:
         with open(path, "rb") as f:
             head = f.read(GMSH_HEAD)
     except OSError:
         return False
+    if head.startswith(b"$NOD"):  # MSH 1.0 ($NOD / $ELM), which meshio does not read
+        return True
     if not head.startswith(b"$MeshFormat"):
         return False
     lines = head.split(b"\n", 2)
