@@ -335,6 +335,10 @@ def vtk_read(path: str):
         r = vtk.vtkFLUENTCFFReader()  # cell zones only (no face zones are read by default)
     elif ext == ".vtk":
         r = vtk.vtkDataSetReader()
+    elif ext == ".pvtk":
+        from vtkmodules.vtkIOParallel import vtkPDataSetReader
+
+        r = vtkPDataSetReader()  # (as ParaView opens it: the pieces appended)
     elif ext in (".exo", ".e"):
         r = vtk.vtkExodusIIReader()
         r.SetFileName(path)

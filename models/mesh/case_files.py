@@ -93,6 +93,37 @@ _XDMF_FILE_ITEM = re.compile(
 )
 
 
+_PVTK_PIECE = re.compile(rb"""<Piece\b[^>]*?\bfileName\s*=\s*["']([^"']+)["']""")
+
+
+def legacy_pieces(path: str, text: bytes) -> list[str]:
+    """The piece files of a .pvtk (vtkPDataSetWriter), as paths to open: a relative name below the
+    file's folder; an absolute one (the writer writes the path it was given) where it lies in
+    that folder, else the file of its name beside the .pvtk (the pieces moved, or uploaded in an
+    archive, with it). A piece found in neither place, or outside the folder, is refused."""
+    folder = os.path.dirname(os.path.realpath(path))
+    out = []
+    for raw in dict.fromkeys(_PVTK_PIECE.findall(text)):
+        piece = raw.decode("utf-8", "replace").strip()
+        where = os.path.realpath(os.path.join(folder, piece))
+        if os.path.commonpath([folder, where]) != folder or not os.path.isfile(where):
+            beside = os.path.join(folder, os.path.basename(piece))
+            if os.path.isabs(piece) and os.path.isfile(beside):
+                where = beside
+            elif os.path.commonpath([folder, where]) != folder:
+                raise MeshError(
+                    f"cannot read {os.path.basename(path)} as VTK parallel legacy: its piece file {piece} "
+                    "lies outside the file's folder, and no file of its name is beside it"
+                )
+            else:
+                raise MeshError(
+                    f"cannot read {os.path.basename(path)} as VTK parallel legacy: its piece file {piece} is "
+                    "missing (keep the piece files beside it, or upload them all in one .zip or .tar.gz)"
+                )
+        out.append(where)
+    return out
+
+
 def pieces_present(path: str, ext: str) -> None:
     """A parallel or multiblock VTK XML file names its pieces' files (XDMF its data files): say
     which one is missing (VTK's reader only fails), relative to the file's folder as VTK resolves
@@ -102,6 +133,10 @@ def pieces_present(path: str, ext: str) -> None:
     import mmap
 
     xdmf = ext in (".xdmf", ".xmf")
+    if ext == ".pvtk":
+        with open(path, "rb") as fh:
+            legacy_pieces(path, fh.read(16 << 20))
+        return
     try:
         if not xdmf and os.path.getsize(path) > (16 << 20):  # (a header file is small)
             return

@@ -174,6 +174,13 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
         raise MeshError(f"cannot read {name} as Exodus II: the file is neither netCDF nor HDF5 (byte 0)")
     if ext == ".cas.h5":
         return ("vtk", "fluent-h5")
+    if ext == ".pvtk":  # vtkPDataSetWriter's list of legacy pieces
+        if not xml:
+            raise MeshError(
+                f"cannot read {name} as VTK parallel legacy: the file does not start with an XML tag"
+            )
+        case_files.pieces_present(path, ext)
+        return ("vtk", ".pvtk")
     if ext in (".case", ".encas"):
         case_files.ensight_files(path)
     if ext == ".foam" or name == "controlDict":

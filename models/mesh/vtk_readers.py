@@ -50,6 +50,7 @@ READERS: dict[str, tuple[str, str, str]] = {
     ".vtpc": ("VTK XML partitioned dataset collection", "vtkXMLPartitionedDataSetCollectionReader", _XML),
     ".vtpd": ("VTK XML partitioned dataset", "vtkXMLPartitionedDataSetReader", _XML),
     ".pvd": ("ParaView data collection", "vtkXMLGenericDataObjectReader", _XML),
+    ".pvtk": ("VTK parallel legacy", "vtkDataSetReader", "vtkmodules.vtkIOLegacy"),
     "xml": ("VTK XML", "vtkXMLGenericDataObjectReader", _XML),
     "exodus": ("Exodus II", "vtkExodusIIReader", "vtkmodules.vtkIOExodus"),
     "xdmf": ("XDMF", "vtkXdmfReader", "vtkmodules.vtkIOXdmf2"),
@@ -70,7 +71,7 @@ READERS: dict[str, tuple[str, str, str]] = {
 # composite's blocks are (points on the cuts between pieces, written once per piece, merged)
 PIECEWISE = (".pvtu", ".pvtp")
 # files whose blocks are pieces of one mesh, not physical groups
-PIECES = (*PIECEWISE, ".vtpd", ".pvd")
+PIECES = (*PIECEWISE, ".vtpd", ".pvd", ".pvtk")
 EXODUS_EXTENSIONS = (".exo", ".e", ".ex2", ".exii", ".g", ".gen")
 
 
@@ -211,8 +212,8 @@ def _run(path: str, kind: str, fmt: str | None = None):
 
     what, cls, module = READERS[kind]
     fmt = fmt or what
-    if kind == ".pvd":  # (a reader per data set it lists)
-        return _collection(path, fmt)
+    if kind in (".pvd", ".pvtk"):  # (a reader per data set it lists)
+        return _collection(path, fmt, legacy=kind == ".pvtk")
     reader = getattr(importlib.import_module(module), cls)()
     name = os.path.basename(path)
     with _Captured() as cap:
@@ -262,19 +263,23 @@ _PVD_DATASET = re.compile(rb"<DataSet\b([^>]*)>")
 _PVD_ATTR = re.compile(rb"""\b(timestep|part|file)\s*=\s*["']([^"']*)["']""")
 
 
-def _collection(path: str, fmt: str):
+def _collection(path: str, fmt: str, legacy: bool = False):
     """A ParaView data collection (.pvd, a time series as FEniCS and many solvers write it): the
     mesh of its first time step, that step's parts (a part per process) read by VTK's XML readers
-    and joined as a parallel file's pieces. case_files.pieces_present has checked that the files are
-    there, inside the file's folder."""
+    and joined as a parallel file's pieces. legacy: a .pvtk (vtkPDataSetWriter: <Piece
+    fileName=...> of legacy .vtk files, read by VTK's legacy reader, joined the same way).
+    case_files.pieces_present has checked that the files are there, inside the file's folder."""
     from vtkmodules.vtkCommonDataModel import vtkMultiBlockDataSet
+    from vtkmodules.vtkIOLegacy import vtkDataSetReader
     from vtkmodules.vtkIOXML import vtkXMLGenericDataObjectReader
+
+    from models.mesh.case_files import legacy_pieces
 
     name = os.path.basename(path)
     with open(path, "rb") as fh:
         text = fh.read()
-    steps = []
-    for m in _PVD_DATASET.finditer(text):
+    steps = [(0.0, f) for f in legacy_pieces(path, text)] if legacy else []
+    for m in _PVD_DATASET.finditer(b"" if legacy else text):
         attrs = {k.decode(): v.decode("utf-8", "replace") for k, v in _PVD_ATTR.findall(m.group(1))}
         if "file" in attrs:
             try:
@@ -283,23 +288,25 @@ def _collection(path: str, fmt: str):
                 t = 0.0
             steps.append((t, attrs["file"]))
     if not steps:
-        raise MeshError(f"cannot read {name} as {fmt}: it lists no data set (no <DataSet file=...>)")
+        tag = "<Piece fileName=...>" if legacy else "<DataSet file=...>"
+        raise MeshError(f"cannot read {name} as {fmt}: it lists no data set (no {tag})")
     first = min(t for t, _ in steps)
     files = [f for t, f in steps if t == first]
     folder = os.path.dirname(os.path.abspath(path))
     out = vtkMultiBlockDataSet()
     with _Captured() as cap:
         for i, f in enumerate(files):
-            reader = vtkXMLGenericDataObjectReader()
+            reader = vtkDataSetReader() if legacy else vtkXMLGenericDataObjectReader()
             reader.AddObserver("ErrorEvent", cap._on_error)
-            reader.SetFileName(os.path.join(folder, f))
+            reader.SetFileName(f if legacy else os.path.join(folder, f))
             reader.Update()
             data = reader.GetOutputDataObject(0)
             if data is not None:
                 out.SetBlock(i, data)
     if cap.failed:
         raise MeshError(
-            f"cannot read {name} as {fmt}: its data set {files[0]}: {explain(cap.text, 'VTK XML')}"
+            f"cannot read {name} as {fmt}: its data set {files[0]}: "
+            f"{explain(cap.text, 'legacy VTK' if legacy else 'VTK XML')}"
         )
     return out
 
