@@ -96,6 +96,8 @@ def check_archive(
         raise MeshError(
             f"cannot read {name}: the archive holds no mesh file (one of {', '.join(FORMATS)} with its data files)"
         )
+    eles = {m[: -len(".ele")] for m in meshes if extension(m) == ".ele"}
+    meshes = [m for m in meshes if not (extension(m) == ".node" and m[: -len(".node")] in eles)]  # (its .ele)
     if len(meshes) > 1 and all(extension(m) == ".inp" for m in meshes):
         meshes = _not_included(path, meshes)  # an Abaqus file and the files it *INCLUDEs
     if len(meshes) > 1:

@@ -74,8 +74,8 @@ FORMATS: dict[str, str] = {
     ".post": "PERMAS",
     ".dato": "PERMAS",
     ".xml": "DOLFIN XML",
-    ".ele": "TetGen",
-    ".node": "TetGen",
+    ".ele": "Triangle / TetGen",
+    ".node": "Triangle / TetGen",
 }
 # a mesh file that needs other files beside it (XDMF's heavy data in .h5, a parallel VTK file's
 # pieces, TetGen's .node beside its .ele): uploaded in an archive holding them all

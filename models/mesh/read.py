@@ -404,13 +404,15 @@ def _read(path: str, physical_tag, file_format, weld, native: bool = True) -> Me
         )
     from models.mesh.meshio_groups import named_groups
 
-    if detail == "abaqus":
+    if detail in ("abaqus", "tetgen"):  # (ours: mesh/abaqus.py, mesh/tetgen.py)
         from models.mesh.abaqus import read_abaqus
+        from models.mesh.tetgen import read_tetgen
 
+        what = "Abaqus" if detail == "abaqus" else "Triangle / TetGen"
         try:
-            m = read_abaqus(path)
+            m = (read_abaqus if detail == "abaqus" else read_tetgen)(path)
         except MeshError as exc:
-            raise MeshError(f"cannot read {os.path.basename(path)} as Abaqus: {exc}") from None
+            raise MeshError(f"cannot read {os.path.basename(path)} as {what}: {exc}") from None
     else:
         m = _read_meshio(path, detail)
     m = named_groups(m, detail, path, [_TYPES[c.type][1] if _known(c.type) else 3 for c in m.cells])
