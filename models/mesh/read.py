@@ -137,6 +137,12 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
     ext = _extension(path)
     with open(path, "rb") as fh:
         head = fh.read(4096)
+    if head[:4] in (b"\x89HDF", b"CDF\x01", b"CDF\x02", b"CDF\x05"):
+        from models.mesh.containers import truncated
+
+        why = truncated(path, head)  # (before a native reader opens it: they crash on such files)
+        if why:
+            raise MeshError(f"cannot read {name} as {format_name(path, file_format)}: {why}")
     text = head.lstrip(b"\xef\xbb\xbf \t\r\n")
     legacy = text[:14].lower() == b"# vtk datafile"
     xml = text[:1] == b"<"
