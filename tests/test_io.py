@@ -290,6 +290,34 @@ def test_1d_mesh():
         mesh_from_arrays(p, [("line", np.column_stack([np.arange(4), np.arange(1, 5)]))])
 
 
+@pytest.mark.parametrize("ext", [".vtu", ".ply", ".stl", ".obj"])
+def test_a_tilted_plane_in_single_precision_is_2d(tmp_path, ext):
+    """A flat mesh off the axes, its points stored as float32 (PLY, binary STL, most VTK sources):
+    rounding leaves them up to about 2^-24 of their size off the plane, which is planar (outside
+    sweep U: refused as "non-planar" from all of these); a mesh bent by a thousandth is not."""
+    from models.mesh.read import read_mesh
+
+    p, t = triangles(12)
+    n = np.array([1.0, 2.0, 2.0]) / 3
+    e1 = np.cross(n, [0, 0, 1.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(n, e1)
+    pts = (np.array([5, -1, 2]) + p[:, :1] * e1 + p[:, 1:2] * e2).astype(np.float32)
+    assert np.abs((pts - pts.mean(0)) @ n).max() > 1e-8  # (off the plane by rounding alone)
+    path = str(tmp_path / f"tilted{ext}")
+    meshio.write(
+        path, meshio.Mesh(pts, [("triangle", t)]), **({"binary": True} if ext in (".stl", ".ply") else {})
+    )
+    m = read_mesh(path)
+    assert m.dim == 2 and m.n_cells == len(t)
+    assert float(cell_measures(m).sum()) == pytest.approx(1.0, rel=1e-6)
+    bent = pts.astype(np.float64) + 1e-3 * np.sin(3 * p[:, :1]) * n
+    with pytest.raises(
+        MeshError, match=r"non-planar .* a point lies [0-9.e-]+ off the best plane, across a mesh"
+    ):
+        mesh_from_arrays(bent, [("triangle", t)])
+
+
 def test_non_planar_surface_mesh():
     p, t = triangles(3)
     pts = np.column_stack([p, (p[:, 0] - 0.5) ** 2])

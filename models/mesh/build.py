@@ -231,6 +231,18 @@ def _attach_polyhedra(mesh: Mesh, poly_faces) -> None:
     mesh.poly_face_nodes = np.concatenate([f for _, _, _, f in poly_faces])
 
 
+def _plane_tolerance(p: np.ndarray) -> float:
+    """How far off their plane the points of a planar mesh may lie: a millionth of the mesh's width
+    (projecting moves areas by a trillionth), or the rounding of single-precision coordinates where
+    every coordinate is a float32 (PLY, binary STL and most VTK sources store them so: a tilted
+    plane's points then lie up to about 2^-24 of their size off it)."""
+    width = float(np.linalg.norm(np.ptp(p, axis=0)))
+    tol = 1e-6 * width
+    if np.array_equal(p.astype(np.float32).astype(np.float64), p):
+        tol = max(tol, 4 * 2.0**-24 * float(np.abs(p).max()))
+    return tol
+
+
 def _project_to_plane(mesh: Mesh) -> None:
     """A 2D mesh stored with 3D points: find its plane and keep 2D coordinates plus the frame."""
     pts = mesh.points
@@ -244,8 +256,8 @@ def _project_to_plane(mesh: Mesh) -> None:
         return
     origin = p.mean(axis=0)
     _, s, vt = np.linalg.svd(p - origin, full_matrices=False)
-    extent = max(float(s[0]), 1e-300)
-    if s[2] > 1e-8 * extent:
+    off = float(np.abs((p - origin) @ vt[2]).max())  # the farthest point from the best plane
+    if off > _plane_tolerance(p):
         from models.mesh.container import CELL_TYPE_NAMES
 
         counts = np.bincount(mesh.cell_types)
@@ -254,7 +266,8 @@ def _project_to_plane(mesh: Mesh) -> None:
         )
         raise MeshError(
             f"a non-planar surface of {held} (its cells are not in one plane: curved, faceted or on "
-            "several planes): only planar 2D meshes and volume meshes are "
+            f"several planes; a point lies {off:.3g} off the best plane, across a mesh "
+            f"{float(np.linalg.norm(np.ptp(p, axis=0))):.3g} wide): only planar 2D meshes and volume meshes are "
             "agglomerated; give a volume mesh, or fill the closed surface with tetrahedra: "
             "magnet generate stl --stl SURFACE -o volume.vtu"
         )
