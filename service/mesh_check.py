@@ -62,6 +62,11 @@ def extension_of(filename: str | None) -> str:
         )
     if ext not in ALLOWED_EXTENSIONS:
         shown = os.path.basename((filename or "").replace("\\", "/"))[:100]
+        hint = formats.compressed_hint(shown)
+        if hint:
+            raise UploadRejected(
+                422, f"the file name {shown} has no mesh format extension we read{hint}", "filename"
+            )
         what = f"the file name {shown}" if shown else "the upload has no file name: it"
         multi = f" ({', '.join(formats.ARCHIVE_ONLY)} with its data files: a .zip or .tar.gz holding them)"
         raise UploadRejected(

@@ -243,7 +243,24 @@ def test_bad_files(tmp_path):
     )
     _bad(tmp_path, "agglomerate", tmp_path / "line.vtk", "-o", tmp_path / "x.vtu", "--k", 1, match="1D")
     (tmp_path / "empty.vtu").write_bytes(b"")
-    _bad(tmp_path, "agglomerate", tmp_path / "empty.vtu", "-o", tmp_path / "x.vtu", "--k", 1, match="empty")
+    _bad(tmp_path, "agglomerate", tmp_path / "empty.vtu", "-o", tmp_path / "x.vtu", "--k", 1,
+         match="cannot read empty.vtu as VTK XML (VTU): the file is empty (0 bytes)")  # fmt: skip
+    import gzip
+
+    (tmp_path / "brain.vtu.gz").write_bytes(gzip.compress(open(BRAIN, "rb").read()))  # compressed whole
+    _bad(
+        tmp_path, "agglomerate", tmp_path / "brain.vtu.gz", "-o", tmp_path / "x.vtu", "--k", 2,
+        match="brain.vtu.gz is a .vtu file compressed whole: decompress it first, e.g. gunzip brain.vtu.gz",
+    )  # fmt: skip
+    (tmp_path / "zero.vtu").write_text(
+        '<?xml version="1.0"?>\n<VTKFile type="UnstructuredGrid" version="1.0">\n<UnstructuredGrid>\n'
+        '<Piece NumberOfPoints="0" NumberOfCells="0">\n<Points><DataArray type="Float64" NumberOfComponents="3" '
+        'format="ascii"></DataArray></Points>\n<Cells><DataArray type="Int64" Name="connectivity" format="ascii">'
+        '</DataArray><DataArray type="Int64" Name="offsets" format="ascii"></DataArray><DataArray type="UInt8" '
+        'Name="types" format="ascii"></DataArray></Cells>\n</Piece>\n</UnstructuredGrid>\n</VTKFile>\n'
+    )  # the words of the service's upload check (service/mesh_check.py)
+    _bad(tmp_path, "agglomerate", tmp_path / "zero.vtu", "-o", tmp_path / "x.vtu", "--k", 2,
+         match="the mesh has no cells (every piece declares NumberOfCells=0)")  # fmt: skip
     os.mkfifo(tmp_path / "pipe.vtu")  # no size and no end: said as what it is, not "empty", and no wait
     _bad(
         tmp_path,

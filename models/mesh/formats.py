@@ -126,6 +126,20 @@ def extension(path: str | os.PathLike) -> str:
     return os.path.splitext(name)[1]
 
 
+_COMPRESSORS = {".gz": "gunzip", ".bz2": "bunzip2", ".xz": "unxz", ".zst": "unzstd", ".lz4": "unlz4"}
+
+
+def compressed_hint(path: str | os.PathLike) -> str:
+    """For a name such as mesh.vtu.gz (a mesh file compressed whole, which no reader takes): what to
+    do, as a sentence's tail; '' for any other name."""
+    name = os.path.basename(os.fspath(path))
+    stem, ext = os.path.splitext(name)
+    tool = _COMPRESSORS.get(ext.lower())
+    if tool is None or extension(stem) not in FORMATS:
+        return ""
+    return f" ({name} is a {extension(stem)} file compressed whole: decompress it first, e.g. {tool} {name})"
+
+
 def format_name(path: str | os.PathLike, file_format: str | None = None) -> str:
     """The format a file is read as ('Exodus II', 'legacy VTK', ...): from file_format when given."""
     if file_format:

@@ -34,7 +34,7 @@ from models.mesh.container import (
     VTK_WEDGE,
     Mesh,
 )
-from models.mesh.formats import MESH_EXTENSIONS, MULTI_FILE, extension, format_name
+from models.mesh.formats import MESH_EXTENSIONS, MULTI_FILE, compressed_hint, extension, format_name
 
 # meshio cell type name -> (VTK type, topological dimension, number of corner nodes kept)
 _TYPES: dict[str, tuple[int, int, int]] = {
@@ -227,6 +227,9 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
 
     types = meshio.extension_to_filetypes.get(ext)
     if not types:
+        hint = compressed_hint(path)
+        if hint:
+            raise MeshError(f"unknown mesh format {ext!r}{hint}")
         raise MeshError(
             f"unknown mesh format {ext or '(no extension)'!r}; use one of: " + ", ".join(SUPPORTED_EXTENSIONS)
         )
@@ -276,7 +279,7 @@ def read_mesh(
         path = case_files.openfoam_file(path) or path
     special_file(path)
     if os.path.getsize(path) == 0 and _extension(path) != ".foam":  # (a .foam file is empty)
-        raise MeshError(f"mesh file is empty: {os.path.basename(path)}")
+        raise MeshError(f"{os.path.basename(path)}: the file is empty (0 bytes)")
     try:
         return _read(path, physical_tag, file_format, weld, native)
     except NativeReaderNeeded:

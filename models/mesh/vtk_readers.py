@@ -104,6 +104,11 @@ def read_vtk(
     live = _whole_live(data, len(types))
     del data
     if len(types) == 0:
+        if _declares_no_cells(path):  # (as the service's upload check says it)
+            raise MeshError(
+                f"cannot read {os.path.basename(path)} as {fmt}: the mesh has no cells (every piece "
+                "declares NumberOfCells=0)"
+            )
         raise MeshError(
             f"cannot read {os.path.basename(path)} as {fmt}: it holds no cells "
             f"(is it truncated, or not {article(what)} file?)"
@@ -125,6 +130,22 @@ def read_vtk(
         meta["overlong_cells"] = norm.overlong
     grid = grid if norm.types.size == len(types) and norm.dim == 3 else None
     return mesh_of_cells(pts, norm, tag_key, weld, meta, grid, field)
+
+
+_NUMBER_OF_CELLS = re.compile(rb"<Piece\b[^>]*?\bNumberOfCells\s*=\s*[\"']\s*(\d+)")
+
+
+def _declares_no_cells(path: str) -> bool:
+    """A VTK XML unstructured grid whose every piece declares NumberOfCells="0" (its header, the
+    first MiB)."""
+    if not path.lower().endswith((".vtu", ".pvtu")):
+        return False
+    try:
+        with open(path, "rb") as fh:
+            found = _NUMBER_OF_CELLS.findall(fh.read(1 << 20))
+    except OSError:
+        return False
+    return bool(found) and all(int(n) == 0 for n in found)
 
 
 def mesh_of_cells(pts, norm: Normalized, tag_key, weld, meta: dict, grid, field: dict):
