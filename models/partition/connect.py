@@ -64,7 +64,9 @@ def exact_count(data: CellData, labels: np.ndarray, nodes: np.ndarray, k: int) -
     if n_pieces > k:
         raise ParameterError(
             f"k = {k} cannot be met: the cells to agglomerate form {n_pieces} separate pieces and an "
-            f"element cannot span two; ask for k >= {n_pieces}, or allow extra elements (--allow-extra)"
+            f"element cannot span two; ask for k >= {n_pieces}, or allow extra elements (--allow-extra), "
+            "or, where the pieces are cut apart by coincident points (`magnet check` says so), merge them "
+            "with --weld TOL"
         )
     merged = split = 0
     for _ in range(MAX_ROUNDS):
