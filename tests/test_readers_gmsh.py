@@ -190,3 +190,19 @@ def test_gmsh_nastran_export_without_begin_bulk(tmp_path):
     mesh = read_mesh(str(tmp_path / "box.bdf"))
     assert mesh.n_cells == msh.n_cells
     assert float(mesh.meta["measures"].sum()) == pytest.approx(float(msh.meta["measures"].sum()), rel=1e-5)
+
+
+@pytest.mark.parametrize("binary", [True, False])
+def test_a_cut_gmsh_file_is_said_to_be_truncated(tmp_path, binary):
+    """A gmsh file cut short ends inside a section: said so, naming the section (outside sweep U:
+    binary files cut at every tenth got "a section holds fewer or more numbers than its header
+    announces")."""
+    data = open(write(tmp_path / "whole.msh", 3, binary=binary), "rb").read()
+    for frac in (0.3, 0.6, 0.9):
+        cut = tmp_path / f"cut{int(frac * 10)}.msh"
+        cut.write_bytes(data[: int(len(data) * frac)])
+        with pytest.raises(
+            MeshError,
+            match=rf"^cannot read {cut.name} as gmsh: the file ends inside its \$(Nodes|Elements) section \(no \$End(Nodes|Elements)\): it is truncated",
+        ):
+            read_mesh(str(cut))

@@ -438,6 +438,13 @@ def _read_gmsh(path: str, physical_tag, weld, native: bool) -> Mesh:
     except MeshError as refused:
         from models.mesh import gmsh_native
 
+        open_section = _unclosed_gmsh_section(path)
+        if open_section:  # (a cut file: said as such, whatever the parser met first)
+            raise MeshError(
+                f"cannot read {os.path.basename(path)} as gmsh: the file ends inside its ${open_section} "
+                f"section (no $End{open_section}): it is truncated"
+            ) from None
+
         if not gmsh_native.worth_trying(path):
             raise
         if not native:
@@ -450,6 +457,25 @@ def _read_gmsh(path: str, physical_tag, weld, native: bool) -> Mesh:
         mesh.meta.update(reader="gmsh's library (models/mesh/gmsh_native.py)", format="gmsh")
         return mesh
     return mesh_from_meshio(m, physical_tag=physical_tag, weld=weld, owned=True)
+
+
+_GMSH_MARK = re.compile(rb"^\$(End)?([A-Za-z]+)\r?$", re.MULTILINE | re.IGNORECASE)  # (MSH 1: $ENDNOD)
+
+
+def _unclosed_gmsh_section(path: str) -> str | None:
+    """The section a gmsh file ends in without closing it (a truncated file), or None: the last
+    section mark of the file's last MiB, where it opens a section."""
+    try:
+        with open(path, "rb") as fh:
+            fh.seek(max(0, os.path.getsize(path) - (1 << 20)))
+            tail = fh.read()
+    except OSError:
+        return None
+    marks = _GMSH_MARK.findall(tail)
+    if not marks:
+        return None
+    end, name = marks[-1]
+    return None if end else name.decode("ascii")
 
 
 def default_memory() -> int:
