@@ -109,11 +109,12 @@ def _numbers(data: str, dtype, line: int, what: str) -> np.ndarray:
     try:
         return np.array(tokens, dtype=np.float64).astype(dtype, copy=False)
     except ValueError:
-        bad = next(t for t in tokens if not _is_number(t))
+        bad = next(t for t in tokens if not is_number(t))
         raise MeshError(f"{what} from line {line} holds {bad[:40]!r} where a number is expected") from None
 
 
-def _is_number(token: str) -> bool:
+def is_number(token: str) -> bool:
+    """The token reads as a number (Python's float: the same rule as numpy's conversion)."""
     try:
         float(token)
     except ValueError:
@@ -178,7 +179,7 @@ def _set_ids(data: str, params: dict, known: dict, line: int) -> np.ndarray:
     tokens = data.replace(",", " ").split()
     if not tokens:
         return np.zeros(0, np.int64)
-    if not all(_is_number(t) for t in tokens):  # a set of sets
+    if not all(is_number(t) for t in tokens):  # a set of sets
         return np.concatenate(
             [np.zeros(0, np.int64)] + [np.concatenate(known.get(t, [])) for t in tokens if known.get(t)]
         )

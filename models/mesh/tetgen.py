@@ -21,6 +21,7 @@ import re
 import numpy as np
 
 from models.errors import MeshError
+from models.mesh.abaqus import is_number
 
 _COMMENT = re.compile(r"#[^\n]*")
 # the extra nodes of a 6-node triangle (Triangle: opposite corners 1, 2, 3) in VTK's order
@@ -40,19 +41,11 @@ def _table(path: str, what: str) -> tuple[list[float], np.ndarray]:
         head = [float(t) for t in first.split()]
         body = np.array(rest.split(), dtype=np.float64)
     except ValueError:
-        bad = next((t for t in (first + " " + rest).split() if not _number(t)), "?")
+        bad = next((t for t in (first + " " + rest).split() if not is_number(t)), "?")
         raise MeshError(f"its {what} file holds {bad[:40]!r} where a number is expected") from None
     if not head or any(h != int(h) or h < 0 for h in head):
         raise MeshError(f"its {what} file does not start with a header of counts")
     return head, body
-
-
-def _number(token: str) -> bool:
-    try:
-        float(token)
-    except ValueError:
-        return False
-    return True
 
 
 def _rows(body: np.ndarray, n: int, width: int, what: str) -> np.ndarray:
