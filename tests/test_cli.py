@@ -262,7 +262,9 @@ def test_bad_files(tmp_path):
     _bad(tmp_path, "agglomerate", tmp_path / "zero.vtu", "-o", tmp_path / "x.vtu", "--k", 2,
          match="the mesh has no cells (every piece declares NumberOfCells=0)")  # fmt: skip
     seam = os.path.join(os.path.dirname(__file__), "data", "defects", "duplicate_seam.vtu")  # (cut by a seam)
-    _bad(tmp_path, "agglomerate", seam, "-o", tmp_path / "x.vtu", "--k", 1, match="merge them with --weld TOL")
+    _bad(
+        tmp_path, "agglomerate", seam, "-o", tmp_path / "x.vtu", "--k", 1, match="merge them with --weld TOL"
+    )
     os.mkfifo(tmp_path / "pipe.vtu")  # no size and no end: said as what it is, not "empty", and no wait
     _bad(
         tmp_path,
