@@ -241,3 +241,31 @@ def test_assembly_mutants_are_read_or_refused_in_one_sentence(tmp_path):
     )
     seen = read_mutants(tmp_path, text.encode(), "asm", ".inp", "Abaqus", seed=23, n=120)
     assert seen["mesh"] > 10 and seen["refused"] > 10
+
+
+def test_independent_instances_carry_their_own_mesh(tmp_path):
+    """Abaqus/CAE writes an independent instance (meshed on the instance) as an empty *Part and the
+    nodes and elements inside the *Instance block; an assembly *Elset with instance= is a set of
+    that instance's elements."""
+    pb, hb = _block(3, 3, 3)
+    mesh_rows = ["*Node"] + [f"{i + 1}, " + ", ".join(f"{v:.9g}" for v in q) for i, q in enumerate(pb)]
+    mesh_rows += ["*Element, type=C3D8R"] + [
+        f"{i + 1}, " + ", ".join(str(v + 1) for v in c) for i, c in enumerate(hb)
+    ]
+    text = HEAD + "*Part, name=Block\n*End Part\n**\n*Assembly, name=Assembly\n**\n"
+    for name, shift in (("Block-1", 0.0), ("Block-2", 2.0)):
+        text += (
+            f"*Instance, name={name}, part=Block\n{shift}, 0., 0.\n"
+            + "\n".join(mesh_rows)
+            + "\n*End Instance\n**\n"
+        )
+    text += "*Elset, elset=Corner, instance=Block-2\n 1, 2, 3\n*End Assembly\n"
+    path = tmp_path / "independent.inp"
+    path.write_text(text)
+    mesh = read_mesh(str(path))
+    assert mesh.n_cells == 2 * len(hb)
+    boxes = _boxes(mesh)
+    assert boxes["Block-1"][:2] == ([0, 0, 0], [1, 1, 1]) and boxes["Block-2.Corner"][2] == pytest.approx(
+        3 / 27
+    )
+    assert boxes["Block-2"][0][0] == 2.0 and boxes["Block-2"][1][0] == 3.0

@@ -10,7 +10,8 @@ structure:
   lines (a translation; then a rotation about the axis through two points, by an angle in
   degrees, applied after the translation, as Abaqus does). A part that is instanced twice is
   there twice; a part no instance names is not in the model. Nodes and elements written inside an
-  *INSTANCE block belong to that instance;
+  *INSTANCE block (an independent instance, whose part is empty) are that instance's mesh, placed
+  the same way; an assembly's *ELSET with INSTANCE= is a set of that instance's elements;
 - a file without parts is one model: all its *NODE blocks together (meshio kept the last one).
 
 Groups: the element sets (*ELSET and *ELEMENT's ELSET=). With several instances, each instance
@@ -232,7 +233,7 @@ def read_abaqus(path: str):
     folder = os.path.realpath(os.path.dirname(path)) or "/"
     parts: dict[str, _Part] = {}
     flat = _Part("")
-    instances = []  # (name, part key, R, t)
+    instances = []  # (name, part key, its own _Part, R, t)
     where = "model"
     current = flat
     unknown: set = set()
@@ -254,11 +255,10 @@ def read_abaqus(path: str):
                 raise MeshError(
                     f"the *INSTANCE {name} at line {line} places part {params['PART']}, which the file does not define"
                 )
-            if not key:  # the instance holds its own nodes and elements
-                key = f"\0{name.upper()}"
-                parts[key] = _Part(name)
-            instances.append((name, key, *_rotation(data, line)))
-            current, where = (parts[key] if key.startswith("\0") else None), "instance"
+            own = _Part(name)  # nodes and elements written inside the block (an independent
+            # instance: its part is empty), and the assembly's sets of this instance
+            instances.append((name, key, own, *_rotation(data, line)))
+            current, where = own, "instance"
         elif keyword == "NODE" and current is not None:
             _nodes(current, data, line)
         elif keyword == "ELEMENT" and current is not None:
@@ -267,14 +267,14 @@ def read_abaqus(path: str):
             target = current
             if where == "assembly" and isinstance(params.get("INSTANCE"), str):
                 target = next(
-                    (parts[k] for n, k, *_ in instances if n.upper() == params["INSTANCE"].upper()), None
+                    (own for n, _, own, *_ in instances if n.upper() == params["INSTANCE"].upper()), None
                 )
             if target is not None:
                 ids = _set_ids(data, params, target.sets, line)
                 target.sets.setdefault(params["ELSET"], []).append(ids)
     placed = [(flat.name, flat, np.eye(3), np.zeros(3))] if flat.blocks else []
     placed += (
-        [(n, parts[k], r, t) for n, k, r, t in instances]
+        [(n, _instance_part(parts.get(k), own), r, t) for n, k, own, r, t in instances]
         if instances
         else [(p.name, p, np.eye(3), np.zeros(3)) for p in parts.values()]
     )
@@ -288,6 +288,17 @@ def read_abaqus(path: str):
     if unknown:
         raise MeshError(f"it holds elements of a type it does not know ({', '.join(sorted(unknown)[:6])})")
     return _assemble(meshio, placed, several=len(placed) > 1)
+
+
+def _instance_part(base: _Part | None, own: _Part) -> _Part:
+    """What an instance places: the mesh written inside its block where there is one (an
+    independent instance), else its part's; its part's sets and the assembly's sets for it."""
+    if own.blocks or base is None:
+        return own
+    sets = {name: list(chunks) for name, chunks in base.sets.items()}
+    for name, chunks in own.sets.items():
+        sets.setdefault(name, []).extend(chunks)
+    return _Part(base.name, base.node_ids, base.node_xyz, base.blocks, sets)
 
 
 def _assemble(meshio, placed, several: bool):
