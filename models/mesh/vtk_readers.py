@@ -274,7 +274,10 @@ def _run(path: str, kind: str, fmt: str | None = None):
             out = reader.GetOutputDataObject(0)
     if cap.failed:
         why = _foam_place(cap.text) if kind.startswith("openfoam") else None
-        raise MeshError(f"cannot read {name} as {fmt}: {why or explain(cap.text, what)}")
+        said = why or explain(cap.text, what)
+        if kind in _XML_KINDS and " (at " not in said:  # (VTK said no place: the XML's own fault, if any)
+            said = xml_fault(path) or said
+        raise MeshError(f"cannot read {name} as {fmt}: {said}")
     if out is None:
         raise MeshError(f"cannot read {name} as {fmt}: the reader produced no data")
     return out
@@ -389,6 +392,35 @@ def article(what: str) -> str:
     """'an Exodus II', 'a legacy VTK', 'an XDMF': the indefinite article by the first sound (a vowel,
     or an X said as a letter)."""
     return ("an " if what[:1].lower() in "aeiou" or what[:2] in ("XD", "XM") else "a ") + what
+
+
+_XML_KINDS = ("xdmf", "xml", *(k for k in READERS if k.startswith(".")))
+
+
+def xml_fault(path: str) -> str | None:
+    """Where an XML file is not well-formed, in our words with its line and column (expat, the
+    parser of Python's standard library, streaming over the file); None where it is well-formed."""
+    from xml.parsers import expat
+
+    parser = expat.ParserCreate()
+    try:
+        with open(path, "rb") as fh:
+            parser.ParseFile(fh)
+    except expat.ExpatError as exc:
+        codes = expat.errors.codes
+        what = {
+            codes[expat.errors.XML_ERROR_TAG_MISMATCH]: "a closing tag does not match the tag it closes",
+            codes[expat.errors.XML_ERROR_NO_ELEMENTS]: "the file ends before its XML does (truncated?)",
+            codes[expat.errors.XML_ERROR_UNCLOSED_TOKEN]: "the file ends inside a tag (truncated?)",
+            codes[expat.errors.XML_ERROR_INVALID_TOKEN]: "a character that XML does not allow",
+            codes[expat.errors.XML_ERROR_SYNTAX]: "a character that XML does not allow",
+            codes[expat.errors.XML_ERROR_JUNK_AFTER_DOC_ELEMENT]: "text after the end of the document",
+            codes[expat.errors.XML_ERROR_UNDEFINED_ENTITY]: "an entity (&name;) that is not declared",
+        }.get(exc.code, "a fault of its XML")
+        return f"its XML is malformed: {what} (at line {exc.lineno:,}, column {exc.offset + 1:,})"
+    except (OSError, ValueError):
+        return None
+    return None
 
 
 def explain(text: str, what: str) -> str:

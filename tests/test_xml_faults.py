@@ -1,0 +1,43 @@
+"""A malformed XML file read by VTK (XDMF, and the VTK XML files VTK's readers take) is refused
+with the place of its fault, found by Python's expat when VTK says none (before: "it is
+corrupted or not an XDMF file", with no place)."""
+
+from __future__ import annotations
+
+import meshio
+import pytest
+import vtk_corpus as vc
+
+from models.errors import MeshError
+from models.mesh.sandbox import read_mesh_safe
+
+
+def _xdmf(tmp_path):
+    p, h = vc.grid(3, 3, 3)
+    path = tmp_path / "good.xdmf"
+    meshio.write(str(path), meshio.Mesh(p, [("hexahedron", h)]), data_format="XML")
+    return path.read_text()
+
+
+def _line_of(text: str, needle: str) -> int:
+    return text[: text.index(needle)].count("\n") + 1
+
+
+@pytest.mark.parametrize(
+    "fault, what",
+    [
+        (lambda s: s.replace("</Topology>", "</Topolgy>"), "a closing tag does not match the tag it closes"),
+        (lambda s: s[: len(s) // 2], "the file ends before its XML does"),
+        (lambda s: s.replace("<Geometry", "<Geo&metry", 1), "a character that XML does not allow"),
+    ],
+)
+def test_a_malformed_xdmf_is_refused_at_its_fault(tmp_path, fault, what):
+    text = fault(_xdmf(tmp_path))
+    path = tmp_path / "bad.xdmf"
+    path.write_text(text)
+    with pytest.raises(MeshError) as err:
+        read_mesh_safe(str(path))
+    msg = str(err.value)
+    assert msg.startswith("cannot read bad.xdmf as XDMF: its XML is malformed: " + what), msg
+    if "Topolgy" in text:
+        assert f"(at line {_line_of(text, '</Topolgy>'):,}, column" in msg
