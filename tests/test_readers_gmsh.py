@@ -206,3 +206,36 @@ def test_a_cut_gmsh_file_is_said_to_be_truncated(tmp_path, binary):
             match=rf"^cannot read {cut.name} as gmsh: the file ends inside its \$(Nodes|Elements) section \(no \$End(Nodes|Elements)\): it is truncated",
         ):
             read_mesh(str(cut))
+
+
+def test_group_names_beyond_ascii_reach_the_output(tmp_path):
+    """Group names with umlauts and spaces (outside sweep V: 'Stahl äußen' made `agglomerate`
+    stop with an internal error: the VTU was written as ASCII). The output VTU is UTF-8, its names
+    read back by VTK as given."""
+    import vtk
+
+    from models import agglomerate
+
+    gmsh.initialize(readConfigFiles=False, interruptible=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add("m")
+        occ = gmsh.model.occ
+        occ.addRectangle(0, 0, 0, 0.5, 1)
+        occ.addRectangle(0.5, 0, 0, 0.5, 1)
+        occ.fragment([(2, 1)], [(2, 2)])
+        occ.synchronize()
+        gmsh.model.addPhysicalGroup(2, [1], 5, name="Stahl äußen")
+        gmsh.model.addPhysicalGroup(2, [2], 6, name="Wärme / soft")
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.1)
+        gmsh.model.mesh.generate(2)
+        gmsh.write(str(tmp_path / "odd.msh"))
+    finally:
+        gmsh.finalize()
+    res = agglomerate(str(tmp_path / "odd.msh"), model="metis", k=6, metrics=False)
+    res.write(str(tmp_path / "out.vtu"))
+    r = vtk.vtkXMLUnstructuredGridReader()
+    r.SetFileName(str(tmp_path / "out.vtu"))
+    r.Update()
+    fd = r.GetOutput().GetFieldData()
+    assert {fd.GetArrayName(i) for i in range(fd.GetNumberOfArrays())} >= {"Stahl äußen", "Wärme / soft"}

@@ -273,9 +273,16 @@ def execute_job(job_id: str, settings: Settings) -> str:
     except MagnetError as exc:
         finish({"status": FAILED, "stage": "failed", "error": str(exc) or type(exc).__name__})
         return "failed"
-    except Exception as exc:
+    except Exception:
         log.exception("job %s: internal error", job_id)
-        finish({"status": FAILED, "stage": "failed", "error": f"internal error: {type(exc).__name__}: {exc}"})
+        finish(  # (one sentence of ours: the exception's own text is in the worker's log, not the job's)
+            {
+                "status": FAILED,
+                "stage": "failed",
+                "error": f"internal error: this is a bug in magnet, not a fault of your input; the "
+                f"server's log has the details under job {job_id}",
+            }
+        )
         return "failed"
     finally:
         beat.stopped.set()

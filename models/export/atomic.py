@@ -56,7 +56,7 @@ def write_bytes(path, data: bytes) -> None:
         fh.write(data)
 
 
-def write_lines(path, parts, encoding: str = "ascii") -> None:
+def write_lines(path, parts, encoding: str = "utf-8") -> None:
     """Write an iterable of strings whole (no joined copy of them in memory)."""
     with replacing(path, "w", encoding) as fh:
         fh.writelines(parts)
