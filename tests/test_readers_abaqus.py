@@ -1,4 +1,4 @@
-"""Abaqus element types meshio's table lacks (models/mesh/abaqus_types.py): plane-strain,
+"""Abaqus and Nastran decks: element types meshio's table lacks (models/mesh/abaqus_types.py): plane-strain,
 axisymmetric, heat-transfer and coupled-temperature elements read by the shape of their nodes;
 a type no table knows is named in the refusal (outside sweep S: plane-strain CPE4 was refused as
 "corrupted or not in this format")."""
@@ -269,3 +269,36 @@ def test_independent_instances_carry_their_own_mesh(tmp_path):
         3 / 27
     )
     assert boxes["Block-2"][0][0] == 2.0 and boxes["Block-2"][1][0] == 3.0
+
+
+def test_a_set_of_every_element_does_not_hide_the_materials(tmp_path):
+    """*ELSET EALL (every element) written before the materials' sets STEEL and CORE: each cell goes
+    to the smallest set that holds it (outside sweep V: EALL took every cell, STEEL and CORE were
+    lost and segregated elements mixed them)."""
+    p, h = vc.grid(4, 2, 2)
+    path = write_inp(tmp_path / "m.inp", p, h, "C3D8", elset="EALL")
+    ids = np.arange(1, len(h) + 1)
+    steel, core = ids[: len(h) // 4], ids[len(h) // 4 :]
+    text = open(path).read().replace("*END PART\n", "")
+    text += "*ELSET, ELSET=STEEL\n" + ", ".join(map(str, steel)) + "\n"
+    text += "*ELSET, ELSET=CORE\n" + ", ".join(map(str, core)) + "\n"
+    (tmp_path / "m.inp").write_text(text)
+    mesh = read_mesh(path)
+    names = {n: t for t, n in mesh.meta["group_names"].items()}
+    assert set(names) == {"STEEL", "CORE"}
+    assert np.count_nonzero(mesh.tags == names["STEEL"]) == steel.size
+    assert np.count_nonzero(mesh.tags == names["CORE"]) == core.size
+
+
+def test_nastran_property_ids_are_the_groups(tmp_path):
+    """A Nastran deck's elements carry their property id (PSOLID/PSHELL: the material): the groups
+    (outside sweep V: 'physical groups: none', and segregated mode refused the file)."""
+    import meshio
+
+    p, h = vc.grid(4, 2, 2)
+    pid = np.where(np.arange(len(h)) < 4, 1, 2)
+    meshio.write(
+        str(tmp_path / "m.nas"), meshio.Mesh(p, [("hexahedron", h)], cell_data={"nastran:ref": [pid]})
+    )
+    mesh = read_mesh(str(tmp_path / "m.nas"))
+    assert np.bincount(mesh.tags).tolist() == [0, 4, len(h) - 4]

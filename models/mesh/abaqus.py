@@ -15,8 +15,9 @@ structure:
 - a file without parts is one model: all its *NODE blocks together (meshio kept the last one).
 
 Groups: the element sets (*ELSET and *ELEMENT's ELSET=). With several instances, each instance
-is a group of its name, and a part's sets that hold only some of its elements come first as
-"instance.set". Each cell goes to the first set that holds it (models.mesh.meshio_groups).
+is a group of its name, and a part's sets that hold only some of its elements are "instance.set".
+Each cell goes to the smallest set that holds it: a set of every element (EALL, CAE's Set-1) does
+not hide the materials inside it.
 
 *INCLUDE and INPUT= files are read from the main file's folder (never from outside it). Element
 types: meshio's table, widened by models.mesh.abaqus_types; a type no table knows is read as the
@@ -340,8 +341,9 @@ def _assemble(meshio, placed, several: bool):
             sets[name] = _per_block(elements[all_rows], elements, e_order, starts, at, n_blocks)
         offset += ids.size
         at += len(part.blocks)
-    if several:  # subsets first, then the instances (a cell goes to the first set that holds it)
-        sets = dict(sorted(sets.items(), key=lambda kv: "." not in kv[0]))
+    # the smallest sets first: a cell goes to the first set that holds it (meshio_groups), so a set
+    # of every element (EALL, Set-1, an instance) never hides the materials inside it
+    sets = dict(sorted(sets.items(), key=lambda kv: sum(len(x) for x in kv[1])))
     return meshio.Mesh(np.concatenate(points), cells, cell_sets=sets)
 
 

@@ -46,6 +46,7 @@ TAG_NAMES = (
     "MaterialIds",
     "block",  # element block / zone of a composite VTK output (vtk_readers)
     "group",  # the groups read._named_groups makes of Abaqus sets, MED families, SU2 markers
+    "nastran:ref",  # Nastran's property id of each element (PSOLID / PSHELL: its material)
 )
 BOUNDARY_TAG_NAME = "boundary_tag"  # boundary groups of lower-dimensional cells, as models.vtu writes them
 VTK_POLY_VERTEX = 2
