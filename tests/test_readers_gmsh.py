@@ -239,3 +239,38 @@ def test_group_names_beyond_ascii_reach_the_output(tmp_path):
     r.Update()
     fd = r.GetOutput().GetFieldData()
     assert {fd.GetArrayName(i) for i in range(fd.GetNumberOfArrays())} >= {"Stahl äußen", "Wärme / soft"}
+
+
+@pytest.mark.parametrize("version", [4.1, 2.2])
+def test_cells_in_two_physical_groups_go_to_the_smaller(tmp_path, version):
+    """A surface in both "all" and "inclusion" (outside sweep V): MSH 4.1 lists both groups for the
+    entity (meshio kept the first: "inclusion" was lost without a word), MSH 2.2 writes those
+    triangles twice (refused as "not a manifold"). Each cell once, in the smaller group, said."""
+    gmsh.initialize(readConfigFiles=False, interruptible=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add("m")
+        occ = gmsh.model.occ
+        occ.addRectangle(0, 0, 0, 1, 1)
+        occ.addDisk(0.5, 0.5, 0, 0.2, 0.2)
+        occ.fragment([(2, 1)], [(2, 2)])
+        occ.synchronize()
+        surfaces = [t for _, t in gmsh.model.getEntities(2)]
+        disk = min(surfaces, key=lambda t: gmsh.model.occ.getMass(2, t))
+        gmsh.model.addPhysicalGroup(2, surfaces, 1, name="all")
+        gmsh.model.addPhysicalGroup(2, [disk], 2, name="inclusion")
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.08)
+        gmsh.model.mesh.generate(2)
+        n_disk = len(gmsh.model.mesh.getElements(2, disk)[1][0])
+        n_all = sum(len(gmsh.model.mesh.getElements(2, t)[1][0]) for t in surfaces)
+        gmsh.option.setNumber("Mesh.MshFileVersion", version)
+        gmsh.write(str(tmp_path / "m.msh"))
+    finally:
+        gmsh.finalize()
+    mesh = read_mesh(str(tmp_path / "m.msh"))
+    assert mesh.n_cells == n_all
+    names = {n: t for t, n in mesh.meta["group_names"].items()}
+    assert set(names) == {"all", "inclusion"}
+    assert int(np.count_nonzero(mesh.tags == names["inclusion"])) == n_disk
+    assert int(np.count_nonzero(mesh.tags == names["all"])) == n_all - n_disk
+    assert "each is kept once, in the smallest of them" in mesh.meta["overlapping_groups"]

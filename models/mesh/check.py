@@ -113,6 +113,8 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
     if mesh.meta.get("overlong_cells"):  # cell types and node counts disagree: said, read as VTK draws them
         long = mesh.meta["overlong_cells"]
         issues.append(_issue("overlong-cells", "warning", int(long["count"]), [], str(long["message"])))
+    if mesh.meta.get("overlapping_groups"):  # gmsh cells in two physical groups: one each
+        issues.append(_issue("overlapping-groups", "info", 1, [], str(mesh.meta["overlapping_groups"])))
     if mesh.meta.get("merged_points"):  # a cell soup (deal.II's DataOut): its copies merged on reading
         merged = mesh.meta["merged_points"]
         issues.append(_issue("merged-points", "info", int(merged["count"]), [], str(merged["message"])))

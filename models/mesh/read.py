@@ -456,7 +456,13 @@ def _read_gmsh(path: str, physical_tag, weld, native: bool) -> Mesh:
         mesh = mesh_from_meshio(m, physical_tag=physical_tag, weld=weld, owned=True)
         mesh.meta.update(reader="gmsh's library (models/mesh/gmsh_native.py)", format="gmsh")
         return mesh
-    return mesh_from_meshio(m, physical_tag=physical_tag, weld=weld, owned=True)
+    from models.mesh.gmsh_groups import resolve_overlaps
+
+    note = resolve_overlaps(m) if physical_tag is None else None  # (cells in two physical groups)
+    mesh = mesh_from_meshio(m, physical_tag=physical_tag, weld=weld, owned=True)
+    if note:
+        mesh.meta["overlapping_groups"] = note
+    return mesh
 
 
 _GMSH_MARK = re.compile(rb"^\$(End)?([A-Za-z]+)\r?$", re.MULTILINE | re.IGNORECASE)  # (MSH 1: $ENDNOD)
