@@ -274,3 +274,17 @@ def test_cells_in_two_physical_groups_go_to_the_smaller(tmp_path, version):
     assert int(np.count_nonzero(mesh.tags == names["inclusion"])) == n_disk
     assert int(np.count_nonzero(mesh.tags == names["all"])) == n_all - n_disk
     assert "each is kept once, in the smallest of them" in mesh.meta["overlapping_groups"]
+
+
+def test_physical_tag_zero_is_no_group(tmp_path):
+    """gmsh's MSH 2.2 writes physical tag 0 for what it saves outside any group (Mesh.SaveAll):
+    no group "0", and its edges no boundary group "0" (outside sweep V: the output's boundary
+    tag became 0 instead of the default)."""
+    path = write(tmp_path / "all.msh", 2, version=2.2, saveall=True)
+    import meshio
+
+    raw = meshio.read(path)
+    assert all(not np.asarray(t).any() for t in raw.cell_data["gmsh:physical"])  # (gmsh wrote 0s only)
+    mesh = read_mesh(path)
+    assert mesh.tags is None and mesh.meta["boundary_names"] == {}
+    assert mesh.boundary_tags is None or not np.any(mesh.boundary_tags == 0)

@@ -380,7 +380,7 @@ def format_report(rep: dict) -> str:
             lines.append(f"welded: {rep['welded_points']} points merged into coincident ones")
         names = rep.get("group_names") or {}
         groups = [f"{g} {names[g]!r}" if g in names else str(g) for g in rep["physical_groups"]]
-        lines.append(f"physical groups: {', '.join(groups) if names else rep['physical_groups'] or 'none'}")
+        lines.append(f"physical groups: {', '.join(groups) or 'none'}")
         lines.extend(rep.get("boundary_notes", []))
     else:
         lines.append(f"{rep.get('file', 'mesh')}: cannot be used")

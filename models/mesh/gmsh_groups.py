@@ -26,6 +26,34 @@ def _block_sets(m) -> dict[int, list[str]]:
     return out
 
 
+def zero_is_no_group(m) -> None:
+    """gmsh's physical tag 0 is no physical group (MSH 2 writes it for every element it saves
+    outside one, as with Mesh.SaveAll): cells of a dimension below the mesh's with tag 0 are left
+    out (they name no boundary group), and a tag array of zeros only is no tag array."""
+    from meshio._mesh import topological_dimension
+
+    tags = m.cell_data.get("gmsh:physical")
+    if not tags or any(np.asarray(t).size and np.asarray(t).max() > 0 for t in tags):
+        if tags:
+            dims = [topological_dimension.get(c.type, 3) for c in m.cells]
+            top = max(dims)
+            for k, d in enumerate(dims):
+                t = np.asarray(tags[k])
+                if d < top and t.size and not t.any():
+                    keep = t != 0
+                    m.cells[k].data = np.asarray(m.cells[k].data)[keep]
+                    for key in m.cell_data:
+                        m.cell_data[key][k] = np.asarray(m.cell_data[key][k])[keep]
+        return
+    del m.cell_data["gmsh:physical"]
+    dims = [topological_dimension.get(c.type, 3) for c in m.cells]
+    top = max(dims)
+    keep = [k for k, d in enumerate(dims) if d == top]  # (lower cells name no boundary group)
+    m.cells = [m.cells[k] for k in keep]
+    for key in list(m.cell_data):
+        m.cell_data[key] = [m.cell_data[key][k] for k in keep]
+
+
 def resolve_overlaps(m) -> str | None:
     """Give every cell of `m` (a meshio.Mesh read from gmsh) one physical group, the smallest of
     those that hold it; drop the repeats MSH 2 writes. Returns the sentence to say, or None."""

@@ -456,9 +456,12 @@ def _read_gmsh(path: str, physical_tag, weld, native: bool) -> Mesh:
         mesh = mesh_from_meshio(m, physical_tag=physical_tag, weld=weld, owned=True)
         mesh.meta.update(reader="gmsh's library (models/mesh/gmsh_native.py)", format="gmsh")
         return mesh
-    from models.mesh.gmsh_groups import resolve_overlaps
+    from models.mesh.gmsh_groups import resolve_overlaps, zero_is_no_group
 
-    note = resolve_overlaps(m) if physical_tag is None else None  # (cells in two physical groups)
+    note = None
+    if physical_tag is None:
+        zero_is_no_group(m)
+        note = resolve_overlaps(m)  # (cells in two physical groups)
     mesh = mesh_from_meshio(m, physical_tag=physical_tag, weld=weld, owned=True)
     if note:
         mesh.meta["overlapping_groups"] = note
