@@ -99,7 +99,8 @@ def write_xdmf(path, points, cell_blocks) -> str:
 def write_xdmf_dolfinx(path, points, tets, cell_tags, facets, facet_tags) -> str:
     """An XDMF file as dolfinx's XDMFFile writes a mesh and its MeshTags: the mesh's grid, then a
     grid per tag set (the tagged entities' topology, the mesh's geometry by xi:include, the values
-    as a cell attribute); heavy data in an .h5 beside it (h5py, dolfinx's layout)."""
+    as a cell attribute); heavy data in an .h5 beside it (h5py, dolfinx's layout). 2D (points of
+    two coordinates, triangles): geometry XY, the facets as dolfinx writes them, PolyLine of 2."""
     import h5py
 
     path = Path(path)
@@ -112,6 +113,9 @@ def write_xdmf_dolfinx(path, points, tets, cell_tags, facets, facet_tags) -> str
         f["MeshTags/facets/topology"] = np.asarray(facets, np.int64)
         f["MeshTags/facets/values"] = np.asarray(facet_tags, np.int32)
     nt, nf, npts, hn = len(tets), len(facets), len(points), h5.name
+    flat = np.asarray(points).shape[1] == 2
+    cell_kind, per_cell = ("Triangle", 3) if flat else ("Tetrahedron", 4)
+    facet_kind, per_facet = ("PolyLine", 2) if flat else ("Triangle", 3)
 
     def tags(name, kind, n, per, group):
         return f"""    <Grid Name="{name}" GridType="Uniform">
@@ -131,16 +135,16 @@ def write_xdmf_dolfinx(path, points, tets, cell_tags, facets, facet_tags) -> str
 <Xdmf Version="3.0" xmlns:xi="http://www.w3.org/2001/XInclude">
   <Domain>
     <Grid Name="mesh" GridType="Uniform">
-      <Topology TopologyType="Tetrahedron" NumberOfElements="{nt}" NodesPerElement="4">
-        <DataItem Dimensions="{nt} 4" NumberType="Int" Format="HDF">{hn}:/Mesh/mesh/topology</DataItem>
+      <Topology TopologyType="{cell_kind}" NumberOfElements="{nt}" NodesPerElement="{per_cell}">
+        <DataItem Dimensions="{nt} {per_cell}" NumberType="Int" Format="HDF">{hn}:/Mesh/mesh/topology</DataItem>
       </Topology>
-      <Geometry GeometryType="XYZ">
-        <DataItem Dimensions="{npts} 3" NumberType="Float" Precision="8" Format="HDF">{hn}:/Mesh/mesh/geometry</DataItem>
+      <Geometry GeometryType="{"XY" if flat else "XYZ"}">
+        <DataItem Dimensions="{npts} {2 if flat else 3}" NumberType="Float" Precision="8" Format="HDF">{hn}:/Mesh/mesh/geometry</DataItem>
       </Geometry>
     </Grid>
 """
-        + tags("cell_tags", "Tetrahedron", nt, 4, "cells")
-        + tags("facet_tags", "Triangle", nf, 3, "facets")
+        + tags("cell_tags", cell_kind, nt, per_cell, "cells")
+        + tags("facet_tags", facet_kind, nf, per_facet, "facets")
         + "  </Domain>\n</Xdmf>\n"
     )
     return str(path)

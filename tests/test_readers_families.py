@@ -194,6 +194,26 @@ def test_dolfinx_xdmf_tags_are_groups(tmp_path):
     assert int(np.count_nonzero(mesh.boundary_tags == 3)) == 18
 
 
+def test_dolfinx_2d_facet_tags_are_boundary_groups(tmp_path):
+    """dolfinx's 2D XDMF writes its facets as PolyLine of two points (outside sweep V: ignored, no
+    boundary group): they are edges, the boundary groups."""
+    pytest.importorskip("h5py")
+    p, q = vc.quad_grid(6, 4)
+    tris = np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
+    x = (p[:, :2] @ np.linalg.inv(vc.A[:2, :2]).T)[:, 0]  # the grid's own x (an affine image)
+    edges = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
+    left = np.unique(np.sort(edges[np.all(np.abs(x[edges] - x.min()) < 1e-9, axis=1)], axis=1), axis=0)
+    assert len(left) == 4
+    cell_tags = np.where(x[tris].mean(axis=1) < np.median(x), 1, 2)
+    path = fw.write_xdmf_dolfinx(
+        tmp_path / "mesh.xdmf", p[:, :2], tris, cell_tags, left, np.full(len(left), 7)
+    )
+    mesh = read_mesh(path)
+    assert mesh.dim == 2 and mesh.n_cells == len(tris)
+    assert sorted(mesh.physical_groups()) == [1, 2]
+    assert int(np.count_nonzero(mesh.boundary_tags == 7)) == 4
+
+
 def test_ensight_cases_read_with_their_parts(tmp_path):
     """EnSight Gold (ParaView opens it; Fluent, CFX and STAR-CCM+ export it): VTK's own binary
     writer's case, and an ASCII case of a volume part and a surface part (each part its own

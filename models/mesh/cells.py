@@ -271,9 +271,14 @@ def normalize(
         out, offsets, conn, types, elem, tags, poly
     )
     if dim >= 2:
-        bsel = np.flatnonzero((dims == dim - 1) & (types != VTK_POLY_LINE) & (types != VTK_POLY_VERTEX))
+        # a poly-line of two points is an edge (dolfinx's XDMF writes a 2D mesh's facets so)
+        edge = (types == VTK_POLY_LINE) & (np.diff(offsets) == 2) if dim == 2 else None
+        btypes = (
+            types if edge is None or not edge.any() else np.where(edge, VTK_LINE, types).astype(types.dtype)
+        )
+        bsel = np.flatnonzero((dims == dim - 1) & (btypes != VTK_POLY_LINE) & (btypes != VTK_POLY_VERTEX))
         if bsel.size:
-            bo, bc, bt, _ = _elements(None, offsets, conn, types, bsel, None, None)
+            bo, bc, bt, _ = _elements(None, offsets, conn, btypes, bsel, None, None)
             btags = None
             src = bnd_tags if bnd_tags is not None else tags
             if src is not None:
