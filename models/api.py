@@ -55,9 +55,14 @@ def inspect_mesh(path: str | os.PathLike, physical_tag: str | None = None, check
 
     try:
         mesh = read_mesh(path, physical_tag=physical_tag)
-    except MagnetError:
+    except MagnetError as exc:
         if not is_surface_file(path):
             raise
+        from models.mesh.fill import open_surface_refusal
+
+        refused = open_surface_refusal(path, exc)
+        if refused is not exc:  # (neither a mesh nor a surface to fill: both said, as `check` says)
+            raise refused from None
         return _inspect_surface(path)
     info = describe(mesh)
     if check:

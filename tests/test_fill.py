@@ -433,3 +433,23 @@ def test_off_and_obj_as_other_tools_write_them(tmp_path):
     bad.write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n")
     with pytest.raises(MeshError, match=r"cannot read bad\.off as OFF: it announces 3 points and 1 faces"):
         read_surface(bad)
+
+
+def test_an_open_curved_surface_is_refused_alike_by_check_and_upload(tmp_path, shapes):
+    """A curved surface that is open can be neither agglomerated (not planar) nor filled (not
+    closed): `magnet check` and the service's upload check (api.inspect_mesh) say both, in the
+    same sentence (outside sweep V: the CLI said the first, HTTP the second)."""
+    from models.api import inspect_mesh
+    from models.mesh.check import check_file
+
+    points, tris = shapes["box"]
+    top = np.isclose(points[tris][:, :, 2], 1.0).all(1)
+    path = tmp_path / "cap.stl"
+    meshio.write(str(path), meshio.Mesh(points, [("triangle", tris[~top])]))
+    said = check_file(str(path))["issues"][0]["message"]
+    with pytest.raises(MeshError) as err:
+        inspect_mesh(str(path))
+    assert str(err.value) == said
+    assert (
+        "non-planar surface" in said and "nor can it be filled as it is: it is not a closed surface" in said
+    )

@@ -31,10 +31,12 @@ def check_file(path: str | os.PathLike, physical_tag: str | None = None, weld: f
     try:
         mesh = read_mesh_safe(path, physical_tag=physical_tag, weld=weld)
     except MagnetError as exc:
+        from models.mesh.fill import open_surface_refusal
+
         return {
             "file": os.path.basename(os.fspath(path)),
             "verdict": "error",
-            "issues": [_issue("unreadable", "error", 1, [], str(exc))],
+            "issues": [_issue("unreadable", "error", 1, [], str(open_surface_refusal(path, exc)))],
         }
     report = mesh_report(mesh)
     report["file"] = os.path.basename(os.fspath(path))

@@ -104,6 +104,26 @@ def is_surface_file(path) -> bool:
     return os.path.splitext(os.fspath(path))[1].lower() in SURFACE_SUFFIXES
 
 
+def open_surface_refusal(path, refused: Exception) -> Exception:
+    """A surface file refused as a mesh (curved: not a planar 2D mesh): where it cannot be filled
+    either (open, crossing), one sentence saying both, as the CLI's check and the service's upload
+    check say it; `refused` itself where it could be filled (or is no surface file)."""
+    from models.errors import MagnetError, MeshError
+
+    if not is_surface_file(path):
+        return refused
+    try:
+        check_closed(read_surface(path))
+    except MagnetError as why:
+        name = os.path.basename(os.fspath(path))
+        tail = str(why)
+        for prefix in (f"{name} is ", f"cannot read {name}: "):
+            if tail.startswith(prefix):
+                tail = "it is " + tail[len(prefix) :] if prefix.endswith("is ") else tail[len(prefix) :]
+        return MeshError(f"{refused}; nor can it be filled as it is: {tail}")
+    return refused
+
+
 # ------------------------------------------------------------------------------------------ read
 
 
