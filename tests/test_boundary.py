@@ -382,3 +382,45 @@ def test_magnet_check_lists_the_groups(capsys):
     assert magnet(["check", str(CUBE), "--json"]) == 0
     rep = json.loads(capsys.readouterr().out)
     assert [g["tag"] for g in rep["boundary"]["groups"]] == sorted(CUBE_TAGS) and rep["verdict"] == "ok"
+
+
+def test_lines_and_points_of_a_volume_mesh_are_said_to_be_ignored(tmp_path):
+    """Cells two dimensions below the mesh's (lines and points of a volume mesh) are no faces, so no
+    boundary group: read, counted and said, in check and in agglomerate (outside sweep V: said
+    nowhere but in `magnet info`)."""
+    import subprocess
+    import sys
+
+    import meshio
+    import vtk_corpus as vc
+
+    from models.mesh.check import check_file
+
+    p, h = vc.grid(3, 3, 3)
+    path = tmp_path / "mixed.vtu"
+    meshio.write(
+        str(path), meshio.Mesh(p, [("hexahedron", h), ("line", [[0, 1], [1, 2]]), ("vertex", [[0], [5]])])
+    )
+    rep = check_file(str(path))
+    said = [i["message"] for i in rep["issues"] if i["kind"] == "ignored-lower-cells"]
+    assert said == [
+        "4 cells of lower dimension ignored (2 line, 2 vertex): only the faces of the mesh's cells "
+        "(triangles and quadrilaterals) become boundary groups"
+    ]
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "models.cli",
+            "agglomerate",
+            str(path),
+            "-o",
+            str(tmp_path / "o.vtu"),
+            "--k",
+            "3",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert r.returncode == 0 and "note: 4 cells of lower dimension ignored" in r.stdout, r.stderr

@@ -278,8 +278,11 @@ def cmd_agglomerate(args) -> int:
         extra.append(f"exactly k: {rc['merged']} fragments merged, {rc['split']} elements split again")
     note = f" ({', '.join(extra)})" if extra else ""
     print(f"{s['elements']} elements from {mesh.n_cells} cells{note} | {stages} | total {total:.2f}s")
-    from models.mesh.build import dropped_sentence
+    from models.mesh.build import dropped_sentence, ignored_lower_sentence
 
+    ignored = ignored_lower_sentence(mesh.meta, mesh.dim)
+    if ignored:
+        print(f"note: {ignored}")
     left_out = dropped_sentence(mesh.meta)
     if left_out:
         print(f"warning: {left_out} (labels: -1 for them)")

@@ -476,6 +476,28 @@ def _record_dropped(mesh: Mesh, dropped: list, n_before: int) -> None:
     }
 
 
+def ignored_lower_sentence(meta: dict, dim: int) -> str:
+    """The cells two or more dimensions below the mesh's (lines and points of a volume mesh, points
+    of a planar one): read, counted and not used (only the faces of the mesh's cells are boundary
+    groups); '' where there are none."""
+    lower = meta.get("lower_dim_cells") or {}
+
+    def below(name: str) -> bool:
+        kind = name.replace("poly-", "")
+        return kind.startswith("vertex") or (dim == 3 and kind.startswith("line"))
+
+    kept = {name: int(n) for name, n in lower.items() if below(str(name)) and n}
+    if not kept:
+        return ""
+    total = sum(kept.values())
+    kinds = ", ".join(f"{n:,} {name}" for name, n in sorted(kept.items()))
+    faces = "triangles and quadrilaterals" if dim == 3 else "edges"
+    return (
+        f"{total:,} cells of lower dimension ignored ({kinds}): only the faces of the mesh's cells "
+        f"({faces}) become boundary groups"
+    )
+
+
 def dropped_sentence(meta: dict) -> str | None:
     """One sentence on the cells a read left out, or None."""
     d = meta.get("dropped_cells")

@@ -115,6 +115,12 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
     if mesh.meta.get("overlong_cells"):  # cell types and node counts disagree: said, read as VTK draws them
         long = mesh.meta["overlong_cells"]
         issues.append(_issue("overlong-cells", "warning", int(long["count"]), [], str(long["message"])))
+    from models.mesh.build import ignored_lower_sentence
+
+    ignored = ignored_lower_sentence(mesh.meta, mesh.dim)
+    if ignored:  # lines and points of a volume mesh: read, counted, said, not used
+        count = int(ignored.split(" ", 1)[0].replace(",", ""))
+        issues.append(_issue("ignored-lower-cells", "info", count, [], ignored))
     if mesh.meta.get("overlapping_groups"):  # gmsh cells in two physical groups: one each
         issues.append(_issue("overlapping-groups", "info", 1, [], str(mesh.meta["overlapping_groups"])))
     if mesh.meta.get("merged_points"):  # a cell soup (deal.II's DataOut): its copies merged on reading
