@@ -265,7 +265,7 @@ def write_outputs(
     out: dict[str, str] = {}
     t = time.perf_counter()
     if vtu:
-        from models.export.vtu import write_vtu
+        from models.export.vtu import group_names_of, write_vtu
 
         cell_data = {}
         if res.metrics is not None:
@@ -274,7 +274,7 @@ def write_outputs(
         from models.mesh.boundary import output_cells
 
         write_vtu(
-            vtu, res.poly, cell_data, boundary=output_cells(res.poly), group_names=_group_names(res.mesh)
+            vtu, res.poly, cell_data, boundary=output_cells(res.poly), group_names=group_names_of(res.mesh)
         )
         out["mesh"] = vtu
     if labels:
@@ -315,15 +315,6 @@ def write_outputs(
         report["mesh_report"] = mesh_report(res.mesh, res.graph)  # what `magnet check` says of the input
         atomic.write_text(metrics, json.dumps(report, indent=1))
         out["metrics"] = metrics
-    return out
-
-
-def _group_names(mesh: Mesh) -> dict[str, tuple[int, int]]:
-    """{name: (tag, dim)} of the element and boundary groups that have names (gmsh physical names)."""
-    out: dict[str, tuple[int, int]] = {}
-    for key, dim in (("group_names", mesh.dim), ("boundary_names", mesh.dim - 1)):
-        for tag, name in mesh.meta.get(key, {}).items():
-            out.setdefault(name, (int(tag), dim))
     return out
 
 

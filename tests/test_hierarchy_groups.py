@@ -79,3 +79,31 @@ def test_a_note_gives_the_real_reason():
     h = build_hierarchy(points=pts, cells=[("quad", np.vstack([q, q + len(p)]))], coarsest=1)
     notes = " ".join(h.info["notes"])
     assert "2 separate pieces" in notes and "could not all be merged back" not in notes
+
+
+def test_level_files_carry_the_group_names_and_boundary_groups(tmp_path):
+    """Each level's VTU holds, as agglomerate's output does, the groups' names (field data) and the
+    fine mesh's boundary groups as tagged edges after the elements (outside sweep V: group ids
+    only, no names, no boundary groups)."""
+    import os
+
+    import vtk
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
+    path = os.path.join(os.path.dirname(__file__), "data", "square_inclusion.msh")
+    h = build_hierarchy(path, model="rtree")
+    h.write(str(tmp_path))
+    for L, n in enumerate(int(lab.max()) + 1 for lab in h.levels):
+        r = vtk.vtkXMLUnstructuredGridReader()
+        r.SetFileName(str(tmp_path / f"level_{L}.vtu"))
+        r.Update()
+        out = r.GetOutput()
+        fd = out.GetFieldData()
+        assert {fd.GetArrayName(i) for i in range(fd.GetNumberOfArrays())} >= {
+            "matrix",
+            "inclusion",
+            "left",
+            "top",
+        }
+        tags = vtk_to_numpy(out.GetCellData().GetArray("boundary_tag"))
+        assert np.count_nonzero(tags == -1) == n and set(tags[tags >= 0].tolist()) >= {2, 3, 4, 5}

@@ -34,6 +34,16 @@ def _data_array(name: str, arr: np.ndarray, ncomp: int = 1) -> str:
     return f'<DataArray type="{_VTK_TYPES[arr.dtype]}" Name="{name}"{comps} format="binary">{payload}</DataArray>\n'
 
 
+def group_names_of(mesh) -> dict[str, tuple[int, int]]:
+    """{name: (tag, dim)} of the mesh's element and boundary groups that have names, for
+    write_vtu's group_names."""
+    out: dict[str, tuple[int, int]] = {}
+    for key, dim in (("group_names", mesh.dim), ("boundary_names", mesh.dim - 1)):
+        for tag, name in mesh.meta.get(key, {}).items():
+            out.setdefault(name, (int(tag), dim))
+    return out
+
+
 def write_vtu(
     path: str | os.PathLike,
     poly: PolyMesh,

@@ -121,9 +121,11 @@ def write_hierarchy(
     gives the partition statistics and the box measures (box ratio, coverage) of each level.
     merged: the polytopes models.polytope.merge.merge already made of each level (build_hierarchy's), not
     merged again."""
-    from models.export.vtu import points_xml, write_vtu
+    from models.export.vtu import group_names_of, points_xml, write_vtu
+    from models.mesh.boundary import output_cells
     from models.polytope.merge import merge, sort_by_vertex_count
 
+    names = group_names_of(mesh)
     out_dir = os.fspath(out_dir)
     os.makedirs(out_dir, exist_ok=True)
     g = data.graph
@@ -194,7 +196,14 @@ def write_hierarchy(
         _write_json(os.path.join(out_dir, f"level_{L}.metrics.json"), rep)
         entry["metrics"] = f"level_{L}.metrics.json"
         entry["normalized_cut"] = rep["partition"]["normalized_cut"]
-        write_vtu(os.path.join(out_dir, entry["mesh"]), poly, cell_data, points_xml=pts_xml[L])
+        write_vtu(  # (with the fine mesh's boundary groups and the groups' names, as agglomerate's)
+            os.path.join(out_dir, entry["mesh"]),
+            poly,
+            cell_data,
+            boundary=None if boundary is None else output_cells(poly),
+            group_names=names,
+            points_xml=pts_xml[L],
+        )
         _write_json(os.path.join(out_dir, entry["labels"]), labels)
         if L > 0:
             entry["parent"] = f"level_{L}.parent.json"
