@@ -48,6 +48,13 @@ def test_pvtk_pieces_are_one_mesh(tmp_path):
         assert mesh.tags is None  # (the pieces are no groups)
     res, n_out, vol_out = vc.agglomerate_read_back(path, 5, tmp_path / "out.vtu")
     assert n_out == 5 and vol_out == pytest.approx(vol_ref, rel=1e-9)
+    import zipfile
+
+    with zipfile.ZipFile(tmp_path / "cut.zip", "w") as zf:  # over HTTP: the .pvtk and its pieces
+        for f in sorted(os.listdir(tmp_path)):
+            if f.startswith("cut.") and not f.endswith(".zip"):
+                zf.write(tmp_path / f, f)
+    assert read_mesh_safe(str(tmp_path / "cut.zip")).n_cells == len(hexes)
     # moved to another folder: its absolute piece paths now name files elsewhere; those beside it are read
     moved = tmp_path / "moved"
     moved.mkdir()

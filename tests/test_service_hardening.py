@@ -310,3 +310,36 @@ def test_files_that_name_other_files_are_asked_for_in_an_archive(app):
     for name in ("mesh.pvtu", "case.foam", "flow.case", "flow.encas", "u.pvd"):
         r = client.post("/v1/meshes", params={"filename": name}, content=b"x", headers=auth("alice"))
         assert r.status_code == 422 and "upload a .zip or .tar.gz" in r.json()["detail"], (name, r.text)
+
+
+def test_a_parallel_file_and_its_pieces_in_one_archive_are_one_mesh(app, tmp_path):
+    """A .pvtu (or .pvtk) with its pieces, zipped as asked: the file naming the pieces is the mesh,
+    not "the archive holds 4 mesh files" (the pieces are meshes too); a .pvd naming .pvtu files:
+    the .pvd."""
+    import os
+    import zipfile
+
+    import vtk
+    import vtk_corpus as vc
+    from vtkmodules.vtkFiltersParallel import vtkExtractUnstructuredGridPiece
+
+    client, _ = app
+    p, h = vc.grid(4, 3, 2)
+    cut = vtkExtractUnstructuredGridPiece()
+    cut.SetInputData(vc.unstructured(p, [(12, h)]))
+    folder = tmp_path / "pieces"
+    folder.mkdir()
+    vc.write_pieces(folder / "cut.pvtu", vtk.vtkXMLPUnstructuredGridWriter(), cut, 3)
+    (folder / "series.pvd").write_text(
+        '<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n<Collection>\n'
+        '<DataSet timestep="0" part="0" file="cut.pvtu"/>\n</Collection>\n</VTKFile>\n'
+    )
+    for members, name in (
+        (["cut.pvtu", "cut_0.vtu", "cut_1.vtu", "cut_2.vtu"], "pvtu.zip"),
+        (None, "pvd.zip"),
+    ):
+        with zipfile.ZipFile(tmp_path / name, "w") as zf:
+            for f in members or sorted(os.listdir(folder)):
+                zf.write(folder / f, f)
+        mesh = upload(client, tmp_path / name)
+        assert mesh["cells"] == len(h), mesh

@@ -14,7 +14,7 @@ import zipfile
 from pathlib import Path, PurePosixPath
 
 from models.errors import MeshError
-from models.mesh.formats import COMPOUND, FORMATS, extension
+from models.mesh.formats import COMPOUND, FORMATS, MULTI_FILE, extension
 
 MAX_MEMBERS = 64
 MAX_UNPACKED_BYTES = 4 << 30
@@ -100,6 +100,12 @@ def check_archive(
     meshes = [m for m in meshes if not (extension(m) == ".node" and m[: -len(".node")] in eles)]  # (its .ele)
     if len(meshes) > 1 and all(extension(m) == ".inp" for m in meshes):
         meshes = _not_included(path, meshes)  # an Abaqus file and the files it *INCLUDEs
+    if len(meshes) > 1:  # a file naming its pieces (.pvtu, .pvd, .pvtk, .vtm, ...) with them
+        headers = [m for m in meshes if extension(m) in MULTI_FILE and extension(m) not in (".ele", ".node")]
+        if len(headers) > 1:
+            headers = _unnamed(path, headers)  # (a .pvd naming .pvtu files: the .pvd)
+        if len(headers) == 1:
+            return headers[0]
     if len(meshes) > 1:
         raise MeshError(
             f"cannot read {name}: the archive holds {len(meshes)} mesh files ({', '.join(meshes[:5])}); send one"
@@ -166,6 +172,26 @@ def _not_included(path: Path, meshes: list[str], limit: int = 64 << 20) -> list[
     except (OSError, EOFError, zipfile.BadZipFile, tarfile.TarError, ValueError, AttributeError):
         return meshes
     return [m for m in meshes if str(PurePosixPath(m.replace("\\", "/"))) not in named] or meshes
+
+
+def _unnamed(path: Path, headers: list[str], limit: int = 16 << 20) -> list[str]:
+    """The header files that no other header among them names (by file name, in its first
+    `limit` bytes)."""
+    named = set()
+    try:
+        for m in headers:
+            if extension(path) == ".zip":
+                with zipfile.ZipFile(path) as zf, zf.open(m) as fh:
+                    head = fh.read(limit)
+            else:
+                with tarfile.open(path, "r:*") as tf:
+                    head = tf.extractfile(m).read(limit)
+            for other in headers:
+                if other != m and PurePosixPath(other).name.encode() in head:
+                    named.add(other)
+    except (OSError, EOFError, zipfile.BadZipFile, tarfile.TarError, ValueError, AttributeError):
+        return headers
+    return [m for m in headers if m not in named] or headers
 
 
 def _control_dicts(members) -> list[str]:
