@@ -65,9 +65,20 @@ def extension_of(filename: str | None) -> str:
         hint = formats.compressed_hint(shown)
         if hint:
             raise UploadRejected(
-                422, f"the file name {shown} has no mesh format extension we read{hint}", "filename"
+                422, f"cannot read {shown}: unknown mesh format {'.' + ext!r}{hint}", "filename"
             )
-        what = f"the file name {shown}" if shown else "the upload has no file name: it"
+        if shown:  # (the CLI's words: cannot read NAME: unknown mesh format '.ext'; use one of ...)
+            multi = (
+                f" ({', '.join(formats.ARCHIVE_ONLY)} with its data files: a .zip or .tar.gz holding them)"
+            )
+            raise UploadRejected(
+                422,
+                f"cannot read {shown}: unknown mesh format {('.' + ext) if ext else '(no extension)'!r}; "
+                f"use one of: {', '.join('.' + e for e in ALLOWED_EXTENSIONS)}"
+                + (multi if "." + ext in formats.ARCHIVE_ONLY else ""),
+                "filename",
+            )
+        what = "the upload has no file name: it"
         multi = f" ({', '.join(formats.ARCHIVE_ONLY)} with its data files: a .zip or .tar.gz holding them)"
         raise UploadRejected(
             422,

@@ -4,6 +4,7 @@ child process, file it content-addressed, and record who uploaded it."""
 from __future__ import annotations
 
 import hashlib
+import os
 import re
 from collections.abc import AsyncIterator
 from pathlib import Path
@@ -12,6 +13,7 @@ from sqlalchemy.exc import IntegrityError
 from starlette.concurrency import run_in_threadpool
 
 from jobqueue.db import MeshOwner, MeshRecord, utcnow
+from models.mesh.formats import format_name
 from service.context import Context
 from service.jobs import check_quota
 from service.mesh_check import UploadRejected, extension_of, inspect_upload
@@ -37,9 +39,12 @@ async def receive_mesh(
                     raise UploadRejected(413, f"mesh file too large: the limit is {limit} bytes")
                 digest.update(chunk)
                 out.write(chunk)
-        if size == 0:
+        if size == 0:  # (the CLI's words for an empty file, and how to send one)
+            name = os.path.basename((filename or "").replace("\\", "/"))[:100] or "the upload"
             raise UploadRejected(
-                422, "empty upload: send the mesh file as the request body or multipart field 'file'"
+                422,
+                f"cannot read {name} as {format_name(name)}: the file is empty (0 bytes); send the mesh "
+                "file as the request body or multipart field 'file'",
             )
         mesh_id = digest.hexdigest()
         return await run_in_threadpool(_file_mesh, ctx, user, tmp, mesh_id, ext, size, filename)

@@ -453,3 +453,23 @@ def test_an_open_curved_surface_is_refused_alike_by_check_and_upload(tmp_path, s
     assert (
         "non-planar surface" in said and "nor can it be filled as it is: it is not a closed surface" in said
     )
+    import subprocess
+    import sys
+
+    r = subprocess.run(  # agglomerate says the same (it used to suggest --fill for it)
+        [
+            sys.executable,
+            "-m",
+            "models.cli",
+            "agglomerate",
+            str(path),
+            "-o",
+            str(tmp_path / "o.vtu"),
+            "--k",
+            "2",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert r.returncode == 2 and r.stderr.strip() == f"magnet: error: {said}", r.stderr

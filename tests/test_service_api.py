@@ -100,8 +100,13 @@ def test_upload_raw_and_multipart_same_id(app, square):
 @pytest.mark.parametrize(
     "name,content,status,words",
     [
-        ("mesh.exe", b"whatever", 422, "extension"),
-        ("mesh.vtu", b"", 422, "empty"),
+        ("mesh.exe", b"whatever", 422, "cannot read mesh.exe: unknown mesh format '.exe'"),  # (as the CLI)
+        (
+            "mesh.vtu",
+            b"",
+            422,
+            "cannot read mesh.vtu as VTK XML (VTU): the file is empty (0 bytes)",
+        ),  # (as the CLI)
         ("mesh.vtu", b"<VTKFile><garbage", 422, "XML"),
         ("mesh.msh", b"\x00\x01 not a gmsh file", 422, ""),
         (

@@ -224,9 +224,14 @@ def cmd_agglomerate(args) -> int:
         try:
             result = run(source, params, metrics=bool(args.metrics) or args.model_metrics, progress=prog)
         except MagnetError as exc:
-            from models.mesh.fill import is_surface_file
+            from models.mesh.fill import is_surface_file, open_surface_refusal
 
-            if args.fill or not is_surface_file(args.mesh) or "--fill" in str(exc):
+            if args.fill or not is_surface_file(args.mesh):
+                raise
+            refused = open_surface_refusal(args.mesh, exc)
+            if refused is not exc:  # open (or crossing): not to be filled either; as check says it
+                raise refused from None
+            if "--fill" in str(exc):
                 raise
             raise type(exc)(
                 f"{exc}; a closed surface is filled with tetrahedra by: magnet agglomerate "

@@ -268,8 +268,8 @@ def _project_to_plane(mesh: Mesh) -> None:
             f"a non-planar surface of {held} (its cells are not in one plane: curved, faceted or on "
             f"several planes; a point lies {off:.3g} off the best plane, across a mesh "
             f"{float(np.linalg.norm(np.ptp(p, axis=0))):.3g} wide): only planar 2D meshes and volume meshes are "
-            "agglomerated; give a volume mesh, or fill the closed surface with tetrahedra: "
-            "magnet generate stl --stl SURFACE -o volume.vtu"
+            "agglomerated; give a volume mesh, or fill a closed surface with tetrahedra: "
+            "magnet agglomerate SURFACE --fill ... (or magnet generate stl --stl SURFACE -o volume.vtu)"
         )
     e1, e2 = vt[0], vt[1]
     mesh.points = np.column_stack([(pts - origin) @ e1, (pts - origin) @ e2])

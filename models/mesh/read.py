@@ -229,7 +229,7 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
     if not types:
         hint = compressed_hint(path)
         if hint:
-            raise MeshError(f"unknown mesh format {ext!r}{hint}")
+            raise MeshError(f"cannot read {name}: unknown mesh format {ext!r}{hint}")
         raise MeshError(
             f"unknown mesh format {ext or '(no extension)'!r}; use one of: " + ", ".join(SUPPORTED_EXTENSIONS)
         )
@@ -313,6 +313,8 @@ def refusal(msg: str, path: str, file_format: str | None) -> str:
     for prefix in (f"cannot read {name}: ", f"{name}: "):
         if msg.startswith(prefix):
             msg = msg[len(prefix) :]
+    if fmt == "mesh":  # (no format known by its extension: the message says what is wrong)
+        return f"cannot read {name}: {msg}"
     return f"cannot read {name} as {fmt}: {msg}"
 
 

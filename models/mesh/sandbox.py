@@ -116,6 +116,8 @@ def wording(message: str, path: str | os.PathLike, file_format: str | None = Non
     for prefix in (f"cannot read {name} as a mesh: ", f"cannot read {name}: ", f"{name}: "):
         if message.startswith(prefix):
             message = message[len(prefix) :]
+    if fmt == "mesh":  # (no format known by its extension: the message says what is wrong)
+        return f"cannot read {name}: {message}"
     return f"cannot read {name} as {fmt}: {message}"
 
 
