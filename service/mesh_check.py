@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import resource
 import subprocess
 import sys
@@ -24,6 +25,7 @@ from models.mesh.sandbox import crash_sentence, timeout_sentence, wording
 # the readers' extensions (models.mesh.formats), without the dot; multi-file formats come in archives
 ALLOWED_EXTENSIONS = tuple(e.lstrip(".") for e in formats.UPLOAD_EXTENSIONS)
 XML_EXTENSIONS = ("vtu",)
+_PLAIN_HTML_DOCTYPE = re.compile(rb"\s*(?:<\?xml[^>]*>\s*)?<!DOCTYPE\s+html\b[^\[>]*>", re.IGNORECASE)
 PACKAGE_ROOT = Path(__file__).resolve().parents[1]
 _slots = threading.BoundedSemaphore(max(2, os.cpu_count() or 2))
 
@@ -206,6 +208,14 @@ def check_xml(path: Path, max_cells: int) -> None:
                 422, wording("the mesh has no cells (every piece declares NumberOfCells=0)", path)
             )
     except DefusedXmlException:
+        with open(path, "rb") as fh:
+            head = fh.read(4096)
+        if _PLAIN_HTML_DOCTYPE.match(head):  # <!DOCTYPE html>, no subset: nothing to expand
+            from models.mesh.vtk_readers import xml_fault
+
+            said = xml_fault(str(path), "VTKFile")
+            if said:  # a web page saved under a mesh's name: the CLI's words
+                raise UploadRejected(422, wording(said, path)) from None
         raise UploadRejected(
             422, wording("XML with a DOCTYPE or entity declarations is not accepted", path)
         ) from None

@@ -108,6 +108,18 @@ def test_upload_raw_and_multipart_same_id(app, square):
             "cannot read mesh.vtu as VTK XML (VTU): the file is empty (0 bytes)",
         ),  # (as the CLI)
         ("mesh.vtu", b"<VTKFile><garbage", 422, "XML"),
+        *(  # a web page saved under a mesh's name, with and without its DOCTYPE: the CLI's words
+            (
+                "mesh.vtu",
+                page,
+                422,
+                "cannot read mesh.vtu as VTK XML (VTU): it is a web page (HTML), not a VTK XML file",
+            )
+            for page in (
+                b"<!DOCTYPE html>\n<html><head><title>404</title></head><body>Not found</body></html>",
+                b"<html><body>Not found</body></html>",
+            )
+        ),
         ("mesh.msh", b"\x00\x01 not a gmsh file", 422, ""),
         (
             "mesh.vtu",

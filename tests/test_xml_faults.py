@@ -41,3 +41,41 @@ def test_a_malformed_xdmf_is_refused_at_its_fault(tmp_path, fault, what):
     assert msg.startswith("cannot read bad.xdmf as XDMF: its XML is malformed: " + what), msg
     if "Topolgy" in text:
         assert f"(at line {_line_of(text, '</Topolgy>'):,}, column" in msg
+
+
+@pytest.mark.parametrize(
+    "name, text, said",
+    [
+        (
+            "page.vtu",
+            "<!DOCTYPE html>\n<html><head><title>404</title></head><body>Not found</body></html>\n",
+            "cannot read page.vtu as VTK XML (VTU): it is a web page (HTML), not a VTK XML file: "
+            "was a download page saved instead of the mesh?",
+        ),
+        (
+            "page2.vtu",  # HTML that is not well-formed XML (an unclosed <meta>, <br>)
+            '<!DOCTYPE html>\n<html><head><meta charset="utf-8"></head><body><br>Not found</body></html>\n',
+            "cannot read page2.vtu as VTK XML (VTU): it is a web page (HTML), not a VTK XML file: "
+            "was a download page saved instead of the mesh?",
+        ),
+        (
+            "other.vtu",
+            '<?xml version="1.0"?>\n<Foo><Bar/></Foo>\n',
+            "cannot read other.vtu as VTK XML (VTU): its root element is <Foo>, not <VTKFile>: "
+            "it is not a VTK XML file",
+        ),
+        (
+            "other.xdmf",
+            '<?xml version="1.0"?>\n<Foo><Bar/></Foo>\n',
+            "cannot read other.xdmf as XDMF: its root element is <Foo>, not <Xdmf>: it is not an XDMF file",
+        ),
+    ],
+)
+def test_well_formed_xml_of_another_kind_is_said_to_be_what_it_is(tmp_path, name, text, said):
+    """A web page saved under a mesh's name (a download that kept the page), or XML of another
+    root: said as such, not as "corrupted" (before: 'the file is corrupted or not VTK XML (VTU)')."""
+    path = tmp_path / name
+    path.write_text(text)
+    with pytest.raises(MeshError) as err:
+        read_mesh_safe(str(path))
+    assert str(err.value) == said

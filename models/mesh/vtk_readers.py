@@ -275,8 +275,10 @@ def _run(path: str, kind: str, fmt: str | None = None):
     if cap.failed:
         why = _foam_place(cap.text) if kind.startswith("openfoam") else None
         said = why or explain(cap.text, what)
-        if kind in _XML_KINDS and " (at " not in said:  # (VTK said no place: the XML's own fault, if any)
-            said = xml_fault(path) or said
+        if kind in _XML_KINDS:  # the XML's own fault where VTK said no place; another kind of XML always
+            found = xml_fault(path, "Xdmf" if kind == "xdmf" else "VTKFile")
+            if found and (" (at " not in said or not found.startswith("its XML is malformed")):
+                said = found
         raise MeshError(f"cannot read {name} as {fmt}: {said}")
     if out is None:
         raise MeshError(f"cannot read {name} as {fmt}: the reader produced no data")
@@ -357,7 +359,7 @@ def _pieces(reader):
 
 _WHERE = re.compile(r"\b(line|column|byte index|offset|position|piece)\s*[:=]?\s*(\d+)", re.IGNORECASE)
 _KINDS = (
-    (("xml", "parsing"), "its XML is not well-formed"),
+    (("xml", "parsing"), "its XML cannot be parsed"),
     (
         ("unrecognized file type", "unsupported data type", "not a vtk", "unrecognized keyword"),
         "its header or a section keyword is not one VTK knows",
@@ -397,12 +399,22 @@ def article(what: str) -> str:
 _XML_KINDS = ("xdmf", "xml", *(k for k in READERS if k.startswith(".")))
 
 
-def xml_fault(path: str) -> str | None:
+def xml_fault(path: str, root: str | None = None) -> str | None:
     """Where an XML file is not well-formed, in our words with its line and column (expat, the
-    parser of Python's standard library, streaming over the file); None where it is well-formed."""
+    parser of Python's standard library, streaming over the file); with root ('VTKFile', 'Xdmf'),
+    a file whose first element is another says so (an HTML page saved under a mesh's name, well-formed
+    or not); None where neither is wrong."""
     from xml.parsers import expat
 
     parser = expat.ParserCreate()
+    first: list[str] = []
+
+    def start(name, _attrs):
+        if not first:
+            first.append(name.rsplit(":", 1)[-1])
+
+    parser.StartElementHandler = start
+    fault = None
     try:
         with open(path, "rb") as fh:
             parser.ParseFile(fh)
@@ -417,10 +429,15 @@ def xml_fault(path: str) -> str | None:
             codes[expat.errors.XML_ERROR_JUNK_AFTER_DOC_ELEMENT]: "text after the end of the document",
             codes[expat.errors.XML_ERROR_UNDEFINED_ENTITY]: "an entity (&name;) that is not declared",
         }.get(exc.code, "a fault of its XML")
-        return f"its XML is malformed: {what} (at line {exc.lineno:,}, column {exc.offset + 1:,})"
+        fault = f"its XML is malformed: {what} (at line {exc.lineno:,}, column {exc.offset + 1:,})"
     except (OSError, ValueError):
         return None
-    return None
+    if root is None or not first or first[0].lower() == root.lower():
+        return fault
+    what = article({"vtkfile": "VTK XML"}.get(root.lower(), root.upper()))
+    if first[0].lower() == "html":  # (HTML need not be well-formed XML: this says more than its fault)
+        return f"it is a web page (HTML), not {what} file: was a download page saved instead of the mesh?"
+    return f"its root element is <{first[0][:40]}>, not <{root}>: it is not {what} file"
 
 
 def explain(text: str, what: str) -> str:
