@@ -1,0 +1,199 @@
+"""meshio's readers, called directly for the formats meshio serves (docs/formats.md), with every
+failure turned into one sentence of ours, and the table of meshio's cell type names we read."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import re
+import warnings
+
+from models.errors import MeshError
+from models.mesh.container import (
+    VTK_HEXAHEDRON,
+    VTK_POLYGON,
+    VTK_PYRAMID,
+    VTK_QUAD,
+    VTK_TETRA,
+    VTK_TRIANGLE,
+    VTK_WEDGE,
+)
+
+# meshio cell type name -> (VTK type, topological dimension, number of corner nodes kept)
+MESHIO_TYPES: dict[str, tuple[int, int, int]] = {
+    "vertex": (1, 0, 1),
+    "line": (3, 1, 2),
+    "line3": (3, 1, 2),
+    "triangle": (VTK_TRIANGLE, 2, 3),
+    "triangle6": (VTK_TRIANGLE, 2, 3),
+    "triangle7": (VTK_TRIANGLE, 2, 3),
+    "quad": (VTK_QUAD, 2, 4),
+    "quad8": (VTK_QUAD, 2, 4),
+    "quad9": (VTK_QUAD, 2, 4),
+    "polygon": (VTK_POLYGON, 2, 0),
+    "tetra": (VTK_TETRA, 3, 4),
+    "tetra10": (VTK_TETRA, 3, 4),
+    "hexahedron": (VTK_HEXAHEDRON, 3, 8),
+    "hexahedron20": (VTK_HEXAHEDRON, 3, 8),
+    "hexahedron27": (VTK_HEXAHEDRON, 3, 8),
+    "wedge": (VTK_WEDGE, 3, 6),
+    "wedge15": (VTK_WEDGE, 3, 6),
+    "wedge18": (VTK_WEDGE, 3, 6),
+    "pyramid": (VTK_PYRAMID, 3, 5),
+    "pyramid13": (VTK_PYRAMID, 3, 5),
+    "pyramid14": (VTK_PYRAMID, 3, 5),
+}
+
+
+def known_type(name: str) -> bool:
+    """A meshio cell type we read: in MESHIO_TYPES, or a higher-order name of one of them (gmsh's elements
+    of order 3 and up as meshio names them: triangle10, tetra20, hexahedron64, ...: the corner nodes
+    come first), added to MESHIO_TYPES as its linear cell when first met."""
+    if name in MESHIO_TYPES:
+        return True
+    base = name.rstrip("0123456789")
+    if name != base and base in MESHIO_TYPES and base not in ("polygon", "vertex"):
+        MESHIO_TYPES[name] = MESHIO_TYPES[base]
+        return True
+    return False
+
+
+def read_meshio(path: str, file_type: str):
+    """meshio's reader for `file_type` called directly (never meshio.read's guessing), with every
+    failure (meshio raises many kinds, even SystemExit) turned into one sentence of ours."""
+    import meshio
+    from meshio._helpers import reader_map
+
+    name = os.path.basename(path)
+    if file_type not in reader_map:
+        raise MeshError(f"unknown mesh format {file_type!r}; use one of: " + ", ".join(sorted(reader_map)))
+    _meshio_dimensions()
+    try:
+        with (
+            warnings.catch_warnings(),
+            contextlib.redirect_stdout(io.StringIO()),
+            contextlib.redirect_stderr(io.StringIO()),
+        ):
+            warnings.simplefilter("ignore")
+            buffered = _BUFFER_READERS.get(file_type)
+            if buffered is None:
+                return reader_map[file_type](path)
+            import importlib
+
+            module, mode = buffered
+            with _open_guarded(path, mode, bulk=file_type == "nastran" and not found(path, _BEGIN_BULK)) as f:
+                return importlib.import_module(module).read_buffer(f)  # (a parse that no longer advances
+                # ends, never hangs)
+    except MeshError:
+        raise
+    except (Exception, SystemExit) as exc:  # noqa: BLE001
+        why = _why(exc, meshio)
+        raise MeshError(f"cannot read {name} with meshio's {file_type} reader: {why}") from None
+
+
+def _meshio_dimensions() -> None:
+    """meshio's gmsh readers make cells named wedge15 and pyramid13 (gmsh's incomplete quadratic
+    prism and pyramid) whose dimension meshio's own table lacks: every such file failed with
+    KeyError('wedge15'). The names its readers make and the table misses get their dimension (from
+    our cell table) before a read."""
+    from meshio._mesh import topological_dimension
+
+    for name in ("wedge15", "pyramid13"):
+        if name not in topological_dimension and known_type(name):
+            topological_dimension[name] = MESHIO_TYPES[name][1]
+
+
+# meshio's text readers whose read(path) is open(path) + read_buffer(f): read here through a file
+# that refuses to be read past its end again and again (meshio's PLY header loop, for one, asks
+# for the next line forever on a truncated file)
+_BUFFER_READERS = {
+    "ply": ("meshio.ply._ply", "rb"),
+    "nastran": ("meshio.nastran._nastran", "r"),
+    "su2": ("meshio.su2._su2", "r"),
+    "permas": ("meshio.permas._permas", "r"),
+    "neuroglancer": ("meshio.neuroglancer._neuroglancer", "rb"),
+}
+_EOF_READS = 64  # consecutive reads at the end of the file: a parser that no longer advances
+
+
+class _GuardedBinary(io.BufferedReader):
+    """A binary file whose readline() raises EOFError when asked for a line at the end of the file
+    _EOF_READS times in a row (a real file object: np.fromfile still reads from it)."""
+
+    _at_eof = 0
+
+    def readline(self, size=-1):
+        line = super().readline(size)
+        self._at_eof = 0 if line else self._at_eof + 1
+        if self._at_eof > _EOF_READS:
+            raise EOFError("end of file")
+        return line
+
+
+class _GuardedText(io.TextIOWrapper):
+    """_GuardedBinary for text (_first: a line given before the file's own)."""
+
+    _at_eof = 0
+    _first = None
+
+    def readline(self, size=-1):
+        if self._first is not None:
+            line, self._first = self._first, None
+            return line
+        line = super().readline(size)
+        self._at_eof = 0 if line else self._at_eof + 1
+        if self._at_eof > _EOF_READS:
+            raise EOFError("end of file")
+        return line
+
+
+def _open_guarded(path: str, mode: str, bulk: bool = False):
+    """bulk: a Nastran file of bulk data only (gmsh's export has no executive and case control
+    sections, and no BEGIN BULK line, which meshio's reader looks for first): the line given first."""
+    raw = _GuardedBinary(io.FileIO(path, "rb"))
+    if mode == "rb":
+        return raw
+    text = _GuardedText(raw)
+    if bulk:
+        text._first = "BEGIN BULK\n"
+    return text
+
+
+_BEGIN_BULK = re.compile(rb"BEGIN BULK")
+
+
+def found(path: str, pattern: re.Pattern) -> bool:
+    """The bytes pattern occurs in the file (one pass over its mapping; an empty file: no)."""
+    import mmap
+
+    with open(path, "rb") as fh:
+        if os.fstat(fh.fileno()).st_size == 0:
+            return False
+        with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+            return pattern.search(mm) is not None
+
+
+_LINE = re.compile(r"\bline\s+(\d+)", re.IGNORECASE)
+
+
+def _why(exc: BaseException, meshio) -> str:
+    """What was wrong, in our words (a library's text is never shown: it names its internals)."""
+    text = str(exc)
+    where = _LINE.search(text)
+    at = f" (near line {int(where.group(1)):,})" if where else ""
+    if isinstance(exc, UnicodeDecodeError):
+        return f"it holds bytes that are not text where text was expected (byte offset {exc.start:,})"
+    if isinstance(exc, ModuleNotFoundError):
+        return f"this format needs the Python package {exc.name!r}, which is not installed"
+    if isinstance(exc, KeyError):
+        return "it holds an element type or a keyword that this reader does not know" + at
+    if isinstance(exc, ValueError) and ("literal" in text or "could not convert" in text):
+        return "a number in it is malformed" + at
+    if isinstance(exc, IndexError):
+        return "it refers to a node or an element that it does not define" + at
+    if isinstance(exc, EOFError) or "end of file" in text.lower() or "truncat" in text.lower():
+        return "the file ends before its data does (truncated?)" + at
+    if "reshape" in text or "size" in text:
+        return "a section holds fewer or more numbers than its header announces" + at
+    return "it is corrupted or not in this format" + at
