@@ -231,7 +231,14 @@ def cmd_agglomerate(args) -> int:
             refused = open_surface_refusal(args.mesh, exc)
             if refused is not exc:  # open (or crossing): not to be filled either; as check says it
                 raise refused from None
-            if "--fill" in str(exc):
+            said = str(exc)
+            if "agglomerate SURFACE --fill" in said:  # (the reader's words: this file is the surface)
+                raise type(exc)(
+                    said.replace(
+                        "agglomerate SURFACE --fill", f"agglomerate {os.path.basename(args.mesh)} --fill"
+                    )
+                ) from None
+            if "--fill" in said:
                 raise
             raise type(exc)(
                 f"{exc}; a closed surface is filled with tetrahedra by: magnet agglomerate "

@@ -268,7 +268,7 @@ def _project_to_plane(mesh: Mesh) -> None:
             f"a non-planar surface of {held} (its cells are not in one plane: curved, faceted or on "
             f"several planes; a point lies {off:.3g} off the best plane, across a mesh "
             f"{float(np.linalg.norm(np.ptp(p, axis=0))):.3g} wide): only planar 2D meshes and volume meshes are "
-            "agglomerated; give a volume mesh, or fill a closed surface with tetrahedra: "
+            "agglomerated; give a volume mesh, or fill a closed surface (.stl, .obj, .ply, .off) with tetrahedra: "
             "magnet agglomerate SURFACE --fill ... (or magnet generate stl --stl SURFACE -o volume.vtu)"
         )
     e1, e2 = vt[0], vt[1]
