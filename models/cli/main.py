@@ -300,8 +300,9 @@ def cmd_agglomerate(args) -> int:
         print(f"warning: {left_out} (labels: -1 for them)")
     if mesh.meta.get("overlong_cells"):
         print(f"warning: {mesh.meta['overlong_cells']['message']}")
-    if mesh.meta.get("merged_points"):
-        print(f"note: {mesh.meta['merged_points']['message']}")
+    for key in ("merged_points", "reordered_cells"):
+        if mesh.meta.get(key):
+            print(f"note: {mesh.meta[key]['message']}")
     return 0
 
 

@@ -123,6 +123,9 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
         issues.append(_issue("ignored-lower-cells", "info", count, [], ignored))
     if mesh.meta.get("overlapping_groups"):  # gmsh cells in two physical groups: one each
         issues.append(_issue("overlapping-groups", "info", 1, [], str(mesh.meta["overlapping_groups"])))
+    if mesh.meta.get("reordered_cells"):  # a Gambit file's bricks, pyramids: in Gambit's node order
+        moved = mesh.meta["reordered_cells"]
+        issues.append(_issue("reordered-cells", "info", int(moved["count"]), [], str(moved["message"])))
     if mesh.meta.get("merged_points"):  # a cell soup (deal.II's DataOut): its copies merged on reading
         merged = mesh.meta["merged_points"]
         issues.append(_issue("merged-points", "info", int(merged["count"]), [], str(merged["message"])))

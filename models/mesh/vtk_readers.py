@@ -100,6 +100,8 @@ def read_vtk(
             field.update(_exodus_names(data))
         elif kind in ("ensight", "tecplot"):  # parts, zones: named blocks (their T="...")
             field.update(_part_names(data))
+    if kind == "gambit":
+        conn = _gambit_node_order(pts, offsets, conn, types, meta)
     grid = _lattice(data, len(types))
     live = _whole_live(data, len(types))
     del data
@@ -130,6 +132,41 @@ def read_vtk(
         meta["overlong_cells"] = norm.overlong
     grid = grid if norm.types.size == len(types) and norm.dim == 3 else None
     return mesh_of_cells(pts, norm, tag_key, weld, meta, grid, field)
+
+
+# Gambit numbers a brick's nodes and a pyramid's base lexicographically, (0,0) (1,0) (0,1) (1,1)
+# (the GAMBIT neutral file's element conventions; OpenFOAM's gambitToFoam maps them so), VTK around
+# the base; vtkGAMBITReader keeps the file's order, so that ParaView draws such cells twisted
+_GAMBIT_ORDER = ((12, 8, (0, 1, 3, 2, 4, 5, 7, 6), "bricks"), (14, 5, (0, 1, 3, 2, 4), "pyramids"))
+
+
+def _gambit_node_order(pts, offsets, conn, types, meta: dict):
+    """conn with a Gambit file's bricks and pyramids in VTK's node order, where the file is in
+    Gambit's: decided per cell type by the base quadrilaterals (a bow-tie in VTK's order, the points
+    1 and 3 on the same side of the diagonal 0-2, in most of them), said in meta["reordered_cells"].
+    A file written in VTK's order (not Gambit's) is left as it is."""
+    done = []
+    for vtk_type, k, perm, name in _GAMBIT_ORDER:
+        sel = np.flatnonzero((types == vtk_type) & (np.diff(offsets) == k))
+        if sel.size == 0:
+            continue
+        idx = np.asarray(offsets[sel], dtype=np.int64)[:, None] + np.arange(k)
+        nodes = np.asarray(conn)[idx]
+        p = np.asarray(pts, dtype=np.float64)[nodes[:, :4]]
+        diag = p[:, 2] - p[:, 0]
+        side = np.einsum("ij,ij->i", np.cross(diag, p[:, 1] - p[:, 0]), np.cross(diag, p[:, 3] - p[:, 0]))
+        if np.count_nonzero(side > 0) * 2 <= sel.size:
+            continue
+        conn = np.array(conn, copy=True) if not done else conn
+        conn[idx] = nodes[:, list(perm)]
+        done.append(f"{sel.size:,} {name}")
+    if done:
+        meta["reordered_cells"] = {
+            "count": int(sum(int(d.split(" ", 1)[0].replace(",", "")) for d in done)),
+            "message": f"{' and '.join(done)} read in Gambit's node order (VTK's reader keeps the file's "
+            "order and draws them twisted)",
+        }
+    return conn
 
 
 _NUMBER_OF_CELLS = re.compile(rb"<Piece\b[^>]*?\bNumberOfCells\s*=\s*[\"']\s*(\d+)")
