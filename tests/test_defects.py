@@ -34,7 +34,11 @@ AREA = {  # exact total measure, where the construction fixes it
 REFUSED = {
     "zero_area": ("degenerate (zero-area) cells", "cell ids [3]", "remove them"),
     "repeated_vertex_triangle": ("degenerate (zero-area) cells", "cell ids [3]", "remove them"),
-    "nonplanar_surface": ("non-planar", "surface", "give a volume mesh, or fill a closed surface (.stl, .obj, .ply, .off)"),
+    "nonplanar_surface": (
+        "non-planar",
+        "surface",
+        "give a volume mesh, or fill a closed surface (.stl, .obj, .ply, .off)",
+    ),
     "nonmanifold_edge": ("not a manifold", "cells [0, 1, 2]", "remove the overlapping cells"),
 }
 
