@@ -128,6 +128,13 @@ def corpus(tmp: str, n: int) -> list[tuple[str, str, int]]:
             len(tets),
         )
     )
+    out.append(  # the same, appended raw (not base64): VTK's read is a copy of the file's bytes
+        (
+            "tetrahedra, VTU appended raw",
+            vc.write_xml(os.path.join(tmp, "tet_raw.vtu"), vc.unstructured(p2, [(10, tets)]), encode=False),
+            len(tets),
+        )
+    )
     out.append(
         (
             "tetrahedra, legacy 5.1 ascii",
