@@ -300,7 +300,7 @@ def cmd_agglomerate(args) -> int:
         print(f"warning: {left_out} (labels: -1 for them)")
     if mesh.meta.get("overlong_cells"):
         print(f"warning: {mesh.meta['overlong_cells']['message']}")
-    for key in ("merged_points", "reordered_cells"):
+    for key in ("merged_points", "reordered_cells", "reversed_faces"):
         if mesh.meta.get(key):
             print(f"note: {mesh.meta[key]['message']}")
     return 0

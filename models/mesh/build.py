@@ -229,6 +229,15 @@ def _attach_polyhedra(mesh: Mesh, poly_faces) -> None:
     mesh.poly_cell_faces = np.concatenate([[0], np.cumsum(nfaces)])
     mesh.poly_face_offsets = np.concatenate([[0], np.cumsum(fsizes)])
     mesh.poly_face_nodes = np.concatenate([f for _, _, _, f in poly_faces])
+    from models.mesh.polyfaces import agree_faces
+
+    turned = agree_faces(mesh.poly_cell_faces, mesh.poly_face_offsets, mesh.poly_face_nodes)
+    if turned:  # a format storing each face once for both its cells (Exodus NFACED, Fluent)
+        mesh.meta["reversed_faces"] = {
+            "count": turned,
+            "message": f"{turned:,} polyhedron faces reversed to agree with the other faces of their "
+            "cell (the file stores each face once, in one cell's direction)",
+        }
 
 
 def _plane_tolerance(p: np.ndarray) -> float:

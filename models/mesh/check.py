@@ -123,6 +123,9 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
         issues.append(_issue("ignored-lower-cells", "info", count, [], ignored))
     if mesh.meta.get("overlapping_groups"):  # gmsh cells in two physical groups: one each
         issues.append(_issue("overlapping-groups", "info", 1, [], str(mesh.meta["overlapping_groups"])))
+    if mesh.meta.get("reversed_faces"):  # polyhedra of a format that stores each face once
+        rev = mesh.meta["reversed_faces"]
+        issues.append(_issue("reversed-faces", "info", int(rev["count"]), [], str(rev["message"])))
     if mesh.meta.get("reordered_cells"):  # a Gambit file's bricks, pyramids: in Gambit's node order
         moved = mesh.meta["reordered_cells"]
         issues.append(_issue("reordered-cells", "info", int(moved["count"]), [], str(moved["message"])))

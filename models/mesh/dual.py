@@ -89,9 +89,30 @@ def face_keys(faces: Faces, n_points: int) -> np.ndarray:
         else:
             three = np.sort(pad, axis=1)
     s = np.minimum(sizes, 7).astype(np.int64)
+    big = np.flatnonzero(sizes >= 5)
+    h = _node_set_hash(faces)[big] >> np.uint64(4) if big.size else None  # 60 bits
     if 3 * bits + 3 <= 63:
-        return (((three[:, 0] << bits) | three[:, 1]) << bits | three[:, 2]) << 3 | s
+        keys = (((three[:, 0] << bits) | three[:, 1]) << bits | three[:, 2]) << 3 | s
+        if h is not None:  # (low 3 bits 5-7: never a triangle's or a quadrilateral's key)
+            keys[big] = (h.astype(np.int64) << 3) | s[big]
+        return keys
+    if h is not None:  # a negative first column: never a real face's smallest node
+        three[big, 0] = -1 - (h >> np.uint64(30)).astype(np.int64)
+        three[big, 1] = (h & np.uint64((1 << 30) - 1)).astype(np.int64)
+        three[big, 2] = -1
     return np.column_stack([three, s])
+
+
+def _node_set_hash(faces: Faces) -> np.ndarray:
+    """(F,) uint64: a hash of each face's set of nodes, whatever their order (splitmix64 of each
+    node, summed). Faces of five nodes and more are keyed by it: two of them may share their three
+    smallest nodes (an edge and its midpoint, in a refined polyhedral mesh: snappyHexMesh's, say),
+    so the three smallest alone would take them for one face."""
+    z = faces.nodes.astype(np.uint64) + np.uint64(0x9E3779B97F4A7C15)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    z ^= z >> np.uint64(31)
+    return np.add.reduceat(z, faces.offsets[:-1])
 
 
 def _edge_keys(e: np.ndarray, n_points: int, chunk: int = 1 << 16) -> np.ndarray:

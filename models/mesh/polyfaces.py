@@ -1,0 +1,63 @@
+"""A polyhedron's faces made to agree with each other.
+
+Formats that store each face once and let the two cells beside it refer to it (Exodus NFACED
+blocks, Fluent's polyhedral cells) keep the face's own order in both cells: VTK's readers pass it
+on, so in one of the two cells the face points inwards, and the cell's volume (a sum over its faces)
+comes out wrong, often zero. In a closed polyhedron whose faces agree, every edge is walked once in
+each direction by the two faces that share it. Here the faces that disagree are found and reversed,
+for every polyhedron at once: two faces walking a shared edge the same way must have opposite
+orientations, the other way the same; a two-colouring of each cell's faces by those constraints
+(connected components of the graph of (face, orientation) pairs) gives the faces to reverse. The
+cell as a whole may still point inwards: reading orients whole cells by their sign afterwards.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def agree_faces(cell_faces: np.ndarray, face_offsets: np.ndarray, face_nodes: np.ndarray) -> int:
+    """Reverse, in face_nodes (in place), the faces that disagree with most faces of their
+    polyhedron (with its first face on a tie). cell_faces: (Q + 1,) CSR of the faces per polyhedron; face_offsets: (F + 1,) CSR of
+    the nodes per face. Returns the number of faces reversed (0: nothing changed)."""
+    n_faces = face_offsets.size - 1
+    if n_faces == 0:
+        return 0
+    sizes = np.diff(face_offsets)
+    face_of = np.repeat(np.arange(n_faces), sizes)  # the face of each node position
+    nxt = np.arange(face_nodes.size) + 1
+    ends = face_offsets[1:] - 1
+    nxt[ends] = face_offsets[:-1]  # (cyclic within each face)
+    a, b = face_nodes, face_nodes[nxt]
+    cell = np.repeat(np.arange(cell_faces.size - 1), np.diff(cell_faces))[face_of]
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    order = np.lexsort((hi, lo, cell))
+    lo, hi, cell = lo[order], hi[order], cell[order]
+    pair = (lo[1:] == lo[:-1]) & (hi[1:] == hi[:-1]) & (cell[1:] == cell[:-1])
+    first = np.flatnonzero(pair)
+    forward = (a < b)[order]
+    same_way = forward[first] == forward[first + 1]
+    if not same_way.any():  # every shared edge walked both ways: the faces agree
+        return 0
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    f1, f2 = face_of[order[first]], face_of[order[first + 1]]
+    flip = same_way.astype(np.int64)  # node 2f: the face as it is, 2f + 1: reversed
+    rows = np.concatenate([2 * f1, 2 * f1 + 1])
+    cols = np.concatenate([2 * f2 + flip, 2 * f2 + 1 - flip])
+    graph = coo_matrix((np.ones(rows.size, dtype=np.int8), (rows, cols)), shape=(2 * n_faces, 2 * n_faces))
+    _, label = connected_components(graph, directed=False)
+    per_cell = np.diff(cell_faces)
+    owner = np.repeat(np.arange(per_cell.size), per_cell)
+    ref = label[2 * cell_faces[:-1]][owner]  # the class of each face's cell's first face
+    agree, opposite = label[0::2] == ref, label[1::2] == ref
+    # the larger class of each cell stays as stored (the first face's on a tie): fewest reversals
+    keep_agree = np.bincount(owner, weights=agree) >= np.bincount(owner, weights=opposite)
+    reverse = np.where(keep_agree[owner], opposite, agree)
+    n = int(np.count_nonzero(reverse))
+    if n:
+        sel = np.flatnonzero(reverse[face_of])  # node positions of the faces to reverse
+        f = face_of[sel]
+        face_nodes[sel] = face_nodes[face_offsets[f] + face_offsets[f + 1] - 1 - sel]
+    return n

@@ -1,0 +1,96 @@
+"""Polyhedra as refinement and other tools write them (outside sweep X).
+
+1. Faces holding the midpoints of their edges (the faces of a refined or snappyHexMesh mesh): two
+   faces sharing an edge and its midpoint share their three smallest nodes, which keyed them as one
+   face; every such mesh was refused ("not a manifold" / "the same edge/face twice").
+2. Faces stored once for both their cells (Exodus NFACED, Fluent polyhedra): VTK keeps the face's
+   order in both, so it points inwards in one; such cells were refused as degenerate or inconsistent.
+
+Each cube [i, i+1]^3 of a 2 x 2 x 2 block is a polyhedron whose six faces are octagons (four corners,
+four edge midpoints); the volume is 8 whatever the face order, checked on our output read back by VTK.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import vtk
+import vtk_corpus as vc
+
+from models.mesh.read import read_mesh
+
+# a unit cube's faces, outward, each as (corner, midpoint, corner, ...) on the half-step lattice
+_FACES = [
+    [(0, 0, 0), (0, 1, 0), (0, 2, 0), (1, 2, 0), (2, 2, 0), (2, 1, 0), (2, 0, 0), (1, 0, 0)],  # z = 0
+    [(0, 0, 2), (1, 0, 2), (2, 0, 2), (2, 1, 2), (2, 2, 2), (1, 2, 2), (0, 2, 2), (0, 1, 2)],  # z = 1
+    [(0, 0, 0), (1, 0, 0), (2, 0, 0), (2, 0, 1), (2, 0, 2), (1, 0, 2), (0, 0, 2), (0, 0, 1)],  # y = 0
+    [(0, 2, 0), (0, 2, 1), (0, 2, 2), (1, 2, 2), (2, 2, 2), (2, 2, 1), (2, 2, 0), (1, 2, 0)],  # y = 1
+    [(0, 0, 0), (0, 0, 1), (0, 0, 2), (0, 1, 2), (0, 2, 2), (0, 2, 1), (0, 2, 0), (0, 1, 0)],  # x = 0
+    [(2, 0, 0), (2, 1, 0), (2, 2, 0), (2, 2, 1), (2, 2, 2), (2, 1, 2), (2, 0, 2), (2, 0, 1)],  # x = 1
+]
+
+
+def _block(shared_faces_once: bool) -> vtk.vtkUnstructuredGrid:
+    """The 8 cubes; shared_faces_once: each interior face in the lower cube's direction in both cubes."""
+    n = 5  # half-step lattice points per axis over [0, 2]
+    pid = lambda i, j, k: (k * n + j) * n + i  # noqa: E731
+    g = np.arange(n) * 0.5
+    pts = np.array([(x, y, z) for z in g for y in g for x in g])
+    ug = vtk.vtkUnstructuredGrid()
+    p = vtk.vtkPoints()
+    for q in pts:
+        p.InsertNextPoint(*q)
+    ug.SetPoints(p)
+    seen: dict = {}
+    for c in range(8):
+        o = np.array([c & 1, (c >> 1) & 1, c >> 2]) * 2
+        stream = [6]
+        for face in _FACES:
+            ids = [pid(*(o + np.array(v))) for v in face]
+            key = frozenset(ids)
+            if shared_faces_once and key in seen:
+                ids = seen[key]  # the first cube's order: inward here
+            seen.setdefault(key, ids)
+            stream += [len(ids), *ids]
+        lst = vtk.vtkIdList()
+        for v in stream:
+            lst.InsertNextId(int(v))
+        ug.InsertNextCell(vtk.VTK_POLYHEDRON, lst)
+    return ug
+
+
+def _volume_back(path) -> float:
+    """Our output's polyhedra read back by VTK: the divergence theorem over their faces."""
+    r = vtk.vtkXMLUnstructuredGridReader()
+    r.SetFileName(str(path))
+    r.Update()
+    o = r.GetOutput()
+    total = 0.0
+    for i in range(o.GetNumberOfCells()):
+        cell = o.GetCell(i)
+        if cell.GetCellDimension() != 3:
+            continue
+        for f in range(cell.GetNumberOfFaces()):
+            face = cell.GetFace(f)
+            q = np.array([o.GetPoint(face.GetPointId(j)) for j in range(face.GetNumberOfPoints())])
+            total += sum(np.dot(q[0], np.cross(q[j], q[j + 1])) for j in range(1, len(q) - 1)) / 6
+    return total
+
+
+@pytest.mark.parametrize("once", [False, True])
+def test_polyhedra_with_edge_midpoints_and_faces_stored_once(tmp_path, once):
+    from models import agglomerate
+
+    path = vc.write_xml(tmp_path / "block.vtu", _block(once))
+    mesh = read_mesh(path)
+    assert mesh.n_cells == 8
+    assert float(np.abs(mesh.meta["measures"]).sum()) == pytest.approx(8.0, rel=1e-12)
+    assert mesh.meta["orientation"]["folded"] == 0
+    if once:
+        assert "faces reversed to agree" in mesh.meta["reversed_faces"]["message"]
+        assert mesh.meta["reversed_faces"]["count"] == 12  # the 12 interior faces, in their second cube
+    else:
+        assert "reversed_faces" not in mesh.meta
+    out = tmp_path / "out.vtu"
+    agglomerate(str(path), k=2).write(str(out))
+    assert _volume_back(out) == pytest.approx(8.0, rel=1e-9)
