@@ -107,6 +107,20 @@ def test_exodus_blocks_become_groups(tmp_path):
     assert len(mesh.physical_groups()) == 2
 
 
+def test_an_exodus_file_numbered_from_zero_is_refused_not_shifted(tmp_path):
+    """Exodus II numbers nodes from 1; a file whose connect arrays start at 0 (a hand-rolled writer)
+    was read with every node shifted by one (folded cells, a wrong volume, exit 0): now refused in
+    one sentence (outside sweep X)."""
+    import netCDF4
+
+    path = _exodus(tmp_path, ".e")
+    with netCDF4.Dataset(path, "a") as nc:
+        for name in [v for v in nc.variables if v.startswith("connect")]:
+            nc.variables[name][:] = nc.variables[name][:] - 1
+    with pytest.raises(MeshError, match=r"numbers the nodes from 0, but Exodus II numbers them from 1"):
+        read_mesh(path)
+
+
 def test_exodus_side_sets_become_named_boundary_groups(tmp_path):
     """Side sets (Cubit's and MOOSE's boundary conditions) are boundary groups with their names,
     element block names name the physical groups; a side set on the faces between two blocks is an

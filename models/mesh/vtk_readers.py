@@ -102,6 +102,13 @@ def read_vtk(
             field.update(_part_names(data))
     if kind == "gambit":
         conn = _gambit_node_order(pts, offsets, conn, types, meta)
+    elif kind == "exodus" and conn.size and conn.min() == -1 and conn.max() < len(pts) - 1:
+        # (VTK subtracts 1 from the file's ids: a file numbered from 0 gives -1, and its last node unused)
+        raise MeshError(
+            f"cannot read {os.path.basename(path)} as {fmt}: its element connectivity numbers the nodes "
+            f"from 0, but Exodus II numbers them from 1 (1..{len(pts):,}): the file was written 0-based "
+            "(add 1 to every node id of its connect arrays)"
+        )
     grid = _lattice(data, len(types))
     live = _whole_live(data, len(types))
     del data
