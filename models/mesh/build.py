@@ -84,9 +84,15 @@ def mesh_from_cells(
         cell = cell_index(offsets)
         bad = np.bincount(cell[(conn < 0) | (conn >= len(points))], minlength=cell_types.size) > 0
         if not few_bad(int(bad.sum()), cell_types.size) or poly_faces:
+            lo, hi, n = int(conn.min()), int(conn.max()), len(points)
+            found = (  # ids far beyond any count: garbage (a reader's memory past a short array)
+                f"found {lo:,}..{hi:,}"
+                if lo >= -(n + 1) and hi <= 4 * n + 16
+                else "found ids far outside that range (the cells' data does not match what the file declares)"
+            )
             raise MeshError(
-                f"cells refer to missing points: point ids must be in 0..{len(points) - 1}, found "
-                f"{int(conn.min())}..{int(conn.max())} in {int(bad.sum()):,} of the {cell_types.size:,} cells"
+                f"cells refer to missing points: point ids must be in 0..{n - 1:,}, {found} in "
+                f"{int(bad.sum()):,} of the {cell_types.size:,} cells"
             )
         # a few bad cells among many: left out, the rest agglomerated (and said: meta "dropped_cells")
         offsets, conn, cell_types, tags = _without_cells(offsets, conn, cell_types, tags, bad)
