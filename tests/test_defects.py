@@ -163,3 +163,20 @@ def test_far_and_tiny_meshes_give_the_normalized_results(name, scale, model, mod
     res = pipeline.run(read_mesh(path(name)), model=model, mode=mode, compute_metrics=False, **kw)
     assert np.array_equal(res.agglomeration.labels, ref.agglomeration.labels)
     assert np.allclose(res.poly.measure / scale**2, ref.poly.measure, rtol=1e-6)
+
+
+def test_point_ids_far_beyond_any_count_are_not_quoted():
+    """A reader's garbage past a short array (Exodus with fewer nodes per element than its type)
+    gave ids such as 8868868570035056718, different on every run: said as far outside the range."""
+    import numpy as np
+
+    from models.errors import MeshError
+    from models.mesh.read import mesh_from_arrays
+
+    pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float)
+    with pytest.raises(MeshError) as err:
+        mesh_from_arrays(pts, [("tetra", np.array([[0, 1, 2, 3], [0, 1, 2, 8868868570035056718]]))])
+    msg = str(err.value)
+    assert "far outside that range" in msg and "8868868570035056718" not in msg, msg
+    with pytest.raises(MeshError, match=r"found 0\.\.5 in 1 of the 2 cells"):  # near ids: quoted
+        mesh_from_arrays(pts, [("tetra", np.array([[0, 1, 2, 3], [0, 1, 2, 5]]))])
