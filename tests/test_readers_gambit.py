@@ -74,3 +74,46 @@ def test_a_gambit_file_in_vtks_order_stays_as_it_is(tmp_path):
     m = read_mesh(path)
     assert "reordered_cells" not in m.meta
     assert m.n_cells == sum(len(c) for _, c in blocks)
+
+
+@pytest.mark.parametrize(
+    "cut, said",
+    [
+        (
+            "truncate",
+            r"the file ends in section ELEMENTS/CELLS \(from line \d+\) (after \d+ of its \d+ elements|where .* is expected): it is truncated",
+        ),
+        (
+            "nelem",
+            r"line \d+: section ELEMENTS/CELLS \(from line \d+\) holds \d+ elements, fewer than the \d+ the header declares \(NELEM\)",
+        ),
+    ],
+)
+def test_a_broken_gambit_file_is_refused_with_its_place(tmp_path, cut, said):
+    """VTK's reader crashes on these (it reads NELEM records whatever follows): the crash sentence
+    now says where the file goes wrong, from our scan of its sections (models.mesh.locate)."""
+    import re
+
+    import format_writers as fw
+
+    from models.errors import MeshError
+    from models.mesh.sandbox import read_mesh_safe
+
+    p, blocks = fw.blocks()
+    path = fw.write_gambit(tmp_path / "m.neu", p, blocks)
+    lines = open(path).read().split("\n")
+    start = next(i for i, ln in enumerate(lines) if "ELEMENTS/CELLS" in ln)
+    if cut == "truncate":
+        text = "\n".join(lines[: start + 6]) + "\n"
+    else:
+        head = next(i for i, ln in enumerate(lines) if ln.split()[:2] == ["NUMNP", "NELEM"]) + 1
+        v = lines[head].split()
+        v[1] = str(int(v[1]) + 40)
+        lines[head] = "".join(f"{x:>10}" for x in v)
+        text = "\n".join(lines)
+    bad = tmp_path / "bad.neu"
+    bad.write_text(text)
+    with pytest.raises(MeshError) as err:
+        read_mesh_safe(str(bad))
+    msg = str(err.value)
+    assert msg.startswith("cannot read bad.neu as Gambit neutral: ") and re.search(said, msg), msg

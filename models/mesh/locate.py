@@ -2,8 +2,8 @@
 
 Run only after a reader refused a file (or its mesh failed a check) and said no place: a plain
 scan of the file's structure, section by section, for the text formats whose layout is simple
-enough to follow here: legacy VTK ASCII (unstructured grids), gmsh ASCII (2.2 and 4.x) and AVS UCD
-ASCII. It returns a phrase such as "line 12 (section POINTS, from line 5): 'x' where a number is
+enough to follow here: legacy VTK ASCII (unstructured grids), gmsh ASCII (2.2 and 4.x), AVS UCD
+ASCII and Gambit neutral. It returns a phrase such as "line 12 (section POINTS, from line 5): 'x' where a number is
 expected", or None when it finds nothing wrong (the reader's own reason then stands alone).
 
 A refusal path, not a hot one: a loop over tokens is fine here, files over LIMIT bytes are not
@@ -61,7 +61,7 @@ class _Tokens:
                         f"ends where {what} is expected"
                     )
                 where = f" in section {self.section} (from line {self.since})" if self.section else ""
-                raise _Found(f"the file ends{where} where {what} is expected")
+                raise _Found(f"the file ends{where} where {what} is expected: it is truncated")
             self.toks, self.k = self.lines[self.i].split(), 0
             self.i += 1
         self.k += 1
@@ -101,7 +101,7 @@ def locate(path: str | os.PathLike, kind: str) -> str | None:
         return None
     lines = data.split(b"\n")
     try:
-        {"legacy": _legacy, "gmsh": _gmsh, "ucd": _ucd}[kind](lines)
+        {"legacy": _legacy, "gmsh": _gmsh, "ucd": _ucd, "gambit": _gambit}[kind](lines)
     except _Found as found:
         return str(found)
     except (KeyError, ValueError, IndexError, OverflowError):
@@ -327,6 +327,95 @@ def _ucd(lines: list[bytes]) -> None:
             t.fail(
                 t.toks[t.k], f"the end of the line (a {kind.decode()} has {_UCD_NODES[kind.lower()]} points)"
             )
+
+
+# ---- Gambit neutral ---------------------------------------------------------------------------
+
+_GAMBIT_NODES = {
+    1: (2, 3),
+    2: (4, 8, 9),
+    3: (3, 6, 7),
+    4: (8, 20, 27),
+    5: (6, 15, 18),
+    6: (4, 10),
+    7: (5, 13, 14),
+}
+
+
+def _gambit_section(lines: list[bytes], start: int, name: bytes) -> tuple[int, int]:
+    """(the section's first line after its title, its ENDOFSECTION line or len(lines)), 0-based;
+    _Found where no such section follows `start`."""
+    title = next((j for j in range(start, len(lines)) if lines[j].strip().startswith(name)), None)
+    if title is None:
+        raise _Found(f"the file ends before its {name.decode()} section")
+    end = next((j for j in range(title + 1, len(lines)) if lines[j].strip() == b"ENDOFSECTION"), len(lines))
+    return title + 1, end
+
+
+def _gambit_count(
+    t: _Tokens, end: int, n_lines: int, i: int, n: int, what: str, key: str, first: str
+) -> None:
+    """Before record i of n: a section that has ended (no token left before its ENDOFSECTION) holds
+    fewer records than the header declares: say how many."""
+    if t.k < len(t.toks) or any(ln.strip() for ln in t.lines[t.i : end]):
+        return
+    if end < n_lines:
+        raise _Found(
+            f"line {end + 1:,}: section {t.section} (from line {t.since}) holds {i:,} {what}, fewer than "
+            f"the {n:,} the header declares ({key})"
+        )
+    raise _Found(
+        f"the file ends in section {t.section} (from line {t.since}) after {i:,} of its {n:,} {what}: it is truncated"
+    )
+
+
+def _gambit(lines: list[bytes]) -> None:
+    if not lines[0].strip().startswith(b"CONTROL INFO"):
+        raise _Found("line 1: the title 'CONTROL INFO' is expected")
+    head = next((j for j, ln in enumerate(lines[:12]) if ln.split()[:2] == [b"NUMNP", b"NELEM"]), None)
+    if head is None:
+        raise _Found("the header's 'NUMNP NELEM NGRPS NBSETS NDFCD NDFVL' line is missing")
+    t = _Tokens(lines, head + 1)
+    t.enter("CONTROL INFO")
+    n_pts = t.int("the number of nodes (NUMNP)", lo=0)
+    n_cells = t.int("the number of elements (NELEM)", lo=0)
+    t.int("the number of element groups", lo=0)
+    t.int("the number of boundary sets", lo=0)
+    dims = t.int("the number of coordinate directions (2 or 3)", lo=2, hi=3)
+    first, end = _gambit_section(lines, head + 2, b"NODAL COORDINATES")
+    t = _Tokens(lines, first, end)
+    t.enter("NODAL COORDINATES", first)
+    for i in range(n_pts):
+        _gambit_count(t, end, len(lines), i, n_pts, "nodes", "NUMNP", "a node id")
+        t.int("a node id", lo=1)
+        for _ in range(dims):
+            t.number("a coordinate")
+    if end < len(lines) and t.i < end and any(ln.strip() for ln in lines[t.i : end]):
+        raise _Found(
+            f"line {t.i + 1:,} (section NODAL COORDINATES, from line {first}): more nodes than the "
+            f"{n_pts:,} the header declares (NUMNP)"
+        )
+    first, end = _gambit_section(lines, end, b"ELEMENTS/CELLS")
+    t = _Tokens(lines, first, end)
+    t.enter("ELEMENTS/CELLS", first)
+    for i in range(n_cells):
+        _gambit_count(t, end, len(lines), i, n_cells, "elements", "NELEM", "an element id")
+        t.int("an element id", lo=1)
+        kind = t.int("an element type (1 to 7)", lo=1, hi=7)
+        t.int(
+            f"a number of nodes for element type {kind}",
+            lo=min(_GAMBIT_NODES[kind]),
+            hi=max(_GAMBIT_NODES[kind]),
+        )
+        for _ in range(int(t.toks[t.k - 1])):
+            t.int(f"a node id in 1..{n_pts:,}", lo=1, hi=n_pts)
+    if end < len(lines) and t.i < end and any(ln.strip() for ln in lines[t.i : end]):
+        raise _Found(
+            f"line {t.i + 1:,} (section ELEMENTS/CELLS, from line {first}): more elements than the "
+            f"{n_cells:,} the header declares (NELEM)"
+        )
+    if end == len(lines):
+        raise _Found(f"the file ends inside its ELEMENTS/CELLS section (from line {first}): it is truncated")
 
 
 __all__ = ["locate", "LIMIT"]

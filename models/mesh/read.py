@@ -282,6 +282,7 @@ _LOCATABLE = {
     ("meshio", "vtk"): "legacy",
     ("meshio", "gmsh"): "gmsh",
     ("ucd", ""): "ucd",
+    ("vtk", "gambit"): "gambit",
 }
 PLACE = re.compile(r"\b(?:line|byte offset|byte|offset) \d|\bsection [$A-Z]")
 

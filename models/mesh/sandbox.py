@@ -396,8 +396,10 @@ def call_in_child(
             shm, status, answered, pid, release = found
         if status == "timeout" or (not answered and status == signal.SIGXCPU):
             raise MeshError(timeout_sentence(path, timeout_s, file_format))
-        if not answered:
-            raise MeshError(crash_sentence(path, file_format))
+        if not answered:  # (with the place, for the text formats whose layout locate follows)
+            from models.mesh.read import _with_place
+
+            raise MeshError(_with_place(crash_sentence(path, file_format), path, file_format))
         # a lent answer: its arrays copied from the child (alive until `release` closes), at most
         # what the child could hold
         got = _load(shm, pid if release >= 0 else None, memory_bytes)
