@@ -18,8 +18,10 @@ import numpy as np
 
 def agree_faces(cell_faces: np.ndarray, face_offsets: np.ndarray, face_nodes: np.ndarray) -> int:
     """Reverse, in face_nodes (in place), the faces that disagree with most faces of their
-    polyhedron (with its first face on a tie). cell_faces: (Q + 1,) CSR of the faces per polyhedron; face_offsets: (F + 1,) CSR of
-    the nodes per face. Returns the number of faces reversed (0: nothing changed)."""
+    polyhedron (with its first face on a tie). cell_faces: (Q + 1,) CSR of the faces per
+    polyhedron; face_offsets: (F + 1,) CSR of the nodes per face. Returns the number of faces
+    reversed (0: nothing changed). A face whose constraints contradict each other (an edge met by
+    three faces of one cell) is left as it is; the checks after reading judge such a cell."""
     n_faces = face_offsets.size - 1
     if n_faces == 0:
         return 0
@@ -50,10 +52,16 @@ def agree_faces(cell_faces: np.ndarray, face_offsets: np.ndarray, face_nodes: np
     _, label = connected_components(graph, directed=False)
     per_cell = np.diff(cell_faces)
     owner = np.repeat(np.arange(per_cell.size), per_cell)
-    ref = label[2 * cell_faces[:-1]][owner]  # the class of each face's cell's first face
+    first_face = np.minimum(cell_faces[:-1], n_faces - 1)  # (a cell of no faces: never an owner)
+    ref = label[2 * first_face][owner]  # the class of each face's cell's first face
     agree, opposite = label[0::2] == ref, label[1::2] == ref
+    decided = agree != opposite  # (both: contradictory constraints; neither: not linked to the first)
+    agree &= decided
+    opposite &= decided
     # the larger class of each cell stays as stored (the first face's on a tie): fewest reversals
-    keep_agree = np.bincount(owner, weights=agree) >= np.bincount(owner, weights=opposite)
+    keep_agree = np.bincount(owner, weights=agree, minlength=per_cell.size) >= np.bincount(
+        owner, weights=opposite, minlength=per_cell.size
+    )
     reverse = np.where(keep_agree[owner], opposite, agree)
     n = int(np.count_nonzero(reverse))
     if n:
