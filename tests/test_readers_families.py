@@ -415,3 +415,20 @@ def test_ensight_mutants_are_a_mesh_or_one_clear_sentence(tmp_path):
         else:
             assert isinstance(mesh, Mesh) and mesh.n_cells > 0
     assert refused >= 5
+
+
+@pytest.mark.parametrize("keep", [0.5, 0.9])
+def test_a_fluent_file_cut_short_is_said_to_be_truncated(tmp_path, keep):
+    """A Fluent file is a sequence of parenthesised sections: cut short, it ends inside one. Said so
+    (models.mesh.locate), in place of 'it is corrupted or not a Fluent case file' (outside sweep X)."""
+    from models.mesh.sandbox import read_mesh_safe
+
+    path = _fluent(tmp_path)
+    data = open(path, "rb").read()
+    cut = tmp_path / "cut.msh"
+    cut.write_bytes(data[: int(len(data) * keep)].rstrip(b")\n "))
+    with pytest.raises(MeshError) as err:
+        read_mesh_safe(str(cut))
+    msg = str(err.value)
+    assert msg.startswith("cannot read cut.msh as Fluent") and msg.endswith("it is truncated"), msg
+    assert "corrupted or not" not in msg, msg

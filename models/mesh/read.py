@@ -283,6 +283,7 @@ _LOCATABLE = {
     ("meshio", "gmsh"): "gmsh",
     ("ucd", ""): "ucd",
     ("vtk", "gambit"): "gambit",
+    ("vtk", "fluent"): "fluent",
 }
 PLACE = re.compile(r"\b(?:line|byte offset|byte|offset) \d|\bsection [$A-Z]")
 
@@ -301,7 +302,13 @@ def _with_place(msg: str, path: str, file_format: str | None) -> str:
     from models.mesh.locate import locate
 
     where = locate(path, kind)
-    return f"{msg.rstrip('.')}; {where}" if where else msg
+    if not where:
+        return msg
+    vague = _VAGUE.search(msg)  # "it is corrupted or not X": the place says more, and replaces it
+    return msg[: vague.start()] + where if vague else f"{msg.rstrip('.')}; {where}"
+
+
+_VAGUE = re.compile(r"(?:the file is|it is) corrupted or not [^;:]*$")
 
 
 def _read(path: str, physical_tag, file_format, weld, native: bool = True) -> Mesh:
