@@ -96,3 +96,40 @@ def test_truncated_cgns_is_one_sentence(tmp_path, file_type):
         )  # a damaged file is read as an upload is: in a child (VTK's HDF5 state is process-wide)
     msg = str(err.value)
     assert path.rsplit("/", 1)[-1] in msg and "CGNS" in msg and "\n" not in msg, msg
+
+
+def test_gmsh_cgns_families_are_the_physical_groups(tmp_path):
+    """gmsh's CGNS export keeps physical groups as CGNS families (a BC at the cell centres per
+    family, the family's FamilyName the group's name); VTK's reader shows one grid. Read as the
+    groups of the same model written as MSH, by name and volume (outside sweep V)."""
+    gmsh = pytest.importorskip("gmsh")
+    pytest.importorskip("h5py")
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add("two")
+        a = gmsh.model.occ.addBox(0, 0, 0, 1, 1, 1)
+        b = gmsh.model.occ.addBox(1, 0, 0, 2, 1, 1)
+        gmsh.model.occ.fragment([(3, a)], [(3, b)])
+        gmsh.model.occ.synchronize()
+        vols = [t for _, t in gmsh.model.getEntities(3)]
+        gmsh.model.addPhysicalGroup(3, [vols[0]], name="steel")
+        gmsh.model.addPhysicalGroup(3, [vols[1]], name="core")
+        gmsh.model.addPhysicalGroup(2, [t for _, t in gmsh.model.getEntities(2)][:2], name="inlet")
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.4)
+        gmsh.model.mesh.generate(3)
+        gmsh.write(str(tmp_path / "two.cgns"))
+        gmsh.write(str(tmp_path / "two.msh"))
+    finally:
+        gmsh.finalize()
+    got, ref = read_mesh(str(tmp_path / "two.cgns")), read_mesh(str(tmp_path / "two.msh"))
+
+    def volumes(m):
+        names = m.meta["group_names"]
+        return {names[int(t)]: float(m.meta["measures"][m.tags == t].sum()) for t in np.unique(m.tags)}
+
+    vg, vr = volumes(got), volumes(ref)
+    assert set(vg) == {"steel", "core"} and set(vr) == set(vg)
+    for name in vg:
+        assert vg[name] == pytest.approx(vr[name], rel=1e-12)
+    assert vg["core"] == pytest.approx(2.0, rel=1e-12)

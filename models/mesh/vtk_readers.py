@@ -100,6 +100,13 @@ def read_vtk(
             field.update(_exodus_names(data))
         elif kind in ("ensight", "tecplot"):  # parts, zones: named blocks (their T="...")
             field.update(_part_names(data))
+    if kind == "cgns":  # its families (gmsh's physical groups), which VTK's reading does not show
+        from models.mesh.cgns_groups import family_groups
+
+        fams = family_groups(path, conn, len(types))
+        if fams is not None:
+            cell_data = {k: v for k, v in cell_data.items() if k not in TAG_NAMES} | {"block": fams[0]}
+            field = {**field, **fams[1]}
     if kind == "gambit":
         conn = _gambit_node_order(pts, offsets, conn, types, meta)
     elif kind == "exodus" and conn.size and conn.min() == -1 and conn.max() < len(pts) - 1:

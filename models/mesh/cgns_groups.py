@@ -1,0 +1,121 @@
+"""CGNS families as physical groups.
+
+CGNS names a mesh's regions by families: an element section carries a FamilyName, or a boundary
+condition at the cell centres (a BC_t with GridLocation CellCenter) lists the elements of a family,
+as gmsh's export and most mesh generators write them; the family's own FamilyName child holds the
+name the user gave (gmsh's physical group name). VTK's reader (and so ParaView) shows the zone as
+one grid without them. Here, for an HDF5 CGNS file of one unstructured zone, the cells VTK read are
+matched to the zone's element sections (the same cells in the same order, their connectivity
+compared) and tagged by their family; anything else keeps VTK's reading as it is.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+# CGNS ElementType_t codes of linear cells -> (dimension, nodes)
+_LINEAR = {5: (2, 3), 7: (2, 4), 10: (3, 4), 12: (3, 5), 14: (3, 6), 17: (3, 8)}
+# every other code's dimension, to know which sections hold the zone's cells
+_DIM = {2: 0, 3: 1, 4: 1, 6: 2, 8: 2, 9: 2, 11: 3, 13: 3, 15: 3, 16: 3, 18: 3, 19: 3, 21: 3, 24: 1}
+
+
+def _label(node) -> bytes:
+    v = node.attrs.get("label", b"")
+    return bytes(v).rstrip(b"\0") if not isinstance(v, bytes) else v.rstrip(b"\0")
+
+
+def _text(node) -> str | None:
+    d = node.get(" data")
+    if d is None:
+        return None
+    return bytes(np.asarray(d[()], dtype=np.uint8).reshape(-1)).decode("utf-8", "replace").strip("\0 ")
+
+
+def _children(node, label: bytes) -> list:
+    return [node[k] for k in node if k != " data" and _label(node[k]) == label]
+
+
+def family_groups(path: str, conn: np.ndarray, n_cells: int) -> tuple[np.ndarray, dict] | None:
+    """(tags per VTK cell, field data {name: [id, dim]}) of the zone's families, or None (not an
+    HDF5 CGNS file of one unstructured zone whose sections are the cells VTK read, or no family)."""
+    try:
+        import h5py
+    except ImportError:
+        return None
+    try:
+        with open(path, "rb") as fh:
+            if fh.read(8) != b"\x89HDF\r\n\x1a\n":
+                return None
+        with h5py.File(path, "r") as f:
+            return _groups(f, conn, n_cells)
+    except (OSError, KeyError, ValueError, TypeError, IndexError):
+        return None
+
+
+def _groups(f, conn: np.ndarray, n_cells: int):
+    bases = _children(f, b"CGNSBase_t")
+    if len(bases) != 1:
+        return None
+    base = bases[0]
+    zones = _children(base, b"Zone_t")
+    if len(zones) != 1 or (_text(_children(zones[0], b"ZoneType_t")[0]) or "") != "Unstructured":
+        return None
+    zone = zones[0]
+    names = {}  # family -> the name users gave it
+    for fam in _children(base, b"Family_t"):
+        given = _children(fam, b"FamilyName_t")
+        names[fam.name.rsplit("/", 1)[-1]] = (_text(given[0]) if given else None) or fam.name.rsplit("/", 1)[
+            -1
+        ]
+    sections = []
+    for sec in _children(zone, b"Elements_t"):
+        code = int(np.asarray(sec[" data"][()]).reshape(-1)[0])
+        lo, hi = (int(v) for v in np.asarray(sec["ElementRange"][" data"][()]).reshape(-1)[:2])
+        fam = _children(sec, b"FamilyName_t")
+        sections.append((lo, hi, code, sec, _text(fam[0]) if fam else None))
+    if not sections:
+        return None
+    dims = [(_LINEAR.get(c, (None,))[0] if c in _LINEAR else _DIM.get(c)) for _, _, c, _, _ in sections]
+    if any(d is None for d in dims):
+        return None  # (MIXED, NGON: not followed here)
+    top = max(dims)
+    cells = sorted((s for s, d in zip(sections, dims, strict=True) if d == top), key=lambda s: s[0])
+    if sum(hi - lo + 1 for lo, hi, *_ in cells) != n_cells or any(
+        c not in _LINEAR for _, _, c, _, _ in cells
+    ):
+        return None
+    expected = np.concatenate(
+        [
+            np.asarray(sec["ElementConnectivity"][" data"][()], dtype=np.int64).reshape(-1) - 1
+            for _, _, _, sec, _ in cells
+        ]
+    )
+    if expected.size != conn.size or not np.array_equal(expected, np.asarray(conn, dtype=np.int64)):
+        return None  # (not the cells VTK read, in its order)
+    ids = np.concatenate([np.arange(lo, hi + 1) for lo, hi, *_ in cells])  # element id of each cell
+    family = np.full(n_cells, "", dtype=object)
+    start = 0
+    for lo, hi, _, _, fam in cells:
+        if fam:
+            family[start : start + hi - lo + 1] = fam
+        start += hi - lo + 1
+    for bcs in _children(zone, b"ZoneBC_t"):  # boundary conditions at the cells: their elements' family
+        for bc in _children(bcs, b"BC_t"):
+            loc = _children(bc, b"GridLocation_t")
+            fam = _children(bc, b"FamilyName_t")
+            if not loc or not fam or _text(loc[0]) != "CellCenter":
+                continue
+            if "PointRange" in bc:
+                a, b = (int(v) for v in np.asarray(bc["PointRange"][" data"][()]).reshape(-1)[:2])
+                hit = (ids >= a) & (ids <= b)
+            elif "PointList" in bc:
+                hit = np.isin(ids, np.asarray(bc["PointList"][" data"][()]).reshape(-1))
+            else:
+                continue
+            family[hit] = _text(fam[0])
+    used = [name for name in dict.fromkeys(family.tolist()) if name]
+    if not used:
+        return None
+    code = {name: i + 1 for i, name in enumerate(used)}
+    tags = np.array([code.get(name, 0) for name in family.tolist()], dtype=np.int64)
+    return tags, {names.get(name, name): [code[name], top] for name in used}
