@@ -94,3 +94,29 @@ def test_polyhedra_with_edge_midpoints_and_faces_stored_once(tmp_path, once):
     out = tmp_path / "out.vtu"
     agglomerate(str(path), k=2).write(str(out))
     assert _volume_back(out) == pytest.approx(8.0, rel=1e-9)
+
+
+def test_a_polyhedron_missing_a_face_is_said_to_be_open(tmp_path):
+    """A face missing from a cell's list (a corrupted OpenFOAM owner list, outside sweep X): the cell
+    is kept and said not to be closed (its measure is not that of a closed cell)."""
+    ug = _block(False)
+    out = vtk.vtkUnstructuredGrid()
+    out.SetPoints(ug.GetPoints())
+    for i in range(ug.GetNumberOfCells()):
+        stream = vtk.vtkIdList()
+        ug.GetFaceStream(i, stream)
+        ids = [stream.GetId(j) for j in range(stream.GetNumberOfIds())]
+        if i == 5:  # drop its last face
+            faces, pos = [], 1
+            for _ in range(ids[0]):
+                faces.append(ids[pos : pos + 1 + ids[pos]])
+                pos += 1 + ids[pos]
+            ids = [len(faces) - 1] + [v for f in faces[:-1] for v in f]
+        lst = vtk.vtkIdList()
+        for v in ids:
+            lst.InsertNextId(int(v))
+        out.InsertNextCell(vtk.VTK_POLYHEDRON, lst)
+    path = vc.write_xml(tmp_path / "open.vtu", out)
+    mesh = read_mesh(path)
+    assert mesh.meta["open_polyhedra"]["cells"] == [5], mesh.meta.get("open_polyhedra")
+    assert "not closed" in mesh.meta["open_polyhedra"]["message"]

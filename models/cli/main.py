@@ -298,8 +298,9 @@ def cmd_agglomerate(args) -> int:
     left_out = dropped_sentence(mesh.meta)
     if left_out:
         print(f"warning: {left_out} (labels: -1 for them)")
-    if mesh.meta.get("overlong_cells"):
-        print(f"warning: {mesh.meta['overlong_cells']['message']}")
+    for key in ("overlong_cells", "open_polyhedra"):
+        if mesh.meta.get(key):
+            print(f"warning: {mesh.meta[key]['message']}")
     for key in ("merged_points", "reordered_cells", "reversed_faces"):
         if mesh.meta.get(key):
             print(f"note: {mesh.meta[key]['message']}")

@@ -123,6 +123,9 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
         issues.append(_issue("ignored-lower-cells", "info", count, [], ignored))
     if mesh.meta.get("overlapping_groups"):  # gmsh cells in two physical groups: one each
         issues.append(_issue("overlapping-groups", "info", 1, [], str(mesh.meta["overlapping_groups"])))
+    if mesh.meta.get("open_polyhedra"):  # a face missing from a polyhedron's list
+        op = mesh.meta["open_polyhedra"]
+        issues.append(_issue("open-polyhedra", "warning", int(op["count"]), [], str(op["message"])))
     if mesh.meta.get("reversed_faces"):  # polyhedra of a format that stores each face once
         rev = mesh.meta["reversed_faces"]
         issues.append(_issue("reversed-faces", "info", int(rev["count"]), [], str(rev["message"])))

@@ -16,15 +16,18 @@ from __future__ import annotations
 import numpy as np
 
 
-def agree_faces(cell_faces: np.ndarray, face_offsets: np.ndarray, face_nodes: np.ndarray) -> int:
+def agree_faces(
+    cell_faces: np.ndarray, face_offsets: np.ndarray, face_nodes: np.ndarray
+) -> tuple[int, np.ndarray]:
     """Reverse, in face_nodes (in place), the faces that disagree with most faces of their
     polyhedron (with its first face on a tie). cell_faces: (Q + 1,) CSR of the faces per
     polyhedron; face_offsets: (F + 1,) CSR of the nodes per face. Returns the number of faces
-    reversed (0: nothing changed). A face whose constraints contradict each other (an edge met by
+    reversed (0: nothing changed) and the polyhedra that are not closed (an edge of their faces met
+    by one face only: a face missing from the file's lists), by their index among the polyhedra. A face whose constraints contradict each other (an edge met by
     three faces of one cell) is left as it is; the checks after reading judge such a cell."""
     n_faces = face_offsets.size - 1
     if n_faces == 0:
-        return 0
+        return 0, np.zeros(0, dtype=np.int64)
     sizes = np.diff(face_offsets)
     face_of = np.repeat(np.arange(n_faces), sizes)  # the face of each node position
     nxt = np.arange(face_nodes.size) + 1
@@ -37,10 +40,13 @@ def agree_faces(cell_faces: np.ndarray, face_offsets: np.ndarray, face_nodes: np
     lo, hi, cell = lo[order], hi[order], cell[order]
     pair = (lo[1:] == lo[:-1]) & (hi[1:] == hi[:-1]) & (cell[1:] == cell[:-1])
     first = np.flatnonzero(pair)
+    alone = np.ones(lo.size, dtype=bool)  # an edge no other face of its cell walks
+    alone[first] = alone[first + 1] = False
+    open_cells = np.unique(cell[alone])
     forward = (a < b)[order]
     same_way = forward[first] == forward[first + 1]
     if not same_way.any():  # every shared edge walked both ways: the faces agree
-        return 0
+        return 0, open_cells
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -68,4 +74,4 @@ def agree_faces(cell_faces: np.ndarray, face_offsets: np.ndarray, face_nodes: np
         sel = np.flatnonzero(reverse[face_of])  # node positions of the faces to reverse
         f = face_of[sel]
         face_nodes[sel] = face_nodes[face_offsets[f] + face_offsets[f + 1] - 1 - sel]
-    return n
+    return n, open_cells
