@@ -100,8 +100,9 @@ def test_truncated_cgns_is_one_sentence(tmp_path, file_type):
 
 def test_gmsh_cgns_families_are_the_physical_groups(tmp_path):
     """gmsh's CGNS export keeps physical groups as CGNS families (a BC at the cell centres per
-    family, the family's FamilyName the group's name); VTK's reader shows one grid. Read as the
-    groups of the same model written as MSH, by name and volume (outside sweep V)."""
+    family, the family's FamilyName the group's name), and its surface groups as sections of faces;
+    VTK's reader shows one grid and drops the faces. Read as the groups and boundary groups of the
+    same model written as MSH: names, volumes, faces (outside sweep V)."""
     gmsh = pytest.importorskip("gmsh")
     pytest.importorskip("h5py")
     gmsh.initialize()
@@ -115,7 +116,9 @@ def test_gmsh_cgns_families_are_the_physical_groups(tmp_path):
         vols = [t for _, t in gmsh.model.getEntities(3)]
         gmsh.model.addPhysicalGroup(3, [vols[0]], name="steel")
         gmsh.model.addPhysicalGroup(3, [vols[1]], name="core")
-        gmsh.model.addPhysicalGroup(2, [t for _, t in gmsh.model.getEntities(2)][:2], name="inlet")
+        surf = [t for _, t in gmsh.model.getEntities(2)]
+        gmsh.model.addPhysicalGroup(2, surf[:2], name="inlet")  # (one of them between the boxes)
+        gmsh.model.addPhysicalGroup(2, surf[2:4], name="wall")
         gmsh.option.setNumber("Mesh.MeshSizeMax", 0.4)
         gmsh.model.mesh.generate(3)
         gmsh.write(str(tmp_path / "two.cgns"))
@@ -133,3 +136,11 @@ def test_gmsh_cgns_families_are_the_physical_groups(tmp_path):
     for name in vg:
         assert vg[name] == pytest.approx(vr[name], rel=1e-12)
     assert vg["core"] == pytest.approx(2.0, rel=1e-12)
+    from models.mesh.boundary import summary
+
+    def faces(m):
+        return {
+            g["name"]: (g["on_boundary"], g["interior"], round(g["measure"], 9)) for g in summary(m)["groups"]
+        }
+
+    assert faces(got) == faces(ref) and set(faces(got)) == {"inlet", "wall"}, (faces(got), faces(ref))

@@ -15,6 +15,8 @@ import numpy as np
 
 # CGNS ElementType_t codes of linear cells -> (dimension, nodes)
 _LINEAR = {5: (2, 3), 7: (2, 4), 10: (3, 4), 12: (3, 5), 14: (3, 6), 17: (3, 8)}
+# the faces of the zone's cells (boundary conditions' sections) -> (dimension, nodes, VTK type)
+_LINEAR_LOWER = {3: (1, 2, 3), 5: (2, 3, 5), 7: (2, 4, 9)}
 # every other code's dimension, to know which sections hold the zone's cells
 _DIM = {2: 0, 3: 1, 4: 1, 6: 2, 8: 2, 9: 2, 11: 3, 13: 3, 15: 3, 16: 3, 18: 3, 19: 3, 21: 3, 24: 1}
 
@@ -35,9 +37,11 @@ def _children(node, label: bytes) -> list:
     return [node[k] for k in node if k != " data" and _label(node[k]) == label]
 
 
-def family_groups(path: str, conn: np.ndarray, n_cells: int) -> tuple[np.ndarray, dict] | None:
-    """(tags per VTK cell, field data {name: [id, dim]}) of the zone's families, or None (not an
-    HDF5 CGNS file of one unstructured zone whose sections are the cells VTK read, or no family)."""
+def family_groups(path: str, conn: np.ndarray, n_cells: int):
+    """(tags per VTK cell, field data {name: [id, dim]}, faces) of the zone's families, or None (not
+    an HDF5 CGNS file of one unstructured zone whose sections are the cells VTK read, or no family).
+    faces: (sizes, connectivity, VTK types, tags) of the linear sections one dimension below the
+    cells (the boundary conditions' faces, which VTK's reader leaves out), or None."""
     try:
         import h5py
     except ImportError:
@@ -92,18 +96,23 @@ def _groups(f, conn: np.ndarray, n_cells: int):
     )
     if expected.size != conn.size or not np.array_equal(expected, np.asarray(conn, dtype=np.int64)):
         return None  # (not the cells VTK read, in its order)
-    ids = np.concatenate([np.arange(lo, hi + 1) for lo, hi, *_ in cells])  # element id of each cell
-    family = np.full(n_cells, "", dtype=object)
+    bnd = sorted(
+        (s for s, d in zip(sections, dims, strict=True) if d == top - 1 and s[2] in _LINEAR_LOWER),
+        key=lambda s: s[0],
+    )
+    both = cells + bnd  # the zone's cells, then its faces (boundary conditions' sections)
+    ids = np.concatenate([np.arange(lo, hi + 1) for lo, hi, *_ in both])  # element id of each
+    family = np.full(ids.size, "", dtype=object)
     start = 0
-    for lo, hi, _, _, fam in cells:
+    for lo, hi, _, _, fam in both:
         if fam:
             family[start : start + hi - lo + 1] = fam
         start += hi - lo + 1
-    for bcs in _children(zone, b"ZoneBC_t"):  # boundary conditions at the cells: their elements' family
+    for bcs in _children(zone, b"ZoneBC_t"):  # boundary conditions on elements: their family
         for bc in _children(bcs, b"BC_t"):
             loc = _children(bc, b"GridLocation_t")
             fam = _children(bc, b"FamilyName_t")
-            if not loc or not fam or _text(loc[0]) != "CellCenter":
+            if not loc or not fam or _text(loc[0]) not in ("CellCenter", "FaceCenter", "EdgeCenter"):
                 continue
             if "PointRange" in bc:
                 a, b = (int(v) for v in np.asarray(bc["PointRange"][" data"][()]).reshape(-1)[:2])
@@ -113,9 +122,33 @@ def _groups(f, conn: np.ndarray, n_cells: int):
             else:
                 continue
             family[hit] = _text(fam[0])
-    used = [name for name in dict.fromkeys(family.tolist()) if name]
-    if not used:
+    family = np.array([names.get(f, f) if f else "" for f in family.tolist()], dtype=object)  # users' names
+    n_top = n_cells
+    field, tags = {}, np.zeros(ids.size, dtype=np.int64)
+    for part, dim in ((slice(0, n_top), top), (slice(n_top, ids.size), top - 1)):
+        used = [name for name in dict.fromkeys(family[part].tolist()) if name]
+        base_id = max(len(field), 1 if dim != top else 0)
+        for i, name in enumerate(used):
+            field[name if name not in field else f"{name} ({dim}D)"] = [base_id + i + 1, dim]
+        code = {name: base_id + i + 1 for i, name in enumerate(used)}
+        tags[part] = [code.get(name, 0) for name in family[part].tolist()]
+        if dim == top and not used:  # cells of no family: the zone, one group (as VTK's blocks give)
+            tags[part] = 1
+    if not field:
         return None
-    code = {name: i + 1 for i, name in enumerate(used)}
-    tags = np.array([code.get(name, 0) for name in family.tolist()], dtype=np.int64)
-    return tags, {names.get(name, name): [code[name], top] for name in used}
+    lower = None
+    if bnd:
+        conn_b = np.concatenate(
+            [
+                np.asarray(sec["ElementConnectivity"][" data"][()], dtype=np.int64).reshape(-1) - 1
+                for *_, sec, _ in bnd
+            ]
+        )
+        sizes = np.concatenate([np.full(hi - lo + 1, _LINEAR_LOWER[c][1]) for lo, hi, c, _, _ in bnd])
+        vtk_types = np.concatenate(
+            [np.full(hi - lo + 1, _LINEAR_LOWER[c][2], np.uint8) for lo, hi, c, _, _ in bnd]
+        )
+        if conn_b.size != sizes.sum() or conn_b.min(initial=0) < 0:
+            return tags[:n_top], {k: v for k, v in field.items() if v[1] == top} or None, None
+        lower = (sizes, conn_b, vtk_types, tags[n_top:])
+    return tags[:n_top], field, lower

@@ -105,8 +105,19 @@ def read_vtk(
 
         fams = family_groups(path, conn, len(types))
         if fams is not None:
-            cell_data = {k: v for k, v in cell_data.items() if k not in TAG_NAMES} | {"block": fams[0]}
-            field = {**field, **fams[1]}
+            tags_top, names, lower = fams
+            n = len(types)
+            cell_data = {"block": tags_top}
+            if lower is not None:  # the boundary conditions' faces: after the cells, tagged
+                sizes, conn_b, types_b, tags_b = lower
+                offsets = np.concatenate([np.asarray(offsets, np.int64), offsets[-1] + np.cumsum(sizes)])
+                conn = np.concatenate([np.asarray(conn, np.int64), conn_b])
+                types = np.concatenate([np.asarray(types, np.uint8), types_b])
+                cell_data = {
+                    "block": np.concatenate([tags_top, np.zeros(len(types_b), np.int64)]),
+                    BOUNDARY_TAG_NAME: np.concatenate([np.zeros(n, np.int64), tags_b]),
+                }
+            field = {**field, **names}
     if kind == "gambit":
         conn = _gambit_node_order(pts, offsets, conn, types, meta)
     elif kind == "exodus" and conn.size and conn.min() == -1 and conn.max() < len(pts) - 1:
