@@ -432,3 +432,68 @@ def test_a_fluent_file_cut_short_is_said_to_be_truncated(tmp_path, keep):
     msg = str(err.value)
     assert msg.startswith("cannot read cut.msh as Fluent") and msg.endswith("it is truncated"), msg
     assert "corrupted or not" not in msg, msg
+
+
+def _classic_exodus(src, dst, elem_type=None, drop=None, per_el=None) -> str:
+    """meshio's Exodus (netCDF-4) copied as netCDF classic (CDF-2, coordx/y/z, 32-bit ids, as Cubit
+    and SEACAS write it), block 1 altered: its elem_type, its connectivity dropped, or its nodes per
+    element cut to per_el."""
+    import netCDF4
+
+    with netCDF4.Dataset(src) as a, netCDF4.Dataset(dst, "w", format="NETCDF3_64BIT_OFFSET") as b:
+        for name, d in a.dimensions.items():
+            if d.isunlimited() and name != "time_step":
+                continue  # (classic netCDF has one unlimited dimension)
+            n = per_el if (per_el and name == "num_nod_per_el1") else (None if d.isunlimited() else len(d))
+            b.createDimension(name, n)
+        b.setncatts({k: a.getncattr(k) for k in a.ncattrs()})
+        b.setncatts(  # (a large model's header, as SEACAS writes it)
+            {"file_size": np.int32(1), "int64_status": np.int32(0), "maximum_name_length": np.int32(32)}
+        )
+        b.setncattr("floating_point_word_size", np.int32(8))
+        b.createVariable("eb_status", "i4", ("num_el_blk",))[:] = 1
+        for name, v in a.variables.items():
+            if name == drop:
+                continue
+            data = v[:]
+            if name == "coord":  # one variable per axis
+                for axis, row in zip("xyz", data, strict=False):
+                    b.createVariable(f"coord{axis}", "f8", ("num_nodes",))[:] = row
+                continue
+            dtype = "i4" if v.dtype.kind in "iu" else ("S1" if v.dtype == str else v.dtype)
+            w = b.createVariable(name, dtype, v.dimensions)
+            attrs = {k: v.getncattr(k) for k in v.ncattrs() if k != "_FillValue"}
+            if name == "connect1" and elem_type:
+                attrs["elem_type"] = elem_type
+            w.setncatts(attrs)
+            w[:] = data[:, :per_el] if (per_el and name == "connect1") else data
+    return str(dst)
+
+
+@pytest.mark.parametrize(
+    "change, said",
+    [
+        (
+            {"elem_type": "FOOBAR"},
+            "element block 1 has element type 'FOOBAR', which is not an Exodus II element type",
+        ),
+        ({"drop": "connect1"}, "has no connectivity (no variable connect1)"),
+        ({"per_el": 7}, "with 7 nodes per element, which that type does not have (8, 9, 20, 27)"),
+    ],
+)
+def test_an_exodus_block_that_cannot_be_read_says_why(tmp_path, change, said):
+    """VTK's reader crashes on an unknown element type and on a block of fewer nodes than its type
+    (reading past the array), and says nothing useful on a missing connectivity: the header's
+    blocks are checked first (netCDF classic), in one sentence (outside sweep X)."""
+    pytest.importorskip("netCDF4")
+    from models.mesh.sandbox import read_mesh_safe
+
+    p, h = fw.grid(3, 2, 2)
+    src = fw.write_exodus(tmp_path / "hex.e", p, [("hexahedron", h)])
+    good = _classic_exodus(src, tmp_path / "good.e")
+    assert read_mesh(good).n_cells == len(h)  # the classic copy itself reads
+    bad = _classic_exodus(src, tmp_path / "bad.e", **change)
+    with pytest.raises(MeshError) as err:
+        read_mesh_safe(bad)
+    msg = str(err.value)
+    assert msg.startswith("cannot read bad.e as Exodus II: element block 1 ") and said in msg, msg

@@ -79,53 +79,127 @@ class _Header:
             raise ValueError("count out of range")
         return n
 
-    def name(self) -> None:
+    def name(self) -> str:
         n = self.count()
-        self.read((n + 3) // 4 * 4)
+        return self.read((n + 3) // 4 * 4)[:n].decode("utf-8", "replace")
 
 
 _TYPE_SIZE = {1: 1, 2: 1, 3: 2, 4: 4, 5: 4, 6: 8, 7: 1, 8: 2, 9: 4, 10: 8, 11: 8}
 
 
-def _attributes(h: _Header) -> None:
+def _attributes(h: _Header) -> dict:
+    """The attributes of a header list: {name: text} for text ones (NC_CHAR), {name: None} others."""
+    out = {}
     tag, n = h.int32(), h.count()
     if tag == 0:
-        return
+        return out
     for _ in range(n):
-        h.name()
+        name = h.name()
         kind = h.int32()
         values = h.count()
-        h.read((values * _TYPE_SIZE[kind] + 3) // 4 * 4)
+        raw = h.read((values * _TYPE_SIZE[kind] + 3) // 4 * 4)
+        out[name] = raw[:values].decode("utf-8", "replace").rstrip("\0 ") if kind == 2 else None
+    return out
 
 
-def _netcdf_end(fh, size: int) -> int | None:
+def _netcdf_header(fh, size: int) -> dict:
+    """A netCDF classic header: {"version", "numrecs", "dims": [(name, length)], "vars": [(name,
+    dim ids, attributes, vsize, begin)]} (ValueError, struct.error where it cannot be read)."""
     version = fh.read(4)[3]
     h = _Header(fh, version, size)
     numrecs = struct.unpack(">q", h.read(8))[0] if version == 5 else struct.unpack(">I", h.read(4))[0]
     if numrecs in (0xFFFFFFFF, -1):  # streaming: the number of records is not in the header
         numrecs = 0
     tag, n = h.int32(), h.count()
-    lengths = []
-    for _ in range(n if tag else 0):
-        h.name()
-        lengths.append(h.count())
+    dims = [(h.name(), h.count()) for _ in range(n if tag else 0)]
     _attributes(h)
     tag, n = h.int32(), h.count()
-    end, record_begin, record_size, records = 0, None, 0, 0
+    variables = []
     for _ in range(n if tag else 0):
-        h.name()
-        dims = [h.count() for _ in range(h.count())]
-        _attributes(h)
+        name = h.name()
+        ids = [h.count() for _ in range(h.count())]
+        attrs = _attributes(h)
         h.int32()  # its type
         vsize = h.count() if version == 5 else struct.unpack(">I", h.read(4))[0]
         begin = struct.unpack(">q", h.read(8))[0] if version in (2, 5) else struct.unpack(">i", h.read(4))[0]
+        variables.append((name, ids, attrs, vsize, begin))
+    return {"version": version, "numrecs": numrecs, "dims": dims, "vars": variables}
+
+
+def _netcdf_end(fh, size: int) -> int | None:
+    head = _netcdf_header(fh, size)
+    lengths = [n for _, n in head["dims"]]
+    end, record_begin, record_size, records = 0, None, 0, 0
+    for _, dims, _, vsize, begin in head["vars"]:
         if dims and dims[0] < len(lengths) and lengths[dims[0]] == 0:  # a record variable
             record_begin = begin if record_begin is None else min(record_begin, begin)
             record_size += vsize
             records += 1
         else:
             end = max(end, begin + vsize)
-    if record_begin is not None and numrecs and records > 1:  # (one record variable: its records
-        # are not padded to 4 bytes, and its vsize is)
-        end = max(end, record_begin + numrecs * record_size)
+    if record_begin is not None and head["numrecs"] and records > 1:  # (one record variable: its
+        # records are not padded to 4 bytes, and its vsize is)
+        end = max(end, record_begin + head["numrecs"] * record_size)
     return end - 8 if end > 8 else None  # (slack: the last variable's padding may be left out)
+
+
+# Exodus II element types by their first three letters (as VTK's reader tells them) -> the node
+# counts a block of that type may have
+_EXODUS_NODES = {
+    "HEX": {8, 9, 20, 27},
+    "TET": {4, 8, 10, 11, 14, 15},
+    "WED": {6, 15, 18},
+    "PYR": {5, 13, 14, 18, 19},
+    "TRI": {3, 4, 6, 7},
+    "QUA": {4, 5, 8, 9},
+    "SHE": {2, 3, 4, 5, 8, 9},
+    "BAR": {2, 3},
+    "BEA": {2, 3},
+    "TRU": {2, 3},
+    "EDG": {2, 3},
+    "SPH": {1},
+    "CIR": {1},
+    "POI": {1},
+    "NSI": None,  # NSIDED, NFACED: nodes per element vary
+    "NFA": None,
+    "SUP": None,
+}
+
+
+def exodus_fault(path: str) -> str | None:
+    """What is wrong in a netCDF classic Exodus II file's header, in words, where VTK's reader would
+    crash or say nothing useful: an element block whose connectivity variable is missing, whose
+    element type Exodus II does not have, or whose nodes per element do not fit its type; None
+    where nothing is found (or the file is netCDF-4 / HDF5: not read here)."""
+    try:
+        size = os.path.getsize(path)
+        with open(path, "rb") as fh:
+            if fh.read(4)[:3] != b"CDF":
+                return None
+            fh.seek(0)
+            head = _netcdf_header(fh, size)
+    except (OSError, struct.error, ValueError, IndexError, KeyError):
+        return None
+    dims = dict(head["dims"])
+    variables = {name: attrs for name, _, attrs, _, _ in head["vars"]}
+    blocks = dims.get("num_el_blk")
+    if blocks is None:
+        return None
+    for i in range(1, blocks + 1):
+        if dims.get(f"num_el_in_blk{i}", 0) == 0:
+            continue  # (an empty block need not have a connectivity)
+        if f"facconn{i}" in variables:  # an NFACED block: its faces, not its nodes
+            continue
+        if f"connect{i}" not in variables:
+            return f"element block {i} ({dims[f'num_el_in_blk{i}']:,} elements) has no connectivity (no variable connect{i})"
+        kind = (variables[f"connect{i}"].get("elem_type") or "").strip()
+        nodes = _EXODUS_NODES.get(kind[:3].upper(), "unknown")
+        if nodes == "unknown":
+            return f"element block {i} has element type {kind[:32]!r}, which is not an Exodus II element type"
+        per = dims.get(f"num_nod_per_el{i}")
+        if nodes is not None and per is not None and per not in nodes:
+            return (
+                f"element block {i} is of type {kind[:32]!r} with {per} nodes per element, which that type "
+                f"does not have ({', '.join(map(str, sorted(nodes)))})"
+            )
+    return None

@@ -134,6 +134,11 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
         return ("vtu", "") if ext == ".vtu" else ("vtk", ext)
     if ext in _EXODUS:
         if head[:3] == b"CDF" or head[:4] == b"\x89HDF":
+            from models.mesh.containers import exodus_fault
+
+            why = exodus_fault(path)  # (netCDF classic: its blocks' header, before VTK's reader crashes)
+            if why:
+                raise MeshError(f"cannot read {name} as Exodus II: {why}")
             return ("vtk", "exodus")
         raise MeshError(f"cannot read {name} as Exodus II: the file is neither netCDF nor HDF5 (byte 0)")
     if ext == ".cas.h5":
