@@ -144,3 +144,35 @@ def test_gmsh_cgns_families_are_the_physical_groups(tmp_path):
         }
 
     assert faces(got) == faces(ref) and set(faces(got)) == {"inlet", "wall"}, (faces(got), faces(ref))
+
+
+@pytest.mark.parametrize(
+    "break_it, said",
+    [
+        (lambda z: z.__delitem__("GridCoordinates"), "zone 'Zone1': it has no GridCoordinates"),
+        (lambda z: z["Elements0"].__delitem__("ElementRange"), "section 'Elements0' has no ElementRange"),
+        ("short", "section 'Elements0' holds 32 node ids for the 8 elements of its ElementRange (64 needed)"),
+        ("vertices", "holds 27 values for the 77 vertices the zone declares"),
+    ],
+)
+def test_a_broken_cgns_zone_says_what_is_wrong(tmp_path, break_it, said):
+    """VTK's reader crashes on a connectivity shorter than its range, and says 'corrupted' or
+    worse ('all points coincide') on the others: the zone's layout is checked first (outside sweep X)."""
+    h5py = pytest.importorskip("h5py")
+    p, h = fw.grid(2, 2, 2)
+    path = fw.write_cgns(tmp_path / "m.cgns", [(p, [("hexahedron", h)])])
+    with h5py.File(path, "a") as f:
+        zone = next(f[k]["Zone1"] for k in f if isinstance(f[k], h5py.Group) and "Zone1" in f[k])
+        if break_it == "short":
+            conn = zone["Elements0/ElementConnectivity"]
+            keep = conn[" data"][: conn[" data"].shape[0] // 2]
+            del conn[" data"]
+            conn.create_dataset(" data", data=keep)
+        elif break_it == "vertices":
+            zone[" data"][0, 0] = len(p) + 50
+        else:
+            break_it(zone)
+    with pytest.raises(MeshError) as err:
+        read_mesh_safe(path)
+    msg = str(err.value)
+    assert msg.startswith("cannot read m.cgns as CGNS: zone 'Zone1': ") and said in msg, msg

@@ -83,6 +83,12 @@ def read_vtk(
     A refusal names the file, the format and, when VTK says it, the place; never VTK's class names."""
     what, cls, _ = READERS[kind]
     fmt = fmt or what
+    if kind == "cgns":  # its layout first: VTK's reader crashes or says nothing on a broken one
+        from models.mesh.cgns_groups import cgns_fault
+
+        why = cgns_fault(path)
+        if why:
+            raise MeshError(f"cannot read {os.path.basename(path)} as {fmt}: {why}")
     data = _run(path, kind, fmt)
     meta = {"reader": f"VTK {cls}", "format": what}
     if weld is None:
