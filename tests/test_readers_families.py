@@ -497,3 +497,24 @@ def test_an_exodus_block_that_cannot_be_read_says_why(tmp_path, change, said):
         read_mesh_safe(bad)
     msg = str(err.value)
     assert msg.startswith("cannot read bad.e as Exodus II: element block 1 ") and said in msg, msg
+
+
+@pytest.mark.parametrize("keep", [0.3, 0.8])
+def test_a_binary_ucd_file_cut_short_is_said_to_be_truncated(tmp_path, keep):
+    """Its header declares how many nodes, cells and connectivity entries follow: a file shorter than
+    that is refused as truncated, with both sizes (before: 'corrupted or not a binary AVS UCD file';
+    outside sweep X). The whole file reads."""
+    from models.mesh.sandbox import read_mesh_safe
+
+    p, blocks = fw.blocks()
+    path = fw.write_avs_binary(tmp_path / "m.inp", p, blocks, node_data=False)
+    data = open(path, "rb").read()
+    assert read_mesh(path).n_cells == sum(len(c) for _, c in blocks)
+    cut = tmp_path / "cut.inp"
+    cut.write_bytes(data[: int(len(data) * keep)])
+    with pytest.raises(MeshError) as err:
+        read_mesh_safe(str(cut))
+    msg = str(err.value)
+    assert msg.startswith("cannot read cut.inp as binary AVS UCD: the file is truncated: it holds ") and (
+        f"of the {len(data):,} its header's" in msg
+    ), msg

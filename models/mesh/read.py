@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import re
 import stat
+import struct
 from itertools import chain
 
 import numpy as np
@@ -182,6 +183,7 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
         from models.mesh.ucd import is_ucd
 
         if head[:1] == b"\x07":
+            _binary_ucd_whole(path, head, name)
             return ("vtk", "avs-binary")
         if ext != ".inp" or is_ucd(path):
             return ("ucd", "")
@@ -197,6 +199,30 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
             f"unknown mesh format {ext or '(no extension)'!r}; use one of: " + ", ".join(SUPPORTED_EXTENSIONS)
         )
     return ("meshio", types[0])
+
+
+def _binary_ucd_whole(path: str, head: bytes, name: str) -> None:
+    """A binary AVS UCD file shorter than its header's counts need (magic byte 7; nodes, cells,
+    node / cell / model data components, connectivity length as int32; then 16 bytes a
+    cell, 4 a connectivity entry, 12 a node) is refused as truncated before VTK's reader reads past
+    its end."""
+    if len(head) < 25:
+        raise MeshError(
+            f"cannot read {name} as binary AVS UCD: the file ends inside its header: it is truncated"
+        )
+    size = os.path.getsize(path)
+    for order in "<>":  # (the writer's byte order: little on every machine of today, big on old ones)
+        n_nodes, n_cells, _, _, _, n_list = struct.unpack(order + "6i", head[1:25])
+        if min(n_nodes, n_cells, n_list) >= 0 and max(n_nodes, n_cells, n_list) <= size:
+            break
+    else:
+        return  # (counts that fit no byte order: VTK's reader speaks)
+    need = 25 + 16 * n_cells + 4 * n_list + 12 * n_nodes
+    if size < need:
+        raise MeshError(
+            f"cannot read {name} as binary AVS UCD: the file is truncated: it holds {size:,} bytes of the "
+            f"{need:,} its header's {n_nodes:,} nodes and {n_cells:,} cells need (copy or upload it again)"
+        )
 
 
 def _tecplot_ascii(name: str, ext: str, head: bytes, text: bytes) -> None:
