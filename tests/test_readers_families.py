@@ -518,3 +518,48 @@ def test_a_binary_ucd_file_cut_short_is_said_to_be_truncated(tmp_path, keep):
     assert msg.startswith("cannot read cut.inp as binary AVS UCD: the file is truncated: it holds ") and (
         f"of the {len(data):,} its header's" in msg
     ), msg
+
+
+def _nsided(path, counts) -> str:
+    """A 2D Exodus II of one NSIDED block (a square and a triangle beside it) in netCDF classic,
+    its ebepecnt1 (nodes per element) as given."""
+    import netCDF4
+
+    x, y = [0.0, 1.0, 1.0, 0.0, 2.0], [0.0, 0.0, 1.0, 1.0, 0.5]
+    conn = [1, 2, 3, 4, 2, 5, 3]
+    with netCDF4.Dataset(path, "w", format="NETCDF3_64BIT_OFFSET") as nc:
+        nc.setncatts({"api_version": np.float32(8.03), "version": np.float32(8.03), "file_size": np.int32(1)})
+        nc.setncattr("floating_point_word_size", np.int32(8))
+        nc.setncatts({"maximum_name_length": np.int32(32), "int64_status": np.int32(0), "title": "nsided"})
+        for name, n in (("len_string", 33), ("len_name", 33), ("four", 4), ("num_dim", 2), ("num_nodes", 5),
+                        ("num_elem", 2), ("num_el_blk", 1), ("num_el_in_blk1", 2), ("num_nod_per_el1", 7)):  # fmt: skip
+            nc.createDimension(name, n)
+        nc.createDimension("time_step", None)
+        nc.createVariable("time_whole", "f8", ("time_step",))
+        nc.createVariable("coordx", "f8", ("num_nodes",))[:] = x
+        nc.createVariable("coordy", "f8", ("num_nodes",))[:] = y
+        nc.createVariable("eb_status", "i4", ("num_el_blk",))[:] = 1
+        prop = nc.createVariable("eb_prop1", "i4", ("num_el_blk",))
+        prop.setncattr("name", "ID")
+        prop[:] = 1
+        c = nc.createVariable("connect1", "i4", ("num_nod_per_el1",))
+        c.setncattr("elem_type", "NSIDED")
+        c[:] = conn
+        nc.createVariable("ebepecnt1", "i4", ("num_el_in_blk1",))[:] = counts
+    return str(path)
+
+
+def test_an_exodus_nsided_block_whose_counts_overrun_its_connectivity_is_named(tmp_path):
+    """VTK's reader reads past the connectivity (a segmentation fault, or ids from past the array)
+    when an NSIDED block's nodes per element add up to more than it holds (outside sweep X)."""
+    pytest.importorskip("netCDF4")
+    from models.mesh.sandbox import read_mesh_safe
+
+    good = read_mesh(_nsided(tmp_path / "good.e", [4, 3]))
+    assert good.n_cells == 2 and float(good.meta["measures"].sum()) == pytest.approx(1.5, rel=1e-12)
+    with pytest.raises(MeshError) as err:
+        read_mesh_safe(_nsided(tmp_path / "bad.e", [4, 9]))
+    assert str(err.value) == (
+        "cannot read bad.e as Exodus II: element block 1 (NSIDED) gives its elements 13 nodes in all "
+        "(ebepecnt1), but its connectivity holds 7"
+    ), str(err.value)

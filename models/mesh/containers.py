@@ -104,7 +104,7 @@ def _attributes(h: _Header) -> dict:
 
 def _netcdf_header(fh, size: int) -> dict:
     """A netCDF classic header: {"version", "numrecs", "dims": [(name, length)], "vars": [(name,
-    dim ids, attributes, vsize, begin)]} (ValueError, struct.error where it cannot be read)."""
+    dim ids, attributes, vsize, begin, type)]} (ValueError, struct.error where it cannot be read)."""
     version = fh.read(4)[3]
     h = _Header(fh, version, size)
     numrecs = struct.unpack(">q", h.read(8))[0] if version == 5 else struct.unpack(">I", h.read(4))[0]
@@ -119,10 +119,10 @@ def _netcdf_header(fh, size: int) -> dict:
         name = h.name()
         ids = [h.count() for _ in range(h.count())]
         attrs = _attributes(h)
-        h.int32()  # its type
+        kind = h.int32()
         vsize = h.count() if version == 5 else struct.unpack(">I", h.read(4))[0]
         begin = struct.unpack(">q", h.read(8))[0] if version in (2, 5) else struct.unpack(">i", h.read(4))[0]
-        variables.append((name, ids, attrs, vsize, begin))
+        variables.append((name, ids, attrs, vsize, begin, kind))
     return {"version": version, "numrecs": numrecs, "dims": dims, "vars": variables}
 
 
@@ -130,7 +130,7 @@ def _netcdf_end(fh, size: int) -> int | None:
     head = _netcdf_header(fh, size)
     lengths = [n for _, n in head["dims"]]
     end, record_begin, record_size, records = 0, None, 0, 0
-    for _, dims, _, vsize, begin in head["vars"]:
+    for _, dims, _, vsize, begin, _ in head["vars"]:
         if dims and dims[0] < len(lengths) and lengths[dims[0]] == 0:  # a record variable
             record_begin = begin if record_begin is None else min(record_begin, begin)
             record_size += vsize
@@ -181,7 +181,8 @@ def exodus_fault(path: str) -> str | None:
     except (OSError, struct.error, ValueError, IndexError, KeyError):
         return None
     dims = dict(head["dims"])
-    variables = {name: attrs for name, _, attrs, _, _ in head["vars"]}
+    variables = {name: attrs for name, _, attrs, _, _, _ in head["vars"]}
+    where = {name: (begin, vsize, kind) for name, _, _, vsize, begin, kind in head["vars"]}
     blocks = dims.get("num_el_blk")
     if blocks is None:
         return None
@@ -197,9 +198,30 @@ def exodus_fault(path: str) -> str | None:
         if nodes == "unknown":
             return f"element block {i} has element type {kind[:32]!r}, which is not an Exodus II element type"
         per = dims.get(f"num_nod_per_el{i}")
+        if kind[:3].upper() == "NSI" and f"ebepecnt{i}" in where and per is not None:
+            total = _int_sum(path, *where[f"ebepecnt{i}"])  # nodes per element, summed
+            if total is not None and total != per:
+                return (
+                    f"element block {i} (NSIDED) gives its elements {total:,} nodes in all (ebepecnt{i}), "
+                    f"but its connectivity holds {per:,}"
+                )
         if nodes is not None and per is not None and per not in nodes:
             return (
                 f"element block {i} is of type {kind[:32]!r} with {per} nodes per element, which that type "
                 f"does not have ({', '.join(map(str, sorted(nodes)))})"
             )
     return None
+
+
+def _int_sum(path: str, begin: int, vsize: int, kind: int) -> int | None:
+    """The sum of a netCDF classic integer variable (NC_INT or NC_INT64, big-endian), or None."""
+    dtype = {4: ">i4", 10: ">i8"}.get(kind)
+    if dtype is None or vsize > (64 << 20):
+        return None
+    import numpy as np
+
+    with open(path, "rb") as fh:
+        fh.seek(begin)
+        raw = fh.read(vsize)
+    n = len(raw) // np.dtype(dtype).itemsize
+    return int(np.frombuffer(raw[: n * np.dtype(dtype).itemsize], dtype=dtype).sum())
