@@ -120,3 +120,34 @@ def test_a_polyhedron_missing_a_face_is_said_to_be_open(tmp_path):
     mesh = read_mesh(path)
     assert mesh.meta["open_polyhedra"]["cells"] == [5], mesh.meta.get("open_polyhedra")
     assert "not closed" in mesh.meta["open_polyhedra"]["message"]
+
+
+@pytest.mark.parametrize("nodes", [1, 2])
+def test_a_polygon_of_one_or_two_nodes_among_many_is_left_out_in_the_sandbox_too(tmp_path, nodes):
+    """The in-process read left it out (a degenerate cell among 200); the sandboxed read, whose
+    caller checks the child's arrays, took a polygon of fewer than 3 nodes for a lie and said the
+    reader crashed (outside sweep Y)."""
+    from models.mesh.sandbox import read_mesh_safe
+
+    n = 15
+    g = np.arange(n + 1, dtype=float)
+    pts = np.array([(x, y, 0.0) for y in g for x in g])
+    ug = vtk.vtkUnstructuredGrid()
+    p = vtk.vtkPoints()
+    for q in pts:
+        p.InsertNextPoint(*q)
+    ug.SetPoints(p)
+    for j in range(n):
+        for i in range(n):
+            a = j * (n + 1) + i
+            ring = [a, a + 1, a + n + 2, a + n + 1]
+            if j == 0 and i == 7:
+                ring = ring[:nodes]  # the bad one
+            lst = vtk.vtkIdList()
+            for v in ring:
+                lst.InsertNextId(v)
+            ug.InsertNextCell(vtk.VTK_POLYGON, lst)
+    path = vc.write_xml(tmp_path / "polys.vtu", ug)
+    mesh = read_mesh_safe(str(path))
+    assert mesh.n_cells == n * n - 1
+    assert mesh.meta["dropped_cells"]["ids_all"] == [7]

@@ -39,7 +39,7 @@ _POLYHEDRA = np.zeros(256, bool)
 _POLYHEDRA[[15, 16, 42]] = True
 # nodes per cell by type: exactly (> 0), or at least (< 0: -minimum)
 _SIZE = np.zeros(256, np.int64)
-for _t, _n in {5: 3, 9: 4, 7: -3, 10: 4, 12: 8, 13: 6, 14: 5, 15: 10, 16: 12, 42: -4}.items():
+for _t, _n in {5: 3, 9: 4, 7: -1, 10: 4, 12: 8, 13: 6, 14: 5, 15: 10, 16: 12, 42: -4}.items():
     _SIZE[_t] = _n
 _BSIZE = np.zeros(256, np.int64)  # boundary cells: vertices, lines, triangles, quads, polygons
 for _t, _n in {1: 1, 3: 2, 5: 3, 9: 4, 7: -3}.items():
