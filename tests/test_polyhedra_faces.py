@@ -30,8 +30,9 @@ _FACES = [
 ]
 
 
-def _block(shared_faces_once: bool) -> vtk.vtkUnstructuredGrid:
-    """The 8 cubes; shared_faces_once: each interior face in the lower cube's direction in both cubes."""
+def _block(shared_faces_once: bool, repeat_nodes: bool = False) -> vtk.vtkUnstructuredGrid:
+    """The 8 cubes; shared_faces_once: each interior face in the lower cube's direction in both cubes;
+    repeat_nodes: every other face with its first node written twice (a collapsed edge)."""
     n = 5  # half-step lattice points per axis over [0, 2]
     pid = lambda i, j, k: (k * n + j) * n + i  # noqa: E731
     g = np.arange(n) * 0.5
@@ -51,6 +52,8 @@ def _block(shared_faces_once: bool) -> vtk.vtkUnstructuredGrid:
             if shared_faces_once and key in seen:
                 ids = seen[key]  # the first cube's order: inward here
             seen.setdefault(key, ids)
+            if repeat_nodes and (len(stream) // 9) % 2 == 0:
+                ids = [ids[0], *ids]
             stream += [len(ids), *ids]
         lst = vtk.vtkIdList()
         for v in stream:
@@ -151,3 +154,19 @@ def test_a_polygon_of_one_or_two_nodes_among_many_is_left_out_in_the_sandbox_too
     mesh = read_mesh_safe(str(path))
     assert mesh.n_cells == n * n - 1
     assert mesh.meta["dropped_cells"]["ids_all"] == [7]
+
+
+def test_faces_with_a_node_repeated_are_read_closed(tmp_path):
+    """Some writers repeat a node where an edge collapses (a b b c): the zero-length edge was walked
+    by no other face, every such cell looked open ("not closed", wrong boundary faces), and our own
+    output, fed back, could not be agglomerated again (outside sweep Y). Read as VTK draws them."""
+    from models import agglomerate
+
+    path = vc.write_xml(tmp_path / "rep.vtu", _block(False, repeat_nodes=True))
+    mesh = read_mesh(path)
+    assert "open_polyhedra" not in mesh.meta and mesh.n_cells == 8
+    assert float(np.abs(mesh.meta["measures"]).sum()) == pytest.approx(8.0, rel=1e-12)
+    out, again = tmp_path / "out.vtu", tmp_path / "again.vtu"
+    agglomerate(str(path), k=4).write(str(out))
+    agglomerate(str(out), k=2).write(str(again))
+    assert _volume_back(again) == pytest.approx(8.0, rel=1e-9)

@@ -235,8 +235,11 @@ def _attach_polyhedra(mesh: Mesh, poly_faces) -> None:
     mesh.poly_cell_faces = np.concatenate([[0], np.cumsum(nfaces)])
     mesh.poly_face_offsets = np.concatenate([[0], np.cumsum(fsizes)])
     mesh.poly_face_nodes = np.concatenate([f for _, _, _, f in poly_faces])
-    from models.mesh.polyfaces import agree_faces
+    from models.mesh.polyfaces import agree_faces, without_repeats
 
+    fixed = without_repeats(mesh.poly_cell_faces, mesh.poly_face_offsets, mesh.poly_face_nodes)
+    if fixed is not None:  # nodes repeated along a face (a collapsed edge): dropped, as VTK draws it
+        mesh.poly_cell_faces, mesh.poly_face_offsets, mesh.poly_face_nodes = fixed
     turned, open_cells = agree_faces(mesh.poly_cell_faces, mesh.poly_face_offsets, mesh.poly_face_nodes)
     if open_cells.size:  # a face missing from a cell's list: its volume is not that of a closed cell
         ids = mesh.poly_cells[open_cells]

@@ -75,3 +75,34 @@ def agree_faces(
         f = face_of[sel]
         face_nodes[sel] = face_nodes[face_offsets[f] + face_offsets[f + 1] - 1 - sel]
     return n, open_cells
+
+
+def without_repeats(
+    cell_faces: np.ndarray, face_offsets: np.ndarray, face_nodes: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The polyhedra's faces without nodes repeated next to each other (a b b c, cyclically: some
+    writers repeat a node where an edge collapses), and without the faces left with fewer than
+    three nodes: (cell_faces, face_offsets, face_nodes) anew, or None where no node repeats. A
+    repeated node makes a zero-length edge that no other face walks: the cell looked open."""
+    n_faces = face_offsets.size - 1
+    if n_faces == 0:
+        return None
+    sizes = np.diff(face_offsets)
+    nxt = np.arange(face_nodes.size) + 1
+    nxt[face_offsets[1:] - 1] = face_offsets[:-1]
+    repeat = face_nodes == face_nodes[nxt]
+    if not repeat.any():
+        return None
+    face_of = np.repeat(np.arange(n_faces), sizes)
+    keep = ~repeat
+    left = np.bincount(face_of[keep], minlength=n_faces)
+    whole = left >= 3  # (a face of fewer nodes has no area: it is left out)
+    keep &= whole[face_of]
+    per_cell = np.diff(cell_faces)
+    owner = np.repeat(np.arange(per_cell.size), per_cell)
+    counts = np.bincount(owner[whole], minlength=per_cell.size)
+    return (
+        np.concatenate([[0], np.cumsum(counts)]).astype(cell_faces.dtype),
+        np.concatenate([[0], np.cumsum(left[whole])]).astype(face_offsets.dtype),
+        face_nodes[keep],
+    )
