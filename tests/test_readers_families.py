@@ -434,7 +434,7 @@ def test_a_fluent_file_cut_short_is_said_to_be_truncated(tmp_path, keep):
     assert "corrupted or not" not in msg, msg
 
 
-def _classic_exodus(src, dst, elem_type=None, drop=None, per_el=None) -> str:
+def _classic_exodus(src, dst, elem_type=None, drop=None, per_el=None, extra_dims=()) -> str:
     """meshio's Exodus (netCDF-4) copied as netCDF classic (CDF-2, coordx/y/z, 32-bit ids, as Cubit
     and SEACAS write it), block 1 altered: its elem_type, its connectivity dropped, or its nodes per
     element cut to per_el."""
@@ -445,6 +445,8 @@ def _classic_exodus(src, dst, elem_type=None, drop=None, per_el=None) -> str:
             if d.isunlimited() and name != "time_step":
                 continue  # (classic netCDF has one unlimited dimension)
             n = per_el if (per_el and name == "num_nod_per_el1") else (None if d.isunlimited() else len(d))
+            b.createDimension(name, n)
+        for name, n in extra_dims:
             b.createDimension(name, n)
         b.setncatts({k: a.getncattr(k) for k in a.ncattrs()})
         b.setncatts(  # (a large model's header, as SEACAS writes it)
@@ -563,3 +565,15 @@ def test_an_exodus_nsided_block_whose_counts_overrun_its_connectivity_is_named(t
         "cannot read bad.e as Exodus II: element block 1 (NSIDED) gives its elements 13 nodes in all "
         "(ebepecnt1), but its connectivity holds 7"
     ), str(err.value)
+
+
+def test_an_exodus_file_declaring_qa_records_it_lacks_is_read(tmp_path):
+    """num_qa_rec declared, no qa_records variable: VTK's reader logs an error and reads the whole
+    mesh; that error refused the file (outside sweep Y)."""
+    pytest.importorskip("netCDF4")
+    p, h = fw.grid(3, 2, 2)
+    src = fw.write_exodus(tmp_path / "hex.e", p, [("hexahedron", h)])
+    whole = read_mesh(_classic_exodus(src, tmp_path / "whole.e"))
+    mesh = read_mesh(_classic_exodus(src, tmp_path / "qa.e", extra_dims=[("num_qa_rec", 1)]))
+    assert mesh.n_cells == len(h)
+    assert float(mesh.meta["measures"].sum()) == pytest.approx(float(whole.meta["measures"].sum()), rel=1e-12)
