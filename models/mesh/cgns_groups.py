@@ -102,11 +102,12 @@ def _groups(f, conn: np.ndarray, n_cells: int):
     )
     both = cells + bnd  # the zone's cells, then its faces (boundary conditions' sections)
     ids = np.concatenate([np.arange(lo, hi + 1) for lo, hi, *_ in both])  # element id of each
-    family = np.full(ids.size, "", dtype=object)
+    kinds: dict[str, int] = {}  # family -> its number (1, 2, ...); 0: no family
+    family = np.zeros(ids.size, dtype=np.int64)
     start = 0
-    for lo, hi, _, _, fam in both:
+    for lo, hi, _, _, fam in both:  # (a loop over sections)
         if fam:
-            family[start : start + hi - lo + 1] = fam
+            family[start : start + hi - lo + 1] = kinds.setdefault(fam, len(kinds) + 1)
         start += hi - lo + 1
     for bcs in _children(zone, b"ZoneBC_t"):  # boundary conditions on elements: their family
         for bc in _children(bcs, b"BC_t"):
@@ -121,19 +122,19 @@ def _groups(f, conn: np.ndarray, n_cells: int):
                 hit = np.isin(ids, np.asarray(bc["PointList"][" data"][()]).reshape(-1))
             else:
                 continue
-            family[hit] = _text(fam[0])
-    family = np.array([names.get(f, f) if f else "" for f in family.tolist()], dtype=object)  # users' names
+            family[hit] = kinds.setdefault(_text(fam[0]), len(kinds) + 1)
+    shown = [""] + [names.get(fam, fam) for fam in kinds]  # each family's name as users gave it
     n_top = n_cells
     field, tags = {}, np.zeros(ids.size, dtype=np.int64)
     for part, dim in ((slice(0, n_top), top), (slice(n_top, ids.size), top - 1)):
-        used = [name for name in dict.fromkeys(family[part].tolist()) if name]
+        here = np.unique(family[part])
+        used = list(dict.fromkeys(shown[k] for k in here.tolist() if k))  # (families sharing a name: one)
         base_id = max(len(field), 1 if dim != top else 0)
-        for i, name in enumerate(used):
-            field[name if name not in field else f"{name} ({dim}D)"] = [base_id + i + 1, dim]
         code = {name: base_id + i + 1 for i, name in enumerate(used)}
-        tags[part] = [code.get(name, 0) for name in family[part].tolist()]
-        if dim == top and not used:  # cells of no family: the zone, one group (as VTK's blocks give)
-            tags[part] = 1
+        for name, gid in code.items():
+            field[name if name not in field else f"{name} ({dim}D)"] = [gid, dim]
+        lookup = np.array([code.get(name, 0) for name in shown], dtype=np.int64)  # family -> group
+        tags[part] = lookup[family[part]] if used else 1 if dim == top else 0
     if not field:
         return None
     lower = None
