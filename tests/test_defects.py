@@ -32,7 +32,7 @@ AREA = {  # exact total measure, where the construction fixes it
     "micro_scale": 36e-18,
 }
 REFUSED = {
-    "zero_area": ("degenerate (zero-area) cells", "cell ids [3]", "remove them"),
+    "zero_area": ("degenerate (zero-area) cells", "cell ids [3]", "collinear, coplanar or crossing"),
     "repeated_vertex_triangle": ("degenerate (zero-area) cells", "cell ids [3]", "remove them"),
     "nonplanar_surface": (
         "non-planar",
@@ -180,3 +180,19 @@ def test_point_ids_far_beyond_any_count_are_not_quoted():
     assert "far outside that range" in msg and "8868868570035056718" not in msg, msg
     with pytest.raises(MeshError, match=r"found 0\.\.5 in 1 of the 2 cells"):  # near ids: quoted
         mesh_from_arrays(pts, [("tetra", np.array([[0, 1, 2, 3], [0, 1, 2, 5]]))])
+
+
+def test_a_degenerate_cell_of_coincident_points_names_weld_and_others_do_not():
+    """--weld merges distinct points at one place: named where a degenerate cell has such corners,
+    not where its corners are distinct (collinear, crossing: outside sweep Y's bow-tie)."""
+    import numpy as np
+
+    from models.errors import MeshError
+    from models.mesh.read import mesh_from_arrays
+
+    p = np.array([[0, 0], [1, 0], [0, 1], [1, 1], [1, 1.0], [2, 2]], dtype=float)
+    with pytest.raises(MeshError, match=r"merge their coincident points with --weld"):
+        mesh_from_arrays(p, [("triangle", np.array([[0, 1, 2], [1, 3, 2], [3, 4, 2]]))])
+    with pytest.raises(MeshError, match=r"distinct but collinear, coplanar or crossing") as err:
+        mesh_from_arrays(p, [("triangle", np.array([[0, 1, 2], [1, 3, 2], [0, 3, 5]]))])
+    assert "--weld" not in str(err.value)

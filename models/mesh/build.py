@@ -611,10 +611,28 @@ def refuse_degenerate(mesh: Mesh, vol: np.ndarray, bounds=None, degenerate=None)
     if degenerate.any():
         ids = np.flatnonzero(degenerate)
         kind = "area" if mesh.dim == 2 else "volume"
+        hint = {  # --weld only helps where a cell's corners are distinct points at one place
+            "coincident": "remove them (or merge their coincident points with --weld) and retry",
+            "repeated": "a node is repeated in them: remove them and retry",
+            "distinct": "their corners are distinct but collinear, coplanar or crossing: remove or fix them and retry",
+        }[_corners(mesh, ids[:200])]
         raise MeshError(
-            f"the mesh has {ids.size} degenerate (zero-{kind}) cells, e.g. cell ids {ids[:5].tolist()}; "
-            "remove them (or merge their coincident points with --weld) and retry"
+            f"the mesh has {ids.size} degenerate (zero-{kind}) cells, e.g. cell ids {ids[:5].tolist()}; {hint}"
         )
+
+
+def _corners(mesh: Mesh, ids: np.ndarray) -> str:
+    """What these degenerate cells (a few, on a refusal's path) have: "coincident" (two node ids at
+    the same coordinates), "repeated" (a node id twice, or fewer nodes than a cell of the dimension
+    needs: collapsed on reading), else "distinct"."""
+    found = "distinct"
+    for c in ids.tolist():
+        nodes = mesh.connectivity[mesh.offsets[c] : mesh.offsets[c + 1]]
+        if np.unique(mesh.points[nodes], axis=0).shape[0] < np.unique(nodes).size:
+            return "coincident"
+        if np.unique(nodes).size < max(nodes.size, mesh.dim + 1):
+            found = "repeated"
+    return found
 
 
 def _bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
