@@ -170,3 +170,61 @@ def test_faces_with_a_node_repeated_are_read_closed(tmp_path):
     agglomerate(str(path), k=4).write(str(out))
     agglomerate(str(out), k=2).write(str(again))
     assert _volume_back(again) == pytest.approx(8.0, rel=1e-9)
+
+
+def _old_layout_vtu(ug: vtk.vtkUnstructuredGrid, shift_last: int = 0) -> str:
+    """The polyhedra as VTK XML of the layout before VTK 9.4 (ascii `faces` and `faceoffsets`
+    arrays, as older writers and hand-rolled scripts write them); shift_last: added to the last
+    face offset."""
+    conn, offs, faces, foffs = [], [], [], []
+    for i in range(ug.GetNumberOfCells()):
+        stream = vtk.vtkIdList()
+        ug.GetFaceStream(i, stream)
+        ids = [stream.GetId(j) for j in range(stream.GetNumberOfIds())]
+        points, pos = set(), 1
+        for _ in range(ids[0]):  # (the stream: nfaces, then each face's size and points)
+            points.update(ids[pos + 1 : pos + 1 + ids[pos]])
+            pos += 1 + ids[pos]
+        conn += sorted(points)
+        offs.append(len(conn))
+        faces += ids
+        foffs.append(len(faces))
+    foffs[-1] += shift_last
+    pts = " ".join(f"{v:.17g}" for i in range(ug.GetNumberOfPoints()) for v in ug.GetPoint(i))
+
+    def arr(name, kind, values):
+        return (
+            f'<DataArray type="{kind}" Name="{name}" format="ascii">{" ".join(map(str, values))}</DataArray>'
+        )
+
+    n = ug.GetNumberOfCells()
+    return (
+        '<?xml version="1.0"?><VTKFile type="UnstructuredGrid" version="1.0" byte_order="LittleEndian">'
+        f'<UnstructuredGrid><Piece NumberOfPoints="{ug.GetNumberOfPoints()}" NumberOfCells="{n}">'
+        f'<Points><DataArray type="Float64" NumberOfComponents="3" format="ascii">{pts}</DataArray></Points>'
+        "<Cells>"
+        + arr("connectivity", "Int64", conn)
+        + arr("offsets", "Int64", offs)
+        + arr("types", "UInt8", [42] * n)
+        + arr("faces", "Int64", faces)
+        + arr("faceoffsets", "Int64", foffs)
+        + "</Cells></Piece></UnstructuredGrid></VTKFile>"
+    )
+
+
+def test_a_vtu_whose_face_offsets_run_past_its_faces_says_so(tmp_path):
+    """VTK's reader says 'the "faces" array is not long enough'; its error text never reached us
+    (the observer took the message as a long: its first 8 bytes), so the refusal was 'corrupted'
+    (outside sweep Y). The same file with its offsets right reads."""
+    from models.errors import MeshError
+    from models.mesh.sandbox import read_mesh_safe
+
+    good, bad = tmp_path / "good.vtu", tmp_path / "bad.vtu"
+    good.write_text(_old_layout_vtu(_block(False)))
+    bad.write_text(_old_layout_vtu(_block(False), shift_last=50))
+    assert float(np.abs(read_mesh_safe(str(good)).meta["measures"]).sum()) == pytest.approx(8.0, rel=1e-12)
+    with pytest.raises(MeshError) as err:
+        read_mesh_safe(str(bad))
+    assert str(err.value) == (
+        "cannot read bad.vtu as VTK XML (VTU): its polyhedra's faces and face offsets do not match"
+    ), str(err.value)

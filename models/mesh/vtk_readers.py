@@ -281,7 +281,9 @@ class _Captured:
             data = data.decode("utf-8", "replace")
         self.errors.append(str(data or "error"))
 
-    _on_error.CallDataType = 8  # VTK_STRING: the message comes as call data
+    _on_error.CallDataType = (
+        13  # VTK_STRING: the message comes as call data (8, VTK_LONG, gave its first 8 bytes)
+    )
 
     def __exit__(self, *exc):
         from vtkmodules.vtkCommonCore import vtkLogger, vtkOutputWindow
@@ -433,6 +435,10 @@ def _pieces(reader):
 
 _WHERE = re.compile(r"\b(line|column|byte index|offset|position|piece)\s*[:=]?\s*(\d+)", re.IGNORECASE)
 _KINDS = (
+    (
+        ("faces array", '"faces" array', "faceoffsets", "face offsets"),
+        "its polyhedra's faces and face offsets do not match",
+    ),
     (("xml", "parsing"), "its XML cannot be parsed"),
     (
         ("unrecognized file type", "unsupported data type", "not a vtk", "unrecognized keyword"),
@@ -518,6 +524,7 @@ def explain(text: str, what: str) -> str:
     """VTK's error text -> what was wrong, in our words (and where, when VTK says where)."""
     text = re.sub(r"In [^\n,]*\.(cxx|h|txx|hxx), line \d+", "", text)  # VTK's own source lines
     text = re.sub(r"\b\S+\.(cxx|h|txx|hxx):\d+", "", text)
+    text = re.sub(r"\bvtk\w+ \(0x[0-9a-fA-F]+\)", "", text)  # the class and address speaking
     low = text.lower()
     said = next(
         (msg for keys, msg in _KINDS if any(k in low for k in keys)), "it is corrupted or not {a_what} file"
