@@ -15,6 +15,7 @@ into one sentence of ours (file, format, what was wrong and where, when VTK says
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 
@@ -89,7 +90,11 @@ def read_vtk(
         why = cgns_fault(path)
         if why:
             raise MeshError(f"cannot read {os.path.basename(path)} as {fmt}: {why}")
-    data = _run(path, kind, fmt)
+    if kind == "gambit":
+        with _gambit_without_doubled_ends(path) as clean:
+            data = _run(clean, kind, fmt)
+    else:
+        data = _run(path, kind, fmt)
     meta = {"reader": f"VTK {cls}", "format": what}
     if weld is None:
         mesh = _image_mesh(data, physical_tag, meta, path)
@@ -163,6 +168,39 @@ def read_vtk(
         meta["overlong_cells"] = norm.overlong
     grid = grid if norm.types.size == len(types) and norm.dim == 3 else None
     return mesh_of_cells(pts, norm, tag_key, weld, meta, grid, field)
+
+
+_DOUBLED_END = re.compile(rb"ENDOFSECTION[ \t\r]*\n[ \t\r]*ENDOFSECTION[ \t\r]*\n")
+
+
+@contextlib.contextmanager
+def _gambit_without_doubled_ends(path: str):
+    """gmsh writes a Gambit file with boundary conditions with one ENDOFSECTION too many (after the
+    element groups), on which VTK's reader frees memory twice and dies: such a file is read from a
+    copy without the extra line (in a temporary folder, under its own name); any other as it is."""
+    import mmap
+    import shutil
+    import tempfile
+
+    with open(path, "rb") as fh:
+        if os.fstat(fh.fileno()).st_size == 0:
+            yield path
+            return
+        with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+            doubled = _DOUBLED_END.search(mm) is not None
+    if not doubled:
+        yield path
+        return
+    folder = tempfile.mkdtemp(prefix="magnet-neu-")
+    try:
+        copy = os.path.join(folder, os.path.basename(path))
+        with open(path, "rb") as fh:
+            data = fh.read()
+        with open(copy, "wb") as out:
+            out.write(_DOUBLED_END.sub(b"ENDOFSECTION\n", data))
+        yield copy
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 # Gambit numbers a brick's nodes and a pyramid's base lexicographically, (0,0) (1,0) (0,1) (1,1)
