@@ -434,7 +434,7 @@ def test_a_fluent_file_cut_short_is_said_to_be_truncated(tmp_path, keep):
     assert "corrupted or not" not in msg, msg
 
 
-def _classic_exodus(src, dst, elem_type=None, drop=None, per_el=None, extra_dims=()) -> str:
+def _classic_exodus(src, dst, elem_type=None, drop=None, per_el=None, extra_dims=(), short=False) -> str:
     """meshio's Exodus (netCDF-4) copied as netCDF classic (CDF-2, coordx/y/z, 32-bit ids, as Cubit
     and SEACAS write it), block 1 altered: its elem_type, its connectivity dropped, or its nodes per
     element cut to per_el."""
@@ -463,7 +463,12 @@ def _classic_exodus(src, dst, elem_type=None, drop=None, per_el=None, extra_dims
                     b.createVariable(f"coord{axis}", "f8", ("num_nodes",))[:] = row
                 continue
             dtype = "i4" if v.dtype.kind in "iu" else ("S1" if v.dtype == str else v.dtype)
-            w = b.createVariable(name, dtype, v.dimensions)
+            dims = v.dimensions
+            if short and name == "connect1":  # one element fewer than the block declares
+                b.createDimension("short_num_el_in_blk1", len(a.dimensions["num_el_in_blk1"]) - 1)
+                dims = ("short_num_el_in_blk1", dims[1])
+                data = data[:-1]
+            w = b.createVariable(name, dtype, dims)
             attrs = {k: v.getncattr(k) for k in v.ncattrs() if k != "_FillValue"}
             if name == "connect1" and elem_type:
                 attrs["elem_type"] = elem_type
@@ -481,6 +486,10 @@ def _classic_exodus(src, dst, elem_type=None, drop=None, per_el=None, extra_dims
         ),
         ({"drop": "connect1"}, "has no connectivity (no variable connect1)"),
         ({"per_el": 7}, "with 7 nodes per element, which that type does not have (8, 9, 20, 27)"),
+        (
+            {"short": True},
+            "connectivity (connect1) holds 88 node ids, fewer than its 12 elements of 8 nodes need (96)",
+        ),
     ],
 )
 def test_an_exodus_block_that_cannot_be_read_says_why(tmp_path, change, said):
@@ -498,7 +507,7 @@ def test_an_exodus_block_that_cannot_be_read_says_why(tmp_path, change, said):
     with pytest.raises(MeshError) as err:
         read_mesh_safe(bad)
     msg = str(err.value)
-    assert msg.startswith("cannot read bad.e as Exodus II: element block 1 ") and said in msg, msg
+    assert msg.startswith("cannot read bad.e as Exodus II: element block 1") and said in msg, msg
 
 
 @pytest.mark.parametrize("keep", [0.3, 0.8])

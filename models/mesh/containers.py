@@ -205,6 +205,15 @@ def exodus_fault(path: str) -> str | None:
                     f"element block {i} (NSIDED) gives its elements {total:,} nodes in all (ebepecnt{i}), "
                     f"but its connectivity holds {per:,}"
                 )
+        n_el = dims.get(f"num_el_in_blk{i}", 0)
+        begin_size_kind = where.get(f"connect{i}")
+        if nodes is not None and per and begin_size_kind and begin_size_kind[2] in _TYPE_SIZE:
+            held = begin_size_kind[1] // _TYPE_SIZE[begin_size_kind[2]]
+            if held < n_el * per:
+                return (
+                    f"element block {i}'s connectivity (connect{i}) holds {held:,} node ids, fewer than "
+                    f"its {n_el:,} elements of {per} nodes need ({n_el * per:,})"
+                )
         if nodes is not None and per is not None and per not in nodes:
             return (
                 f"element block {i} is of type {kind[:32]!r} with {per} nodes per element, which that type "
