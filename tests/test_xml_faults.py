@@ -79,3 +79,15 @@ def test_well_formed_xml_of_another_kind_is_said_to_be_what_it_is(tmp_path, name
     with pytest.raises(MeshError) as err:
         read_mesh_safe(str(path))
     assert str(err.value) == said
+
+
+def test_a_parser_error_of_a_format_that_is_no_xml_is_not_called_xml():
+    """Fluent's reader says 'parsing' too: that is its text, not XML (mutation sweep Z)."""
+    from models.mesh.vtk_readers import explain
+
+    assert explain("vtkFLUENTReader (0x55d0): error parsing a section", "Fluent case") == (
+        "its text cannot be parsed"
+    )
+    assert explain("vtkXMLParser (0x55d0): error parsing XML", "VTK XML unstructured grid") == (
+        "its XML cannot be parsed"
+    )

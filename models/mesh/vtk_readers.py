@@ -580,6 +580,8 @@ def explain(text: str, what: str) -> str:
         if key not in seen and key != "piece":
             seen.add(key)
             where.append(f"{key} {int(m.group(2)):,}")
+    if said == "its XML cannot be parsed" and not any(w in what for w in ("XML", "XDMF")):
+        said = "its text cannot be parsed"  # (a parser's words in a format that is no XML: Fluent's)
     said = said.format(a_what=article(what))
     return f"{said} (at {', '.join(where[:3])})" if where else said
 
