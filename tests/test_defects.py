@@ -196,3 +196,27 @@ def test_a_degenerate_cell_of_coincident_points_names_weld_and_others_do_not():
     with pytest.raises(MeshError, match=r"distinct but collinear, coplanar or crossing") as err:
         mesh_from_arrays(p, [("triangle", np.array([[0, 1, 2], [1, 3, 2], [0, 3, 5]]))])
     assert "--weld" not in str(err.value)
+
+
+@pytest.mark.parametrize(
+    "value, said", [(1e300, "a coordinate beyond 1e150"), (1e30, "a point lies far from all the others")]
+)
+def test_one_corrupted_coordinate_is_named_not_every_cell_degenerate(value, said, recwarn):
+    """One coordinate set to 1e300 made numpy print its overflow warnings and every cell degenerate;
+    one set to 1e30 made every cell degenerate beside the bounding box it spans (mutation sweep Z)."""
+    import numpy as np
+
+    from models.errors import MeshError
+    from models.mesh.read import mesh_from_arrays
+
+    n = 12
+    g = np.arange(n + 1, dtype=float)
+    pts = np.array([(x, y) for y in g for x in g])
+    q = (np.arange(n)[:, None] * (n + 1) + np.arange(n)).ravel()
+    tris = np.vstack([np.c_[q, q + 1, q + n + 2], np.c_[q, q + n + 2, q + n + 1]])
+    pts[40, 1] = value
+    with pytest.raises(MeshError) as err:
+        mesh_from_arrays(pts, [("triangle", tris)])
+    msg = str(err.value)
+    assert said in msg and "point 40 at" in msg and "degenerate" not in msg, msg
+    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]

@@ -30,6 +30,13 @@ MIRROR = {
 }
 
 
+_HUGE = 1e150  # coordinates beyond this overflow in the measures (squares of differences)
+
+
+def _at(p: np.ndarray) -> str:
+    return "(" + ", ".join(f"{float(v):.6g}" for v in p) + ")"
+
+
 def mesh_from_cells(
     points: np.ndarray,
     offsets: np.ndarray,
@@ -67,6 +74,15 @@ def mesh_from_cells(
         raise MeshError(
             f"the mesh has {'a point' if int(bad.sum()) == 1 else f'{int(bad.sum()):,} points'} with NaN or "
             f"infinite coordinates (first: point {int(np.flatnonzero(bad)[0])})"
+        )
+    huge = float(max(np.abs(bounds[0]).max(), np.abs(bounds[1]).max()))
+    if huge > _HUGE:  # squares overflow: no measure could be computed (numpy warned, every cell
+        # came out degenerate)
+        bad = np.flatnonzero((np.abs(points) > _HUGE).any(axis=1))
+        raise MeshError(
+            f"the mesh has {'a point' if bad.size == 1 else f'{bad.size:,} points'} with a coordinate "
+            f"beyond 1e150 (first: point {int(bad[0])} at {_at(points[bad[0]])}): too large to compute "
+            "with; a corrupted coordinate? fix it and retry"
         )
     if tags is not None and len(tags) != len(cell_types):
         raise MeshError("physical group data does not match the number of cells")
@@ -611,6 +627,9 @@ def refuse_degenerate(mesh: Mesh, vol: np.ndarray, bounds=None, degenerate=None)
     if degenerate.any():
         ids = np.flatnonzero(degenerate)
         kind = "area" if mesh.dim == 2 else "volume"
+        far = _far_point(mesh) if ids.size * 2 > degenerate.size else None
+        if far is not None:  # one point far from the rest made every cell look flat beside the box
+            raise MeshError(far)
         hint = {  # --weld only helps where a cell's corners are distinct points at one place
             "coincident": "remove them (or merge their coincident points with --weld) and retry",
             "repeated": "a node is repeated in them: remove them and retry",
@@ -619,6 +638,26 @@ def refuse_degenerate(mesh: Mesh, vol: np.ndarray, bounds=None, degenerate=None)
         raise MeshError(
             f"the mesh has {ids.size} degenerate (zero-{kind}) cells, e.g. cell ids {ids[:5].tolist()}; {hint}"
         )
+
+
+def _far_point(mesh: Mesh) -> str | None:
+    """A sentence naming the point(s) lying a million times farther from the points' median than
+    99% of the points do (a corrupted coordinate: the bounding box it makes turns every cell
+    degenerate beside it), or None. On a refusal's path."""
+    used = np.unique(mesh.connectivity)
+    if used.size < 8:
+        return None
+    p = mesh.points[used]
+    dev = np.abs(p - np.median(p, axis=0)).max(axis=1)
+    scale = float(np.percentile(dev, 99))
+    far = used[dev > 1e6 * max(scale, 1e-300)]
+    if far.size == 0 or far.size * 100 > used.size:
+        return None
+    return (
+        f"{'a point lies' if far.size == 1 else f'{far.size:,} points lie'} far from all the others "
+        f"(point {int(far[0])} at {_at(mesh.points3d()[far[0]] if mesh.dim == 2 else mesh.points[far[0]])}; "
+        f"99% of the points lie within {scale:.3g} of their median): a corrupted coordinate? fix it and retry"
+    )
 
 
 def _corners(mesh: Mesh, ids: np.ndarray) -> str:
