@@ -66,9 +66,9 @@ def inspect_mesh(path: str | os.PathLike, physical_tag: str | None = None, check
         return _inspect_surface(path)
     info = describe(mesh)
     if check:
-        from models.mesh.check import mesh_report
+        from models.mesh.check import mesh_report, named
 
-        info["check"] = mesh_report(mesh)
+        info["check"] = named(mesh_report(mesh), path)
     return info
 
 

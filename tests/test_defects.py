@@ -98,6 +98,10 @@ def test_refused_in_one_line(name, tmp_path):
         _bad(tmp_path, "agglomerate", path(name), "-o", tmp_path / "x.vtu", "--k", 2, match=w)
     r = magnet("check", path(name))
     assert r.returncode == 2 and "verdict: error" in r.stdout and words[0] in r.stdout
+    # every refusal names the file and the format, those found after reading too (not a manifold:
+    # it did not; mutation sweep Z)
+    line = next(ln for ln in r.stdout.splitlines() if ln.startswith("error: "))
+    assert line.startswith(f"error: cannot read {os.path.basename(path(name))} as "), line
 
 
 def _kinds(rep) -> dict:

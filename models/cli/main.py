@@ -12,7 +12,7 @@ import os
 import sys
 import time
 
-from models.errors import MagnetError, ParameterError
+from models.errors import MagnetError, MeshError, ParameterError
 
 EXIT_USER_ERROR = 2
 EXIT_INTERNAL = 70  # sysexits' EX_SOFTWARE: our bug, not the user's input
@@ -226,6 +226,10 @@ def cmd_agglomerate(args) -> int:
         except MagnetError as exc:
             from models.mesh.fill import is_surface_file, open_surface_refusal
 
+            if isinstance(exc, MeshError) and os.path.basename(args.mesh) not in str(exc):
+                from models.mesh.sandbox import wording  # (found after reading: said as every refusal)
+
+                raise MeshError(wording(str(exc), args.mesh)) from None
             if args.fill or not is_surface_file(args.mesh):
                 raise
             refused = open_surface_refusal(args.mesh, exc)

@@ -38,8 +38,20 @@ def check_file(path: str | os.PathLike, physical_tag: str | None = None, weld: f
             "verdict": "error",
             "issues": [_issue("unreadable", "error", 1, [], str(open_surface_refusal(path, exc)))],
         }
-    report = mesh_report(mesh)
+    report = named(mesh_report(mesh), path)
     report["file"] = os.path.basename(os.fspath(path))
+    return report
+
+
+def named(report: dict, path) -> dict:
+    """The report's errors found after reading (not a manifold, a cell with a face twice) worded as
+    every refusal is: naming the file and the format (sandbox.wording), in place."""
+    from models.mesh.sandbox import wording
+
+    name = os.path.basename(os.fspath(path))
+    for issue in report.get("issues", []):
+        if issue["severity"] == "error" and name not in issue["message"]:
+            issue["message"] = wording(issue["message"], path)
     return report
 
 
