@@ -586,3 +586,16 @@ def test_an_exodus_file_declaring_qa_records_it_lacks_is_read(tmp_path):
     mesh = read_mesh(_classic_exodus(src, tmp_path / "qa.e", extra_dims=[("num_qa_rec", 1)]))
     assert mesh.n_cells == len(h)
     assert float(mesh.meta["measures"].sum()) == pytest.approx(float(whole.meta["measures"].sum()), rel=1e-12)
+
+
+def test_a_binary_ucd_file_is_named_so_in_every_refusal(tmp_path):
+    """.inp is Abaqus's and AVS's extension; a file starting with AVS's binary magic byte is named
+    'binary AVS UCD' (it was 'Abaqus or AVS UCD'; mutation sweep Z)."""
+    from models.mesh.formats import format_name
+
+    p, blocks = fw.blocks()
+    path = fw.write_avs_binary(tmp_path / "m.inp", p, blocks)
+    assert format_name(path) == "binary AVS UCD"
+    text = tmp_path / "t.inp"
+    text.write_text("*NODE\n1, 0, 0, 0\n")
+    assert format_name(text) == "Abaqus or AVS UCD"

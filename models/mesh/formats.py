@@ -148,6 +148,8 @@ def format_name(path: str | os.PathLike, file_format: str | None = None) -> str:
     ext = extension(path)
     if ext == ".msh" and _first_byte(path) == b"(":  # .msh is gmsh's and Fluent's extension
         return "Fluent case"
+    if ext in (".inp", ".ucd", ".avs") and _first_byte(path) == b"\x07":  # AVS's binary magic byte
+        return "binary AVS UCD"
     return FORMATS.get(ext) or COMPOUND.get(ext) or "mesh"
 
 
