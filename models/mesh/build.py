@@ -33,10 +33,6 @@ MIRROR = {
 _HUGE = 1e150  # coordinates beyond this overflow in the measures (squares of differences)
 
 
-def _at(p: np.ndarray) -> str:
-    return "(" + ", ".join(f"{float(v):.6g}" for v in p) + ")"
-
-
 def mesh_from_cells(
     points: np.ndarray,
     offsets: np.ndarray,
@@ -76,12 +72,15 @@ def mesh_from_cells(
             f"infinite coordinates (first: point {int(np.flatnonzero(bad)[0])})"
         )
     huge = float(max(np.abs(bounds[0]).max(), np.abs(bounds[1]).max()))
+
     if huge > _HUGE:  # squares overflow: no measure could be computed (numpy warned, every cell
         # came out degenerate)
+        from models.mesh.degenerate import point_text
+
         bad = np.flatnonzero((np.abs(points) > _HUGE).any(axis=1))
         raise MeshError(
             f"the mesh has {'a point' if bad.size == 1 else f'{bad.size:,} points'} with a coordinate "
-            f"beyond 1e150 (first: point {int(bad[0])} at {_at(points[bad[0]])}): too large to compute "
+            f"beyond 1e150 (first: point {int(bad[0])} at {point_text(points[bad[0]])}): too large to compute "
             "with; a corrupted coordinate? fix it and retry"
         )
     if tags is not None and len(tags) != len(cell_types):
@@ -627,51 +626,19 @@ def refuse_degenerate(mesh: Mesh, vol: np.ndarray, bounds=None, degenerate=None)
     if degenerate.any():
         ids = np.flatnonzero(degenerate)
         kind = "area" if mesh.dim == 2 else "volume"
-        far = _far_point(mesh) if ids.size * 2 > degenerate.size else None
+        from models.mesh.degenerate import corners, far_point
+
+        far = far_point(mesh) if ids.size * 2 > degenerate.size else None
         if far is not None:  # one point far from the rest made every cell look flat beside the box
             raise MeshError(far)
         hint = {  # --weld only helps where a cell's corners are distinct points at one place
             "coincident": "remove them (or merge their coincident points with --weld) and retry",
             "repeated": "a node is repeated in them: remove them and retry",
             "distinct": "their corners are distinct but collinear, coplanar or crossing: remove or fix them and retry",
-        }[_corners(mesh, ids[:200])]
+        }[corners(mesh, ids[:200])]
         raise MeshError(
             f"the mesh has {ids.size} degenerate (zero-{kind}) cells, e.g. cell ids {ids[:5].tolist()}; {hint}"
         )
-
-
-def _far_point(mesh: Mesh) -> str | None:
-    """A sentence naming the point(s) lying a million times farther from the points' median than
-    99% of the points do (a corrupted coordinate: the bounding box it makes turns every cell
-    degenerate beside it), or None. On a refusal's path."""
-    used = np.unique(mesh.connectivity)
-    if used.size < 8:
-        return None
-    p = mesh.points[used]
-    dev = np.abs(p - np.median(p, axis=0)).max(axis=1)
-    scale = float(np.percentile(dev, 99))
-    far = used[dev > 1e6 * max(scale, 1e-300)]
-    if far.size == 0 or far.size * 100 > used.size:
-        return None
-    return (
-        f"{'a point lies' if far.size == 1 else f'{far.size:,} points lie'} far from all the others "
-        f"(point {int(far[0])} at {_at(mesh.points3d()[far[0]] if mesh.dim == 2 else mesh.points[far[0]])}; "
-        f"99% of the points lie within {scale:.3g} of their median): a corrupted coordinate? fix it and retry"
-    )
-
-
-def _corners(mesh: Mesh, ids: np.ndarray) -> str:
-    """What these degenerate cells (a few, on a refusal's path) have: "coincident" (two node ids at
-    the same coordinates), "repeated" (a node id twice, or fewer nodes than a cell of the dimension
-    needs: collapsed on reading), else "distinct"."""
-    found = "distinct"
-    for c in ids.tolist():
-        nodes = mesh.connectivity[mesh.offsets[c] : mesh.offsets[c + 1]]
-        if np.unique(mesh.points[nodes], axis=0).shape[0] < np.unique(nodes).size:
-            return "coincident"
-        if np.unique(nodes).size < max(nodes.size, mesh.dim + 1):
-            found = "repeated"
-    return found
 
 
 def _bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
