@@ -42,6 +42,12 @@ def family_groups(path: str, conn: np.ndarray, n_cells: int):
     an HDF5 CGNS file of one unstructured zone whose sections are the cells VTK read, or no family).
     faces: (sizes, connectivity, VTK types, tags) of the linear sections one dimension below the
     cells (the boundary conditions' faces, which VTK's reader leaves out), or None."""
+    return _with_hdf5(path, lambda f: _groups(f, conn, n_cells))
+
+
+def _with_hdf5(path: str, look):
+    """look(the open h5py file) for an HDF5 file, None for any other, or where h5py is missing, or
+    where the file's layout is not what look expects."""
     try:
         import h5py
     except ImportError:
@@ -51,7 +57,7 @@ def family_groups(path: str, conn: np.ndarray, n_cells: int):
             if fh.read(8) != b"\x89HDF\r\n\x1a\n":
                 return None
         with h5py.File(path, "r") as f:
-            return _groups(f, conn, n_cells)
+            return look(f)
     except (OSError, KeyError, ValueError, TypeError, IndexError):
         return None
 
@@ -167,22 +173,15 @@ def cgns_fault(path: str) -> str | None:
     whose connectivity is shorter than its range's elements need. None where nothing is found (ADF
     files, structured zones and MIXED/NGON sections are not looked into). Run where the file is read
     (the sandbox's child): h5py parses the untrusted file."""
-    try:
-        import h5py
-    except ImportError:
-        return None
-    try:
-        with open(path, "rb") as fh:
-            if fh.read(8) != b"\x89HDF\r\n\x1a\n":
-                return None
-        with h5py.File(path, "r") as f:
-            for base in _children(f, b"CGNSBase_t"):
-                for zone in _children(base, b"Zone_t"):
-                    said = _zone_fault(zone)
-                    if said:
-                        return f"zone {zone.name.rsplit('/', 1)[-1][:40]!r}: {said}"
-    except (OSError, KeyError, ValueError, TypeError, IndexError):
-        return None
+    return _with_hdf5(path, _fault)
+
+
+def _fault(f) -> str | None:
+    for base in _children(f, b"CGNSBase_t"):
+        for zone in _children(base, b"Zone_t"):
+            said = _zone_fault(zone)
+            if said:
+                return f"zone {zone.name.rsplit('/', 1)[-1][:40]!r}: {said}"
     return None
 
 
