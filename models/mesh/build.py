@@ -72,7 +72,6 @@ def mesh_from_cells(
             f"infinite coordinates (first: point {int(np.flatnonzero(bad)[0])})"
         )
     huge = float(max(np.abs(bounds[0]).max(), np.abs(bounds[1]).max()))
-
     if huge > _HUGE:  # squares overflow: no measure could be computed (numpy warned, every cell
         # came out degenerate)
         from models.mesh.degenerate import point_text

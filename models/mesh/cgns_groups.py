@@ -13,12 +13,19 @@ from __future__ import annotations
 
 import numpy as np
 
-# CGNS ElementType_t codes of linear cells -> (dimension, nodes)
-_LINEAR = {5: (2, 3), 7: (2, 4), 10: (3, 4), 12: (3, 5), 14: (3, 6), 17: (3, 8)}
-# the faces of the zone's cells (boundary conditions' sections) -> (dimension, nodes, VTK type)
-_LINEAR_LOWER = {3: (1, 2, 3), 5: (2, 3, 5), 7: (2, 4, 9)}
-# every other code's dimension, to know which sections hold the zone's cells
-_DIM = {2: 0, 3: 1, 4: 1, 6: 2, 8: 2, 9: 2, 11: 3, 13: 3, 15: 3, 16: 3, 18: 3, 19: 3, 21: 3, 24: 1}
+# CGNS ElementType_t codes of fixed-size elements -> (dimension, nodes, VTK type of the linear ones)
+_TYPES = {
+    2: (0, 1, None), 3: (1, 2, 3), 4: (1, 3, None), 24: (1, 4, None),
+    5: (2, 3, 5), 6: (2, 6, None), 7: (2, 4, 9), 8: (2, 8, None), 9: (2, 9, None),
+    10: (3, 4, 10), 11: (3, 10, None), 12: (3, 5, 14), 13: (3, 14, None), 21: (3, 13, None),
+    14: (3, 6, 13), 15: (3, 15, None), 16: (3, 18, None), 17: (3, 8, 12), 18: (3, 20, None), 19: (3, 27, None),
+}  # fmt: skip
+
+
+def _linear(code: int, dim: int | None = None) -> bool:
+    """A linear element (one VTK type), of the given dimension or of a cell's (2 or 3)."""
+    t = _TYPES.get(code)
+    return t is not None and t[2] is not None and (t[0] == dim if dim is not None else t[0] >= 2)
 
 
 def _label(node) -> bytes:
@@ -85,14 +92,12 @@ def _groups(f, conn: np.ndarray, n_cells: int):
         sections.append((lo, hi, code, sec, _text(fam[0]) if fam else None))
     if not sections:
         return None
-    dims = [(_LINEAR.get(c, (None,))[0] if c in _LINEAR else _DIM.get(c)) for _, _, c, _, _ in sections]
+    dims = [_TYPES[c][0] if c in _TYPES else None for _, _, c, _, _ in sections]
     if any(d is None for d in dims):
         return None  # (MIXED, NGON: not followed here)
     top = max(dims)
     cells = sorted((s for s, d in zip(sections, dims, strict=True) if d == top), key=lambda s: s[0])
-    if sum(hi - lo + 1 for lo, hi, *_ in cells) != n_cells or any(
-        c not in _LINEAR for _, _, c, _, _ in cells
-    ):
+    if sum(hi - lo + 1 for lo, hi, *_ in cells) != n_cells or any(not _linear(c) for _, _, c, _, _ in cells):
         return None
     expected = np.concatenate(
         [
@@ -103,7 +108,7 @@ def _groups(f, conn: np.ndarray, n_cells: int):
     if expected.size != conn.size or not np.array_equal(expected, np.asarray(conn, dtype=np.int64)):
         return None  # (not the cells VTK read, in its order)
     bnd = sorted(
-        (s for s, d in zip(sections, dims, strict=True) if d == top - 1 and s[2] in _LINEAR_LOWER),
+        (s for s, d in zip(sections, dims, strict=True) if d == top - 1 and _linear(s[2], top - 1)),
         key=lambda s: s[0],
     )
     both = cells + bnd  # the zone's cells, then its faces (boundary conditions' sections)
@@ -151,19 +156,12 @@ def _groups(f, conn: np.ndarray, n_cells: int):
                 for *_, sec, _ in bnd
             ]
         )
-        sizes = np.concatenate([np.full(hi - lo + 1, _LINEAR_LOWER[c][1]) for lo, hi, c, _, _ in bnd])
-        vtk_types = np.concatenate(
-            [np.full(hi - lo + 1, _LINEAR_LOWER[c][2], np.uint8) for lo, hi, c, _, _ in bnd]
-        )
+        sizes = np.concatenate([np.full(hi - lo + 1, _TYPES[c][1]) for lo, hi, c, _, _ in bnd])
+        vtk_types = np.concatenate([np.full(hi - lo + 1, _TYPES[c][2], np.uint8) for lo, hi, c, _, _ in bnd])
         if conn_b.size != sizes.sum() or conn_b.min(initial=0) < 0:
             return tags[:n_top], {k: v for k, v in field.items() if v[1] == top} or None, None
         lower = (sizes, conn_b, vtk_types, tags[n_top:])
     return tags[:n_top], field, lower
-
-
-# nodes per element of the fixed CGNS element types (ElementType_t codes)
-_NODES = {2: 1, 3: 2, 4: 3, 5: 3, 6: 6, 7: 4, 8: 8, 9: 9, 10: 4, 11: 10, 12: 5, 13: 14, 14: 6, 15: 15,
-          16: 18, 17: 8, 18: 20, 19: 27, 21: 13}  # fmt: skip
 
 
 def cgns_fault(path: str) -> str | None:
@@ -207,8 +205,8 @@ def _zone_fault(zone) -> str | None:
             return f"its element section {name!r} has no ElementConnectivity"
         code = int(np.asarray(sec[" data"][()]).reshape(-1)[0])
         lo, hi = (int(v) for v in np.asarray(sec["ElementRange"][" data"][()]).reshape(-1)[:2])
-        if code in _NODES:
-            need = (hi - lo + 1) * _NODES[code]
+        if code in _TYPES:
+            need = (hi - lo + 1) * _TYPES[code][1]
             held = int(np.prod(sec["ElementConnectivity"][" data"].shape))
             if held < need:
                 return (

@@ -181,42 +181,34 @@ def exodus_fault(path: str) -> str | None:
     except (OSError, struct.error, ValueError, IndexError, KeyError):
         return None
     dims = dict(head["dims"])
-    variables = {name: attrs for name, _, attrs, _, _, _ in head["vars"]}
-    where = {name: (begin, vsize, kind) for name, _, _, vsize, begin, kind in head["vars"]}
-    blocks = dims.get("num_el_blk")
-    if blocks is None:
-        return None
-    for i in range(1, blocks + 1):
-        if dims.get(f"num_el_in_blk{i}", 0) == 0:
-            continue  # (an empty block need not have a connectivity)
-        if f"facconn{i}" in variables:  # an NFACED block: its faces, not its nodes
-            continue
+    variables = {name: (attrs, begin, vsize, kind) for name, _, attrs, vsize, begin, kind in head["vars"]}
+    for i in range(1, dims.get("num_el_blk", 0) + 1):
+        n_el = dims.get(f"num_el_in_blk{i}", 0)
+        if n_el == 0 or f"facconn{i}" in variables:
+            continue  # (an empty block need not have a connectivity; an NFACED block lists faces)
         if f"connect{i}" not in variables:
-            return f"element block {i} ({dims[f'num_el_in_blk{i}']:,} elements) has no connectivity (no variable connect{i})"
-        kind = (variables[f"connect{i}"].get("elem_type") or "").strip()
-        nodes = _EXODUS_NODES.get(kind[:3].upper(), "unknown")
+            return f"element block {i} ({n_el:,} elements) has no connectivity (no variable connect{i})"
+        attrs, _, vsize, vkind = variables[f"connect{i}"]
+        elem = (attrs.get("elem_type") or "").strip()
+        nodes = _EXODUS_NODES.get(elem[:3].upper(), "unknown")
         if nodes == "unknown":
-            return f"element block {i} has element type {kind[:32]!r}, which is not an Exodus II element type"
+            return f"element block {i} has element type {elem[:32]!r}, which is not an Exodus II element type"
         per = dims.get(f"num_nod_per_el{i}")
-        if kind[:3].upper() == "NSI" and f"ebepecnt{i}" in where and per is not None:
-            total = _int_sum(path, *where[f"ebepecnt{i}"])  # nodes per element, summed
+        if elem[:3].upper() == "NSI" and f"ebepecnt{i}" in variables and per is not None:
+            total = _int_sum(path, *variables[f"ebepecnt{i}"][1:])  # nodes per element, summed
             if total is not None and total != per:
                 return (
                     f"element block {i} (NSIDED) gives its elements {total:,} nodes in all (ebepecnt{i}), "
                     f"but its connectivity holds {per:,}"
                 )
-        n_el = dims.get(f"num_el_in_blk{i}", 0)
-        begin_size_kind = where.get(f"connect{i}")
-        if nodes is not None and per and begin_size_kind and begin_size_kind[2] in _TYPE_SIZE:
-            held = begin_size_kind[1] // _TYPE_SIZE[begin_size_kind[2]]
-            if held < n_el * per:
-                return (
-                    f"element block {i}'s connectivity (connect{i}) holds {held:,} node ids, fewer than "
-                    f"its {n_el:,} elements of {per} nodes need ({n_el * per:,})"
-                )
+        if nodes is not None and per and vkind in _TYPE_SIZE and vsize // _TYPE_SIZE[vkind] < n_el * per:
+            return (
+                f"element block {i}'s connectivity (connect{i}) holds {vsize // _TYPE_SIZE[vkind]:,} node "
+                f"ids, fewer than its {n_el:,} elements of {per} nodes need ({n_el * per:,})"
+            )
         if nodes is not None and per is not None and per not in nodes:
             return (
-                f"element block {i} is of type {kind[:32]!r} with {per} nodes per element, which that type "
+                f"element block {i} is of type {elem[:32]!r} with {per} nodes per element, which that type "
                 f"does not have ({', '.join(map(str, sorted(nodes)))})"
             )
     return None

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from models.mesh.geometry import cell_index, next_in_cycle
+
 
 def agree_faces(
     cell_faces: np.ndarray, face_offsets: np.ndarray, face_nodes: np.ndarray
@@ -23,18 +25,16 @@ def agree_faces(
     polyhedron (with its first face on a tie). cell_faces: (Q + 1,) CSR of the faces per
     polyhedron; face_offsets: (F + 1,) CSR of the nodes per face. Returns the number of faces
     reversed (0: nothing changed) and the polyhedra that are not closed (an edge of their faces met
-    by one face only: a face missing from the file's lists), by their index among the polyhedra. A face whose constraints contradict each other (an edge met by
-    three faces of one cell) is left as it is; the checks after reading judge such a cell."""
+    by one face only: a face missing from the file's lists), by their index among the polyhedra. A
+    face whose constraints contradict each other (an edge met by three faces of one cell) is left as
+    it is; the checks after reading judge such a cell."""
     n_faces = face_offsets.size - 1
     if n_faces == 0:
         return 0, np.zeros(0, dtype=np.int64)
-    sizes = np.diff(face_offsets)
-    face_of = np.repeat(np.arange(n_faces), sizes)  # the face of each node position
-    nxt = np.arange(face_nodes.size) + 1
-    ends = face_offsets[1:] - 1
-    nxt[ends] = face_offsets[:-1]  # (cyclic within each face)
-    a, b = face_nodes, face_nodes[nxt]
-    cell = np.repeat(np.arange(cell_faces.size - 1), np.diff(cell_faces))[face_of]
+    face_of = cell_index(face_offsets)  # the face of each node position
+    owner = cell_index(cell_faces)  # the polyhedron of each face
+    a, b = face_nodes, face_nodes[next_in_cycle(face_offsets)]
+    cell = owner[face_of]
     lo, hi = np.minimum(a, b), np.maximum(a, b)
     order = np.lexsort((hi, lo, cell))
     lo, hi, cell = lo[order], hi[order], cell[order]
@@ -57,7 +57,6 @@ def agree_faces(
     graph = coo_matrix((np.ones(rows.size, dtype=np.int8), (rows, cols)), shape=(2 * n_faces, 2 * n_faces))
     _, label = connected_components(graph, directed=False)
     per_cell = np.diff(cell_faces)
-    owner = np.repeat(np.arange(per_cell.size), per_cell)
     first_face = np.minimum(cell_faces[:-1], n_faces - 1)  # (a cell of no faces: never an owner)
     ref = label[2 * first_face][owner]  # the class of each face's cell's first face
     agree, opposite = label[0::2] == ref, label[1::2] == ref
@@ -87,20 +86,15 @@ def without_repeats(
     n_faces = face_offsets.size - 1
     if n_faces == 0:
         return None
-    sizes = np.diff(face_offsets)
-    nxt = np.arange(face_nodes.size) + 1
-    nxt[face_offsets[1:] - 1] = face_offsets[:-1]
-    repeat = face_nodes == face_nodes[nxt]
+    repeat = face_nodes == face_nodes[next_in_cycle(face_offsets)]
     if not repeat.any():
         return None
-    face_of = np.repeat(np.arange(n_faces), sizes)
+    face_of = cell_index(face_offsets)
     keep = ~repeat
     left = np.bincount(face_of[keep], minlength=n_faces)
     whole = left >= 3  # (a face of fewer nodes has no area: it is left out)
     keep &= whole[face_of]
-    per_cell = np.diff(cell_faces)
-    owner = np.repeat(np.arange(per_cell.size), per_cell)
-    counts = np.bincount(owner[whole], minlength=per_cell.size)
+    counts = np.bincount(cell_index(cell_faces)[whole], minlength=cell_faces.size - 1)
     return (
         np.concatenate([[0], np.cumsum(counts)]).astype(cell_faces.dtype),
         np.concatenate([[0], np.cumsum(left[whole])]).astype(face_offsets.dtype),

@@ -184,17 +184,12 @@ def _gambit_without_doubled_ends(path: str):
     """gmsh writes a Gambit file with boundary conditions with one ENDOFSECTION too many (after the
     element groups), on which VTK's reader frees memory twice and dies: such a file is read from a
     copy without the extra line (in a temporary folder, under its own name); any other as it is."""
-    import mmap
     import shutil
     import tempfile
 
-    with open(path, "rb") as fh:
-        if os.fstat(fh.fileno()).st_size == 0:
-            yield path
-            return
-        with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as mm:
-            doubled = _DOUBLED_END.search(mm) is not None
-    if not doubled:
+    from models.mesh.meshio_files import found
+
+    if not found(path, _DOUBLED_END):
         yield path
         return
     folder = tempfile.mkdtemp(prefix="magnet-neu-")
@@ -220,7 +215,7 @@ def _gambit_node_order(pts, offsets, conn, types, meta: dict):
     Gambit's: decided per cell type by the base quadrilaterals (a bow-tie in VTK's order, the points
     1 and 3 on the same side of the diagonal 0-2, in most of them), said in meta["reordered_cells"].
     A file written in VTK's order (not Gambit's) is left as it is."""
-    done = []
+    done, count = [], 0
     for vtk_type, k, perm, name in _GAMBIT_ORDER:
         sel = np.flatnonzero((types == vtk_type) & (np.diff(offsets) == k))
         if sel.size == 0:
@@ -235,9 +230,10 @@ def _gambit_node_order(pts, offsets, conn, types, meta: dict):
         conn = np.array(conn, copy=True) if not done else conn
         conn[idx] = nodes[:, list(perm)]
         done.append(f"{sel.size:,} {name}")
+        count += int(sel.size)
     if done:
         meta["reordered_cells"] = {
-            "count": int(sum(int(d.split(" ", 1)[0].replace(",", "")) for d in done)),
+            "count": count,
             "message": f"{' and '.join(done)} read in Gambit's node order (VTK's reader keeps the file's "
             "order and draws them twisted)",
         }
