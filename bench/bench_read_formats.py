@@ -48,6 +48,7 @@ def vtk_side(path: str) -> float:
         ".vtu": vtk.vtkXMLUnstructuredGridReader,
         ".vts": vtk.vtkXMLStructuredGridReader,
         ".vti": vtk.vtkXMLImageDataReader,
+        ".vtr": vtk.vtkXMLRectilinearGridReader,
         ".exo": vtk.vtkExodusIIReader,
     }[ext]()
     r.SetFileName(path)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from meshes import hexes, mixed_3d, tets, wedges
+from meshes import hexes, mixed_2d, mixed_3d, quads, tets, triangles, wedges
 
 from models.errors import MeshError
 from models.mesh.read import mesh_from_arrays
@@ -34,6 +34,46 @@ def _meshes():
     yield "wedges", _perturbed(p, 4), [("wedge", w)]
     p, blocks = mixed_3d(4)
     yield "hexahedra, pyramids, tetrahedra", _perturbed(p, 5, 0.05), blocks
+    p, blocks = mixed_3d(24)  # 8,192 cells and more: the general layout in threads
+    mirrored = [(name, c[:, [0, 2, 1, 3]] if name == "tetra" else c) for name, c in blocks]
+    yield "hexahedra, pyramids, tetrahedra, 24^3, tetrahedra mirrored", _perturbed(p, 6, 0.05), mirrored
+    # planar meshes: measure_polygon and the edge check (cells_validate in 2D)
+    p, t = triangles(60)
+    yield "triangles", _perturbed_2d(p, 7), [("triangle", t)]
+    p, q = quads(50)
+    sel = np.random.default_rng(8).random(len(q)) < 0.3
+    q[sel] = q[sel][:, ::-1]
+    yield "quads, 30% mirrored", _perturbed_2d(p, 9), [("quad", q)]
+    p, blocks = mixed_2d(40)
+    yield "quads and triangles", _perturbed_2d(p, 10), blocks
+    yield "polygons of 8 to 22 nodes", *_strips(30)
+
+
+def _perturbed_2d(p, seed):
+    rng = np.random.default_rng(seed)
+    h = 1.0 / round(len(p) ** 0.5)
+    return p + rng.uniform(-0.15 * h, 0.15 * h, p.shape)
+
+
+def _strips(n: int):
+    """Polygons of 8, 12 and 22 nodes (rows of 3, 5 and 10 quads of an n x n grid merged), some
+    given clockwise: sums over more than 8 terms (numpy would sum those pairwise; both sides here
+    sum in cycle order)."""
+    p = _perturbed_2d(*quads(n)[:1], 11)
+    v = lambda a, b: a * (n + 1) + b  # noqa: E731
+    blocks, x = [], 0
+    for w in (3, 5, 10):  # strips of w quads along x, for every row y
+        rows = []
+        for y in range(n):
+            bottom = [v(x + i, y) for i in range(w + 1)]
+            top = [v(x + i, y + 1) for i in range(w, -1, -1)]
+            cell = bottom + top
+            rows.append(cell if y % 3 else cell[::-1])
+        blocks.append(("polygon", np.array(rows)))
+        x += w
+    rest = quads(n)[1]
+    rest = rest[rest[:, 0] // (n + 1) >= x]  # the columns of quads right of the strips
+    return p, blocks + [("quad", rest)]
 
 
 def _read(points, blocks):
@@ -221,3 +261,89 @@ def test_concurrent_validations_each_answer_their_own():
                 for x, y in zip(a[1:], b[1:], strict=True):
                     assert np.array_equal(x, y)
     assert [a[0] for a in alone] == [True, True, False, True]
+
+
+def _cells_validate(points, offsets, conn, types, threads, mode=0):
+    from models.mesh.geometry import _templates
+
+    fast = compiled("mesh._fastmesh")
+    n, d = len(types), points.shape[1]
+    vol, cen, flip = np.empty(n), np.empty((n, d)), np.empty(n, np.uint8)
+    ok = fast.cells_validate(
+        np.ascontiguousarray(points, dtype=np.float64),
+        np.ascontiguousarray(offsets, dtype=np.int64),
+        np.ascontiguousarray(conn, dtype=np.int64),
+        np.ascontiguousarray(types, dtype=np.uint8),
+        *_templates(),
+        vol,
+        cen,
+        flip,
+        np.array([len(points)], dtype=np.int64),
+        np.array([threads], dtype=np.int64),
+        np.array([mode], dtype=np.int64),
+    )
+    return ok, vol, cen, flip
+
+
+@pytest.mark.parametrize("kind", ["quads and triangles", "hexahedra and tetrahedra"])
+def test_cells_validate_in_threads_answers_as_one_thread(kind):
+    """cells_validate (polygons in 2D, mixed types in 3D) in 1, 2, 3 and 8 threads: the same
+    measures, flips and answer; True on a valid mesh, False with a cell repeated near the start, in
+    the middle or at the end (its edges or faces met twice the same way)."""
+    from models.mesh.container import VTK_HEXAHEDRON, VTK_QUAD, VTK_TETRA, VTK_TRIANGLE
+
+    if kind.startswith("quads"):
+        p, blocks = mixed_2d(90)
+        p = _perturbed_2d(p, 12)
+        types = {"quad": VTK_QUAD, "triangle": VTK_TRIANGLE}
+    else:
+        p, h = hexes(20)
+        kuhn = [[0, 1, 2, 6], [0, 2, 3, 6], [0, 3, 7, 6], [0, 7, 4, 6], [0, 4, 5, 6], [0, 5, 1, 6]]
+        right = p[h].mean(axis=1)[:, 0] > 0.5
+        blocks = [("hexahedron", h[~right]), ("tetra", np.concatenate([h[right][:, k] for k in kuhn]))]
+        p = _perturbed(p, 13, 0.05)
+        types = {"hexahedron": VTK_HEXAHEDRON, "tetra": VTK_TETRA}
+    cells = [row for name, c in blocks for row in c.tolist()]
+    kinds = [types[name] for name, c in blocks for _ in range(len(c))]
+    assert len(cells) >= 8192
+
+    def run(rows, t, threads, mode=0):
+        offsets = np.concatenate([[0], np.cumsum([len(r) for r in rows])])
+        return _cells_validate(p, offsets, np.concatenate(rows), np.array(t), threads, mode)
+
+    answers = []
+    for i in (None, 0, len(cells) // 2, len(cells) - 1):
+        rows = cells if i is None else cells + [cells[i]]
+        t = kinds if i is None else kinds + [kinds[i]]
+        one = run(rows, t, 1)
+        for threads in (2, 3, 8):
+            other = run(rows, t, threads)
+            assert one[0] == other[0]
+            for a, b in zip(one[1:], other[1:], strict=True):
+                assert np.array_equal(a, b)
+        answers.append(one[0])
+        measured = run(rows, t, 2, mode=1)  # measures only: the same numbers, no answer
+        assert measured[0] == 0
+        for a, b in zip(one[1:], measured[1:], strict=True):
+            assert np.array_equal(a, b)
+    assert answers == [1, 0, 0, 0]
+
+
+def test_cells_validate_declines_what_it_does_not_take():
+    """-1 (the caller takes the full path, nothing written): a 3D cell type without a template (a
+    polygon among hexahedra), a cell whose node count is not its type's, offsets beyond the
+    connectivity. (Point ids are trusted: mesh_from_cells checked them.)"""
+    from models.mesh.container import VTK_HEXAHEDRON, VTK_POLYGON
+
+    p, h = hexes(2)
+    conn = h.reshape(-1)
+    offsets = np.arange(0, conn.size + 1, 8)
+    types = np.full(len(h), VTK_HEXAHEDRON)
+    assert _cells_validate(p, offsets, conn, types, 1)[0] == 1
+    other = types.copy()
+    other[3] = VTK_POLYGON
+    assert _cells_validate(p, offsets, conn, other, 1)[0] == -1
+    short = offsets.copy()
+    short[2:] -= 1  # cell 1 of 7 nodes
+    assert _cells_validate(p, short, conn[:-1], types, 1)[0] == -1
+    assert _cells_validate(p, offsets, conn[:-1], types, 1)[0] == -1

@@ -528,6 +528,14 @@ typedef struct {
     uint32_t *mins;
     uint64_t *keys;
     int bad, collapsed;
+    /* cells_validate's general layout (coff NULL: one fixed type, cell i at conn + i * k, its faces
+     * at i * nf): cell i's nodes conn[coff[i]..coff[i + 1]), its faces' keys from foff[i]; 3D: its
+     * VTK type types[i], whose row of ttab is (k, nf, template start, sizes start); 2D (dim2):
+     * polygons of (P, 2) points, their faces their edges (foff = coff) */
+    const int64_t *coff, *foff, *ttab;
+    const uint8_t *types;
+    int dim2;
+    int measure_only; /* measures and flips only: no keys, no face check (the answer is 0) */
 } Job;
 
 static void *validate_range(void *arg) {
@@ -548,6 +556,7 @@ static void *validate_range(void *arg) {
             measure_cell(J->P, c, k, tmpl, tsize, nf, J->vol + i, J->cen + 3 * i);
         int fl = J->vol[i] < 0.0;
         J->flip[i] = (uint8_t)fl;
+        if (J->measure_only) continue;
         int bad;
         if (hex) /* the constants let the compiler unroll */
             bad = cell_face_keys(c, tmpl, tsize, 6, 4, fl, J->npts, J->mins + i * 6, J->keys + i * 6);
@@ -563,6 +572,84 @@ static void *validate_range(void *arg) {
         }
     }
     return NULL;
+}
+
+/* A polygon's signed area and centroid (cells_validate in 2D), geometry._polygon_measures' float
+ * operations in its order: a triangle in closed form (u = p1 - p0, v = p2 - p0, area
+ * (u0 v1 - u1 v0) / 2, centroid ((p0 + p1) + p2) / 3); any other polygon relative to its first
+ * node o: the cross products of consecutive nodes, and the centroid's terms, summed in cycle order
+ * from the first (numpy's cumsum), the centroid divided by 6 * area, plus o. */
+static inline void measure_polygon(const double *P, const int64_t *c, int64_t s, double *area, double *cen) {
+    if (s == 3) {
+        const double *p0 = P + 2 * c[0], *p1 = P + 2 * c[1], *p2 = P + 2 * c[2];
+        double u0 = p1[0] - p0[0], u1 = p1[1] - p0[1], v0 = p2[0] - p0[0], v1 = p2[1] - p0[1];
+        *area = 0.5 * (u0 * v1 - u1 * v0);
+        cen[0] = ((p0[0] + p1[0]) + p2[0]) / 3.0;
+        cen[1] = ((p0[1] + p1[1]) + p2[1]) / 3.0;
+        return;
+    }
+    const double ox = P[2 * c[0]], oy = P[2 * c[0] + 1];
+    double a = 0.0, cx = 0.0, cy = 0.0;
+    for (int64_t j = 0; j < s; j++) {
+        const double *pa = P + 2 * c[j], *pb = P + 2 * c[j + 1 == s ? 0 : j + 1];
+        double xa = pa[0] - ox, ya = pa[1] - oy, xb = pb[0] - ox, yb = pb[1] - oy;
+        double cr = xa * yb - xb * ya, tx = (xa + xb) * cr, ty = (ya + yb) * cr;
+        if (j == 0) {
+            a = cr, cx = tx, cy = ty;
+        } else {
+            a += cr, cx += tx, cy += ty;
+        }
+    }
+    a = 0.5 * a;
+    double d = 6.0 * a;
+    *area = a;
+    cen[0] = cx / d + ox;
+    cen[1] = cy / d + oy;
+}
+
+/* A polygon's directed edges as faces of two nodes: the smaller node (mins) and, packed, the other
+ * (bits 33..62), the direction (bit 3: 1 where the edge runs from the larger node to the smaller,
+ * the cell's flip applied) and the size 2. 0, 1 (a node out of range) or 2 (an edge from a node to
+ * itself: a repeated node), as cell_face_keys. */
+static inline int polygon_edge_keys(const int64_t *c, int64_t s, int fl, int64_t P, uint32_t *mins,
+                                    uint64_t *keys) {
+    int collapsed = 0;
+    for (int64_t j = 0; j < s; j++) {
+        int64_t a = c[j], b = c[j + 1 == s ? 0 : j + 1];
+        int64_t m = a < b ? a : b, o = a < b ? b : a;
+        if (m < 0 || o >= P) return 1;
+        collapsed |= a == b;
+        mins[j] = (uint32_t)m;
+        keys[j] = (uint64_t)o << 33 | (uint64_t)((a > b) ^ fl) << 3 | 2;
+    }
+    return collapsed ? 2 : 0;
+}
+
+/* validate_range for the general layout (Job.coff): each cell measured (3D: measure_cell from its
+ * type's template, as geometry._fixed_measures; 2D: measure_polygon), flipped by its sign, keyed. */
+static void validate_cells(Job *J) {
+    for (int64_t i = J->lo; i < J->hi; i++) {
+        const int64_t *c = J->conn + J->coff[i];
+        int bad, fl;
+        if (J->dim2) {
+            int64_t s = J->coff[i + 1] - J->coff[i];
+            measure_polygon(J->P, c, s, J->vol + i, J->cen + 2 * i);
+            fl = J->vol[i] < 0.0;
+            bad = J->measure_only ? 0 : polygon_edge_keys(c, s, fl, J->npts, J->mins + J->coff[i], J->keys + J->coff[i]);
+        } else {
+            const int64_t *e = J->ttab + 4 * J->types[i], *tm = J->tmpl + e[2], *ts = J->tsize + e[3];
+            measure_cell(J->P, c, e[0], tm, ts, e[1], J->vol + i, J->cen + 3 * i);
+            fl = J->vol[i] < 0.0;
+            bad = J->measure_only ? 0 : cell_face_keys(c, tm, ts, e[1], 0, fl, J->npts, J->mins + J->foff[i], J->keys + J->foff[i]);
+        }
+        J->flip[i] = (uint8_t)fl;
+        if (bad == 2)
+            J->collapsed = 1;
+        else if (bad) {
+            J->bad = 1;
+            return;
+        }
+    }
 }
 
 enum { ST_MEASURE, ST_COUNT, ST_PREFIX, ST_SCATTER, ST_COMPARE, ST_N };
@@ -589,7 +676,10 @@ static void stage_chunk(Stages *S, int st, long c, uint32_t **head) {
         j.lo = (int64_t)c * MEASURE_CHUNK;
         j.hi = j.lo + MEASURE_CHUNK < S->C ? j.lo + MEASURE_CHUNK : S->C;
         j.bad = j.collapsed = 0;
-        validate_range(&j);
+        if (j.coff)
+            validate_cells(&j);
+        else
+            validate_range(&j);
         if (j.bad) atomic_store(&S->bad, 1);
         if (j.collapsed) atomic_store(&S->collapsed, 1);
     } else if (st == ST_COUNT) {
@@ -643,36 +733,23 @@ static void *stage_helper(void *arg) {
     return NULL;
 }
 
-static PyObject *py_fixed_validate(PyObject *self, PyObject *args) {
-    static const char *const names[] = {"points", "conn", "tmpl", "tsize", "vol",
-                                        "cen",    "flip", "npts", "nthreads"};
-    static const Py_ssize_t sizes[] = {8, 8, 8, 8, 8, 8, 1, 8, 8};
-    static const int wr[] = {0, 0, 0, 0, 1, 1, 1, 0, 0};
-    Py_buffer b[9];
-    if (parse_bufs(args, 9, "fixed_validate", names, sizes, wr, b) < 0) return NULL;
-    const double *P = b[0].buf;
-    const int64_t *conn = b[1].buf, *tmpl = b[2].buf, *tsize = b[3].buf, *npts = b[7].buf, *nth = b[8].buf;
-    double *vol = b[4].buf, *cen = b[5].buf;
-    uint8_t *flip = b[6].buf;
-    int64_t C = N8(b[4]), nf = N8(b[3]), nt = N8(b[2]), k = C ? N8(b[1]) / C : 0, sum = 0;
-    for (int64_t f = 0; f < nf; f++) sum += tsize[f];
-    int tet = 1;
-    if (nf == 4 && nt == 12)
-        for (int64_t f = 0; f < 4; f++) tet &= tsize[f] == 3;
-    if (N8(b[7]) != 1 || N8(b[8]) != 1 || npts[0] < 0 || npts[0] >= ((int64_t)1 << 60) || C * 3 != N8(b[5]) || (int64_t)b[6].len != C ||
-        (C && k * C != N8(b[1])) || k > 64 || nf > 64 || sum != nt || (k == 4 && nf == 4 && !tet)) {
-        release_arr(b, 9);
-        PyErr_SetString(PyExc_ValueError, "fixed_validate: inconsistent array sizes");
-        return NULL;
-    }
-    int64_t Pn = npts[0], F = C * nf, T = nth[0] < 1 ? 1 : nth[0] > 64 ? 64 : nth[0];
+/* The staged validation of job j's C cells and F faces over Pn points in up to nthreads threads
+ * (j's mins and keys are set here, in the scratch): 1 consistent, 0 not (a key met twice, a
+ * collapsed face, or a mesh too large for the packed keys), -1 a point id out of range, -2 out of
+ * memory. Called with the GIL held; releases it while the work runs. */
+static int validate_job(Job j, int64_t C, int64_t F, int64_t Pn, int64_t nthreads) {
+    int64_t T = nthreads < 1 ? 1 : nthreads > 64 ? 64 : nthreads;
     if (T > 1 && C / T < 4096) T = C / 4096 > 1 ? C / 4096 : 1; /* threads only for large arrays */
     int faces = Pn < KEY_ID_LIMIT && F < (int64_t)NONE32; /* else the packed keys cannot hold them */
+    if (j.measure_only) faces = 0, F = 0, Pn = 0;
     Stages *S = calloc(1, sizeof(Stages));
     Scratch s = face_scratch(F, Pn, T);
     int ok = 0, err = !s.block || !S;
     if (!err) {
-        Job j = {P, conn, tmpl, tsize, k, nf, 0, 0, Pn, vol, cen, flip, s.mins, s.keys, 0, 0};
+        j.mins = s.mins;
+        j.keys = s.keys;
+        j.lo = j.hi = 0;
+        j.bad = j.collapsed = 0;
         S->job = j;
         S->s = s;
         S->C = C, S->F = F, S->Pn = Pn, S->R = T;
@@ -706,141 +783,128 @@ static PyObject *py_fixed_validate(PyObject *self, PyObject *args) {
     Py_END_ALLOW_THREADS
     if (S) stages_drop(S);
     scratch_give(s.block);
+    return err == 1 ? -2 : err ? -1 : ok;
+}
+
+static PyObject *validate_answer(int r, const char *fname) {
+    if (r == -2) return PyErr_NoMemory();
+    if (r == -1) {
+        PyErr_Format(PyExc_ValueError, "%s: a point id is out of range", fname);
+        return NULL;
+    }
+    return PyLong_FromLong(r);
+}
+
+static PyObject *py_fixed_validate(PyObject *self, PyObject *args) {
+    static const char *const names[] = {"points", "conn", "tmpl", "tsize", "vol",
+                                        "cen",    "flip", "npts", "nthreads"};
+    static const Py_ssize_t sizes[] = {8, 8, 8, 8, 8, 8, 1, 8, 8};
+    static const int wr[] = {0, 0, 0, 0, 1, 1, 1, 0, 0};
+    Py_buffer b[9];
+    if (parse_bufs(args, 9, "fixed_validate", names, sizes, wr, b) < 0) return NULL;
+    const double *P = b[0].buf;
+    const int64_t *conn = b[1].buf, *tmpl = b[2].buf, *tsize = b[3].buf, *npts = b[7].buf, *nth = b[8].buf;
+    double *vol = b[4].buf, *cen = b[5].buf;
+    uint8_t *flip = b[6].buf;
+    int64_t C = N8(b[4]), nf = N8(b[3]), nt = N8(b[2]), k = C ? N8(b[1]) / C : 0, sum = 0;
+    for (int64_t f = 0; f < nf; f++) sum += tsize[f];
+    int tet = 1;
+    if (nf == 4 && nt == 12)
+        for (int64_t f = 0; f < 4; f++) tet &= tsize[f] == 3;
+    if (N8(b[7]) != 1 || N8(b[8]) != 1 || npts[0] < 0 || npts[0] >= ((int64_t)1 << 60) || C * 3 != N8(b[5]) || (int64_t)b[6].len != C ||
+        (C && k * C != N8(b[1])) || k > 64 || nf > 64 || sum != nt || (k == 4 && nf == 4 && !tet)) {
+        release_arr(b, 9);
+        PyErr_SetString(PyExc_ValueError, "fixed_validate: inconsistent array sizes");
+        return NULL;
+    }
+    Job j = {P, conn, tmpl, tsize, k, nf, 0, 0, npts[0], vol, cen, flip, NULL, NULL, 0, 0, NULL, NULL, NULL, NULL, 0, 0};
+    int r = validate_job(j, C, C * nf, npts[0], nth[0]);
     release_arr(b, 9);
-    if (err == 1) return PyErr_NoMemory();
-    if (err) {
-        PyErr_SetString(PyExc_ValueError, "fixed_validate: a point id is out of range");
-        return NULL;
-    }
-    return PyBool_FromLong(ok);
+    if (r < 0) return validate_answer(r, "fixed_validate");
+    return PyBool_FromLong(r);
 }
 
-
-/* ascii_values(data, pos, out, kind) -> int
- *   The next len(out) whitespace-separated numbers of legacy VTK ASCII text from data[pos:]
- *   (models/mesh/legacy.py): kind 0 integers into int64, 1 decimals into float64, 2 decimals into
- *   float32, each correctly rounded (the value strtod / strtof give, as VTK's reader reads them:
- *   the exact fast path where the digits and the power of ten are exact doubles, strtod_l in the C
- *   locale otherwise). Returns the position after the last one, or -1 for anything else (a word
- *   that is not a plain number: letters, nan, inf, hex, a sign alone, over 18 integer digits, a
- *   word over 63 bytes; too few numbers): the caller then leaves the file to VTK's reader. */
-#include <locale.h>
-static locale_t c_locale;
-
-static inline int is_space(unsigned char ch) { return ch <= ' ' && (ch == ' ' || ch == '\n' || ch == '\r' || ch == '\t'); }
-
-static const double pow10_exact[23] = {1e0,  1e1,  1e2,  1e3,  1e4,  1e5,  1e6,  1e7,  1e8,  1e9,  1e10, 1e11,
-                                       1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20, 1e21, 1e22};
-
-/* One decimal word w[0..n): 0 and the value in *out, or -1 where it is not [+-]digits[.digits][(e|E)[+-]digits]
- * (at least one digit before or after the point). */
-static int parse_decimal(const unsigned char *w, int64_t n, int kind, double *dv, float *fv) {
-    int64_t i = 0;
-    int neg = 0;
-    if (i < n && (w[i] == '+' || w[i] == '-')) neg = w[i++] == '-';
-    uint64_t m = 0;
-    int digits = 0, sig = 0, frac = 0, any = 0, exact = 1;
-    for (; i < n && w[i] >= '0' && w[i] <= '9'; i++, any++) {
-        if (m == 0 && w[i] == '0') continue; /* leading zeros: not significant */
-        if (sig < 19) m = m * 10 + (w[i] - '0'), sig++;
-        else exact = 0, digits++; /* dropped digit: strtod decides */
+/* cells_validate(points, offsets, conn, types, ttab, tmpl, tsize, vol, cen, flip, npts, nthreads, mode) -> int
+ *   fixed_validate for cells of any layout: C cells in CSR (offsets (C + 1,), conn) of the VTK
+ *   types `types` (uint8; 3D: each a type with a row (k, nf, start in tmpl, start in tsize) in
+ *   ttab (256 * 4), k 0 for a type without a template), or in 2D (cen (C * 2): polygons of any
+ *   size, points (npts * 2)) node cycles whose faces are their edges. 1: consistent (flipping every
+ *   cell by its own sign orients all of them); 0: not (the caller takes the full path); -1: a
+ *   layout taken elsewhere (a cell without nodes, a type without a template or of another node
+ *   count, offsets that do not fit conn): nothing was written. Cells of one type in rows of k
+ *   (offsets k * i) take fixed_validate's path (tetrahedra in closed form, hexahedra four at a
+ *   time); others measure_cell's or measure_polygon's. mode (1,): 0 all that, 1 the measures and flips
+ *   only (no face check; 0 returned): geometry._fixed_measures in threads. */
+static PyObject *py_cells_validate(PyObject *self, PyObject *args) {
+    static const char *const names[] = {"points", "offsets", "conn", "types", "ttab",     "tmpl", "tsize",
+                                        "vol",    "cen",     "flip", "npts",  "nthreads", "mode"};
+    static const Py_ssize_t sizes[] = {8, 8, 8, 1, 8, 8, 8, 8, 8, 1, 8, 8, 8};
+    static const int wr[] = {0, 0, 0, 0, 0, 0, 0, 1, 1, 1, 0, 0, 0};
+    Py_buffer b[13];
+    if (parse_bufs(args, 13, "cells_validate", names, sizes, wr, b) < 0) return NULL;
+    const double *P = b[0].buf;
+    const int64_t *off = b[1].buf, *conn = b[2].buf, *ttab = b[4].buf, *tmpl = b[5].buf, *tsize = b[6].buf;
+    const int64_t *npts = b[10].buf, *nth = b[11].buf, *mode = b[12].buf;
+    const uint8_t *types = b[3].buf;
+    double *vol = b[7].buf, *cen = b[8].buf;
+    uint8_t *flip = b[9].buf;
+    int64_t C = N8(b[7]), nconn = N8(b[2]), ntm = N8(b[5]), nts = N8(b[6]);
+    int dim2 = C > 0 && N8(b[8]) == 2 * C;
+    if (N8(b[10]) != 1 || N8(b[11]) != 1 || npts[0] < 0 || npts[0] >= ((int64_t)1 << 60) || N8(b[1]) != C + 1 ||
+        (int64_t)b[3].len != C || (int64_t)b[9].len != C || N8(b[4]) != 4 * 256 || N8(b[12]) != 1 || N8(b[8]) != (dim2 ? 2 : 3) * C ||
+        N8(b[0]) != (dim2 ? 2 : 3) * npts[0]) {
+        release_arr(b, 13);
+        PyErr_SetString(PyExc_ValueError, "cells_validate: inconsistent array sizes");
+        return NULL;
     }
-    if (i < n && w[i] == '.') {
-        i++;
-        for (; i < n && w[i] >= '0' && w[i] <= '9'; i++, any++) {
-            if (m == 0 && w[i] == '0') {
-                frac++;
-                continue;
-            }
-            if (sig < 19) m = m * 10 + (w[i] - '0'), sig++, frac++;
-            else exact = 0;
+    for (int t = 0; t < 256 && !dim2; t++) { /* every template row within tmpl and tsize */
+        const int64_t *e = ttab + 4 * t;
+        int64_t sum = 0;
+        if (e[0] == 0) continue;
+        int fits = e[0] > 0 && e[0] <= 64 && e[1] > 0 && e[1] <= 64 && e[2] >= 0 && e[3] >= 0 && e[3] + e[1] <= nts;
+        for (int64_t f = 0; fits && f < e[1]; f++) sum += tsize[e[3] + f] > 0 ? tsize[e[3] + f] : 1 << 20;
+        if (!fits || e[2] + sum > ntm) {
+            release_arr(b, 13);
+            PyErr_SetString(PyExc_ValueError, "cells_validate: a template row does not fit its arrays");
+            return NULL;
         }
     }
-    if (!any) return -1;
-    int64_t e = 0;
-    if (i < n && (w[i] == 'e' || w[i] == 'E')) {
-        i++;
-        int eneg = 0;
-        if (i < n && (w[i] == '+' || w[i] == '-')) eneg = w[i++] == '-';
-        if (i >= n) return -1;
-        for (; i < n && w[i] >= '0' && w[i] <= '9'; i++)
-            if (e < 100000) e = e * 10 + (w[i] - '0');
-        if (eneg) e = -e;
-    }
-    if (i != n) return -1;
-    int64_t p = e - frac + digits; /* value = m * 10^p */
-    if (kind == 1 && exact && m <= ((uint64_t)1 << 53) && p >= -22 && p <= 22) {
-        double v = (double)m; /* exact; one correctly rounded operation on exact operands */
-        v = p < 0 ? v / pow10_exact[-p] : v * pow10_exact[p];
-        *dv = neg ? -v : v;
-        return 0;
-    }
-    if (kind == 2 && exact && m <= ((uint64_t)1 << 24) && p >= -10 && p <= 10) {
-        float v = (float)m, t = (float)pow10_exact[p < 0 ? -p : p]; /* 10^10 and below: exact floats */
-        v = p < 0 ? v / t : v * t;
-        *fv = neg ? -v : v;
-        return 0;
-    }
-    char buf[64];
-    memcpy(buf, w, (size_t)n);
-    buf[n] = 0;
-    char *end;
-    if (kind == 1)
-        *dv = strtod_l(buf, &end, c_locale);
-    else
-        *fv = strtof_l(buf, &end, c_locale);
-    return end == buf + n ? 0 : -1;
-}
-
-static PyObject *py_ascii_values(PyObject *self, PyObject *args) {
-    Py_buffer d, o;
-    Py_ssize_t pos;
-    int kind;
-    if (!PyArg_ParseTuple(args, "y*nw*i", &d, &pos, &o, &kind)) return NULL;
-    Py_ssize_t item = kind == 2 ? 4 : 8;
-    if (kind < 0 || kind > 2 || o.len % item || pos < 0 || pos > d.len) {
-        PyBuffer_Release(&d);
-        PyBuffer_Release(&o);
-        PyErr_SetString(PyExc_ValueError, "ascii_values: bad arguments");
-        return NULL;
-    }
-    if (kind && !c_locale) c_locale = newlocale(LC_ALL_MASK, "C", (locale_t)0);
-    const unsigned char *s = d.buf;
-    int64_t n = d.len, count = o.len / item, at = pos, got = 0;
-    int bad = kind && !c_locale;
+    int64_t *foff = dim2 ? NULL : malloc((size_t)(C + 1) * sizeof(int64_t));
+    int fits = dim2 || foff != NULL, uniform = C > 0 && !dim2;
+    int64_t k0 = C > 0 && !dim2 ? ttab[4 * types[0]] : 0;
     Py_BEGIN_ALLOW_THREADS
-    if (kind == 0) /* integers: one pass over each word */
-        for (; got < count; got++) {
-            while (at < n && is_space(s[at])) at++;
-            int64_t v = 0, neg = 0, w;
-            if (at < n && (s[at] == '-' || s[at] == '+')) neg = s[at++] == '-';
-            for (w = at; at < n; at++) {
-                unsigned d9 = (unsigned)s[at] - '0';
-                if (d9 > 9 || at - w >= 18) break; /* a 19th digit: declined below */
-                v = v * 10 + d9;
-            }
-            if (at == w || (at < n && !is_space(s[at]))) {
-                bad = 1;
-                break;
-            }
-            ((int64_t *)o.buf)[got] = neg ? -v : v;
+    fits = fits && C > 0 && off[0] == 0 && off[C] <= nconn;
+    if (foff) foff[0] = 0;
+    for (int64_t i = 0; i < C && fits; i++) { /* the layout, and the faces' offsets (3D) */
+        int64_t s = off[i + 1] - off[i];
+        if (dim2) {
+            fits = s >= 1;
+            continue;
         }
-    else
-        for (; got < count; got++) {
-            while (at < n && is_space(s[at])) at++;
-            int64_t w = at;
-            while (at < n && !is_space(s[at])) at++;
-            if (at == w || at - w > 63 ||
-                parse_decimal(s + w, at - w, kind, (double *)o.buf + got, (float *)o.buf + got) < 0) {
-                bad = 1;
-                break;
-            }
-        }
+        const int64_t *e = ttab + 4 * types[i];
+        fits = e[0] > 0 && s == e[0];
+        foff[i + 1] = foff[i] + e[1];
+        uniform = uniform && types[i] == types[0] && off[i] == i * k0;
+    }
     Py_END_ALLOW_THREADS
-    PyBuffer_Release(&d);
-    PyBuffer_Release(&o);
-    return PyLong_FromSsize_t(bad || got < count ? -1 : (Py_ssize_t)at);
+    int r = -3;
+    if (fits) {
+        const int64_t *e = dim2 ? NULL : ttab + 4 * types[0];
+        Job j = {P, conn, tmpl, tsize, 0, 0, 0, 0, npts[0], vol, cen, flip, NULL, NULL, 0, 0, off, foff, ttab, types, dim2, mode[0] == 1};
+        if (uniform) { /* one type in rows of k: fixed_validate's path */
+            j.tmpl = tmpl + e[2], j.tsize = tsize + e[3], j.k = e[0], j.nf = e[1];
+            j.coff = j.foff = NULL;
+        }
+        r = validate_job(j, C, dim2 ? off[C] : foff[C], npts[0], nth[0]);
+    }
+    free(foff);
+    release_arr(b, 13);
+    if (r == -3) return PyLong_FromLong(-1);
+    return validate_answer(r, "cells_validate");
 }
+
+
+PyObject *py_ascii_values(PyObject *self, PyObject *args); /* _fastascii.c */
 
 static PyMethodDef methods[] = {
     {"ascii_values", py_ascii_values, METH_VARARGS,
@@ -849,6 +913,9 @@ static PyMethodDef methods[] = {
     {"fixed_validate", py_fixed_validate, METH_VARARGS,
      "fixed_validate(points, conn, tmpl, tsize, vol, cen, flip, npts, nthreads) -> bool: measures, "
      "centroids, own-sign flips and the consistency check of cells of one type in one pass."},
+    {"cells_validate", py_cells_validate, METH_VARARGS,
+     "cells_validate(points, offsets, conn, types, ttab, tmpl, tsize, vol, cen, flip, npts, nthreads, mode) -> int: "
+     "fixed_validate for cells in CSR: mixed 3D types, or 2D polygons; -1 where it does not apply."},
     {"fixed_consistent", py_fixed_consistent, METH_VARARGS,
      "fixed_consistent(conn, tmpl, tsize, flip, npts) -> bool: consistent() for cells of one type."},
     {"fixed_measures", py_fixed_measures, METH_VARARGS,

@@ -350,13 +350,13 @@ def _orient_and_check(mesh: Mesh, bounds=None) -> None:
         _measures_and_centroids,
         _tetra_measures,
         cell_faces,
+        cells_validate,
         fixed_layout_compiled,
-        fixed_validate,
         tetra_face_areas,
     )
     from models.mesh.orientation import orientation_flips
 
-    fused = fixed_validate(mesh)  # one type of fixed node count: one compiled pass, no face array
+    fused = cells_validate(mesh)  # template cells or polygons: one compiled pass, no face array
     if fused is not None:
         vol, cen, own, consistent = fused
         mesh.meta["measures"] = np.abs(vol)

@@ -8,6 +8,7 @@ fan-triangulated faces, so any star-shaped cell is exact.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -66,70 +67,62 @@ def fixed_layout_compiled(mesh: Mesh):
     return None if fast is None else (fast, t)
 
 
-def fixed_validate(mesh: Mesh):
-    """The read stage's validation of a 3D mesh of one FACE_TEMPLATES type (tetrahedra included) in
-    one compiled pass per cell (models/mesh/_fastmesh.c fixed_validate, in threads where the mesh
-    is large): (signed volumes, centroids, own-sign flips (C,) bool, consistent), consistent True
-    when flipping every cell by its own sign orients all of them consistently (no face met twice
-    in the same direction). Bit for bit _measures_and_centroids' values. None where it does not
-    apply (other meshes, the module not built)."""
+@functools.cache
+def _templates() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every FACE_TEMPLATES type's fixed_template for cells_validate: (ttab (256 * 4): per VTK type
+    (nodes, faces, start in tmpl, start in tsize), zeros for the others; tmpl; tsize)."""
+    ttab = np.zeros((256, 4), dtype=np.int64)
+    tmpl, tsize = [], []
+    for t in FACE_TEMPLATES:
+        a, b = fixed_template(t)
+        ttab[t] = (NODES[t], b.size, sum(x.size for x in tmpl), sum(x.size for x in tsize))
+        tmpl.append(a)
+        tsize.append(b)
+    return ttab.reshape(-1), np.concatenate(tmpl), np.concatenate(tsize)
+
+
+def cells_validate(mesh: Mesh, measures_only: bool = False):
+    """The read stage's validation in one compiled pass per cell (models/mesh/_fastmesh.c
+    cells_validate, in threads where the mesh is large), for 3D cells of FACE_TEMPLATES types (mixed
+    or not) and 2D polygons: (signed measures, centroids, own-sign flips (C,) bool, consistent),
+    consistent True when flipping every cell by its own sign orients all of them consistently (no
+    face met twice in the same direction). Bit for bit _measures_and_centroids' values. None where it
+    does not apply (polyhedra, other types, the module not built). measures_only: no face check
+    (consistent is then False)."""
     from models.native import compiled, threads
 
-    if mesh.dim != 3:
+    n, d = mesh.n_cells, mesh.dim
+    if not n or mesh.poly_cells is not None or mesh.points.shape[1] != d:
         return None
-    t = _one_fixed_type(mesh)
-    fast = None if t is None else compiled("mesh._fastmesh")
+    fast = compiled("mesh._fastmesh")
     if fast is None:
         return None
-    n = mesh.n_cells
-    vol, cen, flip = np.empty(n), np.empty((n, 3)), np.empty(n, dtype=np.uint8)
-    ok = fast.fixed_validate(
+    vol, cen, flip = np.empty(n), np.empty((n, d)), np.empty(n, dtype=np.uint8)
+    ok = fast.cells_validate(
         np.ascontiguousarray(mesh.points, dtype=np.float64),
-        np.ascontiguousarray(mesh.connectivity, dtype=np.int64).reshape(-1),
-        *fixed_template(t),
+        np.ascontiguousarray(mesh.offsets, dtype=np.int64),
+        np.ascontiguousarray(mesh.connectivity, dtype=np.int64),
+        np.ascontiguousarray(mesh.cell_types, dtype=np.uint8),
+        *_templates(),
         vol,
         cen,
         flip,
         np.array([mesh.n_points], dtype=np.int64),
         np.array([threads()], dtype=np.int64),
+        np.array([1 if measures_only else 0], dtype=np.int64),
     )
-    return vol, cen, flip.view(bool), bool(ok)
+    return None if ok < 0 else (vol, cen, flip.view(bool), bool(ok))
 
 
 def _fixed_measures(mesh: Mesh) -> tuple[np.ndarray, np.ndarray] | None:
-    """_measures_and_centroids of a mesh of FACE_TEMPLATES cells (no polyhedra) by the compiled
-    models/mesh/_fastmesh.c, one call per cell type (the same values bit for bit: each cell's faces
-    and triangles in the order of cell_faces + face_triangles); None where it was not built."""
-    from models.native import compiled
-
-    fast = compiled("mesh._fastmesh")
-    if fast is None or mesh.dim != 3 or not mesh.n_cells:
+    """_measures_and_centroids of a 3D mesh of FACE_TEMPLATES cells (mixed or not, no polyhedra) by
+    the compiled models/mesh/_fastmesh.c (cells_validate's measures, in threads; the same values bit
+    for bit: each cell's faces and triangles in the order of cell_faces + face_triangles); None where
+    it does not apply or was not built."""
+    if mesh.dim != 3:
         return None
-    if mesh.poly_cells is not None or not np.isin(mesh.cell_types, list(FACE_TEMPLATES)).all():
-        return None
-    n = mesh.n_cells
-    pts = np.ascontiguousarray(mesh.points, dtype=np.float64)
-    one = _one_fixed_type(mesh)
-    vol, cen = np.empty(n), np.empty((n, 3))
-    for t in FACE_TEMPLATES:
-        k = NODES[t]
-        if one is not None:
-            if one != t:
-                continue
-            sel, conn = None, np.ascontiguousarray(mesh.connectivity, dtype=np.int64)
-        else:
-            sel = np.flatnonzero(mesh.cell_types == t)
-            if sel.size == 0:
-                continue
-            conn = mesh.connectivity[mesh.offsets[sel][:, None] + np.arange(k)[None, :]].astype(np.int64)
-        tmpl, tsize = fixed_template(t)
-        if sel is None:
-            fast.fixed_measures(pts, conn.reshape(-1), tmpl, tsize, vol, cen)
-            break
-        v, c = np.empty(sel.size), np.empty((sel.size, 3))
-        fast.fixed_measures(pts, conn.reshape(-1), tmpl, tsize, v, c)
-        vol[sel], cen[sel] = v, c
-    return vol, cen
+    got = cells_validate(mesh, measures_only=True)
+    return None if got is None else got[:2]
 
 
 @dataclass
@@ -317,7 +310,8 @@ def vertex_means(mesh: Mesh) -> np.ndarray:
 def _polygon_measures(
     points: np.ndarray, offsets: np.ndarray, conn: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Signed area and centroid of node cycles, one reshape per distinct cycle length."""
+    """Signed area and centroid of node cycles, one reshape per distinct cycle length (the compiled
+    twin: measure_polygon in models/mesh/_fastmesh.c, the same float operations in the same order)."""
     n = offsets.size - 1
     sizes = np.diff(offsets)
     area = np.empty(n)
@@ -341,11 +335,12 @@ def _polygon_measures(
         xa, ya = x[:, :, 0], x[:, :, 1]
         xb, yb = np.roll(xa, -1, axis=1), np.roll(ya, -1, axis=1)
         cross = xa * yb - xb * ya
-        a = 0.5 * cross.sum(axis=1)
+        # sums in cycle order from the first node (cumsum: a fixed order, the compiled twin's)
+        a = 0.5 * np.cumsum(cross, axis=1)[:, -1]
         with np.errstate(divide="ignore", invalid="ignore"):
-            c = np.column_stack([((xa + xb) * cross).sum(axis=1), ((ya + yb) * cross).sum(axis=1)]) / (
-                6 * a[:, None]
-            )
+            c = np.column_stack(
+                [np.cumsum((xa + xb) * cross, axis=1)[:, -1], np.cumsum((ya + yb) * cross, axis=1)[:, -1]]
+            ) / (6 * a[:, None])
         c += o[:, 0, :]
         if sel is None:
             return a, c
