@@ -39,14 +39,23 @@ def _float32_points(ug):
     return ug
 
 
+@pytest.mark.parametrize("metadata", [False, True], ids=["", "metadata"])
 @pytest.mark.parametrize("binary", [True, False], ids=["binary", "ascii"])
 @pytest.mark.parametrize("version", [42, 51])
 @pytest.mark.parametrize("case", list(_grids()), ids=lambda c: c[0])
-def test_numpy_path_equals_vtk_reader(tmp_path, case, version, binary):
+def test_numpy_path_equals_vtk_reader(tmp_path, case, version, binary, metadata):
     name, ug = case
     if name == "quads":  # float points too (the ASCII path parses them as floats)
         ug = _float32_points(ug)
+    if metadata:  # METADATA blocks after the arrays: the ranges an XML writer computed, names
+        ug, shared = vtk.vtkUnstructuredGrid(), ug
+        ug.DeepCopy(shared)
+        ug.GetPoints().GetData().SetComponentName(1, "y axis")
+        vc.write_xml(str(tmp_path / "ranges.vtu"), ug)
     path = vc.write_legacy(str(tmp_path / "m.vtk"), ug, version, binary)
+    if metadata:
+        with open(path, "rb") as fh:
+            assert b"METADATA" in fh.read()
     assert read_legacy_simple(path) is not None
     ours, ref = read_mesh(path), read_vtk(path, "legacy")
     assert ours.meta["reader"].startswith("numpy")

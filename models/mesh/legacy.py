@@ -45,19 +45,55 @@ class _Cursor:
             if end >= len(d):
                 raise _Decline
 
-    def array(self, dtype: str, count: int) -> np.ndarray:
+    def array(self, dtype: str, count: int, components: int = 1) -> np.ndarray:
         """`count` big-endian values here (then the line break VTK writes after them); in an ASCII
-        file, `count` numbers of that type (int64 or the file's float type)."""
+        file, `count` numbers of that type (int64 or the file's float type). Then past a METADATA
+        block (of an array of `components` components)."""
         if self.ascii is not None:
-            return self._text(dtype, count)
+            return self._text(dtype, count, components)
         n = np.dtype(dtype).itemsize * count
         if count < 0 or self.pos + n > len(self.data):
             raise _Decline
         out = np.frombuffer(self.data, dtype=dtype, count=count, offset=self.pos)
         self.pos += n
+        self.metadata(components)
         return out
 
-    def _text(self, dtype: str, count: int) -> np.ndarray:
+    def metadata(self, components: int) -> None:
+        """Past the METADATA block VTK's writers put after an array whose information holds keys
+        (the ranges an XML writer computed) or whose components are named, as vtkDataReader reads
+        it: COMPONENT_NAMES and one line per component (a line may be empty), INFORMATION and its
+        lines; a blank line ends the block. Nothing where the next line is not METADATA."""
+        at = self.pos
+        try:
+            if self.line() != [b"METADATA"]:
+                self.pos = at
+                return
+        except _Decline:
+            self.pos = at
+            return
+        while True:
+            line = self._raw_line().strip()
+            if not line:
+                return
+            if line == b"COMPONENT_NAMES":
+                for _ in range(components):
+                    self._raw_line()
+            elif line.split()[0] == b"INFORMATION":
+                while self._raw_line().strip():  # its keys, to the blank line that ends the block
+                    pass
+                return
+            else:
+                raise _Decline
+
+    def _raw_line(self) -> bytes:
+        end = self.data.find(b"\n", self.pos)
+        if end < 0:
+            raise _Decline
+        line, self.pos = self.data[self.pos : end], end + 1
+        return line
+
+    def _text(self, dtype: str, count: int, components: int) -> np.ndarray:
         kind = {">f4": 2, ">f8": 1}.get(dtype, 0)
         if count < 0 or count > len(self.data) // 2 + 1:  # a number and a separator at least
             raise _Decline
@@ -68,13 +104,14 @@ class _Cursor:
         if dtype == ">i4" and count and (out.min() < -(2**31) or out.max() >= 2**31):
             raise _Decline  # VTK's reader would not take it as an int
         self.pos = pos
+        self.metadata(components)
         return out
 
 
 def read_legacy_simple(path: str | os.PathLike):
     """A meshio-like object (points, cells [.type, .data], cell_data {}, field_data {}) for a legacy
     VTK file of the layout above, or None for any other file."""
-    raw = read_legacy_raw(path)
+    raw = read_legacy_raw(path, mapped=True)  # widen copies every array (models.mesh.mapped)
     if raw is None:
         return None
     points, cells, counted, t = raw
@@ -101,8 +138,9 @@ def read_legacy_raw(path: str | os.PathLike, mapped: bool = False):
     bytes: big-endian in a binary file), or None for any other file: (points (n, 3) float32 or
     float64, cells (C, k) of k node ids each, or (C, k + 1) rows of the count k and the ids when
     `counted` (file versions up to 4.2), counted, the cells' VTK type). mapped: the bytes are the
-    file mapped, not read (no copy; for the sandbox's reading child only: a file cut short while
-    mapped ends the process, there a crashed reader)."""
+    file mapped, not read (no copy): the arrays are views of the mapping, to be copied before the
+    read returns (widen does; models.mesh.mapped). A file cut short while mapped ends the process:
+    in the sandbox's reading child, a crashed reader."""
     try:
         fd = os.open(os.fspath(path), os.O_RDONLY | getattr(os, "O_CLOEXEC", 0))
         try:
@@ -163,7 +201,7 @@ def _simple(data: bytes):
     if len(words) != 3 or words[0] != b"POINTS" or words[2] not in _FLOATS:
         return None
     n_points = _count(words[1])
-    points = cur.array(_FLOATS[words[2]], 3 * n_points)
+    points = cur.array(_FLOATS[words[2]], 3 * n_points, 3)
     words = cur.line()
     if len(words) != 3 or words[0] != b"CELLS":
         return None

@@ -368,7 +368,9 @@ def _read(path: str, physical_tag, file_format, weld, native: bool = True) -> Me
 
         simple = read_vtu_simple(path)  # the common layout, faster than any XML reader; else None
         if simple is not None:
-            return mesh_from_meshio(simple, physical_tag=physical_tag, weld=weld, owned=True)
+            mesh = mesh_from_meshio(simple, physical_tag=physical_tag, weld=weld, owned=True)
+            mesh.meta.update(reader="numpy (models/mesh/vtu.py)", format="VTK XML unstructured grid")
+            return mesh
         why = impossible_counts(path)
         if why:  # VTK's reader would believe the number (and run for minutes)
             raise MeshError(f"the file is corrupted: {why}")

@@ -13,6 +13,7 @@ import sys
 import numpy as np
 
 from models.errors import MeshError
+from models.mesh.mapped import file_bytes, owned
 
 # meshio's VTU reader refuses polyhedra mixed with other cells, which is what write_vtu writes for
 # a 3D result with boundary groups; this reads such files (inline ascii or uncompressed base64
@@ -149,9 +150,7 @@ def read_vtu_simple(path: str | os.PathLike):
     if sys.byteorder != "little":
         return None
     try:
-        with open(os.fspath(path), "rb") as fh:
-            data = fh.read()
-        return _simple_vtu(data)
+        return _simple_vtu(file_bytes(path))  # mapped: what it returns is copied (models.mesh.mapped)
     except Exception:  # noqa: BLE001  (anything unexpected: meshio reads it, and says what is wrong)
         return None
 
@@ -270,7 +269,7 @@ def _simple_vtu(data: bytes):
             return None
         cell_data[attrs[b"Name"].decode()] = [d[np.arange(n_cells)]]  # a copy, as meshio's d[start + items]
     return SimpleNamespace(
-        points=points,
+        points=owned(points),
         # meshio adds the piece's point offset (a numpy int64 0): the same dtype promotion and values
         # in a new array (inflated blocks already are one: kept as they are when int64)
         cells=[

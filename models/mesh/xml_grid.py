@@ -30,6 +30,7 @@ from models.errors import MeshError
 from models.mesh.container import Mesh
 from models.mesh.formats import extension
 from models.mesh.lattice import check_image_geometry, grid_points, image_axes, image_points, structured_cells
+from models.mesh.mapped import file_bytes, owned
 from models.mesh.vtk_readers import READERS, _int_tags, _lattice_cells, _tag_key, mesh_of_cells, mesh_of_image
 from models.mesh.vtu import (
     _NP_TYPES,
@@ -87,9 +88,7 @@ def read_xml_grid(
     if kind not in _DATASETS or sys.byteorder != "little":
         return None
     try:
-        with open(path, "rb") as fh:
-            data = fh.read()
-        grid = _scan(data, kind)
+        grid = _scan(file_bytes(path), kind)  # mapped: what the Mesh keeps is copied (models.mesh.mapped)
     except MeshError:
         raise
     except Exception:  # noqa: BLE001  (anything unexpected: VTK's reader reads it, and says what is wrong)
@@ -187,14 +186,15 @@ def _scan(data: bytes, kind: str) -> _Grid | None:
             return None
         if p_attrs.get(b"NumberOfComponents") != b"3":
             return None
-        grid.points = array(p_attrs, p_text)
+        points = array(p_attrs, p_text)  # float64 and our own (not a view of the mapped file)
+        grid.points = owned(points) if points.dtype == np.float64 else points.astype(np.float64)
         if grid.points.shape != (n_points, 3):
             return None
     else:
         coords = sections.get(b"Coordinates", ())
         if len(coords) != 3 or any(a.get(b"NumberOfComponents", b"1") != b"1" for a, _ in coords):
             return None
-        grid.axes = [np.asarray(array(a, t).reshape(-1), np.float64) for a, t in coords]
+        grid.axes = [owned(np.asarray(array(a, t).reshape(-1), np.float64)) for a, t in coords]
         if [x.size for x in grid.axes] != dims:
             return None
     grid.cells = _named(sections.get(b"CellData", ()), lambda a: a.get(b"NumberOfComponents", b"1") == b"1")
@@ -208,7 +208,7 @@ def _scan(data: bytes, kind: str) -> _Grid | None:
         tuples = int(a.get(b"NumberOfTuples", b"-1"))
         if values.size != tuples * int(a.get(b"NumberOfComponents", b"1")):
             return None
-        grid.groups[name] = values
+        grid.groups[name] = owned(values)
     return grid
 
 
