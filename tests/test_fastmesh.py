@@ -347,3 +347,20 @@ def test_cells_validate_declines_what_it_does_not_take():
     short[2:] -= 1  # cell 1 of 7 nodes
     assert _cells_validate(p, short, conn[:-1], types, 1)[0] == -1
     assert _cells_validate(p, offsets, conn[:-1], types, 1)[0] == -1
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_compiled_bounds_equal_numpy(d):
+    """build._bounds by the compiled pass: numpy's min and max per coordinate, NaN where a
+    coordinate has one (a NaN is how the read finds such points), infinities kept."""
+    from models.mesh.build import _bounds
+
+    rng = np.random.default_rng(d)
+    p = rng.normal(size=(5000, d)) * 1e3
+    for edit in (None, (17, 0, np.nan), (4999, d - 1, -np.inf), (0, 0, np.nan)):
+        q = p.copy()
+        if edit:
+            q[edit[0], edit[1]] = edit[2]
+        lo, hi = _bounds(q)
+        want_lo, want_hi = q.min(axis=0), q.max(axis=0)
+        assert np.array_equal(lo, want_lo, equal_nan=True) and np.array_equal(hi, want_hi, equal_nan=True)

@@ -25,6 +25,7 @@
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include "_buffers.h"
+#include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
@@ -904,6 +905,43 @@ static PyObject *py_cells_validate(PyObject *self, PyObject *args) {
 }
 
 
+/* bounds(points, lo, hi)
+ *   points (P * d) float64, lo and hi (d,): each coordinate's minimum and maximum, NaN where the
+ *   coordinate has a NaN (as numpy's min and max), one pass over the points (numpy's reductions
+ *   over the rows of a (P, 3) array are slow; build._bounds). */
+static PyObject *py_bounds(PyObject *self, PyObject *args) {
+    static const char *const names[] = {"points", "lo", "hi"};
+    static const int wr[] = {0, 1, 1};
+    Py_buffer b[3];
+    if (parse_bufs(args, 3, "bounds", names, NULL, wr, b) < 0) return NULL;
+    const double *P = b[0].buf;
+    double *lo = b[1].buf, *hi = b[2].buf;
+    int64_t d = N8(b[1]), n = d > 0 ? N8(b[0]) / d : 0;
+    if (d < 1 || d > 3 || N8(b[2]) != d || n * d != N8(b[0]) || n < 1) {
+        release_arr(b, 3);
+        PyErr_SetString(PyExc_ValueError, "bounds: inconsistent array sizes");
+        return NULL;
+    }
+    Py_BEGIN_ALLOW_THREADS
+    double mn[3], mx[3];
+    int nan[3] = {0, 0, 0};
+    for (int64_t j = 0; j < d; j++) mn[j] = mx[j] = P[j];
+    for (int64_t i = 0; i < n; i++)
+        for (int64_t j = 0; j < d; j++) {
+            double v = P[i * d + j];
+            mn[j] = v < mn[j] ? v : mn[j];
+            mx[j] = v > mx[j] ? v : mx[j];
+            nan[j] |= v != v;
+        }
+    for (int64_t j = 0; j < d; j++) {
+        lo[j] = nan[j] ? (double)NAN : mn[j];
+        hi[j] = nan[j] ? (double)NAN : mx[j];
+    }
+    Py_END_ALLOW_THREADS
+    release_arr(b, 3);
+    Py_RETURN_NONE;
+}
+
 PyObject *py_ascii_values(PyObject *self, PyObject *args); /* _fastascii.c */
 
 static PyMethodDef methods[] = {
@@ -913,6 +951,8 @@ static PyMethodDef methods[] = {
     {"fixed_validate", py_fixed_validate, METH_VARARGS,
      "fixed_validate(points, conn, tmpl, tsize, vol, cen, flip, npts, nthreads) -> bool: measures, "
      "centroids, own-sign flips and the consistency check of cells of one type in one pass."},
+    {"bounds", py_bounds, METH_VARARGS,
+     "bounds(points, lo, hi): each coordinate's minimum and maximum (NaN where it has one), one pass."},
     {"cells_validate", py_cells_validate, METH_VARARGS,
      "cells_validate(points, offsets, conn, types, ttab, tmpl, tsize, vol, cen, flip, npts, nthreads, mode) -> int: "
      "fixed_validate for cells in CSR: mixed 3D types, or 2D polygons; -1 where it does not apply."},

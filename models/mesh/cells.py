@@ -215,6 +215,10 @@ def _corner_csr(offsets, conn, types, sel):
         s, e = int(offsets[sel[0]]), int(offsets[sel[-1] + 1])
         c = np.asarray(conn[s:e], dtype=np.int64)
         return np.arange(0, sel.size * w + 1, w, dtype=np.int64), c
+    rows = _rows(offsets, conn, sel, sizes, new)
+    if rows is not None:  # higher-order cells of one kind: their first corners, one slice
+        w = int(new[0])
+        return np.arange(0, sel.size * w + 1, w, dtype=np.int64), rows[:, :w].astype(np.int64).reshape(-1)
     return _offsets(new), np.asarray(conn[ranges(offsets[sel], new)], dtype=np.int64)
 
 
@@ -418,13 +422,27 @@ def higher_order_line(quadratic: bool, names: list[str], corners: str, unused: i
 
 def _unused_higher(offsets, conn, types, elem, n_points: int) -> int:
     """Points used by the elements' higher-order (non-corner) nodes only."""
-    all_nodes = np.asarray(conn[ranges(offsets[elem], offsets[elem + 1] - offsets[elem])], dtype=np.int64)
-    used = np.zeros(n_points, bool)
-    used[all_nodes] = True
     t = types[elem]
     sizes = offsets[elem + 1] - offsets[elem]
     keep = KEEP[t]
-    new = np.where(keep > 0, keep, np.where(keep == -2, sizes // 2, sizes))
+    new = np.minimum(np.where(keep > 0, keep, np.where(keep == -2, sizes // 2, sizes)), sizes)
+    used = np.zeros(n_points, bool)
     corner = np.zeros(n_points, bool)
-    corner[np.asarray(conn[ranges(offsets[elem], np.minimum(new, sizes))], dtype=np.int64)] = True
+    rows = _rows(offsets, conn, elem, sizes, new)
+    if rows is not None:  # one cell size and corner count, the cells in a row (the usual file)
+        used[rows] = True
+        corner[rows[:, : int(new[0])]] = True
+    else:
+        used[np.asarray(conn[ranges(offsets[elem], sizes)], dtype=np.int64)] = True
+        corner[np.asarray(conn[ranges(offsets[elem], new)], dtype=np.int64)] = True
     return int(np.count_nonzero(used & ~corner))
+
+
+def _rows(offsets, conn, sel, sizes, new) -> np.ndarray | None:
+    """The nodes of cells `sel` as rows (C, k) of `conn` (a view) when they all have k nodes and
+    `new` corners, one after the other in `conn`; else None."""
+    if not sel.size or sizes.min() != sizes.max() or new.min() != new.max() or not _contiguous(offsets, sel):
+        return None
+    k = int(sizes[0])
+    s = int(offsets[sel[0]])
+    return np.asarray(conn[s : s + k * sel.size]).reshape(sel.size, k)
