@@ -5,6 +5,7 @@ line; the same model written by gmsh as MSH is the reference. A file in VTK's or
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 
@@ -145,3 +146,138 @@ def test_gmsh_gambit_file_with_boundary_conditions_reads(tmp_path):
     m, ref = read_mesh_safe(neu), read_mesh(msh)
     assert m.n_cells == ref.n_cells
     assert float(m.meta["measures"].sum()) == pytest.approx(6.0, rel=1e-9)
+
+
+def _two_materials(tmp_path, dim: int, surfaces: bool) -> tuple[str, str]:
+    """Two blocks side by side (steel, copper: 3D boxes or 2D rectangles), each a physical group,
+    and (surfaces) a boundary group on the outer faces: as .neu and .msh."""
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add(f"two{dim}")
+        occ = gmsh.model.occ
+        if dim == 3:
+            a, b = occ.addBox(0, 0, 0, 1, 1, 1), occ.addBox(1, 0, 0, 2, 1, 1)
+        else:
+            a, b = occ.addRectangle(0, 0, 0, 1, 1), occ.addRectangle(1, 0, 0, 2, 1)
+        occ.fragment([(dim, a)], [(dim, b)])
+        occ.synchronize()
+        gmsh.model.addPhysicalGroup(dim, [a], 7, name="steel")
+        gmsh.model.addPhysicalGroup(dim, [b], 9, name="copper")
+        if surfaces:
+            outer = [t for _, t in gmsh.model.getBoundary([(dim, a), (dim, b)], oriented=False)]
+            gmsh.model.addPhysicalGroup(dim - 1, outer, 11, name="walls")
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.3)
+        gmsh.model.mesh.generate(dim)
+        neu, msh = str(tmp_path / f"two{dim}.neu"), str(tmp_path / f"two{dim}.msh")
+        gmsh.write(neu)
+        gmsh.write(msh)
+    finally:
+        gmsh.finalize()
+    return neu, msh
+
+
+@pytest.mark.parametrize("dim, surfaces", [(3, True), (3, False)])  # (gmsh writes no 2D .neu)
+def test_gambit_element_groups_are_the_physical_groups(tmp_path, dim, surfaces):
+    """A Gambit file's ELEMENT GROUPs (one per gmsh physical group, named) come in as the mesh's
+    physical groups, with their names and numbers: the same cells and measure per group as gmsh's
+    own MSH of the model (VTK's reader kept only each group's MATERIAL, 0 in all of them). With
+    boundary groups gmsh repeats ENDOFSECTION several times, on which VTK's reader died."""
+    from models.mesh.sandbox import read_mesh_safe
+
+    neu, msh = _two_materials(tmp_path, dim, surfaces)
+    if surfaces and dim == 3:
+        assert re.search(r"ENDOFSECTION\s+ENDOFSECTION\s+ENDOFSECTION", open(neu).read())
+    m, ref = read_mesh_safe(neu), read_mesh(msh)
+    assert m.n_cells == ref.n_cells and m.tags is not None
+    assert {int(k): v for k, v in m.meta["group_names"].items()} == {7: "steel", 9: "copper"}
+    for gid in (7, 9):
+        ours, theirs = m.tags == gid, ref.tags == gid
+        assert ours.sum() == theirs.sum() > 0
+        assert float(m.meta["measures"][ours].sum()) == pytest.approx(
+            float(ref.meta["measures"][theirs].sum()), rel=1e-9
+        )
+    assert float(m.meta["measures"][m.tags == 7].sum()) == pytest.approx(1.0, rel=1e-9)
+
+
+def test_gambit_groups_that_do_not_fit_are_said_not_guessed(tmp_path):
+    """An element group listing an element past the file's elements: the mesh is read without groups
+    and a note says why (no cell put in a group it may not belong to)."""
+    from models.mesh.sandbox import read_mesh_safe
+
+    neu, _ = _two_materials(tmp_path, 3, False)
+    text = open(neu).read()
+    head = re.search(r"GROUP:\s+(\d+) ELEMENTS:\s+(\d+)", text)
+    n_elem = int(re.search(r"NUMNP\s+NELEM.*\n\s*\d+\s+(\d+)", text).group(1))
+    body = re.search(r"(GROUP:[^\n]*\n[^\n]*\n[^\n]*\n)(\s*)(\d+)", text)
+    bad = text[: body.start(3)] + str(n_elem + 5) + text[body.end(3) :]
+    path = tmp_path / "bad_group.neu"
+    path.write_text(bad)
+    m = read_mesh_safe(str(path))
+    assert head and m.tags is None
+    assert f"lists element {n_elem + 5:,}" in m.meta["gambit_groups"]["message"]
+
+
+NEU_2D = """        CONTROL INFO 2.0.0
+** GAMBIT NEUTRAL FILE
+two quads and two triangles
+PROGRAM:                Gambit     VERSION:  2.4.6
+Sun Dec  6 12:00:00 2026
+     NUMNP     NELEM     NGRPS    NBSETS     NDFCD     NDFVL
+         7         4         2         0         2         2
+ENDOFSECTION
+   NODAL COORDINATES 2.4.6
+         1   0.0   0.0
+         2   1.0   0.0
+         3   2.0   0.0
+         4   0.0   1.0
+         5   1.0   1.0
+         6   2.0   1.0
+         7   3.0   0.0
+ENDOFSECTION
+      ELEMENTS/CELLS 2.4.6
+       1  2  4        1       2       5       4
+       2  2  4        2       3       6       5
+       3  3  3        3       7       6
+       4  3  3        2       6       5
+ENDOFSECTION
+       ELEMENT GROUP 2.4.6
+GROUP:          1 ELEMENTS:          2 MATERIAL:          2 NFLAGS:          1
+                           fluid
+       0
+       1       2
+ENDOFSECTION
+       ELEMENT GROUP 2.4.6
+GROUP:          2 ELEMENTS:          1 MATERIAL:          4 NFLAGS:          1
+                           solid
+       0
+       3
+ENDOFSECTION
+"""
+
+
+def test_a_planar_gambit_file_has_its_groups(tmp_path):
+    """A 2D Gambit file (NDFCD 2; gmsh writes none, so written here as Gambit does): its element
+    groups are 2D physical groups; an element listed in two groups stays in the smaller, an element
+    in none is group 0, both said in a note."""
+    from models.mesh.sandbox import read_mesh_safe
+
+    path = tmp_path / "plane.neu"
+    path.write_text(
+        NEU_2D.replace("       1       2\nENDOFSECTION", "       1       2       4\nENDOFSECTION")
+        .replace("ELEMENTS:          2 MATERIAL:          2", "ELEMENTS:          3 MATERIAL:          2")
+        .replace("       3\nENDOFSECTION", "       3       4\nENDOFSECTION")
+        .replace("ELEMENTS:          1 MATERIAL:          4", "ELEMENTS:          2 MATERIAL:          4")
+    )
+    m = read_mesh_safe(str(path))
+    assert m.dim == 2 and m.n_cells == 4
+    assert {int(k): v for k, v in m.meta["group_names"].items()} == {1: "fluid", 2: "solid"}
+    assert m.tags.tolist() == [1, 1, 2, 2]  # element 4 in both: kept in the smaller group (2 of 2 < 3)
+    assert "1 element listed in two element groups: it is kept" in m.meta["gambit_groups"]["message"]
+    loose = NEU_2D.replace("       3\nENDOFSECTION", "       3\nENDOFSECTION", 1)
+    path.write_text(loose)
+    m = read_mesh_safe(str(path))
+    assert (
+        m.tags.tolist() == [1, 1, 2, 0]
+        and "1 element in no element group" in m.meta["gambit_groups"]["message"]
+    )

@@ -144,6 +144,8 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
     if mesh.meta.get("reordered_cells"):  # a Gambit file's bricks, pyramids: in Gambit's node order
         moved = mesh.meta["reordered_cells"]
         issues.append(_issue("reordered-cells", "info", int(moved["count"]), [], str(moved["message"])))
+    if mesh.meta.get("gambit_groups"):  # a Gambit file's element groups: overlaps, gaps, or not used
+        issues.append(_issue("element-groups", "info", 1, [], str(mesh.meta["gambit_groups"]["message"])))
     if mesh.meta.get("merged_points"):  # a cell soup (deal.II's DataOut): its copies merged on reading
         merged = mesh.meta["merged_points"]
         issues.append(_issue("merged-points", "info", int(merged["count"]), [], str(merged["message"])))

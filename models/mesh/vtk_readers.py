@@ -23,6 +23,7 @@ import numpy as np
 
 from models.errors import MeshError, ParameterError
 from models.mesh.cells import BOUNDARY_TAG_NAME, TAG_NAMES, Normalized, normalize
+from models.mesh.gambit import REPEATED_END
 from models.mesh.vtk_arrays import _arrays, _cell_data, _field_data, _np, _openfoam
 from models.mesh.vtk_setup import (
     _exodus_names,
@@ -131,6 +132,7 @@ def read_vtk(
             field = {**field, **names}
     if kind == "gambit":
         conn = _gambit_node_order(pts, offsets, conn, types, meta)
+        cell_data, field = _gambit_groups(path, types, cell_data, field, meta)
     elif (
         kind == "exodus"
         and conn.size
@@ -176,20 +178,18 @@ def read_vtk(
     return mesh_of_cells(pts, norm, tag_key, weld, meta, grid, field)
 
 
-_DOUBLED_END = re.compile(rb"ENDOFSECTION[ \t\r]*\n[ \t\r]*ENDOFSECTION[ \t\r]*\n")
-
-
 @contextlib.contextmanager
 def _gambit_without_doubled_ends(path: str):
-    """gmsh writes a Gambit file with boundary conditions with one ENDOFSECTION too many (after the
-    element groups), on which VTK's reader frees memory twice and dies: such a file is read from a
-    copy without the extra line (in a temporary folder, under its own name); any other as it is."""
+    """gmsh writes a Gambit file with boundary conditions with one or more ENDOFSECTION too many
+    (after the element groups), on which VTK's reader frees memory twice and dies: such a file is
+    read from a copy without the extra lines (in a temporary folder, under its own name); any other
+    as it is."""
     import shutil
     import tempfile
 
     from models.mesh.meshio_files import found
 
-    if not found(path, _DOUBLED_END):
+    if not found(path, REPEATED_END):
         yield path
         return
     folder = tempfile.mkdtemp(prefix="magnet-neu-")
@@ -198,10 +198,28 @@ def _gambit_without_doubled_ends(path: str):
         with open(path, "rb") as fh:
             data = fh.read()
         with open(copy, "wb") as out:
-            out.write(_DOUBLED_END.sub(b"ENDOFSECTION\n", data))
+            out.write(REPEATED_END.sub(b"ENDOFSECTION\n", data))
         yield copy
     finally:
         shutil.rmtree(folder, ignore_errors=True)
+
+
+def _gambit_groups(path: str, types, cell_data: dict, field: dict, meta: dict):
+    """A Gambit file's element groups as its physical groups (models.mesh.gambit): cell_data and
+    field data with them, a note in meta where some could not be used."""
+    from models.mesh.cells import DIM
+    from models.mesh.gambit import element_groups
+    from models.mesh.mapped import file_bytes
+
+    got = element_groups(file_bytes(path), len(types), int(DIM[np.asarray(types, np.uint8)].max(initial=2)))
+    if got is None:
+        return cell_data, field
+    tags, names, note = got
+    if note:
+        meta["gambit_groups"] = {"count": 1, "message": note}
+    if tags is None:
+        return cell_data, field
+    return {**cell_data, "block": tags}, {**field, **names}
 
 
 # Gambit numbers a brick's nodes and a pyramid's base lexicographically, (0,0) (1,0) (0,1) (1,1)
