@@ -281,3 +281,87 @@ def test_a_planar_gambit_file_has_its_groups(tmp_path):
         m.tags.tolist() == [1, 1, 2, 0]
         and "1 element in no element group" in m.meta["gambit_groups"]["message"]
     )
+
+
+def _bc_model(tmp_path, kind: str) -> tuple[str, str]:
+    """A solid of tetrahedra, bricks, wedges (an extruded rectangle) or tetrahedra with pyramids,
+    its outer faces in two boundary groups (walls, rest): as .neu and .msh."""
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add(kind)
+        occ = gmsh.model.occ
+        if kind == "wedges":
+            rect = occ.addRectangle(0, 0, 0, 1, 2)
+            occ.synchronize()
+            gmsh.option.setNumber("Mesh.MeshSizeMax", 0.5)
+            vol = [t for d, t in occ.extrude([(2, rect)], 0, 0, 1, numElements=[2]) if d == 3]
+            occ.synchronize()
+        else:
+            vol = [occ.addBox(0, 0, 0, 1, 2, 3)]
+            occ.synchronize()
+            gmsh.option.setNumber("Mesh.MeshSizeMax", 0.6)
+            if kind == "bricks":
+                for _, c in gmsh.model.getEntities(1):
+                    gmsh.model.mesh.setTransfiniteCurve(c, 3)
+                for _, s in gmsh.model.getEntities(2):
+                    gmsh.model.mesh.setTransfiniteSurface(s)
+                    gmsh.model.mesh.setRecombine(2, s)
+                gmsh.model.mesh.setTransfiniteVolume(vol[0])
+                gmsh.model.mesh.setRecombine(3, vol[0])
+            elif kind == "pyramids":
+                gmsh.model.mesh.setRecombine(2, 1)
+        gmsh.model.addPhysicalGroup(3, vol, 1, name="solid")
+        outer = [t for _, t in gmsh.model.getBoundary([(3, v) for v in vol], oriented=False)]
+        gmsh.model.addPhysicalGroup(2, outer[:3], 2, name="walls")
+        gmsh.model.addPhysicalGroup(2, outer[3:], 3, name="rest")
+        gmsh.model.mesh.generate(3)
+        neu, msh = str(tmp_path / f"{kind}.neu"), str(tmp_path / f"{kind}.msh")
+        gmsh.write(neu)
+        gmsh.write(msh)
+    finally:
+        gmsh.finalize()
+    return neu, msh
+
+
+def _face_centres(m, name: str) -> list:
+    tag = next(k for k, v in m.meta["boundary_names"].items() if v == name)
+    o, c = m.boundary_offsets, m.boundary_connectivity
+    sel = np.flatnonzero(m.boundary_tags == tag)
+    return sorted(tuple(np.round(m.points[c[o[i] : o[i + 1]]].mean(axis=0), 9)) for i in sel.tolist())
+
+
+@pytest.mark.parametrize("kind", ["tetrahedra", "bricks", "wedges", "pyramids"])
+def test_gambit_boundary_conditions_are_boundary_groups(tmp_path, kind):
+    """A Gambit file's BOUNDARY CONDITIONS (element, type, face number by Gambit's face definitions)
+    come in as named boundary groups: exactly the faces of gmsh's own MSH of the model, group by
+    group, for every element type's face table (VTK's reader ignores them)."""
+    from models.mesh.sandbox import read_mesh_safe
+
+    neu, msh = _bc_model(tmp_path, kind)
+    m, ref = read_mesh_safe(neu), read_mesh(msh)
+    assert m.n_cells == ref.n_cells
+    assert sorted(m.meta["boundary_names"].values()) == ["rest", "walls"]
+    for name in ("walls", "rest"):
+        ours = _face_centres(m, name)
+        assert ours and ours == _face_centres(ref, name)
+
+
+def test_a_gambit_boundary_condition_that_does_not_fit_is_said_not_used(tmp_path):
+    """A face number past its element's faces: that condition is left out and said; the others and
+    the element groups stay."""
+    from models.mesh.sandbox import read_mesh_safe
+
+    neu, _ = _bc_model(tmp_path, "tetrahedra")
+    text = open(neu).read()
+    at = text.index("walls")
+    first = re.compile(r"(\n\s+\d+\s+6\s+)(\d)").search(text, at)
+    path = tmp_path / "bad_face.neu"
+    path.write_text(text[: first.start(2)] + "9" + text[first.end(2) :])
+    m = read_mesh_safe(str(path))
+    assert sorted(m.meta["boundary_names"].values()) == ["rest"]
+    assert (
+        "boundary condition 'walls' names faces that are not faces of their elements"
+        in (m.meta["gambit_groups"]["message"])
+    )
+    assert m.meta["group_names"] == {1: "solid"}

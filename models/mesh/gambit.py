@@ -1,32 +1,165 @@
-"""Gambit neutral (.neu) files: what VTK's reader (vtkGAMBITReader) leaves out or dies on.
+"""Gambit neutral (.neu) files: what VTK's reader (vtkGAMBITReader) leaves out, gets wrong or dies on.
+Our reading is VTK's (its points and cells), then `gambit_cells` on its arrays:
 
+- Node order. Gambit numbers a brick's nodes and a pyramid's base lexicographically, (0,0) (1,0)
+  (0,1) (1,1) (the GAMBIT neutral file's element conventions; OpenFOAM's gambitToFoam maps them so),
+  VTK around the base; vtkGAMBITReader keeps the file's order, so that ParaView draws such cells
+  twisted. They are put in VTK's order, decided per cell type by their bases (a file written in
+  VTK's order is left as it is).
 - Element groups as physical groups. A Gambit file puts every element in an ELEMENT GROUP (its
   zone: a material, a fluid or solid region; gmsh writes one per physical group), named on the
   line after the group's header. VTK's reader keeps only each group's MATERIAL number ("Material
-  Type"), 0 in every group gmsh writes, so the groups and their names were lost.
+  Type"), 0 in every group gmsh writes.
+- Boundary conditions as boundary groups. A BOUNDARY CONDITIONS section of element faces (its
+  type 1) lists (element, element type, face number) entries, the faces numbered by Gambit's face
+  definitions; VTK's reader ignores them. Each face is checked to be a face of its element (its
+  nodes those of one of the element's faces) before it is used.
 - Repeated ENDOFSECTION lines. gmsh writes one or more ENDOFSECTION too many after the element
   groups of a file with boundary conditions; VTK's reader then frees memory twice and dies, so the
-  file is read from a copy without them (vtk_readers).
+  file is read from a copy without them (`without_repeated_ends`).
 
-Element ids: a group lists Gambit element ids; VTK's reader keeps the elements in the file's order
-and ignores their ids, so the k-th element is taken to be id k (as every writer we know numbers
-them: Gambit, gmsh, ICEM). A group listing an id past the elements, or an element in no group,
-is said in a note rather than guessed at.
+Element ids: groups and boundary conditions list Gambit element ids; VTK's reader keeps the
+elements in the file's order and ignores their ids, so the k-th element is taken to be id k (as
+every writer we know numbers them: Gambit, gmsh, ICEM). A group or a condition that does not fit
+(an id past the elements, a count that does not match its entries, a face that is not one of its
+element's) is said in a note and not used, rather than guessed at.
 """
 
 from __future__ import annotations
 
+import contextlib
+import os
 import re
 
 import numpy as np
 
-# the header line of an element group: GROUP: g ELEMENTS: n MATERIAL: m NFLAGS: f
+# the header line of an element group: GROUP: g ELEMENTS: n MATERIAL: m NFLAGS: f, then its name
 _GROUP = re.compile(
     rb"ELEMENT GROUP[^\n]*\n\s*GROUP:\s*(\d+)\s+ELEMENTS:\s*(\d+)\s+MATERIAL:\s*(\d+)\s+NFLAGS:\s*(\d+)[^\n]*\n"
     rb"([^\n]*)\n"
 )
+# a boundary condition's title and header: name, itype (1: element faces), entries, values, code
+_BC = re.compile(
+    rb"BOUNDARY CONDITIONS[^\n]*\n[ \t]*(\S(?:[^\n]*\S)?)[ \t]+(\d+)[ \t]+(\d+)[ \t]+(\d+)[ \t]+(\d+)[ \t\r]*\n"
+)
 _END = re.compile(rb"^[ \t]*ENDOFSECTION[ \t\r]*$", re.M)
 REPEATED_END = re.compile(rb"(ENDOFSECTION[ \t\r]*\n)(?:[ \t\r]*ENDOFSECTION[ \t\r]*\n)+")
+
+# Gambit's face definitions per element (its node order, 0-based), by the element's VTK type as
+# VTK's reader gives it: brick, wedge, tetrahedron, pyramid; quadrilateral and triangle edges
+_FACES = {
+    12: ((0, 1, 5, 4), (1, 3, 7, 5), (3, 2, 6, 7), (2, 0, 4, 6), (0, 2, 3, 1), (4, 5, 7, 6)),
+    13: ((0, 1, 4, 3), (1, 2, 5, 4), (2, 0, 3, 5), (0, 2, 1), (3, 4, 5)),
+    10: ((1, 0, 2), (0, 1, 3), (1, 2, 3), (2, 0, 3)),
+    14: ((0, 2, 3, 1), (0, 1, 4), (1, 3, 4), (3, 2, 4), (2, 0, 4)),
+    9: ((0, 1), (1, 2), (2, 3), (3, 0)),
+    5: ((0, 1), (1, 2), (2, 0)),
+}
+_FACE_TYPE = {2: 3, 3: 5, 4: 9}  # a face's VTK type by its node count (line, triangle, quad)
+_GAMBIT_ORDER = ((12, 8, (0, 1, 3, 2, 4, 5, 7, 6), "bricks"), (14, 5, (0, 1, 3, 2, 4), "pyramids"))
+
+
+@contextlib.contextmanager
+def without_repeated_ends(path: str):
+    """The file to give VTK's reader: a copy without gmsh's repeated ENDOFSECTION lines (in a
+    temporary folder, under its own name) where it has them, else the file itself."""
+    import shutil
+    import tempfile
+
+    from models.mesh.meshio_files import found
+
+    if not found(path, REPEATED_END):
+        yield path
+        return
+    folder = tempfile.mkdtemp(prefix="magnet-neu-")
+    try:
+        copy = os.path.join(folder, os.path.basename(path))
+        with open(path, "rb") as fh:
+            data = fh.read()
+        with open(copy, "wb") as out:
+            out.write(REPEATED_END.sub(b"ENDOFSECTION\n", data))
+        yield copy
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def gambit_cells(path: str, pts, offsets, conn, types, cell_data: dict, field: dict, meta: dict):
+    """VTK's arrays of a Gambit file with its node order, groups and boundary conditions (the
+    module's note): (offsets, conn, types, cell_data, field), the boundary faces appended as cells
+    of one dimension less with their group in cell_data's boundary tags; notes in meta."""
+    from models.mesh.cells import BOUNDARY_TAG_NAME, DIM
+    from models.mesh.mapped import file_bytes
+
+    data = file_bytes(path)
+    offsets = np.asarray(offsets, dtype=np.int64)
+    types = np.asarray(types, dtype=np.uint8)
+    n, dim = len(types), int(DIM[types].max(initial=2))
+    faces = boundary_conditions(data, offsets, np.asarray(conn), types)  # on the file's node order
+    conn = _node_order(pts, offsets, conn, types, meta)
+    notes = []
+    groups = element_groups(data, n, dim)
+    if groups is not None:
+        tags, names, note = groups
+        if note:
+            notes.append(note)
+        if tags is not None:
+            cell_data, field = {**cell_data, "block": tags}, {**field, **names}
+    sets = []
+    if faces is not None:
+        found, note = faces
+        if note:
+            notes.append(note)
+        for name, parts in found:  # each face a face of its element, in VTK's order now
+            if all(_is_face(offsets, conn, types, cells, f) for cells, f in parts):
+                sets.append((name, [f for _, f in parts]))
+            else:
+                notes.append(
+                    f"boundary condition '{name}' names faces that are not faces of their elements (the "
+                    "file's elements are not in Gambit's node order, or its face numbers are not Gambit's): not used"
+                )
+    if sets:
+        first = max([0, *(int(v[0]) for v in field.values() if len(v) == 2)]) + 1
+        parts = [(first + i, f) for i, (_, fs) in enumerate(sets) for f in fs]
+        sizes = np.concatenate([np.full(len(f), f.shape[1]) for _, f in parts])
+        offsets = np.concatenate([offsets, offsets[-1] + np.cumsum(sizes)])
+        conn = np.concatenate([np.asarray(conn, np.int64), *(f.reshape(-1) for _, f in parts)])
+        types = np.concatenate([types, np.array([_FACE_TYPE[k] for k in sizes.tolist()], np.uint8)])
+        block = cell_data.get("block")
+        cell_data = {  # (the reader's other cell arrays, for the elements only, are not used here)
+            "block": np.concatenate(
+                [
+                    np.zeros(n, np.int64) if block is None else np.asarray(block, np.int64),
+                    np.zeros(sizes.size, np.int64),
+                ]
+            ),
+            BOUNDARY_TAG_NAME: np.concatenate(
+                [np.zeros(n, np.int64), *(np.full(len(f), g) for g, f in parts)]
+            ),
+        }
+        field = {**field, **{name: [first + i, dim - 1] for i, (name, _) in enumerate(sets)}}
+    if notes:
+        meta["gambit_groups"] = {"count": 1, "message": "; ".join(notes)}
+    return offsets, conn, types, cell_data, field
+
+
+def _is_face(offsets, conn, types, cells, faces) -> bool:
+    """Every faces[i] (its nodes, any order) is one of element cells[i]'s faces (FACE_TEMPLATES, or
+    the element's edges in 2D)."""
+    from models.mesh.geometry import FACE_TEMPLATES
+
+    want = np.sort(faces, axis=1)
+    for t in np.unique(types[cells]).tolist():  # (a loop over element types)
+        sel = np.flatnonzero(types[cells] == t)
+        k = int(offsets[cells[sel[0]] + 1] - offsets[cells[sel[0]]])
+        nodes = np.asarray(conn)[offsets[cells[sel]][:, None] + np.arange(k)]
+        table = FACE_TEMPLATES.get(int(t)) or [(j, (j + 1) % k) for j in range(k)]
+        table = [f for f in table if len(f) == faces.shape[1]]
+        if not table:
+            return False
+        theirs = np.sort(nodes[:, np.array(table)], axis=2)  # (m, faces, size)
+        if not np.all((theirs == want[sel][:, None, :]).all(axis=2).any(axis=1)):
+            return False
+    return True
 
 
 def element_groups(data: bytes, n_cells: int, dim: int) -> tuple[np.ndarray | None, dict, str | None] | None:
@@ -42,8 +175,7 @@ def element_groups(data: bytes, n_cells: int, dim: int) -> tuple[np.ndarray | No
     for m in _GROUP.finditer(data):
         found = True
         number, count, nflags = int(m.group(1)), int(m.group(2)), int(m.group(4))
-        end = _END.search(data, m.end())
-        body = data[m.end() : end.start() if end else len(data)].split()
+        body = _section(data, m.end()).split()
         if len(body) != nflags + count or number < 1:
             return (
                 None,
@@ -53,9 +185,8 @@ def element_groups(data: bytes, n_cells: int, dim: int) -> tuple[np.ndarray | No
                     f"{count:,}: the element groups are not used"
                 ),
             )
-        try:
-            ids = np.array(body[nflags:], dtype=np.int64) - 1
-        except ValueError:
+        ids = _ids(body[nflags:])
+        if ids is None:
             return (
                 None,
                 {},
@@ -90,3 +221,115 @@ def element_groups(data: bytes, n_cells: int, dim: int) -> tuple[np.ndarray | No
     if loose:
         notes.append(f"{loose:,} element{'s' if loose > 1 else ''} in no element group: group 0")
     return tags, names, "; ".join(notes) or None
+
+
+def boundary_conditions(data: bytes, offsets, conn, types) -> tuple[list, str | None] | None:
+    """([(name, [(cells (m,), faces (m, k) node ids)] by the faces' node count)] of the file's
+    boundary conditions on element faces, a note or None), the faces' nodes from the elements as the
+    file orders them (before _node_order); None where it has no boundary condition. A condition on nodes (type 0) is left out and said;
+    one that does not fit (the module's note) is not used and said."""
+    sets, notes = [], []
+    n = len(types)
+    for m in _BC.finditer(data):
+        name = m.group(1).decode("utf-8", "replace").strip()
+        itype, count, nvalues = int(m.group(2)), int(m.group(3)), int(m.group(4))
+        if itype != 1:
+            notes.append(f"boundary condition '{name}' is on nodes, not faces: not used")
+            continue
+        words = _section(data, m.end()).split()
+        if len(words) != count * (3 + nvalues):
+            notes.append(
+                f"boundary condition '{name}' holds {len(words):,} numbers, not the {count:,} entries its header says: not used"
+            )
+            continue
+        rows = _ids(words)
+        if rows is None:
+            notes.append(f"boundary condition '{name}' holds a word that is not a number: not used")
+            continue
+        rows = rows.reshape(count, 3 + nvalues) + 1  # (_ids subtracts 1)
+        cell, face = rows[:, 0] - 1, rows[:, 2] - 1
+        if count and (cell.min() < 0 or cell.max() >= n):
+            notes.append(
+                f"boundary condition '{name}' names element {int(cell.max()) + 1:,}, past the {n:,} elements: not used"
+            )
+            continue
+        got = _face_nodes(offsets, conn, types, cell, face)
+        if got is None:
+            notes.append(
+                f"boundary condition '{name}' names faces that are not faces of their elements (an element "
+                "type or face number Gambit does not define for it): not used"
+            )
+            continue
+        sets.append((name, got))
+    if not sets and not notes:
+        return None
+    return sets, "; ".join(notes) or None
+
+
+def _face_nodes(offsets, conn, types, cell, face) -> list | None:
+    """[(cells, faces (m, k))] by node count: the nodes of face `face` (0-based, Gambit's numbering)
+    of each element `cell`, from Gambit's face definitions; None where a face number is past its
+    element type's faces, or the type has none here."""
+    out: dict[int, list] = {}
+    for t in np.unique(types[cell]).tolist():  # (a loop over element types)
+        table = _FACES.get(int(t))
+        sel = np.flatnonzero(types[cell] == t)
+        if table is None:
+            return None
+        k = max(max(f) for f in table) + 1
+        f = face[sel]
+        if f.min() < 0 or f.max() >= len(table) or np.any(np.diff(offsets)[cell[sel]] != k):
+            return None
+        nodes = np.asarray(conn)[offsets[cell[sel]][:, None] + np.arange(k)]
+        for size in sorted({len(x) for x in table}):  # faces of one node count at a time
+            here = np.flatnonzero(np.array([len(x) == size for x in table])[f])
+            if here.size == 0:
+                continue
+            local = np.array([x if len(x) == size else (0,) * size for x in table])[f[here]]
+            out.setdefault(size, []).append((cell[sel][here], np.take_along_axis(nodes[here], local, axis=1)))
+    return [
+        (np.concatenate([c for c, _ in v]), np.concatenate([x for _, x in v])) for _, v in sorted(out.items())
+    ]
+
+
+def _section(data: bytes, start: int) -> bytes:
+    end = _END.search(data, start)
+    return data[start : end.start() if end else len(data)]
+
+
+def _ids(words: list) -> np.ndarray | None:
+    """Integer words as 0-based ids (each minus 1), or None where one is not an integer."""
+    try:
+        return np.array(words, dtype=np.int64) - 1
+    except ValueError:
+        return None
+
+
+def _node_order(pts, offsets, conn, types, meta: dict):
+    """conn with a Gambit file's bricks and pyramids in VTK's node order, where the file is in
+    Gambit's: decided per cell type by the base quadrilaterals (a bow-tie in VTK's order, the points
+    1 and 3 on the same side of the diagonal 0-2, in most of them), said in meta["reordered_cells"].
+    A file written in VTK's order (not Gambit's) is left as it is."""
+    done, count = [], 0
+    for vtk_type, k, perm, name in _GAMBIT_ORDER:
+        sel = np.flatnonzero((types == vtk_type) & (np.diff(offsets) == k))
+        if sel.size == 0:
+            continue
+        idx = np.asarray(offsets[sel], dtype=np.int64)[:, None] + np.arange(k)
+        nodes = np.asarray(conn)[idx]
+        p = np.asarray(pts, dtype=np.float64)[nodes[:, :4]]
+        diag = p[:, 2] - p[:, 0]
+        side = np.einsum("ij,ij->i", np.cross(diag, p[:, 1] - p[:, 0]), np.cross(diag, p[:, 3] - p[:, 0]))
+        if np.count_nonzero(side > 0) * 2 <= sel.size:
+            continue
+        conn = np.array(conn, copy=True) if not done else conn
+        conn[idx] = nodes[:, list(perm)]
+        done.append(f"{sel.size:,} {name}")
+        count += int(sel.size)
+    if done:
+        meta["reordered_cells"] = {
+            "count": count,
+            "message": f"{' and '.join(done)} read in Gambit's node order (VTK's reader keeps the file's "
+            "order and draws them twisted)",
+        }
+    return conn

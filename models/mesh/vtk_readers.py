@@ -15,7 +15,6 @@ into one sentence of ours (file, format, what was wrong and where, when VTK says
 
 from __future__ import annotations
 
-import contextlib
 import os
 import re
 
@@ -23,7 +22,6 @@ import numpy as np
 
 from models.errors import MeshError, ParameterError
 from models.mesh.cells import BOUNDARY_TAG_NAME, TAG_NAMES, Normalized, normalize
-from models.mesh.gambit import REPEATED_END
 from models.mesh.vtk_arrays import _arrays, _cell_data, _field_data, _np, _openfoam
 from models.mesh.vtk_setup import (
     _exodus_names,
@@ -92,7 +90,9 @@ def read_vtk(
         if why:
             raise MeshError(f"cannot read {os.path.basename(path)} as {fmt}: {why}")
     if kind == "gambit":
-        with _gambit_without_doubled_ends(path) as clean:
+        from models.mesh.gambit import without_repeated_ends
+
+        with without_repeated_ends(path) as clean:
             data = _run(clean, kind, fmt)
     else:
         data = _run(path, kind, fmt)
@@ -130,9 +130,12 @@ def read_vtk(
                     BOUNDARY_TAG_NAME: np.concatenate([np.zeros(n, np.int64), tags_b]),
                 }
             field = {**field, **names}
-    if kind == "gambit":
-        conn = _gambit_node_order(pts, offsets, conn, types, meta)
-        cell_data, field = _gambit_groups(path, types, cell_data, field, meta)
+    if kind == "gambit":  # its node order, element groups and boundary conditions (models.mesh.gambit)
+        from models.mesh.gambit import gambit_cells
+
+        offsets, conn, types, cell_data, field = gambit_cells(
+            path, pts, offsets, conn, types, cell_data, field, meta
+        )
     elif (
         kind == "exodus"
         and conn.size
@@ -176,86 +179,6 @@ def read_vtk(
         meta["overlong_cells"] = norm.overlong
     grid = grid if norm.types.size == len(types) and norm.dim == 3 else None
     return mesh_of_cells(pts, norm, tag_key, weld, meta, grid, field)
-
-
-@contextlib.contextmanager
-def _gambit_without_doubled_ends(path: str):
-    """gmsh writes a Gambit file with boundary conditions with one or more ENDOFSECTION too many
-    (after the element groups), on which VTK's reader frees memory twice and dies: such a file is
-    read from a copy without the extra lines (in a temporary folder, under its own name); any other
-    as it is."""
-    import shutil
-    import tempfile
-
-    from models.mesh.meshio_files import found
-
-    if not found(path, REPEATED_END):
-        yield path
-        return
-    folder = tempfile.mkdtemp(prefix="magnet-neu-")
-    try:
-        copy = os.path.join(folder, os.path.basename(path))
-        with open(path, "rb") as fh:
-            data = fh.read()
-        with open(copy, "wb") as out:
-            out.write(REPEATED_END.sub(b"ENDOFSECTION\n", data))
-        yield copy
-    finally:
-        shutil.rmtree(folder, ignore_errors=True)
-
-
-def _gambit_groups(path: str, types, cell_data: dict, field: dict, meta: dict):
-    """A Gambit file's element groups as its physical groups (models.mesh.gambit): cell_data and
-    field data with them, a note in meta where some could not be used."""
-    from models.mesh.cells import DIM
-    from models.mesh.gambit import element_groups
-    from models.mesh.mapped import file_bytes
-
-    got = element_groups(file_bytes(path), len(types), int(DIM[np.asarray(types, np.uint8)].max(initial=2)))
-    if got is None:
-        return cell_data, field
-    tags, names, note = got
-    if note:
-        meta["gambit_groups"] = {"count": 1, "message": note}
-    if tags is None:
-        return cell_data, field
-    return {**cell_data, "block": tags}, {**field, **names}
-
-
-# Gambit numbers a brick's nodes and a pyramid's base lexicographically, (0,0) (1,0) (0,1) (1,1)
-# (the GAMBIT neutral file's element conventions; OpenFOAM's gambitToFoam maps them so), VTK around
-# the base; vtkGAMBITReader keeps the file's order, so that ParaView draws such cells twisted
-_GAMBIT_ORDER = ((12, 8, (0, 1, 3, 2, 4, 5, 7, 6), "bricks"), (14, 5, (0, 1, 3, 2, 4), "pyramids"))
-
-
-def _gambit_node_order(pts, offsets, conn, types, meta: dict):
-    """conn with a Gambit file's bricks and pyramids in VTK's node order, where the file is in
-    Gambit's: decided per cell type by the base quadrilaterals (a bow-tie in VTK's order, the points
-    1 and 3 on the same side of the diagonal 0-2, in most of them), said in meta["reordered_cells"].
-    A file written in VTK's order (not Gambit's) is left as it is."""
-    done, count = [], 0
-    for vtk_type, k, perm, name in _GAMBIT_ORDER:
-        sel = np.flatnonzero((types == vtk_type) & (np.diff(offsets) == k))
-        if sel.size == 0:
-            continue
-        idx = np.asarray(offsets[sel], dtype=np.int64)[:, None] + np.arange(k)
-        nodes = np.asarray(conn)[idx]
-        p = np.asarray(pts, dtype=np.float64)[nodes[:, :4]]
-        diag = p[:, 2] - p[:, 0]
-        side = np.einsum("ij,ij->i", np.cross(diag, p[:, 1] - p[:, 0]), np.cross(diag, p[:, 3] - p[:, 0]))
-        if np.count_nonzero(side > 0) * 2 <= sel.size:
-            continue
-        conn = np.array(conn, copy=True) if not done else conn
-        conn[idx] = nodes[:, list(perm)]
-        done.append(f"{sel.size:,} {name}")
-        count += int(sel.size)
-    if done:
-        meta["reordered_cells"] = {
-            "count": count,
-            "message": f"{' and '.join(done)} read in Gambit's node order (VTK's reader keeps the file's "
-            "order and draws them twisted)",
-        }
-    return conn
 
 
 _NUMBER_OF_CELLS = re.compile(rb"<Piece\b[^>]*?\bNumberOfCells\s*=\s*[\"']\s*(\d+)")
