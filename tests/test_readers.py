@@ -406,6 +406,18 @@ def test_parallel_pieces_are_one_mesh(tmp_path):
     mesh = read_mesh(path)
     assert (mesh.n_cells, mesh.n_points) == (len(hexes), len(p))
     assert float(mesh.meta["measures"].sum()) == pytest.approx(vol_ref, rel=1e-9)
+    # one piece read alone: its own cells, its ghost layer left out and said (ParaView hides it)
+    pieces = sorted((tmp_path / "ghosts").glob("*.vtu")) or sorted(tmp_path.glob("ghosts_*.vtu"))
+    assert len(pieces) == 3
+    total = 0
+    for piece in pieces:
+        alone = vc.vtk_read(str(piece))
+        ghost = vc.vtk_to_numpy(alone.GetCellData().GetArray("vtkGhostType"))
+        one = read_mesh(str(piece))
+        assert one.n_cells == int(np.count_nonzero(ghost == 0)) < alone.GetNumberOfCells()
+        assert one.meta["ghost_cells"]["count"] == alone.GetNumberOfCells() - one.n_cells
+        total += one.n_cells
+    assert total == len(hexes)
 
     from vtkmodules.vtkFiltersParallel import vtkExtractPolyDataPiece  # the same for planar polydata
 

@@ -305,7 +305,7 @@ def cmd_agglomerate(args) -> int:
     for key in ("overlong_cells", "open_polyhedra"):
         if mesh.meta.get(key):
             print(f"warning: {mesh.meta[key]['message']}")
-    for key in ("merged_points", "reordered_cells", "reversed_faces", "gambit_groups"):
+    for key in ("merged_points", "reordered_cells", "reversed_faces", "gambit_groups", "ghost_cells"):
         if mesh.meta.get(key):
             print(f"note: {mesh.meta[key]['message']}")
     return 0

@@ -144,6 +144,9 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
     if mesh.meta.get("reordered_cells"):  # a Gambit file's bricks, pyramids: in Gambit's node order
         moved = mesh.meta["reordered_cells"]
         issues.append(_issue("reordered-cells", "info", int(moved["count"]), [], str(moved["message"])))
+    if mesh.meta.get("ghost_cells"):  # a parallel writer's piece read alone: its ghost layer left out
+        ghosts = mesh.meta["ghost_cells"]
+        issues.append(_issue("ghost-cells", "info", int(ghosts["count"]), [], str(ghosts["message"])))
     if mesh.meta.get("gambit_groups"):  # a Gambit file's element groups: overlaps, gaps, or not used
         issues.append(_issue("element-groups", "info", 1, [], str(mesh.meta["gambit_groups"]["message"])))
     if mesh.meta.get("merged_points"):  # a cell soup (deal.II's DataOut): its copies merged on reading

@@ -51,7 +51,7 @@ def _arrays(data, path: str, what: str, fmt: str, groups: bool = True):
     parallel file's pieces, which are one mesh cut for the processes that wrote it."""
     if data.IsA("vtkCompositeDataSet"):
         return _composite(data, path, what, fmt, groups)
-    return _dataset(data, path, what, fmt)
+    return _dataset(data, path, what, fmt, piece=True)  # (a file of one piece: its ghost cells too)
 
 
 def _dataset(ds, path, what, fmt, piece: bool = False):
@@ -157,7 +157,9 @@ def _structured(ds):
 
 def _hide_blanked(ds, pts, offsets, conn, types, cell_data, poly, piece: bool = False):
     """Drop blanked (hidden) cells, and cells on hidden points, as VTK does when it draws them;
-    in a parallel file's piece, its ghost cells too (copies of another piece's cells)."""
+    in a parallel file's piece, or a file of one piece (one written by a parallel writer, read
+    alone), its ghost cells too (copies of another piece's cells, which ParaView does not draw;
+    ghost_cells says how many)."""
     ghost = ds.GetCellData().GetArray("vtkGhostType")
     pghost = ds.GetPointData().GetArray("vtkGhostType")
     hide = None
@@ -421,3 +423,12 @@ def _lex_find(table: np.ndarray, rows: np.ndarray) -> np.ndarray:
     where = np.full(inverse.max() + 1 if inverse.size else 0, -1, np.int64)
     where[inverse[: len(table)][::-1]] = np.arange(len(table))[::-1]
     return where[inverse[len(table) :]]
+
+
+def ghost_cells(data) -> int:
+    """How many cells of a dataset (not a composite) its vtkGhostType marks as copies of another
+    piece's cells (DUPLICATECELL), the ones _hide_blanked leaves out of a file of one piece."""
+    if data.IsA("vtkCompositeDataSet"):
+        return 0
+    ghost = data.GetCellData().GetArray("vtkGhostType")
+    return 0 if ghost is None else int(np.count_nonzero(_np(ghost) & DUPLICATE_CELL))

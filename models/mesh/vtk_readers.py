@@ -22,7 +22,7 @@ import numpy as np
 
 from models.errors import MeshError, ParameterError
 from models.mesh.cells import BOUNDARY_TAG_NAME, TAG_NAMES, Normalized, normalize
-from models.mesh.vtk_arrays import _arrays, _cell_data, _field_data, _np, _openfoam
+from models.mesh.vtk_arrays import _arrays, _cell_data, _field_data, _np, _openfoam, ghost_cells
 from models.mesh.vtk_setup import (
     _exodus_names,
     _fluent_cell_zones_only,
@@ -97,6 +97,13 @@ def read_vtk(
     else:
         data = _run(path, kind, fmt)
     meta = {"reader": f"VTK {cls}", "format": what}
+    ghosts = ghost_cells(data)
+    if ghosts:  # a piece of a parallel file read alone: its copies of the neighbours' cells
+        meta["ghost_cells"] = {
+            "count": ghosts,
+            "message": f"{ghosts:,} ghost cells left out (marked in vtkGhostType as copies of a neighbouring "
+            "piece's cells, as a parallel writer writes them; ParaView does not draw them either)",
+        }
     if weld is None:
         mesh = _image_mesh(data, physical_tag, meta, path)
         if mesh is not None:

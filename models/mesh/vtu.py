@@ -263,6 +263,8 @@ def _simple_vtu(data: bytes):
     if conn.shape != (k * n_cells,) or not np.array_equal(offsets, np.arange(k, k * n_cells + 1, k)):
         return None
     cell_data = {}
+    if any(a.get(b"Name") == b"vtkGhostType" for a, _ in sections.get(b"CellData", ())):
+        return None  # ghost cells (a parallel writer's piece): VTK's path leaves them out
     for attrs, text in sections.get(b"CellData", ()):
         d = array(attrs, text)
         if d.shape[0] != n_cells:
