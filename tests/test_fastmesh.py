@@ -364,3 +364,103 @@ def test_compiled_bounds_equal_numpy(d):
         lo, hi = _bounds(q)
         want_lo, want_hi = q.min(axis=0), q.max(axis=0)
         assert np.array_equal(lo, want_lo, equal_nan=True) and np.array_equal(hi, want_hi, equal_nan=True)
+
+
+def _polyhedra_file(tmp_path, kind: str) -> str:
+    """Hexahedra as VTK polyhedra (perturbed), some with triangulated faces (faces of 3 and 4
+    nodes: the triangles first, then the fans), and by kind: some faces stored reversed (as Exodus
+    NFACED and Fluent store them: agree_faces colours them), or a face missing (an open cell)."""
+    import vtk
+    import vtk_corpus as vc
+
+    p, h = hexes(5)
+    p = _perturbed(p, 21, 0.1)
+    quads = [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]
+    rng = np.random.default_rng(22)
+    ug = vtk.vtkUnstructuredGrid()
+    pts = vtk.vtkPoints()
+    pts.SetData(vc.numpy_to_vtk(np.ascontiguousarray(p), deep=True))
+    ug.SetPoints(pts)
+    for i, c in enumerate(h):  # (a test fixture of 125 cells)
+        faces = []
+        for j, f in enumerate(quads):
+            nodes = c[f].tolist()
+            if (i + j) % 5 == 0:  # this side cut into two triangles
+                faces += [nodes[:3], [nodes[0], nodes[2], nodes[3]]]
+            else:
+                faces.append(nodes)
+        if kind == "reversed" and rng.random() < 0.3:
+            faces[1] = faces[1][::-1]
+        if kind == "open" and i == 7:
+            faces = faces[1:]
+        stream = [len(faces)] + [v for f in faces for v in [len(f), *f]]
+        ids = vtk.vtkIdList()
+        for v in stream:
+            ids.InsertNextId(int(v))
+        ug.InsertNextCell(vtk.VTK_POLYHEDRON, ids)
+    return vc.write_xml(str(tmp_path / f"{kind}.vtu"), ug)
+
+
+@pytest.mark.parametrize("kind", ["plain", "reversed", "open"])
+def test_compiled_polyhedra_equal_numpy(tmp_path, kind, monkeypatch):
+    """Polyhedra through the compiled helpers (_fastpoly.c: distinct nodes, the faces' agreement,
+    measures) and through their numpy twins: the same Mesh bit for bit, the same notes (faces
+    reversed, cells not closed)."""
+    from models.mesh.read import read_mesh
+
+    path = _polyhedra_file(tmp_path, kind)
+    monkeypatch.setenv("MAGNET_READ_SANDBOX", "0")
+    a = read_mesh(path)
+    monkeypatch.setenv("MAGNET_NO_COMPILED", "1")
+    b = read_mesh(path)
+    assert a.poly_cells is not None and a.n_cells == 125
+    for key in (
+        "points",
+        "offsets",
+        "connectivity",
+        "poly_cell_faces",
+        "poly_face_offsets",
+        "poly_face_nodes",
+    ):
+        assert np.array_equal(getattr(a, key), getattr(b, key)), key
+    for key in ("measures", "centroids", "signed_measures"):
+        assert np.array_equal(a.meta[key], b.meta[key]), key
+    for key in ("reversed_faces", "open_polyhedra", "orientation"):
+        assert a.meta.get(key) == b.meta.get(key), key
+    if kind == "reversed":
+        assert a.meta["reversed_faces"]["count"] > 0
+    if kind == "open":
+        assert a.meta["open_polyhedra"]["cells"] == [7]
+    assert (a.meta["signed_measures"] > 0).all()
+
+
+@pytest.mark.parametrize("kind", ["hexahedra, pyramids, tetrahedra", "polyhedra"])
+def test_compiled_consistent_answers_as_numpy(tmp_path, kind, monkeypatch):
+    """orientation._consistent on a face list (mixed cell types, polyhedra): the compiled check (the
+    faces' keys bucketed by smallest node) answers as the numpy sort of the same keys, for the
+    cells' own orientation and for random flips (contradictions)."""
+    from models.mesh.geometry import cell_faces
+    from models.mesh.orientation import _consistent
+    from models.mesh.read import read_mesh
+
+    if kind == "polyhedra":
+        monkeypatch.setenv("MAGNET_READ_SANDBOX", "0")
+        m = read_mesh(_polyhedra_file(tmp_path, "plain"))
+    else:
+        p, blocks = mixed_3d(6)
+        m = mesh_from_arrays(_perturbed(p, 23, 0.05), blocks)
+    faces = cell_faces(m)
+    rng = np.random.default_rng(24)
+    flips = [np.zeros(m.n_cells, bool), np.ones(m.n_cells, bool)]
+    one = np.zeros(m.n_cells, bool)
+    one[m.n_cells // 2] = True  # one cell reversed among consistent neighbours
+    flips += [one, rng.random(m.n_cells) < 0.3]
+    answers = []
+    for f in flips:
+        got = _consistent(faces, f, m.n_points)
+        monkeypatch.setenv("MAGNET_NO_COMPILED", "1")
+        want = _consistent(faces, f, m.n_points)
+        monkeypatch.delenv("MAGNET_NO_COMPILED")
+        assert got == want
+        answers.append(got)
+    assert answers[:2] == [True, True] and not any(answers[2:])

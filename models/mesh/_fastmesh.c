@@ -221,7 +221,7 @@ static inline uint64_t mix(uint64_t h) {
     return h;
 }
 
-static PyObject *py_consistent(PyObject *self, PyObject *args) {
+static PyObject *consistent_hash(PyObject *self, PyObject *args) {
     static const char *const names[] = {"offsets", "nodes", "cell", "flip"};
     static const Py_ssize_t sizes[] = {8, 8, 8, 1};
     static const int wr[] = {0, 0, 0, 0};
@@ -456,6 +456,57 @@ static int faces_consistent(uint32_t *mins, const uint64_t *keys, uint64_t *sort
     ok = buckets_once(sorted, start, 0, P, P, mins, &head); /* mins is free now: the chains' prev */
     free(head);
     return ok;
+}
+
+/* consistent() by the counting sort of faces_consistent (the faces' smallest nodes bucketed, the
+ * packed keys compared): the hash table's answer, with less memory touched. The hash table serves
+ * meshes whose point ids do not fit the packed keys (2^30 and more). */
+static PyObject *py_consistent(PyObject *self, PyObject *args) {
+    static const char *const names[] = {"offsets", "nodes", "cell", "flip"};
+    static const Py_ssize_t sizes[] = {8, 8, 8, 1};
+    static const int wr[] = {0, 0, 0, 0};
+    Py_buffer b[4];
+    if (parse_bufs(args, 4, "consistent", names, sizes, wr, b) < 0) return NULL;
+    const int64_t *off = b[0].buf, *nodes = b[1].buf, *cell = b[2].buf;
+    const uint8_t *flip = b[3].buf;
+    int64_t F = N8(b[0]) - 1, nn = N8(b[1]), nc = (int64_t)b[3].len, P = 0;
+    int sizes_ok = F >= 0 && N8(b[2]) == F && (F == 0 || off[F] <= nn);
+    for (int64_t f = 0; sizes_ok && f < F; f++) sizes_ok = off[f] >= 0 && off[f + 1] >= off[f];
+    for (int64_t j = 0; sizes_ok && j < (F > 0 ? off[F] : 0); j++) {
+        if (nodes[j] < 0) sizes_ok = 0;
+        else if (nodes[j] >= P) P = nodes[j] + 1;
+    }
+    release_arr(b, 4);
+    if (!sizes_ok || P >= KEY_ID_LIMIT || F >= (int64_t)NONE32) return consistent_hash(self, args);
+    if (parse_bufs(args, 4, "consistent", names, sizes, wr, b) < 0) return NULL;
+    Scratch sc = face_scratch(F, P, 0);
+    if (!sc.block) {
+        release_arr(b, 4);
+        return PyErr_NoMemory();
+    }
+    int ok;
+    Py_BEGIN_ALLOW_THREADS
+    int64_t G = 0; /* the faces keyed (a face of no node, or of no cell, is left to the full path) */
+    for (int64_t f = 0; f < F; f++) {
+        int64_t a = off[f], s = off[f + 1] - a;
+        if (s < 1 || cell[f] < 0 || cell[f] >= nc) continue;
+        int64_t j = 0;
+        for (int64_t q = 1; q < s; q++)
+            if (nodes[a + q] < nodes[a + j]) j = q; /* first of the smallest (argmin) */
+        uint64_t nx = (uint64_t)nodes[a + (j + 1) % s], pv = (uint64_t)nodes[a + (j + s - 1) % s];
+        if (flip[cell[f]]) {
+            uint64_t t = nx;
+            nx = pv;
+            pv = t;
+        }
+        sc.mins[G] = (uint32_t)nodes[a + j];
+        sc.keys[G++] = nx << 33 | pv << 3 | (uint64_t)(s < 7 ? s : 7);
+    }
+    ok = faces_consistent(sc.mins, sc.keys, sc.sorted, G, P, sc.start);
+    Py_END_ALLOW_THREADS
+    scratch_give(sc.block);
+    release_arr(b, 4);
+    return PyBool_FromLong(ok);
 }
 
 /* fixed_consistent(conn, tmpl, tsize, flip, npts) -> bool
@@ -943,6 +994,9 @@ static PyObject *py_bounds(PyObject *self, PyObject *args) {
 }
 
 PyObject *py_ascii_values(PyObject *self, PyObject *args); /* _fastascii.c */
+PyObject *py_poly_distinct(PyObject *self, PyObject *args); /* _fastpoly.c */
+PyObject *py_poly_agree(PyObject *self, PyObject *args);
+PyObject *py_poly_measures(PyObject *self, PyObject *args);
 
 static PyMethodDef methods[] = {
     {"ascii_values", py_ascii_values, METH_VARARGS,
@@ -951,6 +1005,12 @@ static PyMethodDef methods[] = {
     {"fixed_validate", py_fixed_validate, METH_VARARGS,
      "fixed_validate(points, conn, tmpl, tsize, vol, cen, flip, npts, nthreads) -> bool: measures, "
      "centroids, own-sign flips and the consistency check of cells of one type in one pass."},
+    {"poly_distinct", py_poly_distinct, METH_VARARGS,
+     "poly_distinct(cface_off, face_off, face_nodes, sizes, nodes) -> int: each polyhedron's distinct nodes."},
+    {"poly_agree", py_poly_agree, METH_VARARGS,
+     "poly_agree(cface_off, face_off, face_nodes, open) -> int: 0 when every polyhedron's faces agree."},
+    {"poly_measures", py_poly_measures, METH_VARARGS,
+     "poly_measures(points, cnode_off, cnodes, cface_off, face_off, face_nodes, vol, cen) -> int: measures."},
     {"bounds", py_bounds, METH_VARARGS,
      "bounds(points, lo, hi): each coordinate's minimum and maximum (NaN where it has one), one pass."},
     {"cells_validate", py_cells_validate, METH_VARARGS,

@@ -175,7 +175,19 @@ def prism_faces(nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def distinct_nodes(nfaces: np.ndarray, fsizes: np.ndarray, fnodes: np.ndarray):
-    """Per polyhedron, its distinct nodes ascending: (sizes, nodes)."""
+    """Per polyhedron, its distinct nodes ascending: (sizes, nodes) (compiled: poly_distinct in
+    models/mesh/_fastpoly.c, the same arrays)."""
+    from models.native import compiled
+
+    fast = compiled("mesh._fastmesh")
+    if fast is not None and nfaces.size:
+        cface = _offsets(np.asarray(nfaces, np.int64))
+        foff = _offsets(np.asarray(fsizes, np.int64))
+        nodes = np.ascontiguousarray(fnodes, dtype=np.int64)
+        sizes, out = np.empty(nfaces.size, np.int64), np.empty(nodes.size, np.int64)
+        n = fast.poly_distinct(cface, foff, nodes, sizes, out)
+        if n >= 0:
+            return sizes, out[:n].copy()
     owner = np.repeat(np.repeat(np.arange(nfaces.size), nfaces), fsizes)
     order = np.lexsort((fnodes, owner))
     so, sn = owner[order], fnodes[order]

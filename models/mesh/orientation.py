@@ -112,7 +112,7 @@ def _consistent(faces: Faces, flip: np.ndarray, n_points: int) -> bool | None:
         from models.native import compiled
 
         fast = compiled("mesh._fastmesh")
-        if fast is not None:  # a hash table of the same directed keys, no sort (models/mesh/_fastmesh.c)
+        if fast is not None:  # the same directed keys, bucketed by smallest node (models/mesh/_fastmesh.c)
             return bool(
                 fast.consistent(
                     faces.offsets.astype(np.int64, copy=False),

@@ -31,6 +31,9 @@ def agree_faces(
     n_faces = face_offsets.size - 1
     if n_faces == 0:
         return 0, np.zeros(0, dtype=np.int64)
+    agreed = _agree_compiled(cell_faces, face_offsets, face_nodes)
+    if agreed is not None:  # every cell's faces agree (the usual file): nothing to colour
+        return 0, agreed
     face_of = cell_index(face_offsets)  # the face of each node position
     owner = cell_index(cell_faces)  # the polyhedron of each face
     a, b = face_nodes, face_nodes[next_in_cycle(face_offsets)]
@@ -74,6 +77,24 @@ def agree_faces(
         f = face_of[sel]
         face_nodes[sel] = face_nodes[face_offsets[f] + face_offsets[f + 1] - 1 - sel]
     return n, open_cells
+
+
+def _agree_compiled(cell_faces, face_offsets, face_nodes) -> np.ndarray | None:
+    """The polyhedra not closed, where every cell's faces agree (agree_faces' first answer, by
+    poly_agree in models/mesh/_fastpoly.c); None where some faces disagree (or it is not built)."""
+    from models.native import compiled
+
+    fast = compiled("mesh._fastmesh")
+    if fast is None:
+        return None
+    open_cells = np.empty(cell_faces.size - 1, np.uint8)
+    answer = fast.poly_agree(
+        np.ascontiguousarray(cell_faces, dtype=np.int64),
+        np.ascontiguousarray(face_offsets, dtype=np.int64),
+        np.ascontiguousarray(face_nodes, dtype=np.int64),
+        open_cells,
+    )
+    return np.flatnonzero(open_cells) if answer == 0 else None
 
 
 def without_repeats(
