@@ -18,9 +18,17 @@ this process write-protects every page of it, and each page written afterwards f
 slowed whichever column came next by up to 2x (VTK's or ours) and is not what a service meets (its
 reading children are the zygote's, never its own forks).
 
+--cold: each sample is the first read of the file in a fresh process (after the imports and a read of
+a tiny file of the same kind, so that neither side counts its first-call set-up), VTK's and ours
+alternating: what one `magnet` command or one job pays, memory fresh from the system (on the virtual
+machines we run on a fresh page costs ~2 us, so an 11 MB file copied costs ~6 ms whoever copies it).
+--all adds the uncompressed (raw) layouts, planar, mixed and polyhedral files of the 2026-12 sweep.
+
   python bench/bench_read_formats.py            # ~13,824-98,304 cells per file
   python bench/bench_read_formats.py --n 30     # larger
   python bench/bench_read_formats.py --in-process   # VTK and ours in-process only
+  python bench/bench_read_formats.py --n 48 --all --in-process   # every kind, 10^5 cells, warm
+  python bench/bench_read_formats.py --n 48 --all --cold         # the same, fresh processes
 """
 
 from __future__ import annotations
@@ -104,7 +112,8 @@ def _exodus(path: str, points, hexes) -> str | None:
     return path
 
 
-def corpus(tmp: str, n: int) -> list[tuple[str, str, int]]:
+def corpus(tmp: str, n: int, every: bool = False) -> list[tuple[str, str, int]]:
+    os.makedirs(tmp, exist_ok=True)
     import vtk
     import vtk_corpus as vc
 
@@ -166,8 +175,96 @@ def corpus(tmp: str, n: int) -> list[tuple[str, str, int]]:
     )
     im = vc.image((n + 1,) * 3)
     out.append(("image data, VTI", vc.write_xml(os.path.join(tmp, "im.vti"), im, "appended"), n**3))
+    if every:
+        out += _uncompressed(tmp, n, p, h, p2, tets)
     del vtk
     return out
+
+
+def _uncompressed(tmp: str, n: int, p, h, p2, tets) -> list[tuple[str, str, int]]:
+    """The kinds where VTK's read is a copy of the file's bytes (uncompressed binary), planar,
+    mixed and polyhedral files: the 2026-12 sweep's rows (docs/benchmarks.md)."""
+    import vtk_corpus as vc
+
+    w = lambda name, ds, **kw: vc.write_xml(os.path.join(tmp, name), ds, "appended", encode=False, **kw)  # noqa: E731
+    rng = np.random.default_rng(0)
+    perm = rng.permutation(len(p2))
+    inv = np.argsort(perm)
+    m = int(round((len(h) / 2) ** 0.5))  # planar meshes of about as many cells
+    q, quads = vc.quad_grid(m, m)
+    half = len(h) // 2
+    kuhn = [[0, 1, 2, 6], [0, 2, 3, 6], [0, 3, 7, 6], [0, 7, 4, 6], [0, 4, 5, 6], [0, 5, 1, 6]]
+    t2 = np.concatenate([h[half:, k] for k in kuhn])
+    pp, ph = vc.grid(n // 2, n // 2, n // 2)
+    return [
+        ("hexahedra, VTU appended raw", w("hex_raw.vtu", vc.unstructured(p, [(12, h)])), len(h)),
+        (
+            "hexahedra, legacy 5.1 binary",
+            vc.write_legacy(os.path.join(tmp, "hex51.vtk"), vc.unstructured(p, [(12, h)]), 51, True),
+            len(h),
+        ),
+        (
+            "tetrahedra, VTU raw, shuffled numbering",
+            w("tet_shuf.vtu", vc.unstructured(p2[perm], [(10, inv[tets])])),
+            len(tets),
+        ),
+        ("quads, VTU raw", w("quad_raw.vtu", vc.unstructured(q, [(9, quads)])), len(quads)),
+        (
+            "triangles, VTU raw",
+            w(
+                "tri_raw.vtu",
+                vc.unstructured(q, [(5, np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]]))]),
+            ),
+            2 * len(quads),
+        ),
+        (
+            "hexahedra + tetrahedra, VTU raw",
+            w("mixed_raw.vtu", vc.unstructured(p, [(12, h[:half]), (10, t2)])),
+            half + len(t2),
+        ),
+        ("polyhedra (hexahedra), VTU raw", w("poly_raw.vtu", vc.polyhedra(pp, ph)), len(ph)),
+        ("structured grid, VTS raw", w("sg_raw.vts", vc.structured_grid((n + 1,) * 3)), n**3),
+        ("rectilinear grid, VTR raw", w("rg_raw.vtr", vc.rectilinear((n + 1,) * 3)), n**3),
+        ("image data, VTI raw", w("im_raw.vti", vc.image((n + 1,) * 3)), n**3),
+    ]
+
+
+def _cold_one(which: str, path: str, small: str) -> None:
+    """(--one) In this fresh process: imports, a read of the tiny `small` file, then the timed first
+    read of `path` by `which` (vtk or ours); prints its seconds."""
+    import vtk  # noqa: F401
+
+    import models.mesh.read  # noqa: F401
+    import models.mesh.vtk_readers  # noqa: F401
+
+    os.environ["MAGNET_READ_SANDBOX"] = "0"
+    side = vtk_side if which == "vtk" else ours
+    side(small)
+    print(side(path))
+
+
+def _cold(files: list, tmp: str, repeat: int) -> None:
+    import subprocess
+
+    small = {name: path for name, path, _ in corpus(os.path.join(tmp, "small"), 3, every=True)}
+    print(
+        f"# first read in a fresh process (after a tiny file of the same kind), median of {repeat} alternating"
+    )
+    print("| file | cells | VTK s | ours s | ours / VTK |")
+    print("|---|---|---|---|---|")
+    for name, path, cells in files:
+        got = {"vtk": [], "ours": []}
+        for _ in range(repeat):
+            for which in ("vtk", "ours"):
+                out = subprocess.run(
+                    [sys.executable, __file__, "--one", which, path, small[name]],
+                    capture_output=True,
+                    text=True,
+                    check=True,
+                )
+                got[which].append(float(out.stdout.split()[-1]))
+        a, b = float(np.median(got["vtk"])), float(np.median(got["ours"]))
+        print(f"| {name} | {cells:,} | {a:.4f} | {b:.4f} | {b / a:.2f} |", flush=True)
 
 
 def main() -> None:
@@ -178,14 +275,23 @@ def main() -> None:
         "--in-process", action="store_true", help="VTK and ours in-process only (no sandboxed columns)"
     )
     ap.add_argument("--settle", type=float, default=0.2, help="pause after each sandboxed read, s")
+    ap.add_argument(
+        "--all", action="store_true", help="also the uncompressed, planar, mixed, polyhedral rows"
+    )
+    ap.add_argument("--cold", action="store_true", help="first reads in fresh processes (median of --repeat)")
+    ap.add_argument("--one", nargs=3, metavar=("SIDE", "FILE", "SMALL"), help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.one:
+        return _cold_one(*args.one)
     import vtk  # noqa: F401  (imported before the clocks: both sides use it loaded)
 
     import models.mesh.read  # noqa: F401
     import models.mesh.vtk_readers  # noqa: F401
 
     with tempfile.TemporaryDirectory() as tmp:
-        files = corpus(tmp, args.n)
+        files = corpus(tmp, args.n, every=args.all)
+        if args.cold:
+            return _cold(files, tmp, args.repeat)
         if args.in_process:
             print(f"# read stage vs VTK reader + vtk_to_numpy, best of {args.repeat} alternating runs")
             print("| file | cells | VTK s | ours in-process s | in-process / VTK |")
