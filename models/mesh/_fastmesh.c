@@ -690,9 +690,21 @@ static void validate_cells(Job *J) {
             bad = J->measure_only ? 0 : polygon_edge_keys(c, s, fl, J->npts, J->mins + J->coff[i], J->keys + J->coff[i]);
         } else {
             const int64_t *e = J->ttab + 4 * J->types[i], *tm = J->tmpl + e[2], *ts = J->tsize + e[3];
-            measure_cell(J->P, c, e[0], tm, ts, e[1], J->vol + i, J->cen + 3 * i);
-            fl = J->vol[i] < 0.0;
-            bad = J->measure_only ? 0 : cell_face_keys(c, tm, ts, e[1], 0, fl, J->npts, J->mins + J->foff[i], J->keys + J->foff[i]);
+            uint32_t *mins = J->mins + (J->measure_only ? 0 : J->foff[i]);
+            uint64_t *keys = J->keys + (J->measure_only ? 0 : J->foff[i]);
+            if (J->types[i] == 10) { /* tetrahedra, hexahedra: constants the compiler unrolls */
+                measure_cell(J->P, c, 4, tm, ts, 4, J->vol + i, J->cen + 3 * i);
+                fl = J->vol[i] < 0.0;
+                bad = J->measure_only ? 0 : cell_face_keys(c, tm, ts, 4, 3, fl, J->npts, mins, keys);
+            } else if (J->types[i] == 12) {
+                measure_cell(J->P, c, 8, tm, ts, 6, J->vol + i, J->cen + 3 * i);
+                fl = J->vol[i] < 0.0;
+                bad = J->measure_only ? 0 : cell_face_keys(c, tm, ts, 6, 4, fl, J->npts, mins, keys);
+            } else {
+                measure_cell(J->P, c, e[0], tm, ts, e[1], J->vol + i, J->cen + 3 * i);
+                fl = J->vol[i] < 0.0;
+                bad = J->measure_only ? 0 : cell_face_keys(c, tm, ts, e[1], 0, fl, J->npts, mins, keys);
+            }
         }
         J->flip[i] = (uint8_t)fl;
         if (bad == 2)

@@ -222,11 +222,13 @@ def _corner_csr(offsets, conn, types, sel):
         raise MeshError(
             f"a {type_name(t[bad])} cell (cell {int(sel[bad])}) has {int(sizes[bad])} nodes, fewer than its {int(new[bad])} corners"
         )
-    if sel.size and new.min() == new.max() and np.array_equal(new, sizes) and _contiguous(offsets, sel):
-        w = int(new[0])
+    if sel.size and np.array_equal(new, sizes) and _contiguous(offsets, sel):  # every node kept, in a row
         s, e = int(offsets[sel[0]]), int(offsets[sel[-1] + 1])
         c = np.asarray(conn[s:e], dtype=np.int64)
-        return np.arange(0, sel.size * w + 1, w, dtype=np.int64), c
+        if new.min() == new.max():
+            w = int(new[0])
+            return np.arange(0, sel.size * w + 1, w, dtype=np.int64), c
+        return np.asarray(offsets[sel[0] : sel[-1] + 2], dtype=np.int64) - s, c
     rows = _rows(offsets, conn, sel, sizes, new)
     if rows is not None:  # higher-order cells of one kind: their first corners, one slice
         w = int(new[0])
