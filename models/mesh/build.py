@@ -227,7 +227,7 @@ def _collapse_repeated_nodes(mesh: Mesh) -> None:
     sizes = np.diff(mesh.offsets)
     if sizes.size and sizes.min() == sizes.max():  # the usual case: one cell size, a cheap test first
         c = conn.reshape(-1, int(sizes[0]))
-        if not np.any(c == np.roll(c, -1, axis=1)):
+        if not (np.any(c[:, 1:] == c[:, :-1]) or np.any(c[:, 0] == c[:, -1])):
             return
     rep = conn == conn[next_in_cycle(mesh.offsets)]
     # keep at least one node per cell (a cell whose nodes are all equal keeps one)
@@ -290,11 +290,14 @@ def _plane_tolerance(p: np.ndarray) -> float:
 def _project_to_plane(mesh: Mesh) -> None:
     """A 2D mesh stored with 3D points: find its plane and keep 2D coordinates plus the frame."""
     pts = mesh.points
-    used = np.zeros(len(pts), dtype=bool)
-    used[mesh.connectivity] = True
-    p = pts[used]
-    if np.all(p[:, 2] == p[0, 2]):
-        frame = np.array([[0.0, 0.0, p[0, 2]], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    z = pts[:, 2]
+    flat = len(pts) and bool(np.all(z == z[0]))  # every point at one z (the usual file): no gather
+    if not flat:
+        used = np.zeros(len(pts), dtype=bool)
+        used[mesh.connectivity] = True
+        p = pts[used]
+    if flat or np.all(p[:, 2] == p[0, 2]):
+        frame = np.array([[0.0, 0.0, z[0] if flat else p[0, 2]], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
         mesh.points = np.ascontiguousarray(pts[:, :2])
         mesh.frame = frame
         return
