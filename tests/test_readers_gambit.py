@@ -365,3 +365,116 @@ def test_a_gambit_boundary_condition_that_does_not_fit_is_said_not_used(tmp_path
         in (m.meta["gambit_groups"]["message"])
     )
     assert m.meta["group_names"] == {1: "solid"}
+
+
+def _bc_rows(m, values: bytes) -> bytes:
+    """A boundary condition's section with NVALUES set to the number of `values` after each face."""
+    name, itype, count, _, code = m.group(2).split()
+    rows = [r for r in m.group(3).split(b"\n") if r.strip()]
+    n = len(values.split())
+    return (
+        m.group(1)
+        + b"%32s%8s%8s%8d%8s\n" % (name, itype, count, n, code)
+        + b"".join(r + values + b"\n" for r in rows)
+    )
+
+
+_BC_SECTION = rb"(BOUNDARY CONDITIONS[^\n]*\n)([^\n]*)\n(.*?)(?=ENDOFSECTION)"
+_BC_HEAD = rb"(BOUNDARY CONDITIONS[^\n]*\n)([^\n]*)\n"
+
+
+def _head(fmt):
+    return lambda m: m.group(1) + fmt(*m.group(2).split()) + b"\n"
+
+
+def _shift_ids(data: bytes, by: int) -> bytes:
+    """Element ids from 1 + by, in the elements, the groups and the boundary conditions alike."""
+    e = re.search(rb"ELEMENTS/CELLS[^\n]*\n(.*?)ENDOFSECTION", data, re.S)
+    body = re.sub(
+        rb"(?m)^( *)(\d+)( +\d+ +\d+ +\d+)",
+        lambda m: m.group(1) + b"%d" % (int(m.group(2)) + by) + m.group(3),
+        e.group(1),
+    )
+    data = data[: e.start(1)] + body + data[e.end(1) :]
+    data = re.sub(
+        rb"(NFLAGS:[^\n]*\n[^\n]*\n\s+0\n)(.*?)(?=ENDOFSECTION)",
+        lambda m: m.group(1) + re.sub(rb"\d+", lambda x: b"%d" % (int(x.group(0)) + by), m.group(2)),
+        data,
+        flags=re.S,
+    )
+    return re.sub(
+        rb"(BOUNDARY CONDITIONS[^\n]*\n[^\n]*\n)(.*?)(?=ENDOFSECTION)",
+        lambda m: (
+            m.group(1)
+            + re.sub(rb"(?m)^(\s*)(\d+)", lambda x: x.group(1) + b"%d" % (int(x.group(2)) + by), m.group(2))
+        ),
+        data,
+        flags=re.S,
+    )
+
+
+EDITS = {  # what other writers (and Windows) make of gmsh's file; VTK's reader died on most
+    "crlf": lambda d: d.replace(b"\n", b"\r\n"),
+    "tabs": lambda d: re.sub(rb"(?m)^ +", b"\t", re.sub(rb"(?<=\S) {2,}(?=\S)", b"\t", d)),
+    "values after each face": lambda d: re.sub(
+        _BC_SECTION, lambda m: _bc_rows(m, b"  1.5e+00  -2"), d, flags=re.S
+    ),
+    "two IBCODEs": lambda d: re.sub(
+        _BC_HEAD, _head(lambda n, i, c, v, k: b"%32s%8s%8s%8s%8s%8s" % (n, i, c, v, k, b"3")), d
+    ),
+    "no IBCODE": lambda d: re.sub(_BC_HEAD, _head(lambda n, i, c, v, k: b"%32s%8s%8s%8s" % (n, i, c, v)), d),
+    "Gambit's header layout": lambda d: re.sub(
+        _BC_HEAD, _head(lambda n, i, c, v, k: b"%-32s%10s%10s%10s%10s" % (n, i, c, v, b"6")), d
+    ),
+    "ids from 1001": lambda d: _shift_ids(d, 1000),
+    "a group miscounted": lambda d: re.sub(
+        rb"ELEMENTS:\s+(\d+)", lambda m: b"ELEMENTS: %10d" % (int(m.group(1)) + 1), d, count=1
+    ),
+}
+
+
+@pytest.mark.parametrize("edit", list(EDITS))
+def test_gambit_files_as_other_writers_write_them(tmp_path, edit):
+    """gmsh's Gambit file of two materials, a boundary condition on the outer faces and one on the
+    interface, edited as other writers and editors leave such files: CRLF line ends, tabs, values
+    after each face (NVALUES), headers with two IBCODEs or none or in Gambit's own column layout,
+    element ids not from 1, a group's count off by one. Each reads as gmsh's MSH of the model: the
+    same cells, groups and boundary faces (the interface's faces once each, though gmsh lists them
+    for both sides). VTK's reader crashed on most of them."""
+    from models.mesh.sandbox import read_mesh_safe
+
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add("edits")
+        a, b = gmsh.model.occ.addBox(0, 0, 0, 1, 1, 1), gmsh.model.occ.addBox(1, 0, 0, 1, 1, 1)
+        gmsh.model.occ.fragment([(3, a)], [(3, b)])
+        gmsh.model.occ.synchronize()
+        gmsh.model.addPhysicalGroup(3, [a], 1, name="left")
+        gmsh.model.addPhysicalGroup(3, [b], 2, name="right")
+        faces_a = {t for _, t in gmsh.model.getBoundary([(3, a)], oriented=False)}
+        faces_b = {t for _, t in gmsh.model.getBoundary([(3, b)], oriented=False)}
+        gmsh.model.addPhysicalGroup(2, sorted(faces_a ^ faces_b), 11, name="outer")
+        gmsh.model.addPhysicalGroup(2, sorted(faces_a & faces_b), 12, name="interface")
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.4)
+        gmsh.model.mesh.generate(3)
+        neu, msh = str(tmp_path / "m.neu"), str(tmp_path / "m.msh")
+        gmsh.write(neu)
+        gmsh.write(msh)
+    finally:
+        gmsh.finalize()
+    data = open(neu, "rb").read()
+    edited = EDITS[edit](data)
+    assert edited != data
+    path = tmp_path / "edited.neu"
+    path.write_bytes(edited)
+    m, ref = read_mesh_safe(str(path)), read_mesh(msh)
+    assert m.n_cells == ref.n_cells
+    assert {int(k): v for k, v in m.meta["group_names"].items()} == {1: "left", 2: "right"}
+    for gid in (1, 2):
+        assert np.count_nonzero(m.tags == gid) == np.count_nonzero(ref.tags == gid)
+    assert sorted(m.meta["boundary_names"].values()) == ["interface", "outer"]
+    for name in ("outer", "interface"):
+        assert _face_centres(m, name) == _face_centres(ref, name)
+    if edit == "a group miscounted":
+        assert "where its header says" in m.meta["gambit_groups"]["message"]

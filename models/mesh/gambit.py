@@ -38,12 +38,16 @@ _GROUP = re.compile(
     rb"ELEMENT GROUP[^\n]*\n\s*GROUP:\s*(\d+)\s+ELEMENTS:\s*(\d+)\s+MATERIAL:\s*(\d+)\s+NFLAGS:\s*(\d+)[^\n]*\n"
     rb"([^\n]*)\n"
 )
-# a boundary condition's title and header: name, itype (1: element faces), entries, values, code
-_BC = re.compile(
-    rb"BOUNDARY CONDITIONS[^\n]*\n[ \t]*(\S(?:[^\n]*\S)?)[ \t]+(\d+)[ \t]+(\d+)[ \t]+(\d+)[ \t]+(\d+)[ \t\r]*\n"
-)
+# a boundary condition's title and its header line (name, itype, entries, values, codes: _bc_header)
+_BC = re.compile(rb"BOUNDARY CONDITIONS[^\n]*\n([^\n]*)\n")
 _END = re.compile(rb"^[ \t]*ENDOFSECTION[ \t\r]*$", re.M)
 REPEATED_END = re.compile(rb"(ENDOFSECTION[ \t\r]*\n)(?:[ \t\r]*ENDOFSECTION[ \t\r]*\n)+")
+# an element group's or a boundary condition's whole section; the header's NGRPS and NBSETS
+_SETS = re.compile(
+    rb"^[ \t]*(?:ELEMENT GROUP|BOUNDARY CONDITIONS)[^\n]*\n.*?^[ \t]*ENDOFSECTION[ \t]*(?:\n|$)", re.M | re.S
+)
+_COUNTS = re.compile(rb"(NUMNP\s+NELEM\s+NGRPS\s+NBSETS[^\n]*\n\s*\d+\s+\d+\s+)\d+(\s+)\d+")
+_FIRST_ID = re.compile(rb"ELEMENTS/CELLS[^\n]*\n\s*(\d+)")
 
 # Gambit's face definitions per element (its node order, 0-based), by the element's VTK type as
 # VTK's reader gives it: brick, wedge, tetrahedron, pyramid; quadrilateral and triangle edges
@@ -60,24 +64,26 @@ _GAMBIT_ORDER = ((12, 8, (0, 1, 3, 2, 4, 5, 7, 6), "bricks"), (14, 5, (0, 1, 3, 
 
 
 @contextlib.contextmanager
-def without_repeated_ends(path: str):
-    """The file to give VTK's reader: a copy without gmsh's repeated ENDOFSECTION lines (in a
-    temporary folder, under its own name) where it has them, else the file itself."""
+def vtk_copy(path: str):
+    """The file to give VTK's reader: a copy (in a temporary folder, under its own name) with only
+    what VTK reads of it, its nodes and elements: line ends and tabs as VTK's parser wants them
+    (CRLF and tabs made it die), the element groups and boundary conditions left out (we read them
+    from the file itself; a group or condition VTK's reader did not expect killed it: a count off
+    by one, an empty name, values after the faces) and the header's NGRPS and NBSETS set to 0,
+    gmsh's repeated ENDOFSECTION lines made one."""
     import shutil
     import tempfile
 
-    from models.mesh.meshio_files import found
-
-    if not found(path, REPEATED_END):
-        yield path
-        return
     folder = tempfile.mkdtemp(prefix="magnet-neu-")
     try:
         copy = os.path.join(folder, os.path.basename(path))
         with open(path, "rb") as fh:
             data = fh.read()
+        data = data.replace(b"\r\n", b"\n").replace(b"\t", b" ")
+        data = _SETS.sub(b"", REPEATED_END.sub(b"ENDOFSECTION\n", data))
+        data = _COUNTS.sub(lambda m: m.group(1) + b"0" + m.group(2) + b"0", data, count=1)
         with open(copy, "wb") as out:
-            out.write(REPEATED_END.sub(b"ENDOFSECTION\n", data))
+            out.write(data)
         yield copy
     finally:
         shutil.rmtree(folder, ignore_errors=True)
@@ -104,14 +110,14 @@ def gambit_cells(path: str, pts, offsets, conn, types, cell_data: dict, field: d
             notes.append(note)
         if tags is not None:
             cell_data, field = {**cell_data, "block": tags}, {**field, **names}
-    sets = []
+    sets: dict[str, list] = {}  # name -> the faces of every condition of that name (one group)
     if faces is not None:
         found, note = faces
         if note:
             notes.append(note)
         for name, parts in found:  # each face a face of its element, in VTK's order now
             if all(_is_face(offsets, conn, types, cells, f) for cells, f in parts):
-                sets.append((name, [f for _, f in parts]))
+                sets.setdefault(name, []).extend(f for _, f in parts)
             else:
                 notes.append(
                     f"boundary condition '{name}' names faces that are not faces of their elements (the "
@@ -119,7 +125,7 @@ def gambit_cells(path: str, pts, offsets, conn, types, cell_data: dict, field: d
                 )
     if sets:
         first = max([0, *(int(v[0]) for v in field.values() if len(v) == 2)]) + 1
-        parts = [(first + i, f) for i, (_, fs) in enumerate(sets) for f in fs]
+        parts = [(first + i, f) for i, fs in enumerate(sets.values()) for f in _distinct_faces(fs)]
         sizes = np.concatenate([np.full(len(f), f.shape[1]) for _, f in parts])
         offsets = np.concatenate([offsets, offsets[-1] + np.cumsum(sizes)])
         conn = np.concatenate([np.asarray(conn, np.int64), *(f.reshape(-1) for _, f in parts)])
@@ -136,10 +142,22 @@ def gambit_cells(path: str, pts, offsets, conn, types, cell_data: dict, field: d
                 [np.zeros(n, np.int64), *(np.full(len(f), g) for g, f in parts)]
             ),
         }
-        field = {**field, **{name: [first + i, dim - 1] for i, (name, _) in enumerate(sets)}}
+        for i, name in enumerate(sets):  # (a name an element group has too: told apart, as for CGNS)
+            field = {**field, (name if name not in field else f"{name} ({dim - 1}D)"): [first + i, dim - 1]}
     if notes:
         meta["gambit_groups"] = {"count": 1, "message": "; ".join(notes)}
     return offsets, conn, types, cell_data, field
+
+
+def _distinct_faces(faces: list) -> list:
+    """A group's faces by node count, each face once (gmsh lists a face between two volumes once for
+    each of them), in their first order."""
+    out = []
+    for k in sorted({f.shape[1] for f in faces}):
+        f = np.concatenate([x for x in faces if x.shape[1] == k])
+        _, first = np.unique(np.sort(f, axis=1), axis=0, return_index=True)
+        out.append(f[np.sort(first)])
+    return out
 
 
 def _is_face(offsets, conn, types, cells, faces) -> bool:
@@ -166,39 +184,39 @@ def element_groups(data: bytes, n_cells: int, dim: int) -> tuple[np.ndarray | No
     """(tags (n_cells,) int64: each element's group number, 0 for none; {name: [number, dim]} as
     gmsh's field data; a note or None) from a Gambit file's bytes; None where it has no element
     group. Groups that cannot be trusted (a count that does not match its ids, an id past the
-    elements) give (None, {}, a note saying so): no group is used."""
+    elements, a word that is not an id) give (None, {}, a note saying so): no group is used. A group
+    whose header miscounts its ids has all its ids used, and a note says so."""
     tags = np.zeros(n_cells, dtype=np.int64)
     sizes = np.zeros(n_cells, dtype=np.int64)  # the size of the group a cell is in (smallest wins)
     names: dict[str, list[int]] = {}
     twice = 0
     found = False
+    first = _first_element_id(data) - 1  # ids from there (1 in every writer we know)
+    miscounted = []
     for m in _GROUP.finditer(data):
         found = True
         number, count, nflags = int(m.group(1)), int(m.group(2)), int(m.group(4))
         body = _section(data, m.end()).split()
-        if len(body) != nflags + count or number < 1:
-            return (
-                None,
-                {},
-                (
-                    f"element group {number} lists {max(len(body) - nflags, 0):,} ids where its header says "
-                    f"{count:,}: the element groups are not used"
-                ),
-            )
         ids = _ids(body[nflags:])
-        if ids is None:
+        if ids is None or number < 1:
             return (
                 None,
                 {},
                 f"element group {number} holds a word that is not an element id: the element groups are not used",
             )
+        if ids.size != count:  # the ids are what counts (VTK's reader died on such a file)
+            miscounted.append(
+                f"element group {number} lists {ids.size:,} elements where its header says {count:,}"
+            )
+        ids -= first
         if ids.size and (ids.min() < 0 or ids.max() >= n_cells):
+            bad = int(ids.max() if ids.max() >= n_cells else ids.min()) + 1 + first
             return (
                 None,
                 {},
                 (
-                    f"element group {number} lists element {int(ids.max()) + 1:,}, past the {n_cells:,} elements "
-                    "of the file: the element groups are not used"
+                    f"element group {number} lists element {bad:,}, not one of the file's {n_cells:,} elements "
+                    f"(ids {first + 1:,} to {first + n_cells:,}): the element groups are not used"
                 ),
             )
         name = m.group(5).decode("utf-8", "replace").strip() or f"group {number}"
@@ -206,12 +224,12 @@ def element_groups(data: bytes, n_cells: int, dim: int) -> tuple[np.ndarray | No
         names[name] = [number, dim]
         taken = sizes[ids] > 0
         twice += int(np.count_nonzero(taken))
-        better = ~taken | (sizes[ids] > count)  # a cell in two groups: kept in the smaller one
+        better = ~taken | (sizes[ids] > ids.size)  # a cell in two groups: kept in the smaller one
         tags[ids[better]] = number
-        sizes[ids[better]] = count
+        sizes[ids[better]] = ids.size
     if not found:
         return None
-    notes = []
+    notes = [f"{'; '.join(miscounted)}: all of them used"] if miscounted else []
     if twice:
         notes.append(
             f"{twice:,} element{'s' if twice > 1 else ''} listed in two element groups: "
@@ -226,31 +244,35 @@ def element_groups(data: bytes, n_cells: int, dim: int) -> tuple[np.ndarray | No
 def boundary_conditions(data: bytes, offsets, conn, types) -> tuple[list, str | None] | None:
     """([(name, [(cells (m,), faces (m, k) node ids)] by the faces' node count)] of the file's
     boundary conditions on element faces, a note or None), the faces' nodes from the elements as the
-    file orders them (before _node_order); None where it has no boundary condition. A condition on nodes (type 0) is left out and said;
-    one that does not fit (the module's note) is not used and said."""
+    file orders them (before _node_order); None where it has no boundary condition. A condition on
+    nodes (type 0) is left out and said; one that does not fit (the module's note) is not used and
+    said. Values after each face (NVALUES) are read past."""
     sets, notes = [], []
     n = len(types)
+    first = _first_element_id(data)
     for m in _BC.finditer(data):
-        name = m.group(1).decode("utf-8", "replace").strip()
-        itype, count, nvalues = int(m.group(2)), int(m.group(3)), int(m.group(4))
+        words = _section(data, m.end()).split()
+        head = _bc_header(m.group(1), len(words))
+        if head is None:
+            line = m.group(1).decode("utf-8", "replace").strip()
+            notes.append(
+                f"a boundary condition's header '{line}' is not NAME ITYPE NENTRY NVALUES [IBCODE...]: not used"
+            )
+            continue
+        name, itype, count, nvalues = head
         if itype != 1:
             notes.append(f"boundary condition '{name}' is on nodes, not faces: not used")
             continue
-        words = _section(data, m.end()).split()
-        if len(words) != count * (3 + nvalues):
-            notes.append(
-                f"boundary condition '{name}' holds {len(words):,} numbers, not the {count:,} entries its header says: not used"
-            )
-            continue
-        rows = _ids(words)
+        rows = _ids(np.array(words, dtype=bytes).reshape(count, 3 + nvalues)[:, :3].reshape(-1))
         if rows is None:
             notes.append(f"boundary condition '{name}' holds a word that is not a number: not used")
             continue
-        rows = rows.reshape(count, 3 + nvalues) + 1  # (_ids subtracts 1)
-        cell, face = rows[:, 0] - 1, rows[:, 2] - 1
+        rows = rows.reshape(count, 3) + 1  # (_ids subtracts 1)
+        cell, face = rows[:, 0] - first, rows[:, 2] - 1
         if count and (cell.min() < 0 or cell.max() >= n):
             notes.append(
-                f"boundary condition '{name}' names element {int(cell.max()) + 1:,}, past the {n:,} elements: not used"
+                f"boundary condition '{name}' names element {int(rows[:, 0].max()):,}, past the {n:,} "
+                "elements: not used"
             )
             continue
         got = _face_nodes(offsets, conn, types, cell, face)
@@ -264,6 +286,30 @@ def boundary_conditions(data: bytes, offsets, conn, types) -> tuple[list, str | 
     if not sets and not notes:
         return None
     return sets, "; ".join(notes) or None
+
+
+def _bc_header(line: bytes, n_words: int) -> tuple[str, int, int, int] | None:
+    """(name, itype, entries, values) of a boundary condition's header: NAME (Gambit's A32, gmsh's
+    right-aligned; it may hold spaces), then ITYPE (0 nodes, 1 element faces), NENTRY, NVALUES and
+    up to five IBCODEs (none in some writers'). The name ends where the numbers begin: the first
+    split whose ITYPE is 0 or 1 and whose entries (NENTRY x (3 or 1 + NVALUES) words) are the
+    section's n_words; None where no split is."""
+    words = line.split()
+    k = len(words)
+    while k > 0 and words[k - 1].isdigit():
+        k -= 1  # words[k:]: the trailing integers
+    for at in range(max(k, 1), len(words) - 2):
+        itype, count, nvalues = (int(w) for w in words[at : at + 3])
+        if len(words) - at <= 8 and itype in (0, 1) and count * (nvalues + (3 if itype else 1)) == n_words:
+            return b" ".join(words[:at]).decode("utf-8", "replace"), itype, count, nvalues
+    return None
+
+
+def _first_element_id(data: bytes) -> int:
+    """The id of the file's first element (1 in every writer we know; a file cut out of a larger
+    model may start later, its ids then consecutive from there)."""
+    m = _FIRST_ID.search(data)
+    return int(m.group(1)) if m else 1
 
 
 def _face_nodes(offsets, conn, types, cell, face) -> list | None:
@@ -297,10 +343,11 @@ def _section(data: bytes, start: int) -> bytes:
     return data[start : end.start() if end else len(data)]
 
 
-def _ids(words: list) -> np.ndarray | None:
-    """Integer words as 0-based ids (each minus 1), or None where one is not an integer."""
+def _ids(words) -> np.ndarray | None:
+    """Integer words (a list, or an array of bytes) as 0-based ids (each minus 1), or None where one
+    is not an integer."""
     try:
-        return np.array(words, dtype=np.int64) - 1
+        return np.asarray(words).astype(np.int64) - 1 if len(words) else np.zeros(0, np.int64)
     except ValueError:
         return None
 

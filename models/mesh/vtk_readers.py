@@ -90,9 +90,9 @@ def read_vtk(
         if why:
             raise MeshError(f"cannot read {os.path.basename(path)} as {fmt}: {why}")
     if kind == "gambit":
-        from models.mesh.gambit import without_repeated_ends
+        from models.mesh.gambit import vtk_copy
 
-        with without_repeated_ends(path) as clean:
+        with vtk_copy(path) as clean:
             data = _run(clean, kind, fmt)
     else:
         data = _run(path, kind, fmt)
