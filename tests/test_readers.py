@@ -568,3 +568,68 @@ def test_paraview_collections_read_their_first_mesh(tmp_path):
     assert w.Write() == 1
     mesh = read_mesh(str(tmp_path / "d.vtpd"))
     assert (mesh.n_cells, mesh.n_points) == (n_ref, len(p)) and mesh.tags is None
+
+
+def test_ghost_and_blanked_cells_of_every_kind_are_left_out_and_said(tmp_path):
+    """vtkGhostType's cells that ParaView does not draw are left out, wherever they are: polyhedra
+    pieces with a ghost layer (whole and read alone), a multiblock of such pieces, a ghost array of
+    floats, blanked (HIDDENCELL) cells alone, each said in one note; a file whose every cell is a
+    ghost is refused in one sentence that says so (not 'it holds no cells')."""
+    from vtkmodules.util.numpy_support import numpy_to_vtk
+    from vtkmodules.vtkFiltersParallel import vtkExtractUnstructuredGridPiece
+
+    from models.mesh.sandbox import read_mesh_safe
+
+    p, hexes = vc.grid(4, 3, 3)
+    cut = vtkExtractUnstructuredGridPiece()
+    cut.SetInputData(vc.polyhedra(p, hexes))
+    cut.CreateGhostCellsOn()
+    whole = vc.write_pieces(
+        tmp_path / "poly.pvtu", vtk.vtkXMLPUnstructuredGridWriter(), cut, 3, ghost_level=1
+    )
+    mesh = read_mesh_safe(whole)
+    assert mesh.n_cells == len(hexes) and mesh.poly_cells is not None
+    plain = vc.write_xml(str(tmp_path / "plain.vtu"), vc.unstructured(p, [(12, hexes)]))
+    # (the piece filter writes float32 points: a 1e-7 rounding)
+    assert float(mesh.meta["measures"].sum()) == pytest.approx(vc.vtk_reference(plain)[1], rel=1e-6)
+    pieces = sorted((tmp_path / "poly").glob("*.vtu")) or sorted(tmp_path.glob("poly_*.vtu"))
+    assert len(pieces) == 3
+    counts = []
+    for piece in pieces:
+        alone = vc.vtk_read(str(piece))
+        ghost = vc.vtk_to_numpy(alone.GetCellData().GetArray("vtkGhostType"))
+        one = read_mesh_safe(str(piece))
+        assert one.n_cells == int(np.count_nonzero(ghost == 0)) < alone.GetNumberOfCells()
+        assert "ghost cells" in one.meta["ghost_cells"]["message"]
+        counts.append(one.n_cells)
+    assert sum(counts) == len(hexes)
+    blocks = vtk.vtkMultiBlockDataSet()  # the pieces as the blocks of one .vtm
+    for i, piece in enumerate(pieces):
+        blocks.SetBlock(i, vc.vtk_read(str(piece)))
+    w = vtk.vtkXMLMultiBlockDataWriter()
+    w.SetFileName(str(tmp_path / "pieces.vtm"))
+    w.SetInputData(blocks)
+    assert w.Write() == 1
+    assert read_mesh_safe(str(tmp_path / "pieces.vtm")).n_cells == len(hexes)
+
+    q, hx = vc.grid(5, 4, 3)
+    for values, kind, left in (
+        (np.r_[[1.0] * 20, [0.0] * 40], "ghost", 40),
+        (np.r_[[32] * 12, [0] * 48], "blanked", 48),
+    ):
+        ug = vc.unstructured(q, [(12, hx)])
+        g = numpy_to_vtk(values.astype(np.float64 if kind == "ghost" else np.uint8), deep=True)
+        g.SetName("vtkGhostType")
+        ug.GetCellData().AddArray(g)
+        path = vc.write_xml(str(tmp_path / f"{kind}.vtu"), ug)
+        m = read_mesh_safe(path)
+        assert m.n_cells == left and kind in m.meta["ghost_cells"]["message"]
+    ug = vc.unstructured(q, [(12, hx)])
+    g = numpy_to_vtk(np.ones(len(hx), np.uint8), deep=True)
+    g.SetName("vtkGhostType")
+    ug.GetCellData().AddArray(g)
+    path = vc.write_xml(str(tmp_path / "all.vtu"), ug)
+    with pytest.raises(
+        MeshError, match=r"every one of its 60 cells is a ghost cell .*read the parallel file"
+    ):
+        read_mesh_safe(path)

@@ -13,6 +13,7 @@ import numpy as np
 
 from models.errors import MeshError
 from models.mesh.cells import BOUNDARY_TAG_NAME, TAG_NAMES, ranges
+from models.mesh.container import VTK_POLYHEDRON
 from models.mesh.lattice import grid_points, image_points, structured_cells
 
 HIDDEN_CELL, HIDDEN_POINT, DUPLICATE_CELL = 32, 2, 1  # vtkDataSetAttributes ghost bits
@@ -156,31 +157,71 @@ def _structured(ds):
 
 
 def _hide_blanked(ds, pts, offsets, conn, types, cell_data, poly, piece: bool = False):
-    """Drop blanked (hidden) cells, and cells on hidden points, as VTK does when it draws them;
-    in a parallel file's piece, or a file of one piece (one written by a parallel writer, read
-    alone), its ghost cells too (copies of another piece's cells, which ParaView does not draw;
-    ghost_cells says how many)."""
-    ghost = ds.GetCellData().GetArray("vtkGhostType")
-    pghost = ds.GetPointData().GetArray("vtkGhostType")
-    hide = None
-    if ghost is not None:
-        hide = (_np(ghost) & (HIDDEN_CELL | (DUPLICATE_CELL if piece else 0))) != 0
-    if pghost is not None and types.size:
-        hp = (_np(pghost) & HIDDEN_POINT) != 0
-        if hp.any():
-            cell = np.repeat(np.arange(types.size), np.diff(offsets))
-            on = np.bincount(cell, weights=hp[np.asarray(conn, np.int64)], minlength=types.size) > 0
-            hide = on if hide is None else hide | on
+    """Drop blanked (hidden) cells, and cells on hidden points, as VTK does when it draws them, and
+    ghost cells (vtkGhostType DUPLICATECELL: copies of another piece's cells, in a parallel file's
+    pieces, in a piece read alone, in a multiblock of pieces), which ParaView does not draw either;
+    polyhedra with their faces. hidden_cells counts them. (piece: kept for the callers; every
+    dataset is treated alike.)"""
+    hide = _hidden(ds, offsets, conn, types)
     cell_data.pop("vtkGhostType", None)
-    if hide is None or not hide.any() or poly is not None:
+    if hide is None or not hide.any():
         return pts, offsets, conn, types, cell_data, poly
     keep = np.flatnonzero(~hide)
     sizes = np.diff(offsets)[keep]
     conn = np.asarray(conn)[ranges(offsets[keep], sizes)]
+    if poly is not None:  # the kept polyhedra's faces
+        poly = _kept_polyhedra(poly, ~hide[np.asarray(types) == VTK_POLYHEDRON])
     offsets = np.zeros(keep.size + 1, np.int64)
     np.cumsum(sizes, out=offsets[1:])
     cell_data = {k: v[keep] for k, v in cell_data.items() if len(v) == hide.size}
     return pts, offsets, conn, types[keep], cell_data, poly
+
+
+def _hidden(ds, offsets, conn, types) -> np.ndarray | None:
+    """(C,) bool: the cells VTK does not draw (HIDDENCELL, DUPLICATECELL, or on a HIDDENPOINT), or
+    None without a ghost array. A ghost array of another number type is read as integers."""
+    ghost = ds.GetCellData().GetArray("vtkGhostType")
+    pghost = ds.GetPointData().GetArray("vtkGhostType")
+    hide = None
+    if ghost is not None:
+        hide = (_np(ghost).astype(np.int64) & (HIDDEN_CELL | DUPLICATE_CELL)) != 0
+    if pghost is not None and types.size:
+        hp = (_np(pghost).astype(np.int64) & HIDDEN_POINT) != 0
+        if hp.any():
+            cell = np.repeat(np.arange(types.size), np.diff(offsets))
+            on = np.bincount(cell, weights=hp[np.asarray(conn, np.int64)], minlength=types.size) > 0
+            hide = on if hide is None else hide | on
+    return hide
+
+
+def _kept_polyhedra(poly, keep: np.ndarray):
+    """VTK's polyhedron faces (faces per polyhedron (Q+1,), nodes per face (F+1,), face nodes) of
+    the polyhedra `keep` (Q,) keeps."""
+    cell_face_off, face_off, face_nodes = (np.asarray(a, dtype=np.int64) for a in poly)
+    q = np.flatnonzero(keep)
+    nf = np.diff(cell_face_off)[q]
+    faces = ranges(cell_face_off[q], nf)
+    fsz = np.diff(face_off)[faces]
+    new_cf, new_fo = np.zeros(q.size + 1, np.int64), np.zeros(faces.size + 1, np.int64)
+    np.cumsum(nf, out=new_cf[1:])
+    np.cumsum(fsz, out=new_fo[1:])
+    return new_cf, new_fo, face_nodes[ranges(face_off[faces], fsz)]
+
+
+def hidden_cells(data) -> tuple[int, int, int]:
+    """(ghost cells, hidden cells, cells) of a dataset or of a composite's datasets: the cells
+    _hide_blanked leaves out, by their vtkGhostType (DUPLICATECELL: copies of another piece's
+    cells; HIDDENCELL or on a hidden point: blanked), and all of them."""
+    leaves = _leaves(data) if data.IsA("vtkCompositeDataSet") else [data]
+    dup = hid = total = 0
+    for ds in leaves:
+        total += ds.GetNumberOfCells()
+        ghost = ds.GetCellData().GetArray("vtkGhostType")
+        if ghost is not None:
+            g = _np(ghost).astype(np.int64)
+            dup += int(np.count_nonzero(g & DUPLICATE_CELL))
+            hid += int(np.count_nonzero((g & HIDDEN_CELL) & ~(g & DUPLICATE_CELL)))
+    return dup, hid, total
 
 
 def _leaves(data) -> list:
@@ -423,12 +464,3 @@ def _lex_find(table: np.ndarray, rows: np.ndarray) -> np.ndarray:
     where = np.full(inverse.max() + 1 if inverse.size else 0, -1, np.int64)
     where[inverse[: len(table)][::-1]] = np.arange(len(table))[::-1]
     return where[inverse[len(table) :]]
-
-
-def ghost_cells(data) -> int:
-    """How many cells of a dataset (not a composite) its vtkGhostType marks as copies of another
-    piece's cells (DUPLICATECELL), the ones _hide_blanked leaves out of a file of one piece."""
-    if data.IsA("vtkCompositeDataSet"):
-        return 0
-    ghost = data.GetCellData().GetArray("vtkGhostType")
-    return 0 if ghost is None else int(np.count_nonzero(_np(ghost) & DUPLICATE_CELL))

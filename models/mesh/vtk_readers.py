@@ -22,7 +22,7 @@ import numpy as np
 
 from models.errors import MeshError, ParameterError
 from models.mesh.cells import BOUNDARY_TAG_NAME, TAG_NAMES, Normalized, normalize
-from models.mesh.vtk_arrays import _arrays, _cell_data, _field_data, _np, _openfoam, ghost_cells
+from models.mesh.vtk_arrays import _arrays, _cell_data, _field_data, _np, _openfoam, hidden_cells
 from models.mesh.vtk_setup import (
     _exodus_names,
     _fluent_cell_zones_only,
@@ -97,12 +97,27 @@ def read_vtk(
     else:
         data = _run(path, kind, fmt)
     meta = {"reader": f"VTK {cls}", "format": what}
-    ghosts = ghost_cells(data)
-    if ghosts:  # a piece of a parallel file read alone: its copies of the neighbours' cells
+    dup, hid, total = hidden_cells(data)
+    if total and dup + hid == total:  # nothing left to read (VTK's reader read every cell)
+        what_all = (
+            "a ghost cell (marked in its ghost-type array as a copy of another piece's cell); read the "
+            "parallel file (.pvtu, .pvtp) it is a piece of"
+            if dup
+            else "hidden (blanked in its ghost-type array)"
+        )
+        raise MeshError(
+            f"cannot read {os.path.basename(path)} as {fmt}: every one of its {total:,} cells is {what_all}"
+        )
+    said = (
+        [f"{dup:,} ghost cells (copies of a neighbouring piece's cells, as a parallel writer writes them)"]
+        if dup
+        else []
+    )
+    said += [f"{hid:,} blanked cells (hidden)"] if hid else []
+    if said:  # vtkGhostType's cells that ParaView does not draw: left out, as there
         meta["ghost_cells"] = {
-            "count": ghosts,
-            "message": f"{ghosts:,} ghost cells left out (marked in vtkGhostType as copies of a neighbouring "
-            "piece's cells, as a parallel writer writes them; ParaView does not draw them either)",
+            "count": dup + hid,
+            "message": f"{' and '.join(said)} left out, as marked in vtkGhostType (ParaView does not draw them either)",
         }
     if weld is None:
         mesh = _image_mesh(data, physical_tag, meta, path)
