@@ -34,7 +34,7 @@ setup(
         Extension(
             "models.mesh._fastmesh",
             ["models/mesh/_fastmesh.c", "models/mesh/_fastascii.c", "models/mesh/_fastpoly.c"],
-            depends=["models/_buffers.h"],
+            depends=["models/_buffers.h", "models/mesh/_fastmesh.h"],
             include_dirs=["models"],
             # the same float operations as the numpy twins in geometry.py, bit for bit
             extra_compile_args=["-O3", "-fno-math-errno", "-ffp-contract=off"],

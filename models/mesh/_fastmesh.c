@@ -25,6 +25,7 @@
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include "_buffers.h"
+#include "_fastmesh.h"
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
@@ -55,21 +56,7 @@ static inline __attribute__((always_inline)) void measure_cell(const double *P, 
     for (int64_t j = 0; j < k; j++)
         for (int d = 0; d < 3; d++) rel[j][d] = x[j][d] - o[d];
     double v_sum = 0.0, g_sum[3] = {0.0, 0.0, 0.0};
-    /* one triangle (a, b, c): the numpy path's a - o, b - o, c - o, six times its volume
-       einsum(a, cross(b, c)) (summed x, z, y) and (a + b + c) / 4; one division by 6 per cell */
-#define TRI(A, B, CC)                                                                              \
-    do {                                                                                           \
-        double a0 = (A)[0], a1 = (A)[1], a2 = (A)[2];                                              \
-        double b0 = (B)[0], b1 = (B)[1], b2 = (B)[2];                                              \
-        double c0 = (CC)[0], c1 = (CC)[1], c2 = (CC)[2];                                           \
-        double x0 = b1 * c2 - b2 * c1, x1 = b2 * c0 - b0 * c2, x2 = b0 * c1 - b1 * c0;             \
-        double t0 = a0 * x0, t1 = a1 * x1, t2 = a2 * x2;                                           \
-        double v = (t0 + t2) + t1;                                                                 \
-        v_sum += v;                                                                                \
-        g_sum[0] += v * (((a0 + b0) + c0) * 0.25);                                                 \
-        g_sum[1] += v * (((a1 + b1) + c1) * 0.25);                                                 \
-        g_sum[2] += v * (((a2 + b2) + c2) * 0.25);                                                 \
-    } while (0)
+    /* TRI (_fastmesh.h): one triangle into v_sum and g_sum */
     int64_t pos = 0;
     for (int64_t f = 0; f < nf; f++) {
         int64_t s = tsize[f];
@@ -88,7 +75,6 @@ static inline __attribute__((always_inline)) void measure_cell(const double *P, 
             for (int d = 0; d < 3; d++) m[d] = m[d] / (double)s - o[d];
         for (int64_t j = 0; j < s; j++) TRI(m, rel[t[j]], rel[t[j + 1 == s ? 0 : j + 1]]);
     }
-#undef TRI
     *vol = v_sum / 6.0;
     for (int d = 0; d < 3; d++) cen[d] = g_sum[d] / v_sum + o[d];
 }

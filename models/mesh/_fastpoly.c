@@ -17,6 +17,7 @@
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include "_buffers.h"
+#include "_fastmesh.h"
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
@@ -171,19 +172,6 @@ PyObject *py_poly_measures(PyObject *self, PyObject *args) {
     do {                                                                                           \
         for (int d = 0; d < 3; d++) (OUT)[d] = P[3 * (ID) + d] - o[d];                              \
     } while (0)
-#define TRI(A, B, CC)                                                                              \
-    do {                                                                                           \
-        double a0 = (A)[0], a1 = (A)[1], a2 = (A)[2];                                              \
-        double b0 = (B)[0], b1 = (B)[1], b2 = (B)[2];                                              \
-        double c0 = (CC)[0], c1 = (CC)[1], c2 = (CC)[2];                                           \
-        double x0 = b1 * c2 - b2 * c1, x1 = b2 * c0 - b0 * c2, x2 = b0 * c1 - b1 * c0;             \
-        double t0 = a0 * x0, t1 = a1 * x1, t2 = a2 * x2;                                           \
-        double v = (t0 + t2) + t1;                                                                 \
-        v_sum += v;                                                                                \
-        g_sum[0] += v * (((a0 + b0) + c0) * 0.25);                                                 \
-        g_sum[1] += v * (((a1 + b1) + c1) * 0.25);                                                 \
-        g_sum[2] += v * (((a2 + b2) + c2) * 0.25);                                                 \
-    } while (0)
                 for (int pass = 0; pass < 2; pass++) /* the triangles first, then the fans */
                     for (int64_t f = cf[q]; f < cf[q + 1]; f++) {
                         int64_t lo = fo[f], s = fo[f + 1] - lo;
@@ -207,7 +195,6 @@ PyObject *py_poly_measures(PyObject *self, PyObject *args) {
                             TRI(m, bb, c);
                         }
                     }
-#undef TRI
 #undef REL
                 vol[q] = v_sum / 6.0;
                 for (int d = 0; d < 3; d++) cen[3 * q + d] = g_sum[d] / v_sum + o[d];
