@@ -144,6 +144,8 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
     if mesh.meta.get("reordered_cells"):  # a Gambit file's bricks, pyramids: in Gambit's node order
         moved = mesh.meta["reordered_cells"]
         issues.append(_issue("reordered-cells", "info", int(moved["count"]), [], str(moved["message"])))
+    if mesh.meta.get("openfoam_order"):  # an OpenFOAM case's faces out of upper-triangular order
+        issues.append(_issue("openfoam-order", "warning", 1, [], str(mesh.meta["openfoam_order"]["message"])))
     if mesh.meta.get("ghost_cells"):  # a parallel writer's piece read alone: its ghost layer left out
         ghosts = mesh.meta["ghost_cells"]
         issues.append(_issue("ghost-cells", "info", int(ghosts["count"]), [], str(ghosts["message"])))

@@ -89,6 +89,16 @@ def read_vtk(
         why = cgns_fault(path)
         if why:
             raise MeshError(f"cannot read {os.path.basename(path)} as {fmt}: {why}")
+    foam_note = None
+    if kind == "openfoam":  # its owner and neighbour lists, which VTK's reader believes
+        from models.mesh.foam_lists import addressing_fault
+
+        folder = os.path.dirname(os.path.abspath(path))
+        fault, foam_note = addressing_fault(
+            os.path.dirname(folder) if os.path.basename(path) == "controlDict" else folder
+        )
+        if fault:
+            raise MeshError(f"cannot read {os.path.basename(path)} as {fmt}: {fault}")
     if kind == "gambit":
         from models.mesh.gambit import vtk_copy
 
@@ -97,6 +107,8 @@ def read_vtk(
     else:
         data = _run(path, kind, fmt)
     meta = {"reader": f"VTK {cls}", "format": what}
+    if foam_note:
+        meta["openfoam_order"] = {"count": 1, "message": foam_note}
     dup, hid, total = hidden_cells(data)
     if total and dup + hid == total:  # nothing left to read (VTK's reader read every cell)
         what_all = (
