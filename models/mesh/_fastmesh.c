@@ -3,25 +3,29 @@
  * them off). Same results bit for bit: the same floating-point operations in the same order as the
  * numpy code (built with -ffp-contract=off, no fast-math).
  *
- *   fixed_measures  signed volume and centroid of cells of one type with a fixed node count, by the
+ *   (measures)      signed volume and centroid of cells of a fixed node count (measure_cell), by the
  *                   divergence theorem on their faces as geometry._measures_and_centroids does it:
  *                   triangles as they are, a face of 4+ nodes fanned from the mean of its nodes,
  *                   every triangle relative to the cell's vertex mean, six times its volume summed and
  *                   divided by 6 once per cell;
  *   fixed_validate  the read stage's validation of cells of one fixed-size type in one pass per cell
- *                   (threads over ranges of cells): fixed_measures' volume and centroid (tetrahedra in
+ *                   (threads over ranges of cells): measure_cell's volume and centroid (tetrahedra in
  *                   closed form, as geometry._tetra_measures), the own-sign flip and the face keys of
  *                   fixed_consistent, then one bucket pass: is flipping each cell by its sign consistent?
  *   consistent      orientation._consistent (fixed_consistent: the same from a cell type's template; it and
  *                   fixed_validate share faces_consistent): with the cells in `flip` reversed, is any face met twice
- *                   in the same direction? (a hash table of directed face keys instead of a sort)
- *   ascii_values    the numbers of a legacy VTK ASCII section (models/mesh/legacy.py), integers or
- *                   correctly rounded decimals; anything else declined (VTK's reader then reads it)
+ *                   in the same direction? (directed face keys bucketed by smallest node; a hash table
+ *                   where ids pass 2^30)
+ *   cells_validate  fixed_validate for cells in CSR: mixed template types in 3D, polygons in 2D
+ *                   (measure_polygon and their directed edges); measures only on request
+ *   bounds          each coordinate's minimum and maximum in one pass (build._bounds)
+ *
+ * In the same module: ascii_values (_fastascii.c: a legacy VTK ASCII section's numbers) and the
+ * polyhedra's helpers (_fastpoly.c).
  *
  * Arrays come through the buffer protocol (no numpy headers at build time); point ids are trusted
  * (build.mesh_from_cells checked them before).
  */
-#define _GNU_SOURCE /* strtod_l */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include "_buffers.h"
@@ -36,7 +40,7 @@
 #include <sys/mman.h>
 
 
-/* One cell's signed volume and centroid (fixed_measures), its k nodes c[0..k-1]: the same float
+/* One cell's signed volume and centroid, its k nodes c[0..k-1]: the same float
  * operations in the same order as geometry._measures_and_centroids. The cell's coordinates are
  * gathered once (x), every node relative to the vertex mean o once (rel). */
 static inline __attribute__((always_inline)) void measure_cell(const double *P, const int64_t *c, int64_t k,
@@ -154,42 +158,6 @@ static inline __attribute__((always_inline)) void measure_tet(const double *P, c
     for (int d = 0; d < 3; d++) cen[d] = p0[d] + ((a[d] + b[d]) + e[d]) / 4.0;
 }
 
-/* fixed_measures(points, conn, tmpl, tsize, vol, cen)
- *   points (P * 3) float64; conn (C * k) int64; tmpl: the local nodes of the cell's faces, the
- *   triangles first then the others, each in template order (as cell_faces + face_triangles order
- *   them); tsize (nf,) their sizes. Out: vol (C,), cen (C * 3). */
-static PyObject *py_fixed_measures(PyObject *self, PyObject *args) {
-    static const char *const names[] = {"points", "conn", "tmpl", "tsize", "vol", "cen"};
-    static const int wr[] = {0, 0, 0, 0, 1, 1};
-    Py_buffer b[6];
-    if (parse_bufs(args, 6, "fixed_measures", names, NULL, wr, b) < 0) return NULL;
-    const double *P = b[0].buf;
-    const int64_t *conn = b[1].buf, *tmpl = b[2].buf, *tsize = b[3].buf;
-    double *vol = b[4].buf, *cen = b[5].buf;
-    int64_t C = N8(b[4]), nf = N8(b[3]), nt = N8(b[2]);
-    int64_t k = C ? N8(b[1]) / C : 0;
-    if (C * 3 != N8(b[5]) || (C && k * C != N8(b[1])) || k > 64 || nf > 64) {
-        release_arr(b, 6);
-        PyErr_SetString(PyExc_ValueError, "fixed_measures: inconsistent array sizes");
-        return NULL;
-    }
-    int64_t sum = 0;
-    for (int64_t f = 0; f < nf; f++) sum += tsize[f];
-    if (sum != nt) {
-        release_arr(b, 6);
-        PyErr_SetString(PyExc_ValueError, "fixed_measures: template sizes do not add up");
-        return NULL;
-    }
-    Py_BEGIN_ALLOW_THREADS
-    int64_t i = 0;
-    if (hex_template(k, nf, tsize))
-        for (; i + 4 <= C; i += 4) measure_hex4(P, conn + i * 8, tmpl, vol + i, cen + 3 * i);
-    for (; i < C; i++) measure_cell(P, conn + i * k, k, tmpl, tsize, nf, vol + i, cen + 3 * i);
-    Py_END_ALLOW_THREADS
-    release_arr(b, 6);
-    Py_RETURN_NONE;
-}
-
 /* consistent(offsets, nodes, cell, flip) -> bool
  *   faces in CSR (offsets (F+1,), nodes), cell (F,) their cells, flip (C,) uint8. A face's directed
  *   key: (smallest node, the node after it, the node before it, min(size, 7)), after and before
@@ -207,60 +175,45 @@ static inline uint64_t mix(uint64_t h) {
     return h;
 }
 
-static PyObject *consistent_hash(PyObject *self, PyObject *args) {
-    static const char *const names[] = {"offsets", "nodes", "cell", "flip"};
-    static const Py_ssize_t sizes[] = {8, 8, 8, 1};
-    static const int wr[] = {0, 0, 0, 0};
-    Py_buffer b[4];
-    if (parse_bufs(args, 4, "consistent", names, sizes, wr, b) < 0) return NULL;
-    const int64_t *off = b[0].buf, *nodes = b[1].buf, *cell = b[2].buf;
-    const uint8_t *flip = b[3].buf;
-    int64_t F = N8(b[0]) - 1, nn = N8(b[1]), nc = (int64_t)b[3].len;
-    if (F < 0 || N8(b[2]) != F || (F > 0 && off[F] > nn)) {
-        release_arr(b, 4);
-        PyErr_SetString(PyExc_ValueError, "consistent: inconsistent array sizes");
-        return NULL;
-    }
+/* consistent's answer by a hash table of the directed keys (any point ids): 1 no key met twice, 0
+ * one met twice, -1 out of memory. Called with the GIL released. */
+static int consistent_hash(const int64_t *off, const int64_t *nodes, const int64_t *cell, const uint8_t *flip,
+                           int64_t F, int64_t nc) {
     uint64_t cap = 16;
     while (cap < 2 * (uint64_t)F) cap <<= 1;
     Key *table = malloc(cap * sizeof(Key));
-    int ok = 1, err = table == NULL;
-    Py_BEGIN_ALLOW_THREADS
-    if (!err) {
-        for (uint64_t i = 0; i < cap; i++) table[i].s = -1;
-        for (int64_t f = 0; f < F && ok; f++) {
-            int64_t a = off[f], s = off[f + 1] - a;
-            if (s < 1 || cell[f] < 0 || cell[f] >= nc) continue; /* not a face: left to the full path */
-            int64_t j = 0;
-            for (int64_t q = 1; q < s; q++)
-                if (nodes[a + q] < nodes[a + j]) j = q; /* first of the smallest (argmin) */
-            Key key = {nodes[a + j], nodes[a + (j + 1) % s], nodes[a + (j + s - 1) % s], s < 7 ? s : 7};
-            if (flip[cell[f]]) {
-                int64_t t = key.nx;
-                key.nx = key.pv;
-                key.pv = t;
+    if (table == NULL) return -1;
+    int ok = 1;
+    for (uint64_t i = 0; i < cap; i++) table[i].s = -1;
+    for (int64_t f = 0; f < F && ok; f++) {
+        int64_t a = off[f], s = off[f + 1] - a;
+        if (s < 1 || cell[f] < 0 || cell[f] >= nc) continue; /* not a face: left to the full path */
+        int64_t j = 0;
+        for (int64_t q = 1; q < s; q++)
+            if (nodes[a + q] < nodes[a + j]) j = q; /* first of the smallest (argmin) */
+        Key key = {nodes[a + j], nodes[a + (j + 1) % s], nodes[a + (j + s - 1) % s], s < 7 ? s : 7};
+        if (flip[cell[f]]) {
+            int64_t t = key.nx;
+            key.nx = key.pv;
+            key.pv = t;
+        }
+        uint64_t h = mix((uint64_t)key.m * 0x9E3779B97F4A7C15ULL ^ mix((uint64_t)key.nx) ^
+                         (mix((uint64_t)key.pv) << 1) ^ (uint64_t)key.s) & (cap - 1);
+        for (;;) {
+            Key *e = table + h;
+            if (e->s < 0) {
+                *e = key;
+                break;
             }
-            uint64_t h = mix((uint64_t)key.m * 0x9E3779B97F4A7C15ULL ^ mix((uint64_t)key.nx) ^
-                             (mix((uint64_t)key.pv) << 1) ^ (uint64_t)key.s) & (cap - 1);
-            for (;;) {
-                Key *e = table + h;
-                if (e->s < 0) {
-                    *e = key;
-                    break;
-                }
-                if (e->m == key.m && e->nx == key.nx && e->pv == key.pv && e->s == key.s) {
-                    ok = 0;
-                    break;
-                }
-                h = (h + 1) & (cap - 1);
+            if (e->m == key.m && e->nx == key.nx && e->pv == key.pv && e->s == key.s) {
+                ok = 0;
+                break;
             }
+            h = (h + 1) & (cap - 1);
         }
     }
-    Py_END_ALLOW_THREADS
     free(table);
-    release_arr(b, 4);
-    if (err) return PyErr_NoMemory();
-    return PyBool_FromLong(ok);
+    return ok;
 }
 
 /* A face's directed key less its smallest node, packed in one 64-bit word: the node after it (bits
@@ -446,7 +399,7 @@ static int faces_consistent(uint32_t *mins, const uint64_t *keys, uint64_t *sort
 
 /* consistent() by the counting sort of faces_consistent (the faces' smallest nodes bucketed, the
  * packed keys compared): the hash table's answer, with less memory touched. The hash table serves
- * meshes whose point ids do not fit the packed keys (2^30 and more). */
+ * meshes whose point ids do not fit the packed keys (2^30 and more, or a negative one). */
 static PyObject *py_consistent(PyObject *self, PyObject *args) {
     static const char *const names[] = {"offsets", "nodes", "cell", "flip"};
     static const Py_ssize_t sizes[] = {8, 8, 8, 1};
@@ -456,48 +409,52 @@ static PyObject *py_consistent(PyObject *self, PyObject *args) {
     const int64_t *off = b[0].buf, *nodes = b[1].buf, *cell = b[2].buf;
     const uint8_t *flip = b[3].buf;
     int64_t F = N8(b[0]) - 1, nn = N8(b[1]), nc = (int64_t)b[3].len, P = 0;
-    int sizes_ok = F >= 0 && N8(b[2]) == F && (F == 0 || off[F] <= nn);
-    for (int64_t f = 0; sizes_ok && f < F; f++) sizes_ok = off[f] >= 0 && off[f + 1] >= off[f];
-    for (int64_t j = 0; sizes_ok && j < (F > 0 ? off[F] : 0); j++) {
-        if (nodes[j] < 0) sizes_ok = 0;
+    if (F < 0 || N8(b[2]) != F || (F > 0 && off[F] > nn)) {
+        release_arr(b, 4);
+        PyErr_SetString(PyExc_ValueError, "consistent: inconsistent array sizes");
+        return NULL;
+    }
+    int packed = 1; /* the packed keys hold these faces: CSR offsets, point ids in 0..2^30 */
+    for (int64_t f = 0; packed && f < F; f++) packed = off[f] >= 0 && off[f + 1] >= off[f];
+    for (int64_t j = 0; packed && j < (F > 0 ? off[F] : 0); j++) {
+        if (nodes[j] < 0) packed = 0;
         else if (nodes[j] >= P) P = nodes[j] + 1;
     }
-    release_arr(b, 4);
-    if (!sizes_ok || P >= KEY_ID_LIMIT || F >= (int64_t)NONE32) return consistent_hash(self, args);
-    if (parse_bufs(args, 4, "consistent", names, sizes, wr, b) < 0) return NULL;
-    Scratch sc = face_scratch(F, P, 0);
-    if (!sc.block) {
-        release_arr(b, 4);
-        return PyErr_NoMemory();
-    }
-    int ok;
+    packed = packed && P < KEY_ID_LIMIT && F < (int64_t)NONE32;
+    Scratch sc = packed ? face_scratch(F, P, 0) : (Scratch){0};
+    int ok = -1;
     Py_BEGIN_ALLOW_THREADS
-    int64_t G = 0; /* the faces keyed (a face of no node, or of no cell, is left to the full path) */
-    for (int64_t f = 0; f < F; f++) {
-        int64_t a = off[f], s = off[f + 1] - a;
-        if (s < 1 || cell[f] < 0 || cell[f] >= nc) continue;
-        int64_t j = 0;
-        for (int64_t q = 1; q < s; q++)
-            if (nodes[a + q] < nodes[a + j]) j = q; /* first of the smallest (argmin) */
-        uint64_t nx = (uint64_t)nodes[a + (j + 1) % s], pv = (uint64_t)nodes[a + (j + s - 1) % s];
-        if (flip[cell[f]]) {
-            uint64_t t = nx;
-            nx = pv;
-            pv = t;
+    if (!packed) {
+        ok = consistent_hash(off, nodes, cell, flip, F, nc);
+    } else if (sc.block) {
+        int64_t G = 0; /* the faces keyed (a face of no node, or of no cell, is left to the full path) */
+        for (int64_t f = 0; f < F; f++) {
+            int64_t a = off[f], s = off[f + 1] - a;
+            if (s < 1 || cell[f] < 0 || cell[f] >= nc) continue;
+            int64_t j = 0;
+            for (int64_t q = 1; q < s; q++)
+                if (nodes[a + q] < nodes[a + j]) j = q; /* first of the smallest (argmin) */
+            uint64_t nx = (uint64_t)nodes[a + (j + 1) % s], pv = (uint64_t)nodes[a + (j + s - 1) % s];
+            if (flip[cell[f]]) {
+                uint64_t t = nx;
+                nx = pv;
+                pv = t;
+            }
+            sc.mins[G] = (uint32_t)nodes[a + j];
+            sc.keys[G++] = nx << 33 | pv << 3 | (uint64_t)(s < 7 ? s : 7);
         }
-        sc.mins[G] = (uint32_t)nodes[a + j];
-        sc.keys[G++] = nx << 33 | pv << 3 | (uint64_t)(s < 7 ? s : 7);
+        ok = faces_consistent(sc.mins, sc.keys, sc.sorted, G, P, sc.start);
     }
-    ok = faces_consistent(sc.mins, sc.keys, sc.sorted, G, P, sc.start);
     Py_END_ALLOW_THREADS
-    scratch_give(sc.block);
+    if (sc.block) scratch_give(sc.block);
     release_arr(b, 4);
+    if (ok < 0) return PyErr_NoMemory();
     return PyBool_FromLong(ok);
 }
 
 /* fixed_consistent(conn, tmpl, tsize, flip, npts) -> bool
  *   consistent() for cells of one type with a fixed node count, their faces taken from the
- *   template (as fixed_measures) instead of a face array; npts (1,) the number of points
+ *   template (as measure_cell) instead of a face array; npts (1,) the number of points
  *   (< 2^60). The faces' smallest nodes and keys here, then faces_consistent. */
 static PyObject *py_fixed_consistent(PyObject *self, PyObject *args) {
     static const char *const names[] = {"conn", "tmpl", "tsize", "flip", "npts"};
@@ -543,7 +500,7 @@ static PyObject *py_fixed_consistent(PyObject *self, PyObject *args) {
 
 /* fixed_validate(points, conn, tmpl, tsize, vol, cen, flip, npts, nthreads) -> bool
  *   The read stage's validation of cells of one type with a fixed node count in one pass per cell:
- *   fixed_measures' signed volume and centroid (tetrahedra: measure_tet, closed form, as
+ *   measure_cell's signed volume and centroid (tetrahedra: measure_tet, closed form, as
  *   geometry._tetra_measures), flip[i] = vol[i] < 0 (uint8), and every face's smallest node and
  *   directed key as fixed_consistent makes them with those flips (sharing the gathered nodes).
  *   Then the keys are bucketed by their smallest node (a counting sort over R ranges of faces, the
@@ -1016,11 +973,8 @@ static PyMethodDef methods[] = {
      "fixed_validate for cells in CSR: mixed 3D types, or 2D polygons; -1 where it does not apply."},
     {"fixed_consistent", py_fixed_consistent, METH_VARARGS,
      "fixed_consistent(conn, tmpl, tsize, flip, npts) -> bool: consistent() for cells of one type."},
-    {"fixed_measures", py_fixed_measures, METH_VARARGS,
-     "fixed_measures(points, conn, tmpl, tsize, vol, cen): signed volumes and centroids of cells of "
-     "one type (geometry._measures_and_centroids, bit for bit)."},
     {"consistent", py_consistent, METH_VARARGS,
-     "consistent(offsets, nodes, cell, flip) -> bool: orientation._consistent by a hash table."},
+     "consistent(offsets, nodes, cell, flip) -> bool: orientation._consistent (counting sort; hash table past 2^30 ids)."},
     {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_fastmesh",

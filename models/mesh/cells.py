@@ -141,6 +141,27 @@ def ranges(starts: np.ndarray, sizes: np.ndarray) -> np.ndarray:
     return np.cumsum(out)
 
 
+def with_boundary_faces(offsets, conn, types, block, sizes, conn_b, types_b, tags_b):
+    """A reader's elements with boundary faces it found beside them appended as cells of their own
+    (offsets, conn, types) and the cell data that tells them apart: "block" (the elements' groups,
+    or 0s where block is None; 0 for the faces) and BOUNDARY_TAG_NAME (0 for the elements, tags_b
+    for the faces), as normalize takes them (CGNS boundary conditions, Gambit's)."""
+    n = len(types)
+    offsets = np.asarray(offsets, np.int64)
+    zeros = np.zeros(len(sizes), np.int64)
+    return (
+        np.concatenate([offsets, offsets[-1] + np.cumsum(sizes)]),
+        np.concatenate([np.asarray(conn, np.int64), np.asarray(conn_b, np.int64)]),
+        np.concatenate([np.asarray(types, np.uint8), np.asarray(types_b, np.uint8)]),
+        {
+            "block": np.concatenate(
+                [np.zeros(n, np.int64) if block is None else np.asarray(block, np.int64), zeros]
+            ),
+            BOUNDARY_TAG_NAME: np.concatenate([np.zeros(n, np.int64), np.asarray(tags_b, np.int64)]),
+        },
+    )
+
+
 def _offsets(sizes: np.ndarray) -> np.ndarray:
     off = np.zeros(sizes.size + 1, np.int64)
     np.cumsum(sizes, out=off[1:])

@@ -59,7 +59,7 @@ _FACES = {
     9: ((0, 1), (1, 2), (2, 3), (3, 0)),
     5: ((0, 1), (1, 2), (2, 0)),
 }
-_FACE_TYPE = {2: 3, 3: 5, 4: 9}  # a face's VTK type by its node count (line, triangle, quad)
+_FACE_TYPE = np.array([0, 0, 3, 5, 9], np.uint8)  # a face's VTK type by its node count (line, triangle, quad)
 _GAMBIT_ORDER = ((12, 8, (0, 1, 3, 2, 4, 5, 7, 6), "bricks"), (14, 5, (0, 1, 3, 2, 4), "pyramids"))
 
 
@@ -93,7 +93,7 @@ def gambit_cells(path: str, pts, offsets, conn, types, cell_data: dict, field: d
     """VTK's arrays of a Gambit file with its node order, groups and boundary conditions (the
     module's note): (offsets, conn, types, cell_data, field), the boundary faces appended as cells
     of one dimension less with their group in cell_data's boundary tags; notes in meta."""
-    from models.mesh.cells import BOUNDARY_TAG_NAME, DIM
+    from models.mesh.cells import DIM, with_boundary_faces
     from models.mesh.mapped import file_bytes
 
     data = file_bytes(path)
@@ -127,21 +127,16 @@ def gambit_cells(path: str, pts, offsets, conn, types, cell_data: dict, field: d
         first = max([0, *(int(v[0]) for v in field.values() if len(v) == 2)]) + 1
         parts = [(first + i, f) for i, fs in enumerate(sets.values()) for f in _distinct_faces(fs)]
         sizes = np.concatenate([np.full(len(f), f.shape[1]) for _, f in parts])
-        offsets = np.concatenate([offsets, offsets[-1] + np.cumsum(sizes)])
-        conn = np.concatenate([np.asarray(conn, np.int64), *(f.reshape(-1) for _, f in parts)])
-        types = np.concatenate([types, np.array([_FACE_TYPE[k] for k in sizes.tolist()], np.uint8)])
-        block = cell_data.get("block")
-        cell_data = {  # (the reader's other cell arrays, for the elements only, are not used here)
-            "block": np.concatenate(
-                [
-                    np.zeros(n, np.int64) if block is None else np.asarray(block, np.int64),
-                    np.zeros(sizes.size, np.int64),
-                ]
-            ),
-            BOUNDARY_TAG_NAME: np.concatenate(
-                [np.zeros(n, np.int64), *(np.full(len(f), g) for g, f in parts)]
-            ),
-        }
+        offsets, conn, types, cell_data = with_boundary_faces(  # (the reader's other cell arrays go)
+            offsets,
+            conn,
+            types,
+            cell_data.get("block"),
+            sizes,
+            np.concatenate([f.reshape(-1) for _, f in parts]),
+            _FACE_TYPE[sizes],
+            np.concatenate([np.full(len(f), g) for g, f in parts]),
+        )
         for i, name in enumerate(sets):  # (a name an element group has too: told apart, as for CGNS)
             field = {**field, (name if name not in field else f"{name} ({dim - 1}D)"): [first + i, dim - 1]}
     if notes:

@@ -1,7 +1,7 @@
 """VTK's datasets as our arrays (models.mesh.vtk_readers reads them): points, offsets,
 connectivity and types by vtk_to_numpy, no loop over cells; polydata's verts, lines, polygons and
-strips in one CSR; structured datasets' quads / hexahedra from their dimensions; blanked cells
-(and, in a parallel file's pieces, ghost cells) left out; composite outputs (element blocks, zones,
+strips in one CSR; structured datasets' quads / hexahedra from their dimensions; blanked and ghost
+cells (vtkGhostType) left out; composite outputs (element blocks, zones,
 pieces) joined: blocks that share the file's point set keep it, others have their coincident points
 merged, as vtkAppendFilter's MergePoints does; an OpenFOAM case's internal mesh and patches."""
 
@@ -52,10 +52,10 @@ def _arrays(data, path: str, what: str, fmt: str, groups: bool = True):
     parallel file's pieces, which are one mesh cut for the processes that wrote it."""
     if data.IsA("vtkCompositeDataSet"):
         return _composite(data, path, what, fmt, groups)
-    return _dataset(data, path, what, fmt, piece=True)  # (a file of one piece: its ghost cells too)
+    return _dataset(data, path, what, fmt)
 
 
-def _dataset(ds, path, what, fmt, piece: bool = False):
+def _dataset(ds, path, what, fmt):
     if ds.IsA("vtkUnstructuredGrid"):
         out = _unstructured(ds)
     elif ds.IsA("vtkPolyData"):
@@ -66,7 +66,7 @@ def _dataset(ds, path, what, fmt, piece: bool = False):
         raise MeshError(
             f"cannot read {os.path.basename(path)} as {fmt}: it holds a {ds.GetClassName()[3:]}, not a mesh"
         )
-    return _hide_blanked(ds, *out, piece=piece)
+    return _hide_blanked(ds, *out)
 
 
 def _unstructured(ug):
@@ -156,12 +156,11 @@ def _structured(ds):
     return pts, offsets, conn, types, _cell_data(ds) if types.size else {}, None
 
 
-def _hide_blanked(ds, pts, offsets, conn, types, cell_data, poly, piece: bool = False):
+def _hide_blanked(ds, pts, offsets, conn, types, cell_data, poly):
     """Drop blanked (hidden) cells, and cells on hidden points, as VTK does when it draws them, and
     ghost cells (vtkGhostType DUPLICATECELL: copies of another piece's cells, in a parallel file's
     pieces, in a piece read alone, in a multiblock of pieces), which ParaView does not draw either;
-    polyhedra with their faces. hidden_cells counts them. (piece: kept for the callers; every
-    dataset is treated alike.)"""
+    polyhedra with their faces. hidden_cells counts them."""
     hide = _hidden(ds, offsets, conn, types)
     cell_data.pop("vtkGhostType", None)
     if hide is None or not hide.any():
@@ -243,7 +242,7 @@ def _composite(data, path, what, fmt, groups: bool = True):
     leaves = _leaves(data)
     if not leaves:
         raise MeshError(f"cannot read {os.path.basename(path)} as {fmt}: the file has no cells")
-    parts = _distinct([_dataset(ds, path, what, fmt, piece=not groups) for ds in leaves])
+    parts = _distinct([_dataset(ds, path, what, fmt) for ds in leaves])
     if len(parts) == 1:
         pts, off, conn, types, cd, poly = parts[0]
         if groups and not any(k in cd for k in TAG_NAMES):

@@ -21,7 +21,7 @@ import re
 import numpy as np
 
 from models.errors import MeshError, ParameterError
-from models.mesh.cells import BOUNDARY_TAG_NAME, TAG_NAMES, Normalized, normalize
+from models.mesh.cells import BOUNDARY_TAG_NAME, TAG_NAMES, Normalized, normalize, with_boundary_faces
 from models.mesh.vtk_arrays import _arrays, _cell_data, _field_data, _np, _openfoam, hidden_cells
 from models.mesh.vtk_setup import (
     _exodus_names,
@@ -152,17 +152,9 @@ def read_vtk(
         fams = family_groups(path, conn, len(types))
         if fams is not None:
             tags_top, names, lower = fams
-            n = len(types)
             cell_data = {"block": tags_top}
             if lower is not None:  # the boundary conditions' faces: after the cells, tagged
-                sizes, conn_b, types_b, tags_b = lower
-                offsets = np.concatenate([np.asarray(offsets, np.int64), offsets[-1] + np.cumsum(sizes)])
-                conn = np.concatenate([np.asarray(conn, np.int64), conn_b])
-                types = np.concatenate([np.asarray(types, np.uint8), types_b])
-                cell_data = {
-                    "block": np.concatenate([tags_top, np.zeros(len(types_b), np.int64)]),
-                    BOUNDARY_TAG_NAME: np.concatenate([np.zeros(n, np.int64), tags_b]),
-                }
+                offsets, conn, types, cell_data = with_boundary_faces(offsets, conn, types, tags_top, *lower)
             field = {**field, **names}
     if kind == "gambit":  # its node order, element groups and boundary conditions (models.mesh.gambit)
         from models.mesh.gambit import gambit_cells
