@@ -31,7 +31,7 @@ COPY jobqueue ./jobqueue
 COPY service ./service
 COPY worker ./worker
 # a C compiler only while installing: setup.py builds the compiled helpers (models/quality/_fastmetrics.c,
-# models/graph/_fastgraph.c, models/mesh/_fastmesh.c)
+# models/graph/_fastgraph.c, models/mesh/_fastmesh.c with its companion files)
 RUN apt-get update && apt-get install -y --no-install-recommends gcc libc6-dev \
     && (python -c "import os, sys, sysconfig; sys.exit(not os.path.exists(sysconfig.get_paths()['include'] + '/Python.h'))" \
         || apt-get install -y --no-install-recommends python3-dev) \
