@@ -434,13 +434,15 @@ def test_a_fluent_file_cut_short_is_said_to_be_truncated(tmp_path, keep):
     assert "corrupted or not" not in msg, msg
 
 
-def _classic_exodus(src, dst, elem_type=None, drop=None, per_el=None, extra_dims=(), short=False) -> str:
+def _classic_exodus(
+    src, dst, elem_type=None, drop=None, per_el=None, extra_dims=(), short=False, fmt="NETCDF3_64BIT_OFFSET"
+) -> str:
     """meshio's Exodus (netCDF-4) copied as netCDF classic (CDF-2, coordx/y/z, 32-bit ids, as Cubit
-    and SEACAS write it), block 1 altered: its elem_type, its connectivity dropped, or its nodes per
-    element cut to per_el."""
+    and SEACAS write it; or as `fmt`: NETCDF4, HDF5), block 1 altered: its elem_type, its
+    connectivity dropped, or its nodes per element cut to per_el."""
     import netCDF4
 
-    with netCDF4.Dataset(src) as a, netCDF4.Dataset(dst, "w", format="NETCDF3_64BIT_OFFSET") as b:
+    with netCDF4.Dataset(src) as a, netCDF4.Dataset(dst, "w", format=fmt) as b:
         for name, d in a.dimensions.items():
             if d.isunlimited() and name != "time_step":
                 continue  # (classic netCDF has one unlimited dimension)
@@ -492,18 +494,21 @@ def _classic_exodus(src, dst, elem_type=None, drop=None, per_el=None, extra_dims
         ),
     ],
 )
-def test_an_exodus_block_that_cannot_be_read_says_why(tmp_path, change, said):
+@pytest.mark.parametrize("fmt", ["NETCDF3_64BIT_OFFSET", "NETCDF4"])
+def test_an_exodus_block_that_cannot_be_read_says_why(tmp_path, change, said, fmt):
     """VTK's reader crashes on an unknown element type and on a block of fewer nodes than its type
     (reading past the array), and says nothing useful on a missing connectivity: the header's
-    blocks are checked first (netCDF classic), in one sentence (outside sweep X)."""
+    blocks are checked first, in one sentence (outside sweep X). netCDF classic by our own header
+    reader; netCDF-4 (HDF5) with h5py in the reading child (there it was "corrupted or not an
+    Exodus II file", garbage point ids, or "numbered from 0")."""
     pytest.importorskip("netCDF4")
     from models.mesh.sandbox import read_mesh_safe
 
     p, h = fw.grid(3, 2, 2)
     src = fw.write_exodus(tmp_path / "hex.e", p, [("hexahedron", h)])
-    good = _classic_exodus(src, tmp_path / "good.e")
-    assert read_mesh(good).n_cells == len(h)  # the classic copy itself reads
-    bad = _classic_exodus(src, tmp_path / "bad.e", **change)
+    good = _classic_exodus(src, tmp_path / "good.e", fmt=fmt)
+    assert read_mesh(good).n_cells == len(h)  # the copy itself reads
+    bad = _classic_exodus(src, tmp_path / "bad.e", fmt=fmt, **change)
     with pytest.raises(MeshError) as err:
         read_mesh_safe(bad)
     msg = str(err.value)
@@ -531,14 +536,14 @@ def test_a_binary_ucd_file_cut_short_is_said_to_be_truncated(tmp_path, keep):
     ), msg
 
 
-def _nsided(path, counts) -> str:
+def _nsided(path, counts, fmt="NETCDF3_64BIT_OFFSET") -> str:
     """A 2D Exodus II of one NSIDED block (a square and a triangle beside it) in netCDF classic,
     its ebepecnt1 (nodes per element) as given."""
     import netCDF4
 
     x, y = [0.0, 1.0, 1.0, 0.0, 2.0], [0.0, 0.0, 1.0, 1.0, 0.5]
     conn = [1, 2, 3, 4, 2, 5, 3]
-    with netCDF4.Dataset(path, "w", format="NETCDF3_64BIT_OFFSET") as nc:
+    with netCDF4.Dataset(path, "w", format=fmt) as nc:
         nc.setncatts({"api_version": np.float32(8.03), "version": np.float32(8.03), "file_size": np.int32(1)})
         nc.setncattr("floating_point_word_size", np.int32(8))
         nc.setncatts({"maximum_name_length": np.int32(32), "int64_status": np.int32(0), "title": "nsided"})
@@ -560,16 +565,18 @@ def _nsided(path, counts) -> str:
     return str(path)
 
 
-def test_an_exodus_nsided_block_whose_counts_overrun_its_connectivity_is_named(tmp_path):
+@pytest.mark.parametrize("fmt", ["NETCDF3_64BIT_OFFSET", "NETCDF4"])
+def test_an_exodus_nsided_block_whose_counts_overrun_its_connectivity_is_named(tmp_path, fmt):
     """VTK's reader reads past the connectivity (a segmentation fault, or ids from past the array)
-    when an NSIDED block's nodes per element add up to more than it holds (outside sweep X)."""
+    when an NSIDED block's nodes per element add up to more than it holds (outside sweep X), in
+    netCDF classic and netCDF-4."""
     pytest.importorskip("netCDF4")
     from models.mesh.sandbox import read_mesh_safe
 
-    good = read_mesh(_nsided(tmp_path / "good.e", [4, 3]))
+    good = read_mesh(_nsided(tmp_path / "good.e", [4, 3], fmt))
     assert good.n_cells == 2 and float(good.meta["measures"].sum()) == pytest.approx(1.5, rel=1e-12)
     with pytest.raises(MeshError) as err:
-        read_mesh_safe(_nsided(tmp_path / "bad.e", [4, 9]))
+        read_mesh_safe(_nsided(tmp_path / "bad.e", [4, 9], fmt))
     assert str(err.value) == (
         "cannot read bad.e as Exodus II: element block 1 (NSIDED) gives its elements 13 nodes in all "
         "(ebepecnt1), but its connectivity holds 7"

@@ -60,12 +60,13 @@ def _with_hdf5(path: str, look):
     except ImportError:
         return None
     try:
-        with open(path, "rb") as fh:
-            if fh.read(8) != b"\x89HDF\r\n\x1a\n":
-                return None
+        from models.mesh.containers import is_hdf5
+
+        if not is_hdf5(path):
+            return None
         with h5py.File(path, "r") as f:
             return look(f)
-    except (OSError, KeyError, ValueError, TypeError, IndexError):
+    except Exception:  # noqa: BLE001  (h5py's errors on a damaged file: hdf5_damage words them)
         return None
 
 
@@ -185,7 +186,10 @@ def _fault(f) -> str | None:
 
 def _zone_fault(zone) -> str | None:
     kind = _children(zone, b"ZoneType_t")
-    if not kind or (_text(kind[0]) or "") != "Unstructured":
+    text = (_text(kind[0]) or "") if kind else "Unstructured"
+    if text not in ("Structured", "Unstructured"):  # (VTK's reader leaves such a zone out, saying nothing)
+        return f"its zone type is {text[:32]!r}, which CGNS does not have (Structured or Unstructured)"
+    if not kind or text != "Unstructured":
         return None
     size = np.asarray(zone[" data"][()]).reshape(-1)
     n_vertices = int(size[0])

@@ -9,6 +9,11 @@ opened" or crash. Both containers say in their header how long the file is:
 `truncated(path, head)` compares that with the file's size and returns a sentence, or None for a
 file that is whole or that it cannot judge (another container, an unusual header: the reader then
 speaks). Only the header is read.
+
+Also here: `exodus_fault` / `exodus_fault_hdf5` (an Exodus II header's element blocks, netCDF
+classic in pure Python, netCDF-4 with h5py) and `hdf5_damage` (the first HDF5 object whose metadata
+h5py cannot read, with its byte address: after a native reader failed, crashed, or read an HDF5
+container, since VTK's CGNS reader leaves a zone it cannot read out without a word).
 """
 
 from __future__ import annotations
@@ -16,7 +21,18 @@ from __future__ import annotations
 import os
 import struct
 
+import numpy as np
+
 HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def is_hdf5(path: str) -> bool:
+    """The file starts with HDF5's signature (False where it cannot be opened)."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(8) == HDF5_SIGNATURE
+    except OSError:
+        return False
 
 
 def truncated(path: str, head: bytes) -> str | None:
@@ -33,6 +49,11 @@ def truncated(path: str, head: bytes) -> str | None:
         return None
     if need is None or size >= need:
         return None
+    if need > 16 * size + (1 << 20):  # a damaged header, more likely than a file cut to a sliver
+        return (
+            f"its header declares {need:,} bytes, far more than the {size:,} it holds: the header is "
+            "damaged, or the file was cut short (copy or upload it again)"
+        )
     return (
         f"the file is truncated: it holds {size:,} bytes of the {need:,} its header declares "
         "(copy or upload it again)"
@@ -168,9 +189,8 @@ _EXODUS_NODES = {
 
 def exodus_fault(path: str) -> str | None:
     """What is wrong in a netCDF classic Exodus II file's header, in words, where VTK's reader would
-    crash or say nothing useful: an element block whose connectivity variable is missing, whose
-    element type Exodus II does not have, or whose nodes per element do not fit its type; None
-    where nothing is found (or the file is netCDF-4 / HDF5: not read here)."""
+    crash or say nothing useful (_blocks_fault); None where nothing is found (or the file is
+    netCDF-4 / HDF5: exodus_fault_hdf5, in the reading child). Pure Python: safe in any process."""
     try:
         size = os.path.getsize(path)
         with open(path, "rb") as fh:
@@ -180,30 +200,84 @@ def exodus_fault(path: str) -> str | None:
             head = _netcdf_header(fh, size)
     except (OSError, struct.error, ValueError, IndexError, KeyError):
         return None
-    dims = dict(head["dims"])
-    variables = {name: (attrs, begin, vsize, kind) for name, _, attrs, vsize, begin, kind in head["vars"]}
+    variables = {
+        name: (attrs, vsize // _TYPE_SIZE[kind] if kind in _TYPE_SIZE else None)
+        for name, _, attrs, vsize, _, kind in head["vars"]
+    }
+    where = {name: (begin, vsize, kind) for name, _, _, vsize, begin, kind in head["vars"]}
+    return _blocks_fault(dict(head["dims"]), variables, lambda name: _int_sum(path, *where[name]))
+
+
+def exodus_fault_hdf5(path: str) -> str | None:
+    """exodus_fault for a netCDF-4 (HDF5) Exodus II file, read with h5py: its dimensions are the
+    root's dimension scales, its variables the other datasets. Call it in the reading child: the
+    HDF5 library reads the file. None where nothing is found or h5py cannot open it (VTK's reader
+    then speaks)."""
+    try:
+        import h5py
+
+        with h5py.File(path, "r") as f:
+            dims, variables, found = {}, {}, {}
+            for name in f.keys():
+                try:
+                    item = f[name]
+                    item.attrs.get("CLASS")
+                except Exception:  # noqa: BLE001  (an object whose header is damaged: VTK's reader
+                    return None  # may not need it; where it fails, hdf5_damage names the object)
+                if not isinstance(item, h5py.Dataset) or not item.shape:
+                    continue
+                if item.attrs.get("CLASS") == b"DIMENSION_SCALE":
+                    dims[name] = int(item.shape[0])
+                    if not str(item.attrs.get("NAME", b"").decode("latin-1")).startswith("This is a netCDF"):
+                        variables[name] = ({}, int(item.size))
+                    continue
+                elem = item.attrs.get("elem_type")
+                if isinstance(elem, bytes | np.bytes_):
+                    elem = bytes(elem).decode("utf-8", "replace")
+                attrs = {"elem_type": elem.rstrip("\0 ")} if isinstance(elem, str) else {}
+                variables[name] = (attrs, int(item.size))
+                found[name] = item
+            return _blocks_fault(dims, variables, lambda name: _dataset_sum(found[name]))
+    except Exception:  # noqa: BLE001  (a file h5py cannot read: VTK's reader words it)
+        return None
+
+
+def _dataset_sum(item) -> int | None:
+    """The sum of an integer HDF5 dataset of at most 8 M values, or None."""
+    if item.dtype.kind not in "iu" or item.size > (8 << 20):
+        return None
+    return int(np.asarray(item[()], dtype=np.int64).sum())
+
+
+def _blocks_fault(dims: dict, variables: dict, int_sum) -> str | None:
+    """An Exodus II header's element blocks checked: a block whose connectivity variable is missing,
+    whose element type Exodus II does not have, whose nodes per element do not fit its type, whose
+    connectivity holds fewer ids than its elements need, or (NSIDED) whose nodes per element add up
+    to another count than its connectivity's; None where nothing is wrong. dims {name: length};
+    variables {name: (attributes {name: text}, number of values or None)}; int_sum(name): the sum
+    of an integer variable, or None."""
     for i in range(1, dims.get("num_el_blk", 0) + 1):
         n_el = dims.get(f"num_el_in_blk{i}", 0)
         if n_el == 0 or f"facconn{i}" in variables:
             continue  # (an empty block need not have a connectivity; an NFACED block lists faces)
         if f"connect{i}" not in variables:
             return f"element block {i} ({n_el:,} elements) has no connectivity (no variable connect{i})"
-        attrs, _, vsize, vkind = variables[f"connect{i}"]
+        attrs, held = variables[f"connect{i}"]
         elem = (attrs.get("elem_type") or "").strip()
         nodes = _EXODUS_NODES.get(elem[:3].upper(), "unknown")
         if nodes == "unknown":
             return f"element block {i} has element type {elem[:32]!r}, which is not an Exodus II element type"
         per = dims.get(f"num_nod_per_el{i}")
         if elem[:3].upper() == "NSI" and f"ebepecnt{i}" in variables and per is not None:
-            total = _int_sum(path, *variables[f"ebepecnt{i}"][1:])  # nodes per element, summed
+            total = int_sum(f"ebepecnt{i}")  # nodes per element, summed
             if total is not None and total != per:
                 return (
                     f"element block {i} (NSIDED) gives its elements {total:,} nodes in all (ebepecnt{i}), "
                     f"but its connectivity holds {per:,}"
                 )
-        if nodes is not None and per and vkind in _TYPE_SIZE and vsize // _TYPE_SIZE[vkind] < n_el * per:
+        if nodes is not None and per and held is not None and held < n_el * per:
             return (
-                f"element block {i}'s connectivity (connect{i}) holds {vsize // _TYPE_SIZE[vkind]:,} node "
+                f"element block {i}'s connectivity (connect{i}) holds {held:,} node "
                 f"ids, fewer than its {n_el:,} elements of {per} nodes need ({n_el * per:,})"
             )
         if nodes is not None and per is not None and per not in nodes:
@@ -219,10 +293,76 @@ def _int_sum(path: str, begin: int, vsize: int, kind: int) -> int | None:
     dtype = {4: ">i4", 10: ">i8"}.get(kind)
     if dtype is None or vsize > (64 << 20):
         return None
-    import numpy as np
-
     with open(path, "rb") as fh:
         fh.seek(begin)
         raw = fh.read(vsize)
     n = len(raw) // np.dtype(dtype).itemsize
     return int(np.frombuffer(raw[: n * np.dtype(dtype).itemsize], dtype=dtype).sum())
+
+
+# h5py's error text -> what is wrong with an object's metadata, in our words
+_HDF5_FAULTS = (
+    ("checksum", "its metadata fails its checksum"),
+    ("bad object header", "its object header is not valid"),
+    ("signature", "its metadata is not valid (a wrong signature)"),
+    ("dataset size", "its size is not valid"),
+    ("exponent", "its data type is not valid"),
+    ("datatype", "its data type is not valid"),
+    ("dataspace", "its shape is not valid"),
+    ("bad", "its metadata is not valid"),
+    ("address", "it points outside the file"),
+    ("eof", "it points past the end of the file"),
+    ("truncat", "it points past the end of the file"),
+)
+
+
+def _hdf5_reason(exc: BaseException) -> str:
+    low = str(exc).lower()
+    return next((said for key, said in _HDF5_FAULTS if key in low), "its metadata cannot be read")
+
+
+def hdf5_damage(path: str, limit: int = 20_000) -> str | None:
+    """Where an HDF5 file's metadata is damaged (a byte flipped in a header, a checksum that fails),
+    in words: the first object (a netCDF variable or dimension, a CGNS node, a group) whose header,
+    attributes or list of members h5py cannot read, with its byte address; None where the metadata
+    of every object (up to `limit`) reads, or h5py is missing. Data are not read. Call it in the
+    reading child, after a native reader failed on the file: the HDF5 library reads it."""
+    try:
+        import h5py
+    except ImportError:
+        return None
+    try:
+        f = h5py.File(path, "r")
+    except Exception as exc:  # noqa: BLE001  (h5py's text is never shown: _hdf5_reason words it)
+        return f"its HDF5 superblock or root group cannot be read: {_hdf5_reason(exc)}"
+    with f:
+        queue, seen = [("/", f)], 0
+        while queue and seen < limit:
+            where, group = queue.pop(0)
+            try:
+                names = list(group.keys())
+            except Exception as exc:  # noqa: BLE001
+                what = "root group" if where == "/" else f"group {where!r}"
+                return f"the HDF5 {what}'s list of members is damaged: {_hdf5_reason(exc)}"
+            for name in names:
+                seen += 1
+                full = where.rstrip("/") + "/" + name
+                try:
+                    item = group[name]
+                    dict(item.attrs)
+                    if isinstance(item, h5py.Dataset):
+                        item.shape, item.dtype  # noqa: B018  (their headers read)
+                except Exception as exc:  # noqa: BLE001
+                    return f"the HDF5 object {full[:80]!r}{_address(group, name)} is damaged: {_hdf5_reason(exc)}"
+                if isinstance(item, h5py.Group):
+                    queue.append((full, item))
+    return None
+
+
+def _address(group, name: str) -> str:
+    """' (at byte N)': where a hard link points, or '' where that cannot be told."""
+    try:
+        info = group.id.links.get_info(name.encode())
+        return f" (at byte {int(info.u):,})" if info.type == 0 else ""
+    except Exception:  # noqa: BLE001
+        return ""

@@ -137,7 +137,8 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
         if head[:3] == b"CDF" or head[:4] == b"\x89HDF":
             from models.mesh.containers import exodus_fault
 
-            why = exodus_fault(path)  # (netCDF classic: its blocks' header, before VTK's reader crashes)
+            why = exodus_fault(path)  # (netCDF classic: its blocks' header, before VTK's reader crashes;
+            # netCDF-4: read_vtk checks them in the reading child)
             if why:
                 raise MeshError(f"cannot read {name} as Exodus II: {why}")
             return ("vtk", "exodus")

@@ -368,6 +368,34 @@ def _built(got, path: str, file_format: str | None, memory_bytes: int):
         raise MeshError(read.refusal(str(exc), path, file_format)) from None
 
 
+def _hdf5_damage(path: str):
+    from models.mesh.containers import hdf5_damage
+
+    return hdf5_damage(path)
+
+
+def _damage_place(sentence: str, path: str, memory_bytes: int) -> str:
+    """A crashed reader's sentence, for an HDF5 file (CGNS, Exodus II, Fluent .cas.h5, ...), with
+    the object whose metadata is damaged in place of "it is corrupted or not ...": found by h5py in
+    another child (containers.hdf5_damage). The sentence as it is where that child finds nothing,
+    crashes too, or the file is no HDF5."""
+    from models.mesh.containers import is_hdf5
+    from models.mesh.read import _VAGUE
+
+    if not is_hdf5(path):
+        return sentence
+    try:
+        where = call_in_child(
+            _hdf5_damage, (path,), path=path, timeout_s=10.0, memory_bytes=memory_bytes, zygote=False
+        )
+    except (MagnetError, OSError):
+        return sentence
+    vague = _VAGUE.search(sentence)
+    if not isinstance(where, str) or not where or is_raw(where) or not vague:
+        return sentence
+    return sentence[: vague.start()] + where
+
+
 def call_in_child(
     fn,
     args=(),
@@ -396,10 +424,11 @@ def call_in_child(
             shm, status, answered, pid, release = found
         if status == "timeout" or (not answered and status == signal.SIGXCPU):
             raise MeshError(timeout_sentence(path, timeout_s, file_format))
-        if not answered:  # (with the place, for the text formats whose layout locate follows)
-            from models.mesh.read import _with_place
+        if not answered:  # (with the place, for the text formats whose layout locate follows,
+            from models.mesh.read import _with_place  # and for HDF5 containers)
 
-            raise MeshError(_with_place(crash_sentence(path, file_format), path, file_format))
+            said = _with_place(crash_sentence(path, file_format), path, file_format)
+            raise MeshError(said if fn is _hdf5_damage else _damage_place(said, path, memory_bytes))
         # a lent answer: its arrays copied from the child (alive until `release` closes), at most
         # what the child could hold
         got = _load(shm, pid if release >= 0 else None, memory_bytes)

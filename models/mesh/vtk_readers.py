@@ -89,6 +89,13 @@ def read_vtk(
         why = cgns_fault(path)
         if why:
             raise MeshError(f"cannot read {os.path.basename(path)} as {fmt}: {why}")
+    if kind == "exodus":  # netCDF-4 (HDF5): its blocks, read with h5py here in the reading child
+        # (netCDF classic: pick_reader checked them, in pure Python)
+        from models.mesh.containers import exodus_fault_hdf5, is_hdf5
+
+        why = exodus_fault_hdf5(path) if is_hdf5(path) else None
+        if why:
+            raise MeshError(f"cannot read {os.path.basename(path)} as {fmt}: {why}")
     foam_note = None
     if kind == "openfoam":  # its owner and neighbour lists, which VTK's reader believes
         from models.mesh.foam_lists import addressing_fault
@@ -355,9 +362,13 @@ def _run(path: str, kind: str, fmt: str | None = None):
         else:
             reader.Update()
             out = reader.GetOutputDataObject(0)
+    from models.mesh.containers import hdf5_damage, is_hdf5
+
     if cap.failed:
         why = _foam_place(cap.text) if kind.startswith("openfoam") else None
         said = why or explain(cap.text, what)
+        if not why and is_hdf5(path):  # an HDF5 container (Exodus, CGNS, Fluent .cas.h5, ...):
+            said = hdf5_damage(path) or said  # its damaged object, where one is
         if kind in _XML_KINDS:  # the XML's own fault where VTK said no place; another kind of XML always
             found = xml_fault(path, "Xdmf" if kind == "xdmf" else "VTKFile")
             if found and (" (at " not in said or not found.startswith("its XML is malformed")):
@@ -365,6 +376,10 @@ def _run(path: str, kind: str, fmt: str | None = None):
         raise MeshError(f"cannot read {name} as {fmt}: {said}")
     if out is None:
         raise MeshError(f"cannot read {name} as {fmt}: the reader produced no data")
+    if is_hdf5(path):  # read, but a damaged object may have been left out without a word (a CGNS
+        why = hdf5_damage(path)  # zone whose ZoneType header fails its checksum)
+        if why:
+            raise MeshError(f"cannot read {name} as {fmt}: {why}")
     return out
 
 
