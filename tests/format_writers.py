@@ -405,9 +405,12 @@ def write_avs_binary(path, points, cell_blocks, node_data: bool = True) -> str:
 # ---- Fluent ASCII mesh (sections 10 nodes, 12 cells, 13 faces, 45 zone names) --------------------
 
 
-def write_fluent(path, points, hexes) -> str:
+def write_fluent(path, points, hexes, binary: bool = False) -> str:
     """A Fluent mesh of hexahedra, by faces: each face's nodes (hexadecimal, 1-based) with the
-    right-hand normal pointing into its first cell c0, then c0 and c1 (0 on the boundary)."""
+    right-hand normal pointing into its first cell c0, then c0 and c1 (0 on the boundary).
+    binary: the node and face sections in Fluent's binary form, as Fluent writes a .msh/.cas by
+    default (3010: float64 coordinates; 2013: int32 rows of 4 nodes, c0, c1; each section closed by
+    ")\\nEnd of Binary Section   NNNN)": vtkFLUENTReader needs that line break)."""
     faces: dict[tuple, list] = {}
     for c, h in enumerate(hexes, 1):
         for f in HEX_FACES:
@@ -422,9 +425,23 @@ def write_fluent(path, points, hexes) -> str:
     def row(v):
         return " ".join(f"{n + 1:x}" for n in v[0]) + f" {v[1]:x} {v[2]:x}"
 
+    def rows(vs):
+        return np.array([[*(np.asarray(v[0]) + 1), v[1], v[2]] for v in vs], dtype="<i4").tobytes()
+
     n, m, k = len(points), len(hexes), len(faces)
-    out = ['(0 "hand-written Fluent mesh")', "(2 3)", f"(10 (0 1 {n:x} 0 3))", f"(12 (0 1 {m:x} 0))"]
-    out += [f"(13 (0 1 {k:x} 0))", f"(10 (1 1 {n:x} 1 3)("]
+    head = ['(0 "hand-written Fluent mesh")', "(2 3)", f"(10 (0 1 {n:x} 0 3))", f"(12 (0 1 {m:x} 0))"]
+    head += [f"(13 (0 1 {k:x} 0))"]
+    if binary:
+        out = ("\n".join(head) + f"\n(3010 (1 1 {n:x} 1 3)(").encode()
+        out += np.asarray(points, dtype="<f8").tobytes() + b")\nEnd of Binary Section   3010)\n"
+        out += f"(12 (2 1 {m:x} 1 4))\n(2013 (3 1 {len(interior):x} 2 4)(".encode()
+        out += rows(interior) + b")\nEnd of Binary Section   2013)\n"
+        out += f"(2013 (4 {len(interior) + 1:x} {k:x} 3 4)(".encode()
+        out += rows(boundary) + b")\nEnd of Binary Section   2013)\n"
+        out += b"(45 (2 fluid fluid)())\n(45 (3 interior default-interior)())\n(45 (4 wall walls)())\n"
+        Path(path).write_bytes(out)
+        return str(path)
+    out = head + [f"(10 (1 1 {n:x} 1 3)("]
     out += [f"{x:.17g} {y:.17g} {z:.17g}" for x, y, z in points]
     out += ["))", f"(12 (2 1 {m:x} 1 4))", f"(13 (3 1 {len(interior):x} 2 4)("]
     out += [row(v) for v in interior] + ["))", f"(13 (4 {len(interior) + 1:x} {k:x} 3 4)("]

@@ -3,7 +3,7 @@
 Run only after a reader refused a file (or its mesh failed a check) and said no place: a plain
 scan of the file's structure, section by section, for the text formats whose layout is simple
 enough to follow here: legacy VTK ASCII (unstructured grids), gmsh ASCII (2.2 and 4.x), AVS UCD
-ASCII and Gambit neutral; for Fluent, whether the file ends inside a section. It returns a phrase such as "line 12 (section POINTS, from line 5): 'x' where a number is
+ASCII and Gambit neutral; for Fluent, its sections (binary ones too: models.mesh.fluent_sections). It returns a phrase such as "line 12 (section POINTS, from line 5): 'x' where a number is
 expected", or None when it finds nothing wrong (the reader's own reason then stands alone).
 
 A refusal path, not a hot one: a loop over tokens is fine here, files over LIMIT bytes are not
@@ -420,20 +420,15 @@ def _gambit(lines: list[bytes]) -> None:
 
 # ---- Fluent (ASCII and binary sections) -------------------------------------------------------
 
-_FLUENT_BINARY = re.compile(rb"^\s*\((?:20|30)\d\d\b", re.MULTILINE)
-
 
 def _fluent(lines: list[bytes]) -> None:
-    """Every Fluent section is a parenthesised list, the file a sequence of them: a file that does
-    not end with ')' ends inside one (cut short); an ASCII file (no binary section) whose '(' outnumber
-    its ')' too."""
-    data = b"\n".join(lines).rstrip()
-    if data and not data.endswith(b")"):
-        raise _Found("the file ends inside a section (the last one is not closed with ')'): it is truncated")
-    if not _FLUENT_BINARY.search(data) and data.count(b"(") > data.count(b")"):
-        raise _Found(
-            f"the file ends inside a section ({data.count(b'(') - data.count(b')'):,} '(' more than ')'): it is truncated"
-        )
+    """Every Fluent section is a parenthesised list, the file a sequence of them; a binary section's
+    body holds what its header declares and ends with its marker (models.mesh.fluent_sections)."""
+    from models.mesh.fluent_sections import fault
+
+    found = fault(b"\n".join(lines))
+    if found:
+        raise _Found(found)
 
 
 __all__ = ["locate", "LIMIT"]

@@ -340,7 +340,10 @@ def _with_place(msg: str, path: str, file_format: str | None) -> str:
     return msg[: vague.start()] + where if vague else f"{msg.rstrip('.')}; {where}"
 
 
-_VAGUE = re.compile(r"(?:the file is|it is) corrupted or not [^;:]*$")
+_VAGUE = re.compile(
+    r"(?:(?:the file is|it is) corrupted or not [^;:]*|its text cannot be parsed|its cells cannot be read"
+    r"|the file ends before its data does \(truncated\?\))$"
+)
 
 
 def _read(path: str, physical_tag, file_format, weld, native: bool = True) -> Mesh:

@@ -422,11 +422,12 @@ def call_in_child(
             status, answered = _direct(fn, args, shm, timeout_s, memory_bytes)
         else:
             shm, status, answered, pid, release = found
-        if status == "timeout" or (not answered and status == signal.SIGXCPU):
-            raise MeshError(timeout_sentence(path, timeout_s, file_format))
-        if not answered:  # (with the place, for the text formats whose layout locate follows,
-            from models.mesh.read import _with_place  # and for HDF5 containers)
+        from models.mesh.read import _with_place  # (a crash's or hang's place, for the text formats
 
+        # whose layout locate follows, and for HDF5 containers)
+        if status == "timeout" or (not answered and status == signal.SIGXCPU):
+            raise MeshError(_with_place(timeout_sentence(path, timeout_s, file_format), path, file_format))
+        if not answered:
             said = _with_place(crash_sentence(path, file_format), path, file_format)
             raise MeshError(said if fn is _hdf5_damage else _damage_place(said, path, memory_bytes))
         # a lent answer: its arrays copied from the child (alive until `release` closes), at most

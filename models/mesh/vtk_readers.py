@@ -96,6 +96,16 @@ def read_vtk(
         why = exodus_fault_hdf5(path) if is_hdf5(path) else None
         if why:
             raise MeshError(f"cannot read {os.path.basename(path)} as {fmt}: {why}")
+    if kind == "fluent":  # its sections first: VTK's reader crashes, or runs until the read's time
+        from models.mesh.locate import LIMIT  # limit, on a broken one (a '(' among a section's numbers)
+
+        if os.path.getsize(path) <= LIMIT:
+            from models.mesh.fluent_sections import fault
+
+            with open(path, "rb") as fh:
+                why = fault(fh.read())
+            if why:
+                raise MeshError(f"cannot read {os.path.basename(path)} as {fmt}: {why}")
     foam_note = None
     if kind == "openfoam":  # its owner and neighbour lists, which VTK's reader believes
         from models.mesh.foam_lists import addressing_fault
