@@ -302,7 +302,7 @@ def cmd_agglomerate(args) -> int:
     left_out = dropped_sentence(mesh.meta)
     if left_out:
         print(f"warning: {left_out} (labels: -1 for them)")
-    for key in ("overlong_cells", "open_polyhedra", "openfoam_order"):
+    for key in ("overlong_cells", "open_polyhedra", "openfoam_order", "fluent_faces"):
         if mesh.meta.get(key):
             print(f"warning: {mesh.meta[key]['message']}")
     for key in ("merged_points", "reordered_cells", "reversed_faces", "gambit_groups", "ghost_cells"):

@@ -146,6 +146,8 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
         issues.append(_issue("reordered-cells", "info", int(moved["count"]), [], str(moved["message"])))
     if mesh.meta.get("openfoam_order"):  # an OpenFOAM case's faces out of upper-triangular order
         issues.append(_issue("openfoam-order", "warning", 1, [], str(mesh.meta["openfoam_order"]["message"])))
+    if mesh.meta.get("fluent_faces"):  # a Fluent face's node or cell ids out of range (VTK read on)
+        issues.append(_issue("fluent-faces", "warning", 1, [], str(mesh.meta["fluent_faces"]["message"])))
     if mesh.meta.get("ghost_cells"):  # a parallel writer's piece read alone: its ghost layer left out
         ghosts = mesh.meta["ghost_cells"]
         issues.append(_issue("ghost-cells", "info", int(ghosts["count"]), [], str(ghosts["message"])))

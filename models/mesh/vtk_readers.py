@@ -96,14 +96,15 @@ def read_vtk(
         why = exodus_fault_hdf5(path) if is_hdf5(path) else None
         if why:
             raise MeshError(f"cannot read {os.path.basename(path)} as {fmt}: {why}")
+    fluent_note = None
     if kind == "fluent":  # its sections first: VTK's reader crashes, or runs until the read's time
         from models.mesh.locate import LIMIT  # limit, on a broken one (a '(' among a section's numbers)
 
         if os.path.getsize(path) <= LIMIT:
-            from models.mesh.fluent_sections import fault
+            from models.mesh.fluent_sections import faults
 
             with open(path, "rb") as fh:
-                why = fault(fh.read())
+                why, fluent_note = faults(fh.read())
             if why:
                 raise MeshError(f"cannot read {os.path.basename(path)} as {fmt}: {why}")
     foam_note = None
@@ -126,6 +127,11 @@ def read_vtk(
     meta = {"reader": f"VTK {cls}", "format": what}
     if foam_note:
         meta["openfoam_order"] = {"count": 1, "message": foam_note}
+    if fluent_note:  # read (VTK builds a cell from some of its faces), but a face's ids are wrong
+        meta["fluent_faces"] = {
+            "count": 1,
+            "message": f"{fluent_note}: the cells beside it may be read wrong",
+        }
     dup, hid, total = hidden_cells(data)
     if total and dup + hid == total:  # nothing left to read (VTK's reader read every cell)
         what_all = (
