@@ -89,6 +89,7 @@ def _ascii_header(data: bytes, at: int, index: int, start: int) -> list[int]:
     fields = head.group(1).split() if head else []
     if not head or not 3 <= len(fields) <= 6 or not all(re.fullmatch(rb"[0-9a-fA-F]+", f) for f in fields):
         shown = _shown(data[at : at + 24].strip())
+        shown = "(bytes that are not text)" if shown == "bytes that are not text" else shown
         raise _Fault(
             f"section {index} (from byte {start:,}): its header {shown} is not '(zone first last type ...)' "
             "in hexadecimal numbers"
