@@ -25,6 +25,7 @@ from models.mesh.celldata import CellData, compact_labels
 from models.mesh.container import Mesh, PolyMesh
 from models.mesh.dual import DualGraph, cached_faces, dual_graph
 from models.mesh.geometry import cell_faces, measures_and_centroids
+from models.polytope.euler import pinched
 from models.polytope.merge import merge, sort_by_vertex_count
 
 if TYPE_CHECKING:  # models.partition.agglomerate is imported where partitioning runs (not by prepare alone)
@@ -87,9 +88,17 @@ def split_holes(
     all_nodes = np.arange(mesh.n_cells)
     for _ in range(max_rounds + 1):
         poly, holes = merge(mesh, graph, labels, data.measures)
+        normals = None
         if holes.elements.size == 0:
-            return poly, labels, n_split
-        elems, first = np.unique(holes.elements, return_index=True)
+            elems, vertex = pinched(mesh, graph, labels) if mesh.dim == 2 else (holes.elements, None)
+            if elems.size == 0:
+                return poly, labels, n_split
+            # touching itself at a vertex around something: cut through that vertex, between the
+            # element's cells there
+            centers, normals = mesh.points[vertex], _fan_normals(data, labels, elems, vertex)
+        else:
+            elems, first = np.unique(holes.elements, return_index=True)
+            centers = holes.centers[first]
         if policy == "error":
             raise MeshError(
                 f"{elems.size} agglomerated elements enclose a hole (element ids {elems[:10].tolist()}); "
@@ -97,12 +106,16 @@ def split_holes(
             )
         if _ == max_rounds:
             break
-        centers = holes.centers[first]
         new_label = labels.copy()
         nxt = int(labels.max()) + 1
-        for e, c in zip(elems, centers, strict=True):  # a loop over the (few) elements with holes
+        for i, (e, c) in enumerate(zip(elems, centers, strict=True)):  # a loop over the (few) holed elements
             cells = np.flatnonzero(labels == e)
             x = data.centroids[cells]
+            if normals is not None and np.any(normals[i]):
+                side = (x - c) @ normals[i] > 0
+                new_label[cells[side]] = nxt
+                nxt += 1
+                continue
             xc = x - x.mean(axis=0)
             _, _, vt = np.linalg.svd(xc, full_matrices=False)
             side = (x - c) @ vt[0] > 0
@@ -222,13 +235,50 @@ def run(
     return res
 
 
+def _fan_normals(data: CellData, labels: np.ndarray, elems: np.ndarray, vertex: np.ndarray) -> np.ndarray:
+    """For each element touching itself at `vertex`: the direction from one group of its cells at that
+    vertex (cells joined by a side) to another, the normal of a cut through the vertex that parts
+    them; zero where the cells there form one group."""
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    g = data.graph
+    entry = np.flatnonzero(np.isin(data.connectivity, vertex))
+    cell = np.searchsorted(data.offsets, entry, side="right") - 1
+    normals = np.zeros((elems.size, data.centroids.shape[1]))
+    for i, (e, v) in enumerate(zip(elems, vertex, strict=True)):  # a loop over the (few) pinched elements
+        cells = np.unique(cell[(data.connectivity[entry] == v) & (labels[cell] == e)])
+        if cells.size < 2:
+            continue
+        nb = [g.indices[g.indptr[c] : g.indptr[c + 1]] for c in cells]
+        rows = np.repeat(np.arange(cells.size), [len(x) for x in nb])
+        cols = np.searchsorted(cells, np.concatenate(nb))
+        ok = (cols < cells.size) & (cells[np.minimum(cols, cells.size - 1)] == np.concatenate(nb))
+        adj = csr_matrix((np.ones(int(ok.sum())), (rows[ok], cols[ok])), shape=(cells.size, cells.size))
+        n, comp = connected_components(adj, directed=False)
+        if n < 2:
+            continue
+        x = data.centroids[cells]
+        normals[i] = x[comp == 0].mean(axis=0) - x[comp == 1].mean(axis=0)
+    return normals
+
+
 def _recount_after_holes(mesh, graph, data, agg, poly, labels, hole_policy, rounds: int = 4):
     """Elements cut because they enclosed a hole raised the count above the k asked for: merge the
-    smallest back (models.partition.connect) and check for holes again, a few rounds."""
+    smallest back into a neighbour where the union encloses nothing (its Euler characteristic is
+    1: models.polytope.euler), then, where that is not enough, merge the smallest back
+    (models.partition.connect) and check for holes again, a few rounds."""
     from models.partition.connect import exact_count
+    from models.polytope.euler import merge_safely
 
     target = agg.n_elements
     nodes = np.arange(mesh.n_cells)
+    if target == agg.requested:  # (not with a subset: the rest stays as is)
+        labels, merged = merge_safely(mesh, graph, labels, target, sizes=np.abs(data.measures))
+        agg.recount["merged"] = agg.recount.get("merged", 0) + merged
+        poly, labels, _n = split_holes(mesh, graph, data, labels, hole_policy)
+        if poly.n_elements == target:
+            return poly, labels
     for _ in range(rounds if target == agg.requested else 0):  # not with a subset: the rest stays as is
         labels, merged, resplit = exact_count(data, labels, nodes, target)
         agg.recount["merged"] = agg.recount.get("merged", 0) + merged

@@ -18,6 +18,7 @@ import numpy as np
 from models.hierarchy.topology import domain_genus, domain_holes, handle_elements
 from models.mesh.celldata import CellData, compact_labels
 from models.mesh.container import Mesh
+from models.polytope.euler import pinched
 
 RING_ROUNDS = 4  # ring cuts tried per level before an element is replaced by its children
 # rounds of merging pairs back while they merge (a round's merges that enclose a hole are undone)
@@ -449,6 +450,12 @@ class _Detector:
             self.bf = None if mesh.dim != 2 else boundary_faces(data.graph, lab)
         be = np.asarray(holes.elements, dtype=np.int64)
         cen = np.asarray(holes.centers, dtype=np.float64)
+        if mesh.dim == 2:  # elements that touch themselves at a vertex around something: that vertex
+            pe, pv = pinched(mesh, data.graph, lab)
+            new = ~np.isin(pe, be)
+            if new.any():
+                cen = cen.reshape(be.size, 2) if be.size else np.zeros((0, 2))
+                be, cen = np.r_[be, pe[new]], np.vstack([cen, mesh.points[pv[new], :2]])
         if self.tunnels:  # rings around a tunnel: their centroid as the hole's centre
             self.handles = self._handles(lab, first)
             hb = np.setdiff1d(self.handles, be)

@@ -1,0 +1,210 @@
+"""Euler characteristics of agglomerated elements and of the unions of neighbouring ones.
+
+A connected element made of cells is a disk (2D) exactly when the Euler characteristic of its cells
+as a closed set, V - E + F, is 1: an element around a hole, and one that touches itself at a vertex
+around something (a weakly simple polygon, whose boundary walk passes a vertex twice), have 1 - loops.
+In 3D V - E + F - C is 1 - handles + cavities for a connected element (1 is necessary for a ball).
+
+The union of two neighbouring elements A and B has chi(A) + chi(B) - chi(A n B), where A n B is
+what their closed cells share: vertices, edges and (3D) faces. Two disks whose shared boundary is one
+arc make a disk; a shared boundary in two arcs (a hole or another element between them) makes a ring.
+So whether a merge would enclose anything is known before it is made, for every pair at once,
+without merging polygons. Vectorized: sorts over (item, element) keys, no loop over elements.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from models.mesh.container import Mesh
+
+
+def _owned(keys: np.ndarray, owner: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct (item, element) pairs, sorted by item: (items, elements)."""
+    from models.mesh.dual import sorted_unique
+
+    kk = np.int64(k)
+    u = sorted_unique(keys.astype(np.int64) * kk + owner)
+    return u // kk, u % kk
+
+
+def _pairs_per_item(items: np.ndarray, els: np.ndarray, k: int) -> np.ndarray:
+    """Keys a * k + b (a < b) of the element pairs sharing each item, one per item they share
+    (items sorted, each (item, element) once)."""
+    if items.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    start = np.flatnonzero(np.r_[True, items[1:] != items[:-1]])
+    cnt = np.diff(np.r_[start, items.size])
+    pos = np.arange(items.size) - np.repeat(start, cnt)  # position within the item's run
+    room = np.repeat(cnt, cnt) - pos  # entries from here to the run's end
+    out = []
+    kk = np.int64(k)
+    for d in range(1, int(cnt.max())):  # a loop over the run offsets (the most elements at one item)
+        i = np.flatnonzero(room > d)
+        a, b = els[i], els[i + d]
+        out.append(np.minimum(a, b) * kk + np.maximum(a, b))
+    return np.concatenate(out) if out else np.zeros(0, dtype=np.int64)
+
+
+def _edges(mesh: Mesh, graph, cells_of_faces: bool):
+    """(edge key per entry, owning cell per entry) of the mesh edges of every cell: 2D the cells'
+    sides, 3D the sides of the cells' faces (each edge repeated per face; dedup'd by the caller)."""
+    from models.mesh.geometry import next_in_cycle
+
+    n = np.int64(mesh.n_points)
+    if mesh.dim == 2:
+        off, con = mesh.offsets, mesh.connectivity.astype(np.int64)
+        owner = np.repeat(np.arange(mesh.n_cells), np.diff(off))
+        u, v = con, con[next_in_cycle(off)]
+    else:
+        f = graph.faces
+        owner = np.repeat(f.cell, np.diff(f.offsets))
+        u = f.nodes.astype(np.int64)
+        v = u[next_in_cycle(f.offsets)]
+    return np.minimum(u, v) * n + np.maximum(u, v), owner
+
+
+def element_euler(mesh: Mesh, graph, labels: np.ndarray) -> np.ndarray:
+    """(k,) the Euler characteristic of each element's cells as a closed set: V - E + F in 2D,
+    V - E + F - C in 3D. 1 for a disk (2D) or a ball (3D)."""
+    labels = np.asarray(labels, dtype=np.int64)
+    k = int(labels.max()) + 1
+    owner = np.repeat(labels, np.diff(mesh.offsets))
+    _, ve = _owned(mesh.connectivity, owner, k)
+    V = np.bincount(ve, minlength=k)
+    ek, ec = _edges(mesh, graph, True)
+    _, ee = _owned(ek, labels[ec], k)
+    E = np.bincount(ee, minlength=k)
+    C = np.bincount(labels, minlength=k)
+    if mesh.dim == 2:
+        return V - E + C
+    f = graph.faces
+    fel = labels[f.cell]
+    inside = graph.partner >= 0
+    inner = inside.copy()
+    inner[inside] = labels[f.cell[graph.partner[inside]]] == fel[inside]
+    # a face inside the element is listed once per cell: counted half each time
+    F = (np.bincount(fel, minlength=k) + np.bincount(fel[~inner], minlength=k)) // 2
+    return V - E + F - C
+
+
+def union_euler(mesh: Mesh, graph, labels: np.ndarray, chi: np.ndarray | None = None):
+    """Every pair of elements sharing a face: (a, b, chi of A u B, shared faces' weight), a < b.
+    chi: element_euler's answer where known."""
+    labels = np.asarray(labels, dtype=np.int64)
+    k = int(labels.max()) + 1
+    kk = np.int64(k)
+    if chi is None:
+        chi = element_euler(mesh, graph, labels)
+    owner = np.repeat(labels, np.diff(mesh.offsets))
+    vi, ve = _owned(mesh.connectivity, owner, k)
+    vk = _pairs_per_item(vi, ve, k)
+    # faces between two elements, once per pair of cells (a < b keeps one of the two directions)
+    rows = np.repeat(np.arange(graph.indptr.size - 1), np.diff(graph.indptr))
+    la, lb = labels[rows], labels[graph.indices]
+    s = la < lb
+    from models.mesh.dual import sorted_unique
+
+    fkey, finv, fcount = sorted_unique(la[s] * kk + lb[s], return_inverse=True, return_counts=True)
+    weight = np.bincount(finv, weights=graph.weights[s], minlength=fkey.size)
+    if mesh.dim == 2:  # shared sides are the faces
+        share = _count_at(fkey, vk) - fcount
+    else:
+        ek, ec = _edges(mesh, graph, True)
+        ei, ee = _owned(ek, labels[ec], k)
+        share = _count_at(fkey, vk) - _count_at(fkey, _pairs_per_item(ei, ee, k)) + fcount
+    a, b = fkey // kk, fkey % kk
+    return a, b, chi[a] + chi[b] - share, weight
+
+
+def _count_at(keys: np.ndarray, occurrences: np.ndarray) -> np.ndarray:
+    """How often each of the sorted distinct `keys` occurs in `occurrences`."""
+    if occurrences.size == 0:
+        return np.zeros(keys.size, dtype=np.int64)
+    occ = np.sort(occurrences)
+    return np.searchsorted(occ, keys, side="right") - np.searchsorted(occ, keys, side="left")
+
+
+def merge_safely(
+    mesh: Mesh,
+    graph,
+    labels: np.ndarray,
+    target: int,
+    sizes: np.ndarray | None = None,
+    keep: np.ndarray | None = None,
+    rounds: int = 64,
+) -> tuple[np.ndarray, int]:
+    """Merge pairs of neighbouring elements whose union has Euler characteristic 1 (a disk in 2D; in
+    3D necessary for a ball) until `target` elements are left or no such pair is: the smallest
+    element first, into the safe neighbour it shares most with; disjoint pairs per round. sizes: a
+    weight per cell to balance (default: cells); keep: a label per cell that no merge may cross
+    (physical groups). Returns (labels compacted, pairs merged)."""
+    from models.mesh.celldata import compact_labels
+
+    labels = compact_labels(np.asarray(labels, dtype=np.int64))
+    w = np.ones(labels.size) if sizes is None else np.asarray(sizes, dtype=np.float64)
+    merged = 0
+    for _ in range(rounds):  # a loop over rounds of disjoint merges (each vectorized)
+        k = int(labels.max()) + 1
+        excess = k - int(target)
+        if excess <= 0:
+            break
+        a, b, uchi, wt = union_euler(mesh, graph, labels)
+        ok = uchi == 1
+        if keep is not None:
+            ke = np.zeros(k, dtype=np.int64)
+            ke[labels] = keep
+            ok &= ke[a] == ke[b]
+        a, b, wt = a[ok], b[ok], wt[ok]
+        if a.size == 0:
+            break
+        size = np.bincount(labels, weights=w, minlength=k)
+        # each pair as (the smaller element, the other): the smallest elements first, then the
+        # partner sharing the most, then the smaller partner
+        small = np.where(size[a] <= size[b], a, b)
+        other = np.where(small == a, b, a)
+        order = np.lexsort((size[other], -wt, size[small]))
+        tgt = np.arange(k)
+        used = np.zeros(k, dtype=bool)
+        done = 0
+        for i in order:  # a loop over candidate pairs until `excess` are taken
+            p, q = small[i], other[i]
+            if used[p] or used[q]:
+                continue
+            used[p] = used[q] = True
+            tgt[p] = q
+            done += 1
+            if done >= excess:
+                break
+        if done == 0:
+            break
+        labels = compact_labels(tgt[labels])
+        merged += done
+    return labels, merged
+
+
+def pinched(mesh: Mesh, graph, labels: np.ndarray):
+    """2D elements that touch themselves at a vertex (their boundary walk passes a vertex twice, so
+    they go around a hole or other elements with only a point closing the ring; chi below 1): an
+    element's boundary sides meet in pairs at its boundary vertices, more than two at such a vertex.
+    (elements, one such vertex of each). Polygon merging reads one boundary loop for them and finds
+    no hole."""
+    from models.mesh.dual import sorted_unique
+    from models.polytope.merge import face_nodes
+
+    labels = np.asarray(labels, dtype=np.int64)
+    none = np.zeros(0, dtype=np.int64)
+    if mesh.dim != 2:
+        return none, none
+    f = graph.faces
+    fel = labels[f.cell]
+    on = graph.partner < 0
+    inner = ~on
+    on[inner] = labels[f.cell[graph.partner[inner]]] != fel[inner]
+    bf = np.flatnonzero(on)
+    fo, nodes = face_nodes(f, bf)
+    n = np.int64(mesh.n_points)
+    key, cnt = sorted_unique(np.repeat(fel[bf], np.diff(fo)) * n + nodes, return_counts=True)
+    hit = key[cnt > 2]
+    el, first = np.unique(hit // n, return_index=True)
+    return el, (hit % n)[first]

@@ -1,0 +1,124 @@
+"""Euler characteristics of elements and of unions of neighbours (models.polytope.euler): the union's
+predicted value equals the merged element's, in 2D and 3D; elements touching themselves at a vertex
+are found and cut; agglomerations of domains with many holes keep the count asked for."""
+
+import numpy as np
+import pytest
+from meshes import hexes, quads
+from test_hierarchy_holes import _gmsh_2d, _plate
+
+from models.mesh.celldata import compact_labels
+from models.mesh.read import mesh_from_arrays
+from models.partition.agglomerate import agglomerate
+from models.pipeline import prepare, run, split_holes
+from models.polytope.euler import element_euler, merge_safely, pinched, union_euler
+from models.polytope.merge import merge
+
+
+def _grid_labels(n, cells):
+    """A quad grid n x n; labels from a dict {(i, j): element} (the rest: element 0)."""
+    p, q = quads(n)
+    m = mesh_from_arrays(p, [("quad", q)])
+    c = np.floor(p[q].mean(axis=1) * n).astype(int)
+    lab = np.zeros(m.n_cells, dtype=np.int64)
+    for (i, j), e in cells.items():
+        lab[(c[:, 0] == i) & (c[:, 1] == j)] = e
+    return m, lab
+
+
+def _pinch():
+    """3 x 3 quads: the centre cell is element 1; element 0 goes around it and closes the ring only
+    at the vertex (1, 2) where cells (0, 1) and (1, 2) meet corner to corner; cell (0, 2) is
+    element 2."""
+    return _grid_labels(3, {(1, 1): 1, (0, 2): 2})
+
+
+def test_a_ring_and_a_pinch_have_euler_characteristic_zero():
+    # 5 x 5 quads: element 1 the 8 cells around the centre cell (element 2); element 0, the outer
+    # 16 cells, goes around all of them: two rings and a disk
+    ring = {(i, j): 1 for i in (1, 2, 3) for j in (1, 2, 3)}
+    ring[(2, 2)] = 2
+    m, lab = _grid_labels(5, ring)
+    g, _ = prepare(m)
+    assert element_euler(m, g, lab).tolist() == [0, 0, 1]
+    assert pinched(m, g, lab)[0].size == 0  # rings, not touches: polygon merging finds their holes
+    mp, lp = _pinch()
+    gp, _ = prepare(mp)
+    assert element_euler(mp, gp, lp).tolist() == [0, 1, 1]
+    el, v = pinched(mp, gp, lp)
+    assert el.tolist() == [0]
+    assert np.allclose(mp.points[v[0]], [1 / 3, 2 / 3])
+
+
+def test_split_holes_cuts_an_element_that_touches_itself_at_a_vertex():
+    m, lab = _pinch()
+    g, d = prepare(m)
+    _, holes = merge(m, g, lab, d.measures)
+    assert holes.elements.size == 0  # one boundary walk: merging alone sees nothing wrong
+    poly, new, n_split = split_holes(m, g, d, lab)
+    assert n_split == 1
+    assert np.all(element_euler(m, g, new) == 1)
+    assert pinched(m, g, new)[0].size == 0
+
+
+@pytest.fixture(scope="module")
+def holed_plate():
+    pts, tri = _gmsh_2d(lambda occ: _plate(occ, 6), 0.02)
+    mesh = mesh_from_arrays(pts, [("triangle", tri)])
+    graph, data = prepare(mesh)
+    return mesh, graph, data
+
+
+@pytest.mark.parametrize("model", ["metis", "kmeans"])
+def test_union_euler_is_the_merged_elements(holed_plate, model):
+    mesh, g, d = holed_plate
+    lab = agglomerate(mesh, d, model=model, mode="kway", k=24, seed=0).labels
+    chi = element_euler(mesh, g, lab)
+    a, b, u, w = union_euler(mesh, g, lab, chi)
+    assert a.size > 24 and np.all(a < b) and np.all(w > 0)
+    assert set(u.tolist()) - {1} and 1 in u  # some unions are rings (holes between), some disks
+    for i in range(a.size):  # a loop over the element pairs of one small agglomeration
+        merged = compact_labels(np.where(lab == b[i], a[i], lab))
+        e = merged[np.flatnonzero(lab == a[i])[0]]
+        assert element_euler(mesh, g, merged)[e] == u[i]
+
+
+def test_union_euler_in_3d():
+    p, h = hexes(6)
+    p = np.asarray(p, dtype=np.float64)
+    c = p[h].mean(axis=1)
+    keep = ~((np.abs(c[:, 0] - 0.5) < 0.2) & (np.abs(c[:, 1] - 0.5) < 0.2))  # a square tunnel along z
+    mesh = mesh_from_arrays(p, [("hexahedron", h[keep])])
+    g, d = prepare(mesh)
+    lab = agglomerate(mesh, d, model="metis", mode="kway", k=12, seed=0).labels
+    chi = element_euler(mesh, g, lab)
+    assert np.all(chi == 1)
+    a, b, u, _ = union_euler(mesh, g, lab, chi)
+    for i in range(a.size):  # a loop over the element pairs
+        merged = compact_labels(np.where(lab == b[i], a[i], lab))
+        e = merged[np.flatnonzero(lab == a[i])[0]]
+        assert element_euler(mesh, g, merged)[e] == u[i]
+    # one element around the tunnel: a handle, 1 - 1
+    ring = compact_labels(np.zeros(mesh.n_cells, dtype=np.int64))
+    assert element_euler(mesh, g, ring).tolist() == [0]
+
+
+def test_merge_safely_never_encloses_anything(holed_plate):
+    mesh, g, d = holed_plate
+    lab = agglomerate(mesh, d, model="metis", mode="kway", k=200, seed=0).labels
+    new, merged = merge_safely(mesh, g, lab, 60)
+    assert merged == 200 - int(new.max()) - 1 and int(new.max()) + 1 >= 60
+    assert np.all(element_euler(mesh, g, new) == 1)
+    _, holes = merge(mesh, g, new, d.measures)
+    assert holes.elements.size == 0
+
+
+@pytest.mark.parametrize("model", ["metis", "rtree", "kmeans"])
+def test_many_holes_keep_the_count_asked_for(holed_plate, model):
+    """36 holes and 16 elements: the cut elements are merged back where the union encloses nothing
+    (before, merging the smallest back made new holes and k = 16 was refused)."""
+    mesh, g, _ = holed_plate
+    res = run(mesh, model=model, k=16, compute_metrics=False)
+    assert res.poly.n_elements == 16
+    assert np.all(np.diff(res.poly.elem_offsets) == 1)  # one boundary loop each
+    assert np.all(element_euler(mesh, g, res.poly.labels) == 1)
