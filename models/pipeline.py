@@ -77,7 +77,7 @@ def split_holes(
     data: CellData,
     labels: np.ndarray,
     policy: str = "split",
-    max_rounds: int = 8,
+    max_rounds: int = 12,
 ):
     """Merge, and split elements that enclose holes until none does. Returns (poly, labels, n_split)."""
     if policy not in HOLE_POLICIES:
@@ -108,8 +108,11 @@ def split_holes(
             break
         new_label = labels.copy()
         nxt = int(labels.max()) + 1
+        by_el = np.argsort(labels, kind="stable")
+        lo = np.searchsorted(labels[by_el], elems)
+        hi = np.searchsorted(labels[by_el], elems, side="right")
         for i, (e, c) in enumerate(zip(elems, centers, strict=True)):  # a loop over the (few) holed elements
-            cells = np.flatnonzero(labels == e)
+            cells = by_el[lo[i] : hi[i]]
             x = data.centroids[cells]
             if normals is not None and np.any(normals[i]):
                 side = (x - c) @ normals[i] > 0
@@ -118,6 +121,9 @@ def split_holes(
                 continue
             xc = x - x.mean(axis=0)
             _, _, vt = np.linalg.svd(xc, full_matrices=False)
+            hc = holes.centers[holes.elements == e]
+            if len(hc) > 2:  # several holes: through the middle one along the axis, halving them
+                c = hc[np.argsort(hc @ vt[0])[len(hc) // 2]]
             side = (x - c) @ vt[0] > 0
             if side.all() or not side.any():
                 side = (x - c) @ vt[1] > 0
@@ -127,7 +133,8 @@ def split_holes(
         labels = compact_labels(labels)
         n_split += elems.size
     raise MeshError(
-        f"could not remove the holes of {elems.size} elements after {max_rounds} rounds of splitting"
+        f"{elems.size} elements still enclose a hole after {max_rounds} rounds of cutting them: the "
+        "domain has too many holes for so few elements; ask for more elements"
     )
 
 
@@ -203,8 +210,14 @@ def run(
 
     t = time.perf_counter()
     report(0.72, "merge")
-    poly, labels, n_split = split_holes(mesh, graph, data, agg.labels, hole_policy)
-    if agg.exact and poly.n_elements != agg.n_elements:
+    try:
+        poly, labels, n_split = split_holes(mesh, graph, data, agg.labels, hole_policy)
+    except MeshError:
+        if not agg.exact or hole_policy != "split":
+            raise
+        poly = labels = None  # too many holes for the cuts: _recount_after_holes threads them
+        n_split = 0
+    if agg.exact and (poly is None or poly.n_elements != agg.n_elements):
         poly, labels = _recount_after_holes(mesh, graph, data, agg, poly, labels, hole_policy)
     poly = sort_by_vertex_count(poly)  # 3D: the element order meshio can read back
     labels = poly.labels
@@ -264,32 +277,81 @@ def _fan_normals(data: CellData, labels: np.ndarray, elems: np.ndarray, vertex: 
 
 
 def _recount_after_holes(mesh, graph, data, agg, poly, labels, hole_policy, rounds: int = 4):
-    """Elements cut because they enclosed a hole raised the count above the k asked for: merge the
-    smallest back into a neighbour where the union encloses nothing (its Euler characteristic is
-    1: models.polytope.euler), then, where that is not enough, merge the smallest back
-    (models.partition.connect) and check for holes again, a few rounds."""
+    """Elements cut because they enclosed a hole raised the count above the k asked for (poly and
+    labels: split_holes' answer, None where it gave up). In turn, until one gives k elements:
+    - the cut elements merged back into a neighbour where the union encloses nothing (its Euler
+      characteristic is 1: models.polytope.euler);
+    - from the partition again, each element around a hole first gives a path of its cells from the
+      hole to a neighbour (models.hierarchy.holes.thread_holes: the hole then lies between two
+      elements and the count stays), what is left cut and merged back as above; on a plate with 100
+      holes about a cell wide this meets k = 2 to 16, which the cuts alone cannot;
+    - the smallest merged back (models.partition.connect), the holes that makes threaded, and holes
+      checked again, a few rounds."""
     from models.partition.connect import exact_count
     from models.polytope.euler import merge_safely
 
     target = agg.n_elements
     nodes = np.arange(mesh.n_cells)
-    if target == agg.requested:  # (not with a subset: the rest stays as is)
-        labels, merged = merge_safely(mesh, graph, labels, target, sizes=np.abs(data.measures))
-        agg.recount["merged"] = agg.recount.get("merged", 0) + merged
-        poly, labels, _n = split_holes(mesh, graph, data, labels, hole_policy)
-        if poly.n_elements == target:
-            return poly, labels
-    for _ in range(rounds if target == agg.requested else 0):  # not with a subset: the rest stays as is
+    whole = target == agg.requested  # not with a subset: the rest stays as is
+    sizes = np.abs(data.measures)
+    for how in ("cut", "threaded") if whole else ():
+        start = labels
+        if how == "threaded":
+            start, opened = _threaded(mesh, data, agg.labels)
+            if opened == 0:
+                continue
+            try:
+                _p, start, _n = split_holes(mesh, graph, data, start, hole_policy)
+            except MeshError:
+                continue
+        if start is None:
+            continue
+        got, merged = merge_safely(mesh, graph, start, target, sizes=sizes)
+        try:
+            p2, got, _n = split_holes(mesh, graph, data, got, hole_policy)
+        except MeshError:
+            continue
+        if p2.n_elements == target:
+            agg.recount["merged"] = agg.recount.get("merged", 0) + merged
+            if how == "threaded":
+                agg.recount["threaded"] = opened
+            return p2, got
+        if how == "cut":
+            poly, labels = p2, got
+    for _ in range(rounds if whole and labels is not None else 0):
         labels, merged, resplit = exact_count(data, labels, nodes, target)
         agg.recount["merged"] = agg.recount.get("merged", 0) + merged
         agg.recount["split"] = agg.recount.get("split", 0) + resplit
+        labels, opened = _threaded(mesh, data, labels)  # the holes those merges made, opened
+        if opened:
+            agg.recount["threaded"] = agg.recount.get("threaded", 0) + opened
         poly, labels, _n = split_holes(mesh, graph, data, labels, hole_policy)
         if poly.n_elements == target:
             return poly, labels
+    got = "" if poly is None else f" ({poly.n_elements} elements)"
     raise ParameterError(
         f"k = {agg.requested} cannot be met: elements that enclose a hole must be cut and merging "
-        f"them back makes new holes ({poly.n_elements} elements); allow extra elements (--allow-extra)"
+        f"them back makes new holes{got}; allow extra elements (--allow-extra)"
     )
+
+
+def _threaded(mesh: Mesh, data: CellData, labels: np.ndarray, rounds: int = 8):
+    """Each element that alone goes around a hole of the domain gives the shortest path of its cells
+    from the hole to a neighbouring element (thread_holes with cells as the units), rounds while
+    holes open. Returns (labels, holes opened)."""
+    from models.hierarchy.holes import thread_holes
+    from models.hierarchy.topology import domain_holes
+
+    hole_id, hole_cell = domain_holes(mesh, data)
+    n = mesh.n_cells
+    cells, parent = np.arange(n), np.zeros(n, dtype=np.int64)
+    total = 0
+    for _ in range(rounds if hole_id.size else 0):  # a loop over rounds (each one path per hole)
+        labels, opened = thread_holes(data, labels, cells, parent, hole_id, hole_cell)
+        total += opened
+        if opened == 0:
+            break
+    return labels, total
 
 
 def element_metrics(res: Result) -> dict:

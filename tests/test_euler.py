@@ -113,12 +113,17 @@ def test_merge_safely_never_encloses_anything(holed_plate):
     assert holes.elements.size == 0
 
 
+@pytest.mark.parametrize("k", [3, 6, 16])
 @pytest.mark.parametrize("model", ["metis", "rtree", "kmeans"])
-def test_many_holes_keep_the_count_asked_for(holed_plate, model):
-    """36 holes and 16 elements: the cut elements are merged back where the union encloses nothing
-    (before, merging the smallest back made new holes and k = 16 was refused)."""
+def test_many_holes_keep_the_count_asked_for(holed_plate, model, k):
+    """36 holes and k = 3 to 16 elements: the cut elements are merged back where the union encloses
+    nothing, or the holes are threaded (a path of cells from the hole to a neighbour). Before,
+    merging the smallest back made new holes and every one of these was refused."""
     mesh, g, _ = holed_plate
-    res = run(mesh, model=model, k=16, compute_metrics=False)
-    assert res.poly.n_elements == 16
+    res = run(mesh, model=model, k=k, compute_metrics=False)
+    assert res.poly.n_elements == k
     assert np.all(np.diff(res.poly.elem_offsets) == 1)  # one boundary loop each
     assert np.all(element_euler(mesh, g, res.poly.labels) == 1)
+    assert pinched(mesh, g, res.poly.labels)[0].size == 0
+    if k < 6:  # fewer elements than holes' rows: only threads can do it
+        assert res.agglomeration.recount.get("threaded", 0) > 0
