@@ -78,6 +78,7 @@ def split_holes(
     labels: np.ndarray,
     policy: str = "split",
     max_rounds: int = 12,
+    rings: bool = True,
 ):
     """Merge, and split elements that enclose holes until none does. Returns (poly, labels, n_split)."""
     if policy not in HOLE_POLICIES:
@@ -90,12 +91,9 @@ def split_holes(
         poly, holes = merge(mesh, graph, labels, data.measures)
         normals = None
         if holes.elements.size == 0:
-            elems, vertex = pinched(mesh, graph, labels) if mesh.dim == 2 else (holes.elements, None)
+            elems, centers, normals = _rings(mesh, graph, data, labels, rings)
             if elems.size == 0:
                 return poly, labels, n_split
-            # touching itself at a vertex around something: cut through that vertex, between the
-            # element's cells there
-            centers, normals = mesh.points[vertex], _fan_normals(data, labels, elems, vertex)
         else:
             elems, first = np.unique(holes.elements, return_index=True)
             centers = holes.centers[first]
@@ -210,15 +208,17 @@ def run(
 
     t = time.perf_counter()
     report(0.72, "merge")
+    before = dict(agg.recount)
     try:
-        poly, labels, n_split = split_holes(mesh, graph, data, agg.labels, hole_policy)
-    except MeshError:
-        if not agg.exact or hole_policy != "split":
+        poly, labels, n_split = _hole_free(mesh, graph, data, agg, hole_policy, rings=True)
+    except ParameterError:  # k cannot be met without rings around a tunnel (3D): keep them, say so
+        if mesh.dim != 3:
             raise
-        poly = labels = None  # too many holes for the cuts: _recount_after_holes threads them
-        n_split = 0
-    if agg.exact and (poly is None or poly.n_elements != agg.n_elements):
-        poly, labels = _recount_after_holes(mesh, graph, data, agg, poly, labels, hole_policy)
+        agg.recount = before
+        poly, labels, n_split = _hole_free(mesh, graph, data, agg, hole_policy, rings=False)
+        from models.hierarchy.topology import handle_elements
+
+        agg.recount["rings_kept"] = int(handle_elements(mesh, graph, labels).size)
     poly = sort_by_vertex_count(poly)  # 3D: the element order meshio can read back
     labels = poly.labels
     agg.labels = labels
@@ -246,6 +246,57 @@ def run(
         timings["metrics"] = time.perf_counter() - t
     report(0.9, "write")
     return res
+
+
+def _hole_free(mesh, graph, data, agg, hole_policy: str, rings: bool):
+    """split_holes on the partition, then, where k is asked for exactly, _recount_after_holes:
+    (poly, labels, elements split)."""
+    try:
+        poly, labels, n_split = split_holes(mesh, graph, data, agg.labels, hole_policy, rings=rings)
+    except MeshError:
+        if not agg.exact or hole_policy != "split":
+            raise
+        poly = labels = None  # too many holes for the cuts: _recount_after_holes threads them
+        n_split = 0
+    if agg.exact and (poly is None or poly.n_elements != agg.n_elements):
+        poly, labels = _recount_after_holes(mesh, graph, data, agg, poly, labels, hole_policy, rings=rings)
+    return poly, labels, n_split
+
+
+def _rings(mesh: Mesh, graph: DualGraph, data: CellData, labels: np.ndarray, handles: bool = True):
+    """Elements that go around something without an inner boundary loop or shell, and the cut that
+    opens each: (elements, a point of each cut, its normal). 2D: an element touching itself at a
+    vertex, cut through that vertex between its cells there. 3D (models.hierarchy.topology.
+    handle_elements), on a domain with a tunnel or a cavity: an element around a cavity whose inner
+    surface touches its outer one along an edge, cut through its centroid across its principal axis;
+    with `handles`, a ring around a tunnel of the domain or around a neighbour, cut through its
+    centroid normal to its second principal axis (a plane holding the first: a slice of a pipe and a
+    sleeve along it are both opened). On a domain with neither, rings around a neighbour stay (rare
+    in k-way parts; looking for them costs up to a third of a run at 20,000 elements)."""
+    if mesh.dim == 2:
+        elems, vertex = pinched(mesh, graph, labels)
+        return elems, mesh.points[vertex], _fan_normals(data, labels, elems, vertex)
+    from models.hierarchy.topology import domain_genus, handle_elements
+
+    genus, shells = domain_genus(mesh, graph, with_shells=True)
+    if genus == 0 and shells <= 1:  # no tunnel, no cavity: nothing to go around but neighbours
+        return np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros((0, 3))
+    rings, cavities = handle_elements(mesh, graph, labels, cavities=True)
+    if not handles:
+        rings = rings[:0]
+    elems = np.r_[rings, cavities].astype(np.int64)
+    axis = np.r_[np.ones(rings.size, dtype=np.int64), np.zeros(cavities.size, dtype=np.int64)]
+    centers = np.zeros((elems.size, 3))
+    normals = np.zeros((elems.size, 3))
+    by_el = np.argsort(labels, kind="stable")
+    lo = np.searchsorted(labels[by_el], elems)
+    hi = np.searchsorted(labels[by_el], elems, side="right")
+    for i in range(elems.size):  # a loop over the (few) elements found
+        x = data.centroids[by_el[lo[i] : hi[i]]]
+        centers[i] = x.mean(axis=0)
+        if x.shape[0] > 2:
+            normals[i] = np.linalg.svd(x - centers[i], full_matrices=False)[2][axis[i]]
+    return elems, centers, normals
 
 
 def _fan_normals(data: CellData, labels: np.ndarray, elems: np.ndarray, vertex: np.ndarray) -> np.ndarray:
@@ -276,7 +327,9 @@ def _fan_normals(data: CellData, labels: np.ndarray, elems: np.ndarray, vertex: 
     return normals
 
 
-def _recount_after_holes(mesh, graph, data, agg, poly, labels, hole_policy, rounds: int = 4):
+def _recount_after_holes(
+    mesh, graph, data, agg, poly, labels, hole_policy, rounds: int = 4, rings: bool = True
+):
     """Elements cut because they enclosed a hole raised the count above the k asked for (poly and
     labels: split_holes' answer, None where it gave up). In turn, until one gives k elements:
     - the cut elements merged back into a neighbour where the union encloses nothing (its Euler
@@ -301,14 +354,14 @@ def _recount_after_holes(mesh, graph, data, agg, poly, labels, hole_policy, roun
             if opened == 0:
                 continue
             try:
-                _p, start, _n = split_holes(mesh, graph, data, start, hole_policy)
+                _p, start, _n = split_holes(mesh, graph, data, start, hole_policy, rings=rings)
             except MeshError:
                 continue
         if start is None:
             continue
         got, merged = merge_safely(mesh, graph, start, target, sizes=sizes)
         try:
-            p2, got, _n = split_holes(mesh, graph, data, got, hole_policy)
+            p2, got, _n = split_holes(mesh, graph, data, got, hole_policy, rings=rings)
         except MeshError:
             continue
         if p2.n_elements == target:
@@ -325,7 +378,7 @@ def _recount_after_holes(mesh, graph, data, agg, poly, labels, hole_policy, roun
         labels, opened = _threaded(mesh, data, labels)  # the holes those merges made, opened
         if opened:
             agg.recount["threaded"] = agg.recount.get("threaded", 0) + opened
-        poly, labels, _n = split_holes(mesh, graph, data, labels, hole_policy)
+        poly, labels, _n = split_holes(mesh, graph, data, labels, hole_policy, rings=rings)
         if poly.n_elements == target:
             return poly, labels
     got = "" if poly is None else f" ({poly.n_elements} elements)"

@@ -84,11 +84,7 @@ def test_union_euler_is_the_merged_elements(holed_plate, model):
 
 
 def test_union_euler_in_3d():
-    p, h = hexes(6)
-    p = np.asarray(p, dtype=np.float64)
-    c = p[h].mean(axis=1)
-    keep = ~((np.abs(c[:, 0] - 0.5) < 0.2) & (np.abs(c[:, 1] - 0.5) < 0.2))  # a square tunnel along z
-    mesh = mesh_from_arrays(p, [("hexahedron", h[keep])])
+    mesh, _ = _block_with_tunnel()
     g, d = prepare(mesh)
     lab = agglomerate(mesh, d, model="metis", mode="kway", k=12, seed=0).labels
     chi = element_euler(mesh, g, lab)
@@ -127,3 +123,53 @@ def test_many_holes_keep_the_count_asked_for(holed_plate, model, k):
     assert pinched(mesh, g, res.poly.labels)[0].size == 0
     if k < 6:  # fewer elements than holes' rows: only threads can do it
         assert res.agglomeration.recount.get("threaded", 0) > 0
+
+
+def _block_with_tunnel(n=6):
+    p, h = hexes(n)
+    p = np.asarray(p, dtype=np.float64)
+    c = p[h].mean(axis=1)
+    keep = ~((np.abs(c[:, 0] - 0.5) < 0.2) & (np.abs(c[:, 1] - 0.5) < 0.2))  # a square tunnel along z
+    mesh = mesh_from_arrays(p, [("hexahedron", h[keep])])
+    return mesh, c[keep]
+
+
+def test_a_ring_around_a_tunnel_is_cut():
+    mesh, c = _block_with_tunnel()
+    g, d = prepare(mesh)
+    lab = (c[:, 2] > 0.5).astype(np.int64)  # two slices across the tunnel: two rings
+    assert element_euler(mesh, g, lab).tolist() == [0, 0]
+    _, new, n_split = split_holes(mesh, g, d, lab)
+    assert n_split >= 2 and np.all(element_euler(mesh, g, new) == 1)
+    _, kept, _ = split_holes(mesh, g, d, lab, rings=False)  # as before: rings are left
+    assert np.array_equal(kept, lab)
+
+
+def test_k_that_needs_a_ring_keeps_it_and_says_so():
+    mesh, _ = _block_with_tunnel()
+    res = run(mesh, model="metis", k=1, compute_metrics=False)
+    assert res.poly.n_elements == 1
+    assert res.summary()["recount"]["rings_kept"] == 1
+    res = run(mesh, model="metis", k=4, compute_metrics=False)
+    assert res.summary()["recount"]["rings_kept"] == 0
+    assert np.all(element_euler(mesh, res.graph, res.poly.labels) == 1)
+
+
+def test_a_cavity_touching_the_outside_along_an_edge_is_cut():
+    """3 x 3 x 3 hexahedra less the centre (a cubic cavity); element 0 is the 25 cells around it but
+    one that shares only an edge with the cavity (element 1): the cavity's surface meets element 0's
+    outer surface along that edge, one non-manifold shell, so polyhedron merging finds no inner
+    shell; its cells' characteristic is 2."""
+    p, h = hexes(3)
+    p = np.asarray(p, dtype=np.float64)
+    ijk = np.floor(p[h].mean(axis=1) * 3).astype(int)
+    keep = ~np.all(ijk == 1, axis=1)
+    mesh = mesh_from_arrays(p, [("hexahedron", h[keep])])
+    ijk = ijk[keep]
+    lab = np.all(ijk == [0, 0, 1], axis=1).astype(np.int64)
+    g, d = prepare(mesh)
+    assert element_euler(mesh, g, lab).tolist() == [2, 1]
+    _, holes = merge(mesh, g, lab, d.measures)
+    assert holes.elements.size == 0
+    _, new, n_split = split_holes(mesh, g, d, lab, rings=False)  # (always cut, rings or not)
+    assert n_split >= 1 and np.all(element_euler(mesh, g, new) == 1)

@@ -292,10 +292,17 @@ def cmd_agglomerate(args) -> int:
     rc = s.get("recount") or {}
     if rc.get("merged") or rc.get("split"):
         extra.append(f"exactly k: {rc['merged']} fragments merged, {rc['split']} elements split again")
+    if rc.get("threaded"):
+        extra.append(f"{rc['threaded']} holes threaded (a path of cells from the hole to a neighbour)")
     note = f" ({', '.join(extra)})" if extra else ""
     print(f"{s['elements']} elements from {mesh.n_cells} cells{note} | {stages} | total {total:.2f}s")
     from models.mesh.build import dropped_sentence, ignored_lower_sentence
 
+    if rc.get("rings_kept"):
+        print(
+            f"warning: {rc['rings_kept']} elements go around a tunnel of the domain: k = {s['requested']} "
+            "cannot be met without them; ask for more elements to have none"
+        )
     ignored = ignored_lower_sentence(mesh.meta, mesh.dim)
     if ignored:
         print(f"note: {ignored}")

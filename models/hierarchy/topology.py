@@ -73,7 +73,9 @@ def fewest_elements(
     return pieces + holed, "; ".join(why)
 
 
-def handle_elements(mesh: Mesh, graph, labels: np.ndarray, only: np.ndarray | None = None) -> np.ndarray:
+def handle_elements(
+    mesh: Mesh, graph, labels: np.ndarray, only: np.ndarray | None = None, cavities: bool = False
+):
     """3D elements with a handle: rings around a tunnel of the domain (a pipe cut into slices along
     its length, a torus cut across its tube) are no polyhedra a solver's element may be, as a polygon
     around a hole is none. Candidates: elements whose boundary faces (on the domain's boundary or
@@ -81,7 +83,10 @@ def handle_elements(mesh: Mesh, graph, labels: np.ndarray, only: np.ndarray | No
     2 - 2g; an element touching itself at a vertex also falls below 2). Each candidate is then judged
     by the Euler characteristic of its cells (V - E + F - C = 1 - handles + cavities for a connected
     element; a touch at a vertex leaves it 1): fewer than 1 is a handle. No loop over elements.
-    only: the elements to look at (the others are not handles in the answer)."""
+    only: the elements to look at (the others are not handles in the answer). cavities: also the
+    elements around a cavity whose inner surface touches the outer one along an edge or at a vertex
+    (one non-manifold shell: polyhedron merging finds no inner shell), whose cells have a
+    characteristic above 1 (their boundary's above 2): then (handles, those)."""
     from models.mesh.dual import sorted_unique
     from models.mesh.geometry import next_in_cycle
     from models.polytope.merge import boundary_faces, face_nodes
@@ -91,14 +96,21 @@ def handle_elements(mesh: Mesh, graph, labels: np.ndarray, only: np.ndarray | No
     n = np.int64(mesh.n_points)
     f = graph.faces
 
-    def chi(face_ids, el):  # V - E of each element's faces (sorts, not numpy's hash-based unique)
+    pinch = np.zeros(k, dtype=bool)  # elements with a boundary edge on more than two of their faces
+
+    def chi(
+        face_ids, el, edges_seen=False
+    ):  # V - E of each element's faces (sorts, not numpy's hash-based unique)
         fo, nodes = face_nodes(f, face_ids)
         owner = np.repeat(el, np.diff(fo))
         V = np.bincount(sorted_unique(owner * n + nodes) // n, minlength=k)
         u, v = nodes, nodes[next_in_cycle(fo)]
         edge = sorted_unique(np.minimum(u, v) * n + np.maximum(u, v), return_inverse=True)[1]
         m = np.int64(edge.max() + 1) if edge.size else np.int64(1)
-        return V - np.bincount(sorted_unique(owner * m + edge) // m, minlength=k)
+        key, count = sorted_unique(owner * m + edge, return_counts=True)
+        if edges_seen:
+            pinch[key[count > 2] // m] = True
+        return V - np.bincount(key // m, minlength=k)
 
     bf = boundary_faces(graph, labels)
     look = np.ones(k, dtype=bool)
@@ -108,9 +120,10 @@ def handle_elements(mesh: Mesh, graph, labels: np.ndarray, only: np.ndarray | No
         bf = bf[look[labels[f.cell[bf]]]]
     bel = labels[f.cell[bf]]
     nb = np.bincount(bel, minlength=k)  # (complete for the elements looked at)
-    cand = np.flatnonzero((chi(bf, bel) + nb < 2) & look)
+    surface = chi(bf, bel, cavities) + nb
+    cand = np.flatnonzero(((surface < 2) | (cavities & ((surface > 2) | pinch))) & look)
     if cand.size == 0:
-        return cand
+        return (cand, cand) if cavities else cand
     mine = np.zeros(k, dtype=bool)
     mine[cand] = True
     fc = np.flatnonzero(mine[labels[f.cell]])  # every face of the candidates' cells
@@ -119,12 +132,15 @@ def handle_elements(mesh: Mesh, graph, labels: np.ndarray, only: np.ndarray | No
     F = (np.bincount(fel, minlength=k) + nb) // 2
     C = np.bincount(labels, minlength=k)
     volume_chi = chi(fc, fel) + F - C
+    if cavities:
+        return cand[volume_chi[cand] < 1], cand[volume_chi[cand] > 1]
     return cand[volume_chi[cand] < 1]
 
 
-def domain_genus(mesh: Mesh, graph) -> int:
+def domain_genus(mesh: Mesh, graph, with_shells: bool = False):
     """3D: the summed genus of the domain's boundary shells (a torus 1, a block with two crossing
-    tunnels 2; 0 for a ball, a box with cavities): (2 S - (V - E + F)) / 2 over its boundary faces."""
+    tunnels 2; 0 for a ball, a box with cavities): (2 S - (V - E + F)) / 2 over its boundary faces.
+    with_shells: (genus, S), S the number of boundary shells (above 1: cavities or separate pieces)."""
     from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -133,7 +149,7 @@ def domain_genus(mesh: Mesh, graph) -> int:
 
     bf = np.flatnonzero(graph.partner < 0)
     if bf.size == 0:
-        return 0
+        return (0, 0) if with_shells else 0
     fo, nodes = face_nodes(graph.faces, bf)
     u, v = nodes, nodes[next_in_cycle(fo)]
     n = mesh.n_points
@@ -142,4 +158,5 @@ def domain_genus(mesh: Mesh, graph) -> int:
     S = np.unique(shells[used]).size
     E = np.unique(np.minimum(u, v) * np.int64(n) + np.maximum(u, v)).size
     chi = used.size - E + bf.size
-    return max(int(round((2 * S - chi) / 2)), 0)
+    genus = max(int(round((2 * S - chi) / 2)), 0)
+    return (genus, int(S)) if with_shells else genus

@@ -43,7 +43,7 @@ class Agglomeration:
     levels: list | None = None  # labels over `nodes` after each recursion level (record_levels)
     nodes: np.ndarray | None = None
     exact: bool = False  # the count `requested` is enforced (k asked for, allow_extra off)
-    recount: dict = field(default_factory=dict)  # {"merged": n, "split": n} to meet it
+    recount: dict = field(default_factory=dict)  # {"merged", "split", "threaded", "rings_kept": n} to meet it
 
     def summary(self) -> dict:
         return {
@@ -55,6 +55,8 @@ class Agglomeration:
             "recount": {
                 "merged": int(self.recount.get("merged", 0)),
                 "split": int(self.recount.get("split", 0)),
+                "threaded": int(self.recount.get("threaded", 0)),  # holes opened by a path of cells
+                "rings_kept": int(self.recount.get("rings_kept", 0)),  # 3D rings around a tunnel
             },
         }
 
