@@ -161,10 +161,12 @@ def hierarchy_main(args) -> int:
 
 def format_levels(report: list[dict]) -> str:
     """The per-level report: elements (requested), ratio to the finer level (requested), holed
-    elements found, holes opened by moving a path to a neighbour (threaded), ring cuts, elements split into their children, pairs merged back."""
+    elements found, holes opened by moving a path to a neighbour (threaded), ring cuts, elements split
+    into their children, pairs merged back, and pairs merged with the holes between them threaded
+    through every level (models.hierarchy.rethread)."""
     lines = [
         f"{'level':>5}{'elements':>10}{'requested':>10}{'ratio':>7}{'wanted':>8}{'holed':>7}{'threaded':>9}"
-        f"{'ring cuts':>10}{'splits':>8}{'merged':>8}"
+        f"{'ring cuts':>10}{'splits':>8}{'merged':>8}{'merged+threads':>16}"
     ]
     for r in report:
         req = f"{r['requested']}" if "requested" in r else "-"
@@ -172,6 +174,7 @@ def format_levels(report: list[dict]) -> str:
         lines.append(
             f"{r['level']:>5}{r['elements']:>10}{req:>10}{r['ratio']:>7.2f}{want:>8}{r['holed_elements']:>7}"
             f"{r.get('holes_threaded', 0):>9}{r['ring_cuts']:>10}{r['split_into_children']:>8}{r['merged_pairs']:>8}"
+            f"{r.get('threaded_merges', 0):>16}"
         )
     return "\n".join(lines)
 

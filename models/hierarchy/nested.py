@@ -657,6 +657,9 @@ def build_hierarchy(
         rings=rings and model == "rtree",
         groups=group_of,
     )
+    from models.hierarchy.rethread import coarse_end
+
+    levels, polys, report = coarse_end(mesh, data, levels, polys, report, hole_pairs, counts[0], group_of)
     report = _with_requested(report, counts, n)
     said_off_plan(levels, report, coarsest, notes)
     info = {
