@@ -18,7 +18,7 @@ import numpy as np
 from models.hierarchy.topology import domain_genus, domain_holes, handle_elements
 from models.mesh.celldata import CellData, compact_labels
 from models.mesh.container import Mesh
-from models.polytope.euler import pinched
+from models.polytope.euler import disjoint_pairs, pinched
 
 RING_ROUNDS = 4  # ring cuts tried per level before an element is replaced by its children
 # rounds of merging pairs back while they merge (a round's merges that enclose a hole are undone)
@@ -353,18 +353,7 @@ def merge_pairs(
         keep = ~np.isin(key, np.fromiter(forbid, dtype=np.int64, count=len(forbid)))
         a, b, shared = a[keep], b[keep], shared[keep]
     order = np.lexsort((size[a] + size[b], shared))  # the fewest holes between them, then the smallest
-    used = np.zeros(k, dtype=bool)
-    target = np.arange(k)
-    done = 0
-    for i in order:  # a loop over candidate pairs until r are taken (r: about the ring cuts of one level)
-        if done >= r:
-            break
-        p, q = a[i], b[i]
-        if used[p] or used[q]:
-            continue
-        used[p] = used[q] = True
-        target[q] = p
-        done += 1
+    target, done = disjoint_pairs(order, b, a, k, r)  # (r: about the ring cuts of one level)
     return compact_labels(target[labels]), done
 
 

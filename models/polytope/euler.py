@@ -125,6 +125,24 @@ def _count_at(keys: np.ndarray, occurrences: np.ndarray) -> np.ndarray:
     return np.searchsorted(occ, keys, side="right") - np.searchsorted(occ, keys, side="left")
 
 
+def disjoint_pairs(order, src: np.ndarray, dst: np.ndarray, k: int, limit: int) -> tuple[np.ndarray, int]:
+    """Greedy disjoint merges: pairs (src[i], dst[i]) taken in `order`, each element in at most one,
+    up to `limit`. Returns (a map of the k elements: src -> dst, the rest to themselves; pairs taken)."""
+    target = np.arange(k)
+    used = np.zeros(k, dtype=bool)
+    done = 0
+    for i in order:  # a loop over candidate pairs until `limit` are taken
+        if done >= limit:
+            break
+        p, q = src[i], dst[i]
+        if used[p] or used[q]:
+            continue
+        used[p] = used[q] = True
+        target[p] = q
+        done += 1
+    return target, done
+
+
 def merge_safely(
     mesh: Mesh,
     graph,
@@ -164,18 +182,7 @@ def merge_safely(
         small = np.where(size[a] <= size[b], a, b)
         other = np.where(small == a, b, a)
         order = np.lexsort((size[other], -wt, size[small]))
-        tgt = np.arange(k)
-        used = np.zeros(k, dtype=bool)
-        done = 0
-        for i in order:  # a loop over candidate pairs until `excess` are taken
-            p, q = small[i], other[i]
-            if used[p] or used[q]:
-                continue
-            used[p] = used[q] = True
-            tgt[p] = q
-            done += 1
-            if done >= excess:
-                break
+        tgt, done = disjoint_pairs(order, small, other, k, excess)
         if done == 0:
             break
         labels = compact_labels(tgt[labels])
