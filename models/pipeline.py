@@ -303,13 +303,15 @@ def _fan_normals(data: CellData, labels: np.ndarray, elems: np.ndarray, vertex: 
     """For each element touching itself at `vertex`: the direction from one group of its cells at that
     vertex (cells joined by a side) to another, the normal of a cut through the vertex that parts
     them; zero where the cells there form one group."""
+    normals = np.zeros((elems.size, data.centroids.shape[1]))
+    if elems.size == 0:  # (the usual case: no scipy import)
+        return normals
     from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import connected_components
 
     g = data.graph
     entry = np.flatnonzero(np.isin(data.connectivity, vertex))
     cell = np.searchsorted(data.offsets, entry, side="right") - 1
-    normals = np.zeros((elems.size, data.centroids.shape[1]))
     for i, (e, v) in enumerate(zip(elems, vertex, strict=True)):  # a loop over the (few) pinched elements
         cells = np.unique(cell[(data.connectivity[entry] == v) & (labels[cell] == e)])
         if cells.size < 2:

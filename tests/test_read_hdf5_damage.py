@@ -2,7 +2,7 @@
 refusal names the object and its byte address (models.mesh.containers.hdf5_damage, run in a reading
 child), whether VTK's reader failed on the file or crashed on it (then in another child, after the
 crash). Before, both said "it is corrupted or not CGNS" (a mutation sweep of 150 CGNS files: 14
-crashes, 66 vague refusals, and 12 of 26 reads holding half the cells: VTK's reader leaves a zone
+crashes, 103 vague refusals, and 12 of 26 reads holding half the cells: VTK's reader leaves a zone
 whose metadata it cannot read out, without a word).
 """
 

@@ -141,9 +141,7 @@ def domain_genus(mesh: Mesh, graph, with_shells: bool = False):
     """3D: the summed genus of the domain's boundary shells (a torus 1, a block with two crossing
     tunnels 2; 0 for a ball, a box with cavities): (2 S - (V - E + F)) / 2 over its boundary faces.
     with_shells: (genus, S), S the number of boundary shells (above 1: cavities or separate pieces)."""
-    from scipy.sparse import csr_matrix
-    from scipy.sparse.csgraph import connected_components
-
+    from models.graph.csr import connected_components
     from models.mesh.geometry import next_in_cycle
     from models.polytope.merge import face_nodes
 
@@ -154,7 +152,12 @@ def domain_genus(mesh: Mesh, graph, with_shells: bool = False):
     u, v = nodes, nodes[next_in_cycle(fo)]
     n = mesh.n_points
     used = np.unique(nodes)
-    shells = connected_components(csr_matrix((np.ones(u.size), (u, v)), shape=(n, n)), directed=False)[1]
+    # the boundary's edges as a CSR over the points (the compiled union-find: no scipy import in a run)
+    a, b = np.r_[u, v].astype(np.int64), np.r_[v, u].astype(np.int64)
+    order = np.argsort(a, kind="stable")
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(a, minlength=n), out=indptr[1:])
+    shells = connected_components(indptr, b[order])[1]
     S = np.unique(shells[used]).size
     E = np.unique(np.minimum(u, v) * np.int64(n) + np.maximum(u, v)).size
     chi = used.size - E + bf.size
