@@ -132,31 +132,6 @@ def _absorb_pieces(unit_to, before, on_path, qp, qi) -> None:
             loose = loose[~go]
 
 
-def _largest_piece_open(mesh, finest, top, e, qp, qi) -> bool:
-    """Is the largest connected piece (over the units) of coarsest element e a disk?"""
-    from scipy.sparse import csr_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    from models.mesh.cells import ranges
-
-    units = np.flatnonzero(top == e)
-    pos = np.full(top.size, -1, dtype=np.int64)
-    pos[units] = np.arange(units.size)
-    deg = qp[units + 1] - qp[units]
-    rows = np.repeat(units, deg)
-    cols = qi[ranges(qp[units], deg)]
-    inside = top[cols] == e
-    A = csr_matrix(
-        (np.ones(int(inside.sum())), (pos[rows[inside]], pos[cols[inside]])), shape=(units.size, units.size)
-    )
-    _, comp = connected_components(A, directed=False)
-    big = units[comp == np.argmax(np.bincount(comp))]
-    lab = np.full(top.size, 1, dtype=np.int64)
-    lab[big] = 0
-    cells = np.flatnonzero(lab[finest] == 0)
-    return bool(_chi_2d(mesh, lab[finest], cells, 2)[0] == 1)
-
-
 def _threadable(mesh, graph, cell_labels, hole_id, hole_unit, top, pairs, k0) -> np.ndarray:
     """For each pair (a * k0 + b, sorted) of neighbouring coarsest elements: does their union
     surround nothing but domain holes lying between the two alone (its Euler characteristic is 1
@@ -284,8 +259,6 @@ def rethread_coarse(
                 unit_to[L][path] = unit_to[L][t]
             moved[path] = True
             on_path[path] = True
-        if ok:  # first the cheap test most tries fail: the union's largest piece still goes around something
-            ok = _largest_piece_open(mesh, finest, unit_to[0], e, qp, qi)
         if ok:
             _absorb_pieces(unit_to, saved, on_path, qp, qi)
         if ok:
