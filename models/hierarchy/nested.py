@@ -31,6 +31,7 @@ from models.hierarchy.holes import (  # noqa: F401  (re-exported: tests and call
     fix_holes,
 )
 from models.hierarchy.plan import at_least, count_weighted, domain_plan, group_pieces, said_off_plan
+from models.hierarchy.rethread import coarse_end
 from models.mesh.celldata import CellData, compact_labels
 from models.mesh.container import Mesh
 
@@ -657,8 +658,6 @@ def build_hierarchy(
         rings=rings and model == "rtree",
         groups=group_of,
     )
-    from models.hierarchy.rethread import coarse_end
-
     levels, polys, report = coarse_end(mesh, data, levels, polys, report, hole_pairs, counts[0], group_of)
     report = _with_requested(report, counts, n)
     said_off_plan(levels, report, coarsest, notes)
@@ -701,6 +700,7 @@ def _hierarchy_above(data, finest, mesh, model, ratio, coarsest, seed, t0):
         raw, _ = make_connected(cg.indptr, cg.indices, cg.weights, compact_labels(raw), measures=cg.measures)
         levels.insert(0, compact_labels(raw)[levels[0]])
     levels, polys, report = fix_holes(mesh, data, levels, None, hole_pairs=hole_pairs)
+    levels, polys, report = coarse_end(mesh, data, levels, polys, report, hole_pairs, counts[0], None)
     report = _with_requested(report, [*counts, int(finest.max()) + 1], finest.size)
     said_off_plan(levels, report, coarsest, notes)
     info = {
