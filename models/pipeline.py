@@ -211,7 +211,7 @@ def run(
     before = dict(agg.recount)
     try:
         poly, labels, n_split = _hole_free(mesh, graph, data, agg, hole_policy, rings=True)
-    except ParameterError:  # k cannot be met without rings around a tunnel (3D): keep them, say so
+    except (ParameterError, MeshError):  # k, or the cuts, cannot do without rings (3D): keep them, say so
         if mesh.dim != 3:
             raise
         agg.recount = before

@@ -173,3 +173,13 @@ def test_a_cavity_touching_the_outside_along_an_edge_is_cut():
     assert holes.elements.size == 0
     _, new, n_split = split_holes(mesh, g, d, lab, rings=False)  # (always cut, rings or not)
     assert n_split >= 1 and np.all(element_euler(mesh, g, new) == 1)
+
+
+def test_rings_that_cannot_be_cut_away_are_kept_not_refused():
+    """hole_policy="error" refuses holes and cavities; a ring around a tunnel that the count needs is
+    kept and said, as before rings were looked for."""
+    mesh, _ = _block_with_tunnel()
+    res = run(mesh, model="metis", k=1, hole_policy="error", compute_metrics=False)
+    assert res.poly.n_elements == 1 and res.summary()["recount"]["rings_kept"] == 1
+    res = run(mesh, model="rtree", mode="nref", nref=2, compute_metrics=False)  # no exact count
+    assert np.all(element_euler(mesh, res.graph, res.poly.labels) == 1)
