@@ -183,3 +183,21 @@ def test_rings_that_cannot_be_cut_away_are_kept_not_refused():
     assert res.poly.n_elements == 1 and res.summary()["recount"]["rings_kept"] == 1
     res = run(mesh, model="rtree", mode="nref", nref=2, compute_metrics=False)  # no exact count
     assert np.all(element_euler(mesh, res.graph, res.poly.labels) == 1)
+
+
+def test_a_3d_coarsest_level_above_its_count_is_merged_without_rings():
+    from models.hierarchy.nested import is_nested
+    from models.hierarchy.rethread import coarse_end
+    from models.hierarchy.topology import handle_elements
+
+    mesh, _ = _block_with_tunnel()
+    g, d = prepare(mesh)
+    coarse = agglomerate(mesh, d, model="metis", mode="kway", k=12, seed=0).labels
+    assert np.all(element_euler(mesh, g, coarse) == 1)
+    levels = [coarse, np.arange(mesh.n_cells)]
+    report = [{"elements": 12, "ratio": mesh.n_cells / 12}, {"elements": mesh.n_cells, "ratio": 1.0}]
+    new, polys, report = coarse_end(mesh, d, levels, [None, None], report, (None, None), 4, None)
+    k = int(new[0].max()) + 1
+    assert 4 <= k < 12 and report[0]["elements"] == k and report[0]["safe_merges"] == 12 - k
+    assert is_nested(new) and np.all(element_euler(mesh, g, new[0]) == 1)
+    assert handle_elements(mesh, g, new[0]).size == 0  # no ring around the tunnel made

@@ -282,12 +282,15 @@ def rethread_coarse(
 
 
 def coarse_end(mesh, data, levels, polys, report, hole_pairs, want: int, groups):
-    """A 2D coarsest level left above its count by holes: merged down with the holes threaded, with the
+    """A coarsest level left above its count. 3D (rings around tunnels cut, `rings`): neighbours merged
+    where the union's Euler characteristic is 1. 2D, by holes: merged down with the holes threaded, with the
     coarsest units that do it (a level's elements: only the levels above it change; the finest
     level's last: on 100 pinholes at 10^5 cells 0.75x pyamg's iterations, against 0.94x with the
     finest units alone), or, where that stays short and they reach further, the finest units alone;
     the report's counts and ratios follow."""
     k0 = int(levels[0].max()) + 1
+    if mesh.dim == 3 and k0 > want and len(levels) > 1:
+        return _safe_coarsest(mesh, data, levels, polys, report, want, groups)
     if mesh.dim != 2 or k0 <= want or not hole_pairs[0].size or len(levels) < 2:
         return levels, polys, report
     new, kept = list(levels), 0
@@ -311,3 +314,22 @@ def coarse_end(mesh, data, levels, polys, report, hole_pairs, want: int, groups)
         below = mesh.n_cells if L + 1 == len(new) else report[L + 1]["elements"]
         r["ratio"] = below / max(r["elements"], 1)
     return new, polys, report
+
+
+def _safe_coarsest(mesh, data, levels, polys, report, want: int, groups):
+    """coarse_end in 3D: whole coarsest elements merged where their union's characteristic is 1 (no
+    ring, no cavity made; models.polytope.euler.merge_safely): nested as before. On a torus of
+    95,605 cells with rings cut, 8 -> 6 coarsest elements (5 planned) in 0.18 s."""
+    from models.polytope.euler import merge_safely
+
+    new0, merged = merge_safely(mesh, data.graph, levels[0], want, sizes=np.abs(data.measures), keep=groups)
+    if not merged:
+        return levels, polys, report
+    levels = [new0, *levels[1:]]
+    polys = [None, *polys[1:]]
+    report[0]["elements"] = int(new0.max()) + 1
+    report[0]["safe_merges"] = merged
+    report[0]["ratio"] = (
+        report[1]["elements"] / report[0]["elements"] if len(report) > 1 else report[0]["ratio"]
+    )
+    return levels, polys, report
