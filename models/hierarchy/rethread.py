@@ -45,8 +45,7 @@ def _chi_2d(mesh: Mesh, labels: np.ndarray, cells: np.ndarray, k: int) -> np.nda
 def _sound(mesh, finest, unit_to, levels_changed, qp, qi) -> bool:
     """Every element of the given (level, elements) pairs connected over the units' graph and with
     Euler characteristic 1."""
-    from scipy.sparse import csr_matrix
-    from scipy.sparse.csgraph import connected_components
+    from models.graph.csr import connected_components
 
     for L, els in levels_changed:
         lab = unit_to[L]
@@ -56,18 +55,8 @@ def _sound(mesh, finest, unit_to, levels_changed, qp, qi) -> bool:
         units = np.flatnonzero(mine[lab])
         if units.size == 0:
             continue
-        pos = np.full(lab.size, -1, dtype=np.int64)
-        pos[units] = np.arange(units.size)
-        rows = np.repeat(units, qp[units + 1] - qp[units])
-        from models.mesh.cells import ranges
-
-        cols = qi[ranges(qp[units], qp[units + 1] - qp[units])]
-        same = lab[rows] == lab[cols]
-        A = csr_matrix(
-            (np.ones(int(same.sum())), (pos[rows[same]], pos[cols[same]])), shape=(units.size, units.size)
-        )
-        nc, comp = connected_components(A, directed=False)
-        if nc != np.unique(lab[units]).size:
+        comp = connected_components(qp, qi, labels=lab)[1]  # pieces of every element (compiled)
+        if np.unique(comp[units]).size != np.unique(lab[units]).size:
             return False
         cells = np.flatnonzero(mine[lab[finest]])
         chi = _chi_2d(mesh, lab[finest], cells, k)
@@ -81,9 +70,7 @@ def _absorb_pieces(unit_to, before, on_path, qp, qi) -> None:
     element of a thread unit it touches, at that level and every coarser one (the levels stay
     nested), finest levels first. before: the labels before the threads. In place; on_path grows by
     the pieces."""
-    from scipy.sparse import csr_matrix
-    from scipy.sparse.csgraph import connected_components
-
+    from models.graph.csr import connected_components
     from models.mesh.cells import ranges
 
     ku = on_path.size
@@ -94,12 +81,9 @@ def _absorb_pieces(unit_to, before, on_path, qp, qi) -> None:
         units = np.flatnonzero(mine)
         if units.size == 0:
             continue
-        deg = qp[units + 1] - qp[units]
-        rows = np.repeat(units, deg)
-        cols = qi[ranges(qp[units], deg)]
-        same = (lab[rows] == lab[cols]) & mine[cols]
-        A = csr_matrix((np.ones(int(same.sum())), (rows[same], cols[same])), shape=(ku, ku))
-        _, comp = connected_components(A, directed=False)
+        # pieces: the thread's units each a label of their own, so no piece runs through them
+        split = np.where(on_path, int(lab.max()) + 1 + np.arange(ku), lab)
+        comp = connected_components(qp, qi, labels=split)[1].astype(np.int64)
         c = comp[units]
         size = np.bincount(c)
         el = lab[units]
