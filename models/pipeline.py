@@ -106,9 +106,7 @@ def split_holes(
             break
         new_label = labels.copy()
         nxt = int(labels.max()) + 1
-        by_el = np.argsort(labels, kind="stable")
-        lo = np.searchsorted(labels[by_el], elems)
-        hi = np.searchsorted(labels[by_el], elems, side="right")
+        by_el, lo, hi = _cells_of(labels, elems)
         for i, (e, c) in enumerate(zip(elems, centers, strict=True)):  # a loop over the (few) holed elements
             cells = by_el[lo[i] : hi[i]]
             x = data.centroids[cells]
@@ -248,6 +246,14 @@ def run(
     return res
 
 
+def _cells_of(labels: np.ndarray, elems: np.ndarray):
+    """The cells of each element of `elems`: by_el[lo[i] : hi[i]] (one sort, no pass per element)."""
+    by_el = np.argsort(labels, kind="stable")
+    lo = np.searchsorted(labels[by_el], elems)
+    hi = np.searchsorted(labels[by_el], elems, side="right")
+    return by_el, lo, hi
+
+
 def _hole_free(mesh, graph, data, agg, hole_policy: str, rings: bool):
     """split_holes on the partition, then, where k is asked for exactly, _recount_after_holes:
     (poly, labels, elements split)."""
@@ -288,9 +294,7 @@ def _rings(mesh: Mesh, graph: DualGraph, data: CellData, labels: np.ndarray, han
     axis = np.r_[np.ones(rings.size, dtype=np.int64), np.zeros(cavities.size, dtype=np.int64)]
     centers = np.zeros((elems.size, 3))
     normals = np.zeros((elems.size, 3))
-    by_el = np.argsort(labels, kind="stable")
-    lo = np.searchsorted(labels[by_el], elems)
-    hi = np.searchsorted(labels[by_el], elems, side="right")
+    by_el, lo, hi = _cells_of(labels, elems)
     for i in range(elems.size):  # a loop over the (few) elements found
         x = data.centroids[by_el[lo[i] : hi[i]]]
         centers[i] = x.mean(axis=0)

@@ -5,6 +5,7 @@ tried; the levels must stay nested, every element connected, enclosing nothing."
 
 import numpy as np
 import pytest
+from conftest import pieces
 from test_hierarchy_holes import _gmsh_2d
 
 from models.hierarchy.nested import build_hierarchy, is_nested
@@ -41,18 +42,6 @@ def random_holes():
     return mesh, graph, data
 
 
-def _pieces(graph, lab) -> int:
-    """Connected pieces of all elements together (one per element when each is connected)."""
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import connected_components
-
-    n = graph.n
-    rows = np.repeat(np.arange(n), np.diff(graph.indptr))
-    same = lab[rows] == lab[graph.indices]
-    A = sp.csr_matrix((np.ones(int(same.sum())), (rows[same], graph.indices[same])), shape=(n, n))
-    return connected_components(A, directed=False)[0]
-
-
 def test_sixty_holes_coarsen_to_the_plan(random_holes):
     mesh, graph, data = random_holes
     levels, info = build_hierarchy(mesh, data, coarsest=10)
@@ -66,7 +55,7 @@ def test_sixty_holes_coarsen_to_the_plan(random_holes):
         assert pinched(mesh, graph, lab)[0].size == 0
         _, holes = merge(mesh, graph, lab, data.measures)
         assert holes.elements.size == 0
-        assert _pieces(graph, lab) == int(lab.max()) + 1
+        assert pieces(graph, lab) == int(lab.max()) + 1
 
 
 def test_groups_are_kept_by_the_threads(random_holes):

@@ -21,31 +21,11 @@ from models.mesh.celldata import CellData, compact_labels
 from models.mesh.container import Mesh
 
 
-def _chi_2d(mesh: Mesh, labels: np.ndarray, cells: np.ndarray, k: int) -> np.ndarray:
-    """(k,) V - E + F of the elements whose cells are `cells` (all of each element's cells)."""
-    from models.mesh.cells import ranges
-    from models.mesh.dual import sorted_unique
-    from models.mesh.geometry import next_in_cycle
-
-    off, con = mesh.offsets, mesh.connectivity
-    sizes = off[cells + 1] - off[cells]
-    nodes = con[ranges(off[cells], sizes)].astype(np.int64)
-    lo = np.zeros(cells.size + 1, dtype=np.int64)
-    np.cumsum(sizes, out=lo[1:])
-    owner = np.repeat(labels[cells], sizes)
-    n = np.int64(mesh.n_points)
-    V = np.bincount(sorted_unique(owner * n + nodes) // n, minlength=k)
-    u, v = nodes, nodes[next_in_cycle(lo)]
-    edge = np.minimum(u, v) * n + np.maximum(u, v)
-    m = np.int64(int(edge.max()) + 1 if edge.size else 1)
-    E = np.bincount(sorted_unique(owner * m + edge) // m, minlength=k)
-    return V - E + np.bincount(labels[cells], minlength=k)
-
-
-def _sound(mesh, finest, unit_to, levels_changed, qp, qi) -> bool:
+def _sound(mesh, graph, finest, unit_to, levels_changed, qp, qi) -> bool:
     """Every element of the given (level, elements) pairs connected over the units' graph and with
     Euler characteristic 1."""
     from models.graph.csr import connected_components
+    from models.polytope.euler import element_euler
 
     for L, els in levels_changed:
         lab = unit_to[L]
@@ -58,8 +38,7 @@ def _sound(mesh, finest, unit_to, levels_changed, qp, qi) -> bool:
         comp = connected_components(qp, qi, labels=lab)[1]  # pieces of every element (compiled)
         if np.unique(comp[units]).size != np.unique(lab[units]).size:
             return False
-        cells = np.flatnonzero(mine[lab[finest]])
-        chi = _chi_2d(mesh, lab[finest], cells, k)
+        chi = element_euler(mesh, graph, lab[finest], cells=np.flatnonzero(mine[lab[finest]]))
         if np.any(chi[els] != 1):
             return False
     return True
@@ -122,19 +101,20 @@ def _threadable(mesh, graph, cell_labels, hole_id, hole_unit, top, pairs, k0) ->
     less one per such hole)? A union around another element cannot be opened by threads."""
     from models.polytope.euler import union_euler
 
+    def among(key):  # (positions in `pairs` of the keys found there; which keys those are)
+        at = np.minimum(np.searchsorted(pairs, key), pairs.size - 1)
+        hit = pairs[at] == key  # (pairs across physical groups are not candidates)
+        return at[hit], hit
+
     a, b, uchi, _ = union_euler(mesh, graph, cell_labels)
     chi = np.zeros(pairs.size, dtype=np.int64)
-    key = a * np.int64(k0) + b
-    at = np.minimum(np.searchsorted(pairs, key), max(pairs.size - 1, 0))
-    hit = pairs[at] == key  # (pairs across physical groups are not candidates)
-    chi[at[hit]] = uchi[hit]
+    at, hit = among(a * np.int64(k0) + b)
+    chi[at] = uchi[hit]
     he = np.unique(hole_id * np.int64(k0) + top[hole_unit])  # (hole, element) pairs
     h, el = he // k0, he % k0
     two = np.bincount(h)[h] == 2  # holes along exactly two elements: the union of those surrounds it
-    key = el[two][0::2] * np.int64(k0) + el[two][1::2]
     holes = np.zeros(pairs.size, dtype=np.int64)
-    at = np.minimum(np.searchsorted(pairs, key), max(pairs.size - 1, 0))
-    np.add.at(holes, at[pairs[at] == key], 1)
+    np.add.at(holes, among(el[two][0::2] * np.int64(k0) + el[two][1::2])[0], 1)
     return chi + holes == 1
 
 
@@ -255,7 +235,7 @@ def rethread_coarse(
             # elements threads and pieces left or joined (the others are as they were)
             ch = [(0, np.unique(unit_to[0][moved]))]
             ch += [(L, np.union1d(unit_to[L][on_path], saved[L][on_path])) for L in range(1, len(unit_to))]
-            ok = _sound(mesh, finest, unit_to, ch, qp, qi)
+            ok = _sound(mesh, g, finest, unit_to, ch, qp, qi)
         if ok:
             kept += 1
         else:

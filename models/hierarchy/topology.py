@@ -98,9 +98,9 @@ def handle_elements(
 
     pinch = np.zeros(k, dtype=bool)  # elements with a boundary edge on more than two of their faces
 
-    def chi(
-        face_ids, el, edges_seen=False
-    ):  # V - E of each element's faces (sorts, not numpy's hash-based unique)
+    def chi(face_ids, el, edges_seen=False):
+        """V - E of each element's faces (sorts, not numpy's hash-based unique); edges_seen: mark
+        `pinch`."""
         fo, nodes = face_nodes(f, face_ids)
         owner = np.repeat(el, np.diff(fo))
         V = np.bincount(sorted_unique(owner * n + nodes) // n, minlength=k)

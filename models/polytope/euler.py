@@ -46,72 +46,91 @@ def _pairs_per_item(items: np.ndarray, els: np.ndarray, k: int) -> np.ndarray:
     return np.concatenate(out) if out else np.zeros(0, dtype=np.int64)
 
 
-def _edges(mesh: Mesh, graph, cells_of_faces: bool):
-    """(edge key per entry, owning cell per entry) of the mesh edges of every cell: 2D the cells'
-    sides, 3D the sides of the cells' faces (each edge repeated per face; dedup'd by the caller)."""
+def _incidence(mesh: Mesh, graph, labels: np.ndarray, k: int, cells: np.ndarray | None = None):
+    """The distinct (vertex, element) and (edge, element) pairs of the elements' cells (or of
+    `cells`), each sorted by vertex / edge: ((vertices, their elements), (edges, their elements)).
+    Edges: 2D the cells' sides, 3D the sides of the cells' faces."""
+    from models.mesh.cells import ranges
     from models.mesh.geometry import next_in_cycle
 
     n = np.int64(mesh.n_points)
+    off = mesh.offsets
+    cell = np.arange(mesh.n_cells) if cells is None else cells
+    sizes = off[cell + 1] - off[cell]
+    con = mesh.connectivity if cells is None else mesh.connectivity[ranges(off[cell], sizes)]
+    con = con.astype(np.int64)
+    owner = np.repeat(labels[cell], sizes)
     if mesh.dim == 2:
-        off, con = mesh.offsets, mesh.connectivity.astype(np.int64)
-        owner = np.repeat(np.arange(mesh.n_cells), np.diff(off))
-        u, v = con, con[next_in_cycle(off)]
+        lo = np.zeros(cell.size + 1, dtype=np.int64)
+        np.cumsum(sizes, out=lo[1:])
+        u, v, e_owner = con, con[next_in_cycle(lo)], owner
     else:
         f = graph.faces
-        owner = np.repeat(f.cell, np.diff(f.offsets))
-        u = f.nodes.astype(np.int64)
-        v = u[next_in_cycle(f.offsets)]
-    return np.minimum(u, v) * n + np.maximum(u, v), owner
+        fo, fn, fc = f.offsets, f.nodes, f.cell
+        if cells is not None:
+            from models.polytope.merge import face_nodes
+
+            mine = np.zeros(mesh.n_cells, dtype=bool)
+            mine[cells] = True
+            fc = fc[mine[fc]]
+            fo, fn = face_nodes(f, np.flatnonzero(mine[f.cell]))
+        u = fn.astype(np.int64)
+        v = u[next_in_cycle(fo)]
+        e_owner = np.repeat(labels[fc], np.diff(fo))
+    return _owned(con, owner, k), _owned(np.minimum(u, v) * n + np.maximum(u, v), e_owner, k)
 
 
-def element_euler(mesh: Mesh, graph, labels: np.ndarray) -> np.ndarray:
-    """(k,) the Euler characteristic of each element's cells as a closed set: V - E + F in 2D,
-    V - E + F - C in 3D. 1 for a disk (2D) or a ball (3D)."""
-    labels = np.asarray(labels, dtype=np.int64)
-    k = int(labels.max()) + 1
-    owner = np.repeat(labels, np.diff(mesh.offsets))
-    _, ve = _owned(mesh.connectivity, owner, k)
+def _euler(mesh: Mesh, graph, labels: np.ndarray, k: int, ve, ee, cells: np.ndarray | None = None):
+    """element_euler from the incidence's element columns."""
     V = np.bincount(ve, minlength=k)
-    ek, ec = _edges(mesh, graph, True)
-    _, ee = _owned(ek, labels[ec], k)
     E = np.bincount(ee, minlength=k)
-    C = np.bincount(labels, minlength=k)
+    C = np.bincount(labels if cells is None else labels[cells], minlength=k)
     if mesh.dim == 2:
         return V - E + C
-    f = graph.faces
-    fel = labels[f.cell]
-    inside = graph.partner >= 0
-    inner = inside.copy()
-    inner[inside] = labels[f.cell[graph.partner[inside]]] == fel[inside]
+    from models.polytope.merge import boundary_faces
+
+    fel = labels[graph.faces.cell]
+    bf = boundary_faces(graph, labels)
+    if cells is not None:
+        mine = np.zeros(mesh.n_cells, dtype=bool)
+        mine[cells] = True
+        fel, bf = fel[mine[graph.faces.cell]], bf[mine[graph.faces.cell[bf]]]
     # a face inside the element is listed once per cell: counted half each time
-    F = (np.bincount(fel, minlength=k) + np.bincount(fel[~inner], minlength=k)) // 2
+    F = (np.bincount(fel, minlength=k) + np.bincount(labels[graph.faces.cell[bf]], minlength=k)) // 2
     return V - E + F - C
+
+
+def element_euler(mesh: Mesh, graph, labels: np.ndarray, cells: np.ndarray | None = None) -> np.ndarray:
+    """(k,) the Euler characteristic of each element's cells as a closed set: V - E + F in 2D,
+    V - E + F - C in 3D. 1 for a disk (2D) or a ball (3D). cells: only these cells are read (every
+    cell of each element wanted: the others' answers are meaningless)."""
+    labels = np.asarray(labels, dtype=np.int64)
+    k = int(labels.max()) + 1
+    (_, ve), (_, ee) = _incidence(mesh, graph, labels, k, cells)
+    return _euler(mesh, graph, labels, k, ve, ee, cells)
 
 
 def union_euler(mesh: Mesh, graph, labels: np.ndarray, chi: np.ndarray | None = None):
     """Every pair of elements sharing a face: (a, b, chi of A u B, shared faces' weight), a < b.
     chi: element_euler's answer where known."""
+    from models.mesh.dual import sorted_unique
+
     labels = np.asarray(labels, dtype=np.int64)
     k = int(labels.max()) + 1
     kk = np.int64(k)
+    (vi, ve), (ei, ee) = _incidence(mesh, graph, labels, k)  # once, for the elements and the pairs
     if chi is None:
-        chi = element_euler(mesh, graph, labels)
-    owner = np.repeat(labels, np.diff(mesh.offsets))
-    vi, ve = _owned(mesh.connectivity, owner, k)
+        chi = _euler(mesh, graph, labels, k, ve, ee)
     vk = _pairs_per_item(vi, ve, k)
     # faces between two elements, once per pair of cells (a < b keeps one of the two directions)
     rows = np.repeat(np.arange(graph.indptr.size - 1), np.diff(graph.indptr))
     la, lb = labels[rows], labels[graph.indices]
     s = la < lb
-    from models.mesh.dual import sorted_unique
-
     fkey, finv, fcount = sorted_unique(la[s] * kk + lb[s], return_inverse=True, return_counts=True)
     weight = np.bincount(finv, weights=graph.weights[s], minlength=fkey.size)
     if mesh.dim == 2:  # shared sides are the faces
         share = _count_at(fkey, vk) - fcount
     else:
-        ek, ec = _edges(mesh, graph, True)
-        ei, ee = _owned(ek, labels[ec], k)
         share = _count_at(fkey, vk) - _count_at(fkey, _pairs_per_item(ei, ee, k)) + fcount
     a, b = fkey // kk, fkey % kk
     return a, b, chi[a] + chi[b] - share, weight
@@ -197,7 +216,7 @@ def pinched(mesh: Mesh, graph, labels: np.ndarray):
     (elements, one such vertex of each). Polygon merging reads one boundary loop for them and finds
     no hole."""
     from models.mesh.dual import sorted_unique
-    from models.polytope.merge import face_nodes
+    from models.polytope.merge import boundary_faces, face_nodes
 
     labels = np.asarray(labels, dtype=np.int64)
     none = np.zeros(0, dtype=np.int64)
@@ -205,10 +224,7 @@ def pinched(mesh: Mesh, graph, labels: np.ndarray):
         return none, none
     f = graph.faces
     fel = labels[f.cell]
-    on = graph.partner < 0
-    inner = ~on
-    on[inner] = labels[f.cell[graph.partner[inner]]] != fel[inner]
-    bf = np.flatnonzero(on)
+    bf = boundary_faces(graph, labels)
     fo, nodes = face_nodes(f, bf)
     n = np.int64(mesh.n_points)
     key, cnt = sorted_unique(np.repeat(fel[bf], np.diff(fo)) * n + nodes, return_counts=True)
