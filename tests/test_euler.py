@@ -201,3 +201,63 @@ def test_a_3d_coarsest_level_above_its_count_is_merged_without_rings():
     assert 4 <= k < 12 and report[0]["elements"] == k and report[0]["safe_merges"] == 12 - k
     assert is_nested(new) and np.all(element_euler(mesh, g, new[0]) == 1)
     assert handle_elements(mesh, g, new[0]).size == 0  # no ring around the tunnel made
+
+
+def _unit_cases():
+    """(mesh, graph, units per cell, element per unit) on a holed plate (2D) and a block with a
+    tunnel (3D): METIS units, grouped at random into fewer elements (some disconnected, some
+    rings), and by METIS again (nested)."""
+    from models.hierarchy.nested import coarse_graph
+    from models.partition import get_partitioner
+
+    mesh2 = mesh_from_arrays(*_gmsh_case())
+    mesh3, _ = _block_with_tunnel(8)
+    rng = np.random.default_rng(3)
+    for mesh, k in ((mesh2, 60), (mesh3, 40)):
+        g, d = prepare(mesh)
+        units = agglomerate(mesh, d, model="metis", mode="kway", k=k, seed=0).labels
+        yield mesh, g, units, compact_labels(rng.integers(0, k // 4, size=k))
+        part = np.asarray(get_partitioner("metis").kway(coarse_graph(d, units), k // 6), dtype=np.int64)
+        yield mesh, g, units, compact_labels(part)
+
+
+def _gmsh_case():
+    pts, tri = _gmsh_2d(lambda occ: _plate(occ, 6), 0.04)
+    return pts, [("triangle", tri)]
+
+
+def test_unit_euler_is_element_euler_of_the_unions():
+    """UnitEuler reads only what units share; its characteristics and its pairs' unions equal
+    element_euler and union_euler computed on the cells, at two levels up."""
+    from models.polytope.euler import UnitEuler, level_euler
+
+    for mesh, g, units, el in _unit_cases():
+        ue = UnitEuler.of_cells(mesh, g, units)
+        assert np.array_equal(ue.chi, element_euler(mesh, g, units))
+        cells = el[units]
+        assert np.array_equal(ue(el), element_euler(mesh, g, cells))
+        a, b, u, w = ue.unions(el)
+        a0, b0, u0, _ = union_euler(mesh, g, cells)
+        assert np.array_equal(a, a0) and np.array_equal(b, b0) and np.array_equal(u, u0)
+        assert np.all(w > 0)
+        top = np.arange(int(el.max()) + 1) % 3  # a level above (element -> its element): the coarser skeleton
+        assert np.array_equal(ue.coarser(el)(top), element_euler(mesh, g, top[cells]))
+        got = level_euler(mesh, g, [top[cells], cells, units])
+        assert all(
+            np.array_equal(x, element_euler(mesh, g, lv))
+            for x, lv in zip(got, [top[cells], cells, units], strict=True)
+        )
+
+
+def test_merge_safely_over_units_makes_balls():
+    from models.polytope.euler import UnitEuler
+
+    mesh, _ = _block_with_tunnel(8)
+    g, d = prepare(mesh)
+    units = agglomerate(mesh, d, model="metis", mode="kway", k=40, seed=0).labels
+    ue = UnitEuler.of_cells(mesh, g, units)
+    assert np.all(ue.chi == 1)
+    new, merged = merge_safely(mesh, g, np.arange(40), 4, unions=ue.unions)
+    k = int(new.max()) + 1
+    assert merged == 40 - k and k <= 6  # (a ring around the tunnel needs 2 at least)
+    assert np.all(element_euler(mesh, g, new[units]) == 1)

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from models.hierarchy.topology import domain_genus, domain_holes, handle_elements
+from models.hierarchy.topology import domain_holes, handle_elements
 from models.mesh.celldata import CellData, compact_labels
 from models.mesh.container import Mesh
 from models.polytope.euler import disjoint_pairs, pinched
@@ -381,14 +381,48 @@ class _Detector:
         self.bcells = None  # the cells on the domain's boundary
         self.by_graph = mesh.dim == 3 and not _has_voids(mesh, data.graph)
         # 3D domains with tunnels: elements may be rings around them (handle_elements)
-        self.tunnels = rings and mesh.dim == 3 and domain_genus(mesh, data.graph) > 0
-        self.handles = np.zeros(0, dtype=np.int64)  # the last call's rings around a tunnel
+        # 3D: elements may be rings around a tunnel of the domain, or around a neighbour (a band of
+        # a thin wall around the bottom of a cup, an element around a cavity and its neighbours):
+        # on every 3D domain (handle_elements at the finest level, UnitEuler above it)
+        self.tunnels = rings and mesh.dim == 3
+        self.handles = np.zeros(0, dtype=np.int64)  # the last call's rings
         self.h_labels = None  # the labels they were found for
+        self.ue, self.ue_units = None, None  # UnitEuler of a finer level's elements, their labels
 
-    def _handles(self, lab, first):
-        """handle_elements of `lab`, looking only at the elements that changed since the last call
-        on this level (an element is a ring or not by its own cells) and at the last rings still
-        there: the merge rounds check a few merged pairs, not the whole level, each time."""
+    def _unit_chi(self, lab, finer):
+        """Above the finest level: the Euler characteristic of each element of `lab` from the finer
+        level's elements' skeleton (UnitEuler, made once per level); None at the finest level."""
+        if finer is None or int(finer.max()) + 1 >= finer.size:
+            return None
+        from models.polytope.euler import UnitEuler
+
+        if self.ue_units is None or not np.array_equal(self.ue_units, finer):
+            prev, node_to = self.ue_units, None
+            if prev is not None and self.ue is not None:
+                node_to = np.zeros(int(prev.max()) + 1, dtype=np.int64)
+                node_to[prev] = finer
+                if not np.array_equal(node_to[prev], finer):
+                    node_to = None  # not nested on the last units
+            if node_to is None:
+                self.ue = UnitEuler.of_cells(self.mesh, self.data.graph, finer)
+            else:
+                self.ue = self.ue.coarser(node_to)
+            self.ue_units = finer
+        unit_to = np.zeros(int(finer.max()) + 1, dtype=np.int64)
+        unit_to[finer] = lab
+        if not np.array_equal(unit_to[finer], lab):  # (nested always: cuts and merges keep units whole)
+            return None
+        return self.ue(unit_to)
+
+    def _handles(self, lab, first, finer, chi=None):
+        """The rings among the elements of `lab`: above the finest level the elements whose Euler
+        characteristic (chi: _unit_chi's, where known) is below 1. At the finest: handle_elements,
+        looking only at the elements that changed since the last call on this level (an element is a
+        ring or not by its own cells) and at the last rings still there: the merge rounds check a few
+        merged pairs, not the whole level, each time."""
+        chi = self._unit_chi(lab, finer) if chi is None else chi
+        if chi is not None:
+            return np.flatnonzero(chi < 1)
         prev = None if first else self.h_labels
         only = None
         if prev is not None and prev.size == lab.size:
@@ -422,7 +456,7 @@ class _Detector:
             bad = cavity_elements(data.graph, lab, Gl)
             if bad is not None:
                 if self.tunnels:  # rings around a tunnel: cut through their centroid
-                    self.handles = self._handles(lab, first)
+                    self.handles = self._handles(lab, first, finer)
                     bad = np.union1d(bad, self.handles)
                 return bad, None, None, Gl
             self.by_graph = False  # some element never reaches the boundary: merging decides
@@ -435,18 +469,25 @@ class _Detector:
             self.bf = boundary_faces(data.graph, lab, among=self.bf)
             p, holes = merge_2d(mesh, data.graph, lab, data.measures, faces=self.bf)
         else:
-            p, holes = merge(mesh, data.graph, lab, data.measures)
+            chi = self._unit_chi(lab, finer) if self.tunnels else None
+            if chi is not None and not np.any(chi > 1):  # no element around a cavity: nothing to merge
+                p, holes = None, None
+            else:
+                p, holes = merge(mesh, data.graph, lab, data.measures)
             self.bf = None if mesh.dim != 2 else boundary_faces(data.graph, lab)
-        be = np.asarray(holes.elements, dtype=np.int64)
-        cen = np.asarray(holes.centers, dtype=np.float64)
+        if holes is None:
+            be, cen = np.zeros(0, dtype=np.int64), np.zeros((0, mesh.dim))
+        else:
+            be = np.asarray(holes.elements, dtype=np.int64)
+            cen = np.asarray(holes.centers, dtype=np.float64)
         if mesh.dim == 2:  # elements that touch themselves at a vertex around something: that vertex
             pe, pv = pinched(mesh, data.graph, lab)
             new = ~np.isin(pe, be)
             if new.any():
                 cen = cen.reshape(be.size, 2) if be.size else np.zeros((0, 2))
                 be, cen = np.r_[be, pe[new]], np.vstack([cen, mesh.points[pv[new], :2]])
-        if self.tunnels:  # rings around a tunnel: their centroid as the hole's centre
-            self.handles = self._handles(lab, first)
+        if self.tunnels:  # rings: their centroid as the hole's centre
+            self.handles = self._handles(lab, first, finer, chi)
             hb = np.setdiff1d(self.handles, be)
             if hb.size:
                 _, x = _atoms(data, lab, int(lab.max()) + 1)

@@ -280,10 +280,36 @@ def coarse_end(mesh, data, levels, polys, report, hole_pairs, want: int, groups)
 def _safe_coarsest(mesh, data, levels, polys, report, want: int, groups):
     """coarse_end in 3D: whole coarsest elements merged where their union's characteristic is 1 (no
     ring, no cavity made; models.polytope.euler.merge_safely): nested as before. On a torus of
-    95,605 cells with rings cut, 8 -> 6 coarsest elements (5 planned) in 0.18 s."""
-    from models.polytope.euler import merge_safely
+    95,605 cells with rings cut, 8 -> 6 coarsest elements (5 planned) in 0.18 s. Where that stays
+    above the count, the coarsest level is made again from the level below's elements the same way
+    (UnitEuler: their skeleton alone is read), smallest first, and kept if it has fewer elements:
+    the coarsest elements that cuts and merges back leave are tangled (neighbours sharing faces in
+    up to a dozen patches), the level below's are not yet."""
+    from models.polytope.euler import UnitEuler, merge_safely
 
-    new0, merged = merge_safely(mesh, data.graph, levels[0], want, sizes=np.abs(data.measures), keep=groups)
+    w = np.abs(data.measures)
+    new0, merged = merge_safely(mesh, data.graph, levels[0], want, sizes=w, keep=groups)
+    if int(new0.max()) + 1 > want and len(levels) > 1:
+        units = levels[1]
+        ku = int(units.max()) + 1
+        ue = UnitEuler.of_cells(mesh, data.graph, units)
+        keep = None
+        if groups is not None:
+            keep = np.zeros(ku, dtype=np.int64)
+            keep[units] = groups
+        start = np.arange(ku)
+        if np.all(ue.chi == 1):  # (the units themselves balls: a union of them can be one)
+            again, m = merge_safely(
+                mesh,
+                data.graph,
+                start,
+                want,
+                sizes=np.bincount(units, weights=w, minlength=ku),
+                keep=keep,
+                unions=ue.unions,
+            )
+            if int(again.max()) < int(new0.max()):
+                new0, merged = again[units], m
     if not merged:
         return levels, polys, report
     levels = [new0, *levels[1:]]

@@ -170,12 +170,14 @@ def merge_safely(
     sizes: np.ndarray | None = None,
     keep: np.ndarray | None = None,
     rounds: int = 64,
+    unions=None,
 ) -> tuple[np.ndarray, int]:
     """Merge pairs of neighbouring elements whose union has Euler characteristic 1 (a disk in 2D; in
     3D necessary for a ball) until `target` elements are left or no such pair is: the smallest
     element first, into the safe neighbour it shares most with; disjoint pairs per round. sizes: a
     weight per cell to balance (default: cells); keep: a label per cell that no merge may cross
-    (physical groups). Returns (labels compacted, pairs merged)."""
+    (physical groups). unions: UnitEuler.unions of units, labels then an element per unit (sizes and
+    keep per unit too). Returns (labels compacted, pairs merged)."""
     from models.mesh.celldata import compact_labels
 
     labels = compact_labels(np.asarray(labels, dtype=np.int64))
@@ -186,7 +188,7 @@ def merge_safely(
         excess = k - int(target)
         if excess <= 0:
             break
-        a, b, uchi, wt = union_euler(mesh, graph, labels)
+        a, b, uchi, wt = union_euler(mesh, graph, labels) if unions is None else unions(labels)
         ok = uchi == 1
         if keep is not None:
             ke = np.zeros(k, dtype=np.int64)
@@ -231,3 +233,112 @@ def pinched(mesh: Mesh, graph, labels: np.ndarray):
     hit = key[cnt > 2]
     el, first = np.unique(hit // n, return_index=True)
     return el, (hit % n)[first]
+
+
+def _shared(items: np.ndarray) -> np.ndarray:
+    """(n,) True where the item (sorted) appears more than once."""
+    if items.size == 0:
+        return np.zeros(0, dtype=bool)
+    run = np.cumsum(np.r_[True, items[1:] != items[:-1]]) - 1
+    return np.bincount(run)[run] > 1
+
+
+class UnitEuler:
+    """Euler characteristics of unions of units (the elements of a finer level), from what the units
+    share alone: chi(E) = sum of its units' chi - (V counted more than once) + (E ...) - (F ...), the
+    items on the units' interfaces (the skeleton) being all that differs. One incidence pass over the
+    cells for the finest units; each coarser level's skeleton is the part of the finer one between
+    different elements, so a whole hierarchy costs about one element_euler, and a level's labels can
+    be judged again and again (fix_holes' rounds) at the cost of its skeleton, not of its cells."""
+
+    def __init__(self, chi, verts, edges, faces, dim):
+        self.chi, self.v, self.e, self.f, self.dim = chi, verts, edges, faces, dim
+
+    @classmethod
+    def of_cells(cls, mesh: Mesh, graph, units: np.ndarray) -> UnitEuler:
+        """The units given by a label per cell."""
+        units = np.asarray(units, dtype=np.int64)
+        k = int(units.max()) + 1
+        (vi, ve), (ei, ee) = _incidence(mesh, graph, units, k)
+        chi = _euler(mesh, graph, units, k, ve, ee)
+        mv, me = _shared(vi), _shared(ei)
+        faces = (np.zeros(0, dtype=np.int64),) * 2
+        if mesh.dim == 3:  # faces between cells of two units, once each
+            p = graph.partner
+            i = np.flatnonzero(p > np.arange(p.size))
+            a, b = units[graph.faces.cell[i]], units[graph.faces.cell[p[i]]]
+            faces = (a[a != b], b[a != b])
+        return cls(chi.astype(np.int64), (vi[mv], ve[mv]), (ei[me], ee[me]), faces, mesh.dim)
+
+    def _counted(self, coarse: np.ndarray, K: int):
+        """Per item kind: (the sorted distinct item * K + element keys, the excess count per element)."""
+        from models.mesh.dual import sorted_unique
+
+        kk = np.int64(K)
+        out = []
+        for items, us in (self.v, self.e):
+            key, cnt = sorted_unique(items * kk + coarse[us], return_counts=True)
+            out.append((key, np.bincount(key % kk, weights=cnt - 1, minlength=K)))
+        return out
+
+    def __call__(self, coarse: np.ndarray) -> np.ndarray:
+        """(K,) chi of each element of `coarse` (an element label per unit)."""
+        coarse = np.asarray(coarse, dtype=np.int64)
+        K = int(coarse.max()) + 1
+        (_, dv), (_, de) = self._counted(coarse, K)
+        chi = np.bincount(coarse, weights=self.chi, minlength=K) - dv + de
+        if self.dim == 3:
+            a, b = coarse[self.f[0]], coarse[self.f[1]]
+            chi -= np.bincount(a[a == b], minlength=K)
+        return np.rint(chi).astype(np.int64)
+
+    def unions(self, coarse: np.ndarray):
+        """union_euler for the elements of `coarse` (an element label per unit): every pair sharing
+        a face (2D: a side), as (a, b, chi of A u B, shared faces / sides), a < b."""
+        coarse = np.asarray(coarse, dtype=np.int64)
+        K = int(coarse.max()) + 1
+        kk = np.int64(K)
+        chi = self(coarse)
+        (kv, _), (ke, _) = self._counted(coarse, K)
+        vk = _pairs_per_item(kv // kk, kv % kk, K)
+        ek = _pairs_per_item(ke // kk, ke % kk, K)
+        if self.dim == 3:
+            a, b = coarse[self.f[0]], coarse[self.f[1]]
+            s = a != b
+            fk = np.minimum(a[s], b[s]) * kk + np.maximum(a[s], b[s])
+        else:
+            fk = ek
+        from models.mesh.dual import sorted_unique
+
+        key, count = sorted_unique(fk, return_counts=True)
+        share = _count_at(key, vk) - _count_at(key, ek) + (count if self.dim == 3 else 0)
+        a, b = key // kk, key % kk
+        return a, b, chi[a] + chi[b] - share, count.astype(np.float64)
+
+    def coarser(self, coarse: np.ndarray) -> UnitEuler:
+        """The same for the elements of `coarse` as units (a level above)."""
+        coarse = np.asarray(coarse, dtype=np.int64)
+        K = int(coarse.max()) + 1
+        kk = np.int64(K)
+        skel = []
+        for key, _ in self._counted(coarse, K):
+            items = key // kk
+            m = _shared(items)
+            skel.append((items[m], key[m] % kk))
+        a, b = coarse[self.f[0]], coarse[self.f[1]]
+        return UnitEuler(self(coarse), skel[0], skel[1], (a[a != b], b[a != b]), self.dim)
+
+
+def level_euler(mesh: Mesh, graph, levels: list) -> list[np.ndarray]:
+    """element_euler of every level of a nested hierarchy (coarsest first, labels per cell), finest
+    first through UnitEuler: one incidence pass."""
+    levels = [np.asarray(lv, dtype=np.int64) for lv in levels]
+    ue = UnitEuler.of_cells(mesh, graph, levels[-1])
+    out = [ue.chi]
+    for L in range(len(levels) - 2, -1, -1):  # a loop over the levels, finest first
+        node_to = np.zeros(int(levels[L + 1].max()) + 1, dtype=np.int64)
+        node_to[levels[L + 1]] = levels[L]
+        out.insert(0, ue(node_to))
+        if L:
+            ue = ue.coarser(node_to)
+    return out
