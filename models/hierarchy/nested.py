@@ -24,7 +24,6 @@ from models.export import atomic
 from models.hierarchy.holes import (  # noqa: F401  (re-exported: tests and callers import them from here)
     _element_graph,
     _has_voids,
-    _split_elements,
     _with_outside,
     _without_holes,
     cavity_elements,
@@ -482,7 +481,7 @@ def build_hierarchy(
     default = ratio is None
     model_options = dict(model_options or {})
     boxfit = bool(model_options.pop("boxfit", False))  # models.hierarchy.boxfit after the levels
-    rings = bool(model_options.pop("rings", False))  # 3D: rings around a tunnel cut (rtree; opt-in)
+    rings = bool(model_options.pop("rings", True))  # 3D: rings around a tunnel or a neighbour cut
     if ratio is None:
         ratio = default_ratio(mesh.dim)
     if finest is not None:
@@ -643,24 +642,20 @@ def build_hierarchy(
         lo, hi = cell_boxes(data.points, data.offsets, data.connectivity)
         levels = boxfit_levels(levels, lo, hi, data.measures, data.graph.indptr, data.graph.indices)
     known = level_graphs if model == "rtree" and not boxfit else None
-    # rings around a tunnel (3D handles): cut only where asked (model_options["rings"], rtree). On
-    # 10^4 cells that removes the rings around a pipe's bore at 0.1-0.6 of a METIS call; from 10^5
-    # the unions of the finest aggregates wrap around neighbouring aggregates too (a torus at 10^5:
-    # 26 of 984 elements, at 10^6 the coarse end stalled at 72 elements and the build took 6.6 METIS
-    # calls), and METIS's parts of coarse graphs do so at 10^4 already (66 of 93 on the torus):
-    # measured, not the default (docs/hierarchy.md, round ten)
+    # 3D rings (elements with a handle) cut on every model and domain unless rings=false: 2.6-3.7% of
+    # the elements of levels 1-2 at 10^5 cells without (docs/hierarchy.md, round fifteen)
     levels, polys, report = fix_holes(
         mesh,
         data,
         levels,
         known,
         hole_pairs=hole_pairs,
-        rings=rings and model == "rtree",
+        rings=rings,
         groups=group_of,
     )
     levels, polys, report = coarse_end(mesh, data, levels, polys, report, hole_pairs, counts[0], group_of)
     report = _with_requested(report, counts, n)
-    said_off_plan(levels, report, coarsest, notes)
+    said_off_plan(levels, report, coarsest, notes, (mesh, data.graph, rings))
     info = {
         "model": model,
         "finest": finest_mode,
@@ -699,10 +694,10 @@ def _hierarchy_above(data, finest, mesh, model, ratio, coarsest, seed, t0):
         raw = np.asarray(part.kway(cg, int(c)), dtype=np.int64)
         raw, _ = make_connected(cg.indptr, cg.indices, cg.weights, compact_labels(raw), measures=cg.measures)
         levels.insert(0, compact_labels(raw)[levels[0]])
-    levels, polys, report = fix_holes(mesh, data, levels, None, hole_pairs=hole_pairs)
+    levels, polys, report = fix_holes(mesh, data, levels, None, hole_pairs=hole_pairs, rings=True)
     levels, polys, report = coarse_end(mesh, data, levels, polys, report, hole_pairs, counts[0], None)
     report = _with_requested(report, [*counts, int(finest.max()) + 1], finest.size)
-    said_off_plan(levels, report, coarsest, notes)
+    said_off_plan(levels, report, coarsest, notes, (mesh, data.graph, True))
     info = {
         "model": part.name,
         "ratio": float(ratio) if np.ndim(ratio) == 0 else [float(r) for r in ratio],

@@ -4,6 +4,8 @@ where levels leave the plan, and the partitioners' options that balance cells.""
 
 from __future__ import annotations
 
+import numpy as np
+
 from models.hierarchy.topology import domain_genus, domain_holes, fewest_elements
 from models.mesh.celldata import CellData
 from models.mesh.container import Mesh
@@ -24,10 +26,12 @@ def domain_plan(mesh: Mesh, data: CellData):
     return hole_pairs, least, why, stretch
 
 
-def said_off_plan(levels, report: list[dict], coarsest: int, notes: list[str]) -> None:
+def said_off_plan(levels, report: list[dict], coarsest: int, notes: list[str], balls=None) -> None:
     """A note where the levels left the plan (elements around holes cut, not merged back): the
     coarsest level above --coarsest, levels more than 25% off their planned ratio (`report`:
-    _with_requested's)."""
+    _with_requested's); balls: (mesh, graph, rings) for said_not_balls."""
+    if balls is not None:
+        said_not_balls(balls[0], balls[1], levels, report, notes, balls[2])
     from models.partition.rtree import RATIO_SLACK
 
     k0 = int(levels[0].max()) + 1
@@ -101,3 +105,22 @@ def group_pieces(data: CellData, groups, least: int, why: str) -> tuple[int, str
     return pieces, (
         f"no element crosses a physical group (--groups), and the groups form {pieces:,} separate pieces"
     )
+
+
+def said_not_balls(mesh, graph, levels, report: list[dict], notes: list[str], rings: bool) -> None:
+    """3D: each level's elements that are not balls (Euler characteristic of their cells other than 1:
+    rings around a tunnel or a neighbour, elements around a cavity) in the report (`not_balls`), and
+    a note where there are any (models.polytope.euler.level_euler: one incidence pass)."""
+    if mesh.dim != 3:
+        return
+    from models.polytope.euler import level_euler
+
+    bad = [int(np.count_nonzero(c != 1)) for c in level_euler(mesh, graph, levels)]
+    for r, b in zip(report, bad, strict=True):
+        r["not_balls"] = b
+    if sum(bad):
+        where = ", ".join(f"{b} on level {L}" for L, b in enumerate(bad) if b)
+        notes.append(
+            f"{sum(bad)} elements are not balls ({where}): rings around a tunnel or a neighbour"
+            + ("; --model-options rings=true cuts them" if not rings else " that cutting could not remove")
+        )

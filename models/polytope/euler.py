@@ -171,13 +171,16 @@ def merge_safely(
     keep: np.ndarray | None = None,
     rounds: int = 64,
     unions=None,
+    compact: bool = False,
 ) -> tuple[np.ndarray, int]:
     """Merge pairs of neighbouring elements whose union has Euler characteristic 1 (a disk in 2D; in
     3D necessary for a ball) until `target` elements are left or no such pair is: the smallest
     element first, into the safe neighbour it shares most with; disjoint pairs per round. sizes: a
     weight per cell to balance (default: cells); keep: a label per cell that no merge may cross
     (physical groups). unions: UnitEuler.unions of units, labels then an element per unit (sizes and
-    keep per unit too). Returns (labels compacted, pairs merged)."""
+    keep per unit too). compact: the pairs whose union is smallest for the faces they share first
+    ((size a + size b) / sqrt(shared)), rounder unions that tangle less with their neighbours.
+    Returns (labels compacted, pairs merged)."""
     from models.mesh.celldata import compact_labels
 
     labels = compact_labels(np.asarray(labels, dtype=np.int64))
@@ -202,7 +205,10 @@ def merge_safely(
         # partner sharing the most, then the smaller partner
         small = np.where(size[a] <= size[b], a, b)
         other = np.where(small == a, b, a)
-        order = np.lexsort((size[other], -wt, size[small]))
+        if compact:
+            order = np.argsort((size[small] + size[other]) / np.sqrt(np.maximum(wt, 1e-300)), kind="stable")
+        else:
+            order = np.lexsort((size[other], -wt, size[small]))
         tgt, done = disjoint_pairs(order, small, other, k, excess)
         if done == 0:
             break
