@@ -78,7 +78,10 @@ MODELS = {
         {"axes": "box"},
     ),  # longest extent, least box overlap (the default before round four)
     "rtree-s-total": ("rtree", {"axes": "strength-mincut"}),  # the same, least crossing weight
-    "rtree-rings": ("rtree", {"rings": True}),  # 3D rings around a tunnel or a neighbour cut (opt-in)
+    "rtree-keep-rings": (
+        "rtree",
+        {"rings": False},
+    ),  # 3D rings (elements with a handle) kept (cut by default since round fifteen)
     "rtree-faces": ("rtree", None),  # finest step 1 + the cells' mean face count (tri 4, quad/tet 5, hex 7)
     "rtree-s-pos": ("rtree", {"axes": "strength-position"}),  # longest extent, cut position by couplings
     "rtree-r8": ("rtree", None),  # ratio 8 at every level (the default before round three)

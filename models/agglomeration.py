@@ -414,6 +414,7 @@ def build_hierarchy(
     kappa=None,
     finest: str | None = None,
     boxfit: bool = False,
+    keep_rings: bool = False,
 ) -> Hierarchy:
     """Nested levels for multigrid (as `magnet hierarchy`): about `ratio` times fewer elements per
     level down to at most `coarsest`; every element connected, every level nested in the next finer.
@@ -425,7 +426,8 @@ def build_hierarchy(
     box-shaped elements, more iterations), "quality" (pairwise quality-controlled aggregates: fewer
     iterations, higher operator complexity), "nested" (pyamg's aggregation inside the cells' cuts:
     the cuts' boxes above the finest level). boxfit: then move boundary cells towards tighter boxes
-    (models.hierarchy.boxfit; any model)."""
+    (models.hierarchy.boxfit; any model). keep_rings: 3D elements with a handle (rings around a
+    tunnel or a neighbour) are kept, not cut (faster; info["notes"] counts them)."""
     opts = {"seed": seed, "hierarchy": True, "coarsest": coarsest}
     if ratio is not None:
         opts["ratio"] = ratio
@@ -454,7 +456,8 @@ def build_hierarchy(
         seed=o["seed"],
         groups=groups,
         kappa=kappa,
-        model_options={k: o[k] for k in ("finest", "boxfit") if o[k]},
+        model_options={k: o[k] for k in ("finest", "boxfit") if o[k]}
+        | ({"rings": False} if keep_rings else {}),
     )
     return Hierarchy(mesh, graph, data, levels, info)
 

@@ -322,3 +322,23 @@ def test_rings_around_a_tunnel_are_found_and_cut():
         assert handle_elements(mesh, graph, lv).size == 0 and _tet_euler(tets, lv).min() >= 1
     assert is_nested(levels) and int(levels[0].max()) + 1 <= 4
     assert any("tunnel" in n for n in info["notes"]) or info["requested"][0] >= 2
+
+
+@pytest.mark.parametrize("model", ["rtree", "metis", "kmeans"])
+def test_3d_rings_are_cut_by_default_and_counted_when_kept(model):
+    """Every model cuts 3D rings unless told to keep them (rings=False, `--keep-rings`); each level's
+    report counts its elements that are not balls, and a note says so where there are any."""
+    from models.polytope.euler import element_euler
+
+    pts, tet = _pipe_tets()
+    mesh = mesh_from_arrays(pts, [("tetra", tet)])
+    graph, data = prepare(mesh)
+    levels, info = build_hierarchy(mesh, data, model=model, coarsest=4)
+    assert is_nested(levels)
+    for lv, r in zip(levels, info["report"], strict=True):
+        assert np.all(element_euler(mesh, graph, lv) == 1) and r["not_balls"] == 0
+    assert not any("not balls" in n for n in info["notes"])
+    kept, info2 = build_hierarchy(mesh, data, model=model, coarsest=4, model_options={"rings": False})
+    bad = [int(np.count_nonzero(element_euler(mesh, graph, lv) != 1)) for lv in kept]
+    assert [r["not_balls"] for r in info2["report"]] == bad
+    assert any("not balls" in n and "--keep-rings" in n for n in info2["notes"]) == (sum(bad) > 0)

@@ -59,6 +59,12 @@ def add_hierarchy_args(p: argparse.ArgumentParser) -> None:
         help="then move boundary units (cells, or the finer level's elements) between elements towards "
         "tighter boxes: better box ratio and coverage, counts exact, levels still nested; any model",
     )
+    p.add_argument(
+        "--keep-rings",
+        action="store_true",
+        help="3D: keep elements with a handle (rings around a tunnel or a neighbour) instead of cutting "
+        "them (faster; a note counts them)",
+    )
     p.add_argument("--groups", action="store_true", help="no element crosses a physical group (rtree)")
     p.add_argument(
         "--metrics",
@@ -127,6 +133,7 @@ def hierarchy_main(args) -> int:
         kappa=args.kappa if kappa is not None and args.model == "rtree" else None,
         finest=args.finest,
         boxfit=args.boxfit,
+        keep_rings=args.keep_rings,
     )
     mesh, data, info = h.mesh, h.data, h.info
     t_read = time.perf_counter() - t0 - info["build_time"]

@@ -122,5 +122,5 @@ def said_not_balls(mesh, graph, levels, report: list[dict], notes: list[str], ri
         where = ", ".join(f"{b} on level {L}" for L, b in enumerate(bad) if b)
         notes.append(
             f"{sum(bad)} elements are not balls ({where}): rings around a tunnel or a neighbour"
-            + ("; --model-options rings=true cuts them" if not rings else " that cutting could not remove")
+            + (", kept as asked (--keep-rings)" if not rings else " that cutting could not remove")
         )
