@@ -261,3 +261,27 @@ def test_merge_safely_over_units_makes_balls():
     k = int(new.max()) + 1
     assert merged == 40 - k and k <= 6  # (a ring around the tunnel needs 2 at least)
     assert np.all(element_euler(mesh, g, new[units]) == 1)
+
+
+def _tall_cup(n=10):
+    """Hexahedra: a cup n x n x n (stretched 4x in z), walls and bottom one cell thick. Genus 0, one
+    boundary shell: a slab of its wall is a ring around the bottom's neighbours, nothing else."""
+    p, h = hexes(n)
+    p = np.asarray(p, dtype=np.float64)
+    c = p[h].mean(axis=1) * n
+    inner = (c[:, 0] > 1) & (c[:, 0] < n - 1) & (c[:, 1] > 1) & (c[:, 1] < n - 1) & (c[:, 2] > 1)
+    p[:, 2] *= 4
+    return mesh_from_arrays(p, [("hexahedron", h[~inner])])
+
+
+@pytest.mark.parametrize("model", ["rtree", "kmeans"])
+def test_flat_rings_around_a_neighbour_on_a_plain_domain_are_cut(model):
+    """rtree cuts a tall cup across its height: slabs of the wall above the bottom were rings (1-4
+    of them at k = 2-8, looked for only on domains with a tunnel or a cavity); now the merge's
+    surfaces say which elements to look at, on every domain."""
+    mesh = _tall_cup()
+    g, _ = prepare(mesh)
+    for k in (2, 3, 4, 6):
+        res = run(mesh, model=model, k=k, compute_metrics=False)
+        assert res.poly.n_elements == k
+        assert np.all(element_euler(mesh, g, res.poly.labels) == 1)

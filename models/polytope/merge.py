@@ -32,6 +32,10 @@ class Holes:
 
     elements: np.ndarray  # (H,) element id per hole
     centers: np.ndarray  # (H, dim) a point of the hole (mean of its boundary vertices)
+    # 3D: elements whose boundary surface is not a set of spheres (V - E + F of its faces other than
+    # 2 per shell: a handle, or a touch along an edge or at a vertex), candidates for
+    # models.hierarchy.topology.handle_elements; None where not computed
+    odd_surface: np.ndarray | None = None
 
 
 def boundary_faces(graph: DualGraph, labels: np.ndarray, among: np.ndarray | None = None) -> np.ndarray:
@@ -236,15 +240,23 @@ def _shells(points, face_elem, fo, nodes) -> Holes:
     u, v = nodes, nodes[nx]
     lo, hi = np.minimum(u, v), np.maximum(u, v)
     key_e = face_elem[face_of]
-    # sort edges by (element, lo, hi); equal neighbours link two faces
-    order = np.lexsort((hi, lo, key_e))
-    s = order
-    same = (key_e[s][1:] == key_e[s][:-1]) & (lo[s][1:] == lo[s][:-1]) & (hi[s][1:] == hi[s][:-1])
+    # sort edges by (element, lo, hi); equal neighbours link two faces (one int64 key where it fits:
+    # one argsort, not a three-key lexsort)
+    npts = np.int64(points.shape[0])
+    if nf and (int(face_elem.max()) + 1) * int(npts) * int(npts) < 2**62:
+        key = (key_e * npts + lo) * npts + hi
+        s = np.argsort(key)
+        ks = key[s]
+        same = ks[1:] == ks[:-1]
+    else:
+        s = np.lexsort((hi, lo, key_e))
+        same = (key_e[s][1:] == key_e[s][:-1]) & (lo[s][1:] == lo[s][:-1]) & (hi[s][1:] == hi[s][:-1])
     i = np.flatnonzero(same)
     fa, fb = face_of[s[i]], face_of[s[i + 1]]
     nshell, shell = edge_components(nf, fa, fb)
+    odd = _odd_surfaces(face_elem, key_e[s], same, shell, nodes, fo)
     if nf == 0 or nshell == np.count_nonzero(np.bincount(face_elem)):
-        return Holes(elements=np.zeros(0, np.int64), centers=np.zeros((0, points.shape[1])))
+        return Holes(elements=np.zeros(0, np.int64), centers=np.zeros((0, points.shape[1])), odd_surface=odd)
     owner, tri = fan_triangles(fo, nodes)
     sh = shell[owner]
     ref = points.min(axis=0)
@@ -259,7 +271,31 @@ def _shells(points, face_elem, fo, nodes) -> Holes:
     centers = np.column_stack(
         [np.bincount(shell[face_of], weights=points[nodes, d], minlength=nshell) / cnt for d in range(3)]
     )
-    return Holes(elements=shell_elem[inner], centers=centers[inner])
+    return Holes(elements=shell_elem[inner], centers=centers[inner], odd_surface=odd)
+
+
+def _odd_surfaces(face_elem, edge_elem_sorted, same, shell, nodes, fo) -> np.ndarray:
+    """The elements whose boundary faces have V - E + F other than 2 per shell, or an edge on more
+    than two of them (_shells' sorted edges: a shell of genus g has 2 - 2g; an element touching
+    itself along an edge has such an edge). face_elem ascending; V by the compiled per-element
+    distinct nodes (cells.distinct_nodes), no global sort."""
+    from models.mesh.cells import distinct_nodes
+
+    if face_elem.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    k = int(face_elem.max()) + 1
+    start = np.r_[True, ~same]
+    run = np.cumsum(start) - 1
+    edge_el = edge_elem_sorted[start]
+    F = np.bincount(face_elem, minlength=k)
+    E = np.bincount(edge_el, minlength=k)
+    V, _ = distinct_nodes(F, np.diff(fo), nodes)
+    shell_elem = np.zeros(int(shell.max()) + 1, dtype=np.int64)
+    shell_elem[shell] = face_elem
+    S = np.bincount(shell_elem, minlength=k)
+    odd = (F > 0) & (V - E + F != 2 * S)
+    odd[edge_el[np.bincount(run) > 2]] = True
+    return np.flatnonzero(odd)
 
 
 def _polymesh(mesh: Mesh, elem_offsets, loop_offsets, loop_nodes, labels, measures) -> PolyMesh:
