@@ -342,3 +342,38 @@ def test_3d_rings_are_cut_by_default_and_counted_when_kept(model):
     bad = [int(np.count_nonzero(element_euler(mesh, graph, lv) != 1)) for lv in kept]
     assert [r["not_balls"] for r in info2["report"]] == bad
     assert any("not balls" in n and "--keep-rings" in n for n in info2["notes"]) == (sum(bad) > 0)
+
+
+def _block_with_square_hole(n=30, hole=10):
+    """Hexahedra n^3 with a square through hole (hole x hole cells) along z."""
+    from meshes import hexes
+
+    p, h = hexes(n)
+    p = np.asarray(p, dtype=np.float64)
+    ij = np.floor(p[h].mean(axis=1)[:, :2] * n).astype(np.int64)
+    lo, hi = (n - hole) // 2, (n + hole) // 2
+    inside = np.all((ij >= lo) & (ij < hi), axis=1)
+    return mesh_from_arrays(p, [("hexahedron", h[~inside])])
+
+
+def test_a_stalled_3d_coarse_end_is_made_again_from_finer_elements(monkeypatch):
+    """METIS on a block with a square hole (an outside sweep's mesh): with rings cut, the coarsest
+    level stalled at 17 elements for 10, its neighbours' unions tangled; made again from the level
+    below's elements it stays at 17, from level 2's elements (levels 1 and 0 merged down from them
+    in turn, so still nested) it reaches the plan, every element a ball."""
+    import models.hierarchy.rethread as rethread
+    from models.polytope.euler import element_euler
+
+    mesh = _block_with_square_hole()
+    graph, data = prepare(mesh)
+    levels, info = build_hierarchy(mesh, data, model="metis", coarsest=10)
+    assert [int(lv.max()) + 1 for lv in levels] == info["requested"] and is_nested(levels)
+    assert info["report"][0].get("safe_merges", 0) > 0
+    for lv in levels:
+        assert np.all(element_euler(mesh, graph, lv) == 1)
+    made = rethread._remade_above
+    monkeypatch.setattr(
+        rethread, "_remade_above", lambda m, d, lv, u, *a: None if u > 1 else made(m, d, lv, u, *a)
+    )
+    short, _ = build_hierarchy(mesh, data, model="metis", coarsest=10)
+    assert int(short[0].max()) + 1 > 10  # level 1's elements alone do not reach it

@@ -281,41 +281,65 @@ def _safe_coarsest(mesh, data, levels, polys, report, want: int, groups):
     """coarse_end in 3D: whole coarsest elements merged where their union's characteristic is 1 (no
     ring, no cavity made; models.polytope.euler.merge_safely): nested as before. On a torus of
     95,605 cells with rings cut, 8 -> 6 coarsest elements (5 planned) in 0.18 s. Where that stays
-    above the count, the coarsest level is made again from the level below's elements the same way
-    (UnitEuler: their skeleton alone is read), the most compact unions first (then the smallest
-    first), and kept if it has fewer elements:
-    the coarsest elements that cuts and merges back leave are tangled (neighbours sharing faces in
-    up to a dozen patches), the level below's are not yet."""
-    from models.polytope.euler import UnitEuler, merge_safely
+    above the count, the levels above a finer level u are made again from u's elements the same way
+    (UnitEuler: their skeleton alone is read; merged down to each level's count in turn, so they stay
+    nested), the most compact unions first (then the smallest first), u = 1 then 2: the coarsest
+    elements that cuts and merges back leave are tangled (neighbours sharing faces in up to a dozen
+    patches), finer levels' elements less so (METIS on a block with a square hole: 17 coarsest for
+    10 from level 1's elements, 10 from level 2's)."""
+    from models.polytope.euler import merge_safely
 
     w = np.abs(data.measures)
     new0, merged = merge_safely(mesh, data.graph, levels[0], want, sizes=w, keep=groups)
-    if int(new0.max()) + 1 > want and len(levels) > 1:
-        units = levels[1]
-        ku = int(units.max()) + 1
-        ue = UnitEuler.of_cells(mesh, data.graph, units)
-        keep = None
-        if groups is not None:
-            keep = np.zeros(ku, dtype=np.int64)
-            keep[units] = groups
-        start = np.arange(ku)
-        if np.all(ue.chi == 1):  # (the units themselves balls: a union of them can be one)
-            uw = np.bincount(units, weights=w, minlength=ku)
-            for compact in (True, False):  # compact unions first (60-80% of the pairs otherwise tangled)
-                again, m = merge_safely(
-                    mesh, data.graph, start, want, sizes=uw, keep=keep, unions=ue.unions, compact=compact
-                )
-                if int(again.max()) < int(new0.max()):
-                    new0, merged = again[units], m
-                if int(new0.max()) + 1 <= want:
-                    break
+    new = [new0, *levels[1:]]
+    for u in range(1, min(3, len(levels))):  # a loop over the levels whose elements are the units
+        if int(new[0].max()) + 1 <= want:
+            break
+        got = _remade_above(mesh, data, levels, u, want, w, groups)
+        if got is not None and int(got[0][0].max()) < int(new[0].max()):
+            new, merged = got
     if not merged:
         return levels, polys, report
-    levels = [new0, *levels[1:]]
-    polys = [None, *polys[1:]]
-    report[0]["elements"] = int(new0.max()) + 1
+    polys = [None if not np.array_equal(a, b) else p for a, b, p in zip(new, levels, polys, strict=True)]
+    for L in range(len(report)):
+        report[L]["elements"] = int(new[L].max()) + 1
     report[0]["safe_merges"] = merged
-    report[0]["ratio"] = (
-        report[1]["elements"] / report[0]["elements"] if len(report) > 1 else report[0]["ratio"]
-    )
-    return levels, polys, report
+    for L, r in enumerate(report):
+        below = mesh.n_cells if L + 1 == len(new) else report[L + 1]["elements"]
+        r["ratio"] = below / max(r["elements"], 1)
+    return new, polys, report
+
+
+def _remade_above(mesh, data, levels, u: int, want: int, w, groups):
+    """Levels 0..u-1 made again by merging level u's elements where the union is a ball, down to each
+    level's count (levels u-1, ..., 1 exactly, then `want`): (levels, merges) or None where a level's
+    count is not reached or u's elements are not all balls."""
+    from models.polytope.euler import UnitEuler, merge_safely
+
+    units = levels[u]
+    ku = int(units.max()) + 1
+    ue = UnitEuler.of_cells(mesh, data.graph, units)
+    if not np.all(ue.chi == 1):  # (a union of units can be a ball only if they are)
+        return None
+    keep = None
+    if groups is not None:
+        keep = np.zeros(ku, dtype=np.int64)
+        keep[units] = groups
+    uw = np.bincount(units, weights=w, minlength=ku)
+    counts = [int(levels[L].max()) + 1 for L in range(u - 1, 0, -1)] + [want]
+    best = None
+    for compact in (True, False):  # compact unions first (60-80% of the pairs otherwise tangled)
+        lab, out, total = np.arange(ku), [], 0
+        for c in counts:  # a loop over the levels remade, finest first
+            lab, m = merge_safely(
+                mesh, data.graph, lab, c, sizes=uw, keep=keep, unions=ue.unions, compact=compact
+            )
+            total += m
+            out.insert(0, lab[units])
+            if int(lab.max()) + 1 != c and c != want:
+                break
+        if len(out) == u and (best is None or int(out[0].max()) < int(best[0][0].max())):
+            best = ([*out, *levels[u:]], total)
+        if best is not None and int(best[0][0].max()) + 1 <= want:
+            break
+    return best
