@@ -653,7 +653,7 @@ def build_hierarchy(
         rings=rings,
         groups=group_of,
     )
-    levels, polys, report = coarse_end(mesh, data, levels, polys, report, hole_pairs, counts[0], group_of)
+    levels, polys, report = coarse_end(mesh, data, levels, polys, report, hole_pairs, counts, group_of)
     report = _with_requested(report, counts, n)
     said_off_plan(levels, report, coarsest, notes, (mesh, data.graph, rings))
     info = {
@@ -695,8 +695,9 @@ def _hierarchy_above(data, finest, mesh, model, ratio, coarsest, seed, t0):
         raw, _ = make_connected(cg.indptr, cg.indices, cg.weights, compact_labels(raw), measures=cg.measures)
         levels.insert(0, compact_labels(raw)[levels[0]])
     levels, polys, report = fix_holes(mesh, data, levels, None, hole_pairs=hole_pairs, rings=True)
-    levels, polys, report = coarse_end(mesh, data, levels, polys, report, hole_pairs, counts[0], None)
-    report = _with_requested(report, [*counts, int(finest.max()) + 1], finest.size)
+    plan = [*counts, int(finest.max()) + 1]
+    levels, polys, report = coarse_end(mesh, data, levels, polys, report, hole_pairs, plan, None)
+    report = _with_requested(report, plan, finest.size)
     said_off_plan(levels, report, coarsest, notes, (mesh, data.graph, True))
     info = {
         "model": part.name,

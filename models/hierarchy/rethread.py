@@ -245,17 +245,23 @@ def rethread_coarse(
     return out, kept
 
 
-def coarse_end(mesh, data, levels, polys, report, hole_pairs, want: int, groups):
-    """A coarsest level left above its count. 3D (rings around tunnels cut, `rings`): neighbours merged
-    where the union's Euler characteristic is 1. 2D, by holes: merged down with the holes threaded, with the
+def coarse_end(mesh, data, levels, polys, report, hole_pairs, plan, groups):
+    """A coarsest level left above its count (plan: each level's count, coarsest first). 3D (rings
+    cut): levels above their counts merged where the union's Euler characteristic is 1. 2D, by holes: merged down with the holes threaded, with the
     coarsest units that do it (a level's elements: only the levels above it change; the finest
     level's last: on 100 pinholes at 10^5 cells 0.75x pyamg's iterations, against 0.94x with the
     finest units alone). The finest units alone from the levels as given were tried as well where
     that stayed short: on 25 holed meshes (random holes, pinholes, plates) they never reached further,
     and on 100 pinholes they took half the build; the report's counts and ratios follow."""
+    plan = [int(plan)] if np.ndim(plan) == 0 else [int(c) for c in plan]  # (an int: the coarsest's)
+    want = plan[0]
     k0 = int(levels[0].max()) + 1
-    if mesh.dim == 3 and k0 > want and len(levels) > 1:
-        return _safe_coarsest(mesh, data, levels, polys, report, want, groups)
+    if (
+        mesh.dim == 3
+        and len(levels) > 1
+        and any(int(lv.max()) + 1 > c for lv, c in zip(levels, plan, strict=False))
+    ):
+        return _safe_coarsest(mesh, data, levels, polys, report, plan, groups)
     if mesh.dim != 2 or k0 <= want or not hole_pairs[0].size or len(levels) < 2:
         return levels, polys, report
     new, kept = list(levels), 0
@@ -277,27 +283,34 @@ def coarse_end(mesh, data, levels, polys, report, hole_pairs, want: int, groups)
     return new, polys, report
 
 
-def _safe_coarsest(mesh, data, levels, polys, report, want: int, groups):
+def _excess(levels, plan) -> int:
+    """Elements above the plan, summed over the levels."""
+    return sum(max(int(lv.max()) + 1 - c, 0) for lv, c in zip(levels, plan, strict=False))
+
+
+def _safe_coarsest(mesh, data, levels, polys, report, plan, groups):
     """coarse_end in 3D: whole coarsest elements merged where their union's characteristic is 1 (no
     ring, no cavity made; models.polytope.euler.merge_safely): nested as before. On a torus of
-    95,605 cells with rings cut, 8 -> 6 coarsest elements (5 planned) in 0.18 s. Where that stays
-    above the count, the levels above a finer level u are made again from u's elements the same way
-    (UnitEuler: their skeleton alone is read; merged down to each level's count in turn, so they stay
-    nested), the most compact unions first (then the smallest first), u = 1 then 2: the coarsest
-    elements that cuts and merges back leave are tangled (neighbours sharing faces in up to a dozen
-    patches), finer levels' elements less so (METIS on a block with a square hole: 17 coarsest for
-    10 from level 1's elements, 10 from level 2's)."""
+    95,605 cells with rings cut, 8 -> 6 coarsest elements (5 planned) in 0.18 s. Where a level stays
+    above its count, the levels above a finer level u (the one below the finest level stalled, then
+    the next) are made again from u's elements the same way (UnitEuler: their skeleton alone is read;
+    merged down to each level's count in turn, so they stay nested), the most compact unions first
+    (then the smallest first): the elements that cuts and merges back leave are tangled (neighbours
+    sharing faces in up to a dozen patches), finer levels' elements less so (METIS on a block with a
+    square hole: 17 coarsest for 10 from level 1's elements, 10 from level 2's)."""
     from models.polytope.euler import merge_safely
 
     w = np.abs(data.measures)
-    new0, merged = merge_safely(mesh, data.graph, levels[0], want, sizes=w, keep=groups)
+    new0, merged = merge_safely(mesh, data.graph, levels[0], plan[0], sizes=w, keep=groups)
     new = [new0, *levels[1:]]
-    for u in range(1, min(3, len(levels))):  # a loop over the levels whose elements are the units
-        if int(new[0].max()) + 1 <= want:
-            break
-        got = _remade_above(mesh, data, levels, u, want, w, groups)
-        if got is not None and int(got[0][0].max()) < int(new[0].max()):
-            new, merged = got
+    stalled = [L for L in range(len(new) - 1) if int(new[L].max()) + 1 > plan[L]]
+    if stalled:
+        for u in range(stalled[-1] + 1, min(stalled[-1] + 3, len(levels))):  # a loop over unit levels
+            got = _remade_above(mesh, data, levels, u, plan, w, groups)
+            if got is not None and _excess(got[0], plan) < _excess(new, plan):
+                new, merged = got
+            if _excess(new, plan) == 0:
+                break
     if not merged:
         return levels, polys, report
     polys = [None if not np.array_equal(a, b) else p for a, b, p in zip(new, levels, polys, strict=True)]
@@ -310,10 +323,10 @@ def _safe_coarsest(mesh, data, levels, polys, report, want: int, groups):
     return new, polys, report
 
 
-def _remade_above(mesh, data, levels, u: int, want: int, w, groups):
+def _remade_above(mesh, data, levels, u: int, plan, w, groups):
     """Levels 0..u-1 made again by merging level u's elements where the union is a ball, down to each
-    level's count (levels u-1, ..., 1 exactly, then `want`): (levels, merges) or None where a level's
-    count is not reached or u's elements are not all balls."""
+    level's planned count in turn (finest first; a level that stops above it is kept so): (levels,
+    merges), or None where u's elements are not all balls."""
     from models.polytope.euler import UnitEuler, merge_safely
 
     units = levels[u]
@@ -326,20 +339,22 @@ def _remade_above(mesh, data, levels, u: int, want: int, w, groups):
         keep = np.zeros(ku, dtype=np.int64)
         keep[units] = groups
     uw = np.bincount(units, weights=w, minlength=ku)
-    counts = [int(levels[L].max()) + 1 for L in range(u - 1, 0, -1)] + [want]
     best = None
     for compact in (True, False):  # compact unions first (60-80% of the pairs otherwise tangled)
         lab, out, total = np.arange(ku), [], 0
-        for c in counts:  # a loop over the levels remade, finest first
-            lab, m = merge_safely(
-                mesh, data.graph, lab, c, sizes=uw, keep=keep, unions=ue.unions, compact=compact
-            )
+        for L in range(u - 1, -1, -1):  # a loop over the levels remade, finest first
+            if plan[L] == 1 and keep is None:  # one element: the whole (connected) domain, a ball
+                # where the plan allows one (domain_plan), whatever unions lie on the way
+                m, lab = int(lab.max()), np.zeros_like(lab)
+            else:
+                lab, m = merge_safely(
+                    mesh, data.graph, lab, plan[L], sizes=uw, keep=keep, unions=ue.unions, compact=compact
+                )
             total += m
             out.insert(0, lab[units])
-            if int(lab.max()) + 1 != c and c != want:
-                break
-        if len(out) == u and (best is None or int(out[0].max()) < int(best[0][0].max())):
-            best = ([*out, *levels[u:]], total)
-        if best is not None and int(best[0][0].max()) + 1 <= want:
+        got = [*out, *levels[u:]]
+        if best is None or _excess(got, plan) < _excess(best[0], plan):
+            best = (got, total)
+        if _excess(best[0], plan) == 0:
             break
     return best
