@@ -606,3 +606,15 @@ def test_a_binary_ucd_file_is_named_so_in_every_refusal(tmp_path):
     text = tmp_path / "t.inp"
     text.write_text("*NODE\n1, 0, 0, 0\n")
     assert format_name(text) == "Abaqus or AVS UCD"
+
+
+def test_xdmf_data_file_named_by_its_absolute_path_beside_it_is_read(tmp_path):
+    """meshio writes a Binary XDMF's data files by absolute path: one that lies in the file's own
+    folder is read (only paths elsewhere are refused)."""
+    p, blocks = fw.blocks()
+    path = fw.write_xdmf(tmp_path / "a.xdmf", p, blocks)
+    text = open(path).read()
+    absolute = tmp_path / "abs.xdmf"
+    absolute.write_text(text.replace("a.h5:", str(tmp_path / "a.h5") + ":"))
+    assert str(tmp_path / "a.h5") in absolute.read_text()
+    assert read_mesh(str(absolute)).n_cells == read_mesh(path).n_cells

@@ -48,7 +48,7 @@ def _add_job_args(p: argparse.ArgumentParser) -> None:
         help="refiner: cuts prefer physical-group interfaces and never leave more cells outside their part's "
         "majority group (auto: on for sage-hetero)",
     )
-    p.add_argument("--k", type=int, help="number of elements (kway): exactly k unless --allow-extra")
+    p.add_argument("-k", "--k", type=int, help="number of elements (kway): exactly k unless --allow-extra")
     p.add_argument(
         "--allow-extra",
         action="store_true",

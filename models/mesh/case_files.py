@@ -127,7 +127,7 @@ def legacy_pieces(path: str, text: bytes) -> list[str]:
 def pieces_present(path: str, ext: str) -> None:
     """A parallel or multiblock VTK XML file names its pieces' files (XDMF its data files): say
     which one is missing (VTK's reader only fails), relative to the file's folder as VTK resolves
-    them; a piece outside that folder (an absolute path, or up with '..') is refused: an upload never
+    them; a piece outside that folder (an absolute path elsewhere, or up with '..') is refused: an upload never
     makes the reader open another file of the server. An XDMF is scanned whole (its data may be
     inline, and large): its HDF5 files, its Binary data files and its xi:include files."""
     import mmap
@@ -159,8 +159,9 @@ def pieces_present(path: str, ext: str) -> None:
     what = "data file" if xdmf else "piece file"
     for raw in dict.fromkeys(found):
         piece = raw.decode("utf-8", "replace").strip()
-        where = os.path.normpath(os.path.join(folder, piece))
-        if os.path.isabs(piece) or os.path.commonpath([folder, where]) != folder:
+        # (an absolute path inside the folder is fine: meshio writes its Binary data files so)
+        where = os.path.realpath(os.path.join(folder, piece))
+        if os.path.commonpath([os.path.realpath(folder), where]) != os.path.realpath(folder):
             raise MeshError(  # (an upload naming files of the server: never read)
                 f"cannot read {os.path.basename(path)} as {format_name(path)}: its {what} {piece} "
                 f"lies outside the file's folder; keep the {what}s beside it or below it"
