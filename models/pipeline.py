@@ -296,6 +296,8 @@ def _rings(mesh: Mesh, graph: DualGraph, data: CellData, labels: np.ndarray, han
     rings, cavities = handle_elements(mesh, graph, labels, only=odd, cavities=True)
     if not handles:
         rings = rings[:0]
+    one = np.bincount(labels)[np.r_[rings, cavities]] < 2  # (a single cell, a polyhedron read back: not cut)
+    rings, cavities = rings[~one[: rings.size]], cavities[~one[rings.size :]]
     elems = np.r_[rings, cavities].astype(np.int64)
     axis = np.r_[np.ones(rings.size, dtype=np.int64), np.zeros(cavities.size, dtype=np.int64)]
     centers = np.zeros((elems.size, 3))

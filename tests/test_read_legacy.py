@@ -217,3 +217,45 @@ def test_ascii_numbers_correctly_rounded():
     assert i.tolist() == [0, -12, 7, 123456789012345678]
     for bad in (b"1 2 3", b"1 2 x 4", b"1 2 3.0 4", b"1 2 3 1234567890123456789"):
         assert fast.ascii_values(bad, 0, i, 0) == -1
+
+
+def _binary_hexes(first_count: int) -> bytes:
+    """A binary legacy file of two hexahedra; the first cell's node count as given (8 when sound)."""
+    pts = np.array([[x, y, z] for z in (0, 1) for y in (0, 1) for x in (0, 1, 2)], dtype=">f4")
+    cells = np.array([first_count, 0, 1, 4, 3, 6, 7, 10, 9, 8, 1, 2, 5, 4, 7, 8, 11, 10], dtype=">i4")
+    head = b"# vtk DataFile Version 4.2\nhand\nBINARY\nDATASET UNSTRUCTURED_GRID\nPOINTS 12 float\n"
+    return (
+        head
+        + pts.tobytes()
+        + b"\nCELLS 2 18\n"
+        + cells.tobytes()
+        + b"\nCELL_TYPES 2\n"
+        + np.array([12, 12], dtype=">i4").tobytes()
+        + b"\n"
+    )
+
+
+def test_short_data_vtk_reads_without_a_word_is_refused(tmp_path):
+    """VTK's legacy reader takes a damaged cell count as that many nodes (the cells after it vanish)
+    and fills a truncated ASCII file's missing points with zeros, without an error: both refused,
+    saying what the file declares against what it holds (an outside sweep's corrupted files)."""
+    from models.mesh.sandbox import read_mesh_safe
+
+    ok = tmp_path / "two.vtk"
+    ok.write_bytes(_binary_hexes(8))
+    assert read_mesh_safe(str(ok)).n_cells == 2
+    swallowed = tmp_path / "swallowed.vtk"
+    swallowed.write_bytes(_binary_hexes(17))
+    with pytest.raises(MeshError, match=r"declares 2 cells \(CELLS\) but its cell list holds 1"):
+        read_mesh_safe(str(swallowed))
+    grid = ["# vtk DataFile Version 3.0", "g", "ASCII", "DATASET STRUCTURED_GRID", "DIMENSIONS 3 2 2"]
+    grid += ["POINTS 12 float", *[f"{x} {y} {z}" for z in (0, 1) for y in (0, 1) for x in (0, 1, 2)]]
+    whole = tmp_path / "grid.vtk"
+    whole.write_text("\n".join(grid) + "\n")
+    assert read_mesh_safe(str(whole)).n_cells == 2
+    cut = tmp_path / "cut.vtk"
+    cut.write_text("\n".join(grid[:-5]) + "\n")
+    with pytest.raises(
+        MeshError, match=r"declares 12 points \(POINTS\) but holds coordinates for 7: .*truncated"
+    ):
+        read_mesh_safe(str(cut))

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import mmap
 import os
+import re
 from types import SimpleNamespace
 
 import numpy as np
@@ -239,3 +240,50 @@ def _simple(data: bytes):
     if data[cur.pos :].strip():  # cell or point data, field data, another section: VTK's reader
         return None
     return points.reshape(n_points, 3), cells, counted, t
+
+
+_HDR_CELLS = re.compile(rb"(?im)^[ \t]*CELLS[ \t]+(\d+)[ \t]+(\d+)")
+_HDR_POINTS = re.compile(rb"(?im)^[ \t]*POINTS[ \t]+(\d+)[ \t]+\w+[ \t]*\r?$")
+_HDR_VERSION = re.compile(rb"#\s*vtk DataFile Version\s+(\d+)", re.I)
+_NEXT_SECTION = re.compile(
+    rb"(?im)^[ \t]*(CELLS|CELL_TYPES|POINT_DATA|CELL_DATA|METADATA|FIELD|POLYGONS|LINES|VERTICES|"
+    rb"TRIANGLE_STRIPS|OFFSETS|CONNECTIVITY)\b"
+)
+
+
+def legacy_shortfall(path: str, n_cells_read: int | None) -> str | None:
+    """What a legacy VTK file declares that VTK's reader did not find, which it reads without a word:
+    fewer cells than CELLS declares (a cell's damaged node count swallows the cells after it), or in
+    an ASCII file (up to 16 MiB) fewer point coordinates than POINTS declares (VTK fills the rest with
+    zeros). n_cells_read: the unstructured grid's cells as read (None: not one)."""
+    try:
+        size = os.path.getsize(path)
+        with open(path, "rb") as fh:
+            head = fh.read(min(size, 16 << 20))
+    except OSError:
+        return None
+    found = _HDR_CELLS.search(head)
+    if found is not None and n_cells_read is not None:
+        declared = int(found.group(1))
+        version = _HDR_VERSION.search(head[:256])
+        if version is not None and int(version.group(1)) >= 5:
+            declared -= 1  # (5.x: the offsets' count)
+        if 0 <= n_cells_read < declared:
+            return (
+                f"it declares {declared:,} cells (CELLS) but its cell list holds {n_cells_read:,}: the file "
+                "is corrupted (a cell's node count is wrong, and the cells after it were read as its nodes)"
+            )
+    lines = head[:1024].splitlines()
+    if size <= (16 << 20) and len(lines) > 2 and lines[2].strip().upper() == b"ASCII":
+        pts = _HDR_POINTS.search(head)
+        if pts is not None:
+            n = int(pts.group(1))
+            rest = head[pts.end() :]
+            nxt = _NEXT_SECTION.search(rest)
+            got = len((rest[: nxt.start()] if nxt else rest).split())
+            if got < 3 * n:
+                return (
+                    f"it declares {n:,} points (POINTS) but holds coordinates for {got // 3:,}: the file is "
+                    "truncated"
+                )
+    return None

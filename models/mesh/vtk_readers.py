@@ -385,6 +385,10 @@ def _run(path: str, kind: str, fmt: str | None = None):
         said = why or explain(cap.text, what)
         if not why and is_hdf5(path):  # an HDF5 container (Exodus, CGNS, Fluent .cas.h5, ...):
             said = hdf5_damage(path) or said  # its damaged object, where one is
+        if kind == "legacy":  # a truncated ASCII file: say so
+            from models.mesh.legacy import legacy_shortfall
+
+            said = legacy_shortfall(path, None) or said
         if kind in _XML_KINDS:  # the XML's own fault where VTK said no place; another kind of XML always
             found = xml_fault(path, "Xdmf" if kind == "xdmf" else "VTKFile")
             if found and (" (at " not in said or not found.startswith("its XML is malformed")):
@@ -392,6 +396,12 @@ def _run(path: str, kind: str, fmt: str | None = None):
         raise MeshError(f"cannot read {name} as {fmt}: {said}")
     if out is None:
         raise MeshError(f"cannot read {name} as {fmt}: the reader produced no data")
+    if kind == "legacy":  # short data VTK reads without a word: a swallowed cell list, a truncation
+        from models.mesh.legacy import legacy_shortfall
+
+        why = legacy_shortfall(path, out.GetNumberOfCells() if out.IsA("vtkUnstructuredGrid") else None)
+        if why:
+            raise MeshError(f"cannot read {name} as {fmt}: {why}")
     if is_hdf5(path):  # read, but a damaged object may have been left out without a word (a CGNS
         why = hdf5_damage(path)  # zone whose ZoneType header fails its checksum)
         if why:
