@@ -618,3 +618,46 @@ def test_xdmf_data_file_named_by_its_absolute_path_beside_it_is_read(tmp_path):
     absolute.write_text(text.replace("a.h5:", str(tmp_path / "a.h5") + ":"))
     assert str(tmp_path / "a.h5") in absolute.read_text()
     assert read_mesh(str(absolute)).n_cells == read_mesh(path).n_cells
+
+
+def test_wkt_with_exponents_reads_at_once(tmp_path):
+    """meshio's WKT pattern knows no exponents and backtracked for minutes on a 3 KiB file of 48
+    triangles with a coordinate like 6.1e-17 (an outside sweep's file): our reader takes each
+    polygon's ring, merges equal points, and says what is wrong in one sentence."""
+    xs, ys = np.meshgrid(np.linspace(0, 1, 8), np.linspace(0, 1, 7), indexing="ij")
+    pts = np.c_[xs.ravel(), ys.ravel() + 1e-17, np.zeros(xs.size)]
+    i, j = np.meshgrid(np.arange(7), np.arange(6), indexing="ij")
+    a = (i * 7 + j).ravel()
+    tri = np.r_[np.c_[a, a + 7, a + 8], np.c_[a, a + 8, a + 1]]
+
+    def ring(t):
+        return "((" + ", ".join(" ".join(repr(float(v)) for v in pts[k]) for k in [*t, t[0]]) + "))"
+
+    path = tmp_path / "plate.wkt"
+    path.write_text("TIN (" + ", ".join(ring(t) for t in tri) + ")")
+    assert "e-17" in path.read_text()
+    mesh = read_mesh(str(path))
+    assert mesh.n_cells == 84 and mesh.n_points == 56 and mesh.dim == 2
+    bad = tmp_path / "open.wkt"
+    bad.write_text("TIN (((0 0 0, 1 0 0, 0 1 0, 0 0 1)))")
+    with pytest.raises(MeshError, match=r"^cannot read open.wkt as WKT: 1 polygons are not closed"):
+        read_mesh(str(bad))
+
+
+def test_gmsh_med_without_physical_groups_reads(tmp_path):
+    """gmsh's MED export of a mesh with no physical group writes families without groups (GRO);
+    meshio's MED reader failed on every such file with KeyError('GRO')."""
+    gmsh = pytest.importorskip("gmsh")
+    path = str(tmp_path / "box.med")
+    gmsh.initialize(["", "-v", "0"])
+    try:
+        gmsh.model.occ.addBox(0, 0, 0, 1, 1, 1)
+        gmsh.model.occ.synchronize()
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.5)
+        gmsh.model.mesh.generate(3)
+        n = sum(len(t) for t in gmsh.model.mesh.getElements(3)[1])
+        gmsh.write(path)
+    finally:
+        gmsh.finalize()
+    mesh = read_mesh(path)
+    assert mesh.dim == 3 and mesh.n_cells == n

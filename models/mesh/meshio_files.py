@@ -9,6 +9,8 @@ import os
 import re
 import warnings
 
+import numpy as np
+
 from models.errors import MeshError
 from models.mesh.container import (
     VTK_HEXAHEDRON,
@@ -69,6 +71,10 @@ def read_meshio(path: str, file_type: str):
     if file_type not in reader_map:
         raise MeshError(f"unknown mesh format {file_type!r}; use one of: " + ", ".join(sorted(reader_map)))
     _meshio_dimensions()
+    if file_type == "med":
+        _med_families_without_groups()
+    if file_type == "wkt":  # (meshio's pattern has no exponents: it backtracks for minutes on 1e-17)
+        return _read_wkt(path)
     try:
         with (
             warnings.catch_warnings(),
@@ -90,6 +96,78 @@ def read_meshio(path: str, file_type: str):
     except (Exception, SystemExit) as exc:  # noqa: BLE001
         why = _why(exc, meshio)
         raise MeshError(f"cannot read {name} with meshio's {file_type} reader: {why}") from None
+
+
+_WKT_RING = re.compile(r"\(\s*\(([^()]*)\)\s*\)")
+
+
+def _read_wkt(path: str):
+    """Well-known text surfaces (TIN, POLYHEDRALSURFACE, MULTIPOLYGON: each polygon's outer ring, the
+    last point repeating the first) as a meshio.Mesh of triangles and quads, points merged where
+    equal, as meshio's reader gives them. Linear in the file (meshio's regular expression has no
+    exponents and backtracks for minutes on a coordinate like 6.1e-17)."""
+    import meshio
+    import numpy as np
+
+    name = os.path.basename(path)
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        rings = _WKT_RING.findall(fh.read())
+    if not rings:
+        raise MeshError(f"cannot read {name} as WKT: it holds no polygon")
+    per = np.char.count(np.asarray(rings), ",") + 1  # points per ring
+    dim = len(rings[0].split(",")[0].split())
+    try:
+        vals = np.asarray(",".join(rings).replace(",", " ").split(), dtype=np.float64)
+    except ValueError:
+        raise MeshError(f"cannot read {name} as WKT: a polygon's coordinates are not numbers") from None
+    if dim not in (2, 3) or vals.size != int(per.sum()) * dim:
+        raise MeshError(f"cannot read {name} as WKT: its points are not all of 2 or all of 3 coordinates")
+    xyz = vals.reshape(-1, dim)
+    first = np.cumsum(per) - per
+    closed = np.all(xyz[first] == xyz[first + per - 1], axis=1)
+    if not np.all(closed & ((per == 4) | (per == 5))):
+        raise MeshError(
+            f"cannot read {name} as WKT: {int(np.count_nonzero(~closed | ((per != 4) & (per != 5)))):,} "
+            "polygons are not closed triangles or quadrilaterals (the last point repeating the first)"
+        )
+    keep = np.ones(xyz.shape[0], dtype=bool)
+    keep[first + per - 1] = False  # (the repeated closing points)
+    points, inverse = np.unique(xyz[keep], axis=0, return_inverse=True)
+    node = inverse.ravel()
+    corners = per - 1
+    start = np.cumsum(corners) - corners
+    cells = []
+    for n, kind in ((3, "triangle"), (4, "quad")):
+        at = start[corners == n]
+        if at.size:
+            cells.append((kind, node[at[:, None] + np.arange(n)]))
+    return meshio.Mesh(points, cells)
+
+
+def _med_families_without_groups() -> None:
+    """meshio's MED reader takes every family to have groups (GRO): gmsh's MED export of a mesh without
+    physical groups has families without, and every such file failed with KeyError('GRO'). Its family
+    reader is replaced by one that gives such a family no group name (the rest as meshio reads it)."""
+    from meshio.med import _med
+
+    if getattr(_med._read_families, "_ours", False):
+        return
+
+    def read_families(fas_data):
+        families = {}
+        for _, node_set in fas_data.items():  # a loop over the families (a handful)
+            if "GRO" not in node_set:
+                families[node_set.attrs["NUM"]] = []
+                continue
+            nom = node_set["GRO"]["NOM"][()]
+            families[node_set.attrs["NUM"]] = [
+                bytes(np.asarray(row, dtype=np.int8).view(np.uint8)).decode("latin-1").strip().rstrip("\x00")
+                for row in nom[: node_set["GRO"].attrs["NBR"]]
+            ]
+        return families
+
+    read_families._ours = True
+    _med._read_families = read_families
 
 
 def _meshio_dimensions() -> None:
