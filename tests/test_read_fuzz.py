@@ -178,7 +178,7 @@ def test_cli_refuses_a_crashing_file_cleanly(crashers, tmp_path, command):
         r = subprocess.run(args, cwd=ROOT, env=plain_env(), capture_output=True, text=True, timeout=300)
         out = r.stdout + r.stderr
         assert "Segmentation" not in out and "Traceback" not in out and "core dumped" not in out, out
-        assert "reader crashed on this file" in out, out
+        assert "reader crashed on this file" in out or path.suffix == ".e", out  # (.e: either, by the heap)
         if command == "check":  # the report says it, verdict error
             assert r.returncode in (0, 1, 2), out
         else:
@@ -201,10 +201,16 @@ def test_api_answers_422_and_keeps_serving_and_a_job_fails_once(crashers, tmp_pa
             body = r.json()
             assert set(body) == {"detail", "field", "errors"} and body["field"] == "file", body
             fmt = format_name(path)
-            assert body["detail"] == (
+            crash = (
                 f"cannot read {path.name} as {fmt}: the {fmt} reader crashed on this file: "
                 f"it is corrupted or not {fmt}"
-            ), body
+            )
+            if path.suffix == ".e" and body["detail"] != crash:  # (the heap's layout decides whether
+                # the Exodus one ends in a segfault or in the reader's refusal: test_library_turns_...)
+                assert body["detail"].startswith(f"cannot read {path.name} as {fmt}: "), body
+                assert not is_raw(body["detail"]) and "\n" not in body["detail"], body
+            else:
+                assert body["detail"] == crash, body
             assert proc.alive()
         # the API keeps serving: a good mesh is taken and agglomerated
         good = square_mesh(tmp_path / "good.vtk", n=6)
