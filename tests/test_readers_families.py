@@ -661,3 +661,4 @@ def test_gmsh_med_without_physical_groups_reads(tmp_path):
         gmsh.finalize()
     mesh = read_mesh(path)
     assert mesh.dim == 3 and mesh.n_cells == n
+    assert mesh.tags is None  # no group (not one group numbered 0)

@@ -41,6 +41,9 @@ def named_groups(m, file_type: str, path: str, dims: list[int]):
         for fam, names in families.items():
             if names:
                 fam_to[int(fam)] = groups.setdefault(str(names[0]), len(groups) + 1)
+        if not groups:  # (families without groups: gmsh's export of a mesh with no physical group)
+            del m.cell_data["cell_tags"]
+            return m
         keys = np.fromiter(fam_to, dtype=np.int64, count=len(fam_to))
         vals = np.fromiter(fam_to.values(), dtype=np.int64, count=len(fam_to))
         order = np.argsort(keys)
