@@ -200,6 +200,7 @@ def merge_safely(
     rounds: int = 64,
     unions=None,
     compact: bool = False,
+    forbid=None,
 ) -> tuple[np.ndarray, int]:
     """Merge pairs of neighbouring elements whose union has Euler characteristic 1 (a disk in 2D; in
     3D necessary for a ball) until `target` elements are left or no such pair is: the smallest
@@ -208,7 +209,9 @@ def merge_safely(
     (physical groups). unions: UnitEuler.unions of units, labels then an element per unit (sizes and
     keep per unit too). compact: the pairs whose union is smallest for the faces they share first
     ((size a + size b) / sqrt(shared)), rounder unions that tangle less with their neighbours.
-    Returns (labels compacted, pairs merged)."""
+    forbid: labels, k -> keys a * k + b (a < b) of pairs not to merge (3D: a union of characteristic 1
+    may hold a handle and a cavity: rethread._enclosing). Returns (labels compacted, pairs
+    merged)."""
     from models.mesh.celldata import compact_labels
 
     labels = compact_labels(np.asarray(labels, dtype=np.int64))
@@ -221,6 +224,8 @@ def merge_safely(
             break
         a, b, uchi, wt = union_euler(mesh, graph, labels) if unions is None else unions(labels)
         ok = uchi == 1
+        if forbid is not None:
+            ok &= ~np.isin(a * np.int64(k) + b, forbid(labels, k))
         if keep is not None:
             ke = np.zeros(k, dtype=np.int64)
             ke[labels] = keep
