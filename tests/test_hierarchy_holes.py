@@ -377,3 +377,25 @@ def test_a_stalled_3d_coarse_end_is_made_again_from_finer_elements(monkeypatch):
     )
     short, _ = build_hierarchy(mesh, data, model="metis", coarsest=10)
     assert int(short[0].max()) + 1 > 10  # level 1's elements alone do not reach it
+
+
+def test_cli_counts_the_elements_that_are_not_balls(tmp_path):
+    """`magnet hierarchy` in 3D: a 'not balls' column, 0 everywhere by default; --keep-rings keeps the
+    pipe's rings, the column and a note count them."""
+    import subprocess
+    import sys
+
+    import meshio
+
+    pts, tet = _pipe_tets()
+    src = tmp_path / "pipe.vtu"
+    meshio.write(src, meshio.Mesh(pts, [("tetra", tet)]))
+    cli = [sys.executable, "-m", "models.cli", "hierarchy", str(src), "--coarsest", "4"]
+    cut = subprocess.run([*cli, "-o", str(tmp_path / "a")], capture_output=True, text=True)
+    assert cut.returncode == 0, cut.stderr
+    head, *rows = [ln for ln in cut.stdout.splitlines() if ln.strip()[:1].isdigit() or "not balls" in ln][:4]
+    assert head.rstrip().endswith("not balls") and all(r.split()[-1] == "0" for r in rows), cut.stdout
+    kept = subprocess.run([*cli, "-o", str(tmp_path / "b"), "--keep-rings"], capture_output=True, text=True)
+    assert kept.returncode == 0, kept.stderr
+    notes = [ln for ln in kept.stdout.splitlines() if ln.startswith("note:") and "not balls" in ln]
+    assert len(notes) == 1 and "kept as asked (--keep-rings)" in notes[0], kept.stdout

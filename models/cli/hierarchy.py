@@ -169,11 +169,13 @@ def hierarchy_main(args) -> int:
 def format_levels(report: list[dict]) -> str:
     """The per-level report: elements (requested), ratio to the finer level (requested), holed
     elements found, holes opened by moving a path to a neighbour (threaded), ring cuts, elements split
-    into their children, pairs merged back, and pairs merged with the holes between them threaded
-    through every level (models.hierarchy.rethread)."""
+    into their children, pairs merged back, pairs merged with the holes between them threaded
+    through every level (models.hierarchy.rethread), and in 3D the elements left that are not balls."""
+    balls = any("not_balls" in r for r in report)  # (3D: elements whose cells' characteristic is not 1)
     lines = [
         f"{'level':>5}{'elements':>10}{'requested':>10}{'ratio':>7}{'wanted':>8}{'holed':>7}{'threaded':>9}"
         f"{'ring cuts':>10}{'splits':>8}{'merged':>8}{'merged+threads':>16}"
+        + (f"{'not balls':>11}" if balls else "")
     ]
     for r in report:
         req = f"{r['requested']}" if "requested" in r else "-"
@@ -181,7 +183,7 @@ def format_levels(report: list[dict]) -> str:
         lines.append(
             f"{r['level']:>5}{r['elements']:>10}{req:>10}{r['ratio']:>7.2f}{want:>8}{r['holed_elements']:>7}"
             f"{r.get('holes_threaded', 0):>9}{r['ring_cuts']:>10}{r['split_into_children']:>8}{r['merged_pairs']:>8}"
-            f"{r.get('threaded_merges', 0):>16}"
+            f"{r.get('threaded_merges', 0):>16}" + (f"{r.get('not_balls', 0):>11}" if balls else "")
         )
     return "\n".join(lines)
 
