@@ -719,10 +719,18 @@ def fix_holes(
             "merged_pairs": merged,
         }
         finer = out[L]
-    for L, r in enumerate(report):
-        below = mesh.n_cells if L + 1 == len(out) else report[L + 1]["elements"]
-        r["ratio"] = below / max(r["elements"], 1)
+    recount_report(report, out, mesh.n_cells)
     return out, polys, report
+
+
+def recount_report(report: list[dict], levels: list[np.ndarray], n_cells: int) -> None:
+    """Each level's report (coarsest first) gets its element count and its ratio to the finer level
+    (the finest level's to the cells), in place."""
+    for L, r in enumerate(report):
+        r["elements"] = int(levels[L].max()) + 1
+    for L, r in enumerate(report):
+        below = n_cells if L + 1 == len(levels) else report[L + 1]["elements"]
+        r["ratio"] = below / max(r["elements"], 1)
 
 
 def _parent(levels: list, L: int, groups: np.ndarray | None, n: int) -> np.ndarray:

@@ -273,14 +273,8 @@ def coarse_end(mesh, data, levels, polys, report, hole_pairs, plan, groups):
         new, kept = sub + new[u + 1 :], kept + got
     if not kept:
         return levels, polys, report
-    same = [np.array_equal(a, b) for a, b in zip(levels, new, strict=True)]
-    polys = [p if keep else None for p, keep in zip(polys, same, strict=True)]  # merged again where changed
-    report[0]["elements"] = int(new[0].max()) + 1
     report[0]["threaded_merges"] = kept
-    for L, r in enumerate(report):
-        below = mesh.n_cells if L + 1 == len(new) else report[L + 1]["elements"]
-        r["ratio"] = below / max(r["elements"], 1)
-    return new, polys, report
+    return new, *_changed(mesh, levels, new, polys, report)
 
 
 def _excess(levels, plan) -> int:
@@ -316,14 +310,18 @@ def _safe_coarsest(mesh, data, levels, polys, report, plan, groups, hole_pairs=N
                 break
     if not merged:
         return levels, polys, report
-    polys = [None if not np.array_equal(a, b) else p for a, b, p in zip(new, levels, polys, strict=True)]
-    for L in range(len(report)):
-        report[L]["elements"] = int(new[L].max()) + 1
     report[0]["safe_merges"] = merged
-    for L, r in enumerate(report):
-        below = mesh.n_cells if L + 1 == len(new) else report[L + 1]["elements"]
-        r["ratio"] = below / max(r["elements"], 1)
-    return new, polys, report
+    return new, *_changed(mesh, levels, new, polys, report)
+
+
+def _changed(mesh, levels, new, polys, report):
+    """(polys, report) for levels made anew: a level's polytopes dropped where it changed (merged
+    again on writing), every level's count and ratio from the new levels."""
+    from models.hierarchy.holes import recount_report
+
+    polys = [p if np.array_equal(a, b) else None for a, b, p in zip(levels, new, polys, strict=True)]
+    recount_report(report, new, mesh.n_cells)
+    return polys, report
 
 
 def _enclosing(data, units: np.ndarray, hole_pairs):
@@ -335,7 +333,10 @@ def _enclosing(data, units: np.ndarray, hole_pairs):
 
     g = data.graph
     ku = int(units.max()) + 1
-    qp, qi, _ = _quotient(g.indptr, g.indices, g.weights, units, ku)
+    if ku == units.size and np.array_equal(units, np.arange(ku)):  # the cells themselves: their own graph
+        qp, qi = g.indptr, g.indices
+    else:
+        qp, qi, _ = _quotient(g.indptr, g.indices, g.weights, units, ku)
     src = np.repeat(np.arange(ku), np.diff(qp))
     hole_id, hole_cell = (None, None) if hole_pairs is None else hole_pairs
     boundary = g.faces.cell[g.partner < 0]

@@ -130,12 +130,9 @@ def handle_elements(
     fel = labels[f.cell[fc]]
     # faces of the element's cells: one inside the element is listed twice (once per cell)
     F = (np.bincount(fel, minlength=k) + nb) // 2
-    C = np.bincount(labels, minlength=k)
-    from models.polytope.euler import cell_excess
+    from models.polytope.euler import cells_counted
 
-    ex = cell_excess(mesh, graph)  # (polyhedra read back: judged against their own characteristic)
-    if ex is not None:
-        C = C + np.bincount(labels, weights=ex, minlength=k).astype(np.int64)
+    C = cells_counted(mesh, graph, labels, k)  # (polyhedra read back: against their own characteristic)
     volume_chi = chi(fc, fel) + F - C
     if cavities:
         return cand[volume_chi[cand] < 1], cand[volume_chi[cand] > 1]

@@ -107,7 +107,6 @@ def _read_wkt(path: str):
     equal, as meshio's reader gives them. Linear in the file (meshio's regular expression has no
     exponents and backtracks for minutes on a coordinate like 6.1e-17)."""
     import meshio
-    import numpy as np
 
     name = os.path.basename(path)
     with open(path, encoding="utf-8", errors="replace") as fh:

@@ -108,9 +108,8 @@ def _euler(
     """element_euler from the incidence's element columns (correct: less the cells' cell_excess)."""
     V = np.bincount(ve, minlength=k)
     E = np.bincount(ee, minlength=k)
-    C = np.bincount(labels if cells is None else labels[cells], minlength=k)
     if mesh.dim == 2:
-        return V - E + C
+        return V - E + np.bincount(labels if cells is None else labels[cells], minlength=k)
     from models.polytope.merge import boundary_faces
 
     fel = labels[graph.faces.cell]
@@ -121,11 +120,18 @@ def _euler(
         fel, bf = fel[mine[graph.faces.cell]], bf[mine[graph.faces.cell[bf]]]
     # a face inside the element is listed once per cell: counted half each time
     F = (np.bincount(fel, minlength=k) + np.bincount(labels[graph.faces.cell[bf]], minlength=k)) // 2
-    ex = cell_excess(mesh, graph) if correct else None
+    return V - E + F - cells_counted(mesh, graph, labels, k, cells, correct)
+
+
+def cells_counted(mesh: Mesh, graph, labels: np.ndarray, k: int, cells=None, correct: bool = True):
+    """(k,) the C of V - E + F - C: each element's cells (or those of `cells`), each polyhedron counted
+    with its cell_excess where `correct` (3D), so an element is judged against its own cells."""
+    own = labels if cells is None else labels[cells]
+    C = np.bincount(own, minlength=k)
+    ex = cell_excess(mesh, graph) if correct and mesh.dim == 3 else None
     if ex is not None:
-        own = labels if cells is None else labels[cells]
         C = C + np.bincount(own, weights=ex if cells is None else ex[cells], minlength=k).astype(np.int64)
-    return V - E + F - C
+    return C
 
 
 def element_euler(mesh: Mesh, graph, labels: np.ndarray, cells: np.ndarray | None = None) -> np.ndarray:
