@@ -403,8 +403,14 @@ def test_cli_and_api_word_a_failure_identically(corpus, crashers, tmp_path):
                 continue
             assert r.status_code == 422, (path.name, r.text)
             issue = next(i for i in report["issues"] if i["kind"] == "unreadable")
-            assert r.json()["detail"] == issue["message"], (path.name, r.json()["detail"], issue["message"])
+            detail = r.json()["detail"]
             assert_sentence(issue["message"], path)
+            crashed = ["reader crashed on this file" in m for m in (detail, issue["message"])]
+            if path.suffix == ".e" and crashed[0] != crashed[1]:  # (the Exodus crasher segfaults or is
+                # refused by the heap's layout, test_library_turns_a_crash_into_a_sentence: each its own)
+                assert_sentence(detail, path)
+                continue
+            assert detail == issue["message"], (path.name, detail, issue["message"])
             compared += 1
     assert compared >= 20, compared
 
