@@ -175,6 +175,68 @@ def test_groups_of_gmsh_exports_keep_their_names(tmp_path, ext):
         assert sorted(mesh.meta["group_names"].values()) == ["body"]
 
 
+def _quadratic_with_boundary(path, dim):
+    """A model of order 2 with a volume (surface) group and a boundary group 'inlet' of one face
+    (edge) and 'walls' of the rest, written by gmsh as `path` and as MSH beside it."""
+    gmsh.initialize(readConfigFiles=False, interruptible=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        occ = gmsh.model.occ
+        occ.addBox(0, 0, 0, 1, 0.8, 0.6) if dim == 3 else occ.addRectangle(0, 0, 0, 1, 0.8)
+        occ.synchronize()
+        gmsh.model.addPhysicalGroup(dim, [1], 10, name="body")
+        sides = [t for _, t in gmsh.model.getEntities(dim - 1)]
+        gmsh.model.addPhysicalGroup(dim - 1, sides[:1], 20, name="inlet")
+        gmsh.model.addPhysicalGroup(dim - 1, sides[1:], 21, name="walls")
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.2)
+        gmsh.model.mesh.generate(dim)
+        gmsh.model.mesh.setOrder(2)
+        gmsh.write(str(path))
+        gmsh.write(str(path) + ".msh")
+    finally:
+        gmsh.finalize()
+    return str(path)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("ext", [".inp", ".cgns"])
+def test_quadratic_exports_keep_their_boundary_groups(tmp_path, ext, dim):
+    """gmsh's order-2 exports: Abaqus numbers a 3-node line end, middle, end (T3D3), where VTK and
+    meshio put the middle last, so its boundary edges matched no triangle's side (83 '1D cells are
+    no edge of any 2D cell'); CGNS families were dropped silently for quadratic sections (TETRA_10,
+    TRI_6, BAR_3). Both now have the .msh's groups, their names and sizes."""
+    if ext == ".cgns":
+        pytest.importorskip("h5py")
+        pytest.importorskip("vtk")
+    path = _quadratic_with_boundary(tmp_path / f"m{dim}{ext}", dim)
+    msh = read_mesh(path + ".msh")
+    mesh = read_mesh_cli(path) if ext == ".cgns" else read_mesh(path)
+
+    def named(m, tags, names):
+        return {names[int(t)]: int(np.count_nonzero(tags == t)) for t in np.unique(tags) if int(t) in names}
+
+    want = named(msh, msh.boundary_tags, msh.meta["boundary_names"])
+    assert set(want) == {"inlet", "walls"}
+    assert named(mesh, mesh.boundary_tags, mesh.meta["boundary_names"]) == want
+    assert sorted(mesh.meta["group_names"].values()) == ["body"]
+    assert mesh.n_cells == msh.n_cells
+    from models.mesh.check import mesh_report
+
+    kinds = [i["kind"] for i in mesh_report(mesh)["issues"]]
+    assert "mixed-dimension" not in kinds, kinds  # (every boundary edge a side of a cell)
+
+
+def test_medit_of_order_two_is_refused_by_what_it_holds(tmp_path):
+    """meshio's medit reader exits (SystemExit) on gmsh's order-2 keywords; the refusal names them
+    and says what to do, not "corrupted"."""
+    path = _quadratic_with_boundary(tmp_path / "m3.mesh", 3)
+    with pytest.raises(MeshError) as err:
+        read_mesh(path)
+    msg = str(err.value)
+    assert "m3.mesh" in msg and "TetrahedraP2" in msg and "order 1" in msg, msg
+    assert "corrupted" not in msg and "SystemExit" not in msg
+
+
 def test_gmsh_nastran_export_without_begin_bulk(tmp_path):
     """gmsh's Nastran export is bulk data only (no BEGIN BULK line, which meshio's reader looks
     for first, and refused it): read as the bulk data it is."""

@@ -325,6 +325,8 @@ def _assemble(meshio, placed, several: bool):
             pos = np.minimum(pos, ids.size - 1)
             found = ids[pos] == conn
             idx = np.where(found, pos + offset, -1)  # (a missing node: said by the mesh's checks)
+            if cell == "line3" and idx.size and found.all():
+                idx = _line3_ends_first(idx, xyz, offset)
             cells.append(meshio.CellBlock(cell, idx))
         starts = np.cumsum([0] + [len(b[1]) for b in part.blocks])
         e_order = np.argsort(elements, kind="stable")
@@ -345,6 +347,18 @@ def _assemble(meshio, placed, several: bool):
     # of every element (EALL, Set-1, an instance) never hides the materials inside it
     sets = dict(sorted(sets.items(), key=lambda kv: sum(len(x) for x in kv[1])))
     return meshio.Mesh(np.concatenate(points), cells, cell_sets=sets)
+
+
+def _line3_ends_first(idx: np.ndarray, xyz: np.ndarray, offset: int) -> np.ndarray:
+    """3-node lines as VTK and meshio number them (end, end, middle). Abaqus numbers them along the
+    line (T3D3, B32: end, middle, end; gmsh's export too), meshio's writer as VTK: the block is read
+    as the one its geometry shows, the two nodes farthest apart being the ends in most of its lines."""
+    p = xyz[idx - offset]
+    d01 = np.linalg.norm(p[:, 0] - p[:, 1], axis=1)
+    d02 = np.linalg.norm(p[:, 0] - p[:, 2], axis=1)
+    d12 = np.linalg.norm(p[:, 1] - p[:, 2], axis=1)
+    along = (d02 > d01) & (d02 > d12)  # the first and third farthest apart: the second is the middle
+    return idx[:, [0, 2, 1]] if np.count_nonzero(along) * 2 > along.size else idx
 
 
 def _per_block(members, elements, e_order, starts, at, n_blocks) -> list:

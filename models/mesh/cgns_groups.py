@@ -22,10 +22,26 @@ _TYPES = {
 }  # fmt: skip
 
 
+# higher-order CGNS codes -> the linear element on their corners (their first nodes, as in VTK)
+_CORNERS_OF = {4: 3, 24: 3, 6: 5, 8: 7, 9: 7, 11: 10, 13: 12, 21: 12, 15: 14, 16: 14, 18: 17, 19: 17}
+
+
+def _corners(code: int) -> int | None:
+    """The linear CGNS code of an element's corners (itself where linear), or None."""
+    return code if _TYPES.get(code, (0, 0, None))[2] is not None else _CORNERS_OF.get(code)
+
+
 def _linear(code: int, dim: int | None = None) -> bool:
-    """A linear element (one VTK type), of the given dimension or of a cell's (2 or 3)."""
+    """An element with a linear VTK type on its corners, of the given dimension or of a cell's (2 or
+    3): linear, or quadratic (agglomerated on its corners, its faces matched by theirs)."""
     t = _TYPES.get(code)
-    return t is not None and t[2] is not None and (t[0] == dim if dim is not None else t[0] >= 2)
+    return t is not None and _corners(code) is not None and (t[0] == dim if dim is not None else t[0] >= 2)
+
+
+def _corner_table(sec, code: int) -> np.ndarray:
+    """(elements, corners) 0-based node ids of a section's elements."""
+    conn = np.asarray(sec["ElementConnectivity"][" data"][()], dtype=np.int64).reshape(-1) - 1
+    return conn.reshape(-1, _TYPES[code][1])[:, : _TYPES[_corners(code)][1]]
 
 
 def _label(node) -> bytes:
@@ -44,12 +60,13 @@ def _children(node, label: bytes) -> list:
     return [node[k] for k in node if k != " data" and _label(node[k]) == label]
 
 
-def family_groups(path: str, conn: np.ndarray, n_cells: int):
+def family_groups(path: str, conn: np.ndarray, n_cells: int, offsets: np.ndarray | None = None):
     """(tags per VTK cell, field data {name: [id, dim]}, faces) of the zone's families, or None (not
     an HDF5 CGNS file of one unstructured zone whose sections are the cells VTK read, or no family).
-    faces: (sizes, connectivity, VTK types, tags) of the linear sections one dimension below the
-    cells (the boundary conditions' faces, which VTK's reader leaves out), or None."""
-    return _with_hdf5(path, lambda f: _groups(f, conn, n_cells))
+    faces: (sizes, connectivity, VTK types, tags) of the sections one dimension below the cells (the
+    boundary conditions' faces, which VTK's reader leaves out; quadratic ones on their corners), or
+    None. offsets: VTK's cell offsets (then quadratic cells are matched on their corners)."""
+    return _with_hdf5(path, lambda f: _groups(f, conn, n_cells, offsets))
 
 
 def _with_hdf5(path: str, look):
@@ -70,7 +87,7 @@ def _with_hdf5(path: str, look):
         return None
 
 
-def _groups(f, conn: np.ndarray, n_cells: int):
+def _groups(f, conn: np.ndarray, n_cells: int, offsets: np.ndarray | None = None):
     bases = _children(f, b"CGNSBase_t")
     if len(bases) != 1:
         return None
@@ -100,13 +117,7 @@ def _groups(f, conn: np.ndarray, n_cells: int):
     cells = sorted((s for s, d in zip(sections, dims, strict=True) if d == top), key=lambda s: s[0])
     if sum(hi - lo + 1 for lo, hi, *_ in cells) != n_cells or any(not _linear(c) for _, _, c, _, _ in cells):
         return None
-    expected = np.concatenate(
-        [
-            np.asarray(sec["ElementConnectivity"][" data"][()], dtype=np.int64).reshape(-1) - 1
-            for _, _, _, sec, _ in cells
-        ]
-    )
-    if expected.size != conn.size or not np.array_equal(expected, np.asarray(conn, dtype=np.int64)):
+    if not _same_cells(cells, conn, offsets):
         return None  # (not the cells VTK read, in its order)
     bnd = sorted(
         (s for s, d in zip(sections, dims, strict=True) if d == top - 1 and _linear(s[2], top - 1)),
@@ -150,19 +161,46 @@ def _groups(f, conn: np.ndarray, n_cells: int):
     if not field:
         return None
     lower = None
-    if bnd:
-        conn_b = np.concatenate(
-            [
-                np.asarray(sec["ElementConnectivity"][" data"][()], dtype=np.int64).reshape(-1) - 1
-                for *_, sec, _ in bnd
-            ]
+    if bnd:  # (quadratic faces on their corners: the cells' faces are matched by theirs)
+        conn_b = np.concatenate([_corner_table(sec, c).reshape(-1) for _, _, c, sec, _ in bnd])
+        sizes = np.concatenate([np.full(hi - lo + 1, _TYPES[_corners(c)][1]) for lo, hi, c, _, _ in bnd])
+        vtk_types = np.concatenate(
+            [np.full(hi - lo + 1, _TYPES[_corners(c)][2], np.uint8) for lo, hi, c, _, _ in bnd]
         )
-        sizes = np.concatenate([np.full(hi - lo + 1, _TYPES[c][1]) for lo, hi, c, _, _ in bnd])
-        vtk_types = np.concatenate([np.full(hi - lo + 1, _TYPES[c][2], np.uint8) for lo, hi, c, _, _ in bnd])
         if conn_b.size != sizes.sum() or conn_b.min(initial=0) < 0:
             return tags[:n_top], {k: v for k, v in field.items() if v[1] == top} or None, None
         lower = (sizes, conn_b, vtk_types, tags[n_top:])
     return tags[:n_top], field, lower
+
+
+def _same_cells(cells, conn: np.ndarray, offsets: np.ndarray | None) -> bool:
+    """The sections' cells are the cells VTK read, in its order: every node where all are linear, the
+    corners (each cell's first nodes in both numberings) where VTK's offsets are known."""
+    conn = np.asarray(conn, dtype=np.int64)
+    if all(_TYPES[c][2] is not None for _, _, c, _, _ in cells):
+        expected = np.concatenate(
+            [
+                np.asarray(sec["ElementConnectivity"][" data"][()], dtype=np.int64).reshape(-1) - 1
+                for *_, sec, _ in cells
+            ]
+        )
+        return expected.size == conn.size and np.array_equal(expected, conn)
+    if offsets is None:
+        return False
+    offsets = np.asarray(offsets, dtype=np.int64)
+    start = 0
+    for _, _, c, sec, _ in cells:  # a loop over sections
+        want = _corner_table(sec, c)
+        n, k = want.shape
+        if start + n > offsets.size - 1 or np.any(
+            offsets[start + 1 : start + n + 1] - offsets[start : start + n] < k
+        ):
+            return False
+        got = conn[offsets[start : start + n, None] + np.arange(k)]
+        if not np.array_equal(got, want):
+            return False
+        start += n
+    return start == offsets.size - 1
 
 
 def cgns_fault(path: str) -> str | None:

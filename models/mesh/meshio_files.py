@@ -95,7 +95,25 @@ def read_meshio(path: str, file_type: str):
         raise
     except (Exception, SystemExit) as exc:  # noqa: BLE001
         why = _why(exc, meshio)
+        high = list(dict.fromkeys(_MEDIT_HIGH.findall(_head(path)))) if file_type == "medit" else None
+        if high:  # (meshio's medit reader exits on any keyword it lacks: gmsh's order-2 export)
+            why = (
+                f"it holds {' and '.join(h.decode() for h in high)} elements (higher order), which this reader does not "
+                "read: export the mesh at order 1, or as gmsh .msh, which keeps them (agglomerated on "
+                "their corners)"
+            )
         raise MeshError(f"cannot read {name} with meshio's {file_type} reader: {why}") from None
+
+
+_MEDIT_HIGH = re.compile(
+    rb"^[ \t]*((?:Edges|Triangles|Quadrilaterals|Tetrahedra|Hexahedra|Prisms|Pyramids)[PQ][2-9])\b", re.M
+)
+
+
+def _head(path: str, size: int = 1 << 24) -> bytes:
+    """The file's first `size` bytes (a keyword search's window)."""
+    with open(path, "rb") as fh:
+        return fh.read(size)
 
 
 _WKT_RING = re.compile(r"\(\s*\(([^()]*)\)\s*\)")

@@ -172,7 +172,7 @@ def read_vtk(
     if kind == "cgns":  # its families (gmsh's physical groups), which VTK's reading does not show
         from models.mesh.cgns_groups import family_groups
 
-        fams = family_groups(path, conn, len(types))
+        fams = family_groups(path, conn, len(types), offsets)
         if fams is not None:
             tags_top, names, lower = fams
             cell_data = {"block": tags_top}
