@@ -242,6 +242,10 @@ def test_unit_euler_is_element_euler_of_the_unions():
         assert np.all(w > 0)
         top = np.arange(int(el.max()) + 1) % 3  # a level above (element -> its element): the coarser skeleton
         assert np.array_equal(ue.coarser(el)(top), element_euler(mesh, g, top[cells]))
+        # the coarser skeleton is condensed (items shared by the same elements one weighted class)
+        a, b, u, _ = ue.coarser(el).unions(top)
+        a0, b0, u0, _ = union_euler(mesh, g, top[cells])
+        assert np.array_equal(a, a0) and np.array_equal(b, b0) and np.array_equal(u, u0)
         got = level_euler(mesh, g, [top[cells], cells, units])
         assert all(
             np.array_equal(x, element_euler(mesh, g, lv))
@@ -261,6 +265,40 @@ def test_merge_safely_over_units_makes_balls():
     k = int(new.max()) + 1
     assert merged == 40 - k and k <= 6  # (a ring around the tunnel needs 2 at least)
     assert np.all(element_euler(mesh, g, new[units]) == 1)
+
+
+def test_merge_ahead_makes_balls_one_merge_at_a_time():
+    from models.polytope.euler import UnitEuler, merge_ahead
+
+    mesh, _ = _block_with_tunnel(8)
+    g, d = prepare(mesh)
+    units = agglomerate(mesh, d, model="metis", mode="kway", k=40, seed=0).labels
+    ue = UnitEuler.of_cells(mesh, g, units)
+    new, merged = merge_ahead(mesh, g, np.arange(40), 4, unions=ue.unions, width=3)
+    k = int(new.max()) + 1
+    assert merged == 40 - k and k <= 6
+    assert np.all(element_euler(mesh, g, new[units]) == 1)
+    # groups kept apart (a group per unit: the half its centroid lies in): no element across them
+    cx = np.bincount(units, weights=d.centroids[:, 0], minlength=40) / np.bincount(units, minlength=40)
+    unit_half = (cx > np.median(cx)).astype(np.int64)
+    kept, _ = merge_ahead(mesh, g, np.arange(40), 2, unions=ue.unions, keep=unit_half)
+    assert int(kept.max()) + 1 >= 2
+    assert all(np.unique(unit_half[kept == e]).size == 1 for e in range(int(kept.max()) + 1))
+
+
+def test_unique_rows_is_numpys():
+    from models.polytope.euler import UnitEuler
+
+    rng = np.random.default_rng(3)
+    t = rng.integers(-1, 6, size=(500, 4))
+    t = np.vstack([t, t[:100]])
+    rows, inv = UnitEuler._unique_rows(t)
+    r0, i0 = np.unique(t, axis=0, return_inverse=True)
+    assert np.array_equal(
+        np.sort(rows.view([("", rows.dtype)] * 4), axis=0).view(rows.dtype).reshape(-1, 4), r0
+    )
+    assert np.array_equal(rows[inv], t) and rows.shape[0] == r0.shape[0]
+    assert i0.size == inv.size
 
 
 def _tall_cup(n=10):

@@ -303,6 +303,7 @@ def _safe_coarsest(mesh, data, levels, polys, report, plan, groups, hole_pairs=N
     stalled = [L for L in range(len(new) - 1) if int(new[L].max()) + 1 > plan[L]]
     if stalled:
         for u in range(stalled[-1] + 1, min(stalled[-1] + 3, len(levels))):  # a loop over unit levels
+            # (two: from the finest aggregates the torus of 10^6 cells took 38 s and got no further)
             got = _remade_above(mesh, data, levels, u, plan, w, groups, hole_pairs)
             if got is not None and _excess(got[0], plan) < _excess(new, plan):
                 new, merged = got
@@ -372,44 +373,51 @@ def _enclosing(data, units: np.ndarray, hole_pairs):
     return forbid
 
 
+AHEAD = 256  # the most elements a level is merged from looking one merge ahead (a few seconds at 10^6 cells)
+
+
 def _remade_above(mesh, data, levels, u: int, plan, w, groups, hole_pairs=None):
     """Levels 0..u-1 made again by merging level u's elements where the union is a ball, down to each
     level's planned count in turn (finest first; a level that stops above it is kept so): (levels,
-    merges), or None where u's elements are not all balls."""
-    from models.polytope.euler import UnitEuler, merge_safely
+    merges), or None where u's elements are not all balls. Each level merges the one below's
+    elements as units (UnitEuler.coarser: their skeleton alone); a level left above its count from
+    at most AHEAD elements is merged again looking one merge ahead (merge_ahead)."""
+    from models.polytope.euler import UnitEuler, merge_ahead, merge_safely
 
     units = levels[u]
     ku = int(units.max()) + 1
-    ue = UnitEuler.of_cells(mesh, data.graph, units)
-    if not np.all(ue.chi == 1):  # (a union of units can be a ball only if they are)
+    ue0 = UnitEuler.of_cells(mesh, data.graph, units)
+    if not np.all(ue0.chi == 1):  # (a union of units can be a ball only if they are)
         return None
-    keep = None
+    keep0 = None
     if groups is not None:
-        keep = np.zeros(ku, dtype=np.int64)
-        keep[units] = groups
-    uw = np.bincount(units, weights=w, minlength=ku)
-    forbid = _enclosing(data, units, hole_pairs)
+        keep0 = np.zeros(ku, dtype=np.int64)
+        keep0[units] = groups
     best = None
     for compact in (True, False):  # compact unions first (60-80% of the pairs otherwise tangled)
-        lab, out, total = np.arange(ku), [], 0
+        cur, ue, total, out = units, ue0, 0, []  # cur: each cell's element of the level below
         for L in range(u - 1, -1, -1):  # a loop over the levels remade, finest first
+            k = int(cur.max()) + 1
+            uw = np.bincount(cur, weights=w, minlength=k)
+            keep = None
+            if keep0 is not None:
+                keep = np.zeros(k, dtype=np.int64)
+                keep[cur] = groups
             if plan[L] == 1 and keep is None:  # one element: the whole (connected) domain, a ball
                 # where the plan allows one (domain_plan), whatever unions lie on the way
-                m, lab = int(lab.max()), np.zeros_like(lab)
+                lab, m = np.zeros(k, dtype=np.int64), k - 1
             else:
-                lab, m = merge_safely(
-                    mesh,
-                    data.graph,
-                    lab,
-                    plan[L],
-                    sizes=uw,
-                    keep=keep,
-                    unions=ue.unions,
-                    compact=compact,
-                    forbid=forbid,
-                )
+                args = dict(sizes=uw, keep=keep, unions=ue.unions, forbid=_enclosing(data, cur, hole_pairs))
+                lab, m = merge_safely(mesh, data.graph, np.arange(k), plan[L], compact=compact, **args)
+                if compact and int(lab.max()) + 1 > plan[L] and k <= AHEAD:  # (once: it has no order)
+                    la, ma = merge_ahead(mesh, data.graph, np.arange(k), plan[L], **args)
+                    if la.max() < lab.max():
+                        lab, m = la, ma
             total += m
-            out.insert(0, lab[units])
+            if L:
+                ue = ue.coarser(lab)
+            cur = lab[cur]
+            out.insert(0, cur)
         got = [*out, *levels[u:]]
         if best is None or _excess(got, plan) < _excess(best[0], plan):
             best = (got, total)
