@@ -359,9 +359,9 @@ class UnitEuler:
     be judged again and again (fix_holes' rounds) at the cost of its skeleton, not of its cells.
 
     The skeleton is kept condensed: vertices (edges) shared by the same set of units are one item
-    with a weight, the faces between two units one pair with a count. A coarse level's interfaces
-    are a few hundred such classes where they hold 10^5 vertices and edges (27 cavities at 2 10^5
-    cells, 143 units: 196,573 items -> 4,051 classes)."""
+    with a weight, the faces between two units one pair with a count. 27 cavities at 2 10^5 cells,
+    143 units: 21,297 shared vertices and 69,290 shared edges (196,573 (item, unit) pairs) are 5,188
+    classes (14,867 pairs), 47,757 faces 901 pairs; a union evaluation 24 -> 2.4 ms."""
 
     def __init__(self, chi, verts, edges, faces, dim):
         # verts / edges: (item class, unit) pairs sorted by class, each class's units ascending, and
