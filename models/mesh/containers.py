@@ -205,7 +205,7 @@ def exodus_fault(path: str) -> str | None:
         for name, _, attrs, vsize, _, kind in head["vars"]
     }
     where = {name: (begin, vsize, kind) for name, _, _, vsize, begin, kind in head["vars"]}
-    return _blocks_fault(dict(head["dims"]), variables, lambda name: _int_sum(path, *where[name]))
+    return _blocks_fault(dict(head["dims"]), variables, lambda name: _int_values(path, *where[name]))
 
 
 def exodus_fault_hdf5(path: str) -> str | None:
@@ -237,25 +237,35 @@ def exodus_fault_hdf5(path: str) -> str | None:
                 attrs = {"elem_type": elem.rstrip("\0 ")} if isinstance(elem, str) else {}
                 variables[name] = (attrs, int(item.size))
                 found[name] = item
-            return _blocks_fault(dims, variables, lambda name: _dataset_sum(found[name]))
+            return _blocks_fault(dims, variables, lambda name: _dataset_values(found[name]))
     except Exception:  # noqa: BLE001  (a file h5py cannot read: VTK's reader words it)
         return None
 
 
-def _dataset_sum(item) -> int | None:
-    """The sum of an integer HDF5 dataset of at most 8 M values, or None."""
+def _dataset_values(item) -> np.ndarray | None:
+    """The values of an integer HDF5 dataset of at most 8 M values, or None."""
     if item.dtype.kind not in "iu" or item.size > (8 << 20):
         return None
-    return int(np.asarray(item[()], dtype=np.int64).sum())
+    return np.asarray(item[()], dtype=np.int64).reshape(-1)
 
 
-def _blocks_fault(dims: dict, variables: dict, int_sum) -> str | None:
+def zero_based(n_nodes: int) -> str:
+    """What is wrong with an Exodus II file whose connectivity numbers the nodes from 0."""
+    return (
+        f"its element connectivity numbers the nodes from 0, but Exodus II numbers them from 1 "
+        f"(1..{n_nodes:,}): the file was written 0-based (add 1 to every node id of its connect arrays)"
+    )
+
+
+def _blocks_fault(dims: dict, variables: dict, int_values) -> str | None:
     """An Exodus II header's element blocks checked: a block whose connectivity variable is missing,
     whose element type Exodus II does not have, whose nodes per element do not fit its type, whose
     connectivity holds fewer ids than its elements need, or (NSIDED) whose nodes per element add up
-    to another count than its connectivity's; None where nothing is wrong. dims {name: length};
-    variables {name: (attributes {name: text}, number of values or None)}; int_sum(name): the sum
-    of an integer variable, or None."""
+    to another count than its connectivity's, or whose node ids lie outside 1..num_nodes (VTK's
+    reader indexes its points with them: a 0 read past the array and crashed it, or not, as the
+    heap lay); None where nothing is wrong. dims {name: length}; variables {name: (attributes
+    {name: text}, number of values or None)}; int_values(name): an integer variable's values, or
+    None."""
     for i in range(1, dims.get("num_el_blk", 0) + 1):
         n_el = dims.get(f"num_el_in_blk{i}", 0)
         if n_el == 0 or f"facconn{i}" in variables:
@@ -269,7 +279,8 @@ def _blocks_fault(dims: dict, variables: dict, int_sum) -> str | None:
             return f"element block {i} has element type {elem[:32]!r}, which is not an Exodus II element type"
         per = dims.get(f"num_nod_per_el{i}")
         if elem[:3].upper() == "NSI" and f"ebepecnt{i}" in variables and per is not None:
-            total = int_sum(f"ebepecnt{i}")  # nodes per element, summed
+            counts = int_values(f"ebepecnt{i}")  # nodes per element
+            total = None if counts is None else int(counts.sum())
             if total is not None and total != per:
                 return (
                     f"element block {i} (NSIDED) gives its elements {total:,} nodes in all (ebepecnt{i}), "
@@ -285,11 +296,39 @@ def _blocks_fault(dims: dict, variables: dict, int_sum) -> str | None:
                 f"element block {i} is of type {elem[:32]!r} with {per} nodes per element, which that type "
                 f"does not have ({', '.join(map(str, sorted(nodes)))})"
             )
+    return _ids_fault(dims, variables, int_values)
+
+
+def _ids_fault(dims: dict, variables: dict, int_values) -> str | None:
+    """_blocks_fault's node ids: every block's connectivity within 1..num_nodes."""
+    n = dims.get("num_nodes")
+    if not n:
+        return None
+    blocks = []
+    for i in range(1, dims.get("num_el_blk", 0) + 1):  # a loop over element blocks
+        if f"connect{i}" in variables and f"facconn{i}" not in variables:
+            ids = int_values(f"connect{i}")
+            if ids is None:
+                return None  # (too large, or not integers: VTK's reader and the checks after it speak)
+            blocks.append((i, ids))
+    if not blocks:
+        return None
+    every = np.concatenate([ids for _, ids in blocks])
+    if every.size and every.min() == 0 and every.max() == n - 1 and np.count_nonzero(every == 0) <= 64:
+        return zero_based(n)  # (a block of zeros, unwritten data, is no numbering)
+    for i, ids in blocks:  # a loop over element blocks
+        bad = (ids < 1) | (ids > n)
+        if bad.any():
+            return (
+                f"element block {i}'s connectivity (connect{i}) holds node id {int(ids[bad][0]):,}, outside "
+                f"1..{n:,} (the nodes the file defines)"
+            )
     return None
 
 
-def _int_sum(path: str, begin: int, vsize: int, kind: int) -> int | None:
-    """The sum of a netCDF classic integer variable (NC_INT or NC_INT64, big-endian), or None."""
+def _int_values(path: str, begin: int, vsize: int, kind: int) -> np.ndarray | None:
+    """The values of a netCDF classic integer variable (NC_INT or NC_INT64, big-endian) of at most
+    64 MiB, or None."""
     dtype = {4: ">i4", 10: ">i8"}.get(kind)
     if dtype is None or vsize > (64 << 20):
         return None
@@ -297,7 +336,7 @@ def _int_sum(path: str, begin: int, vsize: int, kind: int) -> int | None:
         fh.seek(begin)
         raw = fh.read(vsize)
     n = len(raw) // np.dtype(dtype).itemsize
-    return int(np.frombuffer(raw[: n * np.dtype(dtype).itemsize], dtype=dtype).sum())
+    return np.frombuffer(raw[: n * np.dtype(dtype).itemsize], dtype=dtype).astype(np.int64)
 
 
 # h5py's error text -> what is wrong with an object's metadata, in our words

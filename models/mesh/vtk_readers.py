@@ -193,11 +193,9 @@ def read_vtk(
         and np.count_nonzero(conn == -1) <= 64
     ):  # (VTK subtracts 1 from the file's ids: a file numbered 0..N-1 gives -1..N-2, node 0 in a
         # few cells; a block of zeros, unwritten data, is no numbering)
-        raise MeshError(
-            f"cannot read {os.path.basename(path)} as {fmt}: its element connectivity numbers the nodes "
-            f"from 0, but Exodus II numbers them from 1 (1..{len(pts):,}): the file was written 0-based "
-            "(add 1 to every node id of its connect arrays)"
-        )
+        from models.mesh.containers import zero_based
+
+        raise MeshError(f"cannot read {os.path.basename(path)} as {fmt}: {zero_based(len(pts))}")
     grid = _lattice(data, len(types))
     live = _whole_live(data, len(types))
     del data
