@@ -246,7 +246,7 @@ def _dataset_values(item) -> np.ndarray | None:
     """The values of an integer HDF5 dataset of at most 8 M values, or None."""
     if item.dtype.kind not in "iu" or item.size > (8 << 20):
         return None
-    return np.asarray(item[()], dtype=np.int64).reshape(-1)
+    return np.asarray(item[()]).reshape(-1)  # (its own integer type: no copy)
 
 
 def zero_based(n_nodes: int) -> str:
@@ -313,8 +313,12 @@ def _ids_fault(dims: dict, variables: dict, int_values) -> str | None:
             blocks.append((i, ids))
     if not blocks:
         return None
-    every = np.concatenate([ids for _, ids in blocks])
-    if every.size and every.min() == 0 and every.max() == n - 1 and np.count_nonzero(every == 0) <= 64:
+    lo = [int(ids.min(initial=1)) for _, ids in blocks]
+    hi = [int(ids.max(initial=1)) for _, ids in blocks]
+    if min(lo) >= 1 and max(hi) <= n:
+        return None
+    zeros = sum(int(np.count_nonzero(ids == 0)) for _, ids in blocks) if min(lo) == 0 else 0
+    if min(lo) == 0 and max(hi) == n - 1 and zeros <= 64:
         return zero_based(n)  # (a block of zeros, unwritten data, is no numbering)
     for i, ids in blocks:  # a loop over element blocks
         bad = (ids < 1) | (ids > n)
