@@ -215,6 +215,31 @@ def test_a_holed_domain_is_never_planned_as_one_element(plate):
     assert plain["notes"] == []
 
 
+def test_each_piece_with_a_tunnel_is_planned_two_elements():
+    """Two separate pipes and a block: each pipe needs two elements (one would be a ring), the block
+    one, so no level has fewer than 5; the domain's tunnels were counted once (4 planned, a level
+    that could not be met: two linked tori got 4 coarsest for 3 planned)."""
+    from models.graph.csr import connected_components
+    from models.hierarchy.plan import domain_plan
+    from models.hierarchy.topology import piece_genus
+
+    p, tet = _pipe_tets(0.2)
+    n = len(p)
+    q, blk = p + [2.0, 0, 0], tet + n  # a second pipe beside the first
+    r = _gmsh_cells(lambda occ: occ.addBox(-3, -0.5, 0, 1, 1, 1), 0.25, 3, 4, 4)
+    pts = np.vstack([p, q, r[0]])
+    mesh = mesh_from_arrays(pts, [("tetra", np.vstack([tet, blk, r[1] + 2 * n]))])
+    graph, data = prepare(mesh)
+    pieces, body = connected_components(data.graph.indptr, data.graph.indices)
+    assert pieces == 3
+    assert sorted(piece_genus(mesh, graph, body, pieces).tolist()) == [0, 1, 1]
+    _, least, why, _ = domain_plan(mesh, data)
+    assert least == 5 and "3 separate pieces" in why, (least, why)
+    levels, info = build_hierarchy(mesh, data, model="rtree", ratio=8, coarsest=2)
+    assert info["requested"][0] == 5 and int(levels[0].max()) + 1 == 5, info["requested"]
+    assert is_nested(levels)
+
+
 def test_threading_opens_a_hole_without_a_new_element():
     """An element that alone surrounds a hole of the domain: a path of the finer level's elements from
     the hole to a neighbour moves to that neighbour; the count stays, the hole lies between two

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from models.hierarchy.topology import domain_genus, domain_holes, fewest_elements
+from models.hierarchy.topology import domain_genus, domain_holes, fewest_elements, piece_genus
 from models.mesh.celldata import CellData
 from models.mesh.container import Mesh
 
@@ -21,7 +21,13 @@ def domain_plan(mesh: Mesh, data: CellData):
 
     hole_pairs = domain_holes(mesh, data)
     tunnels = mesh.dim == 3 and domain_genus(mesh, data.graph) > 0
-    least, why = fewest_elements(data, hole_pairs, tunnels)
+    per_piece = tunnels
+    if tunnels:  # (each piece with a tunnel needs two elements)
+        from models.graph.csr import connected_components
+
+        pieces, body = connected_components(data.graph.indptr, data.graph.indices)
+        per_piece = piece_genus(mesh, data.graph, body, pieces) if pieces > 1 else True
+    least, why = fewest_elements(data, hole_pairs, per_piece)
     stretch = STRETCH if (hole_pairs[0].size or tunnels) else 0.0
     return hole_pairs, least, why, stretch
 

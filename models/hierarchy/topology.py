@@ -52,17 +52,22 @@ def domain_holes(mesh: Mesh, data: CellData) -> tuple[np.ndarray, np.ndarray]:
 
 
 def fewest_elements(
-    data: CellData, hole_pairs: tuple[np.ndarray, np.ndarray], tunnels: bool = False
+    data: CellData, hole_pairs: tuple[np.ndarray, np.ndarray], tunnels=False
 ) -> tuple[int, str]:
     """The fewest elements a level of this domain can have: one per connected piece, two for a piece
-    with a hole (one element would enclose it) or, in 3D, a domain with a tunnel (one element would
-    be a ring); and why, in words ("" where that is 1)."""
+    with a hole (one element would enclose it) or, in 3D, with a tunnel (one element would be a
+    ring; tunnels: each piece's genus, piece_genus, or True: some piece has one); and why, in words
+    ("" where that is 1). Two linked tori: 4 (3 before: a tunnel was counted once for the domain)."""
     from models.graph.csr import connected_components
 
     pieces, body = connected_components(data.graph.indptr, data.graph.indices)
-    holed = int(np.unique(body[hole_pairs[1]]).size) if hole_pairs[1].size else 0
-    if tunnels and not holed:
-        holed = 1
+    with_hole = np.zeros(pieces, dtype=bool)
+    with_hole[body[hole_pairs[1]]] = True
+    if isinstance(tunnels, np.ndarray):  # (3D: the pieces' genus: each piece with a tunnel needs 2)
+        with_hole |= tunnels[:pieces] > 0
+    elif tunnels and not with_hole.any():
+        with_hole[0] = True
+    holed = int(np.count_nonzero(with_hole))
     why = []
     if pieces > 1:
         why.append(f"the mesh has {pieces} separate pieces")
@@ -165,3 +170,32 @@ def domain_genus(mesh: Mesh, graph, with_shells: bool = False):
     chi = used.size - E + bf.size
     genus = max(int(round((2 * S - chi) / 2)), 0)
     return (genus, int(S)) if with_shells else genus
+
+
+def piece_genus(mesh: Mesh, graph, body: np.ndarray, pieces: int) -> np.ndarray:
+    """3D: the genus of each connected piece's boundary shells, summed (domain_genus per piece; body:
+    each cell's piece)."""
+    from models.graph.csr import connected_components
+    from models.mesh.geometry import next_in_cycle
+    from models.polytope.merge import face_nodes
+
+    out = np.zeros(pieces, dtype=np.int64)
+    bf = np.flatnonzero(graph.partner < 0)
+    if bf.size == 0:
+        return out
+    fo, nodes = face_nodes(graph.faces, bf)
+    piece_of = np.repeat(body[graph.faces.cell[bf]], np.diff(fo)).astype(np.int64)
+    u, v = nodes, nodes[next_in_cycle(fo)]
+    n = np.int64(mesh.n_points)
+    a, b = np.r_[u, v].astype(np.int64), np.r_[v, u].astype(np.int64)
+    order = np.argsort(a, kind="stable")
+    indptr = np.zeros(int(n) + 1, dtype=np.int64)
+    np.cumsum(np.bincount(a, minlength=int(n)), out=indptr[1:])
+    shells = connected_components(indptr, b[order])[1].astype(np.int64)
+    V = np.bincount(np.unique(piece_of * n + nodes) // n, minlength=pieces)
+    E = np.bincount(
+        np.unique((piece_of * n + np.minimum(u, v)) * n + np.maximum(u, v)) // (n * n), minlength=pieces
+    )
+    F = np.bincount(body[graph.faces.cell[bf]], minlength=pieces)
+    S = np.bincount(np.unique(piece_of * n + shells[nodes]) // n, minlength=pieces)
+    return np.maximum(np.rint((2 * S - (V - E + F)) / 2).astype(np.int64), 0)
