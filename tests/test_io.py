@@ -284,6 +284,21 @@ def test_degenerate_cells():
         mesh_from_arrays(p, [("triangle", t)])
 
 
+def test_tiny_cells_of_a_graded_mesh_are_not_degenerate():
+    """Cells far smaller than the domain but well shaped (a mesh graded 1000:1 toward a corner has
+    tetrahedra of 3e-14 in a unit box) are kept; a flat cell of the same size is not. Before, both
+    fell under the 1e-14-of-the-box threshold and the 13 small ones were left out."""
+    p, t = tets(2)
+    tiny = p * 2e-5 + 0.5  # the same tetrahedra, 50,000 times smaller, inside the box
+    pts = np.vstack([p, tiny])
+    mesh = mesh_from_arrays(pts, [("tetra", np.vstack([t, t + len(p)]))])
+    assert mesh.n_cells == 2 * len(t)
+    flat = tiny.copy()
+    flat[:, 2] = 0.5  # the small copy crushed flat
+    with pytest.raises(MeshError, match="degenerate"):
+        mesh_from_arrays(np.vstack([p, flat]), [("tetra", np.vstack([t, t + len(p)]))])
+
+
 def test_1d_mesh():
     p = np.column_stack([np.linspace(0, 1, 5), np.zeros(5)])
     with pytest.raises(MeshError, match="1D"):

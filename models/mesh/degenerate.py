@@ -7,6 +7,21 @@ import numpy as np
 from models.mesh.container import Mesh
 
 
+def sized(mesh: Mesh, vol: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """Of the cells `ids` (tiny beside the domain), those whose measure is above 1e-6 of their own
+    box's diagonal to the dimension: small cells of a graded mesh, not flat ones."""
+    from models.mesh.cells import ranges
+
+    sizes = mesh.offsets[ids + 1] - mesh.offsets[ids]
+    ids, sizes = ids[sizes > 0], sizes[sizes > 0]
+    if ids.size == 0:
+        return ids
+    pts = mesh.points[mesh.connectivity[ranges(mesh.offsets[ids], sizes)]]
+    start = np.r_[0, np.cumsum(sizes)[:-1]]
+    ext = np.maximum.reduceat(pts, start, axis=0) - np.minimum.reduceat(pts, start, axis=0)
+    return ids[np.abs(vol[ids]) > 1e-6 * np.linalg.norm(ext, axis=1) ** mesh.dim]
+
+
 def point_text(p: np.ndarray) -> str:
     """A point's coordinates as a sentence shows them: (x, y, z), 6 digits."""
     return "(" + ", ".join(f"{float(v):.6g}" for v in p) + ")"
