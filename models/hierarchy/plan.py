@@ -43,9 +43,14 @@ def said_off_plan(levels, report: list[dict], coarsest: int, notes: list[str], b
     k0 = int(levels[0].max()) + 1
     top = report[0] if report else {}
     if k0 > coarsest and (top.get("ring_cuts") or top.get("split_into_children")):
+        what = (
+            "surround a hole"
+            if balls is None or balls[0].dim == 2
+            else "not be balls (rings around a tunnel or a neighbour, or around a cavity)"
+        )
         notes.append(
             f"the coarsest level has {k0} elements, more than --coarsest {coarsest}: elements that would "
-            "surround a hole were cut and could not all be merged back"
+            f"{what} were cut and could not all be merged back"
         )
     elif k0 > coarsest and k0 > top.get(
         "requested", coarsest
