@@ -179,6 +179,35 @@ def test_binary_and_foreign_files_are_refused_in_one_sentence(tmp_path):
     assert "\n" not in str(err.value)
 
 
+def test_a_zone_type_its_rows_do_not_fit_is_said(tmp_path):
+    """meshio's Tecplot writer, given triangles then tetrahedra, writes the tetrahedra as 8-node rows
+    under ZONETYPE = FEQUADRILATERAL; VTK's reader reads quads and then fails: the refusal says the
+    header does not fit the data (it was "corrupted or not a Tecplot file")."""
+    import meshio
+    from meshes import tets
+
+    from models.mesh.sandbox import read_mesh_safe
+
+    p, t = tets(3)
+    faces = np.sort(t[:, [0, 1, 2]], axis=1)[:10]
+    path = tmp_path / "mixed.dat"
+    with _quiet():  # (meshio prints that it skips the triangles)
+        meshio.write(str(path), meshio.Mesh(p, [("triangle", faces), ("tetra", t)]), file_format="tecplot")
+    assert "FEQUADRILATERAL" in path.read_text()
+    with pytest.raises(MeshError) as err:
+        read_mesh_safe(str(path))
+    msg = str(err.value)
+    assert msg.startswith("cannot read mixed.dat as Tecplot: its zone is FEQUADRILATERAL (4 nodes"), msg
+    assert "rows hold 8 node ids" in msg, msg
+
+
+def _quiet():
+    import contextlib
+    import io
+
+    return contextlib.redirect_stdout(io.StringIO())
+
+
 def test_tecplot_mutants_are_a_mesh_or_one_clear_sentence(tmp_path):
     """The mutation test (tests/mutants.py) over an ordered and an FE Tecplot file, read in the
     sandbox as the service reads: a Mesh, or one sentence naming the file and the format with no

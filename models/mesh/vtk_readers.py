@@ -387,6 +387,8 @@ def _run(path: str, kind: str, fmt: str | None = None):
             from models.mesh.legacy import legacy_shortfall
 
             said = legacy_shortfall(path, None) or said
+        if kind == "tecplot":  # a zone type its rows do not fit (meshio's writer, tetrahedra beside
+            said = _tecplot_rows(path) or said  # triangles: FEQUADRILATERAL of 8-node rows)
         if kind in _XML_KINDS:  # the XML's own fault where VTK said no place; another kind of XML always
             found = xml_fault(path, "Xdmf" if kind == "xdmf" else "VTKFile")
             if found and (" (at " not in said or not found.startswith("its XML is malformed")):
@@ -564,6 +566,43 @@ def xml_fault(path: str, root: str | None = None) -> str | None:
     if first[0].lower() == "html":  # (HTML need not be well-formed XML: this says more than its fault)
         return f"it is a web page (HTML), not {what} file: was a download page saved instead of the mesh?"
     return f"its root element is <{first[0][:40]}>, not <{root}>: it is not {what} file"
+
+
+_TECPLOT_NODES = {"FETRIANGLE": 3, "FEQUADRILATERAL": 4, "FETETRAHEDRON": 4, "FEBRICK": 8}
+_TECPLOT_TYPE = {"TRIANGLE": 3, "QUADRILATERAL": 4, "TETRAHEDRON": 4, "BRICK": 8}
+
+
+def _tecplot_rows(path: str) -> str | None:
+    """Where VTK's Tecplot reader failed on a file of one finite-element zone: its declared element
+    type against the node ids the file's last row holds (a zone's connectivity comes last, one
+    element a line as writers write it), or None."""
+    try:
+        with open(path, "rb") as fh:
+            text = fh.read(1 << 24).decode("latin-1")
+    except OSError:
+        return None
+    zones = re.findall(r"(?im)^\s*ZONE\b(.*(?:\n(?!\s*[-+.\d]).*)*)", text)
+    if len(zones) != 1:
+        return None
+    head = zones[0].upper()
+    m = re.search(r"ZONETYPE\s*=\s*(FE[A-Z]+)", head)
+    declared = _TECPLOT_NODES.get(m.group(1)) if m else None
+    if m is None:
+        m = re.search(r"\bET\s*=\s*([A-Z]+)", head)
+        declared = _TECPLOT_TYPE.get(m.group(1)) if m else None
+    rows = [line.split() for line in text.strip().splitlines()[-3:]]
+    counts = {len(r) for r in rows}
+    if declared is None or len(counts) != 1 or not all(w.isdigit() for r in rows for w in r):
+        return None
+    held = counts.pop()
+    if held == declared:
+        return None
+    kind = m.group(1)
+    return (
+        f"its zone is {kind} ({declared} nodes an element), but its connectivity rows hold {held} node ids: "
+        "the header does not fit the data (meshio's Tecplot writer writes tetrahedra so beside triangles: "
+        "write the volume cells alone, or another format)"
+    )
 
 
 def explain(text: str, what: str) -> str:
