@@ -248,6 +248,10 @@ def test_short_data_vtk_reads_without_a_word_is_refused(tmp_path):
     swallowed.write_bytes(_binary_hexes(17))
     with pytest.raises(MeshError, match=r"declares 2 cells \(CELLS\) but its cell list holds 1"):
         read_mesh_safe(str(swallowed))
+    from models.mesh.legacy import _binary_cells
+
+    with open(swallowed, "rb") as fh:  # (found by a seek past the points, not a scan of the file)
+        assert _binary_cells(fh, fh.read(4096)).group(1) == b"2"
     grid = ["# vtk DataFile Version 3.0", "g", "ASCII", "DATASET STRUCTURED_GRID", "DIMENSIONS 3 2 2"]
     grid += ["POINTS 12 float", *[f"{x} {y} {z}" for z in (0, 1) for y in (0, 1) for x in (0, 1, 2)]]
     whole = tmp_path / "grid.vtk"

@@ -251,6 +251,24 @@ _NEXT_SECTION = re.compile(
 )
 
 
+_POINT_BYTES = {b"float": 4, b"double": 8}
+
+
+def _binary_cells(fh, head: bytes):
+    """The CELLS header of a binary legacy file, found right after its points (POINTS n float|double:
+    3 n values, big-endian), or None (another layout: the caller scans)."""
+    pts = re.search(rb"(?im)^[ \t]*POINTS[ \t]+(\d+)[ \t]+(\w+)[ \t]*\r?\n", head)
+    if pts is None or pts.group(2).lower() not in _POINT_BYTES:
+        return None
+    at = pts.end() + 3 * int(pts.group(1)) * _POINT_BYTES[pts.group(2).lower()]
+    fh.seek(at)
+    window = fh.read(512)
+    found = _HDR_CELLS.search(window)
+    if found is None or window[: found.start()].strip():  # (only blank bytes before it)
+        return None
+    return found
+
+
 def legacy_shortfall(path: str, n_cells_read: int | None) -> str | None:
     """What a legacy VTK file declares that VTK's reader did not find, which it reads without a word:
     fewer cells than CELLS declares (a cell's damaged node count swallows the cells after it), or in
@@ -259,10 +277,16 @@ def legacy_shortfall(path: str, n_cells_read: int | None) -> str | None:
     try:
         size = os.path.getsize(path)
         with open(path, "rb") as fh:
-            head = fh.read(min(size, 16 << 20))
+            head = fh.read(min(size, 4096))
+            lines = head[:1024].splitlines()
+            ascii_ = len(lines) > 2 and lines[2].strip().upper() == b"ASCII"
+            found = None if ascii_ else _binary_cells(fh, head)  # (a seek past the points: no scan)
+            if found is None:
+                fh.seek(0)
+                head = fh.read(min(size, 16 << 20))
+                found = _HDR_CELLS.search(head)
     except OSError:
         return None
-    found = _HDR_CELLS.search(head)
     if found is not None and n_cells_read is not None:
         declared = int(found.group(1))
         version = _HDR_VERSION.search(head[:256])
