@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from models.hierarchy.topology import domain_genus, domain_holes, fewest_elements, piece_genus
+from models.hierarchy.topology import domain_holes, fewest_elements, piece_genus
 from models.mesh.celldata import CellData
 from models.mesh.container import Mesh
 
@@ -17,17 +17,14 @@ def domain_plan(mesh: Mesh, data: CellData):
     shorter, so that the coarsest level is near --coarsest (its elements then surround fewer holes);
     elsewhere no step shorter than asked (round ten: on the 2D family at 10^5 the shorter steps cost
     1.08 -> 1.11 operator complexity)."""
+    from models.graph.csr import connected_components
     from models.partition.rtree import STRETCH
 
     hole_pairs = domain_holes(mesh, data)
-    tunnels = mesh.dim == 3 and domain_genus(mesh, data.graph) > 0
-    per_piece = tunnels
-    if tunnels:  # (each piece with a tunnel needs two elements)
-        from models.graph.csr import connected_components
-
-        pieces, body = connected_components(data.graph.indptr, data.graph.indices)
-        per_piece = piece_genus(mesh, data.graph, body, pieces) if pieces > 1 else True
-    least, why = fewest_elements(data, hole_pairs, per_piece)
+    pieces, body = connected_components(data.graph.indptr, data.graph.indices)
+    genus = piece_genus(mesh, data.graph, body, pieces) if mesh.dim == 3 else None  # (a piece with a
+    tunnels = genus is not None and bool(genus.any())  # tunnel needs two elements)
+    least, why = fewest_elements(data, hole_pairs, genus, (pieces, body))
     stretch = STRETCH if (hole_pairs[0].size or tunnels) else 0.0
     return hole_pairs, least, why, stretch
 

@@ -52,21 +52,20 @@ def domain_holes(mesh: Mesh, data: CellData) -> tuple[np.ndarray, np.ndarray]:
 
 
 def fewest_elements(
-    data: CellData, hole_pairs: tuple[np.ndarray, np.ndarray], tunnels=False
+    data: CellData, hole_pairs: tuple[np.ndarray, np.ndarray], genus=None, components=None
 ) -> tuple[int, str]:
     """The fewest elements a level of this domain can have: one per connected piece, two for a piece
     with a hole (one element would enclose it) or, in 3D, with a tunnel (one element would be a
-    ring; tunnels: each piece's genus, piece_genus, or True: some piece has one); and why, in words
-    ("" where that is 1). Two linked tori: 4 (3 before: a tunnel was counted once for the domain)."""
+    ring; genus: each piece's, piece_genus); and why, in words ("" where that is 1). Two linked
+    tori: 4 (3 before: a tunnel was counted once for the domain). components: (pieces, each cell's
+    piece) where the caller has them."""
     from models.graph.csr import connected_components
 
-    pieces, body = connected_components(data.graph.indptr, data.graph.indices)
+    pieces, body = components or connected_components(data.graph.indptr, data.graph.indices)
     with_hole = np.zeros(pieces, dtype=bool)
     with_hole[body[hole_pairs[1]]] = True
-    if isinstance(tunnels, np.ndarray):  # (3D: the pieces' genus: each piece with a tunnel needs 2)
-        with_hole |= tunnels[:pieces] > 0
-    elif tunnels and not with_hole.any():
-        with_hole[0] = True
+    if genus is not None:
+        with_hole |= genus[:pieces] > 0
     holed = int(np.count_nonzero(with_hole))
     why = []
     if pieces > 1:
@@ -148,45 +147,31 @@ def domain_genus(mesh: Mesh, graph, with_shells: bool = False):
     """3D: the summed genus of the domain's boundary shells (a torus 1, a block with two crossing
     tunnels 2; 0 for a ball, a box with cavities): (2 S - (V - E + F)) / 2 over its boundary faces.
     with_shells: (genus, S), S the number of boundary shells (above 1: cavities or separate pieces)."""
+    genus, shells = piece_genus(mesh, graph, with_shells=True)
+    return (int(genus[0]), int(shells[0])) if with_shells else int(genus[0])
+
+
+def piece_genus(
+    mesh: Mesh, graph, body: np.ndarray | None = None, pieces: int = 1, with_shells: bool = False
+):
+    """3D: the genus of each connected piece's boundary shells, summed ((pieces,); body: each cell's
+    piece, None: the domain as one), and with_shells the number of shells of each too."""
     from models.graph.csr import connected_components
     from models.mesh.geometry import next_in_cycle
     from models.polytope.merge import face_nodes
 
     bf = np.flatnonzero(graph.partner < 0)
     if bf.size == 0:
-        return (0, 0) if with_shells else 0
+        zero = np.zeros(pieces, dtype=np.int64)
+        return (zero, zero.copy()) if with_shells else zero
     fo, nodes = face_nodes(graph.faces, bf)
-    u, v = nodes, nodes[next_in_cycle(fo)]
-    n = mesh.n_points
-    used = np.unique(nodes)
-    # the boundary's edges as a CSR over the points (the compiled union-find: no scipy import in a run)
-    a, b = np.r_[u, v].astype(np.int64), np.r_[v, u].astype(np.int64)
-    order = np.argsort(a, kind="stable")
-    indptr = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(np.bincount(a, minlength=n), out=indptr[1:])
-    shells = connected_components(indptr, b[order])[1]
-    S = np.unique(shells[used]).size
-    E = np.unique(np.minimum(u, v) * np.int64(n) + np.maximum(u, v)).size
-    chi = used.size - E + bf.size
-    genus = max(int(round((2 * S - chi) / 2)), 0)
-    return (genus, int(S)) if with_shells else genus
-
-
-def piece_genus(mesh: Mesh, graph, body: np.ndarray, pieces: int) -> np.ndarray:
-    """3D: the genus of each connected piece's boundary shells, summed (domain_genus per piece; body:
-    each cell's piece)."""
-    from models.graph.csr import connected_components
-    from models.mesh.geometry import next_in_cycle
-    from models.polytope.merge import face_nodes
-
-    out = np.zeros(pieces, dtype=np.int64)
-    bf = np.flatnonzero(graph.partner < 0)
-    if bf.size == 0:
-        return out
-    fo, nodes = face_nodes(graph.faces, bf)
-    piece_of = np.repeat(body[graph.faces.cell[bf]], np.diff(fo)).astype(np.int64)
+    face_piece = (
+        np.zeros(bf.size, dtype=np.int64) if body is None else body[graph.faces.cell[bf]].astype(np.int64)
+    )
+    piece_of = np.repeat(face_piece, np.diff(fo))
     u, v = nodes, nodes[next_in_cycle(fo)]
     n = np.int64(mesh.n_points)
+    # the boundary's edges as a CSR over the points (the compiled union-find: no scipy import in a run)
     a, b = np.r_[u, v].astype(np.int64), np.r_[v, u].astype(np.int64)
     order = np.argsort(a, kind="stable")
     indptr = np.zeros(int(n) + 1, dtype=np.int64)
@@ -196,6 +181,7 @@ def piece_genus(mesh: Mesh, graph, body: np.ndarray, pieces: int) -> np.ndarray:
     E = np.bincount(
         np.unique((piece_of * n + np.minimum(u, v)) * n + np.maximum(u, v)) // (n * n), minlength=pieces
     )
-    F = np.bincount(body[graph.faces.cell[bf]], minlength=pieces)
+    F = np.bincount(face_piece, minlength=pieces)
     S = np.bincount(np.unique(piece_of * n + shells[nodes]) // n, minlength=pieces)
-    return np.maximum(np.rint((2 * S - (V - E + F)) / 2).astype(np.int64), 0)
+    genus = np.maximum(np.rint((2 * S - (V - E + F)) / 2).astype(np.int64), 0)
+    return (genus, S) if with_shells else genus

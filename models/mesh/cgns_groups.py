@@ -177,13 +177,8 @@ def _same_cells(cells, conn: np.ndarray, offsets: np.ndarray | None) -> bool:
     """The sections' cells are the cells VTK read, in its order: every node where all are linear, the
     corners (each cell's first nodes in both numberings) where VTK's offsets are known."""
     conn = np.asarray(conn, dtype=np.int64)
-    if all(_TYPES[c][2] is not None for _, _, c, _, _ in cells):
-        expected = np.concatenate(
-            [
-                np.asarray(sec["ElementConnectivity"][" data"][()], dtype=np.int64).reshape(-1) - 1
-                for *_, sec, _ in cells
-            ]
-        )
+    if all(_TYPES[c][2] is not None for _, _, c, _, _ in cells):  # (linear: their corners are all)
+        expected = np.concatenate([_corner_table(sec, c).reshape(-1) for _, _, c, sec, _ in cells])
         return expected.size == conn.size and np.array_equal(expected, conn)
     if offsets is None:
         return False

@@ -243,7 +243,7 @@ def _simple(data: bytes):
 
 
 _HDR_CELLS = re.compile(rb"(?im)^[ \t]*CELLS[ \t]+(\d+)[ \t]+(\d+)")
-_HDR_POINTS = re.compile(rb"(?im)^[ \t]*POINTS[ \t]+(\d+)[ \t]+\w+[ \t]*\r?$")
+_HDR_POINTS = re.compile(rb"(?im)^[ \t]*POINTS[ \t]+(\d+)[ \t]+(\w+)[ \t]*\r?$")
 _HDR_VERSION = re.compile(rb"#\s*vtk DataFile Version\s+(\d+)", re.I)
 _NEXT_SECTION = re.compile(
     rb"(?im)^[ \t]*(CELLS|CELL_TYPES|POINT_DATA|CELL_DATA|METADATA|FIELD|POLYGONS|LINES|VERTICES|"
@@ -257,10 +257,10 @@ _POINT_BYTES = {b"float": 4, b"double": 8}
 def _binary_cells(fh, head: bytes):
     """The CELLS header of a binary legacy file, found right after its points (POINTS n float|double:
     3 n values, big-endian), or None (another layout: the caller scans)."""
-    pts = re.search(rb"(?im)^[ \t]*POINTS[ \t]+(\d+)[ \t]+(\w+)[ \t]*\r?\n", head)
-    if pts is None or pts.group(2).lower() not in _POINT_BYTES:
+    pts = _HDR_POINTS.search(head)
+    if pts is None or pts.group(2).lower() not in _POINT_BYTES or head[pts.end() : pts.end() + 1] != b"\n":
         return None
-    at = pts.end() + 3 * int(pts.group(1)) * _POINT_BYTES[pts.group(2).lower()]
+    at = pts.end() + 1 + 3 * int(pts.group(1)) * _POINT_BYTES[pts.group(2).lower()]
     fh.seek(at)
     window = fh.read(512)
     found = _HDR_CELLS.search(window)
@@ -297,8 +297,7 @@ def legacy_shortfall(path: str, n_cells_read: int | None) -> str | None:
                 f"it declares {declared:,} cells (CELLS) but its cell list holds {n_cells_read:,}: the file "
                 "is corrupted (a cell's node count is wrong, and the cells after it were read as its nodes)"
             )
-    lines = head[:1024].splitlines()
-    if size <= (16 << 20) and len(lines) > 2 and lines[2].strip().upper() == b"ASCII":
+    if size <= (16 << 20) and ascii_:
         pts = _HDR_POINTS.search(head)
         if pts is not None:
             n = int(pts.group(1))

@@ -28,6 +28,13 @@ def _owned(keys: np.ndarray, owner: np.ndarray, k: int) -> tuple[np.ndarray, np.
     return u // kk, u % kk
 
 
+def _runs(items: np.ndarray):
+    """Runs of equal (sorted) items: (each run's start, its length, each entry's position in its run)."""
+    start = np.flatnonzero(np.r_[True, items[1:] != items[:-1]])
+    cnt = np.diff(np.r_[start, items.size])
+    return start, cnt, np.arange(items.size) - np.repeat(start, cnt)
+
+
 def _pairs_per_item(items: np.ndarray, els: np.ndarray, k: int, weights: np.ndarray | None = None):
     """Keys a * k + b (a < b) of the element pairs sharing each item, one per item they share
     (items sorted, each (item, element) once). With weights (one per (item, element) entry, the
@@ -35,9 +42,7 @@ def _pairs_per_item(items: np.ndarray, els: np.ndarray, k: int, weights: np.ndar
     if items.size == 0:
         z = np.zeros(0, dtype=np.int64)
         return z if weights is None else (z, np.zeros(0))
-    start = np.flatnonzero(np.r_[True, items[1:] != items[:-1]])
-    cnt = np.diff(np.r_[start, items.size])
-    pos = np.arange(items.size) - np.repeat(start, cnt)  # position within the item's run
+    start, cnt, pos = _runs(items)
     room = np.repeat(cnt, cnt) - pos  # entries from here to the run's end
     out, ws = [], []
     kk = np.int64(k)
@@ -377,9 +382,7 @@ class UnitEuler:
         items, units = items[m], units[m]
         if items.size == 0:
             return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0)
-        start = np.flatnonzero(np.r_[True, items[1:] != items[:-1]])
-        cnt = np.diff(np.r_[start, items.size])
-        pos = np.arange(items.size) - np.repeat(start, cnt)
+        start, cnt, pos = _runs(items)
         table = np.full((start.size, int(cnt.max())), -1, dtype=np.int64)
         table[np.repeat(np.arange(start.size), cnt), pos] = units  # each item's units, one row
         w = np.ones(start.size) if weight is None else weight[items[start]]
@@ -477,12 +480,8 @@ class UnitEuler:
         vk, vw = _pairs_per_item(kv // kk, kv % kk, K, wv)
         ek, ew = _pairs_per_item(ke // kk, ke % kk, K, we)
         if self.dim == 3:
-            a, b = coarse[self.f[0]], coarse[self.f[1]]
-            s = a != b
-            key, inv = sorted_unique(
-                np.minimum(a[s], b[s]) * kk + np.maximum(a[s], b[s]), return_inverse=True
-            )
-            count = np.bincount(inv, weights=self.f[2][s], minlength=key.size)
+            lo, hi, count = self._face_pairs(coarse[self.f[0]], coarse[self.f[1]], self.f[2])
+            key = lo * kk + hi
             share = _weight_at(key, vk, vw) - _weight_at(key, ek, ew) + count
         else:
             key = sorted_unique(ek)
@@ -496,12 +495,13 @@ class UnitEuler:
         coarse = np.asarray(coarse, dtype=np.int64)
         K = int(coarse.max()) + 1
         kk = np.int64(K)
+        counted = self._counted(coarse, K)
         skel = []
-        for (key, _, _), (_, _, w) in zip(self._counted(coarse, K), (self.v, self.e), strict=True):
+        for (key, _, _), (_, _, w) in zip(counted, (self.v, self.e), strict=True):
             # each fine class is one coarse item (weight w) held by the elements its units are in
             skel.append(self._condensed(key // kk, key % kk, w))
-        a, b = coarse[self.f[0]], coarse[self.f[1]]
-        return UnitEuler(self(coarse), skel[0], skel[1], self._face_pairs(a, b, self.f[2]), self.dim)
+        faces = self._face_pairs(coarse[self.f[0]], coarse[self.f[1]], self.f[2])
+        return UnitEuler(self._chi(coarse, K, counted), skel[0], skel[1], faces, self.dim)
 
 
 def level_euler(mesh: Mesh, graph, levels: list) -> list[np.ndarray]:
