@@ -619,11 +619,9 @@ def _drop_repeated(mesh: Mesh) -> bool:
 
 
 def _degenerate(mesh: Mesh, vol: np.ndarray, bounds=None) -> np.ndarray:
-    """(C,) True where a cell's measure is below 1e-14 of the bounding box's and also flat for its own
-    size (below 1e-6 of its own box's diagonal to the dimension: a cell of a mesh graded 1000:1 is
-    small beside the domain, not flat; 13 of 123,479 such tetrahedra were left out) (bounds: the
-    points' (min, max) per coordinate, where the caller has them); MeshError when all points
-    coincide."""
+    """(C,) True where a cell's measure is below 1e-14 of the bounding box's and flat for its own size
+    too (degenerate.sized: a 1000:1 graded mesh's cells are small, not flat) (bounds: the points'
+    (min, max) per coordinate, where the caller has them); MeshError when all points coincide."""
     lo, hi = _bounds(mesh.points) if bounds is None else bounds
     scale = float(np.linalg.norm(hi - lo)) ** mesh.dim
     if scale == 0:
@@ -646,8 +644,7 @@ def refuse_degenerate(mesh: Mesh, vol: np.ndarray, bounds=None, degenerate=None)
         from models.mesh.degenerate import corners, far_point
 
         far = far_point(mesh)
-        if far is not None:  # one point far from the rest: its cells flat for their size (every cell
-            # beside the box, before cells were judged by their own size too)
+        if far is not None:  # one point far from the rest: its cells flat for their size
             raise MeshError(far)
         hint = {  # --weld only helps where a cell's corners are distinct points at one place
             "coincident": "remove them (or merge their coincident points with --weld) and retry",
