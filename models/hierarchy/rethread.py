@@ -311,9 +311,24 @@ def _safe_coarsest(mesh, data, levels, polys, report, plan, groups, hole_pairs=N
                 new, merged = got
             if _excess(new, plan) == 0:
                 break
-    if not merged:
+    repaired = 0
+    if stalled and _excess(new, plan) and groups is None:
+        # merging is stuck: every union of neighbours has a handle. The levels above a finer unit
+        # level cut anew and repaired into balls (models.hierarchy.repair; a few seeds: each
+        # repair is a local search)
+        from models.hierarchy.repair import TRIES, balls_above
+
+        u = min(stalled[-1] + 2, len(levels) - 1)
+        for seed in range(TRIES):  # a loop over the seeds tried
+            got = balls_above(mesh, data, levels, u, plan, hole_pairs, seed=seed)
+            if got is not None and _excess(got, plan) < _excess(new, plan):
+                new, repaired = got, u
+                break
+    if not merged and not repaired:
         return levels, polys, report
     report[0]["safe_merges"] = merged
+    if repaired:
+        report[0]["repaired_from_level"] = repaired
     return new, *_changed(mesh, levels, new, polys, report)
 
 

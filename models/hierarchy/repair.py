@@ -1,0 +1,366 @@
+"""Coarse 3D levels made balls by moving units between neighbouring elements (issue 24, round
+seventeen).
+
+Where a 3D coarsest level stalls above its count, merging whole elements cannot go further: at the
+stall every union of neighbours has a handle (graded 100:1 cube, 9 coarsest for 6: of the 2^9 - 1
+unions of its elements, only the singletons and the whole domain are balls). The handles are made
+where elements are cut from jagged units (aggregates of aggregates): a unit of one element reaches
+around a unit of another and touches its own element again along an edge. Even the plane sweeps of
+the finest aggregates have them (half a cube by aggregate centroids: characteristic -1 to -5).
+
+So the levels above a unit level are cut anew (METIS k-way of the units, each element's share of
+the next level inside it) and repaired: single units move to a neighbouring element of the same
+parent where that lowers the total of handles and cavities (Euler characteristics of the elements
+before and after, from the units' shared skeleton, `UnitEuler`), each move checked exactly (the
+element connected, its complement connected: no cavity), sideways moves allowed a while under a
+tabu. The levels stay nested: only units of the level below move, inside their parent.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+BAD = 1 << 20  # an element in pieces
+KICKS = 40  # moves up (one more handle or cavity) a repair may make
+TENURE = 15  # moves before a unit moved may move again
+TRIES = 3  # seeds of the METIS cut and of the repair's tie-breaks tried
+
+
+class Judge:
+    """The topology of a set of units: 1 + cavities - chi = handles + cavities (0: a ball) of a
+    connected set, None for one in pieces. Cavities: pieces of the set's complement, the outside
+    and the domain's own cavities included (an augmented graph: units, one outside node, a node per
+    cavity)."""
+
+    def __init__(self, qp, qi, outer: np.ndarray, cav_id: np.ndarray, cav_unit: np.ndarray):
+        import scipy.sparse as sp
+
+        ku = qp.size - 1
+        nc = int(cav_id.max()) + 1 if cav_id.size else 0
+        src = np.r_[np.repeat(np.arange(ku), np.diff(qp)), np.flatnonzero(outer), cav_unit]
+        dst = np.r_[qi, np.full(int(np.count_nonzero(outer)), ku), ku + 1 + cav_id]
+        n = ku + 1 + nc
+        a = sp.csr_matrix(
+            (np.ones(2 * src.size, dtype=np.int8), (np.r_[src, dst], np.r_[dst, src])), shape=(n, n)
+        )
+        a.sum_duplicates()
+        self.ap, self.ai, self.n = a.indptr.astype(np.int64), a.indices.astype(np.int64), n
+
+    def __call__(self, units: np.ndarray, chi: int):
+        from models.graph.csr import connected_components
+
+        if units.size == 0:
+            return None
+        lab = np.ones(self.n, dtype=np.int64)
+        lab[units] = 0
+        _, comp = connected_components(self.ap, self.ai, labels=lab)
+        if np.unique(comp[units]).size != 1:
+            return None
+        lab[units] = -1
+        cavities = np.unique(comp[lab > 0]).size - 1
+        return 1 + cavities - int(chi) + cavities
+
+
+def _by_unit(items: np.ndarray, units: np.ndarray, ku: int):
+    """CSR of each unit's items: (ptr, items)."""
+    o = np.argsort(units, kind="stable")
+    return np.searchsorted(units[o], np.arange(ku + 1)), items[o]
+
+
+class Repair:
+    """Moves of single units between neighbouring elements towards balls (module docstring)."""
+
+    def __init__(self, ue, qp, qi, qw, judge: Judge, size: np.ndarray, outer: np.ndarray):
+        ku = qp.size - 1
+        self.ue, self.qp, self.qi, self.qw, self.judge, self.size, self.ku = ue, qp, qi, qw, judge, size, ku
+        self.outer = outer  # units on the domain's outer boundary (the way out of any element)
+        # per item kind (vertices +1, edges -1): each unit's classes, each class's units, weights
+        self.kinds = []
+        for (cls, un, w), sign in ((ue.v, 1.0), (ue.e, -1.0)):
+            ptr, mine = _by_unit(cls, un, ku)
+            cptr = np.searchsorted(cls, np.arange(w.size + 1))  # (pairs sorted by class)
+            self.kinds.append((ptr, mine, cptr, un, sign * w))
+        a, b, c = ue.f
+        ends, other = np.r_[a, b], np.r_[b, a]
+        o = np.argsort(ends, kind="stable")
+        self.fptr = np.searchsorted(ends[o], np.arange(ku + 1))
+        self.fnb, self.fct = other[o], np.r_[c, c][o]
+
+    def subset(self, units: np.ndarray) -> Repair:
+        """The same for unions of some units only (sorted), numbered in their order: the children of
+        one element (a ball) of the level above. Their complements' way out: the domain's outer
+        boundary or any unit outside them."""
+        from models.polytope.euler import UnitEuler
+
+        at = np.full(self.ku, -1, dtype=np.int64)
+        at[units] = np.arange(units.size)
+        skel = []
+        for cls, un, w in (self.ue.v, self.ue.e):
+            m = at[un] >= 0
+            keep, inv = np.unique(cls[m], return_inverse=True)
+            skel.append((inv.ravel(), at[un[m]], w[keep]))
+        a, b, c = self.ue.f
+        m = (at[a] >= 0) & (at[b] >= 0)
+        ue = UnitEuler(self.ue.chi[units], skel[0], skel[1], (at[a[m]], at[b[m]], c[m]), self.ue.dim)
+        from models.mesh.cells import ranges
+
+        ip, ix, iw = _induced(self.qp, self.qi, units, self.ku, self.qw)
+        deg = self.qp[units + 1] - self.qp[units]
+        away = at[self.qi[ranges(self.qp[units], deg)]] < 0  # a neighbour outside them
+        outer = self.outer[units] | (
+            np.bincount(np.repeat(np.arange(units.size), deg)[away], minlength=units.size) > 0
+        )
+        empty = np.zeros(0, dtype=np.int64)
+        return Repair(ue, ip, ix, iw, Judge(ip, ix, outer, empty, empty), self.size[units], outer)
+
+    def run(self, lab: np.ndarray, lo, hi, maxit=3000, side_max=800, top=40, seed=0):
+        """Repair `lab` (an element per unit, compact) in place where it can: (labels, the total of
+        handles and cavities left, moves made). lo / hi: the sizes an element may have."""
+        ku, size = self.ku, self.size
+        K = int(lab.max()) + 1
+        if max(self.kinds[0][4].size, self.kinds[1][4].size, ku) * K > 3 * 10**7:  # (dense: coarse levels)
+            return lab, None, 0
+        import scipy.sparse as sp
+
+        # per kind: each class's count of units in each element; g1 / g2 [u, E]: the signed weight of
+        # u's classes held by at least one / two units of E (what u shares with E, with E less u)
+        cnts, g1, g2 = [], np.zeros((ku, K)), np.zeros((ku, K))
+        for _, _, cptr, un, w in self.kinds:
+            cnt = np.zeros((w.size, K), dtype=np.int32)
+            cls = np.repeat(np.arange(w.size), np.diff(cptr))
+            np.add.at(cnt, (cls, lab[un]), 1)
+            inc = sp.csr_matrix((np.ones(un.size), (un, cls)), shape=(ku, w.size))
+            g1 += inc @ (w[:, None] * (cnt >= 1))
+            g2 += inc @ (w[:, None] * (cnt >= 2))
+            cnts.append(cnt)
+        fcnt = np.zeros((ku, K))
+        np.add.at(fcnt, (np.repeat(np.arange(ku), np.diff(self.fptr)), lab[self.fnb]), self.fct)
+        chi = self.ue(lab)
+        cx = np.array([self._exact(np.flatnonzero(lab == e), chi[e]) for e in range(K)])
+        esize = np.bincount(lab, weights=size, minlength=K)
+        tabu = np.full(ku, -1)
+        rng = np.random.default_rng(seed)
+        src = np.repeat(np.arange(ku), np.diff(self.qp))
+        best, side, kicks, moves, it = (int(cx.sum()), lab.copy()), 0, 0, 0, 0
+        for it in range(maxit):  # a loop over moves (each vectorized over the candidates)
+            D = int(cx.sum())
+            if D < best[0]:
+                best = (D, lab.copy())
+            if D == 0:
+                break
+            bad = cx > 0
+            m = (lab[src] != lab[self.qi]) & (bad[lab[src]] | bad[lab[self.qi]])
+            key = np.unique(src[m] * np.int64(K) + lab[self.qi[m]])
+            cu, cB = key // K, key % K
+            cA = lab[cu]
+            ok = (esize[cA] - size[cu] >= lo) & (esize[cB] + size[cu] <= hi) & (tabu[cu] < it)
+            cu, cA, cB = cu[ok], cA[ok], cB[ok]
+            if cu.size == 0:
+                break
+            dA, dB = self._deltas(cu, cA, cB, g1, g2, fcnt)
+            # a lower bound of the total after each move: |1 - chi| <= handles + cavities
+            low = D - cx[cA] - cx[cB] + np.abs(1 - chi[cA] - dA) + np.abs(1 - chi[cB] - dB)
+            order = np.lexsort((rng.random(cu.size), low))
+            order = order[low[order] <= D + 1][:top]
+            pick = None
+            for i in order:  # a loop over the best candidates, each checked exactly
+                if pick is not None and low[i] >= pick[0]:
+                    break  # (sorted by their bound: none further on does better)
+                u, A, B = cu[i], cA[i], cB[i]
+                lab[u] = B
+                ca = self._exact(np.flatnonzero(lab == A), chi[A] + dA[i])
+                cb = self._exact(np.flatnonzero(lab == B), chi[B] + dB[i]) if ca < BAD else BAD
+                lab[u] = A
+                e = D - cx[A] - cx[B] + ca + cb
+                if pick is None or e < pick[0]:
+                    pick = (e, i, ca, cb)
+                if e < D or e == low[i]:
+                    break
+            if pick is None or pick[0] > D + 1:
+                break
+            e, i, ca, cb = pick
+            if e >= D:  # sideways (or, a few times, one up: out of a dead end)
+                side += 1 if e == D else 0
+                kicks += 1 if e > D else 0
+                if side > side_max or kicks > KICKS:
+                    break
+            u, A, B = int(cu[i]), int(cA[i]), int(cB[i])
+            self._move(u, A, B, lab, cnts, g1, g2, fcnt)
+            chi[A] += dA[i]
+            chi[B] += dB[i]
+            cx[A], cx[B] = ca, cb
+            esize[A] -= size[u]
+            esize[B] += size[u]
+            tabu[u] = it + TENURE
+            moves += 1
+        D = int(cx.sum())
+        if D < best[0]:
+            best = (D, lab.copy())
+        return best[1], best[0], moves
+
+    def _exact(self, units, chi):
+        j = self.judge(units, chi)
+        return BAD if j is None else int(j)
+
+    def _deltas(self, cu, cA, cB, g1, g2, fcnt):
+        """Each candidate move's change of chi of its element A (u leaves) and of B (u joins):
+        chi(A - u) = chi(A) - chi(u) + chi(u n (A - u)), chi(B + u) = chi(B) + chi(u) - chi(u n B)."""
+        chi_u = self.ue.chi[cu].astype(np.float64)
+        dA = -chi_u + g2[cu, cA] + fcnt[cu, cA]
+        dB = chi_u - g1[cu, cB] - fcnt[cu, cB]
+        return np.rint(dA).astype(np.int64), np.rint(dB).astype(np.int64)
+
+    def _move(self, u, A, B, lab, cnts, g1, g2, fcnt):
+        """u from A to B: the counts, g1 / g2 of the units sharing its classes, fcnt of its neighbours."""
+        lab[u] = B
+        for (ptr, mine, cptr, un, w), cnt in zip(self.kinds, cnts, strict=True):
+            c = mine[ptr[u] : ptr[u + 1]]
+            for el, step in ((A, -1), (B, 1)):
+                before = cnt[c, el]
+                cnt[c, el] += step
+                # the classes whose count crosses 1 (g1) or 2 (g2) at el
+                for g, at in ((g1, 1), (g2, 2)):
+                    hit = c[before == (at if step < 0 else at - 1)]
+                    if hit.size:
+                        ln = cptr[hit + 1] - cptr[hit]
+                        pos = (
+                            np.arange(int(ln.sum()))
+                            - np.repeat(np.cumsum(ln) - ln, ln)
+                            + np.repeat(cptr[hit], ln)
+                        )
+                        np.add.at(g, (un[pos], np.full(pos.size, el)), step * np.repeat(w[hit], ln))
+        nb, ct = self.fnb[self.fptr[u] : self.fptr[u + 1]], self.fct[self.fptr[u] : self.fptr[u + 1]]
+        np.add.at(fcnt, (nb, np.full(nb.size, A)), -ct)
+        np.add.at(fcnt, (nb, np.full(nb.size, B)), ct)
+
+
+def _kway(qp, qi, qw, units, ku: int, k: int, size: np.ndarray, seed: int) -> np.ndarray:
+    """METIS k-way of the graph the units induce, their cells balanced, the faces cut fewest (edge
+    weights: the shared faces' measures, scaled to integers): smoother sides, fewer pinches."""
+    import warnings
+
+    import pymetis
+
+    from models.partition.metis import integer_weights
+
+    ip, ix, iw = _induced(qp, qi, units, ku, qw)
+    dt = pymetis.zero_copy_dtype()
+    adj = pymetis.CSRAdjacency(ip.astype(dt), ix.astype(dt))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        res = pymetis.part_graph(
+            k,
+            adj,
+            vweights=integer_weights(size).astype(dt),
+            eweights=integer_weights(iw).astype(dt),
+            options=pymetis.Options(seed=seed),
+        )
+    return np.asarray(res.vertex_part, dtype=np.int64)
+
+
+def _induced(qp, qi, units: np.ndarray, ku: int, qw=None):
+    """CSR of the graph the given units induce, numbered in their order (and its weights)."""
+    at = np.full(ku, -1, dtype=np.int64)
+    at[units] = np.arange(units.size)
+    deg = qp[units + 1] - qp[units]
+    from models.mesh.cells import ranges
+
+    nb = at[qi[ranges(qp[units], deg)]]
+    row = np.repeat(np.arange(units.size), deg)
+    keep = nb >= 0
+    ip = np.zeros(units.size + 1, dtype=np.int64)
+    np.cumsum(np.bincount(row[keep], minlength=units.size), out=ip[1:])
+    if qw is None:
+        return ip, nb[keep]
+    return ip, nb[keep], qw[ranges(qp[units], deg)][keep]
+
+
+def _shares(size: np.ndarray, n: int) -> np.ndarray:
+    """n parts given out by size, at least one each (largest remainders)."""
+    q = size / size.sum() * n
+    a = np.maximum(np.floor(q).astype(np.int64), 1)
+    while a.sum() > n:  # a loop over the parts taken back (few)
+        a[np.argmax(np.where(a > 1, a - q, -np.inf))] -= 1
+    while a.sum() < n:  # a loop over the parts given (few)
+        a[np.argmax(q - a)] += 1
+    return a
+
+
+def unit_repair(mesh, data, units: np.ndarray, hole_pairs=None) -> Repair | None:
+    """A Repair of unions of the given units (a unit per cell), or None where they are not all
+    balls. Sizes: cells per unit."""
+    from models.partition.rtree import _quotient
+    from models.polytope.euler import UnitEuler
+
+    g = data.graph
+    ku = int(units.max()) + 1
+    ue = UnitEuler.of_cells(mesh, g, units)
+    if not np.all(ue.chi == 1):
+        return None
+    qp, qi, qw = _quotient(g.indptr, g.indices, g.weights, units, ku)
+    outer = np.zeros(ku, dtype=bool)
+    outer[units[g.faces.cell[g.partner < 0]]] = True
+    cav_id = cav_unit = np.zeros(0, dtype=np.int64)
+    if hole_pairs is not None and hole_pairs[1].size:
+        outer[units[hole_pairs[1]]] = False  # (a cavity's side is no way out)
+        cav = np.unique(hole_pairs[0] * np.int64(ku) + units[hole_pairs[1]])
+        cav_id, cav_unit = cav // ku, cav % ku
+    size = np.bincount(units, minlength=ku).astype(np.float64)
+    return Repair(ue, qp, qi, qw, Judge(qp, qi, outer, cav_id, cav_unit), size, outer)
+
+
+SLACK = 0.4  # an element may hold 1 -+ SLACK times its share of the cells while it is repaired
+
+
+def _children(rep: Repair, k: int, seed: int, tries: int = 1) -> np.ndarray | None:
+    """k balls made of all of rep's units (METIS k-way, connected, repaired; `tries` seeds): a label
+    per unit, or None where a handle or a cavity is left."""
+    from models.mesh.celldata import compact_labels
+    from models.partition.rtree import make_connected
+
+    if k == 1:
+        return np.zeros(rep.ku, dtype=np.int64)
+    everything = np.arange(rep.ku)
+    for s in range(seed, seed + tries):  # a loop over seeds (a repair is a local search)
+        lab = _kway(rep.qp, rep.qi, rep.qw, everything, rep.ku, k, rep.size, s)
+        lab, _ = make_connected(rep.qp, rep.qi, rep.qw, lab, measures=rep.size)
+        lab = compact_labels(lab)
+        mean = rep.size.sum() / (int(lab.max()) + 1)
+        lab, left, _ = rep.run(lab, (1 - SLACK) * mean, (1 + SLACK) * mean, seed=s)
+        if left == 0:
+            return lab
+    return None
+
+
+def balls_above(mesh, data, levels, u: int, plan, hole_pairs=None, seed: int = 0):
+    """Levels 0..u-1 cut anew from level u's elements (METIS k-way, each element's share of the next
+    level inside it) and repaired into balls (Repair): the levels, or None where u's elements are not
+    all balls or a level keeps a handle or a cavity."""
+    units = np.asarray(levels[u], dtype=np.int64)
+    if u < 1:
+        return None
+    rep = unit_repair(mesh, data, units, hole_pairs)
+    if rep is None:
+        return None
+    everything = np.arange(rep.ku)
+    if rep._exact(everything, int(rep.ue(np.zeros(rep.ku, dtype=np.int64))[0])) > int(plan[0]):
+        # more tunnels and cavities than coarsest elements: opening one takes a path of moves that
+        # change nothing until the last (120 voxel cavities, 10 coarsest: 71 left after 818 moves)
+        return None
+    ku = rep.ku
+    prev, out = np.zeros(ku, dtype=np.int64), []
+    for L in range(u):  # a loop over the levels made again, coarsest first
+        kp = int(prev.max()) + 1
+        n = _shares(np.bincount(prev, weights=rep.size, minlength=kp), int(plan[L])) if L else [int(plan[0])]
+        lab, nxt = np.empty(ku, dtype=np.int64), 0
+        for e in range(kp):  # a loop over the elements of the level above: each one's children apart
+            mine = np.flatnonzero(prev == e)
+            sub = rep if L == 0 else rep.subset(mine)
+            got = _children(sub, int(n[e]), seed, 1 if L == 0 else TRIES)  # (level 0: the caller's seeds)
+            if got is None:
+                return None
+            lab[mine] = nxt + got
+            nxt += int(got.max()) + 1
+        out.append(lab)
+        prev = lab
+    return [lv[units] for lv in out] + list(levels[u:])

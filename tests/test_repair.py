@@ -1,0 +1,71 @@
+"""Coarse 3D levels repaired into balls (models.hierarchy.repair): single units moved between
+neighbouring elements until no element has a handle or a cavity; levels cut anew above a unit level
+that way stay nested and meet their counts."""
+
+import numpy as np
+from meshes import hexes
+
+from models.graph.csr import connected_components
+from models.hierarchy.repair import balls_above, unit_repair
+from models.mesh.read import mesh_from_arrays
+from models.pipeline import prepare
+from models.polytope.euler import element_euler
+
+
+def _grid(n):
+    p, h = hexes(n)
+    mesh = mesh_from_arrays(p, [("hexahedron", h)])
+    _, data = prepare(mesh)
+    ijk = np.floor(data.centroids * n).astype(int)
+    return mesh, data, ijk
+
+
+def _balls(rep, lab):
+    chi = rep.ue(lab)
+    return [rep.judge(np.flatnonzero(lab == e), chi[e]) for e in range(int(lab.max()) + 1)]
+
+
+def test_a_ring_and_the_rest_around_it_are_repaired_into_two_balls():
+    # 6 x 6 x 6 cubes: element 1 a ring of cells around the central column at two heights, element 0
+    # the rest (it runs through the ring and holds it in a cavity: a handle and a cavity, chi 1)
+    mesh, data, ijk = _grid(6)
+    i, j, k = ijk.T
+    ring = (i >= 1) & (i <= 4) & (j >= 1) & (j <= 4) & (k >= 2) & (k <= 3)
+    ring &= ~((i >= 2) & (i <= 3) & (j >= 2) & (j <= 3))
+    lab = ring.astype(np.int64)
+    rep = unit_repair(mesh, data, np.arange(mesh.n_cells))
+    assert element_euler(mesh, data.graph, lab).tolist() == [1, 0]
+    assert _balls(rep, lab) == [2, 1]
+    got, left, moves = rep.run(lab.copy(), 0, mesh.n_cells)
+    assert left == 0 and moves > 0
+    assert _balls(rep, got) == [0, 0]
+    assert element_euler(mesh, data.graph, got).tolist() == [1, 1]
+
+
+def test_a_move_that_would_enclose_a_cavity_is_not_a_ball():
+    # element 1: a hollow 3 x 3 x 3 shell of cells around one cell of element 0 (chi 2: a cavity)
+    mesh, data, ijk = _grid(5)
+    i, j, k = ijk.T
+    shell = np.all((ijk >= 1) & (ijk <= 3), axis=1) & ~((i == 2) & (j == 2) & (k == 2))
+    lab = shell.astype(np.int64)
+    rep = unit_repair(mesh, data, np.arange(mesh.n_cells))
+    assert _balls(rep, lab)[1] == 1  # one cavity
+    assert _balls(rep, lab)[0] is None  # the enclosed cell is cut off from the rest of element 0
+
+
+def test_levels_cut_anew_above_a_unit_level_are_nested_balls_of_the_planned_counts():
+    mesh, data, ijk = _grid(10)
+    units = (ijk // 2) @ np.array([25, 5, 1])  # 125 units of 2 x 2 x 2 cells
+    plan = [3, 17, 125]
+    levels = [np.zeros(mesh.n_cells, dtype=np.int64)] * 2 + [units]
+    got = balls_above(mesh, data, levels, 2, plan)
+    assert got is not None
+    assert [int(lv.max()) + 1 for lv in got] == plan
+    for lv in got:
+        assert np.all(element_euler(mesh, data.graph, lv) == 1)
+        assert connected_components(data.graph.indptr, data.graph.indices, labels=lv)[0] == int(lv.max()) + 1
+    for coarse, fine in zip(got[:-1], got[1:], strict=True):  # each element inside one of the level above
+        pairs = np.unique(fine * np.int64(1000) + coarse)
+        assert np.unique(pairs // 1000).size == pairs.size
+    rep = unit_repair(mesh, data, units)
+    assert all(c == 0 for c in _balls(rep, got[0][np.unique(units, return_index=True)[1]]))
