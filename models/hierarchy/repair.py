@@ -320,12 +320,19 @@ def _children(rep: Repair, k: int, seed: int, tries: int = 1) -> np.ndarray | No
 
     if k == 1:
         return np.zeros(rep.ku, dtype=np.int64)
+    if k > rep.ku:
+        return None
     everything = np.arange(rep.ku)
     for s in range(seed, seed + tries):  # a loop over seeds (a repair is a local search)
-        lab = _kway(rep.qp, rep.qi, rep.qw, everything, rep.ku, k, rep.size, s)
+        try:
+            lab = _kway(rep.qp, rep.qi, rep.qw, everything, rep.ku, k, rep.size, s)
+        except RuntimeError:  # (pymetis' METIS_ERROR: the merges' levels stay)
+            return None
         lab, _ = make_connected(rep.qp, rep.qi, rep.qw, lab, measures=rep.size)
         lab = compact_labels(lab)
-        mean = rep.size.sum() / (int(lab.max()) + 1)
+        if int(lab.max()) + 1 != k:  # (a part METIS left empty)
+            continue
+        mean = rep.size.sum() / k
         lab, left, _ = rep.run(lab, (1 - SLACK) * mean, (1 + SLACK) * mean, seed=s)
         if left == 0:
             return lab
