@@ -70,7 +70,8 @@ def vtk_copy(path: str):
     (CRLF and tabs made it die), the element groups and boundary conditions left out (we read them
     from the file itself; a group or condition VTK's reader did not expect killed it: a count off
     by one, an empty name, values after the faces) and the header's NGRPS and NBSETS set to 0,
-    gmsh's repeated ENDOFSECTION lines made one."""
+    gmsh's repeated ENDOFSECTION lines made one. Yields (the copy's path, the file's own bytes):
+    gambit_cells reads the groups from those, so the file is read once."""
     import shutil
     import tempfile
 
@@ -78,25 +79,24 @@ def vtk_copy(path: str):
     try:
         copy = os.path.join(folder, os.path.basename(path))
         with open(path, "rb") as fh:
-            data = fh.read()
-        data = data.replace(b"\r\n", b"\n").replace(b"\t", b" ")
+            raw = fh.read()
+        data = raw.replace(b"\r\n", b"\n").replace(b"\t", b" ")
         data = _SETS.sub(b"", REPEATED_END.sub(b"ENDOFSECTION\n", data))
         data = _COUNTS.sub(lambda m: m.group(1) + b"0" + m.group(2) + b"0", data, count=1)
         with open(copy, "wb") as out:
             out.write(data)
-        yield copy
+        yield copy, raw
     finally:
         shutil.rmtree(folder, ignore_errors=True)
 
 
-def gambit_cells(path: str, pts, offsets, conn, types, cell_data: dict, field: dict, meta: dict):
-    """VTK's arrays of a Gambit file with its node order, groups and boundary conditions (the
-    module's note): (offsets, conn, types, cell_data, field), the boundary faces appended as cells
-    of one dimension less with their group in cell_data's boundary tags; notes in meta."""
+def gambit_cells(data: bytes, pts, offsets, conn, types, cell_data: dict, field: dict, meta: dict):
+    """VTK's arrays of a Gambit file (data: its bytes, vtk_copy's) with its node order, groups and
+    boundary conditions (the module's note): (offsets, conn, types, cell_data, field), the boundary
+    faces appended as cells of one dimension less with their group in cell_data's boundary tags;
+    notes in meta."""
     from models.mesh.cells import DIM, with_boundary_faces
-    from models.mesh.mapped import file_bytes
 
-    data = file_bytes(path)
     offsets = np.asarray(offsets, dtype=np.int64)
     types = np.asarray(types, dtype=np.uint8)
     n, dim = len(types), int(DIM[types].max(initial=2))

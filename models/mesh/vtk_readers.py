@@ -120,7 +120,7 @@ def read_vtk(
     if kind == "gambit":
         from models.mesh.gambit import vtk_copy
 
-        with vtk_copy(path) as clean:
+        with vtk_copy(path) as (clean, raw):
             data = _run(clean, kind, fmt)
     else:
         data = _run(path, kind, fmt)
@@ -183,7 +183,7 @@ def read_vtk(
         from models.mesh.gambit import gambit_cells
 
         offsets, conn, types, cell_data, field = gambit_cells(
-            path, pts, offsets, conn, types, cell_data, field, meta
+            raw, pts, offsets, conn, types, cell_data, field, meta
         )
     elif (
         kind == "exodus"
