@@ -383,37 +383,35 @@ def _block_with_square_hole(n=30, hole=10):
 
 def test_a_stalled_3d_coarse_end_is_made_again_from_finer_elements(monkeypatch):
     """METIS on a block with a square hole (an outside sweep's mesh): with rings cut, the coarsest
-    level stalled at 17 elements for 10, its neighbours' unions tangled; made again from the level
-    below's elements it stays at 17, from level 2's elements (levels 1 and 0 merged down from them
-    in turn, so still nested) it reaches the plan, every element a ball. Where that merging is not
-    tried, the levels cut anew and repaired into balls reach it too."""
+    level stalled at 17 elements for 10, its neighbours' unions tangled. Levels 0 and 1 cut anew
+    from level 2's elements and repaired into balls reach the plan (models.hierarchy.repair). Without
+    the repair, levels 1 and 0 merged down from level 2's elements in turn (so still nested) reach
+    it too, and from the level below's elements alone they stay at 17."""
     import models.hierarchy.repair as repair
     import models.hierarchy.rethread as rethread
     from models.polytope.euler import element_euler
 
     mesh = _block_with_square_hole()
     graph, data = prepare(mesh)
+
+    def sound(levels, info):
+        assert [int(lv.max()) + 1 for lv in levels] == info["requested"] and is_nested(levels)
+        for lv in levels:
+            assert np.all(element_euler(mesh, graph, lv) == 1)
+
     levels, info = build_hierarchy(mesh, data, model="metis", coarsest=10)
-    assert [int(lv.max()) + 1 for lv in levels] == info["requested"] and is_nested(levels)
-    assert info["report"][0].get("safe_merges", 0) > 0
-    for lv in levels:
-        assert np.all(element_euler(mesh, graph, lv) == 1)
+    sound(levels, info)
+    assert info["report"][0]["repaired_from_level"] == 2
+    monkeypatch.setattr(repair, "balls_above", lambda *a, **k: None)
+    merged, info = build_hierarchy(mesh, data, model="metis", coarsest=10)
+    sound(merged, info)
+    assert info["report"][0].get("safe_merges", 0) > 0 and "repaired_from_level" not in info["report"][0]
     made = rethread._remade_above
     monkeypatch.setattr(
         rethread, "_remade_above", lambda m, d, lv, u, *a: None if u > 1 else made(m, d, lv, u, *a)
     )
-    balls = repair.balls_above
-    monkeypatch.setattr(repair, "balls_above", lambda *a, **k: None)
     short, _ = build_hierarchy(mesh, data, model="metis", coarsest=10)
     assert int(short[0].max()) + 1 > 10  # level 1's elements alone do not reach it
-    # where merging stays short, levels 0 and 1 are cut anew from level 2's elements and repaired
-    # into balls (models.hierarchy.repair): the plan, nested, every element a ball
-    monkeypatch.setattr(repair, "balls_above", balls)
-    fixed, info = build_hierarchy(mesh, data, model="metis", coarsest=10)
-    assert [int(lv.max()) + 1 for lv in fixed] == info["requested"] and is_nested(fixed)
-    assert info["report"][0]["repaired_from_level"] == 2
-    for lv in fixed:
-        assert np.all(element_euler(mesh, graph, lv) == 1)
 
 
 def test_cli_counts_the_elements_that_are_not_balls(tmp_path):

@@ -344,8 +344,8 @@ def balls_above(mesh, data, levels, u: int, plan, hole_pairs=None, seed: int = 0
     level inside it) and repaired into balls (Repair): the levels, or None where u's elements are not
     all balls or a level keeps a handle or a cavity."""
     units = np.asarray(levels[u], dtype=np.int64)
-    if u < 1:
-        return None
+    if u < 1 or (hole_pairs is not None and np.unique(hole_pairs[0]).size > int(plan[0])):
+        return None  # (more cavities than coarsest elements: below)
     rep = unit_repair(mesh, data, units, hole_pairs)
     if rep is None:
         return None

@@ -301,7 +301,22 @@ def _safe_coarsest(mesh, data, levels, polys, report, plan, groups, hole_pairs=N
     )
     new = [new0, *levels[1:]]
     stalled = [L for L in range(len(new) - 1) if int(new[L].max()) + 1 > plan[L]]
-    if stalled:
+    repaired = 0
+    if stalled and groups is None:
+        # merging is stuck: at the stall every union of neighbours has a handle. The levels above a
+        # finer unit level (the one below the finest level stalled) cut anew and repaired into balls
+        # (models.hierarchy.repair; a few seeds: each repair is a local search), before merging
+        # again from finer units: a torus of 932,084 cells 4 coarsest for 4 where merging stayed at
+        # 43-45, at a third of its time
+        from models.hierarchy.repair import TRIES, balls_above
+
+        u = min(stalled[-1] + 2, len(levels) - 1)
+        for seed in range(TRIES):  # a loop over the seeds tried
+            got = balls_above(mesh, data, levels, u, plan, hole_pairs, seed=seed)
+            if got is not None and _excess(got, plan) < _excess(new, plan):
+                new, repaired, merged = got, u, 0
+                break
+    if stalled and _excess(new, plan):
         # two unit levels, the finer first: its elements tangle less (27 cavities at 2 10^5 cells: 10
         # coarsest from level 2's, 11 from level 1's; METIS on a block with a square hole: 10 and
         # 17); not the finest aggregates (a torus of 10^6 cells: 38 s, and no further)
@@ -310,19 +325,6 @@ def _safe_coarsest(mesh, data, levels, polys, report, plan, groups, hole_pairs=N
             if got is not None and _excess(got[0], plan) < _excess(new, plan):
                 new, merged = got
             if _excess(new, plan) == 0:
-                break
-    repaired = 0
-    if stalled and _excess(new, plan) and groups is None:
-        # merging is stuck: every union of neighbours has a handle. The levels above a finer unit
-        # level cut anew and repaired into balls (models.hierarchy.repair; a few seeds: each
-        # repair is a local search)
-        from models.hierarchy.repair import TRIES, balls_above
-
-        u = min(stalled[-1] + 2, len(levels) - 1)
-        for seed in range(TRIES):  # a loop over the seeds tried
-            got = balls_above(mesh, data, levels, u, plan, hole_pairs, seed=seed)
-            if got is not None and _excess(got, plan) < _excess(new, plan):
-                new, repaired = got, u
                 break
     if not merged and not repaired:
         return levels, polys, report
