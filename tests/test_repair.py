@@ -69,3 +69,18 @@ def test_levels_cut_anew_above_a_unit_level_are_nested_balls_of_the_planned_coun
         assert np.unique(pairs // 1000).size == pairs.size
     rep = unit_repair(mesh, data, units)
     assert all(c == 0 for c in _balls(rep, got[0][np.unique(units, return_index=True)[1]]))
+
+
+def test_two_separate_solids_each_get_their_share_of_balls():
+    p, h = hexes(8)
+    mesh = mesh_from_arrays(np.vstack([p, p + [2.0, 0, 0]]), [("hexahedron", np.vstack([h, h + len(p)]))])
+    _, data = prepare(mesh)
+    ijk = np.floor(data.centroids * 8).astype(int) % 8
+    body = (data.centroids[:, 0] > 1.5).astype(np.int64)
+    units = body * 64 + (ijk // 2) @ np.array([16, 4, 1])  # 2 x 64 units of 2 x 2 x 2 cells
+    plan = [5, 22, 128]
+    got = balls_above(mesh, data, [units, units, units], 2, plan)
+    assert got is not None and [int(lv.max()) + 1 for lv in got] == plan
+    for lv in got[:2]:
+        assert np.all(element_euler(mesh, data.graph, lv) == 1)
+        assert np.all(np.bincount(lv, weights=body) % np.bincount(lv) == 0)  # no element in both solids
