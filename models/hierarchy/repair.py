@@ -28,6 +28,9 @@ TRIES = 3  # seeds of the METIS cut and of the repair's tie-breaks tried
 # a plain cube's 10 coarsest elements from 3,221 units made 3,300-4,600 checks (1.5 10^7); a box
 # refined 200:1 towards a point, 7 from 30,148 units, ran 800 moves in 83 s without one
 WORK = 5 * 10**7
+# all the levels made anew, every seed of their parents' children: a plain cube's 10 > 179 took about
+# 3 10^7 (its 10 from 3,221 units, then 179 in 10 parents of about 322); a check costs OVERHEAD too
+TOTAL, OVERHEAD = 4 * WORK, 500
 
 
 class Judge:
@@ -79,6 +82,8 @@ class Repair:
         self.ue, self.qp, self.qi, self.qw, self.judge, self.size, self.ku = ue, qp, qi, qw, judge, size, ku
         self.outer = outer  # units on the domain's outer boundary (the way out of any element)
         self.checks = 0  # exact checks made (each a pass over the units' graph)
+        # work spent and allowed, shared with the subsets: [nodes passed over, plus OVERHEAD a check]
+        self.spent, self.allowed = [0], [float("inf")]
         # per item kind (vertices +1, edges -1): each unit's classes, each class's units, weights
         self.kinds = []
         for (cls, un, w), sign in ((ue.v, 1.0), (ue.e, -1.0)):
@@ -116,7 +121,9 @@ class Repair:
             np.bincount(np.repeat(np.arange(units.size), deg)[away], minlength=units.size) > 0
         )
         empty = np.zeros(0, dtype=np.int64)
-        return Repair(ue, ip, ix, iw, Judge(ip, ix, outer, empty, empty), self.size[units], outer)
+        sub = Repair(ue, ip, ix, iw, Judge(ip, ix, outer, empty, empty), self.size[units], outer)
+        sub.spent, sub.allowed = self.spent, self.allowed
+        return sub
 
     def run(self, lab: np.ndarray, lo, hi, maxit=3000, side_max=800, top=40, seed=0):
         """Repair `lab` (an element per unit, compact) in place where it can: (labels, the total of
@@ -152,7 +159,7 @@ class Repair:
             D = int(cx.sum())
             if D < best[0]:
                 best = (D, lab.copy())
-            if D == 0 or self.checks > budget:
+            if D == 0 or self.checks > budget or self.spent[0] > self.allowed[0]:
                 break
             bad = cx > 0
             m = (lab[src] != lab[self.qi]) & (bad[lab[src]] | bad[lab[self.qi]])
@@ -206,6 +213,7 @@ class Repair:
 
     def _exact(self, units, chi):
         self.checks += 1
+        self.spent[0] += self.judge.n + OVERHEAD
         j = self.judge(units, chi)
         return BAD if j is None else int(j)
 
@@ -368,6 +376,7 @@ def balls_above(mesh, data, levels, u: int, plan, hole_pairs=None, seed: int = 0
     rep = unit_repair(mesh, data, units, hole_pairs)
     if rep is None:
         return None
+    rep.allowed[0] = TOTAL
     from models.graph.csr import connected_components
 
     npieces, comp = connected_components(rep.qp, rep.qi)
