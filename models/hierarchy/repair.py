@@ -28,8 +28,9 @@ TRIES = 3  # seeds of the METIS cut and of the repair's tie-breaks tried
 # a plain cube's 10 coarsest elements from 3,221 units made 3,300-4,600 checks (1.5 10^7); a box
 # refined 200:1 towards a point, 7 from 30,148 units, ran 800 moves in 83 s without one
 WORK = 5 * 10**7
-# all the levels made anew, every seed of their parents' children: a plain cube's 10 > 179 took about
-# 3 10^7 (its 10 from 3,221 units, then 179 in 10 parents of about 322); a check costs OVERHEAD too
+# all the levels made anew, every seed of their parents' children (a check costs OVERHEAD too):
+# successful, a plain cube's 10 > 179 from 3,221 units 1.3-1.8 10^7, the 10^6 torus's 4 > 51 > 688
+# from 9,352 units 4.5 10^7
 TOTAL, OVERHEAD = 4 * WORK, 500
 
 
