@@ -228,6 +228,8 @@ class Repair:
 
     def _move(self, u, A, B, lab, cnts, g1, g2, fcnt):
         """u from A to B: the counts, g1 / g2 of the units sharing its classes, fcnt of its neighbours."""
+        from models.mesh.cells import ranges
+
         lab[u] = B
         for (ptr, mine, cptr, un, w), cnt in zip(self.kinds, cnts, strict=True):
             c = mine[ptr[u] : ptr[u + 1]]
@@ -239,11 +241,7 @@ class Repair:
                     hit = c[before == (at if step < 0 else at - 1)]
                     if hit.size:
                         ln = cptr[hit + 1] - cptr[hit]
-                        pos = (
-                            np.arange(int(ln.sum()))
-                            - np.repeat(np.cumsum(ln) - ln, ln)
-                            + np.repeat(cptr[hit], ln)
-                        )
+                        pos = ranges(cptr[hit], ln)
                         np.add.at(g, (un[pos], np.full(pos.size, el)), step * np.repeat(w[hit], ln))
         nb, ct = self.fnb[self.fptr[u] : self.fptr[u + 1]], self.fct[self.fptr[u] : self.fptr[u + 1]]
         np.add.at(fcnt, (nb, np.full(nb.size, A)), -ct)
@@ -276,19 +274,20 @@ def _kway(qp, qi, qw, units, ku: int, k: int, size: np.ndarray, seed: int) -> np
 
 def _induced(qp, qi, units: np.ndarray, ku: int, qw=None):
     """CSR of the graph the given units induce, numbered in their order (and its weights)."""
+    from models.mesh.cells import ranges
+
     at = np.full(ku, -1, dtype=np.int64)
     at[units] = np.arange(units.size)
     deg = qp[units + 1] - qp[units]
-    from models.mesh.cells import ranges
-
-    nb = at[qi[ranges(qp[units], deg)]]
+    edges = ranges(qp[units], deg)
+    nb = at[qi[edges]]
     row = np.repeat(np.arange(units.size), deg)
     keep = nb >= 0
     ip = np.zeros(units.size + 1, dtype=np.int64)
     np.cumsum(np.bincount(row[keep], minlength=units.size), out=ip[1:])
     if qw is None:
         return ip, nb[keep]
-    return ip, nb[keep], qw[ranges(qp[units], deg)][keep]
+    return ip, nb[keep], qw[edges][keep]
 
 
 def _shares(size: np.ndarray, n: int, least=1) -> np.ndarray:
@@ -306,6 +305,7 @@ def _shares(size: np.ndarray, n: int, least=1) -> np.ndarray:
 def unit_repair(mesh, data, units: np.ndarray, hole_pairs=None) -> Repair | None:
     """A Repair of unions of the given units (a unit per cell), or None where they are not all
     balls. Sizes: cells per unit."""
+    from models.hierarchy.topology import unit_sides
     from models.partition.rtree import _quotient
     from models.polytope.euler import UnitEuler
 
@@ -315,13 +315,7 @@ def unit_repair(mesh, data, units: np.ndarray, hole_pairs=None) -> Repair | None
     if not np.all(ue.chi == 1):
         return None
     qp, qi, qw = _quotient(g.indptr, g.indices, g.weights, units, ku)
-    outer = np.zeros(ku, dtype=bool)
-    outer[units[g.faces.cell[g.partner < 0]]] = True
-    cav_id = cav_unit = np.zeros(0, dtype=np.int64)
-    if hole_pairs is not None and hole_pairs[1].size:
-        outer[units[hole_pairs[1]]] = False  # (a cavity's side is no way out)
-        cav = np.unique(hole_pairs[0] * np.int64(ku) + units[hole_pairs[1]])
-        cav_id, cav_unit = cav // ku, cav % ku
+    outer, cav_id, cav_unit = unit_sides(data, units, ku, hole_pairs)
     size = np.bincount(units, minlength=ku).astype(np.float64)
     return Repair(ue, qp, qi, qw, Judge(qp, qi, outer, cav_id, cav_unit), size, outer)
 

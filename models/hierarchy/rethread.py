@@ -349,6 +349,7 @@ def _enclosing(data, units: np.ndarray, hole_pairs):
     union would enclose a cavity of the domain (the only two elements along it) or another element
     (one off the outer boundary whose only neighbours are the two). A 3D union of characteristic 1
     may have a handle and a cavity: on 27 cavities at 10^5 cells, 5 of 10 coarsest elements did."""
+    from models.hierarchy.topology import unit_sides
     from models.partition.rtree import _quotient
 
     g = data.graph
@@ -358,16 +359,7 @@ def _enclosing(data, units: np.ndarray, hole_pairs):
     else:
         qp, qi, _ = _quotient(g.indptr, g.indices, g.weights, units, ku)
     src = np.repeat(np.arange(ku), np.diff(qp))
-    hole_id, hole_cell = (None, None) if hole_pairs is None else hole_pairs
-    boundary = g.faces.cell[g.partner < 0]
-    outer = np.zeros(ku, dtype=bool)
-    outer[units[boundary]] = True
-    if hole_cell is not None and hole_cell.size:
-        outer[units[hole_cell]] = False  # (a cavity's side is no way out; conservative where both)
-        cav = np.unique(hole_id * np.int64(ku) + units[hole_cell])
-        cav_id, cav_unit = cav // ku, cav % ku
-    else:
-        cav_id = cav_unit = np.zeros(0, dtype=np.int64)
+    outer, cav_id, cav_unit = unit_sides(data, units, ku, hole_pairs)
 
     def forbid(lab, k):
         kk = np.int64(k)

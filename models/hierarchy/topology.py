@@ -51,6 +51,22 @@ def domain_holes(mesh: Mesh, data: CellData) -> tuple[np.ndarray, np.ndarray]:
     return key // mesh.n_cells, key % mesh.n_cells
 
 
+def unit_sides(data: CellData, units: np.ndarray, ku: int, hole_pairs=None):
+    """Where unions of units (a unit per cell, ku of them) meet the domain's boundary: (each unit on
+    the outer boundary, (cavity, unit) pairs of the units along each cavity). A unit on both counts
+    as a cavity's only (a cavity's side is no way out; conservative)."""
+    g = data.graph
+    outer = np.zeros(ku, dtype=bool)
+    outer[units[g.faces.cell[g.partner < 0]]] = True
+    if hole_pairs is None or hole_pairs[1] is None or not hole_pairs[1].size:
+        none = np.zeros(0, dtype=np.int64)
+        return outer, none, none
+    hole_id, hole_cell = hole_pairs
+    outer[units[hole_cell]] = False
+    cav = np.unique(hole_id * np.int64(ku) + units[hole_cell])
+    return outer, cav // ku, cav % ku
+
+
 def fewest_elements(
     data: CellData, hole_pairs: tuple[np.ndarray, np.ndarray], genus=None, components=None
 ) -> tuple[int, str]:
