@@ -1,4 +1,4 @@
-"""Hierarchies that respect physical groups (`magnet hierarchy --groups`, rtree): no element of any
+"""Hierarchies that respect physical groups (`magnet hierarchy --groups`, rtree, metis, kmeans): no element of any
 level holds cells of two groups, on groups that are islands inside another group and groups of
 several separate pieces; every element connected, the levels nested. A mesh whose groups leave
 nothing to coarsen (a checkerboard: every cell a group piece of its own) is refused in one
@@ -59,6 +59,25 @@ def test_no_element_crosses_a_group(make, finest):
     h = build_hierarchy(points=p, cells=cells, tags=tags, groups=True, finest=finest)
     assert len(h.levels) >= 3
     assert_pure(h, tags[0])
+
+
+@pytest.mark.parametrize("model", ["metis", "kmeans"])
+def test_k_way_models_keep_the_groups_apart_too(model):
+    """metis and kmeans cut each connected piece of a group on its own, its share of each level's
+    count; each of the three rings around another piece (groups 1, 2, 3 from outside in) is
+    planned two coarsest elements (one would enclose what it surrounds), the centre's disc one."""
+    p, cells, tags = rings_triangles()
+    h = build_hierarchy(points=p, cells=cells, tags=tags, groups=True, model=model, coarsest=4)
+    assert_pure(h, tags[0])
+    assert h.info["requested"][0] == 7  # 4 pieces, 3 of them rings around another
+    assert [int(lv.max()) + 1 for lv in h.levels] == h.info["requested"]
+    assert all(r.get("holed", 0) == 0 for r in h.info["report"])
+
+
+def test_bisection_models_refuse_groups_in_one_sentence():
+    p, cells, tags = rings_triangles(20)
+    with pytest.raises(ParameterError, match="cuts by bisection only; use rtree, metis or kmeans"):
+        build_hierarchy(points=p, cells=cells, tags=tags, groups=True, model="sage-base")
 
 
 def test_groups_leaving_nothing_to_coarsen_are_refused():

@@ -434,3 +434,23 @@ def test_cli_counts_the_elements_that_are_not_balls(tmp_path):
     assert kept.returncode == 0, kept.stderr
     notes = [ln for ln in kept.stdout.splitlines() if ln.startswith("note:") and "not balls" in ln]
     assert len(notes) == 1 and "kept as asked (--keep-rings)" in notes[0], kept.stdout
+
+
+def test_a_coarsest_level_that_stalled_below_pairwise_coarsening_is_dropped():
+    """27 cavities at 6.5 10^5 cells: the coarsest level planned at 2 stalled at 19 elements from 29.
+    Such a level is dropped with a note; one that coarsens 2x or more, or meets its count, stays."""
+    from models.hierarchy.plan import without_stalled_top
+
+    rng = np.random.default_rng(0)
+    cells = 600
+    fine = np.sort(rng.integers(0, 29, cells))
+    fine[:29] = np.arange(29)
+    fine = np.sort(fine)
+    for top, dropped in ((19, True), (14, False), (2, False)):
+        coarse = (np.arange(29) * top // 29)[fine]
+        levels, notes = [coarse, fine], []
+        got = without_stalled_top(levels, [None, None], [{"a": 0}, {"b": 1}], [2, 29], notes)
+        assert (len(got[0]) == 1) == dropped and (len(notes) == 1) == dropped
+        if dropped:
+            assert got[0][0] is fine and got[3] == [29] and got[2] == [{"b": 1}]
+            assert "stalled at 19" in notes[0] and "ends one level finer, at 29 elements" in notes[0]

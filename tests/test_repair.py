@@ -84,3 +84,65 @@ def test_two_separate_solids_each_get_their_share_of_balls():
     for lv in got[:2]:
         assert np.all(element_euler(mesh, data.graph, lv) == 1)
         assert np.all(np.bincount(lv, weights=body) % np.bincount(lv) == 0)  # no element in both solids
+
+
+def _tube_and_core():
+    """A 12 x 12 x 36 block of cubes, its 4 x 4 core column through its length a second physical
+    group: the rest is a tube (a tunnel: two elements at least)."""
+    p, h = hexes(12)
+    pts = np.vstack([p + [0, 0, s] for s in range(3)])
+    hx = np.vstack([h + s * len(p) for s in range(3)])
+    pts, inv = np.unique(np.round(pts, 9), axis=0, return_inverse=True)
+    hx = inv.reshape(-1)[hx]
+    cen = pts[hx].mean(axis=1)
+    core = np.all(np.abs(cen[:, :2] - 0.5) < 0.17, axis=1)
+    mesh = mesh_from_arrays(pts, [("hexahedron", hx)], tags=[core.astype(np.int64) + 1])
+    return mesh, core.astype(np.int64)
+
+
+def test_physical_groups_plan_two_elements_for_a_piece_around_another():
+    from models.hierarchy.plan import group_pieces
+
+    mesh, core = _tube_and_core()
+    _, data = prepare(mesh)
+    assert group_pieces(data, core, 1, "", mesh)[0] == 3  # the core, and the tube around it twice
+    halves = (data.centroids[:, 0] > 0.5).astype(np.int64)
+    assert group_pieces(data, halves, 1, "", mesh)[0] == 2
+
+
+def test_a_tube_is_cut_along_its_length_by_planes():
+    # the tube's longest principal axis runs along the core: a slice across it makes two rings
+    from models.hierarchy.repair import _planes
+
+    mesh, core = _tube_and_core()
+    _, data = prepare(mesh)
+    ijk = np.floor(data.centroids * [12, 12, 12]).astype(int)
+    units = (ijk // 2) @ np.array([1, 6, 36])  # 6 x 6 x 18 units of 2 x 2 x 2 cells
+    ku = int(units.max()) + 1
+    ug = np.zeros(ku, dtype=np.int64)
+    ug[units] = core
+    rep = unit_repair(mesh, data, units, groups=ug)
+    cen = np.zeros((ku, 3))
+    np.add.at(cen, units, data.centroids / 8)
+    tube = np.flatnonzero(ug == 0)
+    lab = _planes(rep, tube, 2, cen)
+    chi = rep.ue(np.where(ug == 0, 0, 2)[np.arange(ku)] + np.isin(np.arange(ku), tube[lab == 1]))
+    for part in (0, 1):
+        assert rep.judge(tube[lab == part], chi[part]) == 0  # a ball each
+    assert np.ptp(cen[tube[lab == 0], 2]) > 2.5  # along the whole length (3), not across
+
+
+def test_levels_with_physical_groups_are_repaired_apart():
+    from models.hierarchy.nested import build_hierarchy
+
+    mesh, core = _tube_and_core()
+    graph, data = prepare(mesh)
+    levels, info = build_hierarchy(mesh, data, model="rtree", groups=True, coarsest=3)
+    assert info["requested"][0] == 3 and [int(lv.max()) + 1 for lv in levels] == info["requested"]
+    assert info["report"][0]["repaired_from_level"] >= 1
+    for lv in levels:
+        assert np.all(element_euler(mesh, graph, lv) == 1)
+        assert np.all(np.bincount(lv, weights=core) % np.bincount(lv) == 0)  # no element in both groups
+    for coarse, fine in zip(levels[:-1], levels[1:], strict=True):
+        pairs = np.unique(fine * np.int64(10**6) + coarse)
+        assert np.unique(pairs // 10**6).size == pairs.size

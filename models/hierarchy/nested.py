@@ -21,6 +21,7 @@ import os
 import numpy as np
 
 from models.export import atomic
+from models.hierarchy.coarse import coarse_graph, kway_apart  # noqa: F401  (coarse_graph re-exported)
 from models.hierarchy.holes import (  # noqa: F401  (re-exported: tests and callers import them from here)
     _element_graph,
     _has_voids,
@@ -29,7 +30,14 @@ from models.hierarchy.holes import (  # noqa: F401  (re-exported: tests and call
     cavity_elements,
     fix_holes,
 )
-from models.hierarchy.plan import at_least, count_weighted, domain_plan, group_pieces, said_off_plan
+from models.hierarchy.plan import (
+    at_least,
+    count_weighted,
+    domain_plan,
+    group_pieces,
+    said_off_plan,
+    without_stalled_top,
+)
 from models.hierarchy.rethread import coarse_end
 from models.mesh.celldata import CellData, compact_labels
 from models.mesh.container import Mesh
@@ -382,52 +390,6 @@ def write_operators(out_dir: str, levels: list[np.ndarray], n_cells: int) -> lis
     return out
 
 
-def coarse_graph(batch_or_data, labels: np.ndarray):
-    """The dual graph of the agglomerates (a GraphBatch of one graph): shared face measures summed,
-    measures summed, centroids measure-weighted, edge counts and volumes kept for cuts."""
-    import scipy.sparse as sp
-
-    from models.graph.batch import GraphBatch
-
-    g = batch_or_data.graph if hasattr(batch_or_data, "graph") else batch_or_data
-    indptr, indices, weights = g.indptr, g.indices, g.weights
-    meas, cen = batch_or_data.measures, batch_or_data.centroids
-    n = indptr.size - 1
-    k = int(labels.max()) + 1
-    rows = np.repeat(np.arange(n), np.diff(indptr))
-    a, b = labels[rows], labels[indices]
-    off = a != b
-    W = sp.csr_matrix((weights[off], (a[off], b[off])), shape=(k, k))
-    W.sum_duplicates()
-    C = sp.csr_matrix((np.ones(int(off.sum())), (a[off], b[off])), shape=(k, k))
-    C.sum_duplicates()
-    m = np.bincount(labels, weights=meas, minlength=k)
-    c = np.column_stack(
-        [np.bincount(labels, weights=meas * cen[:, d], minlength=k) for d in range(cen.shape[1])]
-    )
-    c /= np.maximum(m, 1e-300)[:, None]
-    vol = np.bincount(labels, weights=np.diff(indptr).astype(np.float64), minlength=k)
-    below = getattr(batch_or_data, "cells", None)  # a coarse graph's own cells per node, else one each
-    return GraphBatch(
-        indptr=W.indptr.astype(np.int64),
-        indices=W.indices.astype(np.int64),
-        weights=W.data,
-        graph_ptr=np.array([0, k], dtype=np.int64),
-        centroids=c,
-        measures=m,
-        tags=None,
-        node_ids=np.arange(k),
-        edge_count=C.data,
-        volume=vol,
-        cells=np.bincount(labels, weights=below, minlength=k),
-    )
-
-
-# The default per-level ratios (finest step first, the last repeated) by the mesh's dimension: the
-# finest step near the size of pyamg's finest aggregates, the coarser steps larger, as pyamg's are
-# (issue 24, round three: measured on the whole family, docs/hierarchy.md); 2D coarser steps of 8
-# since round nine (under the finest aggregation: smoothed iterations against pyamg's, worst 2D
-# member 1.00 -> 0.91, at complexity 1.00 -> 1.07; in 3D 8 gains no iteration, costs 1.08-1.15)
 SCHEDULE = {2: (5.0, 8.0), 3: (8.0, 16.0)}
 
 
@@ -461,7 +423,7 @@ def build_hierarchy(
     kmeans): the agglomerates are agglomerated (k-way on each level's coarse dual graph, pieces
     then joined to a neighbour so counts stay exact). Bisection-only models (sage-base, ...): one
     recursive bisection, recorded, and the levels nearest the wanted counts.
-    groups: no element crosses a physical group (rtree only).
+    groups: no element crosses a physical group (rtree and the k-way models).
     kappa: the diagonal of the diffusion tensor K the levels are for (rtree only): the cuts are made in
     the metric of the operator's couplings, x -> K^(-1/2) x, where the TPFA transmissibilities
     |f| d^T K d / |d|^3 are isotropic: parts are cut across weak couplings and stretched along strong
@@ -515,12 +477,14 @@ def build_hierarchy(
         raise ParameterError(f"the mesh has {n} cells: nothing to coarsen with coarsest = {coarsest}")
     if groups and mesh.tags is None:
         raise ParameterError("respecting physical groups needs a mesh with physical groups")
-    if groups and model != "rtree":
-        raise ParameterError("physical groups in a hierarchy: model rtree only")
+    if groups and model != "rtree" and not get_partitioner(model, seed=seed).supports_kway:
+        raise ParameterError(
+            f"physical groups in a hierarchy: model {model} cuts by bisection only; use rtree, metis or kmeans"
+        )
     # each cell's physical group where no element may cross one (--groups), compact
     group_of = np.unique(mesh.tags, return_inverse=True)[1].reshape(-1).astype(np.int64) if groups else None
     if groups:
-        least, why = group_pieces(data, group_of, least, why)
+        least, why = group_pieces(data, group_of, least, why, mesh)
     counts = at_least(counts, least, why, notes)
     if kappa is not None:
         kappa = np.asarray(kappa, dtype=np.float64).ravel()
@@ -608,7 +572,16 @@ def build_hierarchy(
         from models.partition.agglomerate import agglomerate
 
         part = get_partitioner(model, seed=seed, **count_weighted(model, model_options))
-        if part.supports_kway:
+        if part.supports_kway and group_of is not None:  # each piece of a group its share, apart
+            levels = [np.arange(n)]
+            for c in reversed(counts):
+                cg = coarse_graph(data, levels[0])
+                at = np.zeros(cg.n_nodes, dtype=np.int64)
+                at[levels[0]] = group_of
+                levels.insert(0, kway_apart(part, cg, int(c), at)[levels[0]])
+            levels.pop()
+            how = "agglomerates agglomerated (k-way on each coarse dual graph), each piece of a group apart"
+        elif part.supports_kway:
             fine = agglomerate(mesh, data, model=part, mode="kway", k=counts[-1], seed=seed).labels
             levels = [fine]
             for c in reversed(counts[:-1]):
@@ -654,6 +627,7 @@ def build_hierarchy(
         groups=group_of,
     )
     levels, polys, report = coarse_end(mesh, data, levels, polys, report, hole_pairs, counts, group_of)
+    levels, polys, report, counts = without_stalled_top(levels, polys, report, list(counts), notes)
     report = _with_requested(report, counts, n)
     said_off_plan(levels, report, coarsest, notes, (mesh, data.graph, rings))
     info = {
@@ -697,6 +671,7 @@ def _hierarchy_above(data, finest, mesh, model, ratio, coarsest, seed, t0):
     levels, polys, report = fix_holes(mesh, data, levels, None, hole_pairs=hole_pairs, rings=True)
     plan = [*counts, int(finest.max()) + 1]
     levels, polys, report = coarse_end(mesh, data, levels, polys, report, hole_pairs, plan, None)
+    levels, polys, report, plan = without_stalled_top(levels, polys, report, plan, notes)
     report = _with_requested(report, plan, finest.size)
     said_off_plan(levels, report, coarsest, notes, (mesh, data.graph, True))
     info = {
@@ -705,7 +680,7 @@ def _hierarchy_above(data, finest, mesh, model, ratio, coarsest, seed, t0):
         "coarsest": int(coarsest),
         "stretch": float(stretch),
         "kappa": None,
-        "requested": [*counts, int(finest.max()) + 1],
+        "requested": plan,
         "method": "the job's agglomeration as the finest level, its elements agglomerated (k-way on each coarse dual graph)",
         "build_time": time.perf_counter() - t0,
         "merged": polys,

@@ -29,6 +29,29 @@ def domain_plan(mesh: Mesh, data: CellData):
     return hole_pairs, least, why, stretch
 
 
+STALL = 2.0  # a coarsest level coarsening less than this (pairwise aggregation's step) is dropped
+
+
+def without_stalled_top(levels, polys, report: list[dict], counts: list[int], notes: list[str]):
+    """A coarsest level left above its count that coarsens the level below less than STALL times
+    (merges that stalled: 27 cavities at 6.5 10^5 cells, 19 elements from 29 for 2 planned; METIS 31
+    from 33) is no level for multigrid: dropped, so the hierarchy ends one level finer, said in a
+    note. (levels, polys, report, counts), coarsest first; report: fix_holes', before
+    _with_requested."""
+    if len(levels) < 2 or len(counts) != len(levels):
+        return levels, polys, report, counts
+    k0, k1 = int(levels[0].max()) + 1, int(levels[1].max()) + 1
+    if k0 <= counts[0] or k1 >= STALL * k0:
+        return levels, polys, report, counts
+    notes.append(
+        f"the coarsest level planned ({counts[0]:,} elements) stalled at {k0:,}, {k1 / k0:.1f}x fewer than "
+        f"the level below, where {k1 / counts[0]:.1f}x were asked: elements that would enclose a hole or "
+        f"a cavity or be a ring could not be merged further, so the hierarchy ends one level finer, at "
+        f"{k1:,} elements"
+    )
+    return levels[1:], polys[1:], report[1:], counts[1:]
+
+
 def said_off_plan(levels, report: list[dict], coarsest: int, notes: list[str], balls=None) -> None:
     """A note where the levels left the plan (elements around holes cut, not merged back): the
     coarsest level above --coarsest, levels more than 25% off their planned ratio (`report`:
@@ -93,25 +116,31 @@ def at_least(counts: list[int], least: int, why: str, notes: list[str]) -> list[
     return counts
 
 
-def group_pieces(data: CellData, groups, least: int, why: str) -> tuple[int, str]:
+def group_pieces(data: CellData, groups, least: int, why: str, mesh: Mesh | None = None) -> tuple[int, str]:
     """With --groups a level has at least one element per connected piece of a physical group (no
-    element crosses a group): (the fewest elements, why), the domain's own where it asks for more;
-    ParameterError where the groups leave nothing to coarsen (every piece one cell). groups: each
-    cell's group (compact labels)."""
+    element crosses a group), two for a piece around a hole, a tunnel or another piece (one element
+    would enclose it or be a ring; mesh: where it is given): (the fewest elements, why), the domain's
+    own where it asks for more; ParameterError where the groups leave nothing to coarsen (every
+    piece one cell). groups: each cell's group (compact labels)."""
     from models.errors import ParameterError
     from models.graph.csr import connected_components
 
     n = int(groups.size)
-    pieces = connected_components(data.graph.indptr, data.graph.indices, groups)[0]
+    pieces, body = connected_components(data.graph.indptr, data.graph.indices, groups)
     if pieces >= n:
         raise ParameterError(
             f"the physical groups leave nothing to coarsen: each of the {n:,} cells is a piece of its "
             "group on its own, and no element crosses a group (--groups); drop --groups"
         )
-    if pieces <= least:
+    holed = 0
+    if mesh is not None:
+        genus, shells = piece_genus(mesh, data.graph, body.astype(np.int64), pieces, True, across=True)
+        holed = int(np.count_nonzero((genus > 0) | (shells > 1)))
+    if pieces + holed <= least:
         return least, why
-    return pieces, (
+    return pieces + holed, (
         f"no element crosses a physical group (--groups), and the groups form {pieces:,} separate pieces"
+        + (f", {holed:,} of them around a hole, a tunnel or another piece" if holed else "")
     )
 
 

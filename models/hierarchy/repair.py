@@ -82,6 +82,7 @@ class Repair:
         ku = qp.size - 1
         self.ue, self.qp, self.qi, self.qw, self.judge, self.size, self.ku = ue, qp, qi, qw, judge, size, ku
         self.outer = outer  # units on the domain's outer boundary (the way out of any element)
+        self.whole = (qp, qi)  # the units' whole graph (qp, qi: the moves', less where groups part it)
         self.checks = 0  # exact checks made (each a pass over the units' graph)
         # work spent and allowed, shared with the subsets: [nodes passed over, plus OVERHEAD a check]
         self.spent, self.allowed = [0], [float("inf")]
@@ -116,8 +117,9 @@ class Repair:
         from models.mesh.cells import ranges
 
         ip, ix, iw = _induced(self.qp, self.qi, units, self.ku, self.qw)
-        deg = self.qp[units + 1] - self.qp[units]
-        away = at[self.qi[ranges(self.qp[units], deg)]] < 0  # a neighbour outside them
+        wp, wi = self.whole
+        deg = wp[units + 1] - wp[units]
+        away = at[wi[ranges(wp[units], deg)]] < 0  # a neighbour outside them
         outer = self.outer[units] | (
             np.bincount(np.repeat(np.arange(units.size), deg)[away], minlength=units.size) > 0
         )
@@ -128,9 +130,11 @@ class Repair:
 
     def run(self, lab: np.ndarray, lo, hi, maxit=3000, side_max=800, top=40, seed=0):
         """Repair `lab` (an element per unit, compact) in place where it can: (labels, the total of
-        handles and cavities left, moves made). lo / hi: the sizes an element may have."""
+        handles and cavities left, moves made). lo / hi: the sizes an element may have (one for all,
+        or one each)."""
         ku, size = self.ku, self.size
         K = int(lab.max()) + 1
+        lo, hi = np.broadcast_to(lo, (K,)), np.broadcast_to(hi, (K,))
         if max(self.kinds[0][4].size, self.kinds[1][4].size, ku) * K > 3 * 10**7:  # (dense: coarse levels)
             return lab, None, 0
         import scipy.sparse as sp
@@ -167,7 +171,7 @@ class Repair:
             key = np.unique(src[m] * np.int64(K) + lab[self.qi[m]])
             cu, cB = key // K, key % K
             cA = lab[cu]
-            ok = (esize[cA] - size[cu] >= lo) & (esize[cB] + size[cu] <= hi) & (tabu[cu] < it)
+            ok = (esize[cA] - size[cu] >= lo[cA]) & (esize[cB] + size[cu] <= hi[cB]) & (tabu[cu] < it)
             cu, cA, cB = cu[ok], cA[ok], cB[ok]
             if cu.size == 0:
                 break
@@ -302,9 +306,10 @@ def _shares(size: np.ndarray, n: int, least=1) -> np.ndarray:
     return a
 
 
-def unit_repair(mesh, data, units: np.ndarray, hole_pairs=None) -> Repair | None:
+def unit_repair(mesh, data, units: np.ndarray, hole_pairs=None, groups=None) -> Repair | None:
     """A Repair of unions of the given units (a unit per cell), or None where they are not all
-    balls. Sizes: cells per unit."""
+    balls. Sizes: cells per unit. groups: each unit's physical group (no move, cut or union across
+    one: the moves' graph keeps the edges inside a group; balls are judged in the whole domain)."""
     from models.hierarchy.topology import unit_sides
     from models.partition.rtree import _quotient
     from models.polytope.euler import UnitEuler
@@ -317,16 +322,60 @@ def unit_repair(mesh, data, units: np.ndarray, hole_pairs=None) -> Repair | None
     qp, qi, qw = _quotient(g.indptr, g.indices, g.weights, units, ku)
     outer, cav_id, cav_unit = unit_sides(data, units, ku, hole_pairs)
     size = np.bincount(units, minlength=ku).astype(np.float64)
-    return Repair(ue, qp, qi, qw, Judge(qp, qi, outer, cav_id, cav_unit), size, outer)
+    judge = Judge(qp, qi, outer, cav_id, cav_unit)
+    whole = (qp, qi)
+    if groups is not None:  # (the moves' graph: edges inside a group)
+        src = np.repeat(np.arange(ku), np.diff(qp))
+        inside = groups[src] == groups[qi]
+        qi, qw = qi[inside], qw[inside]
+        qp = np.zeros(ku + 1, dtype=np.int64)
+        np.cumsum(np.bincount(src[inside], minlength=ku), out=qp[1:])
+    rep = Repair(ue, qp, qi, qw, judge, size, outer)
+    rep.whole = whole
+    return rep
 
 
 SLACK = 0.4  # an element may hold 1 -+ SLACK times its share of the cells while it is repaired
 
 
-def _children(rep: Repair, k: int, seed: int, tries: int = 1, pieces=None) -> np.ndarray | None:
+def _planes(rep: Repair, units: np.ndarray, n: int, cen: np.ndarray) -> np.ndarray:
+    """n parts of the given units (a ball or not) by planes, halving the count each time: of the
+    three principal axes of a part's units, the cut whose two sides have the fewest handles and
+    cavities (Judge; a side in pieces counts BAD), then the fewest cut edges. A label per unit given.
+    A slice across a tube is two rings where a cut along it is two balls, and the other way round
+    for a slab around a ring (a torus inclusion's matrix): k-way's cut (the least face) does not
+    know which."""
+    lab = np.zeros(units.size, dtype=np.int64)
+    todo, nxt = [(np.arange(units.size), n)], 0
+    src = np.repeat(np.arange(rep.ku), np.diff(rep.qp))
+    while todo:  # a loop over the parts still to halve (n - 1 cuts)
+        part, m = todo.pop()
+        if m == 1 or part.size < 2:
+            lab[part] = nxt
+            nxt += 1
+            continue
+        mine, w = units[part], rep.size[units[part]]
+        side = np.full(rep.ku, 2, dtype=np.int64)  # (2: outside the part)
+        c = cen[mine] - np.average(cen[mine], axis=0, weights=w)
+        m1, best = m // 2, None
+        for ax in np.linalg.eigh((c * w[:, None]).T @ c)[1].T:  # a loop over the three principal axes
+            o = np.argsort(c @ ax, kind="stable")
+            cut = min(max(int(np.searchsorted(np.cumsum(w[o]), w.sum() * m1 / m)), 1), part.size - 1)
+            side[mine[o[:cut]]], side[mine[o[cut:]]] = 0, 1
+            chi = rep.ue(side)
+            bad = sum(rep._exact(np.flatnonzero(side == j), chi[j]) for j in (0, 1))
+            cross = int(np.count_nonzero((side[src] < 2) & (side[rep.qi] < 2) & (side[src] != side[rep.qi])))
+            if best is None or (bad, cross) < best[0]:
+                best = ((bad, cross), part[o[:cut]], part[o[cut:]])
+        todo += [(best[1], m1), (best[2], m - m1)]
+    return lab
+
+
+def _children(rep: Repair, k: int, seed: int, tries: int = 1, pieces=None, cen=None) -> np.ndarray | None:
     """k balls made of all of rep's units (METIS k-way, connected, repaired; `tries` seeds): a label
     per unit, or None where a handle or a cavity is left. pieces: (each unit's connected piece, each
-    piece's share of the k) where the units are in several."""
+    piece's share of the k) where the units are in several. cen: each unit's centroid, where a start
+    by planes (_planes) is tried first."""
     from models.mesh.celldata import compact_labels
     from models.partition.rtree import make_connected
 
@@ -335,9 +384,16 @@ def _children(rep: Repair, k: int, seed: int, tries: int = 1, pieces=None) -> np
     if k > rep.ku:
         return None
     everything = np.arange(rep.ku)
-    for s in range(seed, seed + tries):  # a loop over seeds (a repair is a local search)
+    for s in range(seed - (cen is not None), seed + tries):  # a loop over seeds (a repair is a local search)
         try:
-            if pieces is None:
+            if s < seed:  # (the planes' start)
+                comp, share = pieces if pieces is not None else (np.zeros(rep.ku, dtype=np.int64), [k])
+                lab, nxt = np.empty(rep.ku, dtype=np.int64), 0
+                for p, n in enumerate(share):  # a loop over the pieces (few)
+                    mine = np.flatnonzero(comp == p)
+                    lab[mine] = nxt + _planes(rep, mine, int(n), cen)
+                    nxt += int(n)
+            elif pieces is None:
                 lab = _kway(rep.qp, rep.qi, rep.qw, everything, rep.ku, k, rep.size, s)
             else:  # each piece its share, apart (no element joins two)
                 comp, share = pieces
@@ -355,20 +411,31 @@ def _children(rep: Repair, k: int, seed: int, tries: int = 1, pieces=None) -> np
         if int(lab.max()) + 1 != k:  # (a part METIS left empty)
             continue
         mean = rep.size.sum() / k
-        lab, left, _ = rep.run(lab, (1 - SLACK) * mean, (1 + SLACK) * mean, seed=s)
+        if pieces is not None:  # (each element's share of its own piece)
+            comp, share = pieces
+            mean = (np.bincount(comp, weights=rep.size) / share)[comp[np.unique(lab, return_index=True)[1]]]
+        lab, left, _ = rep.run(lab, (1 - SLACK) * mean, (1 + SLACK) * mean, seed=max(s, 0))
         if left == 0:
             return lab
     return None
 
 
-def balls_above(mesh, data, levels, u: int, plan, hole_pairs=None, seed: int = 0):
+def balls_above(mesh, data, levels, u: int, plan, hole_pairs=None, seed: int = 0, groups=None):
     """Levels 0..u-1 cut anew from level u's elements (METIS k-way, each element's share of the next
     level inside it) and repaired into balls (Repair): the levels, or None where u's elements are not
-    all balls or a level keeps a handle or a cavity."""
+    all balls or a level keeps a handle or a cavity. groups: each cell's physical group (compact),
+    no element across one (each connected piece of a group its share, as separate solids)."""
     units = np.asarray(levels[u], dtype=np.int64)
     if u < 1 or (hole_pairs is not None and np.unique(hole_pairs[0]).size > int(plan[0])):
         return None  # (more cavities than coarsest elements: below)
-    rep = unit_repair(mesh, data, units, hole_pairs)
+    ugroups = None
+    if groups is not None:
+        ku = int(units.max()) + 1
+        ugroups = np.zeros(ku, dtype=np.int64)
+        ugroups[units] = groups
+        if np.unique(units * np.int64(groups.max() + 1) + groups).size != ku:
+            return None  # (a unit across groups)
+    rep = unit_repair(mesh, data, units, hole_pairs, ugroups)
     if rep is None:
         return None
     rep.allowed[0] = TOTAL
@@ -379,17 +446,24 @@ def balls_above(mesh, data, levels, u: int, plan, hole_pairs=None, seed: int = 0
     holes = np.array(
         [rep._exact(np.flatnonzero(comp == p), int(rep.ue(comp != p)[0])) for p in range(npieces)]
     )
-    if holes.sum() > int(plan[0]):  # (each piece's tunnels and cavities)
-        # more tunnels and cavities than coarsest elements: opening one takes a path of moves that
-        # change nothing until the last (120 voxel cavities, 10 coarsest: 71 left after 818 moves)
-        return None
     pieces = None
     if npieces > 1:  # (two separate solids: each its share, two at least where it has a hole)
         least = 1 + (holes > 0)
         if least.sum() > int(plan[0]):
             return None
         pieces = (comp, _shares(np.bincount(comp, weights=rep.size), int(plan[0]), least))
+    if np.any(holes > (pieces[1] if pieces else int(plan[0]))):  # (each piece's tunnels and cavities)
+        # a piece with more tunnels and cavities than coarsest elements: opening one takes a path of
+        # moves that change nothing until the last (120 voxel cavities, 10 coarsest: 71 left after 818
+        # moves; a matrix around 8 spheres, 2 of its own: 15 s of repairs, none left a ball)
+        return None
     ku = rep.ku
+    cen = None
+    if seed == 0 and holes.any():  # (planes first where a piece has a tunnel or a cavity)
+        w = np.abs(data.measures)
+        wu = np.bincount(units, weights=w, minlength=ku)
+        cen = np.stack([np.bincount(units, weights=w * x, minlength=ku) for x in data.centroids.T], 1)
+        cen /= np.maximum(wu, np.finfo(float).tiny)[:, None]
     prev, out = np.zeros(ku, dtype=np.int64), []
     for L in range(u):  # a loop over the levels made again, coarsest first
         kp = int(prev.max()) + 1
@@ -398,7 +472,11 @@ def balls_above(mesh, data, levels, u: int, plan, hole_pairs=None, seed: int = 0
         for e in range(kp):  # a loop over the elements of the level above: each one's children apart
             mine = np.flatnonzero(prev == e)
             sub = rep if L == 0 else rep.subset(mine)
-            got = _children(sub, int(n[e]), seed, 1 if L == 0 else TRIES, pieces if L == 0 else None)
+            got = (
+                _children(sub, int(n[e]), seed, 1, pieces, cen)
+                if L == 0
+                else _children(sub, int(n[e]), seed, TRIES)
+            )
             if got is None:
                 return None
             lab[mine] = nxt + got

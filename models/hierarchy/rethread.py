@@ -302,7 +302,7 @@ def _safe_coarsest(mesh, data, levels, polys, report, plan, groups, hole_pairs=N
     new = [new0, *levels[1:]]
     stalled = [L for L in range(len(new) - 1) if int(new[L].max()) + 1 > plan[L]]
     repaired = 0
-    if stalled and groups is None:
+    if stalled:
         # merging is stuck: at the stall every union of neighbours has a handle. The levels above a
         # finer unit level (the one below the finest level stalled) cut anew and repaired into balls
         # (models.hierarchy.repair; a few seeds: each repair is a local search), before merging
@@ -312,7 +312,7 @@ def _safe_coarsest(mesh, data, levels, polys, report, plan, groups, hole_pairs=N
 
         u = min(stalled[-1] + 2, len(levels) - 1)
         for seed in range(TRIES):  # a loop over the seeds tried
-            got = balls_above(mesh, data, levels, u, plan, hole_pairs, seed=seed)
+            got = balls_above(mesh, data, levels, u, plan, hole_pairs, seed=seed, groups=groups)
             if got is not None and _excess(got, plan) < _excess(new, plan):
                 new, repaired, merged = got, u, 0
                 break

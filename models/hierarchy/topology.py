@@ -168,15 +168,26 @@ def domain_genus(mesh: Mesh, graph, with_shells: bool = False):
 
 
 def piece_genus(
-    mesh: Mesh, graph, body: np.ndarray | None = None, pieces: int = 1, with_shells: bool = False
+    mesh: Mesh,
+    graph,
+    body: np.ndarray | None = None,
+    pieces: int = 1,
+    with_shells: bool = False,
+    across: bool = False,
 ):
     """3D: the genus of each connected piece's boundary shells, summed ((pieces,); body: each cell's
-    piece, None: the domain as one), and with_shells the number of shells of each too."""
+    piece, None: the domain as one), and with_shells the number of shells of each too (2D: 0 and the
+    boundary loops). across: faces between two pieces are on both pieces' boundaries (the pieces of
+    physical groups: a group's piece around another has two shells)."""
     from models.graph.csr import connected_components
     from models.mesh.geometry import next_in_cycle
     from models.polytope.merge import face_nodes
 
-    bf = np.flatnonzero(graph.partner < 0)
+    on = graph.partner < 0
+    if across and body is not None:
+        other = graph.faces.cell[np.maximum(graph.partner, 0)]
+        on |= body[graph.faces.cell] != body[other]
+    bf = np.flatnonzero(on)
     if bf.size == 0:
         zero = np.zeros(pieces, dtype=np.int64)
         return (zero, zero.copy()) if with_shells else zero
@@ -185,19 +196,25 @@ def piece_genus(
         np.zeros(bf.size, dtype=np.int64) if body is None else body[graph.faces.cell[bf]].astype(np.int64)
     )
     piece_of = np.repeat(face_piece, np.diff(fo))
-    u, v = nodes, nodes[next_in_cycle(fo)]
     n = np.int64(mesh.n_points)
-    # the boundary's edges as a CSR over the points (the compiled union-find: no scipy import in a run)
-    a, b = np.r_[u, v].astype(np.int64), np.r_[v, u].astype(np.int64)
+    # each piece's boundary points apart (two pieces' shells may share points), their edges as a CSR
+    # (the compiled union-find: no scipy import in a run)
+    pts, at = np.unique(piece_of * n + nodes, return_inverse=True)
+    at = at.reshape(-1).astype(np.int64)
+    u, v = at, at[next_in_cycle(fo)]
+    a, b = np.r_[u, v], np.r_[v, u]
     order = np.argsort(a, kind="stable")
-    indptr = np.zeros(int(n) + 1, dtype=np.int64)
-    np.cumsum(np.bincount(a, minlength=int(n)), out=indptr[1:])
+    indptr = np.zeros(pts.size + 1, dtype=np.int64)
+    np.cumsum(np.bincount(a, minlength=pts.size), out=indptr[1:])
     shells = connected_components(indptr, b[order])[1].astype(np.int64)
-    V = np.bincount(np.unique(piece_of * n + nodes) // n, minlength=pieces)
-    E = np.bincount(
-        np.unique((piece_of * n + np.minimum(u, v)) * n + np.maximum(u, v)) // (n * n), minlength=pieces
-    )
+    pp = pts // n  # (each point's piece)
+    V = np.bincount(pp, minlength=pieces)
+    m = np.int64(pts.size)
+    E = np.bincount(pp[np.unique(np.minimum(u, v) * m + np.maximum(u, v)) // m], minlength=pieces)
     F = np.bincount(face_piece, minlength=pieces)
-    S = np.bincount(np.unique(piece_of * n + shells[nodes]) // n, minlength=pieces)
-    genus = np.maximum(np.rint((2 * S - (V - E + F)) / 2).astype(np.int64), 0)
+    S = np.bincount(np.unique(pp * m + shells) // m, minlength=pieces)
+    if mesh.dim == 2:  # (loops: no genus)
+        genus = np.zeros(pieces, dtype=np.int64)
+    else:
+        genus = np.maximum(np.rint((2 * S - (V - E + F)) / 2).astype(np.int64), 0)
     return (genus, S) if with_shells else genus
