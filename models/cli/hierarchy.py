@@ -65,7 +65,9 @@ def add_hierarchy_args(p: argparse.ArgumentParser) -> None:
         help="3D: keep elements with a handle (rings around a tunnel or a neighbour) instead of cutting "
         "them (faster; a note counts them)",
     )
-    p.add_argument("--groups", action="store_true", help="no element crosses a physical group (rtree, metis, kmeans)")
+    p.add_argument(
+        "--groups", action="store_true", help="no element crosses a physical group (rtree, metis, kmeans)"
+    )
     p.add_argument(
         "--metrics",
         action="store_true",
