@@ -169,3 +169,13 @@ def test_kmeans_bounds_carried_from_bins_are_exact():
     finally:
         km._BOUNDS_FROM_K = old
     assert np.mean(with_bounds == plain) > 0.9999
+
+
+def test_no_cluster_is_left_empty():
+    """Lloyd's iterations leave clusters empty where points coincide (or under strong weights: a
+    graded hierarchy's level got 777 clusters for 794): each takes half of the heaviest cluster."""
+    rng = np.random.default_rng(0)
+    x = np.vstack([np.zeros((90, 2)), rng.random((10, 2)) + 5])
+    lab = kmeans(x, 20)
+    assert np.unique(lab).size == 20 and lab.min() == 0 and lab.max() == 19
+    assert np.unique(lab[:90]).size >= 10  # the 10 other points hold 10 clusters at most

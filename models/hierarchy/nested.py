@@ -485,7 +485,7 @@ def build_hierarchy(
     group_of = np.unique(mesh.tags, return_inverse=True)[1].reshape(-1).astype(np.int64) if groups else None
     if groups:
         least, why = group_pieces(data, group_of, least, why, mesh)
-    counts = at_least(counts, least, why, notes)
+    asked, counts = (counts[0] if len(counts) else 1), at_least(counts, least)
     if kappa is not None:
         kappa = np.asarray(kappa, dtype=np.float64).ravel()
         if model != "rtree":
@@ -629,7 +629,7 @@ def build_hierarchy(
     levels, polys, report = coarse_end(mesh, data, levels, polys, report, hole_pairs, counts, group_of)
     levels, polys, report, counts = without_stalled_top(levels, polys, report, list(counts), notes)
     report = _with_requested(report, counts, n)
-    said_off_plan(levels, report, coarsest, notes, (mesh, data.graph, rings))
+    said_off_plan(levels, report, coarsest, notes, (mesh, data.graph, rings), least, why, asked)
     info = {
         "model": model,
         "finest": finest_mode,
@@ -658,7 +658,7 @@ def _hierarchy_above(data, finest, mesh, model, ratio, coarsest, seed, t0):
     hole_pairs, least, why, stretch = domain_plan(mesh, data)
     notes: list[str] = []
     counts = level_counts(int(finest.max()) + 1, ratio, coarsest, stretch=stretch)
-    counts = at_least(counts, least, why, notes)
+    asked, counts = (counts[0] if len(counts) else 1), at_least(counts, least)
     part = get_partitioner(model, seed=seed, **count_weighted(model, None))
     if not part.supports_kway:
         part = get_partitioner("metis", seed=seed, **count_weighted("metis", None))
@@ -673,7 +673,7 @@ def _hierarchy_above(data, finest, mesh, model, ratio, coarsest, seed, t0):
     levels, polys, report = coarse_end(mesh, data, levels, polys, report, hole_pairs, plan, None)
     levels, polys, report, plan = without_stalled_top(levels, polys, report, plan, notes)
     report = _with_requested(report, plan, finest.size)
-    said_off_plan(levels, report, coarsest, notes, (mesh, data.graph, True))
+    said_off_plan(levels, report, coarsest, notes, (mesh, data.graph, True), least, why, asked)
     info = {
         "model": part.name,
         "ratio": float(ratio) if np.ndim(ratio) == 0 else [float(r) for r in ratio],

@@ -52,9 +52,19 @@ def without_stalled_top(levels, polys, report: list[dict], counts: list[int], no
     return levels[1:], polys[1:], report[1:], counts[1:]
 
 
-def said_off_plan(levels, report: list[dict], coarsest: int, notes: list[str], balls=None) -> None:
+def said_off_plan(
+    levels,
+    report: list[dict],
+    coarsest: int,
+    notes: list[str],
+    balls=None,
+    least: int = 1,
+    why: str = "",
+    asked: int = 1,
+) -> None:
     """A note where the levels left the plan (elements around holes cut, not merged back): the
-    coarsest level above --coarsest, levels more than 25% off their planned ratio (`report`:
+    coarsest level above --coarsest or above the schedule's count `asked` (why: where the domain
+    asks for `least` elements at least, domain_plan's or group_pieces'), levels more than 25% off their planned ratio (`report`:
     _with_requested's); balls: (mesh, graph, rings) for said_not_balls."""
     if balls is not None:
         said_not_balls(balls[0], balls[1], levels, report, notes, balls[2])
@@ -62,7 +72,11 @@ def said_off_plan(levels, report: list[dict], coarsest: int, notes: list[str], b
 
     k0 = int(levels[0].max()) + 1
     top = report[0] if report else {}
-    if k0 > coarsest and (top.get("ring_cuts") or top.get("split_into_children")):
+    planned = top.get("requested", coarsest)
+    if why and asked < k0 <= least:  # (the domain or the groups ask for them)
+        than = f"more than --coarsest {coarsest}" if k0 > coarsest else f"not {asked:,}"
+        notes.append(f"the coarsest level has {k0:,} elements, {than}: {why}")
+    elif k0 > coarsest and (top.get("ring_cuts") or top.get("split_into_children")):
         what = (
             "surround a hole"
             if balls is None or balls[0].dim == 2
@@ -72,9 +86,7 @@ def said_off_plan(levels, report: list[dict], coarsest: int, notes: list[str], b
             f"the coarsest level has {k0} elements, more than --coarsest {coarsest}: elements that would "
             f"{what} were cut and could not all be merged back"
         )
-    elif k0 > coarsest and k0 > top.get(
-        "requested", coarsest
-    ):  # (where the plan asked for more, its note said why)
+    elif k0 > coarsest and k0 > planned:  # (where the plan asked for more: said above, or the drop's note)
         notes.append(
             f"the coarsest level has {k0} elements, more than --coarsest {coarsest} and than planned"
         )
@@ -101,19 +113,13 @@ def count_weighted(model: str, options: dict | None) -> dict:
     return out
 
 
-def at_least(counts: list[int], least: int, why: str, notes: list[str]) -> list[int]:
+def at_least(counts: list[int], least: int) -> list[int]:
     """The planned counts (coarsest first) with the coarsest level at least `least` elements (a level
-    that would then not coarsen is dropped), said in `notes`."""
+    that would then not coarsen is dropped). Why is said once the levels are made (said_off_plan):
+    the finest aggregation plans the levels above it again."""
     if not counts or counts[0] >= least:
         return counts
-    asked = counts[0]
-    counts = counts[1:] if len(counts) > 1 and counts[1] <= least else [least, *counts[1:]]
-    notes.append(
-        f"the coarsest level has {counts[0]} elements, not the {asked} planned: {why}"
-        if counts[0] != asked
-        else why
-    )
-    return counts
+    return counts[1:] if len(counts) > 1 and counts[1] <= least else [least, *counts[1:]]
 
 
 def group_pieces(data: CellData, groups, least: int, why: str, mesh: Mesh | None = None) -> tuple[int, str]:
