@@ -375,7 +375,9 @@ def _children(rep: Repair, k: int, seed: int, tries: int = 1, pieces=None, cen=N
     """k balls made of all of rep's units (METIS k-way, connected, repaired; `tries` seeds): a label
     per unit, or None where a handle or a cavity is left. pieces: (each unit's connected piece, each
     piece's share of the k) where the units are in several. cen: each unit's centroid, where a start
-    by planes (_planes) is tried first."""
+    by planes (_planes) is tried after the seeds (k-way's sides are smoother: on a block around a
+    cavity at 3.9 10^5 cells the planes' start left 5 handles after 816 moves, k-way's none after 194;
+    on a tube around a core k-way's slices are rings, the planes' cut along it two balls)."""
     from models.mesh.celldata import compact_labels
     from models.partition.rtree import make_connected
 
@@ -384,9 +386,10 @@ def _children(rep: Repair, k: int, seed: int, tries: int = 1, pieces=None, cen=N
     if k > rep.ku:
         return None
     everything = np.arange(rep.ku)
-    for s in range(seed - (cen is not None), seed + tries):  # a loop over seeds (a repair is a local search)
+    starts = list(range(seed, seed + tries)) + ([-1] if cen is not None else [])
+    for s in starts:  # a loop over seeds (a repair is a local search), then the planes' start
         try:
-            if s < seed:  # (the planes' start)
+            if s < 0:  # (the planes' start)
                 comp, share = pieces if pieces is not None else (np.zeros(rep.ku, dtype=np.int64), [k])
                 lab, nxt = np.empty(rep.ku, dtype=np.int64), 0
                 for p, n in enumerate(share):  # a loop over the pieces (few)
@@ -414,7 +417,7 @@ def _children(rep: Repair, k: int, seed: int, tries: int = 1, pieces=None, cen=N
         if pieces is not None:  # (each element's share of its own piece)
             comp, share = pieces
             mean = (np.bincount(comp, weights=rep.size) / share)[comp[np.unique(lab, return_index=True)[1]]]
-        lab, left, _ = rep.run(lab, (1 - SLACK) * mean, (1 + SLACK) * mean, seed=max(s, 0))
+        lab, left, _ = rep.run(lab, (1 - SLACK) * mean, (1 + SLACK) * mean, seed=max(s, seed))
         if left == 0:
             return lab
     return None
@@ -459,7 +462,7 @@ def balls_above(mesh, data, levels, u: int, plan, hole_pairs=None, seed: int = 0
         return None
     ku = rep.ku
     cen = None
-    if seed == 0 and holes.any():  # (planes first where a piece has a tunnel or a cavity)
+    if seed == 0 and holes.any():  # (a start by planes too where a piece has a tunnel or a cavity)
         w = np.abs(data.measures)
         wu = np.bincount(units, weights=w, minlength=ku)
         cen = np.stack([np.bincount(units, weights=w * x, minlength=ku) for x in data.centroids.T], 1)
