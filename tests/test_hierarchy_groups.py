@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from meshes import quads, triangles
+from meshes import hexes, quads, triangles
 
 from models.agglomeration import build_hierarchy
 from models.errors import ParameterError
@@ -126,3 +126,29 @@ def test_level_files_carry_the_group_names_and_boundary_groups(tmp_path):
         }
         tags = vtk_to_numpy(out.GetCellData().GetArray("boundary_tag"))
         assert np.count_nonzero(tags == -1) == n and set(tags[tags >= 0].tolist()) >= {2, 3, 4, 5}
+
+
+def test_a_raised_plan_reaches_the_fewest_elements_and_notes_give_the_final_count():
+    """at_least drops a level that would not coarsen and raises the next one to the fewest elements
+    (a 24^3 block of 200 grains planned 7 > 108 > 1728: 108 was kept below the 204 pieces); every
+    note that gives the coarsest count gives the one made (the finest aggregation plans again)."""
+    import re
+
+    from scipy.spatial import cKDTree
+
+    from models.hierarchy.plan import at_least
+
+    assert at_least([7, 108, 1728], 204) == [204, 1728]
+    assert at_least([7, 108, 1728], 100) == [108, 1728] and at_least([7, 108], 3) == [7, 108]
+    p, h = hexes(12)
+    c = p[h].mean(axis=1)
+    grain = cKDTree(np.random.default_rng(0).random((40, 3))).query(c)[1] + 1
+    grains = (p, [("hexahedron", h)], [grain])
+    rings = rings_triangles()
+    for model, mesh in (("rtree", grains), ("metis", grains), ("rtree", rings), ("kmeans", rings)):
+        got = build_hierarchy(points=mesh[0], cells=mesh[1], tags=mesh[2], groups=True, model=model)
+        k0 = int(got.levels[0].max()) + 1
+        assert got.info["requested"][0] >= k0 >= np.unique(mesh[2][0]).size
+        for note in got.info["notes"]:
+            for said in re.findall(r"coarsest level has ([\d,]+) elements", note):
+                assert int(said.replace(",", "")) == k0, note

@@ -115,11 +115,12 @@ def count_weighted(model: str, options: dict | None) -> dict:
 
 def at_least(counts: list[int], least: int) -> list[int]:
     """The planned counts (coarsest first) with the coarsest level at least `least` elements (a level
-    that would then not coarsen is dropped). Why is said once the levels are made (said_off_plan):
+    that would then coarsen the next less than STALL times is dropped). Why is said once the levels are made (said_off_plan):
     the finest aggregation plans the levels above it again."""
-    if not counts or counts[0] >= least:
-        return counts
-    return counts[1:] if len(counts) > 1 and counts[1] <= least else [least, *counts[1:]]
+    counts = list(counts)
+    while counts and counts[0] < least:  # (a loop over the levels dropped: few)
+        counts = counts[1:] if len(counts) > 1 and counts[1] < STALL * least else [least, *counts[1:]]
+    return counts
 
 
 def group_pieces(data: CellData, groups, least: int, why: str, mesh: Mesh | None = None) -> tuple[int, str]:

@@ -446,6 +446,8 @@ def balls_above(mesh, data, levels, u: int, plan, hole_pairs=None, seed: int = 0
 
     npieces, comp = connected_components(rep.qp, rep.qi)
     comp = comp.astype(np.int64)
+    if npieces > int(plan[0]) or npieces * rep.judge.n > WORK:
+        return None  # (many pieces, grains of a polycrystal say: a check each would pass over them all)
     holes = np.array(
         [rep._exact(np.flatnonzero(comp == p), int(rep.ue(comp != p)[0])) for p in range(npieces)]
     )
