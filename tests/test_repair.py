@@ -146,3 +146,26 @@ def test_levels_with_physical_groups_are_repaired_apart():
     for coarse, fine in zip(levels[:-1], levels[1:], strict=True):
         pairs = np.unique(fine * np.int64(10**6) + coarse)
         assert np.unique(pairs // 10**6).size == pairs.size
+
+
+def test_a_matrix_around_more_inclusions_than_its_share_is_cut_by_planes_through_them():
+    """8 cube inclusions (a physical group) in a 16^3 block, 10 coarsest planned: the matrix's share
+    is 2, with 8 cavities that single moves cannot open; planes through the inclusions give it 3
+    balls (11 coarsest, within the count's 25%), where the repair gave up before."""
+    p, h = hexes(16)
+    mesh0 = mesh_from_arrays(p, [("hexahedron", h)])
+    _, d0 = prepare(mesh0)
+    ijk = np.floor(d0.centroids * 16).astype(int)
+    inc = np.all((ijk % 8 >= 2) & (ijk % 8 <= 3), axis=1)  # 2 x 2 x 2 cells in each octant
+    mesh = mesh_from_arrays(p, [("hexahedron", h)], tags=[inc.astype(np.int64) + 1])
+    _, data = prepare(mesh)
+    units = (ijk // 2) @ np.array([64, 8, 1])  # 512 units of 2 x 2 x 2 cells
+    groups = inc.astype(np.int64)
+    got = balls_above(mesh, data, [units, units, units], 2, [10, 60, 512], groups=groups)
+    assert got is not None and 10 < int(got[0].max()) + 1 <= 12
+    for lv in got[:2]:
+        assert np.all(element_euler(mesh, data.graph, lv) == 1)
+        assert np.all(np.bincount(lv, weights=groups) % np.bincount(lv) == 0)
+    rep = unit_repair(mesh, data, units)
+    first = np.unique(units, return_index=True)[1]
+    assert all(c == 0 for c in _balls(rep, got[0][first]))  # no element encloses an inclusion

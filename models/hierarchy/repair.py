@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from models.partition.rtree import RATIO_SLACK
+
 BAD = 1 << 20  # an element in pieces
 KICKS = 40  # moves up (one more handle or cavity) a repair may make
 TENURE = 15  # moves before a unit moved may move again
@@ -54,7 +56,7 @@ class Judge:
         a.sum_duplicates()
         self.ap, self.ai, self.n = a.indptr.astype(np.int64), a.indices.astype(np.int64), n
 
-    def __call__(self, units: np.ndarray, chi: int):
+    def __call__(self, units: np.ndarray, chi: int, cavities_only: bool = False):
         from models.graph.csr import connected_components
 
         if units.size == 0:
@@ -66,7 +68,7 @@ class Judge:
             return None
         lab[units] = -1
         cavities = np.unique(comp[lab > 0]).size - 1
-        return 1 + cavities - int(chi) + cavities
+        return cavities if cavities_only else 1 + cavities - int(chi) + cavities
 
 
 def _by_unit(items: np.ndarray, units: np.ndarray, ku: int):
@@ -338,10 +340,15 @@ def unit_repair(mesh, data, units: np.ndarray, hole_pairs=None, groups=None) -> 
 SLACK = 0.4  # an element may hold 1 -+ SLACK times its share of the cells while it is repaired
 
 
-def _planes(rep: Repair, units: np.ndarray, n: int, cen: np.ndarray) -> np.ndarray:
+SHIFTS = (1.0, 0.9, 1.1, 0.8, 1.2, 0.7, 1.3)  # a plane's positions: its side's share times these
+
+
+def _planes(rep: Repair, units: np.ndarray, n: int, cen: np.ndarray, shifts=(1.0,)) -> np.ndarray:
     """n parts of the given units (a ball or not) by planes, halving the count each time: of the
-    three principal axes of a part's units, the cut whose two sides have the fewest handles and
-    cavities (Judge; a side in pieces counts BAD), then the fewest cut edges. A label per unit given.
+    principal axes of a part's units (and the coordinate axes) and of the positions `shifts` times
+    the share (SHIFTS and the coordinate axes where inclusions are to be cut through; a tube's start
+    is more often repaired without them), the cut whose two sides have the fewest handles and cavities (Judge; a side in
+    pieces counts BAD), then the nearest the share, then the fewest cut edges. A label per unit given.
     A slice across a tube is two rings where a cut along it is two balls, and the other way round
     for a slab around a ring (a torus inclusion's matrix): k-way's cut (the least face) does not
     know which."""
@@ -358,26 +365,48 @@ def _planes(rep: Repair, units: np.ndarray, n: int, cen: np.ndarray) -> np.ndarr
         side = np.full(rep.ku, 2, dtype=np.int64)  # (2: outside the part)
         c = cen[mine] - np.average(cen[mine], axis=0, weights=w)
         m1, best = m // 2, None
-        for ax in np.linalg.eigh((c * w[:, None]).T @ c)[1].T:  # a loop over the three principal axes
+        axes = np.linalg.eigh((c * w[:, None]).T @ c)[1].T
+        if len(shifts) > 1:  # (a cube's principal axes are any: a diagonal cut misses the inclusions
+            axes = np.r_[axes, np.eye(c.shape[1])]  # a cut along a coordinate axis goes through)
+        for ax in axes:  # a loop over the principal axes (and the coordinate axes)
             o = np.argsort(c @ ax, kind="stable")
-            cut = min(max(int(np.searchsorted(np.cumsum(w[o]), w.sum() * m1 / m)), 1), part.size - 1)
-            side[mine[o[:cut]]], side[mine[o[cut:]]] = 0, 1
-            chi = rep.ue(side)
-            bad = sum(rep._exact(np.flatnonzero(side == j), chi[j]) for j in (0, 1))
-            cross = int(np.count_nonzero((side[src] < 2) & (side[rep.qi] < 2) & (side[src] != side[rep.qi])))
-            if best is None or (bad, cross) < best[0]:
-                best = ((bad, cross), part[o[:cut]], part[o[cut:]])
+            cw = np.cumsum(w[o])
+            for f in shifts:  # a loop over positions about the share (a cut through holes opens them)
+                cut = min(max(int(np.searchsorted(cw, cw[-1] * m1 / m * f)), 1), part.size - 1)
+                side[mine[o[:cut]]], side[mine[o[cut:]]] = 0, 1
+                chi = rep.ue(side)
+                bad = sum(rep._exact(np.flatnonzero(side == j), chi[j]) for j in (0, 1))
+                cross = int(
+                    np.count_nonzero((side[src] < 2) & (side[rep.qi] < 2) & (side[src] != side[rep.qi]))
+                )
+                if best is None or (bad, abs(f - 1), cross) < best[0]:
+                    best = ((bad, abs(f - 1), cross), part[o[:cut]], part[o[cut:]])
         todo += [(best[1], m1), (best[2], m - m1)]
     return lab
 
 
-def _children(rep: Repair, k: int, seed: int, tries: int = 1, pieces=None, cen=None) -> np.ndarray | None:
+def _cavities(rep: Repair, units: np.ndarray, lab: np.ndarray) -> int:
+    """Cavities of the parts `lab` (a label per unit given) summed (BAD for one in pieces): what
+    single moves cannot open (their handles they can)."""
+    total = 0
+    for j in range(int(lab.max()) + 1):  # a loop over the parts (few)
+        rep.checks += 1
+        rep.spent[0] += rep.judge.n + OVERHEAD
+        c = rep.judge(units[lab == j], 1, cavities_only=True)
+        total += BAD if c is None else int(c)
+    return total
+
+
+def _children(
+    rep: Repair, k: int, seed: int, tries: int = 1, pieces=None, cen=None, fixed=None
+) -> np.ndarray | None:
     """k balls made of all of rep's units (METIS k-way, connected, repaired; `tries` seeds): a label
     per unit, or None where a handle or a cavity is left. pieces: (each unit's connected piece, each
     piece's share of the k) where the units are in several. cen: each unit's centroid, where a start
     by planes (_planes) is tried after the seeds (k-way's sides are smoother: on a block around a
     cavity at 3.9 10^5 cells the planes' start left 5 handles after 816 moves, k-way's none after 194;
-    on a tube around a core k-way's slices are rings, the planes' cut along it two balls)."""
+    on a tube around a core k-way's slices are rings, the planes' cut along it two balls). fixed:
+    {piece: its parts} made already (by planes), kept in every start."""
     from models.mesh.celldata import compact_labels
     from models.partition.rtree import make_connected
 
@@ -394,7 +423,7 @@ def _children(rep: Repair, k: int, seed: int, tries: int = 1, pieces=None, cen=N
                 lab, nxt = np.empty(rep.ku, dtype=np.int64), 0
                 for p, n in enumerate(share):  # a loop over the pieces (few)
                     mine = np.flatnonzero(comp == p)
-                    lab[mine] = nxt + _planes(rep, mine, int(n), cen)
+                    lab[mine] = nxt + (fixed[p] if fixed and p in fixed else _planes(rep, mine, int(n), cen))
                     nxt += int(n)
             elif pieces is None:
                 lab = _kway(rep.qp, rep.qi, rep.qw, everything, rep.ku, k, rep.size, s)
@@ -403,9 +432,14 @@ def _children(rep: Repair, k: int, seed: int, tries: int = 1, pieces=None, cen=N
                 lab, nxt = np.empty(rep.ku, dtype=np.int64), 0
                 for p, n in enumerate(share):  # a loop over the pieces (few)
                     mine = np.flatnonzero(comp == p)
-                    lab[mine] = nxt + (
-                        _kway(rep.qp, rep.qi, rep.qw, mine, rep.ku, int(n), rep.size[mine], s) if n > 1 else 0
-                    )
+                    if fixed and p in fixed:
+                        lab[mine] = nxt + fixed[p]
+                    else:
+                        lab[mine] = nxt + (
+                            _kway(rep.qp, rep.qi, rep.qw, mine, rep.ku, int(n), rep.size[mine], s)
+                            if n > 1
+                            else 0
+                        )
                     nxt += int(n)
         except RuntimeError:  # (pymetis' METIS_ERROR: the merges' levels stay)
             return None
@@ -457,11 +491,6 @@ def balls_above(mesh, data, levels, u: int, plan, hole_pairs=None, seed: int = 0
         if least.sum() > int(plan[0]):
             return None
         pieces = (comp, _shares(np.bincount(comp, weights=rep.size), int(plan[0]), least))
-    if np.any(holes > (pieces[1] if pieces else int(plan[0]))):  # (each piece's tunnels and cavities)
-        # a piece with more tunnels and cavities than coarsest elements: opening one takes a path of
-        # moves that change nothing until the last (120 voxel cavities, 10 coarsest: 71 left after 818
-        # moves; a matrix around 8 spheres, 2 of its own: 15 s of repairs, none left a ball)
-        return None
     ku = rep.ku
     cen = None
     if seed == 0 and holes.any():  # (a start by planes too where a piece has a tunnel or a cavity)
@@ -469,16 +498,38 @@ def balls_above(mesh, data, levels, u: int, plan, hole_pairs=None, seed: int = 0
         wu = np.bincount(units, weights=w, minlength=ku)
         cen = np.stack([np.bincount(units, weights=w * x, minlength=ku) for x in data.centroids.T], 1)
         cen /= np.maximum(wu, np.finfo(float).tiny)[:, None]
+    share = pieces[1].copy() if pieces else np.array([int(plan[0])])
+    fixed = {}
+    for p in np.flatnonzero(holes > share):  # a loop over the pieces with more holes than elements (few)
+        # opening a cavity or a tunnel by single moves takes a path of moves that change nothing until
+        # the last (120 voxel cavities, 10 coarsest: 71 left after 818 moves; a matrix around 8
+        # spheres, 2 of its own: 15 s of repairs, none left a ball). Planes through them can: the
+        # fewest parts, up to the count's 25% slack, whose planes leave no cavity (the handles that
+        # plane cuts of jagged units make are the repair's)
+        mine = np.flatnonzero(comp == p)
+        if cen is None or _cavities(rep, mine, np.zeros(mine.size, dtype=np.int64)) < holes[p]:
+            return None  # (tunnels too: jagged plane cuts make handles, and which are the tunnels'?)
+        top = int(share[p]) + max(int(RATIO_SLACK * int(plan[0])), 1)
+        for m in range(int(share[p]), min(top, int(holes[p]) + 1) + 1):  # a loop over the counts tried
+            lab = _planes(rep, mine, m, cen, SHIFTS)
+            if _cavities(rep, mine, lab) == 0:
+                fixed[int(p)], share[p] = lab, m
+                break
+        else:
+            return None
+    if fixed:
+        pieces = (comp, share)
+    k0 = int(share.sum())
     prev, out = np.zeros(ku, dtype=np.int64), []
     for L in range(u):  # a loop over the levels made again, coarsest first
         kp = int(prev.max()) + 1
-        n = _shares(np.bincount(prev, weights=rep.size, minlength=kp), int(plan[L])) if L else [int(plan[0])]
+        n = _shares(np.bincount(prev, weights=rep.size, minlength=kp), int(plan[L])) if L else [k0]
         lab, nxt = np.empty(ku, dtype=np.int64), 0
         for e in range(kp):  # a loop over the elements of the level above: each one's children apart
             mine = np.flatnonzero(prev == e)
             sub = rep if L == 0 else rep.subset(mine)
             got = (
-                _children(sub, int(n[e]), seed, 1, pieces, cen)
+                _children(sub, int(n[e]), seed, 1, pieces, cen, fixed)
                 if L == 0
                 else _children(sub, int(n[e]), seed, TRIES)
             )
