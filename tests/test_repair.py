@@ -169,3 +169,22 @@ def test_a_matrix_around_more_inclusions_than_its_share_is_cut_by_planes_through
     rep = unit_repair(mesh, data, units)
     first = np.unique(units, return_index=True)[1]
     assert all(c == 0 for c in _balls(rep, got[0][first]))  # no element encloses an inclusion
+
+
+def test_a_matrix_around_more_fibres_than_its_share_is_cut_through_them():
+    """4 square fibres (a physical group) through a 16^3 block, 6 coarsest planned: the matrix (4
+    tunnels) gets 2; planes through the fibres and a repair of the matrix alone give it 3 balls."""
+    p, h = hexes(16)
+    mesh0 = mesh_from_arrays(p, [("hexahedron", h)])
+    _, d0 = prepare(mesh0)
+    ijk = np.floor(d0.centroids * 16).astype(int)
+    fib = np.all((ijk[:, :2] % 8 >= 2) & (ijk[:, :2] % 8 <= 3), axis=1)  # 2 x 2 columns along z
+    mesh = mesh_from_arrays(p, [("hexahedron", h)], tags=[fib.astype(np.int64) + 1])
+    _, data = prepare(mesh)
+    units = (ijk // 2) @ np.array([64, 8, 1])
+    groups = fib.astype(np.int64)
+    got = balls_above(mesh, data, [units, units, units], 2, [6, 60, 512], groups=groups)
+    assert got is not None and 6 < int(got[0].max()) + 1 <= 7
+    for lv in got[:2]:
+        assert np.all(element_euler(mesh, data.graph, lv) == 1)
+        assert np.all(np.bincount(lv, weights=groups) % np.bincount(lv) == 0)

@@ -505,16 +505,24 @@ def balls_above(mesh, data, levels, u: int, plan, hole_pairs=None, seed: int = 0
         # the last (120 voxel cavities, 10 coarsest: 71 left after 818 moves; a matrix around 8
         # spheres, 2 of its own: 15 s of repairs, none left a ball). Planes through them can: the
         # fewest parts, up to the count's 25% slack, whose planes leave no cavity (the handles that
-        # plane cuts of jagged units make are the repair's)
+        # plane cuts of jagged units make are the repair's; with tunnels, the piece is repaired on
+        # its own first: fibres through a matrix)
         mine = np.flatnonzero(comp == p)
-        if cen is None or _cavities(rep, mine, np.zeros(mine.size, dtype=np.int64)) < holes[p]:
-            return None  # (tunnels too: jagged plane cuts make handles, and which are the tunnels'?)
+        if cen is None:
+            return None
+        tunnels = _cavities(rep, mine, np.zeros(mine.size, dtype=np.int64)) < holes[p]
         top = int(share[p]) + max(int(RATIO_SLACK * int(plan[0])), 1)
         for m in range(int(share[p]), min(top, int(holes[p]) + 1) + 1):  # a loop over the counts tried
             lab = _planes(rep, mine, m, cen, SHIFTS)
-            if _cavities(rep, mine, lab) == 0:
-                fixed[int(p)], share[p] = lab, m
-                break
+            if _cavities(rep, mine, lab):
+                continue
+            if tunnels:  # (jagged plane cuts make handles too: which are the tunnels' the repair tells)
+                mean = rep.size[mine].sum() / m
+                lab, left, _ = rep.subset(mine).run(lab, (1 - SLACK) * mean, (1 + SLACK) * mean)
+                if left:
+                    continue
+            fixed[int(p)], share[p] = lab, m
+            break
         else:
             return None
     if fixed:
