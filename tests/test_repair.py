@@ -148,24 +148,32 @@ def test_levels_with_physical_groups_are_repaired_apart():
         assert np.unique(pairs // 10**6).size == pairs.size
 
 
+def _grouped_block(axes):
+    """16^3 cubes, a second physical group of 2 x 2 cells (along `axes`) in each octant: 8 cube
+    inclusions (all three axes) or 4 fibres (x and y); units of 2 x 2 x 2 cells. (mesh, data, units,
+    each cell's group)."""
+    _, _, ijk = _grid(16)
+    group = np.all((ijk[:, axes] % 8 >= 2) & (ijk[:, axes] % 8 <= 3), axis=1).astype(np.int64)
+    p, h = hexes(16)
+    mesh = mesh_from_arrays(p, [("hexahedron", h)], tags=[group + 1])
+    _, data = prepare(mesh)
+    return mesh, data, (ijk // 2) @ np.array([64, 8, 1]), group
+
+
+def _balls_apart(mesh, data, levels, groups):
+    for lv in levels:
+        assert np.all(element_euler(mesh, data.graph, lv) == 1)
+        assert np.all(np.bincount(lv, weights=groups) % np.bincount(lv) == 0)  # no element in both
+
+
 def test_a_matrix_around_more_inclusions_than_its_share_is_cut_by_planes_through_them():
     """8 cube inclusions (a physical group) in a 16^3 block, 10 coarsest planned: the matrix's share
     is 2, with 8 cavities that single moves cannot open; planes through the inclusions give it 3
     balls (11 coarsest, within the count's 25%), where the repair gave up before."""
-    p, h = hexes(16)
-    mesh0 = mesh_from_arrays(p, [("hexahedron", h)])
-    _, d0 = prepare(mesh0)
-    ijk = np.floor(d0.centroids * 16).astype(int)
-    inc = np.all((ijk % 8 >= 2) & (ijk % 8 <= 3), axis=1)  # 2 x 2 x 2 cells in each octant
-    mesh = mesh_from_arrays(p, [("hexahedron", h)], tags=[inc.astype(np.int64) + 1])
-    _, data = prepare(mesh)
-    units = (ijk // 2) @ np.array([64, 8, 1])  # 512 units of 2 x 2 x 2 cells
-    groups = inc.astype(np.int64)
+    mesh, data, units, groups = _grouped_block([0, 1, 2])
     got = balls_above(mesh, data, [units, units, units], 2, [10, 60, 512], groups=groups)
     assert got is not None and 10 < int(got[0].max()) + 1 <= 12
-    for lv in got[:2]:
-        assert np.all(element_euler(mesh, data.graph, lv) == 1)
-        assert np.all(np.bincount(lv, weights=groups) % np.bincount(lv) == 0)
+    _balls_apart(mesh, data, got[:2], groups)
     rep = unit_repair(mesh, data, units)
     first = np.unique(units, return_index=True)[1]
     assert all(c == 0 for c in _balls(rep, got[0][first]))  # no element encloses an inclusion
@@ -174,17 +182,7 @@ def test_a_matrix_around_more_inclusions_than_its_share_is_cut_by_planes_through
 def test_a_matrix_around_more_fibres_than_its_share_is_cut_through_them():
     """4 square fibres (a physical group) through a 16^3 block, 6 coarsest planned: the matrix (4
     tunnels) gets 2; planes through the fibres and a repair of the matrix alone give it 3 balls."""
-    p, h = hexes(16)
-    mesh0 = mesh_from_arrays(p, [("hexahedron", h)])
-    _, d0 = prepare(mesh0)
-    ijk = np.floor(d0.centroids * 16).astype(int)
-    fib = np.all((ijk[:, :2] % 8 >= 2) & (ijk[:, :2] % 8 <= 3), axis=1)  # 2 x 2 columns along z
-    mesh = mesh_from_arrays(p, [("hexahedron", h)], tags=[fib.astype(np.int64) + 1])
-    _, data = prepare(mesh)
-    units = (ijk // 2) @ np.array([64, 8, 1])
-    groups = fib.astype(np.int64)
+    mesh, data, units, groups = _grouped_block([0, 1])
     got = balls_above(mesh, data, [units, units, units], 2, [6, 60, 512], groups=groups)
     assert got is not None and 6 < int(got[0].max()) + 1 <= 7
-    for lv in got[:2]:
-        assert np.all(element_euler(mesh, data.graph, lv) == 1)
-        assert np.all(np.bincount(lv, weights=groups) % np.bincount(lv) == 0)
+    _balls_apart(mesh, data, got[:2], groups)

@@ -49,13 +49,6 @@ def coarse_graph(batch_or_data, labels: np.ndarray):
     )
 
 
-# The default per-level ratios (finest step first, the last repeated) by the mesh's dimension: the
-# finest step near the size of pyamg's finest aggregates, the coarser steps larger, as pyamg's are
-# (issue 24, round three: measured on the whole family, docs/hierarchy.md); 2D coarser steps of 8
-# since round nine (under the finest aggregation: smoothed iterations against pyamg's, worst 2D
-# member 1.00 -> 0.91, at complexity 1.00 -> 1.07; in 3D 8 gains no iteration, costs 1.08-1.15)
-
-
 def kway_apart(part, g, k: int, groups: np.ndarray) -> np.ndarray:
     """k parts of the graph g (a GraphBatch of one graph) by part.kway, none across a physical group
     (groups: each node's): each connected piece of a group gets its share of the k by cells (one at

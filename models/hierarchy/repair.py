@@ -218,10 +218,10 @@ class Repair:
             best = (D, lab.copy())
         return best[1], best[0], moves
 
-    def _exact(self, units, chi):
+    def _exact(self, units, chi, cavities_only: bool = False):
         self.checks += 1
         self.spent[0] += self.judge.n + OVERHEAD
-        j = self.judge(units, chi)
+        j = self.judge(units, chi, cavities_only)
         return BAD if j is None else int(j)
 
     def _deltas(self, cu, cA, cB, g1, g2, fcnt):
@@ -388,13 +388,7 @@ def _planes(rep: Repair, units: np.ndarray, n: int, cen: np.ndarray, shifts=(1.0
 def _cavities(rep: Repair, units: np.ndarray, lab: np.ndarray) -> int:
     """Cavities of the parts `lab` (a label per unit given) summed (BAD for one in pieces): what
     single moves cannot open (their handles they can)."""
-    total = 0
-    for j in range(int(lab.max()) + 1):  # a loop over the parts (few)
-        rep.checks += 1
-        rep.spent[0] += rep.judge.n + OVERHEAD
-        c = rep.judge(units[lab == j], 1, cavities_only=True)
-        total += BAD if c is None else int(c)
-    return total
+    return sum(rep._exact(units[lab == j], 1, cavities_only=True) for j in range(int(lab.max()) + 1))
 
 
 def _children(
@@ -414,33 +408,22 @@ def _children(
         return np.zeros(rep.ku, dtype=np.int64)
     if k > rep.ku:
         return None
-    everything = np.arange(rep.ku)
     starts = list(range(seed, seed + tries)) + ([-1] if cen is not None else [])
     for s in starts:  # a loop over seeds (a repair is a local search), then the planes' start
         try:
-            if s < 0:  # (the planes' start)
-                comp, share = pieces if pieces is not None else (np.zeros(rep.ku, dtype=np.int64), [k])
-                lab, nxt = np.empty(rep.ku, dtype=np.int64), 0
-                for p, n in enumerate(share):  # a loop over the pieces (few)
-                    mine = np.flatnonzero(comp == p)
-                    lab[mine] = nxt + (fixed[p] if fixed and p in fixed else _planes(rep, mine, int(n), cen))
-                    nxt += int(n)
-            elif pieces is None:
-                lab = _kway(rep.qp, rep.qi, rep.qw, everything, rep.ku, k, rep.size, s)
-            else:  # each piece its share, apart (no element joins two)
-                comp, share = pieces
-                lab, nxt = np.empty(rep.ku, dtype=np.int64), 0
-                for p, n in enumerate(share):  # a loop over the pieces (few)
-                    mine = np.flatnonzero(comp == p)
-                    if fixed and p in fixed:
-                        lab[mine] = nxt + fixed[p]
-                    else:
-                        lab[mine] = nxt + (
-                            _kway(rep.qp, rep.qi, rep.qw, mine, rep.ku, int(n), rep.size[mine], s)
-                            if n > 1
-                            else 0
-                        )
-                    nxt += int(n)
+            comp, share = pieces if pieces is not None else (np.zeros(rep.ku, dtype=np.int64), [k])
+            lab, nxt = np.empty(rep.ku, dtype=np.int64), 0
+            for p, n in enumerate(share):  # a loop over the pieces (few): each its share, apart
+                mine = np.flatnonzero(comp == p)
+                if fixed and p in fixed:
+                    lab[mine] = nxt + fixed[p]
+                elif s < 0:  # (the planes' start)
+                    lab[mine] = nxt + _planes(rep, mine, int(n), cen)
+                else:
+                    lab[mine] = nxt + (
+                        _kway(rep.qp, rep.qi, rep.qw, mine, rep.ku, int(n), rep.size[mine], s) if n > 1 else 0
+                    )
+                nxt += int(n)
         except RuntimeError:  # (pymetis' METIS_ERROR: the merges' levels stay)
             return None
         lab, _ = make_connected(rep.qp, rep.qi, rep.qw, lab, measures=rep.size)
