@@ -182,3 +182,27 @@ def test_the_last_step_ends_on_a_whole_count_within_the_slack():
             assert plan[0] >= least and plan == sorted(plan)
             if r == 8.0 or least == 1:
                 assert worst(k, plan, r) <= RATIO_SLACK, (k, r, plan)
+
+
+def test_a_coarsest_count_forced_up_gets_steps_within_the_slack():
+    """With --groups a torus inclusion's box plans at least 4 coarsest elements; of 7,683 finest
+    aggregates the plain plan (no step shorter than 16 on a domain without holes) was 4 > 30 > 480,
+    a last step of 7.5. Steps down to the slack's floor end on 4: 12.4 each."""
+    from models.partition.rtree import RATIO_SLACK, level_counts
+
+    def worst(k, counts, r):
+        full = [*counts, k]
+        return max(abs(full[i + 1] / full[i] / r - 1) for i in range(len(counts)))
+
+    plan = level_counts(7683, 16.0, 10, given=0, least=4, stretch=0.0)
+    assert plan[0] == 4 and worst(7683, plan, 16.0) <= RATIO_SLACK, plan
+    # wherever some whole coarsest count between `least` and 10 allows it, every step is within the slack
+    for k in range(1000, 120000, 173):
+        for least in (2, 3, 4, 6, 10):
+            plan = level_counts(k, 16.0, 10, given=0, least=least, stretch=0.0)
+            x = k / np.arange(least, 11)
+            s = np.arange(1, 6)[:, None]
+            fits = np.any((x ** (1.0 / s) >= 12.0) & (x ** (1.0 / s) <= 20.0))
+            assert plan[0] >= least and plan == sorted(plan)
+            if fits:
+                assert worst(k, plan, 16.0) <= RATIO_SLACK + 0.02, (k, least, plan)

@@ -55,14 +55,14 @@ def kway_apart(part, g, k: int, groups: np.ndarray) -> np.ndarray:
     least), cut on its own and made connected. A label per node."""
     from models.graph.batch import GraphBatch
     from models.graph.csr import connected_components
-    from models.hierarchy.repair import _shares
+    from models.hierarchy.repair import shares
     from models.mesh.dual import subgraph_by_labels
     from models.partition.rtree import make_connected
 
     npieces, piece = connected_components(g.indptr, g.indices, groups)
     piece = piece.astype(np.int64)
     cells = g.cell_counts()
-    share = _shares(np.bincount(piece, weights=cells, minlength=npieces), max(int(k), npieces))
+    share = shares(np.bincount(piece, weights=cells, minlength=npieces), max(int(k), npieces))
     order, ptr, ip, ix, w = subgraph_by_labels(g.indptr, g.indices, g.weights, piece)
     split = GraphBatch(
         indptr=ip,

@@ -63,11 +63,12 @@ class Judge:
             return None
         lab = np.ones(self.n, dtype=np.int64)
         lab[units] = 0
-        _, comp = connected_components(self.ap, self.ai, labels=lab)
-        if np.unique(comp[units]).size != 1:
+        count, comp = connected_components(self.ap, self.ai, labels=lab)
+        mine = comp[units]
+        if np.any(mine != mine[0]):
             return None
-        lab[units] = -1
-        cavities = np.unique(comp[lab > 0]).size - 1
+        # the set is one piece: every other piece is of the complement (no np.unique: 0.8 of 6.5 s)
+        cavities = count - 2  # (the pieces of the complement, the outside one not counted)
         return cavities if cavities_only else 1 + cavities - int(chi) + cavities
 
 
@@ -296,7 +297,7 @@ def _induced(qp, qi, units: np.ndarray, ku: int, qw=None):
     return ip, nb[keep], qw[edges][keep]
 
 
-def _shares(size: np.ndarray, n: int, least=1) -> np.ndarray:
+def shares(size: np.ndarray, n: int, least=1) -> np.ndarray:
     """n parts given out by size, at least `least` each (largest remainders)."""
     q = size / size.sum() * n
     least = np.broadcast_to(np.asarray(least, dtype=np.int64), q.shape)
@@ -440,11 +441,17 @@ def _children(
     return None
 
 
-def balls_above(mesh, data, levels, u: int, plan, hole_pairs=None, seed: int = 0, groups=None):
+def balls_above(
+    mesh, data, levels, u: int, plan, hole_pairs=None, seed: int = 0, groups=None, seeds=None, accept=None
+):
     """Levels 0..u-1 cut anew from level u's elements (METIS k-way, each element's share of the next
     level inside it) and repaired into balls (Repair): the levels, or None where u's elements are not
     all balls or a level keeps a handle or a cavity. groups: each cell's physical group (compact),
-    no element across one (each connected piece of a group its share, as separate solids)."""
+    no element across one (each connected piece of a group its share, as separate solids). seeds:
+    the seeds tried in turn (default: `seed` alone), the first levels `accept` takes (default: any)
+    returned; the units' skeleton, the pieces and the planes through their holes are made once for
+    all seeds (4 fibres through a cube: the two later seeds had cost 0.7 s each to fail as the first)."""
+    seeds = (seed,) if seeds is None else tuple(seeds)
     units = np.asarray(levels[u], dtype=np.int64)
     if u < 1 or (hole_pairs is not None and np.unique(hole_pairs[0]).size > int(plan[0])):
         return None  # (more cavities than coarsest elements: below)
@@ -473,10 +480,10 @@ def balls_above(mesh, data, levels, u: int, plan, hole_pairs=None, seed: int = 0
         least = 1 + (holes > 0)
         if least.sum() > int(plan[0]):
             return None
-        pieces = (comp, _shares(np.bincount(comp, weights=rep.size), int(plan[0]), least))
+        pieces = (comp, shares(np.bincount(comp, weights=rep.size), int(plan[0]), least))
     ku = rep.ku
     cen = None
-    if seed == 0 and holes.any():  # (a start by planes too where a piece has a tunnel or a cavity)
+    if holes.any():  # (a start by planes too where a piece has a tunnel or a cavity)
         w = np.abs(data.measures)
         wu = np.bincount(units, weights=w, minlength=ku)
         cen = np.stack([np.bincount(units, weights=w * x, minlength=ku) for x in data.centroids.T], 1)
@@ -510,11 +517,24 @@ def balls_above(mesh, data, levels, u: int, plan, hole_pairs=None, seed: int = 0
             return None
     if fixed:
         pieces = (comp, share)
-    k0 = int(share.sum())
+    for s in seeds:  # a loop over the seeds tried (each repair a local search)
+        if s != seeds[0]:  # (each seed its own budget, as a call of its own had)
+            rep.spent[0], rep.checks = 0, 0
+        got = _levels_above(rep, units, u, plan, int(share.sum()), s, pieces, cen if s == 0 else None, fixed)
+        if got is not None:
+            got = [lv[units] for lv in got] + list(levels[u:])
+            if accept is None or accept(got):
+                return got
+    return None
+
+
+def _levels_above(rep: Repair, units, u: int, plan, k0: int, seed: int, pieces, cen, fixed):
+    """balls_above's levels 0..u-1 for one seed: a label per unit each, or None."""
+    ku = rep.ku
     prev, out = np.zeros(ku, dtype=np.int64), []
     for L in range(u):  # a loop over the levels made again, coarsest first
         kp = int(prev.max()) + 1
-        n = _shares(np.bincount(prev, weights=rep.size, minlength=kp), int(plan[L])) if L else [k0]
+        n = shares(np.bincount(prev, weights=rep.size, minlength=kp), int(plan[L])) if L else [k0]
         lab, nxt = np.empty(ku, dtype=np.int64), 0
         for e in range(kp):  # a loop over the elements of the level above: each one's children apart
             mine = np.flatnonzero(prev == e)
@@ -530,4 +550,4 @@ def balls_above(mesh, data, levels, u: int, plan, hole_pairs=None, seed: int = 0
             nxt += int(got.max()) + 1
         out.append(lab)
         prev = lab
-    return [lv[units] for lv in out] + list(levels[u:])
+    return out

@@ -314,10 +314,20 @@ def _safe_coarsest(mesh, data, levels, polys, report, plan, groups, hole_pairs=N
         # then the next finer unit level once: plane cuts of finer units are less jagged (4 fibres
         # through a cube, --groups: from level 2's 1,372 units the planes through the fibres left 3
         # handles after the repair, from level 3's 21,810 none: 7 coarsest for 6, merges gave 13)
-        tries = [(u0, seed) for seed in range(TRIES)] + ([(u0 + 1, 0)] if u0 + 1 < len(levels) else [])
-        for u, seed in tries:  # a loop over the unit levels and seeds tried
-            got = balls_above(mesh, data, levels, u, plan, hole_pairs, seed=seed, groups=groups)
-            if got is not None and _excess(got, plan) < _excess(new, plan):
+        tries = [(u0, range(TRIES))] + ([(u0 + 1, (0,))] if u0 + 1 < len(levels) else [])
+        for u, seeds in tries:  # a loop over the unit levels tried (balls_above tries the seeds)
+            got = balls_above(
+                mesh,
+                data,
+                levels,
+                u,
+                plan,
+                hole_pairs,
+                groups=groups,
+                seeds=seeds,
+                accept=lambda g, worst=_excess(new, plan): _excess(g, plan) < worst,
+            )
+            if got is not None:
                 new, repaired, merged = got, u, 0
                 break
     if stalled and _excess(new, plan):
