@@ -206,3 +206,29 @@ def test_a_coarsest_count_forced_up_gets_steps_within_the_slack():
             assert plan[0] >= least and plan == sorted(plan)
             if fits:
                 assert worst(k, plan, 16.0) <= RATIO_SLACK + 0.02, (k, least, plan)
+
+
+def test_a_plan_off_the_ratio_is_said_with_why():
+    """8 ball inclusions with --groups: at least 10 coarsest elements, 8,294 finest aggregates; no
+    steps within 25% of 16 run from 8,294 to 10, so 10 > 32 > 518 is planned and a note says why.
+    A plan within the slack says nothing."""
+    from models.hierarchy.plan import said_plan_off
+
+    def report(counts):
+        return [
+            {
+                "level": i,
+                "elements": c,
+                "requested": c,
+                "requested_ratio": counts[i + 1] / c if i + 1 < len(counts) else 7.0,
+            }
+            for i, c in enumerate(counts)
+        ]
+
+    notes = []
+    said_plan_off(report([10, 32, 518, 8294]), 16.0, 10, 10, "the groups form 9 separate pieces", notes)
+    assert len(notes) == 1 and "level 0 3.2x" in notes[0] and "8,294" in notes[0]
+    assert "the 10 elements the coarsest level needs (the groups form 9 separate pieces)" in notes[0]
+    notes = []
+    said_plan_off(report([4, 50, 618, 7683]), 16.0, 10, 4, "why", notes)
+    assert notes == []

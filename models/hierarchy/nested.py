@@ -634,7 +634,8 @@ def build_hierarchy(
     levels, polys, report = coarse_end(mesh, data, levels, polys, report, hole_pairs, counts, group_of)
     levels, polys, report, counts = without_stalled_top(levels, polys, report, list(counts), notes)
     report = _with_requested(report, counts, n)
-    said_off_plan(levels, report, coarsest, notes, (mesh, data.graph, rings), least, why, asked)
+    step = ratio[-1] if np.ndim(ratio) else ratio
+    said_off_plan(levels, report, coarsest, notes, (mesh, data.graph, rings), least, why, asked, step)
     info = {
         "model": model,
         "finest": finest_mode,
@@ -678,7 +679,8 @@ def _hierarchy_above(data, finest, mesh, model, ratio, coarsest, seed, t0):
     levels, polys, report = coarse_end(mesh, data, levels, polys, report, hole_pairs, plan, None)
     levels, polys, report, plan = without_stalled_top(levels, polys, report, plan, notes)
     report = _with_requested(report, plan, finest.size)
-    said_off_plan(levels, report, coarsest, notes, (mesh, data.graph, True), least, why, asked)
+    step = ratio[-1] if np.ndim(ratio) else ratio
+    said_off_plan(levels, report, coarsest, notes, (mesh, data.graph, True), least, why, asked, step)
     info = {
         "model": part.name,
         "ratio": float(ratio) if np.ndim(ratio) == 0 else [float(r) for r in ratio],

@@ -61,11 +61,13 @@ def said_off_plan(
     least: int = 1,
     why: str = "",
     asked: int = 1,
+    step: float | None = None,
 ) -> None:
     """A note where the levels left the plan (elements around holes cut, not merged back): the
     coarsest level above --coarsest or above the schedule's count `asked` (why: where the domain
     asks for `least` elements at least, domain_plan's or group_pieces'), levels more than 25% off their planned ratio (`report`:
-    _with_requested's); balls: (mesh, graph, rings) for said_not_balls."""
+    _with_requested's); balls: (mesh, graph, rings) for said_not_balls; step: the ratio asked of the
+    levels above the finest, where the plan itself could not keep a level within 25% of it."""
     if balls is not None:
         said_not_balls(balls[0], balls[1], levels, report, notes, balls[2])
     from models.partition.rtree import RATIO_SLACK
@@ -90,6 +92,8 @@ def said_off_plan(
         notes.append(
             f"the coarsest level has {k0} elements, more than --coarsest {coarsest} and than planned"
         )
+    if step:
+        said_plan_off(report, float(step), coarsest, least, why, notes)
     off = [
         f"level {r['level']} {r['ratio']:.1f}x (planned {r['requested_ratio']:.1f}x)"
         for r in report
@@ -97,6 +101,34 @@ def said_off_plan(
     ]
     if off:
         notes.append("coarsened off the plan by more than 25%: " + ", ".join(off))
+
+
+def said_plan_off(
+    report: list[dict], step: float, coarsest: int, least: int, why: str, notes: list[str]
+) -> None:
+    """A note where the plan itself keeps a level above the finest more than 25% off the ratio asked:
+    no whole counts in steps within 25% of it run from the finest level's count to a coarsest count
+    the domain allows (8 ball inclusions, --groups: at least 10 coarsest elements, 8,294 finest
+    aggregates, 10 > 32 > 518 planned)."""
+    from models.partition.rtree import RATIO_SLACK
+
+    off = [
+        f"level {r['level']} {r['requested_ratio']:.1f}x"
+        for r in report[:-1]
+        if "requested_ratio" in r and abs(r["requested_ratio"] / step - 1.0) > RATIO_SLACK
+    ]
+    if not off or not report:
+        return
+    kf, k0 = int(report[-1]["elements"]), int(report[0].get("requested", report[0]["elements"]))
+    end = (
+        f"the {least:,} elements the coarsest level needs ({why})"
+        if least > 1 and k0 <= least
+        else f"at most --coarsest {coarsest}"
+    )
+    notes.append(
+        f"planned off the ratio {step:g}x by more than 25% ({', '.join(off)}): no whole counts in steps "
+        f"within 25% of it run from the finest level's {kf:,} elements down to {end}"
+    )
 
 
 def count_weighted(model: str, options: dict | None) -> dict:
