@@ -232,3 +232,31 @@ def test_a_plan_off_the_ratio_is_said_with_why():
     notes = []
     said_plan_off(report([4, 50, 618, 7683]), 16.0, 10, 4, "why", notes)
     assert notes == []
+
+
+def test_a_coarsest_level_above_its_plan_within_coarsest_is_said():
+    """A block with 6 cavities, METIS: 4 coarsest elements for the 3 planned, within --coarsest 10;
+    that went without a note (only more than --coarsest was said)."""
+    from models.hierarchy.plan import said_off_plan
+
+    levels = [np.repeat(np.arange(4), 10), np.arange(40)]
+    report = [
+        {
+            "level": 0,
+            "elements": 4,
+            "requested": 3,
+            "ring_cuts": 26,
+            "ratio": 10.0,
+            "requested_ratio": 40 / 3,
+        },
+        {"level": 1, "elements": 40, "requested": 40, "ratio": 1.0, "requested_ratio": 1.0},
+    ]
+    notes = []
+    said_off_plan(levels, report, 10, notes)
+    assert notes and notes[0].startswith("the coarsest level has 4 elements, not the 3 planned: elements")
+    notes = []
+    said_off_plan(levels, [dict(report[0], ring_cuts=0), report[1]], 10, notes)
+    assert notes[0] == "the coarsest level has 4 elements, not the 3 planned"
+    notes = []
+    said_off_plan(levels, [dict(report[0], requested=4), report[1]], 10, notes)
+    assert notes == []

@@ -78,20 +78,25 @@ def said_off_plan(
     if why and asked < k0 <= least:  # (the domain or the groups ask for them)
         than = f"more than --coarsest {coarsest}" if k0 > coarsest else f"not {asked:,}"
         notes.append(f"the coarsest level has {k0:,} elements, {than}: {why}")
-    elif k0 > coarsest and (top.get("ring_cuts") or top.get("split_into_children")):
+    elif k0 > planned and (top.get("ring_cuts") or top.get("split_into_children")):
+        # (above the plan but within --coarsest too: a block with 6 cavities, METIS, 4 for 3)
         what = (
             "surround a hole"
             if balls is None or balls[0].dim == 2
             else "not be balls (rings around a tunnel or a neighbour, or around a cavity)"
         )
+        than = f"more than --coarsest {coarsest}" if k0 > coarsest else f"not the {planned:,} planned"
         notes.append(
-            f"the coarsest level has {k0} elements, more than --coarsest {coarsest}: elements that would "
+            f"the coarsest level has {k0:,} elements, {than}: elements that would "
             f"{what} were cut and could not all be merged back"
         )
-    elif k0 > coarsest and k0 > planned:  # (where the plan asked for more: said above, or the drop's note)
-        notes.append(
-            f"the coarsest level has {k0} elements, more than --coarsest {coarsest} and than planned"
+    elif k0 > planned:  # (where the plan asked for more: said above, or the drop's note)
+        than = (
+            f"more than --coarsest {coarsest} and than planned"
+            if k0 > coarsest
+            else f"not the {planned:,} planned"
         )
+        notes.append(f"the coarsest level has {k0:,} elements, {than}")
     if step:
         said_plan_off(report, float(step), coarsest, least, why, notes)
     off = [
