@@ -534,15 +534,17 @@ def ignored_lower_sentence(meta: dict, dim: int) -> str:
         return kind.startswith("vertex") or (dim == 3 and kind.startswith("line"))
 
     kept = {name: int(n) for name, n in lower.items() if below(str(name)) and n}
-    if not kept:
-        return ""
-    total = sum(kept.values())
-    kinds = ", ".join(f"{n:,} {name}" for name, n in sorted(kept.items()))
-    faces = "triangles and quadrilaterals" if dim == 3 else "edges"
-    return (
-        f"{total:,} cells of lower dimension ignored ({kinds}): only the faces of the mesh's cells "
-        f"({faces}) become boundary groups"
-    )
+    empty = int(lower.get("empty cell", 0))  # (VTK_EMPTY_CELL: no points at all)
+    said = [f"{empty:,} empty cell{'s' if empty > 1 else ''} (no points) ignored"] if empty else []
+    if kept:
+        total = sum(kept.values())
+        kinds = ", ".join(f"{n:,} {name}" for name, n in sorted(kept.items()))
+        faces = "triangles and quadrilaterals" if dim == 3 else "edges"
+        said.append(
+            f"{total:,} cells of lower dimension ignored ({kinds}): only the faces of the mesh's cells "
+            f"({faces}) become boundary groups"
+        )
+    return "; ".join(said)
 
 
 def dropped_sentence(meta: dict) -> str | None:

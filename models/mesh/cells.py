@@ -110,11 +110,15 @@ _INFO: dict[int, tuple[str, int, int, int]] = {
     81: ("Bezier pyramid", 3, VTK_PYRAMID, 5),
 }
 _KNOWN_OTHER = {0: "empty cell", 41: "convex point set", 51: "parametric cell", 60: "higher-order cell"}
+# VTK_EMPTY_CELL (no points): counted with the lower-dimensional cells, left out with a notice (VTK's
+# writers leave one where a filter removed a cell); convex point sets come as polyhedra
+# (models/mesh/convex_sets.py)
 DIM = np.full(256, -1, np.int8)
 BASE = np.zeros(256, np.uint8)
 KEEP = np.zeros(256, np.int64)
 for _t, (_n, _d, _b, _k) in _INFO.items():
     DIM[_t], BASE[_t], KEEP[_t] = _d, _b, _k
+DIM[0] = 0
 HIGHER = np.zeros(256, bool)
 HIGHER[[t for t in _INFO if t >= 21 and t != 42]] = True
 LINEAR_SIZE = {VTK_TRIANGLE: 3, VTK_QUAD: 4, VTK_TETRA: 4, VTK_HEXAHEDRON: 8, VTK_WEDGE: 6, VTK_PYRAMID: 5}

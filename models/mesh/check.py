@@ -12,6 +12,7 @@ should know, "error" that it cannot be agglomerated as it is. The verdict is "ok
 from __future__ import annotations
 
 import os
+import re
 from itertools import chain, islice
 
 import numpy as np
@@ -131,7 +132,8 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
 
     ignored = ignored_lower_sentence(mesh.meta, mesh.dim)
     if ignored:  # lines and points of a volume mesh: read, counted, said, not used
-        count = int(ignored.split(" ", 1)[0].replace(",", ""))
+        heads = re.findall(r"(?:^|; )([\d,]+) (?:empty cell|cells of lower)", ignored)
+        count = sum(int(x.replace(",", "")) for x in heads)
         issues.append(_issue("ignored-lower-cells", "info", count, [], ignored))
     if mesh.meta.get("overlapping_groups"):  # gmsh cells in two physical groups: one each
         issues.append(_issue("overlapping-groups", "info", 1, [], str(mesh.meta["overlapping_groups"])))

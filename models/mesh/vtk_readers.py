@@ -22,6 +22,7 @@ import numpy as np
 
 from models.errors import MeshError, ParameterError
 from models.mesh.cells import BOUNDARY_TAG_NAME, TAG_NAMES, Normalized, normalize, with_boundary_faces
+from models.mesh.convex_sets import VTK_CONVEX_POINT_SET, as_polyhedra
 from models.mesh.vtk_arrays import _arrays, _cell_data, _field_data, _np, _openfoam, hidden_cells
 from models.mesh.vtk_setup import (
     _exodus_names,
@@ -216,6 +217,8 @@ def read_vtk(
     norm = _lattice_cells(live, offsets, conn, types, tags)
     if norm is None:
         try:
+            if np.any(np.asarray(types) == VTK_CONVEX_POINT_SET):  # (VTK's own writers: as polyhedra)
+                offsets, conn, types, poly = as_polyhedra(pts, offsets, conn, types, poly)
             norm = normalize(offsets, conn, types, tags=tags, bnd_tags=btags, poly=poly, n_points=len(pts))
         except MeshError as exc:
             raise MeshError(f"cannot read {os.path.basename(path)} as {fmt}: {exc}") from None
