@@ -430,6 +430,28 @@ def test_parallel_pieces_are_one_mesh(tmp_path):
     assert check_file(path)["components"] == 1
 
 
+def test_parallel_pieces_that_repeat_the_mesh_are_read_once_and_said(tmp_path):
+    """A serial script's vtkXMLPUnstructuredGridWriter with 3 pieces and no piece filter writes the
+    whole mesh into each piece: VTK shows 3 copies, we read it once and say so (it was silent)."""
+    from vtkmodules.vtkFiltersCore import vtkPassThrough
+
+    from models.mesh.check import check_file
+
+    p, hexes = vc.grid(4, 3, 2)
+    src = vtkPassThrough()
+    src.SetInputData(vc.unstructured(p, [(12, hexes)]))
+    path = vc.write_pieces(tmp_path / "whole.pvtu", vtk.vtkXMLPUnstructuredGridWriter(), src, 3)
+    assert vc.vtk_read(path).GetNumberOfCells() == 3 * len(hexes)
+    mesh = read_mesh(path)
+    assert mesh.n_cells == len(hexes)
+    said = mesh.meta["repeated_pieces"]
+    assert said["count"] == 2 * len(hexes) and said["message"] == (
+        f"2 of the file's pieces repeat an earlier piece (the same points and cells): read once, "
+        f"{2 * len(hexes)} repeated cells left out"
+    )
+    assert [i["kind"] for i in check_file(path)["issues"]] == ["repeated-pieces"]
+
+
 @pytest.mark.parametrize("writer", ["vtu", "legacy"])
 def test_cell_soup_is_merged_and_said(tmp_path, writer):
     """A mesh whose cells share no point (each cell its own copies of its corners, as deal.II's

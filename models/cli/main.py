@@ -312,7 +312,14 @@ def cmd_agglomerate(args) -> int:
     for key in ("overlong_cells", "open_polyhedra", "openfoam_order", "fluent_faces"):
         if mesh.meta.get(key):
             print(f"warning: {mesh.meta[key]['message']}")
-    for key in ("merged_points", "reordered_cells", "reversed_faces", "gambit_groups", "ghost_cells"):
+    for key in (
+        "merged_points",
+        "reordered_cells",
+        "reversed_faces",
+        "gambit_groups",
+        "ghost_cells",
+        "repeated_pieces",
+    ):
         if mesh.meta.get(key):
             print(f"note: {mesh.meta[key]['message']}")
     return 0

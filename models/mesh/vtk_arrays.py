@@ -46,12 +46,13 @@ def _field_data(data) -> dict:
     return out
 
 
-def _arrays(data, path: str, what: str, fmt: str, groups: bool = True):
+def _arrays(data, path: str, what: str, fmt: str, groups: bool = True, repeats: list | None = None):
     """(points, offsets, connectivity, types, cell data {name: array}, polyhedron faces or None).
     groups: a composite's blocks are physical groups (Exodus element blocks, CGNS zones); not a
-    parallel file's pieces, which are one mesh cut for the processes that wrote it."""
+    parallel file's pieces, which are one mesh cut for the processes that wrote it. repeats: where
+    given, (blocks, cells) of the blocks left out as repeats of an earlier one is appended to it."""
     if data.IsA("vtkCompositeDataSet"):
-        return _composite(data, path, what, fmt, groups)
+        return _composite(data, path, what, fmt, groups, repeats)
     return _dataset(data, path, what, fmt)
 
 
@@ -236,13 +237,18 @@ def _leaves(data) -> list:
     return out
 
 
-def _composite(data, path, what, fmt, groups: bool = True):
+def _composite(data, path, what, fmt, groups: bool = True, repeats: list | None = None):
     """Element blocks / zones joined in one cell set; a `block` tag (1, 2, ...) where the blocks
     carry no tag of their own and are groups (not a parallel file's pieces)."""
     leaves = _leaves(data)
     if not leaves:
         raise MeshError(f"cannot read {os.path.basename(path)} as {fmt}: the file has no cells")
-    parts = _distinct([_dataset(ds, path, what, fmt) for ds in leaves])
+    every = [_dataset(ds, path, what, fmt) for ds in leaves]
+    parts = _distinct(every)
+    if repeats is not None and len(parts) < len(every):
+        repeats.append(
+            (len(every) - len(parts), sum(len(p[3]) for p in every) - sum(len(p[3]) for p in parts))
+        )
     if len(parts) == 1:
         pts, off, conn, types, cd, poly = parts[0]
         if groups and not any(k in cd for k in TAG_NAMES):

@@ -164,7 +164,17 @@ def read_vtk(
             data, path, what, fmt, kind == "openfoam-decomposed"
         )
     else:
-        pts, offsets, conn, types, cell_data, poly = _arrays(data, path, what, fmt, kind not in PIECES)
+        repeats: list = []
+        pts, offsets, conn, types, cell_data, poly = _arrays(
+            data, path, what, fmt, kind not in PIECES, repeats
+        )
+        if repeats and os.path.splitext(path)[1].lower() in PIECEWISE:  # (a time series' grids repeat
+            blocks, cells = repeats[0]  # its mesh by design: said only of a parallel file's pieces)
+            meta["repeated_pieces"] = {
+                "count": cells,
+                "message": f"{blocks:,} of the file's pieces repeat an earlier piece (the same points and "
+                f"cells): read once, {cells:,} repeated cells left out",
+            }
         field = _field_data(data)
         if kind == "exodus":
             field.update(_exodus_names(data))
