@@ -242,8 +242,8 @@ def cmd_agglomerate(args) -> int:
                         "agglomerate SURFACE --fill", f"agglomerate {os.path.basename(args.mesh)} --fill"
                     )
                 ) from None
-            if "--fill" in said:
-                raise
+            if "--fill" in said or not isinstance(exc, MeshError):  # (k above the cells of a flat
+                raise  # surface, say: filling is no answer to it)
             raise type(exc)(
                 f"{exc}; a closed surface is filled with tetrahedra by: magnet agglomerate "
                 f"{os.path.basename(args.mesh)} --fill ..."

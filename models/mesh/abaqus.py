@@ -307,6 +307,7 @@ def _assemble(meshio, placed, several: bool):
     offset = 0
     n_blocks = sum(len(p.blocks) for _, p, _, _ in placed)
     at = 0
+    missing, total = [], sum(len(b[1]) for _, p, _, _ in placed for b in p.blocks)
     for name, part, r, t in placed:
         if not part.node_ids:
             raise MeshError(
@@ -320,11 +321,14 @@ def _assemble(meshio, placed, several: bool):
         ids, xyz = ids[last], xyz[last]
         points.append(xyz @ r.T + t)
         elements = part.elements()
-        for cell, _, conn in part.blocks:
+        for cell, eids, conn in part.blocks:
             pos = np.searchsorted(ids, conn)
             pos = np.minimum(pos, ids.size - 1)
             found = ids[pos] == conn
             idx = np.where(found, pos + offset, -1)  # (a missing node: said by the mesh's checks)
+            if not found.all():  # (elements of nodes no *NODE line defines: the first named)
+                bad = ~found.reshape(len(found), -1).all(axis=1)
+                missing.append((int(bad.sum()), int(np.asarray(eids)[bad][0]), int(conn[~found][0])))
             if cell == "line3" and idx.size and found.all():
                 idx = _line3_ends_first(idx, xyz, offset)
             cells.append(meshio.CellBlock(cell, idx))
@@ -343,6 +347,15 @@ def _assemble(meshio, placed, several: bool):
             sets[name] = _per_block(elements[all_rows], elements, e_order, starts, at, n_blocks)
         offset += ids.size
         at += len(part.blocks)
+    if missing:
+        from models.mesh.build import few_bad
+
+        n = sum(m[0] for m in missing)
+        if not few_bad(n, total):  # (a few are left out and said by the mesh's checks)
+            raise MeshError(
+                f"{n:,} of its {total:,} elements refer to nodes that no *NODE line defines (element "
+                f"{missing[0][1]} refers to node {missing[0][2]}): a *NODE line is missing or the file is cut"
+            )
     # the smallest sets first: a cell goes to the first set that holds it (meshio_groups), so a set
     # of every element (EALL, Set-1, an instance) never hides the materials inside it
     sets = dict(sorted(sets.items(), key=lambda kv: sum(len(x) for x in kv[1])))

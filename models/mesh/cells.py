@@ -242,6 +242,11 @@ def _corner_csr(offsets, conn, types, sel):
     sizes = (offsets[sel + 1] - offsets[sel]).astype(np.int64)
     keep = KEEP[t]
     new = np.where(keep > 0, keep, np.where(keep == -2, sizes // 2, sizes))
+    if np.any(sizes < 0):  # (offsets that go back: a corrupted number among them)
+        bad = int(np.flatnonzero(sizes < 0)[0])
+        raise MeshError(
+            f"the cells' offsets go back at cell {int(sel[bad])}: its node list would end before it starts"
+        )
     if np.any(new > sizes):
         bad = int(np.flatnonzero(new > sizes)[0])
         raise MeshError(

@@ -110,10 +110,14 @@ def open_surface_refusal(path, refused: Exception) -> Exception:
     check say it; `refused` itself where it could be filled (or is no surface file)."""
     from models.errors import MagnetError, MeshError
 
-    if not is_surface_file(path):
+    if not is_surface_file(path) or "agglomerate SURFACE --fill" not in str(refused):
+        return refused  # (not the curved surface's refusal: unreadable, or a flat mesh refused later)
+    try:
+        surface = read_surface(path)
+    except MagnetError:  # (the filling's reader cannot read it either: the refusal says enough)
         return refused
     try:
-        check_closed(read_surface(path))
+        check_closed(surface)
     except MagnetError as why:
         name = os.path.basename(os.fspath(path))
         tail = str(why)
@@ -125,6 +129,43 @@ def open_surface_refusal(path, refused: Exception) -> Exception:
 
 
 # ------------------------------------------------------------------------------------------ read
+
+
+def _ply_faces(path: str):
+    """(points, face offsets, face nodes) of a PLY file by VTK's vtkPLYReader (ParaView's; meshio's
+    refuses big-endian files and extra face properties), read in a forked child under the reading
+    limits (a C++ reader may crash on a corrupted file: models/mesh/sandbox.py)."""
+    from models.mesh.read import _ply_header, default_memory
+    from models.mesh.sandbox import _default_timeout, call_in_child, sandbox_enabled
+
+    with open(path, "rb") as fh:
+        _ply_header(path, os.path.basename(path), fh.read(4096))
+    if not sandbox_enabled():
+        return _vtk_ply(path)
+    return call_in_child(
+        _vtk_ply, (path,), path=path, timeout_s=_default_timeout(), memory_bytes=default_memory()
+    )
+
+
+def _vtk_ply(path: str):
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+    from vtkmodules.vtkIOPLY import vtkPLYReader
+
+    from models.mesh.vtk_readers import _Captured
+
+    with _Captured() as cap:  # (VTK's messages kept off the terminal; what failed said below)
+        reader = vtkPLYReader()
+        reader.SetFileName(path)
+        reader.Update()
+    pd = reader.GetOutput()
+    if cap.failed or pd is None or pd.GetNumberOfPolys() == 0 or pd.GetPoints() is None:
+        raise MeshError("it holds no faces that VTK's PLY reader can read")
+    polys = pd.GetPolys()
+    return (
+        vtk_to_numpy(pd.GetPoints().GetData()).astype(np.float64),
+        vtk_to_numpy(polys.GetOffsetsArray()).astype(np.int64),
+        vtk_to_numpy(polys.GetConnectivityArray()).astype(np.int64),
+    )
 
 
 def read_surface(path) -> Surface:
@@ -158,9 +199,18 @@ def read_surface(path) -> Surface:
                 np.errstate(all="ignore"),
             ):
                 warnings.simplefilter("ignore")
-                m = meshio.read(path, file_format=ext.lstrip("."))
+                try:
+                    m = meshio.read(path, file_format=ext.lstrip("."))
+                except (Exception, SystemExit):
+                    if ext != ".ply":
+                        raise
+                    # what meshio refuses, VTK's reader (ParaView's) in a child, as read_mesh does
+                    m = surface_text.as_meshio(*_ply_faces(path))
     except MeshError as exc:  # ours: what is wrong in the file
-        raise MeshError(f"cannot read {name} as {fmt}: {exc}") from None
+        said = str(exc)
+        raise MeshError(
+            said if said.startswith(f"cannot read {name} ") else f"cannot read {name} as {fmt}: {said}"
+        ) from None
     except (Exception, SystemExit):  # meshio raises many kinds (even SystemExit) on broken input
         raise MeshError(f"cannot read {name} as {fmt}: the file is corrupted or not {fmt}") from None
     tris, volume_cells = [], 0

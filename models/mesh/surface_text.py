@@ -9,14 +9,20 @@ only the split (no numbers parsed in Python)."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from models.errors import MeshError
 
 
-def _lines(path: str) -> list[list[bytes]]:
+def _lines(path: str, continued: bool = False) -> list[list[bytes]]:
+    """Each line's words, comments dropped; continued: a line ending in a backslash goes on on the
+    next (OBJ's rule: exporters break long `f` lines so)."""
     with open(path, "rb") as fh:
         data = fh.read()
+    if continued and b"\\" in data:
+        data = re.sub(rb"\\[ \t]*\r?\n", b" ", data)
     return [words for words in (line.split(b"#", 1)[0].split() for line in data.splitlines()) if words]
 
 
@@ -72,8 +78,8 @@ def read_obj(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(points (P, 3), face offsets (F + 1), face nodes) of a Wavefront OBJ file: `v` lines (x y z, extra words
     ignored) and `f` lines whose corners are `i`, `i/t`, `i//n` or `i/t/n` (the point index i, from 1;
     negative: counted back from the last point defined so far). Texture coordinates, normals, groups,
-    materials, lines and the rest are ignored."""
-    lines = _lines(path)
+    materials, lines and the rest are ignored; a line ending in a backslash goes on on the next."""
+    lines = _lines(path, continued=True)
     kind = [r[0] for r in lines]
     is_v = np.array([k == b"v" for k in kind], dtype=bool)
     is_f = np.array([k == b"f" for k in kind], dtype=bool)

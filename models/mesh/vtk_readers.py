@@ -67,6 +67,7 @@ READERS: dict[str, tuple[str, str, str]] = {
     "plot3d": ("PLOT3D grid", "vtkMultiBlockPLOT3DReader", "vtkmodules.vtkIOParallel"),
     "ensight": ("EnSight case", "vtkGenericEnSightReader", "vtkmodules.vtkIOEnSight"),
     "tecplot": ("Tecplot", "vtkTecplotReader", "vtkmodules.vtkIOGeometry"),
+    "ply": ("PLY", "vtkPLYReader", "vtkmodules.vtkIOPLY"),
 }
 # parallel files whose pieces are separate point sets: read piece by piece (_pieces), joined as a
 # composite's blocks are (points on the cuts between pieces, written once per piece, merged)
