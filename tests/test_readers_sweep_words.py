@@ -141,3 +141,29 @@ def test_a_closed_big_endian_ply_is_read_for_filling(tmp_path):
     surface = read_surface(str(path))
     check_closed(surface)
     assert len(surface.points) == 8 and len(surface.triangles) == 12
+
+
+@pytest.mark.parametrize("binary", [False, True])
+def test_a_legacy_file_going_on_after_its_mesh_is_read_as_vtk_reads_it(tmp_path, binary):
+    """A hand-written legacy file with a comment or bytes after its last section: VTK's reader reads
+    the mesh and stops at the unknown word; so do we, with a warning naming the line. The same word
+    before the cells is still refused."""
+    pytest.importorskip("vtk")
+    import vtk_corpus as vc
+
+    p, h = vc.grid(3, 2, 2)
+    good = vc.write_legacy(tmp_path / "good.vtk", vc.unstructured(p, [(12, h)]), 42, binary)
+    data = open(good, "rb").read()
+    path = tmp_path / "tail.vtk"
+    path.write_bytes(data + b"\n#garbage \x00\x01 from a script 123\n")
+    mesh, ref = read_mesh(str(path)), read_mesh(good)
+    assert mesh.n_cells == len(h) and _area(mesh) == pytest.approx(_area(ref), rel=1e-12)
+    said = [i for i in check_file(str(path))["issues"] if i["kind"] == "trailing-bytes"]
+    assert said and said[0]["message"].startswith(
+        "the file goes on after its mesh with what is no legacy VTK section ('#garbage"
+    )
+    at = data.index(b"CELLS")
+    inside = tmp_path / "inside.vtk"
+    inside.write_bytes(data[:at] + b"#garbage\n" + data[at:])
+    with pytest.raises(MeshError):
+        read_mesh(str(inside))
