@@ -350,7 +350,9 @@ class Agglomeration:
             self.metrics  # noqa: B018  (the VTU carries the per-element metrics)
         where = {"mesh": "vtu", "labels": "labels", "lymph": "lymph", "plot": "plot"}
         if kind not in where:
-            raise ParameterError(f"kind must be one of {sorted([*where, 'metrics', 'ucd'])}, got {kind!r}")
+            raise ParameterError(
+                f"kind must be one of {', '.join(sorted([*where, 'metrics', 'ucd']))}, got {kind!r}"
+            )
         pipeline.write_outputs(self.result, **{where[kind]: path}, boundary_tag=tag)
         return path
 
@@ -481,6 +483,8 @@ class Hierarchy:
         from models.mesh.boundary import fine_boundary, has_groups
 
         m, g = self.mesh, self.graph
+        if lymph and m.dim != 2:  # (before anything is written: --lymph was asked of a 3D mesh)
+            raise ParameterError("lymph's mesh structs (--lymph) are for 2D meshes only; this mesh is 3D")
         boundary = fine_boundary(m, g.faces, g.partner) if has_groups(m) else None
         keys = (
             "model",

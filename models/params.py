@@ -161,16 +161,16 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
     known = {"model", "mode", "k", "nref", "target_size", "mult_factor", "subset", "refiner", "options"}
     unknown = set(params) - known
     if unknown:
-        raise ParameterError(f"unknown parameter(s): {sorted(unknown)}")
+        raise ParameterError(f"unknown parameter(s): {', '.join(sorted(unknown))}")
     model = params.get("model", "metis")
     names = [c["name"] for c in MODEL_CARDS]
     if model not in names:
-        raise ParameterError(f"model must be one of {names}, got {model!r}")
+        raise ParameterError(f"model must be one of {', '.join(names)}, got {model!r}")
     mode = params.get("mode")
     if mode is None:
         mode = infer_mode(params)
     if mode not in MODES:
-        raise ParameterError(f"mode must be one of {list(MODES)}, got {mode!r}")
+        raise ParameterError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
     k = _int(params, "k", lo=1)
     nref = _int(params, "nref", lo=0, hi=30)
     target_size = _float(params, "target_size", lo_open=0.0)
@@ -189,7 +189,7 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
     if refiner == "none":
         refiner = None
     if refiner is not None and refiner not in REFINERS:
-        raise ParameterError(f"refiner must be one of {list(REFINERS)} or null, got {refiner!r}")
+        raise ParameterError(f"refiner must be one of {', '.join(REFINERS)} or null, got {refiner!r}")
     if refiner == "rl-refiner" and (mode == "kway" or (mode == "coarsen" and k is not None)):
         raise ParameterError("refiner 'rl-refiner' refines bisections only; k-way mode takes refiner 'fm'")
     given = [s for s, v in zip(SIZES, (k, nref, target_size, mult_factor), strict=True) if v is not None]

@@ -82,7 +82,7 @@ def split_holes(
 ):
     """Merge, and split elements that enclose holes until none does. Returns (poly, labels, n_split)."""
     if policy not in HOLE_POLICIES:
-        raise ParameterError(f"hole_policy must be one of {list(HOLE_POLICIES)}, got {policy!r}")
+        raise ParameterError(f"hole_policy must be one of {', '.join(HOLE_POLICIES)}, got {policy!r}")
     from models.partition.agglomerate import connected_parts
 
     n_split = 0

@@ -84,9 +84,9 @@ def test_cli_boxfit_is_the_librarys(tmp_path, square):
 @pytest.mark.parametrize(
     "argv,words",
     [
-        (["--finest", "box"], "options.finest must be aggregation, cuts, quality or nested"),
-        (["--finest", "quality", "--model", "metis"], "needs model rtree and no options.ratio"),
-        (["--finest", "nested", "--ratio", "8"], "needs model rtree and no options.ratio"),
+        (["--finest", "box"], "--finest must be aggregation, cuts, quality or nested"),
+        (["--finest", "quality", "--model", "metis"], "needs model rtree and no --ratio"),
+        (["--finest", "nested", "--ratio", "8"], "needs model rtree and no --ratio"),
     ],
 )
 def test_cli_refuses_a_bad_finest_in_one_sentence(tmp_path, square, argv, words):

@@ -139,27 +139,17 @@ def test_cli_schedule_and_kappa(tmp_path):
     assert index["ratio"] == list(default_ratio(2)) and index["kappa"] == [9.0, 1.0]
     sizes = [lv["elements"] for lv in index["levels"]]
     assert sizes == level_counts(48 * 48, default_ratio(2), 10, stretch=0)
-    r = subprocess.run(  # the other models: kappa judges (--mgcheck), the levels are not cut for it
-        [
-            sys.executable,
-            "-m",
-            "models.cli",
-            "hierarchy",
-            str(src),
-            "-o",
-            str(out),
-            "--model",
-            "metis",
-            "--kappa",
-            "9,1",
-        ],
-        capture_output=True,
-        text=True,
-        env=ENV,
-        cwd=ROOT,
+    cmd = [sys.executable, "-m", "models.cli", "hierarchy", str(src), "-o", str(out), "--model", "metis"]
+    # the other models: kappa judges (--mgcheck), the levels are not cut for it; without --mgcheck it
+    # would be given and ignored, so it is refused in one sentence
+    r = subprocess.run([*cmd, "--kappa", "9,1"], capture_output=True, text=True, env=ENV, cwd=ROOT)
+    assert r.returncode == 2 and "with --model metis it is the tensor of --mgcheck's solve" in r.stderr
+    r = subprocess.run(
+        [*cmd, "--kappa", "9,1", "--mgcheck"], capture_output=True, text=True, env=ENV, cwd=ROOT
     )
     assert r.returncode == 0, r.stderr
-    assert json.load(open(out / "hierarchy.json", encoding="utf-8"))["kappa"] is None
+    index = json.load(open(out / "hierarchy.json", encoding="utf-8"))
+    assert index["kappa"] is None and index["multigrid"]
 
 
 def test_the_last_step_ends_on_a_whole_count_within_the_slack():

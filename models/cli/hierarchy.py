@@ -119,6 +119,11 @@ def hierarchy_main(args) -> int:
         from models.hierarchy.multigrid import parse_kappa
 
         kappa = parse_kappa(args.kappa)  # bad values refused before any work
+        if args.model != "rtree" and not args.mgcheck:  # (else given and ignored without a word)
+            raise ParameterError(
+                f"--kappa cuts the levels for a diffusion tensor with --model rtree only; with --model "
+                f"{args.model} it is the tensor of --mgcheck's solve: add --mgcheck, or use --model rtree"
+            )
     parent = os.path.dirname(os.path.abspath(out))
     if not os.path.isdir(parent):
         raise ParameterError(f"cannot write the hierarchy to {out!r}: folder {parent!r} does not exist")

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import sys
 import time
 
@@ -569,6 +570,27 @@ def _unavailable(exc) -> int:
     return EXIT_USER_ERROR
 
 
+_OPTION = re.compile(r"\boptions\.([a-z_]+)")
+
+
+def cli_words(message: str, args) -> str:
+    """A refusal worded for the command line: the service's `options.ratio` is the flag `--ratio`
+    where this command has one (models.params words them for JSON parameters)."""
+    if "options." not in message:
+        return message
+    if getattr(args, "command", None) == "agglomerate":  # (no --ratio: its own command makes those)
+        message = message.replace(
+            ", or options.ratio (a hierarchy of its own, like `magnet hierarchy`)",
+            "; a hierarchy of its own: `magnet hierarchy`",
+        )
+
+    def flag(m: re.Match) -> str:
+        name = m.group(1)
+        return f"--{name.replace('_', '-')}" if hasattr(args, name) else m.group(0)
+
+    return _OPTION.sub(flag, message)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     parser = build_parser(argv)
@@ -578,7 +600,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         rc = args.func(args)
     except MagnetError as exc:
-        print(f"magnet: error: {exc}", file=sys.stderr)
+        print(f"magnet: error: {cli_words(str(exc), args)}", file=sys.stderr)
         return EXIT_USER_ERROR
     except OSError as exc:  # an output that cannot be written (disk full, permissions changed, ...)
         where = f": {exc.filename}" if exc.filename else ""

@@ -449,6 +449,11 @@ def build_hierarchy(
     model_options = dict(model_options or {})
     boxfit = bool(model_options.pop("boxfit", False))  # models.hierarchy.boxfit after the levels
     rings = bool(model_options.pop("rings", True))  # 3D: rings around a tunnel or a neighbour cut
+    if not rings and mesh.dim == 2:
+        raise ParameterError(
+            "keeping rings (--keep-rings) is for 3D meshes, whose elements may go around a tunnel; a 2D "
+            "element never encloses a hole"
+        )
     if ratio is None:
         ratio = default_ratio(mesh.dim)
     if finest is not None:
@@ -576,7 +581,7 @@ def build_hierarchy(
     else:
         from models.partition.agglomerate import agglomerate
 
-        part = get_partitioner(model, seed=seed, **count_weighted(model, model_options))
+        part = get_partitioner(model, seed=seed, **count_weighted(model, opts_in))  # (finest: ours)
         if part.supports_kway and group_of is not None:  # each piece of a group its share, apart
             levels = [np.arange(n)]
             for c in reversed(counts):

@@ -622,7 +622,7 @@ def _find_tag_key(cell_data: dict, physical_tag: str | None) -> str | None:
     if physical_tag is not None:
         if physical_tag not in cell_data:
             raise ParameterError(
-                f"physical tag {physical_tag!r} not found in the mesh cell data; available: {sorted(cell_data) or 'none'}"
+                f"physical tag {physical_tag!r} not found in the mesh cell data; available: {', '.join(sorted(cell_data)) or 'none'}"
             )
         return physical_tag
     for key in TAG_NAMES:

@@ -289,7 +289,7 @@ def _tag_key(cell_data: dict, physical_tag: str | None) -> str | None:
     if physical_tag is not None:
         if physical_tag not in cell_data:
             raise ParameterError(
-                f"physical tag {physical_tag!r} not found in the mesh cell data; available: {sorted(cell_data) or 'none'}"
+                f"physical tag {physical_tag!r} not found in the mesh cell data; available: {', '.join(sorted(cell_data)) or 'none'}"
             )
         return physical_tag
     return next((k for k in TAG_NAMES if k in cell_data), None)

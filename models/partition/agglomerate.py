@@ -397,7 +397,7 @@ def agglomerate(
     if mode not in MODES:
         raise ParameterError(f"unknown mode {mode!r}; choose one of {list(MODES)}")
     if size_measure not in SIZE_MEASURES:
-        raise ParameterError(f"size_measure must be one of {list(SIZE_MEASURES)}, got {size_measure!r}")
+        raise ParameterError(f"size_measure must be one of {', '.join(SIZE_MEASURES)}, got {size_measure!r}")
     part = (
         model
         if isinstance(model, Partitioner)
