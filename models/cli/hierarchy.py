@@ -50,8 +50,8 @@ def add_hierarchy_args(p: argparse.ArgumentParser) -> None:
         "beats pyamg's iterations, ragged coarse boxes. cuts: rtree cuts of the cells at every level: "
         "box-shaped elements (R3MG's box measures), up to 1.14x pyamg's iterations; the one with --ratio "
         "or --kappa. quality: pairwise quality-controlled aggregates: fewer iterations (0.92x in 2D) at a "
-        "higher operator complexity (1.3-1.4x pyamg's on the family, 2x on hexahedra with pyramids). nested: pyamg's aggregation inside the cells' cuts: the "
-        "cuts' boxes on the coarser levels, up to 1.12x pyamg's iterations",
+        "higher operator complexity (1.3-1.4x pyamg's on the family, 1.6x on recombined quads, 2x on hexahedra with pyramids). nested: pyamg's aggregation inside the cells' cuts: the "
+        "cuts' boxes on the coarser levels, up to 1.12x pyamg's iterations on the family (1.2x on an outside 3D mesh)",
     )
     p.add_argument(
         "--boxfit",
@@ -63,7 +63,7 @@ def add_hierarchy_args(p: argparse.ArgumentParser) -> None:
         "--keep-rings",
         action="store_true",
         help="3D: keep elements with a handle (rings around a tunnel or a neighbour) instead of cutting "
-        "them (faster; a note counts them)",
+        "them (faster; a note counts them); refused for a 2D mesh",
     )
     p.add_argument(
         "--groups", action="store_true", help="no element crosses a physical group (rtree, metis, kmeans)"
@@ -86,7 +86,7 @@ def add_hierarchy_args(p: argparse.ArgumentParser) -> None:
         metavar="KX,KY[,KZ]",
         help="anisotropic diffusion tensor diag(kx, ky[, kz]) the levels are for: rtree cuts in the "
         "metric of its couplings (elements sqrt(kx/ky) times longer along x than y); also the tensor "
-        "of --mgcheck (default: identity)",
+        "of --mgcheck (default: identity); with another model, only --mgcheck's (add it)",
     )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--physical-tag")
