@@ -135,11 +135,12 @@ def _ply_faces(path: str):
     """(points, face offsets, face nodes) of a PLY file by VTK's vtkPLYReader (ParaView's; meshio's
     refuses big-endian files and extra face properties), read in a forked child under the reading
     limits (a C++ reader may crash on a corrupted file: models/mesh/sandbox.py)."""
-    from models.mesh.read import _ply_header, default_memory
+    from models.mesh.ply import check_header
+    from models.mesh.read import default_memory
     from models.mesh.sandbox import _default_timeout, call_in_child, sandbox_enabled
 
     with open(path, "rb") as fh:
-        _ply_header(path, os.path.basename(path), fh.read(4096))
+        check_header(path, os.path.basename(path), fh.read(4096))
     if not sandbox_enabled():
         return _vtk_ply(path)
     return call_in_child(

@@ -310,3 +310,46 @@ def legacy_shortfall(path: str, n_cells_read: int | None) -> str | None:
                     "truncated"
                 )
     return None
+
+
+_UNKNOWN_KEYWORD = re.compile(r"Unrecognized keyword: (\S+)")
+_MESH_SECTIONS = re.compile(
+    rb"^[ \t]*(CELL_TYPES|POLYGONS|TRIANGLE_STRIPS|LINES|VERTICES)[ \t]+\d+", re.MULTILINE | re.IGNORECASE
+)
+
+
+def legacy_tail(path: str, text: str, out) -> str | None:
+    """A legacy file whose one fault is what follows its mesh (a hand-written file's trailing
+    comment or bytes; VTK's reader reads the mesh, says "Unrecognized keyword" and stops): the
+    sentence saying what was ignored and where; None for any other fault, or where the unknown word
+    is not after the file's last cell section, or the cells or points fall short of what it
+    declares (legacy_shortfall)."""
+    blocks = [b for b in re.split(r"(?=ERROR)", text) if b.startswith("ERROR")]
+    words = [_UNKNOWN_KEYWORD.search(b) for b in blocks]
+    if (
+        not blocks
+        or not all(words)
+        or out is None
+        or not (out.IsA("vtkUnstructuredGrid") or out.IsA("vtkPolyData"))
+    ):
+        return None
+    if out.GetNumberOfCells() == 0 or legacy_shortfall(
+        path, out.GetNumberOfCells() if out.IsA("vtkUnstructuredGrid") else None
+    ):
+        return None
+    with open(path, "rb") as fh:
+        data = fh.read()
+    found = list(_MESH_SECTIONS.finditer(data))
+    last = found[-1] if found else None
+    word = words[0].group(1).encode("latin-1", "replace")
+    at = data.lower().find(word.lower(), last.end() if last is not None else len(data))
+    if last is None or at < 0:
+        return None
+    line = data.count(b"\n", 0, at) + 1
+    shown = "".join(
+        c if c.isprintable() else "?" for c in data[at : at + 24].split(b"\n")[0].decode("latin-1")
+    )
+    return (
+        f"the file goes on after its mesh with what is no legacy VTK section ('{shown}' at line {line:,}): "
+        "ignored, as VTK's reader ignores it"
+    )
