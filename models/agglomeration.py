@@ -121,7 +121,10 @@ def agglomerate(
     if subset is not None:
         import numpy as np
 
-        subset = np.asarray(subset)
+        try:
+            subset = np.asarray(subset)
+        except ValueError:
+            raise ParameterError("subset must be a list of cell ids") from None
         subset = subset.tolist() if subset.ndim == 1 and np.issubdtype(subset.dtype, np.integer) else subset
     params = {
         "model": model,
@@ -149,7 +152,7 @@ def agglomerate(
     }
     params = {key: v for key, v in params.items() if v is not None}
     params["options"] = {key: v for key, v in params["options"].items() if v is not None}
-    return run(
+    result = run(
         source,
         params,
         points=points,
@@ -160,6 +163,14 @@ def agglomerate(
         warn=warn,
         untrusted=untrusted,
     )
+    if result.mesh.meta.get("dropped_cells"):  # (the CLI says it itself; here, the one call)
+        from models.mesh.build import dropped_sentence
+
+        (warn or _stderr)(
+            f"{dropped_sentence(result.mesh.meta)}: labels holds the {result.mesh.n_cells:,} cells read, "
+            "input_labels one per cell given (-1 for those)"
+        )
+    return result
 
 
 def run(
@@ -273,6 +284,15 @@ class Agglomeration:
         return self.result.agglomeration.labels
 
     @property
+    def input_labels(self):
+        """One label per cell given (a file's cells, or cells= in their order): -1 for the few bad
+        cells the read left out and said (a missing point, no area, a repeat); `labels` holds the
+        cells read, in the order of `mesh`."""
+        from models.pipeline import input_labels
+
+        return input_labels(self.mesh, self.labels)
+
+    @property
     def n_elements(self) -> int:
         return int(self.result.poly.n_elements)
 
@@ -284,9 +304,13 @@ class Agglomeration:
 
     def polygon(self, e: int):
         """2D: the point ids of element e's boundary loop, counter-clockwise."""
+        import numpy as np
+
         p = self.result.poly
         if p.dim != 2:
             raise ParameterError("polygon() is for 2D results; 3D elements are polyhedra (see .elements)")
+        if isinstance(e, bool) or not isinstance(e, int | np.integer) or not 0 <= e < self.n_elements:
+            raise ParameterError(f"polygon(e): e is an element number, 0 to {self.n_elements - 1}, got {e}")
         lo = p.loop_offsets[p.elem_offsets[e]]
         return p.loop_nodes[lo : p.loop_offsets[p.elem_offsets[e] + 1]]
 
@@ -311,9 +335,11 @@ class Agglomeration:
         """Write by suffix: .vtu (the polytopes with per-element metrics), .json (the metrics report),
         .mat (lymph structs, 2D), .ucd / .inp (deal.II: fine cells, material id = element), .png
         (a picture). kind="labels" writes the labels as a JSON list, kind="lymph" a .json lymph file."""
+        import numpy as np
+
         from models import pipeline
 
-        path = os.fspath(path)
+        path = _out_path(path, "a file")
         ext = os.path.splitext(path)[1].lower()
         kind = kind or {
             ".vtu": "mesh",
@@ -325,9 +351,13 @@ class Agglomeration:
         }.get(ext)
         if kind is None:
             raise ParameterError(
-                f"cannot tell what to write to {path!r}: use .vtu, .json, .mat, .ucd, .inp or .png"
+                f"cannot tell what to write to {path}: use .vtu, .json, .mat, .ucd, .inp or .png"
             )
+        if os.path.isdir(path):
+            raise ParameterError(f"cannot write to {path}: it is a folder")
         tag = self.params["options"]["boundary_tag"] if boundary_tag is None else boundary_tag
+        if isinstance(tag, bool) or not isinstance(tag, int | np.integer):
+            raise ParameterError(f"boundary_tag must be a whole number, got {tag}")
         if kind == "ucd":
             from models.export.ucd import write_ucd
 
@@ -430,7 +460,11 @@ def build_hierarchy(
     the cuts' boxes above the finest level). boxfit: then move boundary cells towards tighter boxes
     (models.hierarchy.boxfit; any model). keep_rings: 3D elements with a handle (rings around a
     tunnel or a neighbour) are kept, not cut (faster; info["notes"] counts them)."""
-    opts = {"seed": seed, "hierarchy": True, "coarsest": coarsest}
+    import numpy as np
+
+    if isinstance(coarsest, bool) or not isinstance(coarsest, int | np.integer):
+        raise ParameterError(f"coarsest must be a whole number of elements, got {coarsest}")
+    opts = {"seed": seed, "hierarchy": True, "coarsest": int(coarsest)}
     if ratio is not None:
         opts["ratio"] = ratio
     if finest is not None:
@@ -447,7 +481,12 @@ def build_hierarchy(
     if kappa is not None:
         from models.hierarchy.multigrid import parse_kappa
 
-        text = kappa if isinstance(kappa, str) else ",".join(str(float(v)) for v in kappa)
+        try:
+            text = kappa if isinstance(kappa, str) else ",".join(str(float(v)) for v in kappa)
+        except (TypeError, ValueError):
+            raise ParameterError(
+                'kappa must be "kx,ky[,kz]" or a sequence of 2 or 3 positive numbers (a diagonal tensor)'
+            ) from None
         kappa = parse_kappa(text, mesh.dim)
     levels, info = build(
         mesh,
@@ -499,8 +538,11 @@ class Hierarchy:
             "notes",
             "stretch",
         )
+        folder = _out_path(folder, "a folder")
+        if os.path.exists(folder) and not os.path.isdir(folder):
+            raise ParameterError(f"cannot write the hierarchy to {folder}: it is a file, not a folder")
         return write_hierarchy(
-            os.fspath(folder),
+            folder,
             m,
             self.data,
             self.levels,
@@ -512,6 +554,20 @@ class Hierarchy:
         )
 
 
+def _out_path(path, what: str) -> str:
+    """An output path as a str (bytes decoded), refused in one sentence where it is none or its
+    folder does not exist."""
+    if isinstance(path, bytes):
+        path = os.fsdecode(path)
+    if not isinstance(path, str | os.PathLike):
+        raise ParameterError(f"give the path of {what} to write to, got a {type(path).__name__}")
+    path = os.fspath(path)
+    parent = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(parent):
+        raise ParameterError(f"cannot write to {path}: folder {parent} does not exist")
+    return path
+
+
 def _stderr(line: str) -> None:
     import sys
 
@@ -519,28 +575,76 @@ def _stderr(line: str) -> None:
 
 
 def _meshio_from_arrays(points, cells, tags) -> meshio.Mesh:
+    """points= / cells= / tags= as a meshio.Mesh, each checked: real coordinates in 2 or 3 columns;
+    cells a list of (meshio cell type, (n, nodes) whole-number ids) pairs, the width the type has;
+    tags one whole number per cell of each block. What does not fit is refused in one sentence."""
     import meshio
     import numpy as np
+    from meshio._common import num_nodes_per_cell
 
     if isinstance(cells, dict):
         cells = list(cells.items())
     try:
-        blocks = [(str(name), np.asarray(conn)) for name, conn in cells]
+        blocks = [(name, np.asarray(conn)) for name, conn in cells]
     except (TypeError, ValueError):
         raise ParameterError(
             "cells must be a list of (cell type, connectivity) pairs, e.g. [('triangle', tri)]"
         ) from None
+    for name, conn in blocks:
+        if not isinstance(name, str) or (name not in num_nodes_per_cell and not name.startswith("polygon")):
+            raise ParameterError(
+                f"unknown cell type '{name}' in cells=: use meshio's names (triangle, quad, polygon, "
+                "tetra, hexahedron, wedge, pyramid, triangle6, tetra10, ...)"
+            )
+        if conn.dtype.kind not in "iuf" or conn.ndim != 2:
+            raise ParameterError(
+                f"the {name} cells must be an (n, nodes) array of point ids, got "
+                + (
+                    f"a {conn.ndim}-dimensional array"
+                    if conn.dtype.kind in "iuf"
+                    else "other values than numbers"
+                )
+            )
+        if conn.dtype.kind == "f" and conn.size and not np.all(np.isfinite(conn) & (conn == np.round(conn))):
+            raise ParameterError(f"the {name} cells' point ids must be whole numbers")
+        width = num_nodes_per_cell.get(name)
+        if width is not None and conn.shape[1] != width:
+            raise ParameterError(f"a {name} has {width} nodes, but its cells here have {conn.shape[1]}")
+    blocks = [(name, conn.astype(np.int64)) for name, conn in blocks]
+    try:
+        pts = np.asarray(points)
+    except ValueError:
+        raise ParameterError("points must be an (n, 2) or (n, 3) array: its rows differ in length") from None
+    if pts.dtype.kind not in "iuf":
+        raise ParameterError(
+            "points must be real numbers, an (n, 2) or (n, 3) array"
+            + (" (complex given)" if pts.dtype.kind == "c" else "")
+        )
+    if pts.ndim != 2 or pts.shape[1] not in (2, 3):
+        raise ParameterError(f"points must be an (n, 2) or (n, 3) array, got shape {tuple(pts.shape)}")
     cell_data = {}
     if tags is not None:
-        if len(tags) != len(blocks):
-            raise ParameterError(f"tags must hold one array per cell block ({len(blocks)}), got {len(tags)}")
-        cell_data["gmsh:physical"] = [np.asarray(t).reshape(-1) for t in tags]
+        if isinstance(tags, np.ndarray) and len(blocks) == 1 and tags.ndim == 1:
+            tags = [tags]  # (one block: its tags as one array)
+        if not isinstance(tags, list | tuple) or len(tags) != len(blocks):
+            raise ParameterError(f"tags must hold one array per cell block ({len(blocks)})")
+        out = []
+        for (name, conn), t in zip(blocks, tags, strict=True):
+            t = np.asarray(t).reshape(-1)
+            if t.size != len(conn):
+                raise ParameterError(
+                    f"tags must hold one number per {name} cell ({len(conn):,}), got {t.size:,}"
+                )
+            if t.dtype.kind not in "iuf" or (
+                t.dtype.kind == "f" and t.size and not np.all(np.isfinite(t) & (t == np.round(t)))
+            ):
+                raise ParameterError("tags must be whole numbers (a physical group per cell)")
+            out.append(t.astype(np.int64))
+        cell_data["gmsh:physical"] = out
     try:
-        return meshio.Mesh(np.asarray(points, dtype=np.float64), blocks, cell_data=cell_data)
-    except (TypeError, ValueError) as exc:
-        raise MeshError(
-            f"points / cells do not form a mesh: {str(exc).splitlines()[0] if str(exc) else 'bad shapes'}"
-        ) from None
+        return meshio.Mesh(pts.astype(np.float64), blocks, cell_data=cell_data)
+    except (TypeError, ValueError, KeyError):
+        raise MeshError("points / cells do not form a mesh (their shapes do not agree)") from None
 
 
 def _meshio_from_grid(grid) -> meshio.Mesh:

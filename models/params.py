@@ -142,11 +142,22 @@ def infer_mode(params: dict) -> str:
     return _MODE_OF_SIZE[given[0]] if given else "kway"
 
 
+def _plain(v):
+    """Numpy scalars (np.int64(4), np.True_, a 0-d array) as the Python numbers they hold, all the
+    way down a parameters dict: a caller computing k with numpy gets k, not "k must be an integer,
+    got np.int64(4)"."""
+    if isinstance(v, dict):
+        return {key: _plain(x) for key, x in v.items()}
+    if type(v).__module__ == "numpy" and hasattr(v, "item") and getattr(v, "ndim", 0) == 0:
+        return v.item()
+    return v
+
+
 def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
     """Check and normalize job parameters (before any work is queued). The ParameterError raised
     carries `field`: the parameter at fault (None when it is not one field)."""
     try:
-        return _validate(params, mesh_info)
+        return _validate(_plain(params), mesh_info)
     except ParameterError as exc:
         if getattr(exc, "field", None) is None:
             m = _FIELD_RE.match(str(exc))

@@ -61,6 +61,17 @@ class Result:
         return s
 
 
+def input_labels(mesh: Mesh, labels: np.ndarray) -> np.ndarray:
+    """One label per cell of the file (or of cells= as given): -1 for the few bad cells the read
+    left out (mesh.meta["dropped_cells"]); `labels` (one per cell read) where none was."""
+    left_out = mesh.meta.get("dropped_cells")
+    if not left_out:
+        return labels
+    full = np.full(int(left_out["file_cells"]), -1, dtype=np.int64)
+    full[np.setdiff1d(np.arange(full.size), np.asarray(left_out["ids_all"], dtype=np.int64))] = labels
+    return full
+
+
 def prepare(mesh: Mesh) -> tuple[DualGraph, CellData]:
     """Dual graph and cell geometry (the features every partitioner uses)."""
     c = cached_faces(mesh)  # kept by reading (with the face pairing), else built here
@@ -457,12 +468,7 @@ def write_outputs(
         )
         out["mesh"] = vtu
     if labels:
-        lab = res.agglomeration.labels
-        left_out = res.mesh.meta.get("dropped_cells")
-        if left_out:  # one label per cell of the file: -1 for the few bad cells the read left out
-            full = np.full(int(left_out["file_cells"]), -1, dtype=np.int64)
-            full[np.setdiff1d(np.arange(full.size), np.asarray(left_out["ids_all"], dtype=np.int64))] = lab
-            lab = full
+        lab = input_labels(res.mesh, res.agglomeration.labels)
         atomic.write_text(labels, json.dumps(lab.tolist()))
         out["labels"] = labels
     if lymph:
