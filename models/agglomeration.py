@@ -65,7 +65,7 @@ def read_mesh(
     if isinstance(getattr(source, "cells", None), list) and hasattr(source, "points"):  # meshio.Mesh
         return mesh_from_meshio(source, physical_tag=physical_tag, weld=weld)
     raise ParameterError(
-        f"cannot read a {type(source).__name__} as a mesh: give a path, a meshio.Mesh, a VTK or pyvista "
+        f"cannot read {'an' if type(source).__name__[:1].lower() in 'aeiou' else 'a'} {type(source).__name__} as a mesh: give a path, a meshio.Mesh, a VTK or pyvista "
         "unstructured grid, or points= and cells="
     )
 
@@ -75,6 +75,8 @@ def check(source=None, *, points=None, cells=None, tags=None, physical_tag=None,
     from models.mesh.check import check_file, mesh_report
 
     if isinstance(source, str | os.PathLike):
+        if points is not None or cells is not None or tags is not None:
+            raise ParameterError("give either a mesh or points= and cells=, not both")
         return check_file(source, physical_tag=physical_tag, weld=weld)
     return mesh_report(
         read_mesh(source, points=points, cells=cells, tags=tags, physical_tag=physical_tag, weld=weld)
@@ -118,6 +120,11 @@ def agglomerate(
     target-size, mult_factor: mult-factor; with a subset: coarsen). k gives exactly k elements
     unless allow_extra. hierarchy: keep the nested levels of a recursive mode (result.write_hierarchy).
     metrics: compute the metrics now (else on first use of .metrics). warn(line): told of slow runs."""
+    for name, fn in (("progress", progress), ("warn", warn)):
+        if fn is not None and not callable(fn):
+            raise ParameterError(f"{name} must be a function (or None), got a {type(fn).__name__}")
+    if not isinstance(metrics, bool):
+        raise ParameterError(f"metrics must be True or False, got a {type(metrics).__name__}")
     if subset is not None:
         import numpy as np
 
@@ -152,17 +159,22 @@ def agglomerate(
     }
     params = {key: v for key, v in params.items() if v is not None}
     params["options"] = {key: v for key, v in params["options"].items() if v is not None}
-    result = run(
-        source,
-        params,
-        points=points,
-        cells=cells,
-        tags=tags,
-        metrics=metrics,
-        progress=progress,
-        warn=warn,
-        untrusted=untrusted,
-    )
+    try:
+        result = run(
+            source,
+            params,
+            points=points,
+            cells=cells,
+            tags=tags,
+            metrics=metrics,
+            progress=progress,
+            warn=warn,
+            untrusted=untrusted,
+        )
+    except ParameterError as exc:  # (the service's options.seed is this function's seed)
+        if "options." not in str(exc):
+            raise
+        raise ParameterError(str(exc).replace("options.", "")) from None
     if result.mesh.meta.get("dropped_cells"):  # (the CLI says it itself; here, the one call)
         from models.mesh.build import dropped_sentence
 
@@ -471,7 +483,10 @@ def build_hierarchy(
         opts["finest"] = finest
     if boxfit:
         opts["boxfit"] = boxfit
-    params = validate_params({"model": model, "nref": 1, "options": opts})
+    try:
+        params = validate_params({"model": model, "nref": 1, "options": opts})
+    except ParameterError as exc:  # (the service's options.ratio is this function's ratio)
+        raise ParameterError(str(exc).replace("options.", "")) from None
     from models.hierarchy.nested import build_hierarchy as build
     from models.pipeline import prepare
 

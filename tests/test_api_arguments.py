@@ -108,3 +108,22 @@ def test_writes_and_element_numbers_are_checked(tmp_path):
     assert "it is a file, not a folder" in str(e.value)
     with pytest.raises(MagnetError):
         h.write(None)
+
+
+def test_python_callers_get_their_own_argument_names():
+    for call, said in (
+        (lambda: build_hierarchy(points=P, cells=[("triangle", T)], ratio=1), "ratio must be >= 2"),
+        (lambda: agglomerate(points=P, cells=[("triangle", T)], k=4, seed=-1), "seed must be"),
+        (
+            lambda: agglomerate(points=P, cells=[("triangle", T)], k=4, progress="x"),
+            "progress must be a function",
+        ),
+        (
+            lambda: agglomerate(points=P, cells=[("triangle", T)], k=4, metrics="no"),
+            "metrics must be True or False",
+        ),
+        (lambda: agglomerate(5, k=3), "cannot read an int as a mesh"),
+    ):
+        with pytest.raises(ParameterError) as e:
+            call()
+        assert said in str(e.value) and "options." not in str(e.value), str(e.value)
