@@ -368,8 +368,8 @@ class Agglomeration:
         if os.path.isdir(path):
             raise ParameterError(f"cannot write to {path}: it is a folder")
         tag = self.params["options"]["boundary_tag"] if boundary_tag is None else boundary_tag
-        if isinstance(tag, bool) or not isinstance(tag, int | np.integer):
-            raise ParameterError(f"boundary_tag must be a whole number, got {tag}")
+        if isinstance(tag, bool) or not isinstance(tag, int | np.integer) or not 0 <= tag < 2**31:
+            raise ParameterError(f"boundary_tag must be a whole number from 0 to 2^31 - 1, got {tag}")
         if kind == "ucd":
             from models.export.ucd import write_ucd
 

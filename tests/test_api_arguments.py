@@ -97,6 +97,9 @@ def test_writes_and_element_numbers_are_checked(tmp_path):
             res.write(path)
         assert said in str(e.value)
     assert res.write(str(tmp_path / "b.vtu").encode()) == str(tmp_path / "b.vtu")
+    for tag in (-1, "x"):  # (as agglomerate(boundary_tag=...) takes it: 0 to 2^31 - 1)
+        with pytest.raises(ParameterError):
+            res.write(tmp_path / "c.vtu", boundary_tag=tag)
     for e in (6, -1, "a", 1.0):
         with pytest.raises(ParameterError):
             res.polygon(e)
