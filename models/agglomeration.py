@@ -174,7 +174,7 @@ def agglomerate(
     except ParameterError as exc:  # (the service's options.seed is this function's seed)
         if "options." not in str(exc):
             raise
-        raise ParameterError(str(exc).replace("options.", "")) from None
+        raise _own_words(exc) from None
     if result.mesh.meta.get("dropped_cells"):  # (the CLI says it itself; here, the one call)
         from models.mesh.build import dropped_sentence
 
@@ -486,7 +486,7 @@ def build_hierarchy(
     try:
         params = validate_params({"model": model, "nref": 1, "options": opts})
     except ParameterError as exc:  # (the service's options.ratio is this function's ratio)
-        raise ParameterError(str(exc).replace("options.", "")) from None
+        raise _own_words(exc) from None
     from models.hierarchy.nested import build_hierarchy as build
     from models.pipeline import prepare
 
@@ -567,6 +567,14 @@ class Hierarchy:
             merged=self.merged,
             extra={key: self.info[key] for key in keys if key in self.info},
         )
+
+
+def _own_words(exc: ParameterError) -> ParameterError:
+    """The refusal with this module's argument names (ratio, seed) for the service's options.ratio;
+    the service's words kept as `options_words`, which the CLI turns into its flags (--ratio)."""
+    out = ParameterError(str(exc).replace("options.", ""))
+    out.options_words = str(exc)
+    return out
 
 
 def _out_path(path, what: str) -> str:

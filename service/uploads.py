@@ -20,6 +20,7 @@ from service.mesh_check import UploadRejected, extension_of, inspect_upload
 from service.schemas import MeshOut
 
 CHUNK = 1 << 20
+_UGRID_KIND = re.compile(r"\.(b8l|b8|b4|lb8l|lb8|lb4|r8|r4|lr8|lr4)\.ugrid$")
 
 
 async def receive_mesh(
@@ -27,8 +28,13 @@ async def receive_mesh(
 ) -> MeshOut:
     """Store one uploaded mesh for `user`; the same bytes always give the same id."""
     ext = extension_of(filename)
+    base = os.path.basename((filename or "").replace("\\", "/"))
+    kind = _UGRID_KIND.search(base.lower()) if ext == "ugrid" else None
+    if kind:  # (meshio tells a UGRID file's byte order and widths by the suffix before .ugrid)
+        ext = f"{kind.group(1)}.ugrid"
+    stem = base[: -len(ext) - 1] if base.lower().endswith("." + ext) else Path(base).stem
     limit = ctx.settings.max_upload_bytes
-    safe = re.sub(r"[^A-Za-z0-9._-]", "_", Path(filename or "").stem)[:100] or "mesh"
+    safe = re.sub(r"[^A-Za-z0-9._-]", "_", stem)[:100] or "mesh"
     tmp = ctx.storage.temp_file(f"{safe}.{ext}")
     digest, size = hashlib.sha256(), 0
     try:

@@ -243,12 +243,7 @@ def cmd_agglomerate(args) -> int:
                         "agglomerate SURFACE --fill", f"agglomerate {os.path.basename(args.mesh)} --fill"
                     )
                 ) from None
-            if "--fill" in said or not isinstance(exc, MeshError):  # (k above the cells of a flat
-                raise  # surface, say: filling is no answer to it)
-            raise type(exc)(
-                f"{exc}; a closed surface is filled with tetrahedra by: magnet agglomerate "
-                f"{os.path.basename(args.mesh)} --fill ..."
-            ) from None
+            raise  # (unreadable, or k above the cells of a flat surface: filling is no answer to it)
         res, mesh = result.result, result.mesh
         if args.fill:
             res.timings = {"fill": t_fill, **{k: v for k, v in res.timings.items() if k != "read"}}
@@ -600,7 +595,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         rc = args.func(args)
     except MagnetError as exc:
-        print(f"magnet: error: {cli_words(str(exc), args)}", file=sys.stderr)
+        print(
+            f"magnet: error: {cli_words(getattr(exc, 'options_words', None) or str(exc), args)}",
+            file=sys.stderr,
+        )
         return EXIT_USER_ERROR
     except OSError as exc:  # an output that cannot be written (disk full, permissions changed, ...)
         where = f": {exc.filename}" if exc.filename else ""

@@ -54,14 +54,16 @@ def mesh_from_cells(
     grid: vtk_readers._lattice's hint for a whole 3D structured grid (hexahedra in VTK's lattice
     order), or None. In the sandbox's reading child, the arguments as a Deferred (models.mesh.deferred:
     the caller checks and builds)."""
-    if deferred.DEFER:
-        return deferred.cells(
-            points, offsets, conn, cell_types, tags, tag_name, poly_faces, bnd, lower, dim, weld, meta, grid
-        )
     if points.ndim != 2 or len(points) == 0:
         raise MeshError("the mesh has no points")
     if points.shape[1] == 1:
         raise MeshError("1D meshes are not supported: the mesh has 1D coordinates")
+    if points.shape[1] not in (2, 3):  # (a reader that missed the file's dimension: 0 coordinates)
+        raise MeshError(f"its points have {points.shape[1]} coordinates each, where a mesh has 2 or 3")
+    if deferred.DEFER:  # (the reading child: the caller checks the rest and builds)
+        return deferred.cells(
+            points, offsets, conn, cell_types, tags, tag_name, poly_faces, bnd, lower, dim, weld, meta, grid
+        )
     if points.shape[1] == 2:
         points = np.column_stack([points, np.zeros(len(points))])
     bounds = _bounds(points)  # NaN and infinities show in them (min and max propagate NaN)

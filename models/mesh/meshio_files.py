@@ -102,7 +102,11 @@ def read_meshio(path: str, file_type: str):
                 "read: export the mesh at order 1, or as gmsh .msh, which keeps them (agglomerated on "
                 "their corners)"
             )
-        raise MeshError(f"cannot read {name} with meshio's {file_type} reader: {why}") from None
+        from models.mesh.formats import format_name
+
+        raise MeshError(
+            f"cannot read {name} as {format_name(path)}: {why} (meshio's {file_type} reader)"
+        ) from None
 
 
 _MEDIT_HIGH = re.compile(

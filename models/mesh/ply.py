@@ -1,16 +1,9 @@
-"""PLY files: our check of the header before any reader opens the file, and the read (meshio's
-reader, which keeps a PLY's doubles; VTK's vtkPLYReader, ParaView's, for the files meshio refuses:
-big-endian, extra face properties, colours in odd places)."""
+"""PLY files: our check of the header before any reader opens the file (the read itself:
+models.mesh.read._read_ply, meshio's reader then VTK's vtkPLYReader for the files meshio refuses)."""
 
 from __future__ import annotations
 
-import os
-from typing import TYPE_CHECKING
-
 from models.errors import MeshError
-
-if TYPE_CHECKING:
-    from models.mesh.container import Mesh
 
 _PLY_FORMATS = (b"ascii", b"binary_little_endian", b"binary_big_endian")
 
@@ -45,27 +38,3 @@ def check_header(path: str, name: str, head: bytes) -> None:
 def _head_bytes(path: str, n: int) -> bytes:
     with open(path, "rb") as fh:
         return fh.read(n)
-
-
-def read_ply(path: str, physical_tag, weld, native: bool, fmt: str) -> Mesh:
-    """A PLY file by meshio's reader (its points as written: VTK's vtkPLYReader makes doubles
-    float32); one that meshio refuses (big-endian, extra face properties, colours in odd places) by
-    VTK's reader, ParaView's, which is native code: with native=False NativeReaderNeeded (the caller
-    reads it in the sandbox). A file VTK cannot read either keeps meshio's refusal."""
-    from models.mesh import read
-    from models.mesh.meshio_files import read_meshio
-
-    try:
-        m = read_meshio(path, "ply")
-    except MeshError as refused:
-        if not native:
-            raise read.NativeReaderNeeded(f"{os.path.basename(path)} needs VTK's PLY reader") from None
-        from models.mesh.vtk_readers import read_vtk
-
-        try:
-            return read_vtk(path, "ply", physical_tag=physical_tag, weld=weld, fmt=fmt)
-        except MeshError as exc:
-            if "cannot be opened" in str(exc) or "corrupted" in str(exc):
-                raise refused from None
-            raise  # (VTK read it: what is wrong with the mesh, a curved surface say)
-    return read.mesh_from_meshio(m, physical_tag=physical_tag, weld=weld, owned=True)

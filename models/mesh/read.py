@@ -409,9 +409,7 @@ def _read(path: str, physical_tag, file_format, weld, native: bool = True) -> Me
     if (family, detail) == ("meshio", "gmsh"):
         return _read_gmsh(path, physical_tag, weld, native)
     if (family, detail) == ("meshio", "ply"):
-        from models.mesh.ply import read_ply
-
-        return read_ply(path, physical_tag, weld, native, format_name(path, file_format))
+        return _read_ply(path, physical_tag, weld, native, format_name(path, file_format))
     if family == "meshio" and detail in ("obj", "off"):  # (meshio refuses OFF polygons, OBJ's v/vt/vn)
         from models.mesh import surface_text
 
@@ -438,6 +436,27 @@ def _read(path: str, physical_tag, file_format, weld, native: bool = True) -> Me
     else:
         m = _read_meshio(path, detail)
     m = named_groups(m, detail, path, [_TYPES[c.type][1] if _known(c.type) else 3 for c in m.cells])
+    return mesh_from_meshio(m, physical_tag=physical_tag, weld=weld, owned=True)
+
+
+def _read_ply(path: str, physical_tag, weld, native: bool, fmt: str) -> Mesh:
+    """A PLY file by meshio's reader (its points as written: VTK's vtkPLYReader makes doubles
+    float32); one that meshio refuses (big-endian, extra face properties, colours in odd places) by
+    VTK's reader, ParaView's, which is native code: with native=False NativeReaderNeeded (the caller
+    reads it in the sandbox). A file VTK cannot read either keeps meshio's refusal."""
+    try:
+        m = _read_meshio(path, "ply")
+    except MeshError as refused:
+        if not native:
+            raise NativeReaderNeeded(f"{os.path.basename(path)} needs VTK's PLY reader") from None
+        from models.mesh.vtk_readers import read_vtk
+
+        try:
+            return read_vtk(path, "ply", physical_tag=physical_tag, weld=weld, fmt=fmt)
+        except MeshError as exc:
+            if "cannot be opened" in str(exc) or "corrupted" in str(exc):
+                raise refused from None
+            raise  # (VTK read it: what is wrong with the mesh, a curved surface say)
     return mesh_from_meshio(m, physical_tag=physical_tag, weld=weld, owned=True)
 
 

@@ -108,13 +108,9 @@ def wording(message: str, path: str | os.PathLike, file_format: str | None = Non
         line = re.search(r"\bline (\d+)", message or "")
         where = f" (near line {line.group(1)})" if line else ""
         return f"cannot read {name} as {fmt}: the file is corrupted or not {fmt}{where}"
-    if (
-        (name in message and fmt in message)
-        or message.startswith(f"cannot read {name} with ")  # (the file and the reader tried)
-        or (
-            message.startswith(f"cannot read {name} as ")
-            and not message.startswith(f"cannot read {name} as a mesh: ")
-        )
+    if (name in message and fmt in message) or (
+        message.startswith(f"cannot read {name} as ")
+        and not message.startswith(f"cannot read {name} as a mesh: ")
     ):  # (the file and a format said already)
         return message
     for prefix in (f"cannot read {name} as a mesh: ", f"cannot read {name}: ", f"{name}: "):

@@ -1,0 +1,59 @@
+"""Uploads whose format lives in more than one suffix (an outside HTTP sweep, session 43): a
+big-endian UGRID file (`.b8.ugrid`: meshio reads the byte order off the name) was stored as
+`<id>.ugrid` and every job failed; a `.tar.gz` was named `x.tar.tar.gz` in its refusals."""
+
+from __future__ import annotations
+
+import io
+import tarfile
+
+import meshio
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from jobqueue.settings import Settings
+from service.app import create_app
+from worker.tasks import execute_job
+
+KEYS = "alice:alice-token"
+H = {"Authorization": "Bearer alice-token"}
+
+
+def _upload(client, name: str, data: bytes):
+    return client.post(
+        "/v1/meshes",
+        params={"filename": name},
+        content=data,
+        headers={"Content-Type": "application/octet-stream", **H},
+    )
+
+
+@pytest.mark.parametrize("suffix", ["b8.ugrid", "lb8.ugrid"])
+def test_a_ugrid_file_keeps_its_byte_order_suffix(tmp_path, suffix):
+    i, j = np.meshgrid(np.arange(7.0), np.arange(7.0), indexing="ij")
+    p = np.c_[i.ravel(), j.ravel(), np.zeros(i.size)]
+    a = (np.arange(6)[:, None] * 7 + np.arange(6)[None, :]).ravel()
+    tri = np.concatenate([np.c_[a, a + 7, a + 8], np.c_[a, a + 8, a + 1]])
+    path = tmp_path / f"plate.{suffix}"
+    meshio.write(str(path), meshio.Mesh(p, [("triangle", tri)]))
+    settings = Settings(data_dir=tmp_path / "data", api_keys=KEYS)
+    with TestClient(create_app(settings)) as client:
+        r = _upload(client, path.name, path.read_bytes())
+        assert r.status_code == 201, r.text
+        r = client.post("/v1/jobs", json={"mesh_id": r.json()["id"], "model": "metis", "k": 5}, headers=H)
+        assert r.status_code == 202, r.text
+        assert execute_job(r.json()["id"], settings) == "succeeded"
+        assert client.get(f"/v1/jobs/{r.json()['id']}", headers=H).json()["result"]["elements"] == 5
+
+
+def test_a_tar_gz_refusal_names_the_file_as_sent(tmp_path):
+    buf = io.BytesIO()
+    with tarfile.open(fileobj=buf, mode="w:gz") as tar:
+        link = tarfile.TarInfo("link.vtu")
+        link.type, link.linkname = tarfile.SYMTYPE, "/etc/passwd"
+        tar.addfile(link)
+    settings = Settings(data_dir=tmp_path / "data", api_keys=KEYS)
+    with TestClient(create_app(settings)) as client:
+        r = _upload(client, "sl.tar.gz", buf.getvalue())
+    assert r.status_code == 422 and "sl.tar.gz" in r.text and "sl.tar.tar.gz" not in r.text, r.text
