@@ -47,10 +47,11 @@ async def receive_mesh(
                 out.write(chunk)
         if size == 0:  # (the CLI's words for an empty file, and how to send one)
             name = os.path.basename((filename or "").replace("\\", "/"))[:100] or "the upload"
+            fmt = format_name(name)
             raise UploadRejected(
                 422,
-                f"cannot read {name} as {format_name(name)}: the file is empty (0 bytes); send the mesh "
-                "file as the request body or multipart field 'file'",
+                f"cannot read {name}{'' if fmt == 'mesh' else ' as ' + fmt}: the file is empty (0 bytes); "
+                "send the mesh file as the request body or multipart field 'file'",
             )
         mesh_id = digest.hexdigest()
         return await run_in_threadpool(_file_mesh, ctx, user, tmp, mesh_id, ext, size, filename)

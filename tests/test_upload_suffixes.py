@@ -57,3 +57,15 @@ def test_a_tar_gz_refusal_names_the_file_as_sent(tmp_path):
     with TestClient(create_app(settings)) as client:
         r = _upload(client, "sl.tar.gz", buf.getvalue())
     assert r.status_code == 422 and "sl.tar.gz" in r.text and "sl.tar.tar.gz" not in r.text, r.text
+
+
+def test_an_empty_archive_is_said_empty_as_on_the_command_line(tmp_path):
+    from models.mesh.check import check_file
+
+    (tmp_path / "empty.zip").write_bytes(b"")
+    cli = check_file(str(tmp_path / "empty.zip"))["issues"][0]["message"]
+    assert cli == "cannot read empty.zip: the file is empty (0 bytes)"
+    settings = Settings(data_dir=tmp_path / "data", api_keys=KEYS)
+    with TestClient(create_app(settings)) as client:
+        r = _upload(client, "empty.zip", b"")
+    assert r.status_code == 422 and cli in r.text and "as mesh" not in r.text, r.text

@@ -187,6 +187,10 @@ def read_mesh_safe(
             )
         path = case
     read.special_file(path)
+    if file_format is None and extension(path) in ARCHIVES and os.path.getsize(path) == 0:
+        raise MeshError(
+            wording(f"{os.path.basename(path)}: the file is empty (0 bytes)", path)
+        )  # (as a mesh file's)
     if file_format is None and extension(path) in ARCHIVES:  # XDMF + .h5 and the like, in one upload
         import shutil
         import tempfile
