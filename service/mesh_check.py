@@ -69,17 +69,8 @@ def extension_of(filename: str | None) -> str:
             raise UploadRejected(
                 422, f"cannot read {shown}: unknown mesh format {'.' + ext!r}{hint}", "filename"
             )
-        if shown:  # (the CLI's words: cannot read NAME: unknown mesh format '.ext'; use one of ...)
-            multi = (
-                f" ({', '.join(formats.ARCHIVE_ONLY)} with its data files: a .zip or .tar.gz holding them)"
-            )
-            raise UploadRejected(
-                422,
-                f"cannot read {shown}: unknown mesh format {('.' + ext) if ext else '(no extension)'!r}; "
-                f"use one of: {', '.join('.' + e for e in ALLOWED_EXTENSIONS)}"
-                + (multi if "." + ext in formats.ARCHIVE_ONLY else ""),
-                "filename",
-            )
+        if shown:  # (the CLI's words, one sentence: models.mesh.formats.unknown_format)
+            raise UploadRejected(422, formats.unknown_format(shown, ("." + ext) if ext else ""), "filename")
         what = "the upload has no file name: it"
         multi = f" ({', '.join(formats.ARCHIVE_ONLY)} with its data files: a .zip or .tar.gz holding them)"
         raise UploadRejected(

@@ -69,3 +69,15 @@ def test_an_empty_archive_is_said_empty_as_on_the_command_line(tmp_path):
     with TestClient(create_app(settings)) as client:
         r = _upload(client, "empty.zip", b"")
     assert r.status_code == 422 and cli in r.text and "as mesh" not in r.text, r.text
+
+
+def test_an_unknown_extension_is_one_sentence_on_the_command_line_and_over_http(tmp_path):
+    from models.mesh.check import check_file
+
+    (tmp_path / "part.unv").write_text("   -1\n  2411\n")
+    cli = check_file(str(tmp_path / "part.unv"))["issues"][0]["message"]
+    assert cli.startswith("cannot read part.unv: unknown mesh format '.unv'; use one of: ")
+    settings = Settings(data_dir=tmp_path / "data", api_keys=KEYS)
+    with TestClient(create_app(settings)) as client:
+        r = _upload(client, "part.unv", b"   -1\n  2411\n")
+    assert r.status_code == 422 and r.json()["detail"] == cli, r.text

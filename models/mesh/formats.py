@@ -129,6 +129,16 @@ def extension(path: str | os.PathLike) -> str:
 _COMPRESSORS = {".gz": "gunzip", ".bz2": "bunzip2", ".xz": "unxz", ".zst": "unzstd", ".lz4": "unlz4"}
 
 
+def unknown_format(name: str, ext: str) -> str:
+    """The one sentence for a file whose extension no reader takes (the CLI's, the API's and the
+    upload check's alike)."""
+    shown = f"'{ext}'" if ext else "(no extension)"
+    return (
+        f"cannot read {name}: unknown mesh format {shown}; use one of: {', '.join(MESH_EXTENSIONS)}; or "
+        f"{' / '.join(ARCHIVES)} holding a mesh and the files beside it ({', '.join(ARCHIVE_ONLY)} need theirs)"
+    )
+
+
 def compressed_hint(path: str | os.PathLike) -> str:
     """For a name such as mesh.vtu.gz (a mesh file compressed whole, which no reader takes): what to
     do, as a sentence's tail; '' for any other name."""

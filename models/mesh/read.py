@@ -200,9 +200,9 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
         hint = compressed_hint(path)
         if hint:
             raise MeshError(f"cannot read {name}: unknown mesh format {ext!r}{hint}")
-        raise MeshError(
-            f"unknown mesh format {ext or '(no extension)'!r}; use one of: " + ", ".join(SUPPORTED_EXTENSIONS)
-        )
+        from models.mesh.formats import unknown_format
+
+        raise MeshError(unknown_format(name, ext))
     return ("meshio", types[0])
 
 
