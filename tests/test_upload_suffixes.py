@@ -81,3 +81,29 @@ def test_an_unknown_extension_is_one_sentence_on_the_command_line_and_over_http(
     with TestClient(create_app(settings)) as client:
         r = _upload(client, "part.unv", b"   -1\n  2411\n")
     assert r.status_code == 422 and r.json()["detail"] == cli, r.text
+
+
+def test_a_failed_job_names_the_file_as_uploaded(tmp_path):
+    """A job's refusal that names the stored file (its content hash) names the upload's file."""
+    from types import SimpleNamespace
+
+    from worker.tasks import _as_uploaded
+
+    settings = Settings(data_dir=tmp_path / "data", api_keys=KEYS)
+    with TestClient(create_app(settings)) as client:
+        i, j = np.meshgrid(np.arange(4.0), np.arange(4.0), indexing="ij")
+        path = tmp_path / "plate.vtu"
+        a = (np.arange(3)[:, None] * 4 + np.arange(3)[None, :]).ravel()
+        meshio.write(
+            str(path), meshio.Mesh(np.c_[i.ravel(), j.ravel()], [("quad", np.c_[a, a + 4, a + 5, a + 1])])
+        )
+        mesh = _upload(client, "my plate.vtu", path.read_bytes()).json()
+        db = client.app.state.ctx.db
+        stored = client.app.state.ctx.storage.mesh_path(mesh["id"], "vtu")
+        job = SimpleNamespace(mesh_id=mesh["id"], user="alice")
+        said = f"cannot read {stored.name} as VTK XML (VTU): it is corrupted"
+        assert (
+            _as_uploaded(db, job, stored, said)
+            == "cannot read my plate.vtu as VTK XML (VTU): it is corrupted"
+        )
+        assert _as_uploaded(db, job, stored, "k = 9 is too many") == "k = 9 is too many"

@@ -157,6 +157,21 @@ class Heartbeat(threading.Thread):
                 return
 
 
+def _as_uploaded(db, job, mesh_path, said: str) -> str:
+    """A refusal naming the stored file (its content hash) names the file as its user uploaded it."""
+    stored = os.path.basename(str(mesh_path))
+    if stored not in said:
+        return said
+    from jobqueue.db import MeshOwner
+
+    try:
+        with db.session() as s:
+            owner = s.get(MeshOwner, (job.mesh_id, job.user))
+    except Exception:  # (the job's own words stand where the name cannot be looked up)
+        return said
+    return said.replace(stored, owner.filename) if owner is not None and owner.filename else said
+
+
 def execute_job(job_id: str, settings: Settings) -> str:
     """Run one job to its end; returns what happened (for logs and tests)."""
     from models import api
@@ -271,7 +286,8 @@ def execute_job(job_id: str, settings: Settings) -> str:
         )
         return "failed"
     except MagnetError as exc:
-        finish({"status": FAILED, "stage": "failed", "error": str(exc) or type(exc).__name__})
+        said = str(exc) or type(exc).__name__
+        finish({"status": FAILED, "stage": "failed", "error": _as_uploaded(db, job, mesh_path, said)})
         return "failed"
     except Exception:
         log.exception("job %s: internal error", job_id)
