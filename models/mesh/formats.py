@@ -131,11 +131,13 @@ _COMPRESSORS = {".gz": "gunzip", ".bz2": "bunzip2", ".xz": "unxz", ".zst": "unzs
 
 def unknown_format(name: str, ext: str) -> str:
     """The one sentence for a file whose extension no reader takes (the CLI's, the API's and the
-    upload check's alike)."""
+    upload check's alike): the formats a file can be alone, then the archives for those that need
+    the files beside them."""
     shown = f"'{ext}'" if ext else "(no extension)"
+    alone = [e for e in FORMATS if e not in ARCHIVE_ONLY] + list(COMPOUND)
     return (
-        f"cannot read {name}: unknown mesh format {shown}; use one of: {', '.join(MESH_EXTENSIONS)}; or "
-        f"{' / '.join(ARCHIVES)} holding a mesh and the files beside it ({', '.join(ARCHIVE_ONLY)} need theirs)"
+        f"cannot read {name}: unknown mesh format {shown}; use one of: {', '.join(alone)}; or "
+        f"{' / '.join(ARCHIVES)} holding a mesh and the files beside it ({' '.join(ARCHIVE_ONLY)} go in one)"
     )
 
 
