@@ -324,3 +324,13 @@ def run_octave(script: Path, text: str, result: Path) -> dict:
     )
     assert result.exists(), f"octave failed:\n{out.stdout}\n{out.stderr}"
     return json.loads(result.read_text())
+
+
+def upload_raw(client, name: str, data: bytes, token: str):
+    """POST /v1/meshes of a raw body named `name` through a TestClient (or any httpx-like client)."""
+    return client.post(
+        "/v1/meshes",
+        params={"filename": name},
+        content=data,
+        headers={"Content-Type": "application/octet-stream", "Authorization": f"Bearer {token}"},
+    )

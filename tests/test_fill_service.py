@@ -11,6 +11,7 @@ from fastapi.testclient import TestClient
 
 pytest.importorskip("gmsh")
 
+from service_fixtures import upload_raw  # noqa: E402
 from surfaces import enclosed_volume, surface_of  # noqa: E402
 
 from jobqueue.settings import Settings  # noqa: E402
@@ -27,12 +28,7 @@ def ball(n: int = 12) -> tuple[np.ndarray, np.ndarray]:
 
 
 def upload(client, name: str, data: bytes):
-    return client.post(
-        "/v1/meshes",
-        params={"filename": name},
-        content=data,
-        headers={"Content-Type": "application/octet-stream", **H},
-    )
+    return upload_raw(client, name, data, "alice-token")
 
 
 def test_surface_upload_fill_job_and_open_surface(tmp_path):

@@ -11,6 +11,7 @@ import meshio
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
+from service_fixtures import upload_raw
 
 from jobqueue.settings import Settings
 from service.app import create_app
@@ -21,12 +22,7 @@ H = {"Authorization": "Bearer alice-token"}
 
 
 def _upload(client, name: str, data: bytes):
-    return client.post(
-        "/v1/meshes",
-        params={"filename": name},
-        content=data,
-        headers={"Content-Type": "application/octet-stream", **H},
-    )
+    return upload_raw(client, name, data, "alice-token")
 
 
 @pytest.mark.parametrize("suffix", ["b8.ugrid", "lb8.ugrid"])
