@@ -337,18 +337,18 @@ def legacy_tail(path: str, text: str, out) -> str | None:
         path, out.GetNumberOfCells() if out.IsA("vtkUnstructuredGrid") else None
     ):
         return None
-    with open(path, "rb") as fh:
-        data = fh.read()
-    found = list(_MESH_SECTIONS.finditer(data))
-    last = found[-1] if found else None
-    word = words[0].group(1).encode("latin-1", "replace")
-    at = data.lower().find(word.lower(), last.end() if last is not None else len(data))
-    if last is None or at < 0:
-        return None
-    line = data.count(b"\n", 0, at) + 1
-    shown = "".join(
-        c if c.isprintable() else "?" for c in data[at : at + 24].split(b"\n")[0].decode("latin-1")
-    )
+    with open(path, "rb") as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as data:
+        found = list(_MESH_SECTIONS.finditer(data))  # (mapped: no copy of a large file)
+        last = found[-1] if found else None
+        word = re.escape(words[0].group(1).encode("latin-1", "replace"))
+        hit = re.compile(word, re.IGNORECASE).search(data, last.end()) if last is not None else None
+        if hit is None:
+            return None
+        at = hit.start()
+        line = data[:at].count(b"\n") + 1
+        shown = "".join(
+            c if c.isprintable() else "?" for c in data[at : at + 24].split(b"\n")[0].decode("latin-1")
+        )
     return (
         f"the file goes on after its mesh with what is no legacy VTK section ('{shown}' at line {line:,}): "
         "ignored, as VTK's reader ignores it"
