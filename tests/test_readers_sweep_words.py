@@ -167,3 +167,18 @@ def test_a_legacy_file_going_on_after_its_mesh_is_read_as_vtk_reads_it(tmp_path,
     inside.write_bytes(data[:at] + b"#garbage\n" + data[at:])
     with pytest.raises(MeshError):
         read_mesh(str(inside))
+
+
+def test_a_dolfin_file_refused_for_a_file_beside_it_names_that_file(tmp_path):
+    """meshio's DOLFIN XML reader reads every <stem>_*.xml beside the file as cell data: a junk one
+    made the file's own refusal ("corrupted or not in this format") blame the wrong file."""
+    import meshio
+
+    tri = np.array([[a, b, c] for a, b, c, _ in _Q] + [[a, c, d] for a, _, c, d in _Q])
+    path = tmp_path / "m.xml"
+    meshio.write(str(path), meshio.Mesh(_PTS, [("triangle", tri)]), file_format="dolfin-xml")
+    assert read_mesh(str(path)).n_cells == 32
+    (tmp_path / "m_notes.xml").write_text("<notes>not a mesh function</notes>\n")
+    with pytest.raises(MeshError) as e:
+        read_mesh(str(path))
+    assert "the file m_notes.xml beside it" in str(e.value) and "move it away" in str(e.value)

@@ -104,9 +104,47 @@ def read_meshio(path: str, file_type: str):
             )
         from models.mesh.formats import format_name
 
+        if file_type == "dolfin-xml":  # (its reader reads every <stem>_*.xml beside the file too)
+            bad = _dolfin_sibling_at_fault(path)
+            if bad:
+                why = (
+                    f"the file {bad} beside it, which DOLFIN's reader takes for its cell data "
+                    f"(<name>_<data>.xml), is no DOLFIN mesh function: move it away, or rename it"
+                )
         raise MeshError(
             f"cannot read {name} as {format_name(path)}: {why} (meshio's {file_type} reader)"
         ) from None
+
+
+def _dolfin_sibling_at_fault(path: str) -> str | None:
+    """The first `<stem>_*.xml` beside a DOLFIN XML file that its reader cannot read as a mesh
+    function, where the file read alone (copied to a folder of its own) is a mesh; else None."""
+    import shutil
+    import tempfile
+
+    from meshio.dolfin import read as read_dolfin
+
+    folder, base = os.path.split(os.path.abspath(path))
+    stem = os.path.splitext(base)[0]
+    siblings = sorted(f for f in os.listdir(folder) if re.fullmatch(re.escape(stem) + r"_[^.]+\.xml", f))
+    if not siblings:
+        return None
+    with tempfile.TemporaryDirectory(prefix="magnet-dolfin-") as alone:
+        shutil.copy(path, os.path.join(alone, base))
+        try:
+            with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+                read_dolfin(os.path.join(alone, base))
+        except (Exception, SystemExit):  # noqa: BLE001 (the file itself is at fault)
+            return None
+        for f in siblings:  # a loop over the few files beside it
+            shutil.copy(os.path.join(folder, f), os.path.join(alone, f))
+            try:
+                with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+                    read_dolfin(os.path.join(alone, base))
+            except (Exception, SystemExit):  # noqa: BLE001
+                return f
+            os.remove(os.path.join(alone, f))
+    return None
 
 
 _MEDIT_HIGH = re.compile(
