@@ -628,7 +628,7 @@ def _meshio_from_arrays(points, cells, tags) -> meshio.Mesh:
                     else "other values than numbers"
                 )
             )
-        if conn.dtype.kind == "f" and conn.size and not np.all(np.isfinite(conn) & (conn == np.round(conn))):
+        if not _whole(conn):
             raise ParameterError(f"the {name} cells' point ids must be whole numbers")
         width = num_nodes_per_cell.get(name)
         if width is not None and conn.shape[1] != width:
@@ -658,9 +658,7 @@ def _meshio_from_arrays(points, cells, tags) -> meshio.Mesh:
                 raise ParameterError(
                     f"tags must hold one number per {name} cell ({len(conn):,}), got {t.size:,}"
                 )
-            if t.dtype.kind not in "iuf" or (
-                t.dtype.kind == "f" and t.size and not np.all(np.isfinite(t) & (t == np.round(t)))
-            ):
+            if t.dtype.kind not in "iuf" or not _whole(t):
                 raise ParameterError("tags must be whole numbers (a physical group per cell)")
             out.append(t.astype(np.int64))
         cell_data["gmsh:physical"] = out
@@ -668,6 +666,13 @@ def _meshio_from_arrays(points, cells, tags) -> meshio.Mesh:
         return meshio.Mesh(pts.astype(np.float64), blocks, cell_data=cell_data)
     except (TypeError, ValueError, KeyError):
         raise MeshError("points / cells do not form a mesh (their shapes do not agree)") from None
+
+
+def _whole(a) -> bool:
+    """An integer array, or a float one holding whole finite numbers only."""
+    import numpy as np
+
+    return a.dtype.kind != "f" or not a.size or bool(np.all(np.isfinite(a) & (a == np.round(a))))
 
 
 def _meshio_from_grid(grid) -> meshio.Mesh:

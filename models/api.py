@@ -63,7 +63,9 @@ def inspect_mesh(path: str | os.PathLike, physical_tag: str | None = None, check
         refused = open_surface_refusal(path, exc)
         if refused is not exc:  # (neither a mesh nor a surface to fill: both said, as `check` says)
             raise refused from None
-        if "agglomerate SURFACE --fill" not in str(exc):  # (unreadable, not a curved surface: as `check`)
+        from models.mesh.build import FILL_HINT
+
+        if FILL_HINT not in str(exc):  # (unreadable, not a curved surface: as `check`)
             raise
         return _inspect_surface(path)
     info = describe(mesh)

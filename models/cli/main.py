@@ -237,11 +237,11 @@ def cmd_agglomerate(args) -> int:
             if refused is not exc:  # open (or crossing): not to be filled either; as check says it
                 raise refused from None
             said = str(exc)
-            if "agglomerate SURFACE --fill" in said:  # (the reader's words: this file is the surface)
+            from models.mesh.build import FILL_HINT
+
+            if FILL_HINT in said:  # (the reader's words: this file is the surface)
                 raise type(exc)(
-                    said.replace(
-                        "agglomerate SURFACE --fill", f"agglomerate {os.path.basename(args.mesh)} --fill"
-                    )
+                    said.replace(FILL_HINT, f"agglomerate {os.path.basename(args.mesh)} --fill")
                 ) from None
             raise  # (unreadable, or k above the cells of a flat surface: filling is no answer to it)
         res, mesh = result.result, result.mesh

@@ -497,9 +497,7 @@ def balls_above(
         # fewest parts, up to the count's 25% slack, whose planes leave no cavity (the handles that
         # plane cuts of jagged units make are the repair's; with tunnels, the piece is repaired on
         # its own first: fibres through a matrix)
-        mine = np.flatnonzero(comp == p)
-        if cen is None:
-            return None
+        mine = np.flatnonzero(comp == p)  # (holes there: cen is made above)
         tunnels = _cavities(rep, mine, np.zeros(mine.size, dtype=np.int64)) < holes[p]
         top = int(share[p]) + max(int(RATIO_SLACK * int(plan[0])), 1)
         for m in range(int(share[p]), min(top, int(holes[p]) + 1) + 1):  # a loop over the counts tried

@@ -33,6 +33,11 @@ MIRROR = {
 _HUGE = 1e150  # coordinates beyond this overflow in the measures (squares of differences)
 
 
+# the curved surface's refusal names this command (the CLI puts the file's name for SURFACE); the
+# readers' callers know that refusal by it (models.mesh.fill.open_surface_refusal, models.api)
+FILL_HINT = "agglomerate SURFACE --fill"
+
+
 def mesh_from_cells(
     points: np.ndarray,
     offsets: np.ndarray,
@@ -318,7 +323,7 @@ def _project_to_plane(mesh: Mesh) -> None:
             f"several planes; a point lies {off:.3g} off the best plane, across a mesh "
             f"{float(np.linalg.norm(np.ptp(p, axis=0))):.3g} wide): only planar 2D meshes and volume meshes are "
             "agglomerated; give a volume mesh, or fill a closed surface (.stl, .obj, .ply, .off) with tetrahedra: "
-            "magnet agglomerate SURFACE --fill ... (or magnet generate stl --stl SURFACE -o volume.vtu)"
+            f"magnet {FILL_HINT} ... (or magnet generate stl --stl SURFACE -o volume.vtu)"
         )
     e1, e2 = vt[0], vt[1]
     mesh.points = np.column_stack([(pts - origin) @ e1, (pts - origin) @ e2])

@@ -109,8 +109,9 @@ def open_surface_refusal(path, refused: Exception) -> Exception:
     either (open, crossing), one sentence saying both, as the CLI's check and the service's upload
     check say it; `refused` itself where it could be filled (or is no surface file)."""
     from models.errors import MagnetError, MeshError
+    from models.mesh.build import FILL_HINT
 
-    if not is_surface_file(path) or "agglomerate SURFACE --fill" not in str(refused):
+    if not is_surface_file(path) or FILL_HINT not in str(refused):
         return refused  # (not the curved surface's refusal: unreadable, or a flat mesh refused later)
     try:
         surface = read_surface(path)

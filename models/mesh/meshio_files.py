@@ -129,19 +129,22 @@ def _dolfin_sibling_at_fault(path: str) -> str | None:
     siblings = sorted(f for f in os.listdir(folder) if re.fullmatch(re.escape(stem) + r"_[^.]+\.xml", f))
     if not siblings:
         return None
-    with tempfile.TemporaryDirectory(prefix="magnet-dolfin-") as alone:
-        shutil.copy(path, os.path.join(alone, base))
+
+    def reads(where: str) -> bool:
         try:
             with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-                read_dolfin(os.path.join(alone, base))
-        except (Exception, SystemExit):  # noqa: BLE001 (the file itself is at fault)
+                read_dolfin(os.path.join(where, base))
+        except (Exception, SystemExit):  # noqa: BLE001 (meshio raises many kinds)
+            return False
+        return True
+
+    with tempfile.TemporaryDirectory(prefix="magnet-dolfin-") as alone:
+        shutil.copy(path, os.path.join(alone, base))
+        if not reads(alone):  # (the file itself is at fault)
             return None
         for f in siblings:  # a loop over the few files beside it
             shutil.copy(os.path.join(folder, f), os.path.join(alone, f))
-            try:
-                with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-                    read_dolfin(os.path.join(alone, base))
-            except (Exception, SystemExit):  # noqa: BLE001
+            if not reads(alone):
                 return f
             os.remove(os.path.join(alone, f))
     return None

@@ -187,11 +187,9 @@ def read_mesh_safe(
             )
         path = case
     read.special_file(path)
-    if file_format is None and extension(path) in ARCHIVES and os.path.getsize(path) == 0:
-        raise MeshError(
-            wording(f"{os.path.basename(path)}: the file is empty (0 bytes)", path)
-        )  # (as a mesh file's)
     if file_format is None and extension(path) in ARCHIVES:  # XDMF + .h5 and the like, in one upload
+        if os.path.getsize(path) == 0:  # (said as a mesh file's)
+            raise MeshError(wording(f"{os.path.basename(path)}: the file is empty (0 bytes)", path))
         import shutil
         import tempfile
 

@@ -170,7 +170,7 @@ def read_vtk(
         pts, offsets, conn, types, cell_data, poly = _arrays(
             data, path, what, fmt, kind not in PIECES, repeats
         )
-        if repeats and os.path.splitext(path)[1].lower() in PIECEWISE:  # (a time series' grids repeat
+        if repeats and kind in PIECEWISE:  # (a time series' grids repeat
             blocks, cells = repeats[0]  # its mesh by design: said only of a parallel file's pieces)
             meta["repeated_pieces"] = {
                 "count": cells,

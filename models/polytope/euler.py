@@ -447,14 +447,15 @@ class UnitEuler:
         kk = np.int64(K)
         out = []
         for items, us, w in (self.v, self.e):
+            keys = items * kk + coarse[us]
             span = (int(items.max()) + 1) * K if items.size else 0
             if span <= max(8 * items.size, 1 << 20):  # few elements (a plane's sides): counted, not sorted
                 # (4 fibres through a cube, 21,810 units: the planes' 3-element evaluations 5.2 s of sorts)
-                full = np.bincount(items * kk + coarse[us], minlength=span)
+                full = np.bincount(keys, minlength=span)
                 key = np.flatnonzero(full)
                 cnt = full[key]
             else:
-                key, cnt = sorted_unique(items * kk + coarse[us], return_counts=True)
+                key, cnt = sorted_unique(keys, return_counts=True)
             kw = w[key // kk]
             out.append((key, kw, np.bincount(key % kk, weights=(cnt - 1) * kw, minlength=K)))
         return out
