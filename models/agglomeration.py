@@ -176,7 +176,7 @@ def agglomerate(
             raise
         raise _own_words(exc) from None
     if result.mesh.meta.get("dropped_cells"):  # (the CLI says it itself; here, the one call)
-        from models.mesh.build import dropped_sentence
+        from models.mesh.dropped import dropped_sentence
 
         (warn or _stderr)(
             f"{dropped_sentence(result.mesh.meta)}: labels holds the {result.mesh.n_cells:,} cells read, "

@@ -54,8 +54,8 @@ class Result:
         s["dim"] = int(self.mesh.dim)
         s["timings"] = {k: round(float(v), 4) for k, v in self.timings.items()}
         left_out = self.mesh.meta.get("dropped_cells")
-        if left_out:  # a few bad cells the read left out (models.mesh.build.few_bad): said with the result
-            from models.mesh.build import dropped_sentence
+        if left_out:  # a few bad cells the read left out (models.mesh.dropped.few_bad): said with the result
+            from models.mesh.dropped import dropped_sentence
 
             s["cells_left_out"] = {"ids": list(left_out["ids_all"]), "note": dropped_sentence(self.mesh.meta)}
         return s

@@ -474,7 +474,7 @@ def test_a_few_bad_cells_among_many_are_left_out_and_said(tmp_path, kind):
     """Non-negotiable 3: a few bad cells among thousands are left out and reported, the rest read
     and agglomerated (labels -1 for them); many bad cells (over 1%) still refuse the file."""
     from models import agglomerate
-    from models.mesh.build import dropped_sentence
+    from models.mesh.dropped import dropped_sentence
 
     p, t = triangles(40)  # 3,200 triangles
     bad_ids = [7, 1000, 2999]

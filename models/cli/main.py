@@ -292,7 +292,7 @@ def cmd_agglomerate(args) -> int:
         extra.append(f"{rc['threaded']} holes threaded (a path of cells from the hole to a neighbour)")
     note = f" ({', '.join(extra)})" if extra else ""
     print(f"{s['elements']} elements from {mesh.n_cells} cells{note} | {stages} | total {total:.2f}s")
-    from models.mesh.build import dropped_sentence, ignored_lower_sentence
+    from models.mesh.dropped import dropped_sentence, ignored_lower_sentence
 
     if rc.get("rings_kept"):
         print(

@@ -160,7 +160,7 @@ def write_hierarchy(
         "nested": nested,
         "cells": int(mesh.n_cells),
         "dim": int(mesh.dim),
-        # a few bad cells the read left out (models.mesh.build.few_bad): the labels are of the
+        # a few bad cells the read left out (models.mesh.dropped.few_bad): the labels are of the
         # other cells, in the file's order; these are the file's ids of those left out
         **({"cells_left_out": mesh.meta["dropped_cells"]} if mesh.meta.get("dropped_cells") else {}),
         **(extra or {}),

@@ -348,7 +348,7 @@ def _assemble(meshio, placed, several: bool):
         offset += ids.size
         at += len(part.blocks)
     if missing:
-        from models.mesh.build import few_bad
+        from models.mesh.dropped import few_bad
 
         n = sum(m[0] for m in missing)
         if not few_bad(n, total):  # (a few are left out and said by the mesh's checks)

@@ -19,6 +19,7 @@ from models.mesh.container import (
     VTK_WEDGE,
     Mesh,
 )
+from models.mesh.dropped import few_bad, record_dropped
 from models.mesh.invariants import in_range
 
 # Node permutation that mirrors a cell (turns a negatively oriented cell into a positive one).
@@ -133,7 +134,7 @@ def mesh_from_cells(
     if meta:
         mesh.meta.update(meta)
     if dropped:
-        _record_dropped(mesh, dropped, cell_types.size + dropped[0][1].size)
+        record_dropped(mesh, dropped, cell_types.size + dropped[0][1].size)
     if merged:
         mesh.meta["merged_points"] = {
             "count": merged,
@@ -494,12 +495,6 @@ def _collapse_hexahedra(mesh: Mesh) -> bool:
     return True
 
 
-def few_bad(n_bad: int, n: int) -> bool:
-    """A few bad cells among many (non-negotiable: agglomerated and reported, not refused): at most
-    1% of the cells, so a mesh of fewer than 100 cells has none to spare."""
-    return 0 < n_bad <= n // 100
-
-
 def _without_cells(offsets, conn, cell_types, tags, bad: np.ndarray):
     """The CSR cells without those where `bad` is True (offsets, connectivity, types, tags)."""
     sizes = np.diff(offsets)[~bad]
@@ -507,66 +502,6 @@ def _without_cells(offsets, conn, cell_types, tags, bad: np.ndarray):
     new_offsets = np.zeros(sizes.size + 1, dtype=np.int64)
     np.cumsum(sizes, out=new_offsets[1:])
     return new_offsets, conn[keep], cell_types[~bad], None if tags is None else tags[~bad]
-
-
-def _record_dropped(mesh: Mesh, dropped: list, n_before: int) -> None:
-    """mesh.meta["dropped_cells"]: per reason the ids of the cells left out ("reasons"), all of them
-    ("ids_all"), in the numbering of the file's cells (of the mesh's dimension) before any was left
-    out, and that count ("file_cells"). A second call (degenerate cells after cells with missing
-    points) maps its ids, counted among the cells kept so far, back to the file's."""
-    old = mesh.meta.get("dropped_cells") or {}
-    first = np.asarray(old.get("ids_all", []), dtype=np.int64)
-    before = np.setdiff1d(np.arange(n_before + first.size), first) if first.size else np.arange(n_before)
-    reasons = dict(old.get("reasons", {}))
-    ids_all = first.tolist()
-    for why, ids in dropped:
-        orig = before[np.asarray(ids, dtype=np.int64)]
-        reasons[why] = reasons.get(why, []) + orig.tolist()
-        ids_all += orig.tolist()
-    mesh.meta["dropped_cells"] = {
-        "ids_all": sorted(ids_all),
-        "reasons": reasons,
-        "file_cells": int(n_before + first.size),
-    }
-
-
-def ignored_lower_sentence(meta: dict, dim: int) -> str:
-    """The cells two or more dimensions below the mesh's (lines and points of a volume mesh, points
-    of a planar one): read, counted and not used (only the faces of the mesh's cells are boundary
-    groups); '' where there are none."""
-    lower = meta.get("lower_dim_cells") or {}
-
-    def below(name: str) -> bool:
-        kind = name.replace("poly-", "")
-        return kind.startswith("vertex") or (dim == 3 and kind.startswith("line"))
-
-    kept = {name: int(n) for name, n in lower.items() if below(str(name)) and n}
-    empty = int(lower.get("empty cell", 0))  # (VTK_EMPTY_CELL: no points at all)
-    said = [f"{empty:,} empty cell{'s' if empty > 1 else ''} (no points) ignored"] if empty else []
-    if kept:
-        total = sum(kept.values())
-        kinds = ", ".join(f"{n:,} {name}" for name, n in sorted(kept.items()))
-        faces = "triangles and quadrilaterals" if dim == 3 else "edges"
-        said.append(
-            f"{total:,} cells of lower dimension ignored ({kinds}): only the faces of the mesh's cells "
-            f"({faces}) become boundary groups"
-        )
-    return "; ".join(said)
-
-
-def dropped_sentence(meta: dict) -> str | None:
-    """One sentence on the cells a read left out, or None."""
-    d = meta.get("dropped_cells")
-    if not d:
-        return None
-    parts = [
-        f"{len(ids):,} {why} (cell ids {ids[:5]}{'...' if len(ids) > 5 else ''})"
-        for why, ids in d["reasons"].items()
-    ]
-    return (
-        f"{len(d['ids_all']):,} of the file's {d['file_cells']:,} cells left out, the rest agglomerated: "
-        + "; ".join(parts)
-    )
 
 
 def _drop_degenerate(mesh: Mesh, vol: np.ndarray, bounds=None) -> bool:
@@ -585,7 +520,7 @@ def _drop_degenerate(mesh: Mesh, vol: np.ndarray, bounds=None) -> bool:
     mesh.offsets, mesh.connectivity, mesh.cell_types, mesh.tags = _without_cells(
         mesh.offsets, mesh.connectivity, mesh.cell_types, mesh.tags, degenerate
     )
-    _record_dropped(mesh, [(f"degenerate (zero-{kind})", np.flatnonzero(degenerate))], n_before)
+    record_dropped(mesh, [(f"degenerate (zero-{kind})", np.flatnonzero(degenerate))], n_before)
     for key in ("measures", "centroids"):
         mesh.meta.pop(key, None)
     return True
@@ -621,7 +556,7 @@ def _drop_repeated(mesh: Mesh) -> bool:
     mesh.offsets, mesh.connectivity, mesh.cell_types, mesh.tags = _without_cells(
         mesh.offsets, mesh.connectivity, mesh.cell_types, mesh.tags, repeated
     )
-    _record_dropped(mesh, [("written twice (the same nodes as an earlier cell)", ids)], n_before)
+    record_dropped(mesh, [("written twice (the same nodes as an earlier cell)", ids)], n_before)
     for key in ("measures", "centroids", "cell_faces"):
         mesh.meta.pop(key, None)
     return True

@@ -106,7 +106,7 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
     used[mesh.connectivity] = True
     unused = np.flatnonzero(~used)
     rep["unused_points"] = int(unused.size)
-    from models.mesh.build import dropped_sentence
+    from models.mesh.dropped import dropped_sentence
 
     left_out = dropped_sentence(mesh.meta)
     if left_out:  # a few bad cells among many: left out, the rest read (non-negotiable 3)
@@ -128,7 +128,7 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
     if mesh.meta.get("overlong_cells"):  # cell types and node counts disagree: said, read as VTK draws them
         long = mesh.meta["overlong_cells"]
         issues.append(_issue("overlong-cells", "warning", int(long["count"]), [], str(long["message"])))
-    from models.mesh.build import ignored_lower_sentence
+    from models.mesh.dropped import ignored_lower_sentence
 
     ignored = ignored_lower_sentence(mesh.meta, mesh.dim)
     if ignored:  # lines and points of a volume mesh: read, counted, said, not used

@@ -1,0 +1,76 @@
+"""What a read left out, and the sentences that say it: a few bad cells among many are left out
+and reported, not refused (few_bad, record_dropped, dropped_sentence); cells of lower dimension read
+and not used (ignored_lower_sentence). Used by models.mesh.build and the readers, and by the
+pipeline, the API and the CLI to say it."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from models.mesh.container import Mesh
+
+
+def few_bad(n_bad: int, n: int) -> bool:
+    """A few bad cells among many (non-negotiable: agglomerated and reported, not refused): at most
+    1% of the cells, so a mesh of fewer than 100 cells has none to spare."""
+    return 0 < n_bad <= n // 100
+
+
+def record_dropped(mesh: Mesh, dropped: list, n_before: int) -> None:
+    """mesh.meta["dropped_cells"]: per reason the ids of the cells left out ("reasons"), all of them
+    ("ids_all"), in the numbering of the file's cells (of the mesh's dimension) before any was left
+    out, and that count ("file_cells"). A second call (degenerate cells after cells with missing
+    points) maps its ids, counted among the cells kept so far, back to the file's."""
+    old = mesh.meta.get("dropped_cells") or {}
+    first = np.asarray(old.get("ids_all", []), dtype=np.int64)
+    before = np.setdiff1d(np.arange(n_before + first.size), first) if first.size else np.arange(n_before)
+    reasons = dict(old.get("reasons", {}))
+    ids_all = first.tolist()
+    for why, ids in dropped:
+        orig = before[np.asarray(ids, dtype=np.int64)]
+        reasons[why] = reasons.get(why, []) + orig.tolist()
+        ids_all += orig.tolist()
+    mesh.meta["dropped_cells"] = {
+        "ids_all": sorted(ids_all),
+        "reasons": reasons,
+        "file_cells": int(n_before + first.size),
+    }
+
+
+def ignored_lower_sentence(meta: dict, dim: int) -> str:
+    """The cells two or more dimensions below the mesh's (lines and points of a volume mesh, points
+    of a planar one): read, counted and not used (only the faces of the mesh's cells are boundary
+    groups); '' where there are none."""
+    lower = meta.get("lower_dim_cells") or {}
+
+    def below(name: str) -> bool:
+        kind = name.replace("poly-", "")
+        return kind.startswith("vertex") or (dim == 3 and kind.startswith("line"))
+
+    kept = {name: int(n) for name, n in lower.items() if below(str(name)) and n}
+    empty = int(lower.get("empty cell", 0))  # (VTK_EMPTY_CELL: no points at all)
+    said = [f"{empty:,} empty cell{'s' if empty > 1 else ''} (no points) ignored"] if empty else []
+    if kept:
+        total = sum(kept.values())
+        kinds = ", ".join(f"{n:,} {name}" for name, n in sorted(kept.items()))
+        faces = "triangles and quadrilaterals" if dim == 3 else "edges"
+        said.append(
+            f"{total:,} cells of lower dimension ignored ({kinds}): only the faces of the mesh's cells "
+            f"({faces}) become boundary groups"
+        )
+    return "; ".join(said)
+
+
+def dropped_sentence(meta: dict) -> str | None:
+    """One sentence on the cells a read left out, or None."""
+    d = meta.get("dropped_cells")
+    if not d:
+        return None
+    parts = [
+        f"{len(ids):,} {why} (cell ids {ids[:5]}{'...' if len(ids) > 5 else ''})"
+        for why, ids in d["reasons"].items()
+    ]
+    return (
+        f"{len(d['ids_all']):,} of the file's {d['file_cells']:,} cells left out, the rest agglomerated: "
+        + "; ".join(parts)
+    )
