@@ -186,3 +186,75 @@ def test_a_matrix_around_more_fibres_than_its_share_is_cut_through_them():
     got = balls_above(mesh, data, [units, units, units], 2, [6, 60, 512], groups=groups)
     assert got is not None and 6 < int(got[0].max()) + 1 <= 7
     _balls_apart(mesh, data, got[:2], groups)
+
+
+def _local(indptr, indices, lab, ku, u, elem, same, budget=512, count=1):
+    """local_pieces on a small graph, a fresh mark each call."""
+    from models.native import compiled
+
+    fast = compiled("graph._fastgraph")
+    n = indptr.size - 1
+    mark, queue = np.full(n, -1, dtype=np.int64), np.empty(n, dtype=np.int64)
+    args = (np.asarray(indptr, np.int64), np.asarray(indices, np.int64), np.asarray(lab, np.int64))
+    return fast.local_pieces(*args, mark, queue, ku, u, elem, same, budget, 1, count)
+
+
+def _csr(n, edges):
+    a = np.array(edges + [(b, a) for a, b in edges], dtype=np.int64)
+    a = a[np.lexsort((a[:, 1], a[:, 0]))]
+    return np.searchsorted(a[:, 0], np.arange(n + 1)), np.ascontiguousarray(a[:, 1])
+
+
+def test_the_pieces_a_set_falls_into_without_one_node_are_found_near_it():
+    # a cycle of 8 units (0..7) and a path 8-9-10 hanging off unit 0; node 11: the outside, next to
+    # units 4 and 9
+    edges = [(i, (i + 1) % 8) for i in range(8)] + [(0, 8), (8, 9), (9, 10), (4, 11), (9, 11)]
+    ptr, ind = _csr(12, edges)
+    lab = np.zeros(11, dtype=np.int64)  # every unit in element 0
+    assert _local(ptr, ind, lab, 11, 2, 0, 1) == 1  # a cycle less a node: one piece
+    assert _local(ptr, ind, lab, 11, 0, 0, 1) == 2  # unit 0 joins the cycle and the path
+    assert _local(ptr, ind, lab, 11, 9, 0, 1) == 2
+    assert _local(ptr, ind, lab, 11, 0, 0, 1, count=0) == 2  # (two or more)
+    assert _local(ptr, ind, lab, 11, 10, 0, 1) == 1  # an end of the path
+    assert _local(ptr, ind, lab, 11, 0, 0, 1, budget=-1) == 3  # its neighbours, counted
+    assert _local(ptr, ind, lab, 11, 0, 0, 1, budget=2) == -1  # over budget: unknown
+    # the complement of element 1 = {8}: units 0..7, 9, 10 and the outside; less unit 9 (in it), the
+    # pieces 10 alone and the rest through the outside
+    lab1 = lab.copy()
+    lab1[8] = 1
+    assert _local(ptr, ind, lab1, 11, 9, 1, 0) == 2
+    # element 1 = {4, 9}: its complement less unit 0 falls into the arcs 1-3 and 5-7 and unit 8 (the
+    # units next to the outside are 4 and 9, not in it)
+    lab2 = lab.copy()
+    lab2[[4, 9]] = 1
+    assert _local(ptr, ind, lab2, 11, 0, 1, 0) == 3
+    # two special nodes: pieces that reach different ones may meet through them: unknown
+    edges2 = [(0, 1), (1, 2), (0, 3), (3, 4), (2, 5), (4, 6), (5, 7), (6, 7)]  # units 0..5, nodes 6, 7
+    ptr2, ind2 = _csr(8, edges2)
+    assert _local(ptr2, ind2, np.zeros(6, dtype=np.int64), 6, 0, 1, 0) == -1
+
+
+def test_the_repair_checks_near_a_move_give_the_whole_graphs_answers(monkeypatch):
+    """Repair._near against the whole graph's check on every move tried (VERIFY asserts each pair),
+    and the same repair with the whole graph's checks only: the same labels."""
+    import models.hierarchy.repair as rp
+
+    mesh, data, ijk = _grid(6)
+    i, j, k = ijk.T
+    ring = (i >= 1) & (i <= 4) & (j >= 1) & (j <= 4) & (k >= 2) & (k <= 3)
+    ring &= ~((i >= 2) & (i <= 3) & (j >= 2) & (j <= 3))
+    lab = ring.astype(np.int64)
+    got = {}
+    for mode in (True, "whole"):
+        monkeypatch.setattr(rp, "VERIFY", mode)
+        rep = unit_repair(mesh, data, np.arange(mesh.n_cells))
+        got[mode] = rep.run(lab.copy(), 0, mesh.n_cells)
+        if mode is True:
+            assert rep.near > 0
+        else:
+            assert rep.near == 0
+    assert np.array_equal(got[True][0], got["whole"][0]) and got[True][1:] == got["whole"][1:]
+    # the fibres' matrix cut by planes and repaired: every check verified
+    monkeypatch.setattr(rp, "VERIFY", True)
+    mesh, data, units, groups = _grouped_block([0, 1])
+    assert balls_above(mesh, data, [units, units, units], 2, [6, 60, 512], groups=groups) is not None

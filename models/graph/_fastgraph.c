@@ -14,7 +14,9 @@
  *                nodes or a subset of whole parts, numbered by their first node (scipy's numbering);
  *   cross_edges  the entries of a graph between different parts (_quotient's input to scipy);
  *   loops        merge_2d's boundary loops: each edge's successor by a hash table, loops numbered by
- *                their smallest edge (merge._pair_edges + merge._list_rank).
+ *                their smallest edge (merge._pair_edges + merge._list_rank);
+ *   local_pieces the pieces a set falls into without one node, searched from its neighbours (the
+ *                3D repair's exact checks near the unit a move changes: models/hierarchy/repair.py).
  *
  * Arrays come through the buffer protocol (no numpy headers at build time). The axis orders P that
  * the cut functions take are trusted (rtree._Segments makes them: a permutation of 0..n-1 per axis);
@@ -465,6 +467,140 @@ static PyObject *py_loops(PyObject *self, PyObject *args) {
     return PyLong_FromLongLong(nl);
 }
 
+/* ---------------------------------------------------------------------------------------------- */
+/* local_pieces(indptr, indices, lab, mark, queue, ku, u, elem, same, budget, epoch, count) -> pieces
+ *   The repair's exact checks near one unit (models/hierarchy/repair.py Repair._near): the pieces
+ *   of a set X less the node u that hold u's neighbours in X. X: the nodes v < ku with
+ *   (lab[v] == elem) == same and, where same == 0, every node >= ku (the outside and the cavities:
+ *   reached, never searched from; pieces that reach the same one are one).
+ *   u's neighbours in X each start a piece; a breadth-first search from all of them at once joins
+ *   pieces where they meet, and a piece whose search has nothing left to visit, and that reached
+ *   no node >= ku, is complete (no other can reach it). The answer: the number of pieces, once all
+ *   but one are complete or joined (0: u has no neighbour in X); count == 0: 2 as soon as one piece
+ *   is complete beside another (two or more, enough to say "in pieces"); -1 where the search passed
+ *   `budget` nodes, or ended with two pieces or more that reached nodes >= ku (they may meet through
+ *   those: the caller checks the whole graph). budget < 0: u's neighbours in X counted, no search.
+ *   mark (n,): epoch << 24 | piece where reached in this call (the caller passes a new epoch each
+ *   call, so nothing is cleared; mark starts at -1); queue (n,): scratch. */
+static PyObject *py_local_pieces(PyObject *self, PyObject *args) {
+    PyObject *o[5];
+    long long ku, u, elem, same, budget, epoch, count;
+    if (!PyArg_ParseTuple(args, "OOOOOLLLLLLL", &o[0], &o[1], &o[2], &o[3], &o[4], &ku, &u, &elem, &same, &budget,
+                          &epoch, &count))
+        return NULL;
+    Py_buffer b[5];
+    Py_buffer *all[5] = {b, b + 1, b + 2, b + 3, b + 4};
+    const char *names[5] = {"indptr", "indices", "lab", "mark", "queue"};
+    const Py_ssize_t sizes[5] = {8, 8, 8, 8, 8};
+    const int wr[5] = {0, 0, 0, 1, 1};
+    if (get_bufs(o, all, 5, names, sizes, wr) < 0) return NULL;
+    const int64_t *ptr = b[0].buf, *nb = b[1].buf, *lab = b[2].buf;
+    int64_t *mark = b[3].buf, *queue = b[4].buf;
+    int64_t n = N8(b[0]) - 1, nnz = N8(b[1]);
+    if (n < 1 || N8(b[3]) != n || N8(b[4]) != n || ku < 0 || ku > n || N8(b[2]) < ku || u < 0 || u >= n ||
+        epoch < 1 || epoch >= ((int64_t)1 << 38)) {
+        release_arr(b, 5);
+        PyErr_SetString(PyExc_ValueError, "local_pieces: inconsistent arrays or arguments");
+        return NULL;
+    }
+    const int64_t tag = (int64_t)epoch << 24, low = ((int64_t)1 << 24) - 1;
+#define IN_X(v) ((v) < ku ? ((lab[v] == elem) == (same != 0)) : (same == 0))
+#define ROW_OK(v) ((v) >= 0 && (v) < n && ptr[v] >= 0 && ptr[v] <= ptr[(v) + 1] && ptr[(v) + 1] <= nnz)
+#define ROOT(x) ({ int64_t r_ = (x); while (up[r_] != r_) r_ = up[r_] = up[up[r_]]; r_; })
+    int64_t result = -1, deg = ROW_OK(u) ? ptr[u + 1] - ptr[u] : -1;
+    /* per piece: its parent (union-find), nodes queued and not yet searched from, reached a node >= ku */
+    int64_t *up = deg >= 0 ? malloc((size_t)(deg + 1) * 2 * sizeof(int64_t)) : NULL;
+    uint8_t *far = deg >= 0 ? calloc((size_t)(deg + 1), 1) : NULL;
+    int bad = deg < 0 || !up || !far || deg >= low;
+    if (!bad) {
+        int64_t *pend = up + deg + 1;
+        int64_t g = 0, tail = 0;
+        for (int64_t e = ptr[u]; e < ptr[u + 1]; e++) { /* a piece per neighbour in X */
+            int64_t v = nb[e];
+            if (v < 0 || v >= n) {
+                bad = 1;
+                break;
+            }
+            if (v == u || !IN_X(v) || (mark[v] & ~low) == tag) continue;
+            mark[v] = tag | g;
+            up[g] = g;
+            pend[g] = v < ku;
+            far[g] = v >= ku;
+            if (v < ku) queue[tail++] = v;
+            g++;
+        }
+        int64_t active = g, done = 0; /* pieces still searched; pieces complete */
+        if (budget < 0 || active <= 1) result = active;
+        for (int64_t head = 0; !bad && result < 0 && head < tail; head++) {
+            int64_t v = queue[head];
+            if (!ROW_OK(v)) {
+                bad = 1;
+                break;
+            }
+            int64_t gv = ROOT(mark[v] & low);
+            pend[gv]--;
+            for (int64_t e = ptr[v]; e < ptr[v + 1]; e++) {
+                int64_t w = nb[e];
+                if (w < 0 || w >= n) {
+                    bad = 1;
+                    break;
+                }
+                if (w == u || !IN_X(w)) continue;
+                if ((mark[w] & ~low) == tag) { /* reached before: its piece and ours are one */
+                    int64_t gw = ROOT(mark[w] & low);
+                    if (gw != gv) {
+                        int64_t lo = gw < gv ? gw : gv, hi = gw < gv ? gv : gw;
+                        up[hi] = lo;
+                        pend[lo] += pend[hi];
+                        far[lo] |= far[hi];
+                        gv = lo;
+                        active--;
+                    }
+                    continue;
+                }
+                mark[w] = tag | gv;
+                if (w >= ku) {
+                    far[gv] = 1; /* reached, not searched from */
+                    continue;
+                }
+                if (tail >= budget) {
+                    result = -2; /* over budget */
+                    break;
+                }
+                queue[tail++] = w;
+                pend[gv]++;
+            }
+            if (result == -2 || bad) break;
+            if (pend[gv] == 0 && !far[gv]) { /* nothing left to visit: a whole piece */
+                done++;
+                active--;
+                far[gv] = 1; /* (never counted again) */
+            }
+            if (active <= 1)
+                result = done + active;
+            else if (!count && done)
+                result = 2;
+        }
+        if (result == -2)
+            result = -1;
+        else if (result < 0 && !bad) /* the search ended: every piece left reached a node >= ku */
+            result = active <= 1 ? done + active : -1;
+    }
+#undef IN_X
+#undef ROW_OK
+#undef ROOT
+    int oom = !bad ? 0 : (deg >= 0 && (!up || !far));
+    free(up);
+    free(far);
+    release_arr(b, 5);
+    if (oom) return PyErr_NoMemory();
+    if (bad) {
+        PyErr_SetString(PyExc_ValueError, "local_pieces: a node id out of range");
+        return NULL;
+    }
+    return PyLong_FromLongLong(result);
+}
+
 static PyMethodDef methods[] = {
     {"cut_prepare", py_cut_prepare, METH_VARARGS,
      "cut_prepare(P, x, w, a_start, a_size, axis, length, chosen, mid, base, vol) -> active cells: "
@@ -478,6 +614,9 @@ static PyMethodDef methods[] = {
     {"cross_edges", py_cross_edges, METH_VARARGS,
      "cross_edges(indptr, indices, weights, labels, rows, cols, w) -> count: the entries between "
      "different parts, with their parts and weights."},
+    {"local_pieces", py_local_pieces, METH_VARARGS,
+     "local_pieces(indptr, indices, lab, mark, queue, ku, u, elem, same, budget, epoch, count) -> pieces of a "
+     "set less u holding u's neighbours, or -1 (unknown): the repair's local checks."},
     {"loops", py_loops, METH_VARARGS,
      "loops(key_start, want, nxt, cyc, pos) -> number of loops, or -1: merge_2d's boundary loops."},
     {NULL, NULL, 0, NULL}};

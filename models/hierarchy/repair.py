@@ -34,6 +34,9 @@ WORK = 5 * 10**7
 # successful, a plain cube's 10 > 179 from 3,221 units 1.3-1.8 10^7, the 10^6 torus's 4 > 51 > 688
 # from 9,352 units 4.5 10^7
 TOTAL, OVERHEAD = 4 * WORK, 500
+# nodes a check near the moved unit may pass before the whole graph is checked (Repair._near)
+LOCAL = 512
+VERIFY = False  # every check near a unit compared with the whole graph's (tests)
 
 
 class Judge:
@@ -86,7 +89,8 @@ class Repair:
         self.ue, self.qp, self.qi, self.qw, self.judge, self.size, self.ku = ue, qp, qi, qw, judge, size, ku
         self.outer = outer  # units on the domain's outer boundary (the way out of any element)
         self.whole = (qp, qi)  # the units' whole graph (qp, qi: the moves', less where groups part it)
-        self.checks = 0  # exact checks made (each a pass over the units' graph)
+        self.checks = 0  # exact checks made (each a pass over the units' graph, or near a unit)
+        self.near = 0  # of them, those answered near the moved unit (Repair._near)
         # work spent and allowed, shared with the subsets: [nodes passed over, plus OVERHEAD a check]
         self.spent, self.allowed = [0], [float("inf")]
         # per item kind (vertices +1, edges -1): each unit's classes, each class's units, weights
@@ -100,6 +104,12 @@ class Repair:
         o = np.argsort(ends, kind="stable")
         self.fptr = np.searchsorted(ends[o], np.arange(ku + 1))
         self.fnb, self.fct = other[o], np.r_[c, c][o]
+        from models.native import compiled
+
+        self._fast = compiled("graph._fastgraph")  # the checks near a move (None: the whole graph's)
+        self._mark = np.full(judge.n, -1, dtype=np.int64)
+        self._queue = np.empty(judge.n, dtype=np.int64)
+        self._epoch = 0
 
     def subset(self, units: np.ndarray) -> Repair:
         """The same for unions of some units only (sorted), numbered in their order: the children of
@@ -188,10 +198,7 @@ class Repair:
                 if pick is not None and low[i] >= pick[0]:
                     break  # (sorted by their bound: none further on does better)
                 u, A, B = cu[i], cA[i], cB[i]
-                lab[u] = B
-                ca = self._exact(np.flatnonzero(lab == A), chi[A] + dA[i])
-                cb = self._exact(np.flatnonzero(lab == B), chi[B] + dB[i]) if ca < BAD else BAD
-                lab[u] = A
+                ca, cb = self._pair(lab, u, A, B, chi[A] + dA[i], chi[B] + dB[i], cx, chi)
                 e = D - cx[A] - cx[B] + ca + cb
                 if pick is None or e < pick[0]:
                     pick = (e, i, ca, cb)
@@ -218,6 +225,67 @@ class Repair:
         if D < best[0]:
             best = (D, lab.copy())
         return best[1], best[0], moves
+
+    def _pair(self, lab, u, A, B, chi_a, chi_b, cx, chi):
+        """(_exact of A less u, _exact of B with u) for u of A: found near u where they can be
+        (_near), else on the whole graph; the checks counted as the whole graph's either way."""
+        got = None if VERIFY == "whole" else self._near(lab, int(u), int(A), int(B), chi_a, chi_b, cx, chi)
+        if got is None or VERIFY:
+            lab[u] = B
+            ca = self._exact(np.flatnonzero(lab == A), chi_a)
+            cb = self._exact(np.flatnonzero(lab == B), chi_b) if ca < BAD else BAD
+            lab[u] = A
+            if got is not None:  # (VERIFY: both, compared)
+                assert got == (ca, cb), (got, (ca, cb))
+                self.near += 1 if ca >= BAD else 2
+            return ca, cb
+        ca, cb = got
+        n = 1 if ca >= BAD else 2
+        self.checks += n
+        self.near += n
+        self.spent[0] += n * (self.judge.n + OVERHEAD)
+        return ca, cb
+
+    def _near(self, lab, u: int, A: int, B: int, chi_a, chi_b, cx, chi):
+        """_pair's two numbers from the pieces around u alone (models/graph/_fastgraph.c
+        local_pieces), or None where a search passed LOCAL nodes or could not decide. A less u is
+        connected where u's neighbours in A are one piece without u; its complement gains u, which
+        joins the t pieces of A's complement u touches (t - 1 cavities fewer, one more where t = 0).
+        B with u is connected (u touches B); its complement loses u, so u's piece there falls into
+        the s pieces u's neighbours in it make (s - 1 cavities more). The value of each is
+        handles + cavities = 1 + 2 cavities - chi, from the element's before (cx, chi)."""
+        fast, j = self._fast, self.judge
+        if (
+            fast is None
+            or cx[A] >= BAD
+            or cx[B] >= BAD
+            or lab.dtype != np.int64
+            or not lab.flags.c_contiguous
+        ):
+            return None
+
+        def pieces(elem, same, budget=LOCAL, count=1):
+            self._epoch += 1
+            return fast.local_pieces(
+                j.ap, j.ai, lab, self._mark, self._queue, self.ku, u, elem, same, budget, self._epoch, count
+            )
+
+        twice_a, twice_b = int(cx[A]) - 1 + int(chi[A]), int(cx[B]) - 1 + int(chi[B])  # 2 cavities
+        if twice_a % 2 or twice_b % 2:
+            return None
+        inside = pieces(A, 1, count=0)  # (1, or 2 for two or more)
+        if inside < 0:
+            return None
+        if inside != 1:  # (0: A was u alone, now empty; 2 or more: A less u in pieces)
+            return BAD, BAD
+        t = pieces(A, 0)
+        if t < 0 or pieces(B, 1, -1) < 1:
+            return None
+        ca = 1 + twice_a + 2 * (1 - t) - int(chi_a)
+        s = pieces(B, 0)
+        if s < 0:
+            return None
+        return ca, 1 + twice_b + 2 * (s - 1) - int(chi_b)
 
     def _exact(self, units, chi, cavities_only: bool = False):
         self.checks += 1
