@@ -532,7 +532,9 @@ class Hierarchy:
 
     def write(self, folder: str | os.PathLike, metrics: bool = False, lymph: bool = False) -> dict:
         """level_L.vtu, .labels.json, .parent.json, .metrics.json, aggregation operators and
-        hierarchy.json into `folder`; returns the hierarchy.json index."""
+        hierarchy.json into `folder`; returns the hierarchy.json index. In 3D the elements are
+        written numbered by their vertex count (the order meshio reads back): `levels` takes that
+        numbering too (the same partition)."""
         from models.hierarchy.nested import write_hierarchy
         from models.mesh.boundary import fine_boundary, has_groups
 
@@ -556,7 +558,8 @@ class Hierarchy:
         folder = _out_path(folder, "a folder")
         if os.path.exists(folder) and not os.path.isdir(folder):
             raise ParameterError(f"cannot write the hierarchy to {folder}: it is a file, not a folder")
-        return write_hierarchy(
+        written: dict = {}
+        index = write_hierarchy(
             folder,
             m,
             self.data,
@@ -566,7 +569,12 @@ class Hierarchy:
             boundary=boundary,
             merged=self.merged,
             extra={key: self.info[key] for key in keys if key in self.info},
+            written=written,
         )
+        # the levels take the numbering written (3D: elements by vertex count, as meshio reads them
+        # back), so that levels[L] and level_L.vtu / .labels.json / the operators name the same elements
+        self.levels, self.merged = written["levels"], written["merged"]
+        return index
 
 
 def _own_words(exc: ParameterError) -> ParameterError:

@@ -203,7 +203,12 @@ def test_a_degenerate_cell_of_coincident_points_names_weld_and_others_do_not():
 
 
 @pytest.mark.parametrize(
-    "value, said", [(1e300, "a coordinate beyond 1e150"), (1e30, "a point lies far from all the others")]
+    "value, said",
+    [
+        (1e300, "a coordinate beyond 1e75"),
+        (1e80, "a coordinate beyond 1e75"),
+        (1e30, "a point lies far from all the others"),
+    ],
 )
 def test_one_corrupted_coordinate_is_named_not_every_cell_degenerate(value, said, recwarn):
     """One coordinate set to 1e300 made numpy print its overflow warnings and every cell degenerate;

@@ -388,6 +388,30 @@ class _Detector:
         self.handles = np.zeros(0, dtype=np.int64)  # the last call's rings
         self.h_labels = None  # the labels they were found for
         self.ue, self.ue_units = None, None  # UnitEuler of a finer level's elements, their labels
+        self.cavities = None  # 3D: domain_holes' (cavity, cell) pairs (fix_holes sets them)
+
+    def _owners(self, lab):
+        """3D: the elements of `lab` that alone hold every cell along some cavity of the domain (each
+        surrounds it, whatever its Euler characteristic says: a cavity and a pinched handle cancel
+        there), and each such cavity's centre (its cells' mean centroid): (elements, centres)."""
+        none = np.zeros(0, dtype=np.int64), np.zeros((0, self.mesh.dim))
+        if self.cavities is None or self.mesh.dim != 3 or not self.cavities[0].size:
+            return none
+        hid, hc = self.cavities
+        nh = int(hid.max()) + 1
+        el = lab[hc]
+        lo, hi = np.full(nh, int(lab.max()) + 1, dtype=np.int64), np.full(nh, -1, dtype=np.int64)
+        np.minimum.at(lo, hid, el)
+        np.maximum.at(hi, hid, el)
+        alone = np.flatnonzero(lo == hi)
+        if not alone.size:
+            return none
+        x = self.data.centroids[hc]
+        cnt = np.bincount(hid, minlength=nh)[alone]
+        cen = np.column_stack(
+            [np.bincount(hid, weights=x[:, d], minlength=nh)[alone] / cnt for d in range(x.shape[1])]
+        )
+        return lo[alone], cen
 
     def _unit_chi(self, lab, finer):
         """Above the finest level: the Euler characteristic of each element of `lab` from the finer
@@ -470,8 +494,9 @@ class _Detector:
             p, holes = merge_2d(mesh, data.graph, lab, data.measures, faces=self.bf)
         else:
             chi = self._unit_chi(lab, finer) if self.tunnels else None
-            if chi is not None and not np.any(chi > 1):  # no element around a cavity: nothing to merge
-                p, holes = None, None
+            own = self._owners(lab)
+            if chi is not None and not np.any(chi > 1) and not own[0].size:  # no element around a
+                p, holes = None, None  # cavity: nothing to merge
             else:
                 p, holes = merge(mesh, data.graph, lab, data.measures)
             self.bf = None if mesh.dim != 2 else boundary_faces(data.graph, lab)
@@ -486,6 +511,11 @@ class _Detector:
             if new.any():
                 cen = cen.reshape(be.size, 2) if be.size else np.zeros((0, 2))
                 be, cen = np.r_[be, pe[new]], np.vstack([cen, mesh.points[pv[new], :2]])
+        if mesh.dim == 3 and own[0].size:  # alone around a cavity: cut through the cavity's centre
+            new = ~np.isin(own[0], be)
+            if new.any():
+                cen = cen.reshape(be.size, 3) if be.size else np.zeros((0, 3))
+                be, cen = np.r_[be, own[0][new]], np.vstack([cen, own[1][new]])
         if self.tunnels:  # rings: their centroid as the hole's centre
             self.handles = self._handles(lab, first, finer, chi)
             hb = np.setdiff1d(self.handles, be)
@@ -639,6 +669,7 @@ def fix_holes(
     detector = _Detector(mesh, data, graphs, rings)
     if hole_pairs is None:  # (domain_holes' pairs where the caller has them)
         hole_pairs = domain_holes(mesh, data)
+    detector.cavities = hole_pairs if mesh.dim == 3 else None
     G_finer = None  # the finer level's element graph (each level's comes from it, not from the cells)
     for L in range(len(out) - 1, -1, -1):
         k0 = int(out[L].max()) + 1

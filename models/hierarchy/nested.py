@@ -121,6 +121,7 @@ def write_hierarchy(
     boundary_tag: int = 1,
     operators: bool = True,
     merged: list | None = None,
+    written: dict | None = None,
 ) -> dict:
     """Write every level (see the module docstring); returns the hierarchy.json index.
     lymph: also level_L.lymph.json (2D) with the lymph region/neighbor structs of each level;
@@ -128,7 +129,8 @@ def write_hierarchy(
     operators: also the aggregation operator into each level (write_operators). metrics=False still
     gives the partition statistics and the box measures (box ratio, coverage) of each level.
     merged: the polytopes models.polytope.merge.merge already made of each level (build_hierarchy's), not
-    merged again."""
+    merged again. written: a dict given is filled with the levels as written ("levels": 3D elements
+    are numbered by their vertex count, the order meshio reads back) and their polytopes ("merged")."""
     from models.export.vtu import group_names_of, points_xml, write_vtu
     from models.mesh.boundary import output_cells
     from models.polytope.merge import merge, sort_by_vertex_count
@@ -153,6 +155,8 @@ def write_hierarchy(
             annotate(poly, boundary)
         polys.append(poly)
     levels = [np.asarray(p.labels, dtype=np.int64) for p in polys]
+    if written is not None:
+        written.update(levels=levels, merged=polys)
     parents = parent_maps(levels)
     nested = is_nested(levels)
     index = {

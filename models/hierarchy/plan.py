@@ -196,12 +196,17 @@ def said_not_balls(mesh, graph, levels, report: list[dict], notes: list[str], ri
         return
     from models.polytope.euler import level_euler
 
-    bad = [int(np.count_nonzero(c != 1)) for c in level_euler(mesh, graph, levels)]
+    chis = level_euler(mesh, graph, levels)
+    bad = [int(np.count_nonzero(c != 1)) for c in chis]
     for r, b in zip(report, bad, strict=True):
         r["not_balls"] = b
     if sum(bad):
         where = ", ".join(f"{b} on level {L}" for L, b in enumerate(bad) if b)
+        ring = sum(int(np.count_nonzero(c < 1)) for c in chis)
+        hollow = sum(int(np.count_nonzero(c > 1)) for c in chis)
+        kinds = [f"{ring:,} ring{'s' if ring > 1 else ''} around a tunnel or a neighbour"] if ring else []
+        kinds += [f"{hollow:,} around a cavity (an enclosed void)"] if hollow else []
         notes.append(
-            f"{sum(bad)} elements are not balls ({where}): rings around a tunnel or a neighbour"
+            f"{sum(bad):,} element{'s are' if sum(bad) > 1 else ' is'} not balls ({where}): {' and '.join(kinds)}"
             + (", kept as asked (--keep-rings)" if not rings else " that cutting could not remove")
         )

@@ -261,7 +261,11 @@ def coarse_end(mesh, data, levels, polys, report, hole_pairs, plan, groups):
         and len(levels) > 1
         and any(int(lv.max()) + 1 > c for lv, c in zip(levels, plan, strict=False))
     ):
-        return _safe_coarsest(mesh, data, levels, polys, report, plan, groups, hole_pairs)
+        kept = [dict(r) for r in report]
+        got = _safe_coarsest(mesh, data, levels, polys, report, plan, groups, hole_pairs)
+        if _cavities_held(got[0], hole_pairs) > _cavities_held(levels, hole_pairs):
+            return levels, polys, kept  # (a merge that surrounds a cavity the checks missed: not kept)
+        return got
     if mesh.dim != 2 or k0 <= want or not hole_pairs[0].size or len(levels) < 2:
         return levels, polys, report
     new, kept = list(levels), 0
@@ -275,6 +279,21 @@ def coarse_end(mesh, data, levels, polys, report, hole_pairs, plan, groups):
         return levels, polys, report
     report[0]["threaded_merges"] = kept
     return new, *_changed(mesh, levels, new, polys, report)
+
+
+def _cavities_held(levels, hole_pairs) -> int:
+    """The cavities of the domain (hole_pairs: (cavity, cell) pairs) along one element alone, summed
+    over the levels."""
+    hid, hc = hole_pairs if hole_pairs is not None else (np.zeros(0, dtype=np.int64),) * 2
+    if not hid.size:
+        return 0
+    nh, total = int(hid.max()) + 1, 0
+    for lv in levels:
+        lo, hi = np.full(nh, int(lv.max()) + 1, dtype=np.int64), np.full(nh, -1, dtype=np.int64)
+        np.minimum.at(lo, hid, lv[hc])
+        np.maximum.at(hi, hid, lv[hc])
+        total += int(np.count_nonzero(lo == hi))
+    return total
 
 
 def _excess(levels, plan) -> int:

@@ -31,7 +31,10 @@ MIRROR = {
 }
 
 
-_HUGE = 1e150  # coordinates beyond this overflow in the measures (squares of differences)
+# coordinates beyond _HUGE overflow in the measures (the dual graph's face areas square areas: the
+# fourth power of lengths); a mesh spanning less than _TINY underflows the same way (volumes, and
+# the 1e-14 of the box's that tells a degenerate cell, below the smallest double)
+_HUGE, _TINY = 1e75, 1e-75
 
 
 # the curved surface's refusal names this command (the CLI puts the file's name for SURFACE); the
@@ -73,6 +76,13 @@ def mesh_from_cells(
     if points.shape[1] == 2:
         points = np.column_stack([points, np.zeros(len(points))])
     bounds = _bounds(points)  # NaN and infinities show in them (min and max propagate NaN)
+    nonfinite = None
+    if not (np.isfinite(bounds[0]).all() and np.isfinite(bounds[1]).all()):
+        bad = ~np.isfinite(points).all(axis=1)
+        unused = _unused_points(bad, len(points), conn, bnd, poly_faces)
+        if unused is not None:  # only points no cell uses: left out (VTK reads such a file), and said
+            points, conn, bnd, poly_faces = _without_points(points, conn, bnd, poly_faces, unused)
+            bounds, nonfinite = _bounds(points), int(unused.sum())
     if not (np.isfinite(bounds[0]).all() and np.isfinite(bounds[1]).all()):
         bad = ~np.isfinite(points).all(axis=1)
         raise MeshError(
@@ -87,8 +97,15 @@ def mesh_from_cells(
         bad = np.flatnonzero((np.abs(points) > _HUGE).any(axis=1))
         raise MeshError(
             f"the mesh has {'a point' if bad.size == 1 else f'{bad.size:,} points'} with a coordinate "
-            f"beyond 1e150 (first: point {int(bad[0])} at {point_text(points[bad[0]])}): too large to compute "
-            "with; a corrupted coordinate? fix it and retry"
+            f"beyond 1e75 (first: point {int(bad[0])} at {point_text(points[bad[0]])}): too large to compute "
+            "with (its measures would overflow); a corrupted coordinate? fix it, or scale the mesh, and retry"
+        )
+    span = float(np.max(bounds[1] - bounds[0]))  # (no squares: they underflow first)
+    if 0 < span < _TINY:  # (every point at one place: refused as degenerate, with the cells' ids)
+        raise MeshError(
+            f"the mesh spans only {span:.3g} (its bounding box's longest side): too small to compute with (its "
+            "measures would underflow); scale its coordinates (to millimetres or metres, say) "
+            "and retry"
         )
     if tags is not None and len(tags) != len(cell_types):
         raise MeshError("physical group data does not match the number of cells")
@@ -133,6 +150,12 @@ def mesh_from_cells(
     )
     if meta:
         mesh.meta.update(meta)
+    if nonfinite:
+        mesh.meta["nonfinite_points"] = {
+            "count": nonfinite,
+            "message": f"{nonfinite:,} point{'s' if nonfinite > 1 else ''} with NaN or infinite coordinates, "
+            "used by no cell, left out",
+        }
     if dropped:
         record_dropped(mesh, dropped, cell_types.size + dropped[0][1].size)
     if merged:
@@ -172,6 +195,32 @@ def mesh_from_cells(
     else:
         _orient_and_check(mesh, bounds if dim == 3 else None)  # (2D points were projected since)
     return mesh
+
+
+def _unused_points(bad: np.ndarray, n: int, conn, bnd, poly_faces) -> np.ndarray | None:
+    """`bad` (points) where no cell, boundary cell or polyhedron face uses any of them, else None."""
+    used = np.zeros(n, dtype=bool)
+    for ids in (conn, None if bnd is None else bnd[1], *(f[3] for f in poly_faces or ())):
+        if ids is not None and len(ids):
+            ids = np.asarray(ids)
+            used[ids[(ids >= 0) & (ids < n)]] = True
+    return None if np.any(bad & used) else bad
+
+
+def _without_points(points, conn, bnd, poly_faces, drop: np.ndarray):
+    """The points less `drop` (unused: _unused_points), every id renumbered (ids out of range stay
+    out of range, for the checks that say so)."""
+    new_id = np.cumsum(~drop) - 1
+
+    def renumber(ids):
+        ids = np.asarray(ids, dtype=np.int64)
+        ok = (ids >= 0) & (ids < drop.size)
+        return np.where(ok, new_id[np.where(ok, ids, 0)], -1)
+
+    if bnd is not None:
+        bnd = (bnd[0], renumber(bnd[1]), *bnd[2:])
+    poly_faces = [(*f[:3], renumber(f[3])) for f in poly_faces] if poly_faces else poly_faces
+    return np.ascontiguousarray(points[~drop]), renumber(conn), bnd, poly_faces
 
 
 def _no_shared_points(conn: np.ndarray, n_points: int, n_cells: int) -> bool:

@@ -132,21 +132,25 @@ def pieces_present(path: str, ext: str) -> None:
     inline, and large): its HDF5 files, its Binary data files and its xi:include files."""
     import mmap
 
+    from models.mesh import xml_refs
+
     xdmf = ext in (".xdmf", ".xmf")
     if ext == ".pvtk":
         with open(path, "rb") as fh:
             legacy_pieces(path, fh.read(16 << 20))
         return
-    try:
-        if not xdmf and os.path.getsize(path) > (16 << 20):  # (a header file is small)
-            return
+    if not xdmf and os.path.isfile(path) and os.path.getsize(path) > (16 << 20):  # (a header file is small)
+        return
+    named = xml_refs.xdmf_files(path) if xdmf else xml_refs.piece_files(path)  # (as XML: entities, comments)
+    if named is not None:
+        return _present(path, named, "data file" if xdmf else "piece file")
+    try:  # not well-formed XML: its file names by patterns (the reader will say what is wrong)
         with open(path, "rb") as fh:
             if os.fstat(fh.fileno()).st_size == 0:
                 return
             text = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
     except (OSError, ValueError):
         return
-    folder = os.path.dirname(os.path.abspath(path))
     try:
         if xdmf:
             found = [m.group(1) for m in _HEAVY.finditer(text)]
@@ -156,9 +160,15 @@ def pieces_present(path: str, ext: str) -> None:
             found = [m.group(1) for m in _PIECE.finditer(text)]
     finally:
         text.close()
-    what = "data file" if xdmf else "piece file"
-    for raw in dict.fromkeys(found):
-        piece = raw.decode("utf-8", "replace").strip()
+    _present(
+        path, [raw.decode("utf-8", "replace").strip() for raw in found], "data file" if xdmf else "piece file"
+    )
+
+
+def _present(path: str, named: list[str], what: str) -> None:
+    """pieces_present's verdict on the files a file names (relative to its folder)."""
+    folder = os.path.dirname(os.path.abspath(path))
+    for piece in dict.fromkeys(named):
         # (an absolute path inside the folder is fine: meshio writes its Binary data files so)
         where = os.path.realpath(os.path.join(folder, piece))
         if os.path.commonpath([os.path.realpath(folder), where]) != os.path.realpath(folder):

@@ -160,6 +160,9 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
         issues.append(_issue("ghost-cells", "info", int(ghosts["count"]), [], str(ghosts["message"])))
     if mesh.meta.get("gambit_groups"):  # a Gambit file's element groups: overlaps, gaps, or not used
         issues.append(_issue("element-groups", "info", 1, [], str(mesh.meta["gambit_groups"]["message"])))
+    if mesh.meta.get("nonfinite_points"):  # NaN or infinite points no cell uses: left out on reading
+        nf = mesh.meta["nonfinite_points"]
+        issues.append(_issue("nonfinite-points", "info", int(nf["count"]), [], str(nf["message"])))
     if mesh.meta.get("merged_points"):  # a cell soup (deal.II's DataOut): its copies merged on reading
         merged = mesh.meta["merged_points"]
         issues.append(_issue("merged-points", "info", int(merged["count"]), [], str(merged["message"])))
@@ -247,7 +250,8 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
                 hanging,
                 f"{hanging.size} vertices lie inside another cell's {'edge' if mesh.dim == 2 else 'face edge'} "
                 "(hanging nodes / T-junctions, point ids listed): the cells there are not neighbours, "
-                "elements do not cross that line",
+                "elements are not joined across that line (an element holding both sides, joined elsewhere, "
+                "closes over the node)",
             )
         )
 

@@ -96,6 +96,11 @@ class Filled:
         meshio.write(os.fspath(path), meshio.Mesh(self.points, [("tetra", self.tets)]))
 
 
+# a refused surface's crossings are looked for up to this many triangles (find_intersection: about
+# a second per 10^5 triangles here); a larger one is told to try --fill, which looks if gmsh fails
+CROSSING_CHECKED = 300_000
+
+
 def _fmt_point(p) -> str:
     return "(" + ", ".join(f"{float(x):.6g}" for x in p) + ")"
 
@@ -119,12 +124,17 @@ def open_surface_refusal(path, refused: Exception) -> Exception:
         return refused
     try:
         check_closed(surface)
+        if len(surface.triangles) <= CROSSING_CHECKED:  # (closed: does it cross itself? seconds at most)
+            crossing = _crossing_error(surface)
+            if crossing is not None:
+                raise crossing
     except MagnetError as why:
         name = os.path.basename(os.fspath(path))
         tail = str(why)
-        for prefix in (f"{name} is ", f"cannot read {name}: "):
+        for prefix in (f"{name} ", f"cannot read {name}: "):
             if tail.startswith(prefix):
-                tail = "it is " + tail[len(prefix) :] if prefix.endswith("is ") else tail[len(prefix) :]
+                tail = "it " + tail[len(prefix) :] if prefix == f"{name} " else tail[len(prefix) :]
+                break
         return MeshError(f"{refused}; nor can it be filled as it is: {tail}")
     return refused
 
@@ -272,6 +282,14 @@ def check_closed(s: Surface) -> None:
     if len(where_open):
         k = uniq[where_open[0]]
         mid = 0.5 * (s.points[k // n] + s.points[k % n])
+        tee = _t_junction(s.points, uniq[where_open] // n, uniq[where_open] % n)
+        if tee is not None:
+            raise MeshError(
+                f"{s.name} is closed in space but not as triangles: {len(where_open):,} edges belong to one "
+                f"triangle only, a corner of other triangles lying on them (T-junctions), e.g. at "
+                f"{_fmt_point(tee)}; split those edges at the corners that lie on them (conform the surface), "
+                f"or {REPAIR.replace('repair it first, ', 'repair it, ')}"
+            )
         raise MeshError(
             f"{s.name} is not a closed surface: {len(where_open):,} boundary edges (edges of one triangle "
             f"only), e.g. at {_fmt_point(mid)}; close its holes first, e.g. MeshLab's Filters > Remeshing > "
@@ -302,6 +320,27 @@ def check_closed(s: Surface) -> None:
         raise MeshError(
             f"{s.name} encloses no volume (its triangles lie in a plane): there is nothing to fill"
         )
+
+
+def _t_junction(points: np.ndarray, a: np.ndarray, b: np.ndarray, most: int = 4000) -> np.ndarray | None:
+    """A corner of the open edges (a, b) that lies inside another of them, away from its ends (a
+    T-junction: the surface closed in space, its triangles not sharing that edge), or None; only
+    looked for among at most `most` open edges."""
+    if a.size > most:
+        return None
+    ends = np.unique(np.r_[a, b])
+    p, q = points[a], points[b]
+    d = q - p
+    length2 = np.einsum("ij,ij->i", d, d)
+    for c in ends:  # a loop over the open edges' corners (at most 2 * most), each against every edge
+        rel = points[c] - p
+        t = np.einsum("ij,ij->i", rel, d) / np.where(length2 > 0, length2, 1.0)
+        off = rel - t[:, None] * d
+        near = np.einsum("ij,ij->i", off, off) <= 1e-18 * np.maximum(length2, 1e-300)
+        inside = near & (t > 1e-9) & (t < 1 - 1e-9) & (a != c) & (b != c)
+        if inside.any():
+            return points[c]
+    return None
 
 
 def _reorient(s: Surface, key: np.ndarray, forward: np.ndarray) -> int | None:
@@ -604,7 +643,8 @@ def _crossing_error(s: Surface) -> MeshError | None:
     if point is None:
         return None
     return MeshError(
-        f"{s.name} intersects itself: {count:,} pairs of triangles cross, e.g. at {_fmt_point(point)}; {REPAIR}"
+        f"{s.name} intersects itself: {count:,} {'pair' if count == 1 else 'pairs'} of triangles "
+        f"cross{'es' if count == 1 else ''}, e.g. at {_fmt_point(point)}; {REPAIR}"
     )
 
 

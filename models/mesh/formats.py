@@ -129,6 +129,14 @@ def extension(path: str | os.PathLike) -> str:
 _COMPRESSORS = {".gz": "gunzip", ".bz2": "bunzip2", ".xz": "unxz", ".zst": "unzstd", ".lz4": "unlz4"}
 
 
+def not_found(path: str) -> str:
+    """The refusal of a mesh path that does not lead to a file: missing, or a symbolic link to
+    nothing (its target missing, or a loop of links)."""
+    if os.path.islink(path):
+        return f"mesh file not found: {path} is a symbolic link that leads to no file (its target is missing, or the links loop)"
+    return f"mesh file not found: {path}"
+
+
 def unknown_format(name: str, ext: str) -> str:
     """The one sentence for a file whose extension no reader takes (the CLI's, the API's and the
     upload check's alike): the formats a file can be alone, then the archives for those that need

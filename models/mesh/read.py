@@ -28,7 +28,14 @@ from models.mesh.container import (
     VTK_TRIANGLE,
     Mesh,
 )
-from models.mesh.formats import MESH_EXTENSIONS, MULTI_FILE, compressed_hint, extension, format_name
+from models.mesh.formats import (
+    MESH_EXTENSIONS,
+    MULTI_FILE,
+    compressed_hint,
+    extension,
+    format_name,
+    not_found,
+)
 from models.mesh.meshio_files import MESHIO_TYPES as _TYPES
 from models.mesh.meshio_files import found as _found
 from models.mesh.meshio_files import known_type as _known
@@ -268,7 +275,7 @@ def read_mesh(
     the sandbox: models.mesh.sandbox)."""
     path = os.fspath(path)
     if not os.path.exists(path):
-        raise MeshError(f"mesh file not found: {path}")
+        raise MeshError(not_found(path))
     if os.path.isdir(path):  # an OpenFOAM case given as its folder
         path = case_files.openfoam_file(path) or path
     special_file(path)

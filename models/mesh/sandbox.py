@@ -51,7 +51,7 @@ import time
 
 from models.errors import MagnetError, MeshError, ParameterError
 from models.mesh import answer, heap
-from models.mesh.formats import ARCHIVES, extension, format_name
+from models.mesh.formats import ARCHIVES, extension, format_name, not_found
 from models.mesh.zygote import _ERRORS, _child
 
 DEFAULT_TIMEOUT_S = 600.0
@@ -175,7 +175,7 @@ def read_mesh_safe(
 
     path = os.fspath(path)
     if not os.path.exists(path):
-        raise MeshError(f"mesh file not found: {path}")
+        raise MeshError(not_found(path))
     if os.path.isdir(path):
         from models.mesh import case_files
 

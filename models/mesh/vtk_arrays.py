@@ -180,18 +180,27 @@ def _hide_blanked(ds, pts, offsets, conn, types, cell_data, poly):
 def _hidden(ds, offsets, conn, types) -> np.ndarray | None:
     """(C,) bool: the cells VTK does not draw (HIDDENCELL, DUPLICATECELL, or on a HIDDENPOINT), or
     None without a ghost array. A ghost array of another number type is read as integers."""
-    ghost = ds.GetCellData().GetArray("vtkGhostType")
-    pghost = ds.GetPointData().GetArray("vtkGhostType")
+    ghost = _ghosts(ds.GetCellData())
+    pghost = _ghosts(ds.GetPointData())
     hide = None
     if ghost is not None:
-        hide = (_np(ghost).astype(np.int64) & (HIDDEN_CELL | DUPLICATE_CELL)) != 0
+        hide = (ghost & (HIDDEN_CELL | DUPLICATE_CELL)) != 0
     if pghost is not None and types.size:
-        hp = (_np(pghost).astype(np.int64) & HIDDEN_POINT) != 0
+        hp = (pghost & HIDDEN_POINT) != 0
         if hp.any():
             cell = np.repeat(np.arange(types.size), np.diff(offsets))
             on = np.bincount(cell, weights=hp[np.asarray(conn, np.int64)], minlength=types.size) > 0
             hide = on if hide is None else hide | on
     return hide
+
+
+def _ghosts(attributes) -> np.ndarray | None:
+    """The vtkGhostType array of cell or point data as int64 flags, or None where there is none or
+    it is not one value per cell (a vector of that name: no ghost array for VTK's filters either)."""
+    arr = attributes.GetArray("vtkGhostType")
+    if arr is None or arr.GetNumberOfComponents() != 1:
+        return None
+    return _np(arr).astype(np.int64).reshape(-1)
 
 
 def _kept_polyhedra(poly, keep: np.ndarray):
@@ -216,9 +225,8 @@ def hidden_cells(data) -> tuple[int, int, int]:
     dup = hid = total = 0
     for ds in leaves:
         total += ds.GetNumberOfCells()
-        ghost = ds.GetCellData().GetArray("vtkGhostType")
-        if ghost is not None:
-            g = _np(ghost).astype(np.int64)
+        g = _ghosts(ds.GetCellData())
+        if g is not None:
             dup += int(np.count_nonzero(g & DUPLICATE_CELL))
             hid += int(np.count_nonzero((g & HIDDEN_CELL) & ~(g & DUPLICATE_CELL)))
     return dup, hid, total

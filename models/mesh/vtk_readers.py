@@ -343,8 +343,12 @@ class _Captured:
 
 
 # errors after which VTK's reader still gives the whole mesh: Exodus QA and information records
-# declared and missing (the file's history, not its mesh)
-_HARMLESS = re.compile(r"Unable to read (?:QA|info(?:rmation)?) records", re.IGNORECASE)
+# declared and missing (the file's history, not its mesh); an XML data array's information key
+# VTK cannot parse back (its own writer writes L2_NORM_RANGE "inf" or "-nan" for a vector array
+# holding an infinity or only NaNs: metadata of the data, not of the mesh)
+_HARMLESS = re.compile(
+    r"Unable to read (?:QA|info(?:rmation)?) records|Error reading InformationKey element", re.IGNORECASE
+)
 
 
 def _run(path: str, kind: str, fmt: str | None = None, notes: dict | None = None):
@@ -389,6 +393,8 @@ def _run(path: str, kind: str, fmt: str | None = None, notes: dict | None = None
             reader.ReadAllFieldsOn()
         if kind in PIECEWISE:
             out = _pieces(reader)
+        elif kind == "xdmf":  # a time series: its earliest time, where ParaView opens it (VTK's
+            out = _earliest(reader)  # reader gives the file's first grid, in whatever order)
         else:
             reader.Update()
             out = reader.GetOutputDataObject(0)
@@ -448,19 +454,25 @@ def _collection(path: str, fmt: str, legacy: bool = False):
     from vtkmodules.vtkIOXML import vtkXMLGenericDataObjectReader
 
     from models.mesh.case_files import legacy_pieces
+    from models.mesh.xml_refs import collection
 
     name = os.path.basename(path)
     with open(path, "rb") as fh:
         text = fh.read()
     steps = [(0.0, f) for f in legacy_pieces(path, text)] if legacy else []
-    for m in _PVD_DATASET.finditer(b"" if legacy else text):
-        attrs = {k.decode(): v.decode("utf-8", "replace") for k, v in _PVD_ATTR.findall(m.group(1))}
-        if "file" in attrs:
-            try:
-                t = float(attrs.get("timestep", "0") or 0)
-            except ValueError:
-                t = 0.0
-            steps.append((t, attrs["file"]))
+    listed = None if legacy else collection(path)  # (as XML: comments skipped, entities decoded)
+    if listed is None and not legacy:  # not well-formed XML: by patterns (VTK's reader says what is wrong)
+        listed = []
+        for m in _PVD_DATASET.finditer(text):
+            attrs = {k.decode(): v.decode("utf-8", "replace") for k, v in _PVD_ATTR.findall(m.group(1))}
+            if "file" in attrs:
+                listed.append((attrs.get("timestep", ""), attrs.get("part", ""), attrs["file"]))
+    for timestep, _, file in listed or []:
+        try:
+            t = float(timestep or 0)
+        except ValueError:
+            t = 0.0
+        steps.append((t, file))
     if not steps:
         tag = "<Piece fileName=...>" if legacy else "<DataSet file=...>"
         raise MeshError(f"cannot read {name} as {fmt}: it lists no data set (no {tag})")
@@ -483,6 +495,20 @@ def _collection(path: str, fmt: str, legacy: bool = False):
             f"{explain(cap.text, 'legacy VTK' if legacy else 'VTK XML')}"
         )
     return out
+
+
+def _earliest(reader):
+    """The reader's output at its earliest time step (the file's only one where it has none)."""
+    from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline as sddp
+
+    reader.UpdateInformation()
+    info = reader.GetOutputInformation(0)
+    times = info.Get(sddp.TIME_STEPS()) if info is not None and info.Has(sddp.TIME_STEPS()) else None
+    if times:
+        reader.UpdateTimeStep(min(times))
+    else:
+        reader.Update()
+    return reader.GetOutputDataObject(0)
 
 
 def _pieces(reader):

@@ -133,6 +133,9 @@ def merge_2d(
     a = f.nodes[2 * bf]
     b = f.nodes[2 * bf + 1]
     e = labels[f.cell[bf]]
+    hanging = hanging_edges(mesh, graph)
+    if hanging[0].size:  # T-junctions: edges split at the nodes on them, an element's slits closed
+        a, b, e = _split_at_hanging(bf, a, b, e, hanging)
     P = np.int64(mesh.n_points)
     key_start = e * P + a
     want = e * P + b
@@ -201,6 +204,84 @@ def merge_2d(
         centers = np.zeros((0, 2))
     holes = Holes(elements=loop_elem[hole_loops], centers=centers)
     return _polymesh(mesh, elem_offsets, loop_offsets, loop_nodes, labels, measures), holes
+
+
+def hanging_edges(mesh: Mesh, graph: DualGraph) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """2D: the edges on the domain's boundary (face ids, sorted) with boundary nodes strictly inside
+    them (hanging nodes, T-junctions: the cells on the two sides are no neighbours), and those nodes
+    in order from the edge's first node (CSR: offsets, nodes). Made once per graph."""
+    got = getattr(graph, "_hanging", None)
+    if got is not None:
+        return got
+    empty = np.zeros(0, dtype=np.int64)
+    got = (empty, np.zeros(1, dtype=np.int64), empty)
+    bf = np.flatnonzero(graph.partner < 0) if mesh.dim == 2 else empty
+    if bf.size:
+        from scipy.spatial import cKDTree
+
+        p = mesh.points
+        u, v = graph.faces.nodes[2 * bf], graph.faces.nodes[2 * bf + 1]
+        verts = np.unique(np.r_[u, v])
+        mid, half = 0.5 * (p[u] + p[v]), 0.5 * np.linalg.norm(p[v] - p[u], axis=1)
+        hits = cKDTree(p[verts]).query_ball_point(mid, half * (1 + 1e-9))
+        counts = np.fromiter(map(len, hits), dtype=np.int64, count=len(hits))
+        if counts.sum():
+            from itertools import chain
+
+            edge = np.repeat(np.arange(bf.size), counts)
+            cand = verts[np.fromiter(chain.from_iterable(hits), dtype=np.int64, count=int(counts.sum()))]
+            d, w = p[v[edge]] - p[u[edge]], p[cand] - p[u[edge]]
+            L2 = np.einsum("ij,ij->i", d, d)
+            t = np.einsum("ij,ij->i", w, d) / np.where(L2 > 0, L2, 1.0)
+            off = w - t[:, None] * d
+            on = (cand != u[edge]) & (cand != v[edge]) & (t > 1e-9) & (t < 1 - 1e-9)
+            on &= np.einsum("ij,ij->i", off, off) <= 1e-18 * L2
+            edge, cand, t = edge[on], cand[on], t[on]
+            if edge.size:
+                o = np.lexsort((t, edge))
+                edge, cand = edge[o], cand[o]
+                ids, n = np.unique(edge, return_counts=True)
+                offs = np.zeros(ids.size + 1, dtype=np.int64)
+                np.cumsum(n, out=offs[1:])
+                got = (bf[ids], offs, cand)
+    graph._hanging = got
+    return got
+
+
+def _split_at_hanging(bf, a, b, e, hanging):
+    """merge_2d's boundary edges (a -> b of element e) with each edge that has hanging nodes on it
+    split at them, then the pairs an element has both ways (a slit: its cells on the two sides of a
+    T-junction) dropped."""
+    from models.mesh.cells import ranges
+
+    hf, offs, nodes = hanging
+    at = np.minimum(np.searchsorted(hf, bf), hf.size - 1)
+    split = hf[at] == bf
+    if split.any():
+        i = np.flatnonzero(split)
+        k = offs[at[i] + 1] - offs[at[i]]  # nodes on each split edge
+        start = np.zeros(i.size + 1, dtype=np.int64)
+        np.cumsum(k + 2, out=start[1:])  # each chain: a, its nodes, b
+        chain = np.empty(int(start[-1]), dtype=np.int64)
+        chain[start[:-1]] = a[i]
+        chain[start[1:] - 1] = b[i]
+        inner = ranges(start[:-1] + 1, k)
+        chain[inner] = nodes[ranges(offs[at[i]], k)]
+        first = ranges(start[:-1], k + 1)  # each chain's edges: (chain[j], chain[j + 1])
+        keep = ~split
+        a = np.r_[a[keep], chain[first]]
+        b = np.r_[b[keep], chain[first + 1]]
+        e = np.r_[e[keep], np.repeat(e[i], k + 1)]
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    o = np.lexsort((hi, lo, e))
+    same = (e[o][1:] == e[o][:-1]) & (lo[o][1:] == lo[o][:-1]) & (hi[o][1:] == hi[o][:-1])
+    same &= a[o][1:] != a[o][:-1]  # (both ways)
+    if same.any():
+        j = np.flatnonzero(same)
+        drop = np.zeros(a.size, dtype=bool)
+        drop[o[j]] = drop[o[j + 1]] = True
+        a, b, e = a[~drop], b[~drop], e[~drop]
+    return a, b, e
 
 
 def merge_3d(
