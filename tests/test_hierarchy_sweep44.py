@@ -124,3 +124,26 @@ def test_elements_over_t_junctions_are_simple_polygons():
     for model in ("rtree", "kmeans"):
         h = build_hierarchy(points=p, cells=[("quad", q)], model=model, coarsest=3)
         assert int(h.levels[0].max()) + 1 <= 3
+
+
+def test_a_damaged_hierarchy_folder_is_refused_in_a_sentence(tmp_path, capsys):
+    import meshio
+
+    from models.cli.main import main
+
+    p, q = _t_junctions(4)
+    mesh_path = str(tmp_path / "m.vtu")
+    meshio.write(mesh_path, meshio.Mesh(np.c_[p, np.zeros(len(p))], [("quad", q)]))
+    out = str(tmp_path / "h")
+    assert main(["hierarchy", mesh_path, "-o", out, "--coarsest", "3"]) == 0
+    labels = tmp_path / "h" / "level_1.labels.json"
+    labels.write_text(labels.read_text()[:50])  # truncated
+    capsys.readouterr()
+    assert main(["mgcheck", mesh_path, out]) == 2
+    err = capsys.readouterr().err
+    assert "cannot read level_1.labels.json of the hierarchy in" in err and "truncated" in err, err
+    assert "Expecting" not in err and "'" not in err, err
+    labels.write_text("[0, 1, 2]")
+    assert main(["mgcheck", mesh_path, out]) == 2
+    err = capsys.readouterr().err
+    assert "its level 1 labels 3 cells, the mesh has" in err, err

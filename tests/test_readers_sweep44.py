@@ -223,3 +223,27 @@ def test_cli_refusals_that_do_not_name_the_file_get_its_name(tmp_path, capsys):
     os.symlink(tmp_path / "gone.vtu", tmp_path / "link.vtu")
     assert main(["check", str(tmp_path / "link.vtu")]) == 2
     assert "is a symbolic link that leads to no file" in capsys.readouterr().out
+
+
+def test_files_of_no_components_or_another_format_are_said_so(tmp_path):
+    p, h = vc.grid(2, 2, 2)
+    path = vc.write_xml(tmp_path / "z.vtu", vc.unstructured(p, [(12, h)]), "ascii")
+    text = (
+        open(path)
+        .read()
+        .replace(
+            "<PointData>",
+            '<PointData><DataArray type="Float64" Name="nothing" '
+            'NumberOfComponents="0" format="ascii"></DataArray>',
+            1,
+        )
+    )
+    open(path, "w").write(text)
+    with pytest.raises(MeshError, match="its data array nothing declares 0 components per value"):
+        read_mesh(path)
+    (tmp_path / "b.obj").write_bytes(b"\x00" * 80 + b"\x01\x00\x00\x00" + b"\x00" * 50)
+    with pytest.raises(MeshError, match=r"it has no point lines \('v x y z'\): is it an OBJ file\?"):
+        read_mesh(str(tmp_path / "b.obj"))
+    (tmp_path / "o.ply").write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+    with pytest.raises(MeshError, match="it looks like an OFF file"):
+        read_mesh(str(tmp_path / "o.ply"))

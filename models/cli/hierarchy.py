@@ -186,13 +186,18 @@ def format_levels(report: list[dict]) -> str:
     ]
     for r in report:
         req = f"{r['requested']}" if "requested" in r else "-"
-        want = f"{r['requested_ratio']:.2f}" if "requested_ratio" in r else "-"
+        want = _ratio(r["requested_ratio"]) if "requested_ratio" in r else "-"
         lines.append(
-            f"{r['level']:>5}{r['elements']:>10}{req:>10}{r['ratio']:>7.2f}{want:>8}{r['holed_elements']:>7}"
+            f"{r['level']:>5}{r['elements']:>10}{req:>10}{_ratio(r['ratio']):>7}{want:>8}{r['holed_elements']:>7}"
             f"{r.get('holes_threaded', 0):>9}{r['ring_cuts']:>10}{r['split_into_children']:>8}{r['merged_pairs']:>8}"
             f"{r.get('threaded_merges', 0):>16}" + (f"{r.get('not_balls', 0):>11}" if balls else "")
         )
     return "\n".join(lines)
+
+
+def _ratio(x: float) -> str:
+    """A ratio in at most 6 characters (a column of the table: 8.00, 13.5, 1.1e+05)."""
+    return f"{x:.2f}" if abs(x) < 1000 else f"{x:.2g}"
 
 
 def read_levels(folder: str) -> list[np.ndarray]:
@@ -203,21 +208,26 @@ def read_levels(folder: str) -> list[np.ndarray]:
         files = [lv["labels"] for lv in index["levels"]]
     except FileNotFoundError:
         raise ParameterError(
-            f"{folder!r} holds no hierarchy.json (write one with `magnet hierarchy`)"
+            f"{folder} holds no hierarchy.json (write one with `magnet hierarchy`)"
         ) from None
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise ParameterError(f"cannot read {path}: {exc}") from None
+    except (OSError, ValueError, KeyError, TypeError):
+        raise ParameterError(
+            f"cannot read {path}: it is not the index `magnet hierarchy` writes (damaged or truncated?); "
+            "write the hierarchy again"
+        ) from None
     levels = []
     for f in files:
+        name = os.path.basename(str(f))
         try:
-            levels.append(
-                np.asarray(
-                    json.load(open(os.path.join(folder, os.path.basename(str(f))), encoding="utf-8")),
-                    dtype=np.int64,
-                )
-            )
-        except (OSError, ValueError, TypeError) as exc:
-            raise ParameterError(f"cannot read the labels {f!r} of the hierarchy: {exc}") from None
+            lv = np.asarray(json.load(open(os.path.join(folder, name), encoding="utf-8")), dtype=np.int64)
+        except FileNotFoundError:
+            raise ParameterError(f"the hierarchy in {folder} lists {name}, which is missing") from None
+        except (OSError, ValueError, TypeError, OverflowError):
+            raise ParameterError(
+                f"cannot read {name} of the hierarchy in {folder}: it is not a list of element ids "
+                "(damaged or truncated?); write the hierarchy again"
+            ) from None
+        levels.append(lv)
     return levels
 
 
@@ -229,8 +239,12 @@ def mgcheck_main(args) -> int:
     kappa = parse_kappa(args.kappa)
     levels = read_levels(args.hierarchy)
     mesh = read_mesh(args.mesh, physical_tag=args.physical_tag)
-    if any(lv.ndim != 1 or lv.size != mesh.n_cells for lv in levels):
-        raise MeshError(f"the hierarchy in {args.hierarchy!r} is not of this mesh ({mesh.n_cells} cells)")
+    for L, lv in enumerate(levels):
+        if lv.ndim != 1 or lv.size != mesh.n_cells:
+            raise MeshError(
+                f"the hierarchy in {args.hierarchy} is not of this mesh: its level {L} labels "
+                f"{lv.size:,} cells, the mesh has {mesh.n_cells:,} (another mesh's hierarchy, or a damaged file)"
+            )
     _, data = prepare(mesh)
     kappa = parse_kappa(args.kappa, mesh.dim)
     rep = mgcheck(mesh, data, levels, kappa=kappa)

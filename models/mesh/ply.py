@@ -6,6 +6,15 @@ from __future__ import annotations
 from models.errors import MeshError
 
 _PLY_FORMATS = (b"ascii", b"binary_little_endian", b"binary_big_endian")
+# other formats' first words: a file of that format under a .ply name
+_OTHERS = (
+    (b"OFF", "an OFF"),
+    (b"solid", "an ASCII STL"),
+    (b"<?xml", "an XML (VTK XML?)"),
+    (b"<VTKFile", "a VTK XML"),
+    (b"# vtk DataFile", "a legacy VTK"),
+    (b"$MeshFormat", "a gmsh"),
+)
 
 
 def check_header(path: str, name: str, head: bytes) -> None:
@@ -15,8 +24,10 @@ def check_header(path: str, name: str, head: bytes) -> None:
     if not head.startswith(b"ply"):
         shown = "".join(c if c.isprintable() else "?" for c in head[:8].decode("latin-1"))
         got = "a byte-order mark" if head.startswith(b"\xef\xbb\xbf") else f"'{shown}'"
+        other = next((f for sig, f in _OTHERS if head.lstrip().startswith(sig)), None)
+        hint = f": it looks like {other} file (give it that format's extension)" if other else ""
         raise MeshError(
-            f"cannot read {name} as PLY: a PLY file starts with 'ply', this one with {got} (byte 0)"
+            f"cannot read {name} as PLY: a PLY file starts with 'ply', this one with {got} (byte 0){hint}"
         )
     window = head if len(head) >= 65536 else _head_bytes(path, 65536)
     end = window.find(b"end_header")

@@ -84,6 +84,8 @@ def read_obj(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     is_v = np.array([k == b"v" for k in kind], dtype=bool)
     is_f = np.array([k == b"f" for k in kind], dtype=bool)
     vlines = [lines[i] for i in np.flatnonzero(is_v)]
+    if not vlines:  # (a binary file, or another format, under an .obj name)
+        raise MeshError("it has no point lines ('v x y z'): is it an OBJ file?")
     if any(len(r) < 4 for r in vlines):
         raise MeshError("a point ('v' line) has fewer than three coordinates")
     points = _floats([r[1:4] for r in vlines], "point ('v' line)")

@@ -586,10 +586,16 @@ def xml_fault(path: str, root: str | None = None) -> str | None:
 
     parser = expat.ParserCreate()
     first: list[str] = []
+    odd: list[str] = []  # a data array of no components (VTK reads on, then fails)
 
-    def start(name, _attrs):
+    def start(name, attrs):
         if not first:
             first.append(name.rsplit(":", 1)[-1])
+        n = attrs.get("NumberOfComponents") if name == "DataArray" else None
+        if n is not None and not odd and n.strip().lstrip("+-").isdigit() and int(n) <= 0:
+            label = str(attrs.get("Name", ""))[:40]
+            where = f" (at line {parser.CurrentLineNumber:,})"
+            odd.append(f"its data array {label or 'without a name'} declares {int(n)} components per value{where}")
 
     parser.StartElementHandler = start
     fault = None
@@ -611,7 +617,7 @@ def xml_fault(path: str, root: str | None = None) -> str | None:
     except (OSError, ValueError):
         return None
     if root is None or not first or first[0].lower() == root.lower():
-        return fault
+        return fault or (odd[0] if odd else None)
     what = article({"vtkfile": "VTK XML"}.get(root.lower(), root.upper()))
     if first[0].lower() == "html":  # (HTML need not be well-formed XML: this says more than its fault)
         return f"it is a web page (HTML), not {what} file: was a download page saved instead of the mesh?"
