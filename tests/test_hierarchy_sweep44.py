@@ -147,3 +147,22 @@ def test_a_damaged_hierarchy_folder_is_refused_in_a_sentence(tmp_path, capsys):
     assert main(["mgcheck", mesh_path, out]) == 2
     err = capsys.readouterr().err
     assert "its level 1 labels 3 cells, the mesh has" in err, err
+
+
+def test_the_shells_of_some_elements_are_those_of_the_whole_merge():
+    """cavity_holes walks the faces of the given elements only: the same holes as merge_3d's for them."""
+    from models.mesh.read import mesh_from_arrays
+    from models.pipeline import prepare
+    from models.polytope.merge import cavity_holes, merge
+
+    p, t = _delaunay_box_with_voids()
+    mesh = mesh_from_arrays(p, [("tetra", t)])
+    graph, data = prepare(mesh)
+    lab = np.floor(data.centroids[:, 0] * 2).astype(np.int64)  # 4 slabs across x, some around voids
+    _, whole = merge(mesh, graph, lab, data.measures)
+    assert whole.elements.size
+    some = np.unique(whole.elements)[:2]
+    got = cavity_holes(mesh, graph, lab, some)
+    keep = np.isin(whole.elements, some)
+    assert np.array_equal(got.elements, whole.elements[keep])
+    assert np.allclose(got.centers, whole.centers[keep])

@@ -395,7 +395,12 @@ class _Detector:
         surrounds it, whatever its Euler characteristic says: a cavity and a pinched handle cancel
         there), and each such cavity's centre (its cells' mean centroid): (elements, centres)."""
         none = np.zeros(0, dtype=np.int64), np.zeros((0, self.mesh.dim))
-        if self.cavities is None or self.mesh.dim != 3 or not self.cavities[0].size:
+        if (
+            self.cavities is None
+            or self.mesh.dim != 3
+            or self.cavities[0] is None
+            or not np.size(self.cavities[0])
+        ):
             return none
         hid, hc = self.cavities
         nh = int(hid.max()) + 1
@@ -497,6 +502,10 @@ class _Detector:
             own = self._owners(lab)
             if chi is not None and not np.any(chi > 1) and not own[0].size:  # no element around a
                 p, holes = None, None  # cavity: nothing to merge
+            elif chi is not None:  # the shells of the elements around a void only (their own faces)
+                from models.polytope.merge import cavity_holes
+
+                p, holes = None, cavity_holes(mesh, data.graph, lab, np.flatnonzero(chi > 1))
             else:
                 p, holes = merge(mesh, data.graph, lab, data.measures)
             self.bf = None if mesh.dim != 2 else boundary_faces(data.graph, lab)

@@ -284,8 +284,8 @@ def coarse_end(mesh, data, levels, polys, report, hole_pairs, plan, groups):
 def _cavities_held(levels, hole_pairs) -> int:
     """The cavities of the domain (hole_pairs: (cavity, cell) pairs) along one element alone, summed
     over the levels."""
-    hid, hc = hole_pairs if hole_pairs is not None else (np.zeros(0, dtype=np.int64),) * 2
-    if not hid.size:
+    hid, hc = hole_pairs if hole_pairs is not None else (None, None)
+    if hid is None or hc is None or not np.size(hid):
         return 0
     nh, total = int(hid.max()) + 1, 0
     for lv in levels:

@@ -595,7 +595,9 @@ def xml_fault(path: str, root: str | None = None) -> str | None:
         if n is not None and not odd and n.strip().lstrip("+-").isdigit() and int(n) <= 0:
             label = str(attrs.get("Name", ""))[:40]
             where = f" (at line {parser.CurrentLineNumber:,})"
-            odd.append(f"its data array {label or 'without a name'} declares {int(n)} components per value{where}")
+            odd.append(
+                f"its data array {label or 'without a name'} declares {int(n)} components per value{where}"
+            )
 
     parser.StartElementHandler = start
     fault = None

@@ -302,6 +302,21 @@ def merge_3d(
     return _polymesh(mesh, elem_offsets, fo, nodes, labels, measures), holes
 
 
+def cavity_holes(mesh: Mesh, graph: DualGraph, labels: np.ndarray, elements: np.ndarray) -> Holes:
+    """merge_3d's holes (inner shells) of the given elements only: their boundary faces alone are
+    walked (each element's shells are its own), so a level with a few elements around a void costs a
+    few elements' faces, not every element's."""
+    f = graph.faces
+    bf = boundary_faces(graph, labels)
+    e = labels[f.cell[bf]]
+    keep = np.isin(e, elements)
+    bf, e = bf[keep], e[keep]
+    order = np.argsort(e, kind="stable")
+    bf, e = bf[order], e[order]
+    fo, nodes = face_nodes(f, bf)
+    return _shells(mesh.points, e, fo, nodes)
+
+
 def face_nodes(faces, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(offsets, nodes) of the faces `ids`, in that order (a CSR of their vertex lists)."""
     sizes = np.diff(faces.offsets)[ids]
