@@ -587,16 +587,6 @@ def cli_words(message: str, args) -> str:
     return _OPTION.sub(flag, message)
 
 
-def _with_file(message: str, args) -> str:
-    """A refusal that does not name the mesh file (k above the cells a file holds, say) gets its
-    name in front, so that a script running many files knows which one."""
-    mesh = getattr(args, "mesh", None)
-    name = os.path.basename(os.path.normpath(mesh)) if isinstance(mesh, str) and mesh else ""
-    if not name or name in message or not os.path.exists(mesh):
-        return message
-    return f"{name}: {message}"
-
-
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     parser = build_parser(argv)
@@ -607,7 +597,7 @@ def main(argv: list[str] | None = None) -> int:
         rc = args.func(args)
     except MagnetError as exc:
         said = cli_words(getattr(exc, "options_words", None) or str(exc), args)
-        print(f"magnet: error: {_with_file(said, args)}", file=sys.stderr)
+        print(f"magnet: error: {said}", file=sys.stderr)
         return EXIT_USER_ERROR
     except OSError as exc:  # an output that cannot be written (disk full, permissions changed, ...)
         where = f": {exc.filename}" if exc.filename else ""
