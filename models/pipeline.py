@@ -82,6 +82,28 @@ def prepare(mesh: Mesh) -> tuple[DualGraph, CellData]:
     return graph, data
 
 
+def _alone_around(cavities, labels: np.ndarray, centroids: np.ndarray):
+    """The elements that alone hold every cell along a cavity (cavities: domain_holes' (cavity, cell)
+    pairs, or None) and each such cavity's centre (its cells' mean centroid)."""
+    none = np.zeros(0, dtype=np.int64), np.zeros((0, centroids.shape[1]))
+    if cavities is None or not np.size(cavities[0]):
+        return none
+    hid, hc = cavities
+    nh = int(hid.max()) + 1
+    lo, hi = np.full(nh, int(labels.max()) + 1, dtype=np.int64), np.full(nh, -1, dtype=np.int64)
+    np.minimum.at(lo, hid, labels[hc])
+    np.maximum.at(hi, hid, labels[hc])
+    alone = np.flatnonzero(lo == hi)
+    if not alone.size:
+        return none
+    cnt = np.bincount(hid, minlength=nh)[alone]
+    x = centroids[hc]
+    cen = np.column_stack(
+        [np.bincount(hid, weights=x[:, d], minlength=nh)[alone] / cnt for d in range(x.shape[1])]
+    )
+    return lo[alone], cen
+
+
 def split_holes(
     mesh: Mesh,
     graph: DualGraph,
@@ -90,8 +112,11 @@ def split_holes(
     policy: str = "split",
     max_rounds: int = 12,
     rings: bool = True,
+    cavities=None,
 ):
-    """Merge, and split elements that enclose holes until none does. Returns (poly, labels, n_split)."""
+    """Merge, and split elements that enclose holes until none does. Returns (poly, labels, n_split).
+    cavities: 3D, domain_holes' (cavity, cell) pairs: an element alone around one is cut through it
+    too (a handle pinched at an edge can hide the cavity from the element's shells)."""
     if policy not in HOLE_POLICIES:
         raise ParameterError(f"hole_policy must be one of {', '.join(HOLE_POLICIES)}, got {policy!r}")
     from models.partition.agglomerate import connected_parts
@@ -101,6 +126,14 @@ def split_holes(
     for _ in range(max_rounds + 1):
         poly, holes = merge(mesh, graph, labels, data.measures)
         normals = None
+        own, own_c = _alone_around(cavities, labels, data.centroids)
+        new = ~np.isin(own, holes.elements)
+        if new.any():
+            holes = type(holes)(
+                elements=np.r_[holes.elements, own[new]],
+                centers=np.vstack([holes.centers.reshape(-1, own_c.shape[1]), own_c[new]]),
+                odd_surface=holes.odd_surface,
+            )
         if holes.elements.size == 0:
             elems, centers, normals = _rings(mesh, graph, data, labels, rings, holes.odd_surface)
             if elems.size == 0:
@@ -277,6 +310,20 @@ def _hole_free(mesh, graph, data, agg, hole_policy: str, rings: bool):
         n_split = 0
     if agg.exact and (poly is None or poly.n_elements != agg.n_elements):
         poly, labels = _recount_after_holes(mesh, graph, data, agg, poly, labels, hole_policy, rings=rings)
+    if mesh.dim == 3 and labels is not None and hole_policy == "split":
+        from models.hierarchy.topology import domain_holes
+
+        cav = domain_holes(mesh, data)
+        if _alone_around(cav, labels, data.centroids)[0].size:  # alone around a cavity, which its
+            # shells did not show (a handle pinched at an edge): cut, and counted again with them
+            poly, labels, more = split_holes(
+                mesh, graph, data, labels, hole_policy, rings=rings, cavities=cav
+            )
+            n_split += more
+            if agg.exact and poly.n_elements != agg.n_elements:
+                poly, labels = _recount_after_holes(
+                    mesh, graph, data, agg, poly, labels, hole_policy, rings=rings, cavities=cav
+                )
     return poly, labels, n_split
 
 
@@ -353,7 +400,7 @@ def _fan_normals(data: CellData, labels: np.ndarray, elems: np.ndarray, vertex: 
 
 
 def _recount_after_holes(
-    mesh, graph, data, agg, poly, labels, hole_policy, rounds: int = 4, rings: bool = True
+    mesh, graph, data, agg, poly, labels, hole_policy, rounds: int = 4, rings: bool = True, cavities=None
 ):
     """Elements cut because they enclosed a hole raised the count above the k asked for (poly and
     labels: split_holes' answer, None where it gave up). In turn, until one gives k elements:
@@ -379,14 +426,16 @@ def _recount_after_holes(
             if opened == 0:
                 continue
             try:
-                _p, start, _n = split_holes(mesh, graph, data, start, hole_policy, rings=rings)
+                _p, start, _n = split_holes(
+                    mesh, graph, data, start, hole_policy, rings=rings, cavities=cavities
+                )
             except MeshError:
                 continue
         if start is None:
             continue
         got, merged = merge_safely(mesh, graph, start, target, sizes=sizes)
         try:
-            p2, got, _n = split_holes(mesh, graph, data, got, hole_policy, rings=rings)
+            p2, got, _n = split_holes(mesh, graph, data, got, hole_policy, rings=rings, cavities=cavities)
         except MeshError:
             continue
         if p2.n_elements == target:
@@ -403,7 +452,7 @@ def _recount_after_holes(
         labels, opened = _threaded(mesh, data, labels)  # the holes those merges made, opened
         if opened:
             agg.recount["threaded"] = agg.recount.get("threaded", 0) + opened
-        poly, labels, _n = split_holes(mesh, graph, data, labels, hole_policy, rings=rings)
+        poly, labels, _n = split_holes(mesh, graph, data, labels, hole_policy, rings=rings, cavities=cavities)
         if poly.n_elements == target:
             return poly, labels
     got = "" if poly is None else f" ({poly.n_elements} elements)"

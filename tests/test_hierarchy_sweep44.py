@@ -166,3 +166,22 @@ def test_the_shells_of_some_elements_are_those_of_the_whole_merge():
     keep = np.isin(whole.elements, some)
     assert np.array_equal(got.elements, whole.elements[keep])
     assert np.allclose(got.centers, whole.centers[keep])
+
+
+@pytest.mark.parametrize("model, k", [("kmeans", 4), ("kmeans", 2), ("metis", 4)])
+def test_no_agglomerate_is_alone_around_a_cavity(model, k):
+    """The same for k-way agglomeration: k-means with k = 4 left one element alone around a cavity
+    (the shells did not show it); the final labels are checked against the domain's cavities."""
+    from models.agglomeration import agglomerate
+    from models.pipeline import prepare
+
+    p, t = _delaunay_box_with_voids()
+    r = agglomerate(points=p, cells=[("tetra", t)], model=model, k=k)
+    lab = np.asarray(r.labels)
+    assert int(lab.max()) + 1 == k
+    _, data = prepare(r.mesh)
+    hid, hc = domain_holes(r.mesh, data)
+    lo, hi = np.full(int(hid.max()) + 1, k), np.full(int(hid.max()) + 1, -1)
+    np.minimum.at(lo, hid, lab[hc])
+    np.maximum.at(hi, hid, lab[hc])
+    assert not np.any(lo == hi)
