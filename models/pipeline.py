@@ -82,28 +82,6 @@ def prepare(mesh: Mesh) -> tuple[DualGraph, CellData]:
     return graph, data
 
 
-def _alone_around(cavities, labels: np.ndarray, centroids: np.ndarray):
-    """The elements that alone hold every cell along a cavity (cavities: domain_holes' (cavity, cell)
-    pairs, or None) and each such cavity's centre (its cells' mean centroid)."""
-    none = np.zeros(0, dtype=np.int64), np.zeros((0, centroids.shape[1]))
-    if cavities is None or not np.size(cavities[0]):
-        return none
-    hid, hc = cavities
-    nh = int(hid.max()) + 1
-    lo, hi = np.full(nh, int(labels.max()) + 1, dtype=np.int64), np.full(nh, -1, dtype=np.int64)
-    np.minimum.at(lo, hid, labels[hc])
-    np.maximum.at(hi, hid, labels[hc])
-    alone = np.flatnonzero(lo == hi)
-    if not alone.size:
-        return none
-    cnt = np.bincount(hid, minlength=nh)[alone]
-    x = centroids[hc]
-    cen = np.column_stack(
-        [np.bincount(hid, weights=x[:, d], minlength=nh)[alone] / cnt for d in range(x.shape[1])]
-    )
-    return lo[alone], cen
-
-
 def split_holes(
     mesh: Mesh,
     graph: DualGraph,
@@ -119,6 +97,7 @@ def split_holes(
     too (a handle pinched at an edge can hide the cavity from the element's shells)."""
     if policy not in HOLE_POLICIES:
         raise ParameterError(f"hole_policy must be one of {', '.join(HOLE_POLICIES)}, got {policy!r}")
+    from models.hierarchy.topology import alone_around
     from models.partition.agglomerate import connected_parts
 
     n_split = 0
@@ -126,7 +105,7 @@ def split_holes(
     for _ in range(max_rounds + 1):
         poly, holes = merge(mesh, graph, labels, data.measures)
         normals = None
-        own, own_c = _alone_around(cavities, labels, data.centroids)
+        own, own_c = alone_around(cavities, labels, data.centroids)
         new = ~np.isin(own, holes.elements)
         if new.any():
             holes = type(holes)(
@@ -311,10 +290,10 @@ def _hole_free(mesh, graph, data, agg, hole_policy: str, rings: bool):
     if agg.exact and (poly is None or poly.n_elements != agg.n_elements):
         poly, labels = _recount_after_holes(mesh, graph, data, agg, poly, labels, hole_policy, rings=rings)
     if mesh.dim == 3 and labels is not None and hole_policy == "split":
-        from models.hierarchy.topology import domain_holes
+        from models.hierarchy.topology import alone_around, domain_holes
 
         cav = domain_holes(mesh, data)
-        if _alone_around(cav, labels, data.centroids)[0].size:  # alone around a cavity, which its
+        if alone_around(cav, labels)[0].size:  # alone around a cavity, which its
             # shells did not show (a handle pinched at an edge): cut, and counted again with them
             poly, labels, more = split_holes(
                 mesh, graph, data, labels, hole_policy, rings=rings, cavities=cav

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from models.hierarchy.topology import domain_holes, handle_elements
+from models.hierarchy.topology import alone_around, domain_holes, handle_elements
 from models.mesh.celldata import CellData, compact_labels
 from models.mesh.container import Mesh
 from models.polytope.euler import disjoint_pairs, pinched
@@ -390,34 +390,6 @@ class _Detector:
         self.ue, self.ue_units = None, None  # UnitEuler of a finer level's elements, their labels
         self.cavities = None  # 3D: domain_holes' (cavity, cell) pairs (fix_holes sets them)
 
-    def _owners(self, lab):
-        """3D: the elements of `lab` that alone hold every cell along some cavity of the domain (each
-        surrounds it, whatever its Euler characteristic says: a cavity and a pinched handle cancel
-        there), and each such cavity's centre (its cells' mean centroid): (elements, centres)."""
-        none = np.zeros(0, dtype=np.int64), np.zeros((0, self.mesh.dim))
-        if (
-            self.cavities is None
-            or self.mesh.dim != 3
-            or self.cavities[0] is None
-            or not np.size(self.cavities[0])
-        ):
-            return none
-        hid, hc = self.cavities
-        nh = int(hid.max()) + 1
-        el = lab[hc]
-        lo, hi = np.full(nh, int(lab.max()) + 1, dtype=np.int64), np.full(nh, -1, dtype=np.int64)
-        np.minimum.at(lo, hid, el)
-        np.maximum.at(hi, hid, el)
-        alone = np.flatnonzero(lo == hi)
-        if not alone.size:
-            return none
-        x = self.data.centroids[hc]
-        cnt = np.bincount(hid, minlength=nh)[alone]
-        cen = np.column_stack(
-            [np.bincount(hid, weights=x[:, d], minlength=nh)[alone] / cnt for d in range(x.shape[1])]
-        )
-        return lo[alone], cen
-
     def _unit_chi(self, lab, finer):
         """Above the finest level: the Euler characteristic of each element of `lab` from the finer
         level's elements' skeleton (UnitEuler, made once per level); None at the finest level."""
@@ -499,7 +471,7 @@ class _Detector:
             p, holes = merge_2d(mesh, data.graph, lab, data.measures, faces=self.bf)
         else:
             chi = self._unit_chi(lab, finer) if self.tunnels else None
-            own = self._owners(lab)
+            own = alone_around(self.cavities, lab, data.centroids)  # (3D only: fix_holes sets them)
             if chi is not None and not np.any(chi > 1) and not own[0].size:  # no element around a
                 p, holes = None, None  # cavity: nothing to merge
             elif chi is not None:  # the shells of the elements around a void only (their own faces)

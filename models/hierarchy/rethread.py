@@ -284,16 +284,9 @@ def coarse_end(mesh, data, levels, polys, report, hole_pairs, plan, groups):
 def _cavities_held(levels, hole_pairs) -> int:
     """The cavities of the domain (hole_pairs: (cavity, cell) pairs) along one element alone, summed
     over the levels."""
-    hid, hc = hole_pairs if hole_pairs is not None else (None, None)
-    if hid is None or hc is None or not np.size(hid):
-        return 0
-    nh, total = int(hid.max()) + 1, 0
-    for lv in levels:
-        lo, hi = np.full(nh, int(lv.max()) + 1, dtype=np.int64), np.full(nh, -1, dtype=np.int64)
-        np.minimum.at(lo, hid, lv[hc])
-        np.maximum.at(hi, hid, lv[hc])
-        total += int(np.count_nonzero(lo == hi))
-    return total
+    from models.hierarchy.topology import alone_around
+
+    return sum(int(alone_around(hole_pairs, lv)[0].size) for lv in levels)
 
 
 def _excess(levels, plan) -> int:

@@ -51,6 +51,29 @@ def domain_holes(mesh: Mesh, data: CellData) -> tuple[np.ndarray, np.ndarray]:
     return key // mesh.n_cells, key % mesh.n_cells
 
 
+def alone_around(hole_pairs, labels: np.ndarray, centroids: np.ndarray | None = None):
+    """The elements of `labels` (one per cell) that alone hold every cell along some hole of the
+    domain (hole_pairs: domain_holes' (hole, cell) pairs, or None): in 3D each surrounds a cavity,
+    whatever its Euler characteristic says (a cavity and a handle pinched at an edge cancel there).
+    (elements, each such hole's centre: its cells' mean centroid, where centroids are given)."""
+    hid, hc = hole_pairs if hole_pairs is not None else (None, None)
+    dim = 0 if centroids is None else centroids.shape[1]
+    none = np.zeros(0, dtype=np.int64), np.zeros((0, dim))
+    if hid is None or hc is None or not np.size(hid):
+        return none
+    nh = int(hid.max()) + 1
+    lo, hi = np.full(nh, int(labels.max()) + 1, dtype=np.int64), np.full(nh, -1, dtype=np.int64)
+    np.minimum.at(lo, hid, labels[hc])
+    np.maximum.at(hi, hid, labels[hc])
+    alone = np.flatnonzero(lo == hi)
+    if not alone.size or centroids is None:
+        return lo[alone], none[1]
+    cnt = np.bincount(hid, minlength=nh)[alone]
+    x = centroids[hc]
+    cen = np.column_stack([np.bincount(hid, weights=x[:, d], minlength=nh)[alone] / cnt for d in range(dim)])
+    return lo[alone], cen
+
+
 def unit_sides(data: CellData, units: np.ndarray, ku: int, hole_pairs=None):
     """Where unions of units (a unit per cell, ku of them) meet the domain's boundary: (each unit on
     the outer boundary, (cavity, unit) pairs of the units along each cavity). A unit on both counts
