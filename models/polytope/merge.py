@@ -319,7 +319,7 @@ def cavity_holes(mesh: Mesh, graph: DualGraph, labels: np.ndarray, elements: np.
     order = np.argsort(e, kind="stable")
     bf, e = bf[order], e[order]
     fo, nodes = face_nodes(f, bf)
-    return _shells(mesh.points, e, fo, nodes)
+    return _shells(mesh.points, e, fo, nodes, pinched=True)
 
 
 def face_nodes(faces, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -331,8 +331,11 @@ def face_nodes(faces, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return fo, faces.nodes[src]
 
 
-def _shells(points, face_elem, fo, nodes) -> Holes:
-    """Connected face shells per element; every shell but the largest-volume one is a cavity."""
+def _shells(points, face_elem, fo, nodes, pinched: bool = False) -> Holes:
+    """Connected face shells per element; every shell but the largest-volume one is a cavity.
+    pinched: at an edge of 4, 6, ... of an element's faces, link them across the sectors outside it
+    (_edge_links: a void meeting the outside along an edge is a cavity), else all of them (a void
+    pinched to the outer surface is no cavity: the k-way path's holes, which meet k that way)."""
     from models.mesh.geometry import cell_index, fan_triangles, next_in_cycle
 
     nf = face_elem.size
@@ -352,8 +355,11 @@ def _shells(points, face_elem, fo, nodes) -> Holes:
     else:
         s = np.lexsort((hi, lo, key_e))
         same = (key_e[s][1:] == key_e[s][:-1]) & (lo[s][1:] == lo[s][:-1]) & (hi[s][1:] == hi[s][:-1])
-    i = np.flatnonzero(same)
-    fa, fb = face_of[s[i]], face_of[s[i + 1]]
+    if pinched:
+        fa, fb = _edge_links(points, nodes, fo, face_of, s, same, lo, hi)
+    else:
+        i = np.flatnonzero(same)
+        fa, fb = face_of[s[i]], face_of[s[i + 1]]
     nshell, shell = edge_components(nf, fa, fb)
     odd = _odd_surfaces(face_elem, key_e[s], same, shell, nodes, fo)
     if nf == 0 or nshell == np.count_nonzero(np.bincount(face_elem)):
@@ -373,6 +379,59 @@ def _shells(points, face_elem, fo, nodes) -> Holes:
         [np.bincount(shell[face_of], weights=points[nodes, d], minlength=nshell) / cnt for d in range(3)]
     )
     return Holes(elements=shell_elem[inner], centers=centers[inner], odd_surface=odd)
+
+
+def _edge_links(points, nodes, fo, face_of, s, same, lo, hi) -> tuple[np.ndarray, np.ndarray]:
+    """The pairs of an element's boundary faces that _shells links (fa, fb): at an edge of two of its
+    faces, those two. At an edge of 4, 6, ... (the element's surface pinched there: two voxels meeting
+    along an edge), the faces in their order around the edge, each linked to the next across the
+    sector outside the element (its outward normal points into it), so that each shell bounds one
+    side of the complement: a void meeting the outside or another void only along an edge is still
+    a cavity (a voxel block's voids touching diagonally: an element around one had Euler
+    characteristic 2 and no inner shell). Odd counts (not one element's surface): all linked.
+    s, same: the edge occurrences sorted by (element, lo, hi) and where a key repeats."""
+    start = np.r_[True, ~same]
+    run = np.cumsum(start) - 1
+    size = np.bincount(run)
+    i = np.flatnonzero(same & (size[run[:-1]] == 2) | same & (size[run[:-1]] % 2 == 1))
+    fa, fb = face_of[s[i]], face_of[s[i + 1]]
+    big = np.flatnonzero((size[run] > 2) & (size[run] % 2 == 0))
+    if big.size == 0:
+        return fa, fb
+    occ, r = s[big], run[big]  # the edge occurrences at pinched edges, grouped by edge
+    faces = face_of[occ]
+    base = points.min(axis=0)
+    pl = points[lo[occ]] - base
+    d = points[hi[occ]] - base - pl
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    # the centroid (of its nodes) and outward normal (Newell's, as the faces are ordered) of each
+    # face met there (only those: on voxel staircases such edges are many, the faces few of all)
+    uf, loc = np.unique(faces, return_inverse=True)
+    fsize = fo[uf + 1] - fo[uf]
+    fstart = np.r_[0, np.cumsum(fsize)[:-1]]
+    owner = np.repeat(np.arange(uf.size), fsize)
+    k = np.arange(int(fsize.sum())) - fstart[owner]  # each node's place in its face
+    at = fo[uf][owner] + k
+    after = fo[uf][owner] + (k + 1) % fsize[owner]
+    p_at, p_after = points[nodes[at]] - base, points[nodes[after]] - base
+    cross = np.cross(p_at, p_after)
+    cen = np.column_stack([np.bincount(owner, weights=p_at[:, c]) / fsize for c in range(3)])[loc]
+    normal = np.column_stack([np.bincount(owner, weights=cross[:, c]) for c in range(3)])[loc]
+    w = cen - pl
+    w -= np.einsum("ij,ij->i", w, d)[:, None] * d
+    w /= np.maximum(np.linalg.norm(w, axis=1), 1e-300)[:, None]
+    first = np.r_[True, r[1:] != r[:-1]]
+    ref = w[first][np.cumsum(first) - 1]  # the first face's direction at each edge
+    ang = np.arctan2(np.einsum("ij,ij->i", np.cross(d, ref), w), np.einsum("ij,ij->i", ref, w))
+    o = np.lexsort((ang, r))
+    faces, r, w, d, normal = faces[o], r[o], w[o], d[o], normal[o]
+    first = np.r_[True, r[1:] != r[:-1]]
+    gstart = np.flatnonzero(first)
+    nxt = np.arange(r.size) + 1
+    last = np.r_[gstart[1:], r.size] - 1
+    nxt[last] = gstart  # cyclic around each edge
+    out = np.einsum("ij,ij->i", normal, np.cross(d, w)) > 0  # the sector after it is outside
+    return np.r_[fa, faces[out]], np.r_[fb, faces[nxt[out]]]
 
 
 def _odd_surfaces(face_elem, edge_elem_sorted, same, shell, nodes, fo) -> np.ndarray:
