@@ -185,6 +185,34 @@ def agglomerate(
     return result
 
 
+def _subset_as_read(mesh, params: dict) -> dict:
+    """params with its subset (cell ids of the file, as labels.json numbers them) as ids of the cells
+    read, where the read left a few bad cells out (mesh.meta["dropped_cells"]); those among the
+    subset are left out of it too. Ids beyond the file's cells are refused with the file's count."""
+    left_out = mesh.meta.get("dropped_cells")
+    subset = params.get("subset")
+    if not left_out or subset is None or not len(subset):
+        return params
+    import numpy as np
+
+    n_file = int(left_out["file_cells"])
+    ids = np.asarray(subset, dtype=np.int64)
+    if ids.max() >= n_file or ids.min() < 0:
+        raise ParameterError(
+            f"subset has unknown cell ids (the mesh has cells 0..{n_file - 1}), e.g. {int(ids.max())}"
+        )
+    read_id = np.full(n_file, -1, dtype=np.int64)
+    kept = np.setdiff1d(np.arange(n_file), np.asarray(left_out["ids_all"], dtype=np.int64))
+    read_id[kept] = np.arange(kept.size)
+    mapped = read_id[ids]
+    if not np.any(mapped >= 0):
+        raise ParameterError(
+            f"every cell of the subset ({ids.size:,}) is among the bad cells the read left out: "
+            "give the ids of cells to agglomerate"
+        )
+    return {**params, "subset": mapped[mapped >= 0].tolist()}
+
+
 def run(
     source,
     params: dict,
@@ -229,6 +257,7 @@ def run(
             untrusted=untrusted,
         )
     t_read = time.perf_counter() - t0
+    params = _subset_as_read(mesh, params)
     p = validate_params(
         params,
         {

@@ -9,6 +9,11 @@ class MeshError(MagnetError):
     """The mesh cannot be read or is not a valid mesh (broken file, NaN, degenerate cells, ...)."""
 
 
+class HoleError(MeshError):
+    """Agglomerated elements enclose a hole that the hole policy refuses or the cuts could not remove:
+    found after the mesh was read (no reader's failure: the CLI does not name a reader for it)."""
+
+
 class ParameterError(MagnetError):
     """A parameter is out of range or inconsistent with the mesh (k too large, unknown mode, ...)."""
 

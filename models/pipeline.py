@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from models.errors import MeshError, ParameterError
+from models.errors import HoleError, MeshError, ParameterError
 from models.export import atomic
 from models.mesh.boundary import FineBoundary, annotate, fine_boundary, has_groups
 from models.mesh.celldata import CellData, compact_labels
@@ -121,9 +121,12 @@ def split_holes(
             elems, first = np.unique(holes.elements, return_index=True)
             centers = holes.centers[first]
         if policy == "error":
-            raise MeshError(
-                f"{elems.size} agglomerated elements enclose a hole (element ids {elems[:10].tolist()}); "
-                "use hole_policy='split' to cut them"
+            ids = ", ".join(str(int(e)) for e in elems[:10]) + (", ..." if elems.size > 10 else "")
+            one = elems.size == 1
+            raise HoleError(
+                f"{elems.size} agglomerated element{' encloses' if one else 's enclose'} a hole (element"
+                f"{'' if one else 's'} {ids}) and the hole policy 'error' refuses {'it' if one else 'them'}: "
+                f"use the hole policy 'split' (--hole-policy split) to cut {'it' if one else 'them'}"
             )
         if _ == max_rounds:
             break
@@ -151,8 +154,8 @@ def split_holes(
         labels, _s = connected_parts(data, new_label, all_nodes)
         labels = compact_labels(labels)
         n_split += elems.size
-    raise MeshError(
-        f"{elems.size} elements still enclose a hole after {max_rounds} rounds of cutting them: the "
+    raise HoleError(
+        f"{elems.size} element{'s' if elems.size > 1 else ''} still enclose{'' if elems.size > 1 else 's'} a hole after {max_rounds} rounds of cutting them: the "
         "domain has too many holes for so few elements; ask for more elements"
     )
 
@@ -397,8 +400,12 @@ def _recount_after_holes(
     target = agg.n_elements
     nodes = np.arange(mesh.n_cells)
     whole = target == agg.requested  # not with a subset: the rest stays as is
+    # with a subset, the cells outside it stay elements of their own: each its own group, which no
+    # merge crosses, so the cut elements are merged back among the subset's (the count asked of it)
+    outside = None if whole else agg.labels >= agg.requested
+    keep = None if whole else np.where(outside, np.cumsum(outside), 0)
     sizes = np.abs(data.measures)
-    for how in ("cut", "threaded") if whole else ():
+    for how in ("cut", "threaded") if whole else ("cut",):
         start = labels
         if how == "threaded":
             start, opened = _threaded(mesh, data, agg.labels)
@@ -412,7 +419,7 @@ def _recount_after_holes(
                 continue
         if start is None:
             continue
-        got, merged = merge_safely(mesh, graph, start, target, sizes=sizes)
+        got, merged = merge_safely(mesh, graph, start, target, sizes=sizes, keep=keep)
         try:
             p2, got, _n = split_holes(mesh, graph, data, got, hole_policy, rings=rings, cavities=cavities)
         except MeshError:
@@ -425,7 +432,7 @@ def _recount_after_holes(
         if how == "cut":
             poly, labels = p2, got
     for _ in range(rounds if whole and labels is not None else 0):
-        labels, merged, resplit = exact_count(data, labels, nodes, target)
+        labels, merged, resplit = exact_count(data, labels, nodes, target, agg.asked)
         agg.recount["merged"] = agg.recount.get("merged", 0) + merged
         agg.recount["split"] = agg.recount.get("split", 0) + resplit
         labels, opened = _threaded(mesh, data, labels)  # the holes those merges made, opened
@@ -434,9 +441,9 @@ def _recount_after_holes(
         poly, labels, _n = split_holes(mesh, graph, data, labels, hole_policy, rings=rings, cavities=cavities)
         if poly.n_elements == target:
             return poly, labels
-    got = "" if poly is None else f" ({poly.n_elements} elements)"
+    got = "" if poly is None else f" ({poly.n_elements - (0 if whole else int(outside.sum()))} elements)"
     raise ParameterError(
-        f"k = {agg.requested} cannot be met: elements that enclose a hole must be cut and merging "
+        f"{agg.asked} = {agg.requested} cannot be met: elements that enclose a hole must be cut and merging "
         f"them back makes new holes{got}; allow extra elements (--allow-extra)"
     )
 

@@ -13,7 +13,7 @@ import re
 import sys
 import time
 
-from models.errors import MagnetError, MeshError, ParameterError
+from models.errors import HoleError, MagnetError, MeshError, ParameterError
 
 EXIT_USER_ERROR = 2
 EXIT_INTERNAL = 70  # sysexits' EX_SOFTWARE: our bug, not the user's input
@@ -53,10 +53,16 @@ def _add_job_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--allow-extra",
         action="store_true",
-        help="with --k: keep every connected fragment of a part as an element of its own (more than k "
-        "elements), instead of merging fragments and splitting the largest elements to give exactly k",
+        help="with --k or --nref: keep every connected fragment of a part as an element of its own (more "
+        "than k elements), instead of merging fragments and splitting the largest elements to give exactly "
+        "k (2^nref)",
     )
-    p.add_argument("--nref", type=int, help="number of refinements: 2^nref elements")
+    p.add_argument(
+        "--nref",
+        type=int,
+        help="number of refinements: exactly 2^nref elements unless --allow-extra (with --hierarchy: the "
+        "last bisection's parts)",
+    )
     p.add_argument("--target-size", type=float, help="bisect until every element's diameter is below this")
     p.add_argument("--mult-factor", type=float, help="target size = factor x mesh diameter (0 < f <= 1)")
     p.add_argument(
@@ -227,7 +233,11 @@ def cmd_agglomerate(args) -> int:
         except MagnetError as exc:
             from models.mesh.fill import is_surface_file, open_surface_refusal
 
-            if isinstance(exc, MeshError) and os.path.basename(args.mesh) not in str(exc):
+            if (
+                isinstance(exc, MeshError)
+                and not isinstance(exc, HoleError)  # (found after the read: no reader to name)
+                and os.path.basename(args.mesh) not in str(exc)
+            ):
                 from models.mesh.sandbox import wording  # (found after reading: said as every refusal)
 
                 raise MeshError(wording(str(exc), args.mesh)) from None
@@ -287,7 +297,9 @@ def cmd_agglomerate(args) -> int:
         extra.append(f"{s['holes_split']} holed elements split")
     rc = s.get("recount") or {}
     if rc.get("merged") or rc.get("split"):
-        extra.append(f"exactly k: {rc['merged']} fragments merged, {rc['split']} elements split again")
+        extra.append(
+            f"exactly {s['requested']}: {rc['merged']} fragments merged, {rc['split']} elements split again"
+        )
     if rc.get("threaded"):
         extra.append(f"{rc['threaded']} holes threaded (a path of cells from the hole to a neighbour)")
     note = f" ({', '.join(extra)})" if extra else ""
@@ -295,9 +307,11 @@ def cmd_agglomerate(args) -> int:
     from models.mesh.dropped import dropped_sentence, ignored_lower_sentence
 
     if rc.get("rings_kept"):
+        n = rc["rings_kept"]
         print(
-            f"warning: {rc['rings_kept']} elements go around a tunnel of the domain: k = {s['requested']} "
-            "cannot be met without them; ask for more elements to have none"
+            f"warning: {n} element{'s are rings' if n > 1 else ' is a ring'} (around a tunnel of the domain "
+            f"or a neighbouring element): {s.get('asked', 'k')} = {s['requested']} cannot be met without "
+            f"{'them' if n > 1 else 'it'}; ask for more elements to have none"
         )
     ignored = ignored_lower_sentence(mesh.meta, mesh.dim)
     if ignored:

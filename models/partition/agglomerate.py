@@ -42,13 +42,15 @@ class Agglomeration:
     warnings: list = field(default_factory=list)
     levels: list | None = None  # labels over `nodes` after each recursion level (record_levels)
     nodes: np.ndarray | None = None
-    exact: bool = False  # the count `requested` is enforced (k asked for, allow_extra off)
+    exact: bool = False  # the count `requested` is enforced (k or nref asked for, allow_extra off)
+    asked: str = "k"  # how the count was asked for, in messages: "k" or "2^nref"
     recount: dict = field(default_factory=dict)  # {"merged", "split", "threaded", "rings_kept": n} to meet it
 
     def summary(self) -> dict:
         return {
             "elements": int(self.n_elements),
             "requested": self.requested,
+            "asked": self.asked,  # "k" or "2^nref": how the count was asked for
             "parts_before_split": int(self.parts_before_split),
             "parts_split": int(self.parts_split),
             "fragments_absorbed": int(self.fragments_absorbed),
@@ -582,12 +584,15 @@ def agglomerate(
     labels, parts_split = connected_parts(data, labels, nodes)
     labels, absorbed = absorb_fragments(data, labels, nodes, absorb_fraction, parts_before)
     labels = compact_labels(labels)
-    exact = sub_mode == "kway" and not allow_extra
+    # the count asked for, exactly: k, or 2^nref (nref and multilevel modes) unless the bisection
+    # levels are recorded (a nested hierarchy: its last level must stay the last bisection's)
+    exact = (sub_mode == "kway" or (sub_mode == "nref" and level_labels is None)) and not allow_extra
     recount = {}
     if exact:
         from models.partition.connect import exact_count
 
-        labels, merged, resplit = exact_count(data, labels, nodes, int(k))
+        asked = "2^nref" if sub_mode == "nref" else "k"
+        labels, merged, resplit = exact_count(data, labels, nodes, int(requested), asked)
         recount = {"merged": merged, "split": resplit}
     n_agg = int(labels.max()) + 1 if labels.size else 0
     full = np.empty(n, dtype=np.int64)
@@ -607,6 +612,7 @@ def agglomerate(
         nodes=nodes if record_levels else None,
         exact=exact,
         recount=recount,
+        asked="2^nref" if sub_mode == "nref" else "k",
     )
 
 

@@ -52,9 +52,11 @@ def pieces(data: CellData, nodes: np.ndarray) -> int:
     return int(np.unique(comp[nodes]).size)
 
 
-def exact_count(data: CellData, labels: np.ndarray, nodes: np.ndarray, k: int) -> tuple[np.ndarray, int, int]:
-    """Labels over `nodes` (connected parts) with exactly k parts, each connected.
-    Returns (labels, parts merged, parts split)."""
+def exact_count(
+    data: CellData, labels: np.ndarray, nodes: np.ndarray, k: int, asked: str = "k"
+) -> tuple[np.ndarray, int, int]:
+    """Labels over `nodes` (connected parts) with exactly k parts, each connected. asked: how the
+    count was asked for ("k", "2^nref"), in the refusals. Returns (labels, parts merged, parts split)."""
     if k > nodes.size:
         raise ParameterError(f"k = {k} is larger than the number of cells to agglomerate ({nodes.size})")
     labels = compact_labels(labels).astype(np.int64)
@@ -63,8 +65,8 @@ def exact_count(data: CellData, labels: np.ndarray, nodes: np.ndarray, k: int) -
     n_pieces = pieces(data, nodes)
     if n_pieces > k:
         raise ParameterError(
-            f"k = {k} cannot be met: the cells to agglomerate form {n_pieces} separate pieces and an "
-            f"element cannot span two; ask for k >= {n_pieces}, or allow extra elements (--allow-extra), "
+            f"{asked} = {k} cannot be met: the cells to agglomerate form {n_pieces} separate pieces and an "
+            f"element cannot span two; ask for {asked} >= {n_pieces}, or allow extra elements (--allow-extra), "
             "or, where the pieces are cut apart by coincident points (`magnet check` says so), merge them "
             "with --weld TOL"
         )
