@@ -64,12 +64,9 @@ class Result:
 def input_labels(mesh: Mesh, labels: np.ndarray) -> np.ndarray:
     """One label per cell of the file (or of cells= as given): -1 for the few bad cells the read
     left out (mesh.meta["dropped_cells"]); `labels` (one per cell read) where none was."""
-    left_out = mesh.meta.get("dropped_cells")
-    if not left_out:
-        return labels
-    full = np.full(int(left_out["file_cells"]), -1, dtype=np.int64)
-    full[np.setdiff1d(np.arange(full.size), np.asarray(left_out["ids_all"], dtype=np.int64))] = labels
-    return full
+    from models.mesh.dropped import file_labels
+
+    return file_labels(mesh.meta, labels)
 
 
 def prepare(mesh: Mesh) -> tuple[DualGraph, CellData]:

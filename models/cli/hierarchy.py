@@ -150,9 +150,15 @@ def hierarchy_main(args) -> int:
     mg = ""
     if args.mgcheck:
         from models.hierarchy.multigrid import format_report, mgcheck, parse_kappa
+        from models.mesh.dropped import read_labels
 
         written = [
-            np.asarray(json.load(open(os.path.join(out, lv["labels"]), encoding="utf-8")), dtype=np.int64)
+            read_labels(
+                mesh.meta,
+                np.asarray(
+                    json.load(open(os.path.join(out, lv["labels"]), encoding="utf-8")), dtype=np.int64
+                ),
+            )
             for lv in index["levels"]
         ]
         rep = mgcheck(mesh, data, written, kappa=parse_kappa(args.kappa, mesh.dim))
@@ -165,6 +171,11 @@ def hierarchy_main(args) -> int:
     print(format_levels(info["report"]))
     for note in info.get("notes", []):
         print(f"note: {note}")
+    from models.mesh.dropped import dropped_sentence
+
+    left_out = dropped_sentence(mesh.meta)
+    if left_out:
+        print(f"warning: {left_out} (labels: -1 for them)")
     print(
         f"{len(index['levels'])} nested levels ({sizes} elements) from {mesh.n_cells} cells with {args.model} "
         f"| read {t_read:.2f}s build {info['build_time']:.2f}s write {t_write:.2f}s | total {time.perf_counter() - t0:.2f}s"
@@ -239,6 +250,9 @@ def mgcheck_main(args) -> int:
     kappa = parse_kappa(args.kappa)
     levels = read_levels(args.hierarchy)
     mesh = read_mesh(args.mesh, physical_tag=args.physical_tag)
+    from models.mesh.dropped import read_labels
+
+    levels = [read_labels(mesh.meta, lv) for lv in levels]  # (the file's cells: those read)
     for L, lv in enumerate(levels):
         if lv.ndim != 1 or lv.size != mesh.n_cells:
             raise MeshError(

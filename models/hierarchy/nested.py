@@ -133,6 +133,7 @@ def write_hierarchy(
     are numbered by their vertex count, the order meshio reads back) and their polytopes ("merged")."""
     from models.export.vtu import group_names_of, points_xml, write_vtu
     from models.mesh.boundary import output_cells
+    from models.mesh.dropped import file_labels
     from models.polytope.merge import merge, sort_by_vertex_count
 
     names = group_names_of(mesh)
@@ -164,8 +165,8 @@ def write_hierarchy(
         "nested": nested,
         "cells": int(mesh.n_cells),
         "dim": int(mesh.dim),
-        # a few bad cells the read left out (models.mesh.dropped.few_bad): the labels are of the
-        # other cells, in the file's order; these are the file's ids of those left out
+        # a few bad cells the read left out (models.mesh.dropped.few_bad): each level's labels.json
+        # has one entry per cell of the file, -1 for those (agglomerate's labels.json alike)
         **({"cells_left_out": mesh.meta["dropped_cells"]} if mesh.meta.get("dropped_cells") else {}),
         **(extra or {}),
     }
@@ -216,7 +217,7 @@ def write_hierarchy(
             group_names=names,
             points_xml=pts_xml[L],
         )
-        _write_json(os.path.join(out_dir, entry["labels"]), labels)
+        _write_json(os.path.join(out_dir, entry["labels"]), file_labels(mesh.meta, labels))
         if L > 0:
             entry["parent"] = f"level_{L}.parent.json"
             _write_json(os.path.join(out_dir, entry["parent"]), parents[L - 1])
@@ -488,7 +489,9 @@ def build_hierarchy(
     notes: list[str] = []
     counts = level_counts(n, ratio, coarsest, stretch=stretch)
     if not counts:
-        raise ParameterError(f"the mesh has {n} cells: nothing to coarsen with coarsest = {coarsest}")
+        raise ParameterError(
+            f"the mesh has {n:,} cell{'s' if n != 1 else ''}: nothing to coarsen with coarsest = {coarsest}"
+        )
     if groups and mesh.tags is None:
         raise ParameterError("respecting physical groups needs a mesh with physical groups")
     if groups and model != "rtree" and not get_partitioner(model, seed=seed).supports_kway:

@@ -420,6 +420,7 @@ def _orient_and_check(mesh: Mesh, bounds=None) -> None:
     from models.mesh.orientation import orientation_flips
 
     fused = cells_validate(mesh)  # template cells or polygons: one compiled pass, no face array
+    met_twice = fused is not None and not fused[3]  # a face met twice one way (a cell written twice?)
     if fused is not None:
         vol, cen, own, consistent = fused
         mesh.meta["measures"] = np.abs(vol)
@@ -462,10 +463,15 @@ def _orient_and_check(mesh: Mesh, bounds=None) -> None:
         more = orientation_flips(mesh, np.abs(vol), faces, pairing)
         flip = own ^ more
     else:
-        more = flip = orientation_flips(mesh, vol, faces, pairing)
+        try:
+            more = flip = orientation_flips(mesh, vol, faces, pairing)
+        except MeshError:  # (a triangle or polygon written twice makes its edges non-manifold)
+            if _drop_repeated(mesh):
+                return _orient_and_check(mesh, bounds)
+            raise
     # a cell written twice meets its twin's faces in their direction: one of the two is flipped
     # against its own sign (or, in 3D, a face is met 3+ times); only then are repeats looked for
-    if ("order" in pairing or np.any(flip != (vol < 0))) and _drop_repeated(mesh):
+    if ("order" in pairing or met_twice or np.any(flip != (vol < 0))) and _drop_repeated(mesh):
         return _orient_and_check(mesh, bounds)
     signed = np.where(flip, -vol, vol)
     if more.any():

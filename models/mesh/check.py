@@ -412,7 +412,8 @@ def format_report(rep: dict) -> str:
     if "cells" in rep:
         types = ", ".join(f"{n} {t}" for t, n in rep["cell_types"].items())
         lines.append(
-            f"{rep.get('file', 'mesh')}: {rep['dim']}D, {rep['cells']} cells ({types}), {rep['points']} points"
+            f"{rep.get('file', 'mesh')}: {rep['dim']}D, {rep['cells']} cell{'s' if rep['cells'] != 1 else ''} "
+            f"({types}), {rep['points']} point{'s' if rep['points'] != 1 else ''}"
         )
         if "components" in rep:
             loops = rep.get("boundary_loops", rep.get("boundary_shells"))

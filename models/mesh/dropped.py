@@ -37,6 +37,28 @@ def record_dropped(mesh: Mesh, dropped: list, n_before: int) -> None:
     }
 
 
+def file_labels(meta: dict, labels: np.ndarray) -> np.ndarray:
+    """One label per cell of the file (or of cells= as given): -1 for the few bad cells the read
+    left out (meta["dropped_cells"]); `labels` (one per cell read) where none was."""
+    left_out = meta.get("dropped_cells")
+    if not left_out:
+        return labels
+    full = np.full(int(left_out["file_cells"]), -1, dtype=np.int64)
+    full[np.setdiff1d(np.arange(full.size), np.asarray(left_out["ids_all"], dtype=np.int64))] = labels
+    return full
+
+
+def read_labels(meta: dict, labels: np.ndarray) -> np.ndarray:
+    """file_labels undone: the labels of the cells read, from one per cell of the file (a level's
+    labels.json as written); other arrays as they are."""
+    left_out = meta.get("dropped_cells")
+    if not left_out or labels.size != int(left_out["file_cells"]):
+        return labels
+    keep = np.ones(labels.size, dtype=bool)
+    keep[np.asarray(left_out["ids_all"], dtype=np.int64)] = False
+    return labels[keep]
+
+
 def ignored_lower_sentence(meta: dict, dim: int) -> str:
     """The cells two or more dimensions below the mesh's (lines and points of a volume mesh, points
     of a planar one): read, counted and not used (only the faces of the mesh's cells are boundary
