@@ -83,3 +83,17 @@ def test_a_few_triangles_or_polygons_written_twice_are_left_out(kind):
     mesh = read_mesh(points=p, cells=blocks)
     assert mesh.n_cells == n - 3
     assert len(mesh.meta["dropped_cells"]["ids_all"]) == 3
+
+
+def test_check_says_where_two_solids_touch_at_a_point():
+    from meshes import hexes
+
+    from models.mesh.check import mesh_report
+
+    p, h = hexes(3)
+    p = np.asarray(p, dtype=np.float64)
+    p2 = p + (p.max(axis=0) - p.min(axis=0))  # the second cube touches the first at one corner
+    mesh = read_mesh(points=np.r_[p, p2], cells=[("hexahedron", np.r_[h, h + len(p)])], weld=1e-9)
+    rep = mesh_report(mesh)
+    pinch = [i for i in rep["issues"] if i["kind"] == "pinch"]
+    assert pinch and pinch[0]["count"] == 1

@@ -206,7 +206,7 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
     rep[key] = loops
     rep["holes"] = max(loops - int(n_pieces), 0)
     if pinch.size:
-        what = "vertices" if mesh.dim == 2 else "edges (first vertex ids)"
+        what = "vertices" if mesh.dim == 2 else "edges or vertices (vertex ids)"
         issues.append(
             _issue(
                 "pinch",
@@ -315,11 +315,14 @@ def _boundary_topology(mesh: Mesh, f, bnd: np.ndarray) -> tuple[int, np.ndarray]
     same = se[1:] == se[:-1]
     i = np.flatnonzero(same)
     g = sp.csr_matrix((np.ones(i.size), (owner[order[i]], owner[order[i + 1]])), shape=(bnd.size, bnd.size))
-    loops, _ = connected_components(g, directed=False)
+    loops, shell = connected_components(g, directed=False)
     _, cnt = np.unique(se, return_counts=True)
     first = np.r_[True, ~same]
     pinch_keys = se[first][cnt > 2]
-    return int(loops), np.unique(pinch_keys // n)
+    # a vertex on two shells: the domain touches itself there at a point (two cubes at a corner)
+    vs = np.unique(nodes * np.int64(loops) + shell[owner])
+    at_point = np.flatnonzero(np.bincount(vs // loops, minlength=n) > 1)
+    return int(loops), np.union1d(np.unique(pinch_keys // n), at_point)
 
 
 def _duplicates(mesh: Mesh, used: np.ndarray, f, bnd: np.ndarray) -> tuple[int, int, np.ndarray]:
