@@ -288,6 +288,11 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
     keep_groups = opts.get("keep_groups")
     if keep_groups is not None and not isinstance(keep_groups, bool):
         raise ParameterError(f"options.keep_groups must be true, false or null (auto), got {keep_groups!r}")
+    if keep_groups is True and refiner is None:  # (it weighs the refiner's cuts: alone it did nothing)
+        raise ParameterError(
+            "options.keep_groups acts on a refiner's cuts: give a refiner (--refiner fm "
+            "or rl-refiner); for elements that never cross a physical group use mode segregated"
+        )
     method = opts.get("method", "kway")
     if method not in ("kway", "recursive"):
         raise ParameterError(f"options.method must be 'kway' or 'recursive', got {method!r}")

@@ -356,9 +356,8 @@ def _assemble(meshio, placed, several: bool):
                 f"{n:,} of its {total:,} elements refer to nodes that no *NODE line defines (element "
                 f"{missing[0][1]} refers to node {missing[0][2]}): a *NODE line is missing or the file is cut"
             )
-    # the smallest sets first: a cell goes to the first set that holds it (meshio_groups), so a set
-    # of every element (EALL, Set-1, an instance) never hides the materials inside it
-    sets = dict(sorted(sets.items(), key=lambda kv: sum(len(x) for x in kv[1])))
+    # (in the file's order: meshio_groups gives a cell to the smallest set holding it, numbers
+    # the groups in this order)
     return meshio.Mesh(np.concatenate(points), cells, cell_sets=sets)
 
 

@@ -62,7 +62,14 @@ def named_groups(m, file_type: str, path: str, dims: list[int]):
         return m
     sets = getattr(m, "cell_sets", None) or {}
     if sets:  # Abaqus *ELSET: the named sets first, then gmsh's per-entity ones
-        names = sorted(sets, key=lambda n: bool(_AUTO_SET.match(n)))
+        # a cell goes to the smallest named set that holds it (a set of every element, EALL or an
+        # instance's, never hides the materials inside it); the groups are numbered as the file
+        # lists them (named, then per-entity), whatever the sets' sizes
+        def size(name):
+            return sum(np.asarray(x).size for x in sets[name])
+
+        auto = {n: bool(_AUTO_SET.match(str(n))) for n in sets}
+        names = sorted(sets, key=lambda n: (auto[n], size(n)))
         tags = [np.zeros(len(c.data), dtype=np.int64) for c in m.cells]
         groups = {}
         for name in names:
@@ -74,9 +81,24 @@ def named_groups(m, file_type: str, path: str, dims: list[int]):
                 if free.size:
                     tags[b][free] = groups.setdefault(str(name), len(groups) + 1)
         if groups:
+            listed = [str(n) for n in sorted(sets, key=lambda n: auto[n]) if str(n) in groups]
+            new_id = np.zeros(len(groups) + 1, dtype=np.int64)
+            for i, name in enumerate(listed):
+                new_id[groups[name]] = i + 1
+            tags = [new_id[t] for t in tags]
+            groups = {_set_name(name, file_type): i + 1 for i, name in enumerate(listed)}
             m.cell_data["group"] = tags
             m.field_data = {**m.field_data, **_set_dims(groups, tags, dims)}
     return m
+
+
+_FLAC3D_KEY = re.compile(r"^(?:zone|face):(.+):\d+$")  # meshio's key of a FLAC3D group: zone:NAME:SLOT
+
+
+def _set_name(name: str, file_type: str) -> str:
+    """A set's name as the file gives it (FLAC3D's ZGROUP "matrix" SLOT 1, not meshio's key for it)."""
+    m = _FLAC3D_KEY.match(name) if file_type == "flac3d" else None
+    return m.group(1) if m else name
 
 
 def _set_dims(groups: dict, tags: list, dims: list) -> dict:

@@ -182,6 +182,8 @@ def read_vtk(
             field.update(_exodus_names(data))
         elif kind in ("ensight", "tecplot"):  # parts, zones: named blocks (their T="...")
             field.update(_part_names(data))
+        elif kind == ".vtm" and "block" in cell_data and not repeats:  # its blocks' names
+            field.update(_part_names(data))
     if kind == "cgns":  # its families (gmsh's physical groups), which VTK's reading does not show
         from models.mesh.cgns_groups import family_groups
 
