@@ -346,10 +346,14 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
         )
     if mesh_info is not None and not (fill and mesh_info.get("surface") is not None):  # cells known
         n = int(mesh_info["cells"])
-        n_work = n if subset is None else len(set(subset))
-        if subset is not None and max(subset) >= n:
+        # a subset names the file's cells: where the read left a few bad ones out (cells_left_out,
+        # file ids), it may name those (they are left out of it), and ids run to the file's count
+        left_out = mesh_info.get("cells_left_out") or {}
+        n_file = int(left_out.get("file_cells", n))
+        n_work = n if subset is None else len(set(subset) - set(left_out.get("ids_all", ())))
+        if subset is not None and max(subset) >= n_file:
             raise ParameterError(
-                f"subset has unknown cell ids (the mesh has cells 0..{n - 1}), e.g. {max(subset)}"
+                f"subset has unknown cell ids (the mesh has cells 0..{n_file - 1}), e.g. {max(subset)}"
             )
         if k is not None and k > n_work:
             raise ParameterError(f"k = {k} is larger than the number of cells to agglomerate ({n_work})")

@@ -66,6 +66,62 @@ def _error(status: int, detail: str, field: str | None = None, headers: dict | N
     return JSONResponse(body, status_code=status, headers=headers)
 
 
+def _said(name: str, error: dict) -> str:
+    """One wire-format (pydantic) error in the library's words ("k must be an integer, got '8'")."""
+    kind, got, ctx = str(error.get("type", "")), error.get("input"), error.get("ctx") or {}
+    shown = (
+        repr(got) if isinstance(got, (str, bool, int, float)) or got is None else f"a {type(got).__name__}"
+    )
+    if kind.startswith("int_"):
+        return f"{name} must be an integer, got {shown}"
+    if kind.startswith("float_") or kind == "finite_number":
+        return f"{name} must be a finite number, got {shown}"
+    if kind.startswith("bool_"):
+        return f"{name} must be true or false, got {shown}"
+    if kind.startswith("string_type"):
+        return f"{name} must be a string, got {shown}"
+    if kind == "string_too_long":
+        return f"{name} is too long: at most {ctx.get('max_length')} characters"
+    if kind == "string_too_short":
+        return f"{name} must not be empty"
+    bounds = {"greater_than_equal": ">=", "greater_than": ">", "less_than_equal": "<=", "less_than": "<"}
+    if kind in bounds:
+        limit = next((v for k, v in ctx.items() if k in ("ge", "gt", "le", "lt")), "")
+        return f"{name} must be {bounds[kind]} {limit}, got {shown}"
+    if kind == "extra_forbidden":
+        return f"unknown parameter {name}"
+    if kind == "missing":
+        return f"{name} is required"
+    if kind in ("list_type", "tuple_type"):
+        return f"{name} must be a list, got {shown}"
+    if kind in ("dict_type", "model_type", "model_attributes_type"):
+        return f"{name} must be an object, got {shown}"
+    if kind == "json_invalid":
+        return "the request body is not valid JSON"
+    if kind == "literal_error":
+        return f"{name} must be one of {ctx.get('expected', '')}, got {shown}"
+    return f"{name} is not valid here, got {shown}"
+
+
+def _library_sentence(request: Request, exc: RequestValidationError):
+    """The library's ParameterError for a job's JSON parameters that the wire format refused (a
+    string where a number goes, true for k, an unknown field), or None (other requests, or the
+    library accepts them: the wire format's own words then)."""
+    body = getattr(exc, "body", None)
+    if request.method != "POST" or not request.url.path.endswith("/jobs") or not isinstance(body, dict):
+        return None
+    from models import api
+    from models.errors import ParameterError
+
+    try:
+        api.validate_params({k: v for k, v in body.items() if k != "mesh_id"})
+    except ParameterError as said:
+        return said
+    except Exception:  # noqa: BLE001  (anything else: the wire format's words)
+        return None
+    return None
+
+
 def _error_handlers(app: FastAPI) -> None:
     """Each failure kind mapped once to its HTTP status."""
 
@@ -74,23 +130,32 @@ def _error_handlers(app: FastAPI) -> None:
         return _error(422, str(exc) or type(exc).__name__, getattr(exc, "field", None))
 
     @app.exception_handler(RequestValidationError)
-    async def invalid_request(_: Request, exc: RequestValidationError):
+    async def invalid_request(request: Request, exc: RequestValidationError):
+        said = _library_sentence(request, exc)
+        if said is not None:  # a job's parameters: refused in the library's words, as the CLI and Python
+            loc = [str(p) for p in (exc.errors() or [{}])[0].get("loc", ()) if isinstance(p, str)][1:]
+            field = getattr(said, "field", None) or (".".join(loc) or None)
+            text = str(said)
+            if field and "." in field and text.startswith(field.rsplit(".", 1)[1] + " "):
+                text = f"{field.rsplit('.', 1)[0]}.{text}"  # (Python's keyword seed is options.seed here)
+            return _error(422, text, field)
         # FastAPI's own handler echoes the input, which fails on NaN/Infinity (a 500): say where instead
+        raw = list(exc.errors())
         errors = [
             {
                 "loc": [p if isinstance(p, int) else str(p) for p in e.get("loc", ())],
                 "msg": str(e.get("msg", "")),
                 "type": str(e.get("type", "")),
             }
-            for e in exc.errors()
+            for e in raw
         ]
         names = [
             ".".join(p for p in e["loc"][1:] if isinstance(p, str)) or (e["loc"] or ["request"])[0]
             for e in errors
         ]
-        detail = (
-            "; ".join(f"{n}: {e['msg']}" for n, e in zip(names, errors, strict=True)) or "invalid request"
-        )
+        for e, n, r in zip(errors, names, raw, strict=True):  # in our words, not the wire format's
+            e["msg"] = _said(n, r)
+        detail = "; ".join(e["msg"] for e in errors) or "invalid request"
         return JSONResponse({"detail": detail, "field": names[0] if names else None, "errors": errors}, 422)
 
     @app.exception_handler(UploadRejected)

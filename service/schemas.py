@@ -64,7 +64,7 @@ class MeshOut(BaseModel):
 
 
 class JobOptions(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)  # JSON as sent: "8" is no k (forms: lax)
     seed: int | None = Field(None, ge=0, le=2**31 - 1)
     absorb_fraction: float | None = Field(
         None, ge=0, lt=1, **Finite, description="absorb parts smaller than this x mean part size"
@@ -159,7 +159,7 @@ class JobOptions(BaseModel):
 class JobParams(BaseModel):
     """Agglomeration parameters, as for `magnet agglomerate`; the library validates their meaning."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)  # JSON as sent: "8" is no k (forms: lax)
     model: str | None = Field(
         None, max_length=40, description="metis | kmeans | rtree | sage-base | sage-hetero | rl-partitioner"
     )
@@ -170,8 +170,10 @@ class JobParams(BaseModel):
         "(default: the one the size given implies: k kway, nref nref, target_size target-size, "
         "mult_factor mult-factor; with subset coarsen)",
     )
-    k: int | None = Field(None, ge=1, le=10**8, description="number of elements (kway): exactly k")
-    nref: int | None = Field(None, ge=0, le=64, description="number of refinements: 2^nref elements")
+    k: int | None = Field(None, ge=1, description="number of elements (kway): exactly k unless allow_extra")
+    nref: int | None = Field(
+        None, ge=0, description="number of refinements: exactly 2^nref elements unless allow_extra"
+    )
     target_size: float | None = Field(None, gt=0, **Finite, description="largest element diameter")
     mult_factor: float | None = Field(
         None, gt=0, le=1, **Finite, description="element diameter / mesh diameter"

@@ -756,6 +756,12 @@ def describe(mesh: Mesh) -> dict:
         "physical_groups": mesh.physical_groups(),
         "bbox": [x.tolist() for x in _bounds(p)],
         **_boundary_summary(mesh),
+        # the few bad cells the read left out (file ids): subsets are the file's ids (models.params)
+        **(
+            {"cells_left_out": {k: mesh.meta["dropped_cells"][k] for k in ("ids_all", "file_cells")}}
+            if mesh.meta.get("dropped_cells")
+            else {}
+        ),
     }
 
 

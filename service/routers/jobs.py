@@ -167,7 +167,7 @@ def params_from_form(form) -> dict:
     if options:
         raw["options"] = options
     try:
-        return JobParams.model_validate(raw).library_params()
+        return JobParams.model_validate(raw, strict=False).library_params()  # (form fields are text)
     except ValidationError as exc:
         raise RequestValidationError(exc.errors(include_url=False, include_context=False)) from None
 
