@@ -15,7 +15,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from models.errors import MeshError, ParameterError
-from models.params import validate_params
+from models.params import _shown, validate_params
 
 if TYPE_CHECKING:
     import meshio
@@ -503,15 +503,20 @@ def build_hierarchy(
     tunnel or a neighbour) are kept, not cut (faster; info["notes"] counts them)."""
     import numpy as np
 
+    if isinstance(coarsest, float | np.floating) and float(coarsest).is_integer():
+        coarsest = int(coarsest)  # (4.0, as k = 8.0 is taken)
     if isinstance(coarsest, bool) or not isinstance(coarsest, int | np.integer):
-        raise ParameterError(f"coarsest must be a whole number of elements, got {coarsest}")
+        raise ParameterError(f"coarsest must be a whole number of elements, got {coarsest!r}")
+    for name, value in (("groups", groups), ("keep_rings", keep_rings), ("boxfit", boxfit)):
+        if not isinstance(value, bool | np.bool_):  # ("false" or an array is no switch)
+            raise ParameterError(f"{name} must be true or false, got {_shown(value)}")
     opts = {"seed": seed, "hierarchy": True, "coarsest": int(coarsest)}
     if ratio is not None:
         opts["ratio"] = ratio
     if finest is not None:
         opts["finest"] = finest
     if boxfit:
-        opts["boxfit"] = boxfit
+        opts["boxfit"] = bool(boxfit)
     try:
         params = validate_params({"model": model, "nref": 1, "options": opts})
     except ParameterError as exc:  # (the service's options.ratio is this function's ratio)
@@ -564,9 +569,14 @@ class Hierarchy:
         hierarchy.json into `folder`; returns the hierarchy.json index. In 3D the elements are
         written numbered by their vertex count (the order meshio reads back): `levels` takes that
         numbering too (the same partition)."""
+        import numpy as np
+
         from models.hierarchy.nested import write_hierarchy
         from models.mesh.boundary import fine_boundary, has_groups
 
+        for name, value in (("metrics", metrics), ("lymph", lymph)):
+            if not isinstance(value, bool | np.bool_):
+                raise ParameterError(f"{name} must be true or false, got {_shown(value)}")
         m, g = self.mesh, self.graph
         if lymph and m.dim != 2:  # (before anything is written: --lymph was asked of a 3D mesh)
             raise ParameterError("lymph's mesh structs (--lymph) are for 2D meshes only; this mesh is 3D")

@@ -97,3 +97,26 @@ def test_check_says_where_two_solids_touch_at_a_point():
     rep = mesh_report(mesh)
     pinch = [i for i in rep["issues"] if i["kind"] == "pinch"]
     assert pinch and pinch[0]["count"] == 1
+
+
+def test_build_hierarchys_switches_and_counts_are_checked(tmp_path):
+    # (the parity sweep: groups="false" was taken as true, an array as a switch raised numpy's own
+    # "truth value ... ambiguous", coarsest=4.0 was refused where k = 8.0 is taken, and arrays were
+    # shown as reprs in refusals)
+    from models import build_hierarchy
+    from models.errors import ParameterError
+
+    p, t = triangles(12)
+    for kw, said in (
+        ({"groups": "false"}, "groups must be true or false, got 'false'"),
+        ({"keep_rings": np.array([1, 2])}, "keep_rings must be true or false, got an array"),
+        ({"coarsest": "10"}, "coarsest must be a whole number of elements, got '10'"),
+        ({"ratio": np.array([4, 5])}, "got an array"),
+    ):
+        with pytest.raises(ParameterError) as err:
+            build_hierarchy(points=p, cells=[("triangle", t)], **kw)
+        assert said in str(err.value) and "array(" not in str(err.value)
+    h = build_hierarchy(points=p, cells=[("triangle", t)], coarsest=np.float64(4.0))
+    assert int(h.levels[0].max()) + 1 <= 4
+    with pytest.raises(ParameterError, match="metrics must be true or false, got an array"):
+        h.write(tmp_path / "h", metrics=np.array([1, 2]))
