@@ -76,10 +76,13 @@ def test_job_parameters_are_refused_in_the_librarys_words(client, bad_first, par
 def test_subset_ids_over_http_are_the_files(client, bad_first):
     mesh_id = _upload(client, bad_first)
     r = client.post("/v1/jobs", json={"mesh_id": mesh_id, "k": 4, "subset": [514]}, headers=AUTH)
-    assert r.status_code == 422 and "k = 4 is larger than the number of cells to agglomerate (1)" in r.json()[
-        "detail"
-    ]
-    r = client.post("/v1/jobs", json={"mesh_id": mesh_id, "k": 2, "subset": [0, 1, 2, 500, 514]}, headers=AUTH)
+    assert (
+        r.status_code == 422
+        and "k = 4 is larger than the number of cells to agglomerate (1)" in r.json()["detail"]
+    )
+    r = client.post(
+        "/v1/jobs", json={"mesh_id": mesh_id, "k": 2, "subset": [0, 1, 2, 500, 514]}, headers=AUTH
+    )
     assert r.status_code == 202, r.text  # (file ids 0..2 are the cells left out: 2 cells to agglomerate)
     r = client.post("/v1/jobs", json={"mesh_id": mesh_id, "k": 2, "subset": [515]}, headers=AUTH)
     assert r.status_code == 422 and "(the mesh has cells 0..514), e.g. 515" in r.json()["detail"]
