@@ -43,7 +43,7 @@ def test_a_hole_refused_by_the_policy_is_no_read_error(tmp_path):
         [
             sys.executable,
             "-m",
-            "models.cli.main",
+            "models.cli",
             "agglomerate",
             path,
             "-o",
@@ -123,3 +123,27 @@ def test_a_subset_around_a_cell_outside_it_meets_k(model):
             assert pieces(res.result.graph, lab) == res.n_elements  # connected elements
             _, holes = merge(res.mesh, res.result.graph, lab, res.result.data.measures)
             assert holes.elements.size == 0  # none around the inner cell
+
+
+def test_a_weld_larger_than_the_cells_is_said_as_such():
+    from models.errors import ParameterError
+
+    p, t = triangles(12)
+    with pytest.raises(
+        ParameterError, match=r"weld tolerance \(--weld\) left 288 of the 288 cells degenerate"
+    ):
+        agglomerate(points=p, cells=[("triangle", t)], k=4, weld=0.5)
+    assert agglomerate(points=p, cells=[("triangle", t)], k=4, weld=1e-12).n_elements == 4
+
+
+def test_a_bad_flag_is_one_line(tmp_path):
+    run = subprocess.run(
+        [sys.executable, "-m", "models.cli", "hierarchy", "x.vtu", "-o", str(tmp_path), "--ratio", "abc"],
+        capture_output=True,
+        text=True,
+        cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+    )
+    assert run.returncode == 2
+    assert run.stderr.strip().splitlines() == [
+        "magnet hierarchy: error: argument --ratio: invalid float value: 'abc' (see `magnet hierarchy --help`)"
+    ]

@@ -37,7 +37,7 @@ def test_level_labels_are_the_files_cells_with_minus_one_for_those_left_out(tmp_
     path, n_file, left_out = _with_bad_cells(tmp_path)
     out = tmp_path / "h"
     run = subprocess.run(
-        [sys.executable, "-m", "models.cli.main", "hierarchy", path, "-o", str(out), "--mgcheck"],
+        [sys.executable, "-m", "models.cli", "hierarchy", path, "-o", str(out), "--mgcheck"],
         capture_output=True,
         text=True,
         cwd=ROOT,
@@ -55,7 +55,7 @@ def test_level_labels_are_the_files_cells_with_minus_one_for_those_left_out(tmp_
     kept = np.setdiff1d(np.arange(n_file), left_out)
     assert kept[5] == 8
     run = subprocess.run(
-        [sys.executable, "-m", "models.cli.main", "mgcheck", path, str(out)],
+        [sys.executable, "-m", "models.cli", "mgcheck", path, str(out)],
         capture_output=True,
         text=True,
         cwd=ROOT,

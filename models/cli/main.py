@@ -448,10 +448,18 @@ class _Help(argparse.HelpFormatter):
         return f"{text} (default {d})" if text else f"(default {d})"
 
 
+class _Parser(argparse.ArgumentParser):
+    """A bad flag or value is one sentence (argparse's own words, which name the flag), not the
+    usage block: `--help` shows that."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
+
+
 def build_parser(argv: list[str]) -> argparse.ArgumentParser:
     import functools
 
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="magnet", description="Mesh agglomeration (MAGNET service library)", formatter_class=_Help
     )
     sub = parser.add_subparsers(dest="command", required=True)

@@ -645,6 +645,12 @@ def refuse_degenerate(mesh: Mesh, vol: np.ndarray, bounds=None, degenerate=None)
         far = far_point(mesh)
         if far is not None:  # one point far from the rest: its cells flat for their size
             raise MeshError(far)
+        if mesh.meta.get("welded"):  # (the weld asked for made them: its tolerance is too large)
+            raise ParameterError(
+                f"merging points closer than the weld tolerance (--weld) left {ids.size:,} of the "
+                f"{mesh.n_cells:,} cells degenerate (zero-{kind}), e.g. cell ids {ids[:5].tolist()}: the "
+                "tolerance is larger than these cells; give a smaller one"
+            )
         hint = {  # --weld only helps where a cell's corners are distinct points at one place
             "coincident": "remove them (or merge their coincident points with --weld) and retry",
             "repeated": "a node is repeated in them: remove them and retry",
