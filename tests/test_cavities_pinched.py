@@ -18,6 +18,8 @@ from models.polytope.merge import cavity_holes
 def _voxels(n: int, void: set | None = None, voids: int = 0, seed: int = 0):
     """(points, hexahedra, (i, j, k) per cell) of an n^3 block of unit voxels, less the voxels in
     `void` and `voids` random boxes of 1-3 voxels a side at least 3 voxels inside."""
+    from meshes import hexes
+
     keep = np.ones((n, n, n), dtype=bool)
     for v in void or ():
         keep[v] = False
@@ -25,26 +27,11 @@ def _voxels(n: int, void: set | None = None, voids: int = 0, seed: int = 0):
     for _ in range(voids):
         c, s = rng.integers(3, n - 5, size=3), rng.integers(1, 4, size=3)
         keep[c[0] : c[0] + s[0], c[1] : c[1] + s[1], c[2] : c[2] + s[2]] = False
-    i, j, k = np.nonzero(keep)
-
-    def idx(a, b, c):
-        return (a * (n + 1) + b) * (n + 1) + c
-
-    hexes = np.stack(
-        [
-            idx(i, j, k),
-            idx(i + 1, j, k),
-            idx(i + 1, j + 1, k),
-            idx(i, j + 1, k),
-            idx(i, j, k + 1),
-            idx(i + 1, j, k + 1),
-            idx(i + 1, j + 1, k + 1),
-            idx(i, j + 1, k + 1),
-        ],
-        axis=1,
-    )
-    points = np.stack(np.meshgrid(*[np.arange(n + 1.0)] * 3, indexing="ij"), -1).reshape(-1, 3)
-    return points, hexes, np.c_[i, j, k]
+    p, h = hexes(n)
+    p = np.asarray(p, dtype=np.float64) * n  # unit voxels
+    ijk = np.floor(p[h].mean(axis=1)).astype(np.int64)
+    live = keep[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
+    return p, h[live], ijk[live]
 
 
 def test_a_void_pinched_at_an_edge_is_a_cavity_of_the_element_around_it():
