@@ -88,37 +88,12 @@ def test_segregated_and_subset(tmp_path):
     assert "heterogeneity_preservation" in rep["summary"]
     assert min(rep["per_element"]["heterogeneity_preservation"]) == 1.0
     (tmp_path / "s.txt").write_text(" ".join(map(str, range(0, 3000))))
-    r = magnet(
-        "agglomerate",
-        BRAIN,
-        "-o",
-        tmp_path / "s.vtu",
-        "--mode",
-        "nref",
-        "--nref",
-        3,
-        "--subset",
-        tmp_path / "s.txt",
-        "--labels",
-        tmp_path / "sl.json",
-    )
+    nref3 = ("agglomerate", BRAIN, "-o", tmp_path / "s.vtu", "--mode", "nref", "--nref", 3)
+    subset = ("--subset", tmp_path / "s.txt", "--labels", tmp_path / "sl.json")
+    r = magnet(*nref3, *subset)
     # the first 3000 cells are scattered pieces: 2^3 elements cannot hold them (exact, as k)
     assert r.returncode != 0 and "2^nref = 8 cannot be met" in r.stderr and "2^nref >= " in r.stderr
-    r = magnet(
-        "agglomerate",
-        BRAIN,
-        "-o",
-        tmp_path / "s.vtu",
-        "--mode",
-        "nref",
-        "--nref",
-        3,
-        "--allow-extra",
-        "--subset",
-        tmp_path / "s.txt",
-        "--labels",
-        tmp_path / "sl.json",
-    )
+    r = magnet(*nref3, "--allow-extra", *subset)
     assert r.returncode == 0, r.stderr
     lab = np.array(json.loads((tmp_path / "sl.json").read_text()))
     assert np.unique(lab[3000:]).size == 14372 - 3000
