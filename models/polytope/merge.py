@@ -390,12 +390,14 @@ def _edge_links(points, nodes, fo, face_of, s, same, lo, hi) -> tuple[np.ndarray
     a cavity (a voxel block's voids touching diagonally: an element around one had Euler
     characteristic 2 and no inner shell). Odd counts (not one element's surface): all linked.
     s, same: the edge occurrences sorted by (element, lo, hi) and where a key repeats."""
-    start = np.r_[True, ~same]
-    run = np.cumsum(start) - 1
+    from models.mesh.geometry import cell_index, next_in_cycle, reorder_csr
+
+    run = np.cumsum(np.r_[True, ~same]) - 1
     size = np.bincount(run)
-    i = np.flatnonzero(same & (size[run[:-1]] == 2) | same & (size[run[:-1]] % 2 == 1))
+    pinch = (size[run] > 2) & (size[run] % 2 == 0)  # an occurrence at an edge of 4, 6, ... faces
+    i = np.flatnonzero(same & ~pinch[:-1])
     fa, fb = face_of[s[i]], face_of[s[i + 1]]
-    big = np.flatnonzero((size[run] > 2) & (size[run] % 2 == 0))
+    big = np.flatnonzero(pinch)
     if big.size == 0:
         return fa, fb
     occ, r = s[big], run[big]  # the edge occurrences at pinched edges, grouped by edge
@@ -407,15 +409,11 @@ def _edge_links(points, nodes, fo, face_of, s, same, lo, hi) -> tuple[np.ndarray
     # the centroid (of its nodes) and outward normal (Newell's, as the faces are ordered) of each
     # face met there (only those: on voxel staircases such edges are many, the faces few of all)
     uf, loc = np.unique(faces, return_inverse=True)
-    fsize = fo[uf + 1] - fo[uf]
-    fstart = np.r_[0, np.cumsum(fsize)[:-1]]
-    owner = np.repeat(np.arange(uf.size), fsize)
-    k = np.arange(int(fsize.sum())) - fstart[owner]  # each node's place in its face
-    at = fo[uf][owner] + k
-    after = fo[uf][owner] + (k + 1) % fsize[owner]
-    p_at, p_after = points[nodes[at]] - base, points[nodes[after]] - base
-    cross = np.cross(p_at, p_after)
-    cen = np.column_stack([np.bincount(owner, weights=p_at[:, c]) / fsize for c in range(3)])[loc]
+    ufo, unodes = reorder_csr(fo, nodes, uf)
+    owner = cell_index(ufo)
+    p_at = points[unodes] - base
+    cross = np.cross(p_at, p_at[next_in_cycle(ufo)])
+    cen = np.column_stack([np.bincount(owner, weights=p_at[:, c]) / np.diff(ufo) for c in range(3)])[loc]
     normal = np.column_stack([np.bincount(owner, weights=cross[:, c]) for c in range(3)])[loc]
     w = cen - pl
     w -= np.einsum("ij,ij->i", w, d)[:, None] * d
