@@ -463,12 +463,7 @@ def _orient_and_check(mesh: Mesh, bounds=None) -> None:
         more = orientation_flips(mesh, np.abs(vol), faces, pairing)
         flip = own ^ more
     else:
-        try:
-            more = flip = orientation_flips(mesh, vol, faces, pairing)
-        except MeshError:  # (a triangle or polygon written twice makes its edges non-manifold)
-            if _drop_repeated(mesh):
-                return _orient_and_check(mesh, bounds)
-            raise
+        more = flip = orientation_flips(mesh, vol, faces, pairing)
     # a cell written twice meets its twin's faces in their direction: one of the two is flipped
     # against its own sign (or, in 3D, a face is met 3+ times); only then are repeats looked for
     if ("order" in pairing or met_twice or np.any(flip != (vol < 0))) and _drop_repeated(mesh):
