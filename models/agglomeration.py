@@ -185,32 +185,21 @@ def agglomerate(
     return result
 
 
-def _subset_as_read(mesh, params: dict) -> dict:
-    """params with its subset (cell ids of the file, as labels.json numbers them) as ids of the cells
-    read, where the read left a few bad cells out (mesh.meta["dropped_cells"]); those among the
-    subset are left out of it too. Ids beyond the file's cells are refused with the file's count."""
-    left_out = mesh.meta.get("dropped_cells")
-    subset = params.get("subset")
-    if not left_out or subset is None or not len(subset):
-        return params
-    import numpy as np
+def _subset_as_read(mesh, p: dict) -> dict:
+    """Validated params with their subset (cell ids of the file, as labels.json numbers them, checked
+    against the file's count) as ids of the cells read, where the read left a few bad cells out;
+    those among the subset are left out of it too."""
+    if not mesh.meta.get("dropped_cells") or not p.get("subset"):
+        return p
+    from models.mesh.dropped import read_ids
 
-    n_file = int(left_out["file_cells"])
-    ids = np.asarray(subset, dtype=np.int64)
-    if ids.max() >= n_file or ids.min() < 0:
+    mapped = read_ids(mesh.meta, p["subset"])
+    if not (mapped >= 0).any():
         raise ParameterError(
-            f"subset has unknown cell ids (the mesh has cells 0..{n_file - 1}), e.g. {int(ids.max())}"
-        )
-    read_id = np.full(n_file, -1, dtype=np.int64)
-    kept = np.setdiff1d(np.arange(n_file), np.asarray(left_out["ids_all"], dtype=np.int64))
-    read_id[kept] = np.arange(kept.size)
-    mapped = read_id[ids]
-    if not np.any(mapped >= 0):
-        raise ParameterError(
-            f"every cell of the subset ({ids.size:,}) is among the bad cells the read left out: "
+            f"every cell of the subset ({len(p['subset']):,}) is among the bad cells the read left out: "
             "give the ids of cells to agglomerate"
         )
-    return {**params, "subset": mapped[mapped >= 0].tolist()}
+    return {**p, "subset": mapped[mapped >= 0].tolist()}
 
 
 def run(
@@ -257,16 +246,19 @@ def run(
             untrusted=untrusted,
         )
     t_read = time.perf_counter() - t0
-    params = _subset_as_read(mesh, params)
+    from models.mesh.dropped import left_out_info
+
     p = validate_params(
         params,
         {
             "cells": mesh.n_cells,
+            "cells_left_out": left_out_info(mesh.meta),
             "physical_groups": mesh.physical_groups(),
             "dim": mesh.dim,
             "filled": bool(o.get("fill")),
         },
     )
+    p = _subset_as_read(mesh, p)
     o = p["options"]
     if p["model"] == "rl-partitioner" and p["mode"] != "multilevel" and mesh.n_cells > SLOW_CELLS:
         (warn or _stderr)(

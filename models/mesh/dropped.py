@@ -37,6 +37,31 @@ def record_dropped(mesh: Mesh, dropped: list, n_before: int) -> None:
     }
 
 
+def left_out_info(meta: dict) -> dict | None:
+    """What a mesh summary keeps of the cells the read left out: their file ids and the file's count
+    (models.params checks a subset's file ids against them), or None."""
+    left_out = meta.get("dropped_cells")
+    return {k: left_out[k] for k in ("ids_all", "file_cells")} if left_out else None
+
+
+def read_ids(meta: dict, file_ids) -> np.ndarray:
+    """Each file cell id (0 <= id < the file's count) as the id of the cell read: -1 for those left out."""
+    ids = np.asarray(file_ids, dtype=np.int64)
+    left_out = meta.get("dropped_cells")
+    if not left_out:
+        return ids
+    out = np.full(int(left_out["file_cells"]), -1, dtype=np.int64)
+    out[_kept(left_out)] = np.arange(int(left_out["file_cells"]) - len(left_out["ids_all"]))
+    return out[ids]
+
+
+def _kept(left_out: dict) -> np.ndarray:
+    """The file ids of the cells read."""
+    return np.setdiff1d(
+        np.arange(int(left_out["file_cells"])), np.asarray(left_out["ids_all"], dtype=np.int64)
+    )
+
+
 def file_labels(meta: dict, labels: np.ndarray) -> np.ndarray:
     """One label per cell of the file (or of cells= as given): -1 for the few bad cells the read
     left out (meta["dropped_cells"]); `labels` (one per cell read) where none was."""
@@ -44,7 +69,7 @@ def file_labels(meta: dict, labels: np.ndarray) -> np.ndarray:
     if not left_out:
         return labels
     full = np.full(int(left_out["file_cells"]), -1, dtype=np.int64)
-    full[np.setdiff1d(np.arange(full.size), np.asarray(left_out["ids_all"], dtype=np.int64))] = labels
+    full[_kept(left_out)] = labels
     return full
 
 
@@ -54,9 +79,7 @@ def read_labels(meta: dict, labels: np.ndarray) -> np.ndarray:
     left_out = meta.get("dropped_cells")
     if not left_out or labels.size != int(left_out["file_cells"]):
         return labels
-    keep = np.ones(labels.size, dtype=bool)
-    keep[np.asarray(left_out["ids_all"], dtype=np.int64)] = False
-    return labels[keep]
+    return labels[_kept(left_out)]
 
 
 def ignored_lower_sentence(meta: dict, dim: int) -> str:

@@ -746,6 +746,8 @@ def _polyhedra(data) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np
 
 def describe(mesh: Mesh) -> dict:
     """Summary used by the CLI and the service: counts, dimension, types, groups, bounding box."""
+    from models.mesh.dropped import left_out_info
+
     p = mesh.points3d()
     return {
         "cells": mesh.n_cells,
@@ -757,11 +759,7 @@ def describe(mesh: Mesh) -> dict:
         "bbox": [x.tolist() for x in _bounds(p)],
         **_boundary_summary(mesh),
         # the few bad cells the read left out (file ids): subsets are the file's ids (models.params)
-        **(
-            {"cells_left_out": {k: mesh.meta["dropped_cells"][k] for k in ("ids_all", "file_cells")}}
-            if mesh.meta.get("dropped_cells")
-            else {}
-        ),
+        **({"cells_left_out": left_out_info(mesh.meta)} if mesh.meta.get("dropped_cells") else {}),
     }
 
 
