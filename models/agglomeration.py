@@ -15,7 +15,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from models.errors import MeshError, ParameterError
-from models.params import _shown, validate_params
+from models.params import shown, validate_params
 
 if TYPE_CHECKING:
     import meshio
@@ -501,7 +501,7 @@ def build_hierarchy(
         raise ParameterError(f"coarsest must be a whole number of elements, got {coarsest!r}")
     for name, value in (("groups", groups), ("keep_rings", keep_rings), ("boxfit", boxfit)):
         if not isinstance(value, bool | np.bool_):  # ("false" or an array is no switch)
-            raise ParameterError(f"{name} must be true or false, got {_shown(value)}")
+            raise ParameterError(f"{name} must be true or false, got {shown(value)}")
     opts = {"seed": seed, "hierarchy": True, "coarsest": int(coarsest)}
     if ratio is not None:
         opts["ratio"] = ratio
@@ -568,7 +568,7 @@ class Hierarchy:
 
         for name, value in (("metrics", metrics), ("lymph", lymph)):
             if not isinstance(value, bool | np.bool_):
-                raise ParameterError(f"{name} must be true or false, got {_shown(value)}")
+                raise ParameterError(f"{name} must be true or false, got {shown(value)}")
         m, g = self.mesh, self.graph
         if lymph and m.dim != 2:  # (before anything is written: --lymph was asked of a 3D mesh)
             raise ParameterError("lymph's mesh structs (--lymph) are for 2D meshes only; this mesh is 3D")

@@ -68,7 +68,7 @@ for _card in MODEL_CARDS:
 del _card
 
 
-def _shown(value) -> str:
+def shown(value) -> str:
     """A value in a refusal: a scalar as written ('8', True, 2.5), anything else by its kind (an
     ndarray, a dict): never a repr of an array."""
     if isinstance(value, str | bool | int | float) or value is None:
@@ -88,7 +88,7 @@ def _int(params: dict, name: str, lo: int | None = None, hi: int | None = None) 
     if v is None:
         return None
     if isinstance(v, bool) or not (isinstance(v, int) or (isinstance(v, float) and v.is_integer())):
-        raise ParameterError(f"{name} must be an integer, got {_shown(v)}")
+        raise ParameterError(f"{name} must be an integer, got {shown(v)}")
     v = int(v)
     if lo is not None and v < lo:
         raise ParameterError(f"{name} must be >= {lo}, got {v}")
@@ -102,7 +102,7 @@ def _bool(opts: dict, name: str) -> bool:
     if v in ("true", "false"):  # form fields arrive as strings
         v = v == "true"
     if not isinstance(v, bool):
-        raise ParameterError(f"options.{name} must be true or false, got {_shown(v)}")
+        raise ParameterError(f"options.{name} must be true or false, got {shown(v)}")
     return v
 
 
@@ -111,7 +111,7 @@ def _float(params: dict, name: str, lo_open: float | None = None, hi: float | No
     if v is None:
         return None
     if isinstance(v, bool) or not isinstance(v, int | float):
-        raise ParameterError(f"{name} must be a number, got {_shown(v)}")
+        raise ParameterError(f"{name} must be a number, got {shown(v)}")
     v = float(v)
     if not math.isfinite(v):
         raise ParameterError(f"{name} must be finite, got {v}")
@@ -187,12 +187,12 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
     model = params.get("model", "metis")
     names = [c["name"] for c in MODEL_CARDS]
     if model not in names:
-        raise ParameterError(f"model must be one of {', '.join(names)}, got {_shown(model)}")
+        raise ParameterError(f"model must be one of {', '.join(names)}, got {shown(model)}")
     mode = params.get("mode")
     if mode is None:
         mode = infer_mode(params)
     if mode not in MODES:
-        raise ParameterError(f"mode must be one of {', '.join(MODES)}, got {_shown(mode)}")
+        raise ParameterError(f"mode must be one of {', '.join(MODES)}, got {shown(mode)}")
     k = _int(params, "k", lo=1)
     nref = _int(params, "nref", lo=0, hi=30)
     target_size = _float(params, "target_size", lo_open=0.0)
@@ -211,7 +211,7 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
     if refiner == "none":
         refiner = None
     if refiner is not None and refiner not in REFINERS:
-        raise ParameterError(f"refiner must be one of {', '.join(REFINERS)} or null, got {_shown(refiner)}")
+        raise ParameterError(f"refiner must be one of {', '.join(REFINERS)} or null, got {shown(refiner)}")
     if refiner == "rl-refiner" and (mode == "kway" or (mode == "coarsen" and k is not None)):
         raise ParameterError("refiner 'rl-refiner' refines bisections only; k-way mode takes refiner 'fm'")
     given = [s for s, v in zip(SIZES, (k, nref, target_size, mult_factor), strict=True) if v is not None]
@@ -254,10 +254,10 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
     seed = _int(opts, "seed", lo=0, hi=2**31 - 1) or 0
     absorb = opts.get("absorb_fraction", 0.0)
     if isinstance(absorb, bool) or not isinstance(absorb, int | float) or not (0 <= absorb < 1):
-        raise ParameterError(f"options.absorb_fraction must be a number in [0, 1), got {_shown(absorb)}")
+        raise ParameterError(f"options.absorb_fraction must be a number in [0, 1), got {shown(absorb)}")
     hole_policy = opts.get("hole_policy", "split")
     if hole_policy not in ("split", "error"):
-        raise ParameterError(f"options.hole_policy must be 'split' or 'error', got {_shown(hole_policy)}")
+        raise ParameterError(f"options.hole_policy must be 'split' or 'error', got {shown(hole_policy)}")
     physical_tag = opts.get("physical_tag")
     if physical_tag is not None and (
         not isinstance(physical_tag, str) or not physical_tag or len(physical_tag) > 200
@@ -278,7 +278,7 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
     if finest is not None and finest not in FINEST_MODES:
         raise ParameterError(
             f"options.finest must be aggregation, cuts, quality or nested (the finest level of the "
-            f"hierarchy), got {_shown(finest)}"
+            f"hierarchy), got {shown(finest)}"
         )
     boxfit = _bool(opts, "boxfit")
     if (finest is not None or boxfit) and not hierarchy:
@@ -299,7 +299,7 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
     keep_groups = opts.get("keep_groups")
     if keep_groups is not None and not isinstance(keep_groups, bool):
         raise ParameterError(
-            f"options.keep_groups must be true, false or null (auto), got {_shown(keep_groups)}"
+            f"options.keep_groups must be true, false or null (auto), got {shown(keep_groups)}"
         )
     if keep_groups is True and refiner is None:  # (it weighs the refiner's cuts: alone it did nothing)
         raise ParameterError(
@@ -308,7 +308,7 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
         )
     method = opts.get("method", "kway")
     if method not in ("kway", "recursive"):
-        raise ParameterError(f"options.method must be 'kway' or 'recursive', got {_shown(method)}")
+        raise ParameterError(f"options.method must be 'kway' or 'recursive', got {shown(method)}")
     weld = _float(opts, "weld")
     if weld is not None and weld < 0:
         raise ParameterError(f"options.weld must be >= 0 (a distance), got {weld}")
@@ -326,7 +326,7 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
     size_measure = opts.get("size_measure", "centroids")
     if size_measure not in ("centroids", "vertices"):
         raise ParameterError(
-            f"options.size_measure must be 'centroids' or 'vertices', got {_shown(size_measure)}"
+            f"options.size_measure must be 'centroids' or 'vertices', got {shown(size_measure)}"
         )
 
     need = {

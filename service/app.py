@@ -68,10 +68,10 @@ def _error(status: int, detail: str, field: str | None = None, headers: dict | N
 
 def _said(name: str, error: dict) -> str:
     """One wire-format (pydantic) error in the library's words ("k must be an integer, got '8'")."""
+    from models.params import shown as value_shown
+
     kind, got, ctx = str(error.get("type", "")), error.get("input"), error.get("ctx") or {}
-    shown = (
-        repr(got) if isinstance(got, (str, bool, int, float)) or got is None else f"a {type(got).__name__}"
-    )
+    shown = value_shown(got)
     if kind.startswith("int_"):
         return f"{name} must be an integer, got {shown}"
     if kind.startswith("float_") or kind == "finite_number":

@@ -587,11 +587,11 @@ def agglomerate(
     # the count asked for, exactly: k, or 2^nref (nref and multilevel modes) unless the bisection
     # levels are recorded (a nested hierarchy: its last level must stay the last bisection's)
     exact = (sub_mode == "kway" or (sub_mode == "nref" and level_labels is None)) and not allow_extra
+    asked = "2^nref" if sub_mode == "nref" else "k"
     recount = {}
     if exact:
         from models.partition.connect import exact_count
 
-        asked = "2^nref" if sub_mode == "nref" else "k"
         labels, merged, resplit = exact_count(data, labels, nodes, int(requested), asked)
         recount = {"merged": merged, "split": resplit}
     n_agg = int(labels.max()) + 1 if labels.size else 0
@@ -612,7 +612,7 @@ def agglomerate(
         nodes=nodes if record_levels else None,
         exact=exact,
         recount=recount,
-        asked="2^nref" if sub_mode == "nref" else "k",
+        asked=asked,
     )
 
 
