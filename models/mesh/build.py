@@ -420,7 +420,6 @@ def _orient_and_check(mesh: Mesh, bounds=None) -> None:
     from models.mesh.orientation import orientation_flips
 
     fused = cells_validate(mesh)  # template cells or polygons: one compiled pass, no face array
-    met_twice = fused is not None and not fused[3]  # a face met twice one way (a cell written twice?)
     if fused is not None:
         vol, cen, own, consistent = fused
         mesh.meta["measures"] = np.abs(vol)
@@ -464,8 +463,9 @@ def _orient_and_check(mesh: Mesh, bounds=None) -> None:
         flip = own ^ more
     else:
         more = flip = orientation_flips(mesh, vol, faces, pairing)
-    # a cell written twice meets its twin's faces in their direction: one of the two is flipped
-    # against its own sign (or, in 3D, a face is met 3+ times); only then are repeats looked for
+    # a cell written twice meets its twin's faces in their direction (fused's check says so), one of the
+    # two flipped against its own sign, or in 3D a face met 3+ times: only then are repeats looked for
+    met_twice = fused is not None and not fused[3]
     if ("order" in pairing or met_twice or np.any(flip != (vol < 0))) and _drop_repeated(mesh):
         return _orient_and_check(mesh, bounds)
     signed = np.where(flip, -vol, vol)
@@ -635,17 +635,14 @@ def refuse_degenerate(mesh: Mesh, vol: np.ndarray, bounds=None, degenerate=None)
     if degenerate.any():
         ids = np.flatnonzero(degenerate)
         kind = "area" if mesh.dim == 2 else "volume"
-        from models.mesh.degenerate import corners, far_point
+        from models.mesh.degenerate import corners, far_point, welded_too_far
 
         far = far_point(mesh)
         if far is not None:  # one point far from the rest: its cells flat for their size
             raise MeshError(far)
-        if mesh.meta.get("welded"):  # (the weld asked for made them: its tolerance is too large)
-            raise ParameterError(
-                f"merging points closer than the weld tolerance (--weld) left {ids.size:,} of the "
-                f"{mesh.n_cells:,} cells degenerate (zero-{kind}), e.g. cell ids {ids[:5].tolist()}: the "
-                "tolerance is larger than these cells; give a smaller one"
-            )
+        welded = welded_too_far(mesh, ids, kind)
+        if welded:  # (the weld asked for made them)
+            raise ParameterError(welded)
         hint = {  # --weld only helps where a cell's corners are distinct points at one place
             "coincident": "remove them (or merge their coincident points with --weld) and retry",
             "repeated": "a node is repeated in them: remove them and retry",

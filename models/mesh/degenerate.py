@@ -60,3 +60,15 @@ def corners(mesh: Mesh, ids: np.ndarray) -> str:
         if np.unique(nodes).size < max(nodes.size, mesh.dim + 1):
             found = "repeated"
     return found
+
+
+def welded_too_far(mesh: Mesh, ids: np.ndarray, kind: str) -> str | None:
+    """Where the weld asked for (--weld) merged points, the degenerate cells `ids` are its doing:
+    the sentence that says its tolerance is larger than those cells; else None."""
+    if not mesh.meta.get("welded"):
+        return None
+    return (
+        f"merging points closer than the weld tolerance (--weld) left {ids.size:,} of the "
+        f"{mesh.n_cells:,} cells degenerate (zero-{kind}), e.g. cell ids {ids[:5].tolist()}: the "
+        "tolerance is larger than these cells; give a smaller one"
+    )
