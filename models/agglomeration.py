@@ -172,7 +172,7 @@ def agglomerate(
             untrusted=untrusted,
         )
     except ParameterError as exc:  # (the service's options.seed is this function's seed)
-        if "options." not in str(exc):
+        if "options." not in str(exc) and not str(getattr(exc, "field", None) or "").startswith("options."):
             raise
         raise _own_words(exc) from None
     if result.mesh.meta.get("dropped_cells"):  # (the CLI says it itself; here, the one call)
@@ -609,10 +609,14 @@ class Hierarchy:
 
 
 def _own_words(exc: ParameterError) -> ParameterError:
-    """The refusal with this module's argument names (ratio, seed) for the service's options.ratio;
-    the service's words kept as `options_words`, which the CLI turns into its flags (--ratio)."""
-    out = ParameterError(str(exc).replace("options.", ""))
+    """The refusal with this module's keyword names (ratio, seed; allow_extra=True) for the service's
+    options.ratio; the service's words kept as `options_words`, which the CLI turns into its flags
+    (--ratio), and `field` as a keyword's name."""
+    said = str(exc).replace("options.allow_extra)", "allow_extra=True)")
+    out = ParameterError(said.replace("options.", ""))
     out.options_words = str(exc)
+    field = getattr(exc, "field", None)
+    out.field = field.removeprefix("options.") if isinstance(field, str) else field
     return out
 
 

@@ -134,6 +134,29 @@ MODE_SIZES = {
     "multilevel": ("nref", "target_size", "mult_factor"),
 }
 _MODE_OF_SIZE = {"k": "kway", "nref": "nref", "target_size": "target-size", "mult_factor": "mult-factor"}
+OPTION_NAMES = (
+    "seed",
+    "absorb_fraction",
+    "hole_policy",
+    "physical_tag",
+    "method",
+    "boundary_tag",
+    "size_measure",
+    "threshold",
+    "hierarchy",
+    "weld",
+    "ratio",
+    "coarsest",
+    "finest",
+    "boxfit",
+    "allow_extra",
+    "keep_groups",
+    "fill",
+    "fill_remesh",
+    "fill_size",
+    "fill_size_abs",
+    "fill_max_cells",
+)  # the job's options (options.seed, ...)
 _FIELDS = (*SIZES, "model", "mode", "subset", "refiner", "options")
 _FIELD_RE = re.compile(r"^(options\.[a-z_]+|[a-z_]+)\b")
 
@@ -144,10 +167,12 @@ def infer_mode(params: dict) -> str:
     given. Two size parameters are refused (ParameterError)."""
     given = [s for s in SIZES if params.get(s) is not None]
     if len(given) > 1:
-        raise ParameterError(
+        two = ParameterError(
             f"give one size parameter, not {' and '.join(given)}: each one chooses the number of elements "
-            "its own way (k, nref, target_size or mult_factor)"
+            "its own way"
         )
+        two.field = given[1]  # (one of them to name: the later in k, nref, target_size, mult_factor)
+        raise two
     if params.get("subset") is not None:
         return "coarsen"
     return _MODE_OF_SIZE[given[0]] if given else "kway"
@@ -173,6 +198,8 @@ def validate_params(params: dict, mesh_info: dict | None = None) -> dict:
         if getattr(exc, "field", None) is None:
             m = _FIELD_RE.match(str(exc))
             name = m.group(1) if m else None
+            if name in OPTION_NAMES:  # ("seed must be >= 0": the option options.seed)
+                name = f"options.{name}"
             exc.field = name if name in _FIELDS or (name or "").startswith("options.") else None
         raise
 
@@ -220,35 +247,15 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
         takes = " or ".join(MODE_SIZES[mode])
         raise ParameterError(f"{wrong[0]} does not go with mode {mode!r}, which takes {takes}")
     if len(given) > 1:
-        raise ParameterError(f"give one size parameter, not {' and '.join(given)}")
+        two = ParameterError(f"give one size parameter, not {' and '.join(given)}")
+        two.field = given[1]  # (one of them to name: the later in k, nref, target_size, mult_factor)
+        raise two
     if mode == "multilevel" and all(v is None for v in (nref, target_size, mult_factor)):
         raise ParameterError("mode 'multilevel' needs one of nref, target_size, mult_factor")
     opts = params.get("options") or {}
     if not isinstance(opts, dict):
         raise ParameterError("options must be an object")
-    known_opts = {
-        "seed",
-        "absorb_fraction",
-        "hole_policy",
-        "physical_tag",
-        "method",
-        "boundary_tag",
-        "size_measure",
-        "threshold",
-        "hierarchy",
-        "weld",
-        "ratio",
-        "coarsest",
-        "finest",
-        "boxfit",
-        "allow_extra",
-        "keep_groups",
-        "fill",
-        "fill_remesh",
-        "fill_size",
-        "fill_size_abs",
-        "fill_max_cells",
-    }
+    known_opts = set(OPTION_NAMES)
     if set(opts) - known_opts:
         raise ParameterError(f"unknown option(s): {sorted(set(opts) - known_opts)}")
     seed = _int(opts, "seed", lo=0, hi=2**31 - 1) or 0

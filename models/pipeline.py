@@ -441,7 +441,7 @@ def _recount_after_holes(
     got = "" if poly is None else f" ({poly.n_elements - (0 if whole else int(outside.sum()))} elements)"
     raise ParameterError(
         f"{agg.asked} = {agg.requested} cannot be met: elements that enclose a hole must be cut and merging "
-        f"them back makes new holes{got}; allow extra elements (--allow-extra)"
+        f"them back makes new holes{got}; allow extra elements (options.allow_extra)"
     )
 
 

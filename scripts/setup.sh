@@ -7,9 +7,10 @@ if [ ! -x .venv/bin/python ]; then
   "$PY" -m venv .venv
 fi
 stamp=.venv/.magnet-installed
-# (again when a compiled module's source or build changed: setup.py builds models/_fast*.c)
+# (again when a compiled module's source or build changed: setup.py builds models/*/_fast*.c, their
+# headers and the files they include: every models/**/_fast*.c and .h)
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ client/pyproject.toml -nt "$stamp" ] \
-  || [ setup.py -nt "$stamp" ] || [ models/quality/_fastmetrics.c -nt "$stamp" ] || [ models/graph/_fastgraph.c -nt "$stamp" ] || [ models/mesh/_fastmesh.c -nt "$stamp" ] \
+  || [ setup.py -nt "$stamp" ] || [ -n "$(find models -name '_fast*.[ch]' -newer "$stamp" -print -quit)" ] \
   || [ models/_buffers.h -nt "$stamp" ]; then
   .venv/bin/python -m pip install -q --upgrade pip
   # torch pinned first: the CPU wheel (a bare "torch" would pull a multi-GB CUDA build)

@@ -55,6 +55,11 @@ class MeshOut(BaseModel):
         description="boundary groups: tag, name, facets on the boundary / inside; untagged boundary facets",
     )
     bbox: list[list[float]]
+    surface: dict | None = Field(
+        None,
+        description="a closed surface (STL, OBJ, PLY, OFF) to fill: triangles, area, enclosed_volume, "
+        "oriented, estimated_cells (`cells` is that estimate); jobs on it need options.fill",
+    )
     check: dict | None = Field(
         None,
         description="the `magnet check` report: pieces, boundary loops/shells, holes, orientation fixes, folded, "

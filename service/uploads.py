@@ -109,6 +109,7 @@ def mesh_out(mesh: MeshRecord, owner: MeshOwner) -> MeshOut:
         boundary_groups=info.get("boundary_groups", []),
         boundary=info.get("boundary"),
         bbox=info.get("bbox", []),
+        surface=info.get("surface"),
         check=info.get("check"),
         created_at=owner.created_at,
     )

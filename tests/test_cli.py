@@ -141,7 +141,7 @@ def _bad(tmp_path, *args, match):
         (["--nref", 3, "--k", 4], "give one size parameter, not k and nref"),
         (["--mode", "kway", "--nref", 3], "nref does not go with mode 'kway', which takes k"),
         (["--mode", "segregated", "--mult-factor", 0.1], "physical groups"),
-        (["--mode", "mult-factor", "--mult-factor", 5], "mult_factor must be <= 1"),
+        (["--mode", "mult-factor", "--mult-factor", 5], "--mult-factor must be <= 1"),
         (["--physical-tag", "zzz", "--k", 4], "zzz"),
     ],
 )
@@ -255,7 +255,14 @@ def test_bad_files(tmp_path):
          match="the mesh has no cells (every piece declares NumberOfCells=0)")  # fmt: skip
     seam = os.path.join(os.path.dirname(__file__), "data", "defects", "duplicate_seam.vtu")  # (cut by a seam)
     _bad(
-        tmp_path, "agglomerate", seam, "-o", tmp_path / "x.vtu", "--k", 1, match="merge them with --weld TOL"
+        tmp_path,
+        "agglomerate",
+        seam,
+        "-o",
+        tmp_path / "x.vtu",
+        "--k",
+        1,
+        match="merge them with --weld (a distance)",
     )
     os.mkfifo(tmp_path / "pipe.vtu")  # no size and no end: said as what it is, not "empty", and no wait
     _bad(
@@ -387,3 +394,18 @@ def test_a_failed_write_leaves_the_old_file_and_no_sibling(tmp_path):
         atomic.write_text(path, "new")
         assert path.read_text() == "new" and [p.name for p in tmp_path.iterdir()] == [name]
         path.unlink()
+
+
+def test_a_closed_pipe_ends_quietly():
+    """`magnet check --json x.vtu | head -1`: the reader closed the pipe before the report was
+    written; no 'error: Broken pipe' and no status 2 (bad input), but 141 as SIGPIPE would give."""
+    p = subprocess.Popen(
+        [sys.executable, "-m", "models.cli", "check", "--json", str(BRAIN)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env=dict(os.environ, MPLBACKEND="Agg"),
+    )
+    p.stdout.close()  # (before the command has even read the mesh: its first write meets a closed pipe)
+    err = p.stderr.read().decode()
+    assert p.wait(timeout=600) == 141, err
+    assert "Broken pipe" not in err and "error" not in err

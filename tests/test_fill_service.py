@@ -42,6 +42,11 @@ def test_surface_upload_fill_job_and_open_surface(tmp_path):
         r = upload(client, "ball.stl", path.read_bytes())
         assert r.status_code == 201, r.text
         mesh = r.json()
+        surface = mesh["surface"]  # (the upload answer says it is a surface to fill, as GET does)
+        assert surface["triangles"] == len(tris) and mesh["cells"] == surface["estimated_cells"]
+        assert abs(surface["enclosed_volume"] - ref) <= 1e-9 * ref
+        got = client.get(f"/v1/meshes/{mesh['id']}", headers=H).json()
+        assert got["surface"] == surface
         r = client.post("/v1/jobs", json={"mesh_id": mesh["id"], "k": 8}, headers=H)
         assert r.status_code == 422 and "options.fill" in r.text
         r = client.post(

@@ -17,6 +17,7 @@ from models.errors import HoleError, MagnetError, MeshError, ParameterError
 
 EXIT_USER_ERROR = 2
 EXIT_INTERNAL = 70  # sysexits' EX_SOFTWARE: our bug, not the user's input
+EXIT_PIPE = 141  # a closed pipe, as a command killed by SIGPIPE (128 + 13): no message
 
 
 def _add_job_args(p: argparse.ArgumentParser) -> None:
@@ -589,13 +590,17 @@ def _unavailable(exc) -> int:
 
 
 _OPTION = re.compile(r"\boptions\.([a-z_]+)")
+# a parameter's name where the sentence starts with it ("mult_factor must be in (0, 1]"), and the
+# names with an underscore anywhere (no other word has one)
+_LEADING = re.compile(r"^([a-z]+(?:_[a-z]+)*)(?= must | is required| does not go)")
+_UNDERSCORED = re.compile(r"(?<![\w.=-])([a-z]+(?:_[a-z]+)+)\b(?![=(])")
+_FLAG_OF = {"absorb_fraction": "absorb", "fill_remesh": "remesh", "fill_max_cells": "max_cells"}
 
 
 def cli_words(message: str, args) -> str:
-    """A refusal worded for the command line: the service's `options.ratio` is the flag `--ratio`
-    where this command has one (models.params words them for JSON parameters)."""
-    if "options." not in message:
-        return message
+    """A refusal worded for the command line: the service's `options.ratio` and the library's
+    `mult_factor` are the flags `--ratio` and `--mult-factor` where this command has them
+    (options.absorb_fraction: --absorb); models.params words them for JSON parameters."""
     if getattr(args, "command", None) == "agglomerate":  # (no --ratio: its own command makes those)
         message = message.replace(
             ", or options.ratio (a hierarchy of its own, like `magnet hierarchy`)",
@@ -603,10 +608,22 @@ def cli_words(message: str, args) -> str:
         )
 
     def flag(m: re.Match) -> str:
-        name = m.group(1)
+        name = _FLAG_OF.get(m.group(1), m.group(1))
         return f"--{name.replace('_', '-')}" if hasattr(args, name) else m.group(0)
 
-    return _OPTION.sub(flag, message)
+    message = _OPTION.sub(flag, message)
+    message = _LEADING.sub(flag, message, count=1)
+    return _UNDERSCORED.sub(flag, message)
+
+
+def _quiet_stdout() -> None:
+    """stdout onto /dev/null: the interpreter's final flush of a closed pipe would fail again."""
+    try:
+        fd = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(fd, sys.stdout.fileno())
+        os.close(fd)
+    except (OSError, ValueError):  # (no real stdout: nothing left to flush)
+        pass
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -621,6 +638,9 @@ def main(argv: list[str] | None = None) -> int:
         said = cli_words(getattr(exc, "options_words", None) or str(exc), args)
         print(f"magnet: error: {said}", file=sys.stderr)
         return EXIT_USER_ERROR
+    except BrokenPipeError:  # `magnet check --json x.vtu | head -1`: the reader had enough; say nothing
+        _quiet_stdout()
+        return EXIT_PIPE
     except OSError as exc:  # an output that cannot be written (disk full, permissions changed, ...)
         where = f": {exc.filename}" if exc.filename else ""
         print(f"magnet: error: {exc.strerror or exc}{where}", file=sys.stderr)

@@ -66,9 +66,9 @@ def exact_count(
     if n_pieces > k:
         raise ParameterError(
             f"{asked} = {k} cannot be met: the cells to agglomerate form {n_pieces} separate pieces and an "
-            f"element cannot span two; ask for {asked} >= {n_pieces}, or allow extra elements (--allow-extra), "
-            "or, where the pieces are cut apart by coincident points (`magnet check` says so), merge them "
-            "with --weld TOL"
+            f"element cannot span two; ask for {asked} >= {n_pieces}, or allow extra elements "
+            "(options.allow_extra), or, where the pieces are cut apart by coincident points (`magnet check` "
+            "says so), merge them with options.weld (a distance)"
         )
     merged = split = 0
     for _ in range(MAX_ROUNDS):
@@ -85,7 +85,7 @@ def exact_count(
         labels = compact_labels(labels).astype(np.int64)
     raise ParameterError(
         f"k = {k} could not be met after {MAX_ROUNDS} rounds of merging and splitting "
-        f"({int(labels.max()) + 1} elements); allow extra elements (--allow-extra) to keep them"
+        f"({int(labels.max()) + 1} elements); allow extra elements (options.allow_extra) to keep them"
     )
 
 
