@@ -175,6 +175,9 @@ def agglomerate(
         if "options." not in str(exc) and not str(getattr(exc, "field", None) or "").startswith("options."):
             raise
         raise _own_words(exc) from None
+    said = count_note(result.summary(), hierarchy)
+    if said:  # (the CLI says it itself)
+        (warn or _stderr)(said)
     if result.mesh.meta.get("dropped_cells"):  # (the CLI says it itself; here, the one call)
         from models.mesh.dropped import dropped_sentence
 
@@ -606,6 +609,20 @@ class Hierarchy:
         # back), so that levels[L] and level_L.vtu / .labels.json / the operators name the same elements
         self.levels, self.merged = written["levels"], written["merged"]
         return index
+
+
+def count_note(summary: dict, hierarchy: bool) -> str | None:
+    """Why a recursive run kept with its levels (hierarchy) has other than the 2^nref elements asked
+    for, or None: the last bisection's parts stay as they are there (a nested level), each piece of
+    a part in pieces an element; without the levels the count is exact."""
+    n, asked = summary["elements"], summary["requested"]
+    if not hierarchy or summary.get("asked") != "2^nref" or n == asked:
+        return None
+    return (
+        f"{n:,} elements, not 2^nref = {asked:,}: with hierarchy=True, the last bisection's parts "
+        f"stay as they are ({summary.get('parts_split', 0):,} were in pieces, each piece an element); "
+        "without it the count is exact"
+    )
 
 
 def _own_words(exc: ParameterError) -> ParameterError:

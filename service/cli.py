@@ -59,7 +59,8 @@ def check_bind(host: str, settings: Settings) -> None:
     if host not in LOOPBACK_HOSTS and not load_keys(settings) and not _stored_keys(settings):
         raise SystemExit(
             f"magnet serve: refusing to listen on {host} without API keys; set MAGNET_API_KEYS "
-            "('user:token,...') or MAGNET_API_KEYS_FILE, or bind to 127.0.0.1"
+            "('user:token,...') or MAGNET_API_KEYS_FILE, add one with `magnet keys add USER`, or bind to "
+            "127.0.0.1"
         )
 
 

@@ -409,3 +409,23 @@ def test_a_closed_pipe_ends_quietly():
     err = p.stderr.read().decode()
     assert p.wait(timeout=600) == 141, err
     assert "Broken pipe" not in err and "error" not in err
+
+
+def test_odd_outputs_and_settings_are_said(tmp_path):
+    """--lymph writes Matlab's .mat (or JSON): another suffix is refused before any work, not written
+    as a .mat under that name; a read limit in the environment that is no number is said, not
+    silently replaced."""
+    r = magnet("agglomerate", BRAIN, "-o", tmp_path / "x.vtu", "--k", 4, "--lymph", tmp_path / "x.txt")
+    assert r.returncode == 2 and "--lymph file" in r.stderr and "must end with .mat or .json" in r.stderr
+    assert not (tmp_path / "x.txt").exists() and not (tmp_path / "x.vtu").exists()
+    env = dict(os.environ, MAGNET_READ_TIMEOUT_S="abc", MAGNET_READ_MEMORY_MB="lots", MPLBACKEND="Agg")
+    r = subprocess.run(
+        [sys.executable, "-m", "models.cli", "info", str(BRAIN)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+    )
+    assert r.returncode == 0, r.stderr
+    assert "MAGNET_READ_TIMEOUT_S='abc' is ignored: it must be a number of seconds > 0" in r.stderr
+    assert "MAGNET_READ_MEMORY_MB='lots' is ignored" in r.stderr

@@ -4,6 +4,7 @@ against a live embedded server."""
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import subprocess
@@ -324,6 +325,39 @@ def test_client_knows_exactly_the_api_fields():
 
     assert set(OPTION_NAMES) == set(JobOptions.model_fields)
     assert set(PARAM_NAMES) == set(JobParams.model_fields) - {"options"}
+
+
+def test_client_command_line_takes_every_flag_of_magnet_agglomerate(server, tmp_path, monkeypatch):
+    """`magnet-client agglomerate` takes the flags of `magnet agglomerate` (the README says so), and
+    they reach the job: a closed surface filled and agglomerated on the server with --fill."""
+    monkeypatch.syspath_prepend(str(Path(ROOT) / "client"))
+    import meshio
+    from magnet_client.cli import build_parser as client_parser
+    from surfaces import surface_of
+
+    from models.cli.main import build_parser
+
+    def flags(parser, name):
+        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        return {o for a in sub.choices[name]._actions for o in a.option_strings}
+
+    local, remote = flags(build_parser(["agglomerate"]), "agglomerate"), flags(client_parser(), "agglomerate")
+    assert local <= remote, sorted(local - remote)
+    pytest.importorskip("gmsh")
+    points, tris = surface_of(lambda occ: occ.addSphere(0, 0, 0, 1), 0.25)
+    shell = tmp_path / "ball.stl"
+    meshio.write(str(shell), meshio.Mesh(points, [("triangle", tris)]))
+    out = subprocess.run(
+        [sys.executable, "-m", "magnet_client.cli", "agglomerate", str(shell), "--server", server]
+        + ["--token", TOKEN, "-o", str(tmp_path / "ball.vtu"), "-k", "8", "--fill", "--max-cells", "100000"],
+        cwd=CLIENT,
+        env=client_env(),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert out.returncode == 0 and out.stdout.startswith("8 elements"), (out.stdout, out.stderr)
+    assert meshio.read(tmp_path / "ball.vtu").points.shape[1] == 3
 
 
 def test_summary_line_labels_job_stages_and_client_time(monkeypatch):

@@ -195,3 +195,20 @@ def test_rl_partitioner_outside_multilevel_warns():
     assert len(said) == 1 and "about 2 minutes" in said[0] and "multilevel" in said[0]
     with pytest.raises(ParameterError):
         agglomerate(BRAIN, model="rl-partitioner", k=4, warn=warn)
+
+
+def test_a_kept_hierarchy_says_why_its_count_is_not_2_to_the_nref():
+    """multilevel nref = 7 with its levels kept: the last bisection's parts stay as they are (a
+    nested level), so a part in pieces gives more than 128 elements; that is said, and without the
+    levels the count is exact."""
+    from models import agglomerate
+
+    said = []
+    kept = agglomerate(BRAIN, mode="multilevel", nref=7, hierarchy=True, metrics=False, warn=said.append)
+    exact = agglomerate(BRAIN, mode="multilevel", nref=7, metrics=False, warn=said.append)
+    assert exact.n_elements == 128
+    if kept.n_elements == 128:
+        assert not said
+    else:
+        assert len(said) == 1 and f"{kept.n_elements} elements, not 2^nref = 128" in said[0]
+        assert "hierarchy=True" in said[0]

@@ -81,12 +81,18 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="with --hierarchy: nested levels of their own, boundary units moved towards tighter boxes",
     )
-    p.add_argument("--k", type=int, help="number of elements (kway)")
+    p.add_argument("-k", "--k", type=int, help="number of elements (kway)")
     p.add_argument(
         "--allow-extra",
         action="store_true",
         help="keep every connected fragment as an element (more than k where a part is disconnected); "
         "default: exactly k, or the job is refused with the reason",
+    )
+    p.add_argument(
+        "--keep-groups",
+        default="auto",
+        choices=["auto", "on", "off"],
+        help="refiner: cuts prefer physical-group interfaces (auto: on for sage-hetero)",
     )
     p.add_argument("--nref", type=int, help="number of refinements: 2^nref elements")
     p.add_argument("--target-size", type=float, help="bisect until every element's diameter is below this")
@@ -116,6 +122,35 @@ def build_parser() -> argparse.ArgumentParser:
         "--boundary-tag", type=int, help="lymph bc_tag of boundary edges without a boundary group (default 1)"
     )
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--fill",
+        action="store_true",
+        help="MESH is a closed surface (.stl, .obj, .ply, .off): the server fills it with tetrahedra first, "
+        "keeping its triangles (see --remesh, --fill-size, --fill-size-abs, --max-cells)",
+    )
+    p.add_argument(
+        "--fill-size",
+        type=float,
+        metavar="F",
+        help="--fill: re-mesh the surface at F x its bounding-box diagonal, F in (0, 1] (e.g. 0.02)",
+    )
+    p.add_argument(
+        "--fill-size-abs",
+        type=float,
+        metavar="H",
+        help="--fill: re-mesh the surface at the absolute size H, in the file's own length unit",
+    )
+    p.add_argument(
+        "--remesh",
+        action="store_true",
+        help="--fill: re-mesh the surface first instead of keeping its triangles",
+    )
+    p.add_argument(
+        "--max-cells",
+        type=int,
+        metavar="N",
+        help="--fill: refuse when the estimated number of tetrahedra exceeds N (server default 5,000,000)",
+    )
     p.add_argument("--metrics", help="write the metrics JSON here")
     p.add_argument("--labels", help="write the fine-cell -> element labels (JSON list) here")
     p.add_argument("--lymph", help="write the lymph structs here (.mat or .json; 2D only)")
@@ -198,6 +233,12 @@ def cmd_agglomerate(client: Client, args: argparse.Namespace) -> int:
         weld=args.weld,
         allow_extra=True if args.allow_extra else None,
         size_measure=args.size_measure,
+        keep_groups={"auto": None, "on": True, "off": False}[args.keep_groups],
+        fill=True if args.fill else None,
+        fill_remesh=True if args.remesh else None,
+        fill_size=args.fill_size,
+        fill_size_abs=args.fill_size_abs,
+        fill_max_cells=args.max_cells,
     )
     print(summary_line(job, time.perf_counter() - t0))
     return 0

@@ -33,7 +33,12 @@ def add_generate_args(parser: argparse.ArgumentParser) -> None:
         help="mesh size h (default: random per mesh); kind stl: re-mesh the surface at this fraction "
         "of its bounding-box diagonal, in (0, 1] (e.g. 0.02)",
     )
-    parser.add_argument("--n", type=int, default=None, help="points (delaunay/voronoi) or holes/inclusions")
+    parser.add_argument(
+        "--n",
+        type=int,
+        default=None,
+        help="delaunay: interior points (4 sqrt(n) more on the boundary); voronoi: cells; holes/inclusions: their number",
+    )
     parser.add_argument("--parts", type=int, default=None, help="cube-hetero: number of parts, 1-4")
     parser.add_argument("--regular", action="store_true", help="holes/inclusions on a regular grid")
     parser.add_argument(

@@ -214,8 +214,8 @@ def cmd_agglomerate(args) -> int:
 
     check_output_path(args.output, "output mesh", (".vtu", ".ucd", ".inp"))
     ucd = os.path.splitext(args.output)[1].lower() in (".ucd", ".inp")
-    for what in ("metrics", "labels", "lymph", "plot"):
-        check_output_path(getattr(args, what), f"--{what} file")
+    for what in ("metrics", "labels", "lymph", "plot"):  # (lymph: Matlab's .mat, or its JSON twin)
+        check_output_path(getattr(args, what), f"--{what} file", (".mat", ".json") if what == "lymph" else ())
     t0 = time.perf_counter()
     subset = _read_subset(args.subset)
     params = job_params(args, subset)
@@ -305,8 +305,12 @@ def cmd_agglomerate(args) -> int:
         extra.append(f"{rc['threaded']} holes threaded (a path of cells from the hole to a neighbour)")
     note = f" ({', '.join(extra)})" if extra else ""
     print(f"{s['elements']} elements from {mesh.n_cells} cells{note} | {stages} | total {total:.2f}s")
+    from models.agglomeration import count_note
     from models.mesh.dropped import dropped_sentence, ignored_lower_sentence
 
+    counted = count_note(s, bool(args.hierarchy))
+    if counted:
+        print(f"note: {counted.replace('hierarchy=True', '--hierarchy')}")
     if rc.get("rings_kept"):
         n = rc["rings_kept"]
         print(
@@ -544,7 +548,13 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
             "generate_main",
             "generate meshes / data sets (gmsh)",
         ),
-        ("train", "models.cli.train", "add_train_args", "train_main", "train a SAGE model"),
+        (
+            "train",
+            "models.cli.train",
+            "add_train_args",
+            "train_main",
+            "train a model we ship (SAGE, RL agents)",
+        ),
         (
             "hierarchy",
             "models.cli.hierarchy",

@@ -12,6 +12,7 @@ import os
 import re
 import stat
 import struct
+import sys
 from itertools import chain
 
 import numpy as np
@@ -526,12 +527,26 @@ def _unclosed_gmsh_section(path: str) -> str | None:
     return None if end else name.decode("ascii")
 
 
+_ENV_SAID: set[str] = set()
+
+
+def env_ignored(name: str, raw: str, wanted: str) -> None:
+    """Say once per process, on stderr, that an environment variable's value was not understood."""
+    if name not in _ENV_SAID:
+        _ENV_SAID.add(name)
+        print(f"magnet: warning: {name}={raw!r} is ignored: it must be {wanted}", file=sys.stderr)
+
+
 def default_memory() -> int:
     """The default memory budget of a read (the sandbox's limit: models.mesh.sandbox): the
     environment's MAGNET_READ_MEMORY_MB, else the machine's physical memory."""
     mb = os.environ.get("MAGNET_READ_MEMORY_MB")
-    if mb and mb.strip().isdigit():
+    if mb and mb.strip().isdigit() and int(mb) > 0:
         return int(mb) << 20
+    if mb:
+        env_ignored(
+            "MAGNET_READ_MEMORY_MB", mb, "a whole number of megabytes > 0; the machine's memory it is"
+        )
     try:
         return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     except (ValueError, OSError, AttributeError):

@@ -143,10 +143,19 @@ def memory_sentence(path, memory_bytes: int, file_format: str | None = None) -> 
 
 
 def _default_timeout() -> float:
-    try:
-        return float(os.environ.get("MAGNET_READ_TIMEOUT_S", DEFAULT_TIMEOUT_S))
-    except ValueError:
+    raw = os.environ.get("MAGNET_READ_TIMEOUT_S")
+    if raw is None:
         return DEFAULT_TIMEOUT_S
+    try:
+        value = float(raw)
+    except ValueError:
+        value = float("nan")
+    if not value > 0 or value == float("inf"):
+        from models.mesh.read import env_ignored
+
+        env_ignored("MAGNET_READ_TIMEOUT_S", raw, f"a number of seconds > 0; {DEFAULT_TIMEOUT_S:g} s it is")
+        return DEFAULT_TIMEOUT_S
+    return value
 
 
 def sandbox_enabled() -> bool:
