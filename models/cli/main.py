@@ -324,7 +324,14 @@ def cmd_agglomerate(args) -> int:
     left_out = dropped_sentence(mesh.meta)
     if left_out:
         print(f"warning: {left_out} (labels: -1 for them)")
-    for key in ("overlong_cells", "open_polyhedra", "openfoam_order", "fluent_faces", "trailing_bytes"):
+    for key in (
+        "overlong_cells",
+        "open_polyhedra",
+        "openfoam_order",
+        "fluent_faces",
+        "trailing_bytes",
+        "rounded_plane",
+    ):
         if mesh.meta.get(key):
             print(f"warning: {mesh.meta[key]['message']}")
     for key in (

@@ -361,7 +361,12 @@ def _project_to_plane(mesh: Mesh) -> None:
     origin = p.mean(axis=0)
     _, s, vt = np.linalg.svd(p - origin, full_matrices=False)
     off = float(np.abs((p - origin) @ vt[2]).max())  # the farthest point from the best plane
-    if off > _plane_tolerance(p):
+    digits = None
+    if off > _plane_tolerance(p):  # (unless the file wrote its coordinates rounded to a few digits)
+        digits = written_digits(p)
+        if digits is None or off > 4 * 10.0 ** (1 - digits) * float(np.abs(p).max()):
+            digits = None
+    if off > _plane_tolerance(p) and digits is None:
         from models.mesh.container import CELL_TYPE_NAMES
 
         counts = np.bincount(mesh.cell_types)
@@ -378,6 +383,29 @@ def _project_to_plane(mesh: Mesh) -> None:
     e1, e2 = vt[0], vt[1]
     mesh.points = np.column_stack([(pts - origin) @ e1, (pts - origin) @ e2])
     mesh.frame = np.array([origin, e1, e2])
+    if digits is not None:
+        mesh.meta["rounded_plane"] = {
+            "count": 1,
+            "message": f"the points lie up to {off:.2g} off their plane, the rounding of coordinates written "
+            f"with {digits} significant digits: projected onto it",
+        }
+
+
+def written_digits(p: np.ndarray, fewest: int = 5, most: int = 8) -> int | None:
+    """The fewest significant decimal digits (fewest..most) that give every coordinate of p back
+    (to a few ulps: the double nearest each decimal), as from a text file written with that many
+    (a Nastran field of 8 characters, C's %g); None where none does."""
+    x = np.unique(p.ravel())
+    x = x[x != 0]
+    if not x.size:
+        return None
+    mag = np.floor(np.log10(np.abs(x)))
+    for d in range(fewest, most + 1):
+        scale = 10.0 ** (d - 1 - mag)
+        back = np.round(x * scale) / scale
+        if np.all(np.abs(back - x) <= 8 * np.finfo(float).eps * np.abs(x)):
+            return d
+    return None
 
 
 def _orient_lattice(mesh: Mesh, grid: dict) -> None:

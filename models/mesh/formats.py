@@ -74,6 +74,7 @@ FORMATS: dict[str, str] = {
     ".post": "PERMAS",
     ".dato": "PERMAS",
     ".xml": "DOLFIN XML",
+    ".wkt": "Well-known text (triangles)",
     ".ele": "Triangle / TetGen",
     ".node": "Triangle / TetGen",
 }

@@ -241,16 +241,18 @@ def _gmsh_nodes(t: _Tokens, version: float) -> set:
     for _ in range(3):
         t.int("a node count or tag", lo=0)
     for _ in range(blocks):
-        t.int("an entity dimension (0..3)", lo=0, hi=3)
+        dim = t.int("an entity dimension (0..3)", lo=0, hi=3)
         t.int("an entity tag")
         param = t.int("the parametric flag (0 or 1)", lo=0, hi=1)
         n = t.int("the number of nodes in the block", lo=0)
         block = [t.int("a node tag", lo=1) for _ in range(n)]
         tags.update(block)
-        for _ in range(n * 3):
+        if param and version < 4.1:
+            return tags  # (MSH 4.0's parametric layout: not followed here)
+        # x y z per node, then (Mesh.SaveParametric) as many parametric coordinates as the entity has
+        # dimensions: u on a curve, u v on a surface, u v w in a volume
+        for _ in range(n * (3 + (dim if param else 0))):
             t.number("a coordinate")
-        if param:
-            return tags  # parametric coordinates: their count depends on the entity; stop here
     return tags
 
 

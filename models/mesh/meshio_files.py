@@ -68,8 +68,10 @@ def read_meshio(path: str, file_type: str):
     from meshio._helpers import reader_map
 
     name = os.path.basename(path)
-    if file_type not in reader_map:
-        raise MeshError(f"unknown mesh format {file_type!r}; use one of: " + ", ".join(sorted(reader_map)))
+    if file_type not in reader_map:  # (a format meshio only writes, such as .svg: no mesh to read)
+        from models.mesh.formats import extension, unknown_format
+
+        raise MeshError(unknown_format(name, extension(path)).removeprefix(f"cannot read {name}: "))
     _meshio_dimensions()
     if file_type == "med":
         _med_families_without_groups()
@@ -88,9 +90,18 @@ def read_meshio(path: str, file_type: str):
             import importlib
 
             module, mode = buffered
-            with _open_guarded(path, mode, bulk=file_type == "nastran" and not found(path, _BEGIN_BULK)) as f:
-                return importlib.import_module(module).read_buffer(f)  # (a parse that no longer advances
+            nastran = file_type == "nastran"
+            with _open_guarded(
+                path, mode, bulk=nastran and not found(path, _BEGIN_BULK), nastran=nastran
+            ) as f:
+                m = importlib.import_module(module).read_buffer(f)  # (a parse that no longer advances
                 # ends, never hangs)
+            if nastran and not any(len(c.data) for c in m.cells) and found(path, _LARGE_CARD):
+                raise MeshError(
+                    "its element cards are in large-field form (such as CTETRA*), which the Nastran reader "
+                    "(meshio's) skips: write the elements in small or free field (the points may stay large)"
+                )
+            return m
     except MeshError:
         raise
     except (Exception, SystemExit) as exc:  # noqa: BLE001
@@ -276,6 +287,7 @@ class _GuardedText(io.TextIOWrapper):
 
     _at_eof = 0
     _first = None
+    _blank_goes_on = False  # Nastran: a line whose first field is blank continues the card before
 
     def readline(self, size=-1):
         if self._first is not None:
@@ -285,22 +297,29 @@ class _GuardedText(io.TextIOWrapper):
         self._at_eof = 0 if line else self._at_eof + 1
         if self._at_eof > _EOF_READS:
             raise EOFError("end of file")
+        if self._blank_goes_on and line.startswith("        ") and line[8:].strip():
+            # (gmsh's large-field export continues CHEXA so, after a card of 9 fields: meshio follows
+            # only '+' or '*' there, or a 10th field left blank; a card never starts with a blank)
+            line = "+" + line[1:]
         return line
 
 
-def _open_guarded(path: str, mode: str, bulk: bool = False):
+def _open_guarded(path: str, mode: str, bulk: bool = False, nastran: bool = False):
     """bulk: a Nastran file of bulk data only (gmsh's export has no executive and case control
-    sections, and no BEGIN BULK line, which meshio's reader looks for first): the line given first."""
+    sections, and no BEGIN BULK line, which meshio's reader looks for first): the line given first.
+    nastran: a line whose first 8-character field is blank is a continuation (marked '+')."""
     raw = _GuardedBinary(io.FileIO(path, "rb"))
     if mode == "rb":
         return raw
     text = _GuardedText(raw)
     if bulk:
         text._first = "BEGIN BULK\n"
+    text._blank_goes_on = nastran
     return text
 
 
 _BEGIN_BULK = re.compile(rb"BEGIN BULK")
+_LARGE_CARD = re.compile(rb"(?m)^C[A-Z0-9]+\*")  # a Nastran element card in large field (CTETRA*)
 
 
 def found(path: str, pattern: re.Pattern) -> bool:

@@ -493,6 +493,10 @@ def _read_gmsh(path: str, physical_tag, weld, native: bool) -> Mesh:
             m = gmsh_native.read_gmsh(path)
         except MeshError:
             raise refused from None
+        if physical_tag is None:  # (Mesh.SaveAll: what lies in no physical group is tagged 0 there too)
+            from models.mesh.gmsh_groups import zero_is_no_group
+
+            zero_is_no_group(m)
         mesh = mesh_from_meshio(m, physical_tag=physical_tag, weld=weld, owned=True)
         mesh.meta.update(reader="gmsh's library (models/mesh/gmsh_native.py)", format="gmsh")
         return mesh
@@ -553,6 +557,21 @@ def default_memory() -> int:
         return 16 << 30
 
 
+def _whole_rows(name: str, data) -> None:
+    """A block of a fixed-size meshio type lists that many nodes per cell (a reader that lost a
+    card's continuation line gives hexahedra of 6 nodes)."""
+    from meshio._common import num_nodes_per_cell
+
+    want = num_nodes_per_cell.get(name)
+    got = np.shape(data)[1] if np.ndim(data) == 2 else None
+    if want is not None and len(data) and got != want:
+        raise MeshError(
+            f"its {name} cells list {got if got is not None else 'differing numbers of'} nodes each, where a "
+            f"{name} has {want}: the file is corrupted, or its element cards go on over lines in a way the "
+            "reader does not follow"
+        )
+
+
 def mesh_from_meshio(
     m, physical_tag: str | None = None, weld: float | None = None, owned: bool = False
 ) -> Mesh:
@@ -569,6 +588,7 @@ def mesh_from_meshio(
                 f"it holds cells of a type that cannot be agglomerated ({name}, as meshio names it)"
             )
         vtk, tdim, _ = _TYPES[name]
+        _whole_rows(name, block.data)
         blocks.append((i, name, vtk, tdim, block.data))
     tag_key = _find_tag_key(m.cell_data, physical_tag)
     top = max((b[3] for b in blocks if len(b[4])), default=0)

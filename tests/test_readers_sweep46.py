@@ -1,0 +1,164 @@
+"""What an outside sweep of files written by other tools (session 46: gmsh's, meshio's and VTK's
+exporters, 314 files) found: MSH 4.1 files saved with parametric coordinates refused at a wrong
+place, gmsh's SaveAll turning what lies in no physical group into a boundary group 0, tilted planar
+meshes whose coordinates a text format rounded refused as curved, gmsh's large-field Nastran
+hexahedra (a continuation line with a blank first field) refused with no reason, Nastran element
+cards in large field said to be "no cells", and meshio's list of reader names where a file's
+extension is unknown."""
+
+from __future__ import annotations
+
+import meshio
+import numpy as np
+import pytest
+
+from models.errors import MeshError
+from models.mesh.read import mesh_from_meshio, read_mesh
+
+
+@pytest.fixture(scope="module")
+def gmsh():
+    return pytest.importorskip("gmsh")
+
+
+def _two_boxes(gmsh, path, size=0.25, **options):
+    """Two unit boxes side by side (physical volumes 1 and 2, an outer boundary group 3), meshed with
+    tetrahedra (order 1) and written with gmsh's options."""
+    gmsh.initialize(readConfigFiles=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add("boxes")
+        occ = gmsh.model.occ
+        a, b = occ.addBox(0, 0, 0, 1, 1, 1), occ.addBox(1, 0, 0, 1, 1, 1)
+        occ.fragment([(3, a)], [(3, b)])
+        occ.synchronize()
+        gmsh.model.addPhysicalGroup(3, [a], 1)
+        gmsh.model.addPhysicalGroup(3, [b], 2)
+        outer = [t for _, t in gmsh.model.getBoundary([(3, a), (3, b)], oriented=False)]
+        gmsh.model.addPhysicalGroup(2, outer, 3)
+        gmsh.option.setNumber("Mesh.MeshSizeMax", size)
+        gmsh.model.mesh.generate(3)
+        for key, value in options.items():
+            gmsh.option.setNumber(key, value)
+        gmsh.write(str(path))
+    finally:
+        gmsh.finalize()
+    return str(path)
+
+
+def _volume(mesh):
+    from models.mesh.geometry import cell_measures
+
+    return float(np.abs(cell_measures(mesh)).sum())
+
+
+def test_msh41_with_parametric_coordinates_reads_as_without(gmsh, tmp_path):
+    plain = read_mesh(_two_boxes(gmsh, tmp_path / "plain.msh", **{"Mesh.MshFileVersion": 4.1}))
+    param = read_mesh(
+        _two_boxes(gmsh, tmp_path / "param.msh", **{"Mesh.MshFileVersion": 4.1, "Mesh.SaveParametric": 1})
+    )
+    assert param.n_cells == plain.n_cells and param.n_points == plain.n_points
+    assert abs(_volume(param) - 2.0) < 1e-12
+    assert np.array_equal(np.unique(param.tags), [1, 2])
+
+
+def test_save_all_leaves_what_lies_in_no_group_untagged(gmsh, tmp_path):
+    """Mesh.SaveAll writes the inner wall between the boxes (in no physical group) with tag 0: it is
+    no boundary group 0; the boundary faces are group 3's, as without SaveAll."""
+    plain = read_mesh(_two_boxes(gmsh, tmp_path / "plain.msh", **{"Mesh.MshFileVersion": 4.1}))
+    every = read_mesh(
+        _two_boxes(gmsh, tmp_path / "all.msh", **{"Mesh.MshFileVersion": 4.1, "Mesh.SaveAll": 1})
+    )
+    assert every.n_cells == plain.n_cells
+    assert np.array_equal(np.unique(every.boundary_tags), [3])
+    assert np.array_equal(np.unique(plain.boundary_tags), [3])
+    assert every.boundary_tags.size == plain.boundary_tags.size
+
+
+def _tilted_triangles(n=12):
+    """A planar mesh of n x n squares cut in triangles, tilted out of every coordinate plane and far
+    from the origin (x about 10): written in 8-character fields, its points leave the plane by the
+    rounding of the 7 digits they keep."""
+    u, v = np.meshgrid(np.linspace(0, 1, n + 1), np.linspace(0, 1, n + 1))
+    q = (np.arange(n)[:, None] * (n + 1) + np.arange(n)).ravel()
+    tri = np.r_[np.c_[q, q + 1, q + n + 2], np.c_[q, q + n + 2, q + n + 1]]
+    e1, e2 = np.array([0.6, 0.8, 0.0]), np.array([-0.48, 0.36, 0.8])
+    pts = 10.0 + u.ravel()[:, None] * e1 + v.ravel()[:, None] * e2
+    return pts, tri
+
+
+def test_a_tilted_plane_rounded_by_its_format_is_read_and_said(tmp_path):
+    pts, tri = _tilted_triangles()
+    rounded = np.array([[float(f"{x:.7g}") for x in row] for row in pts])  # an 8-character field's digits
+    path = tmp_path / "tilted.vtu"
+    meshio.write(str(path), meshio.Mesh(rounded, [("triangle", tri)]))
+    mesh = read_mesh(str(path))
+    assert mesh.dim == 2 and mesh.n_cells == len(tri)
+    assert "7 significant digits" in mesh.meta["rounded_plane"]["message"]
+    area = float(np.abs(mesh_area(mesh)).sum())
+    assert abs(area - 1.0) < 1e-5
+    exact = tmp_path / "exact.vtu"  # the same plane at full precision: nothing to say
+    meshio.write(str(exact), meshio.Mesh(pts, [("triangle", tri)]))
+    assert "rounded_plane" not in read_mesh(str(exact)).meta
+    bent = rounded.copy()  # a real bend (1e-3 of the width) is still no plane
+    bent[: len(bent) // 2] += 1e-3 * np.array([0.0, -0.8, 0.6])
+    curved = tmp_path / "bent.vtu"
+    meshio.write(str(curved), meshio.Mesh(bent, [("triangle", tri)]))
+    with pytest.raises(MeshError, match="non-planar surface"):
+        read_mesh(str(curved))
+
+
+def mesh_area(mesh):
+    from models.mesh.geometry import cell_measures
+
+    return cell_measures(mesh)
+
+
+def test_gmsh_large_field_nastran_hexahedra_are_read(gmsh, tmp_path):
+    """gmsh's Nastran export in large field (Mesh.BdfFieldFormat 2) continues each CHEXA on a line
+    whose first field is blank."""
+    gmsh.initialize(readConfigFiles=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add("hex")
+        gmsh.model.occ.addBox(0, 0, 0, 1, 1, 1)
+        gmsh.model.occ.synchronize()
+        for c in gmsh.model.getEntities(1):
+            gmsh.model.mesh.setTransfiniteCurve(c[1], 4)
+        for s in gmsh.model.getEntities(2):
+            gmsh.model.mesh.setTransfiniteSurface(s[1])
+            gmsh.model.mesh.setRecombine(2, s[1])
+        gmsh.model.mesh.setTransfiniteVolume(1)
+        gmsh.model.addPhysicalGroup(3, [1], 1)
+        gmsh.model.mesh.generate(3)
+        gmsh.option.setNumber("Mesh.BdfFieldFormat", 2)
+        gmsh.write(str(tmp_path / "hex.bdf"))
+    finally:
+        gmsh.finalize()
+    mesh = read_mesh(str(tmp_path / "hex.bdf"))
+    assert mesh.n_cells == 27 and np.all(mesh.cell_types == 12)
+    assert abs(_volume(mesh) - 1.0) < 1e-9
+
+
+def test_large_field_element_cards_and_short_rows_are_said(tmp_path):
+    pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]], dtype=float)
+    tets = np.array([[0, 1, 2, 3], [1, 2, 3, 4]])
+    path = tmp_path / "large.nas"
+    meshio.write(
+        str(path), meshio.Mesh(pts, [("tetra", tets)]), point_format="fixed-large", cell_format="fixed-large"
+    )
+    with pytest.raises(MeshError, match=r"large-field form \(such as CTETRA\*\)"):
+        read_mesh(str(path))
+    short = meshio.Mesh(pts, [("hexahedron", np.array([[0, 1, 2, 3, 4, 0]]))])  # a lost continuation
+    with pytest.raises(MeshError, match="hexahedron cells list 6 nodes each, where a hexahedron has 8"):
+        mesh_from_meshio(short)
+
+
+def test_a_format_meshio_only_writes_gets_our_list_of_extensions(tmp_path):
+    path = tmp_path / "mesh.svg"
+    path.write_text("<svg/>")
+    with pytest.raises(MeshError) as refused:
+        read_mesh(str(path))
+    said = str(refused.value)
+    assert "unknown mesh format '.svg'" in said and ".vtu, .vtk, .msh" in said and ".wkt" in said
+    assert "neuroglancer" not in said
