@@ -179,3 +179,25 @@ def test_no_cluster_is_left_empty():
     lab = kmeans(x, 20)
     assert np.unique(lab).size == 20 and lab.min() == 0 and lab.max() == 19
     assert np.unique(lab[:90]).size >= 10  # the 10 other points hold 10 clusters at most
+
+
+@pytest.mark.parametrize("grading", [1.0, 100.0, 1000.0])
+def test_weighted_kmeans_holds_equal_counts_on_graded_cells(grading):
+    """The hierarchies' k-means (KMeans.cell_weights: weights 1 / area in 2D) on a tensor grid of
+    quads graded `grading`:1 in both directions, many clusters (5 cells each, no binning): the seeds
+    come from the points' estimated weighted density. Taking the weights as that density put the
+    seeds where the cells are small: half the clusters were single cells and others held hundreds
+    (a k-means hierarchy then took 52 iterations where pyamg takes 18)."""
+    n = 120
+    t = np.linspace(0.0, 1.0, n + 1)
+    x = (grading**t - 1.0) / (grading - 1.0) if grading > 1 else t  # cell widths from 1 to grading
+    h = np.diff(x)
+    cx, cy = np.meshgrid(0.5 * (x[1:] + x[:-1]), 0.5 * (x[1:] + x[:-1]))
+    area = np.outer(h, h).ravel()
+    w = 1.0 / area
+    k = n * n // 5
+    labels = kmeans(np.c_[cx.ravel(), cy.ravel()], k, weights=w / w.mean())
+    counts = np.bincount(labels, minlength=k)
+    assert counts.min() >= 1
+    assert np.count_nonzero(counts == 1) <= 0.05 * k
+    assert counts.max() <= 4 * np.median(counts)
