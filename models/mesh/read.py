@@ -559,10 +559,12 @@ def default_memory() -> int:
 
 def _whole_rows(name: str, data) -> None:
     """A block of a fixed-size meshio type lists that many nodes per cell (a reader that lost a
-    card's continuation line gives hexahedra of 6 nodes)."""
-    from meshio._common import num_nodes_per_cell
-
-    want = num_nodes_per_cell.get(name)
+    card's continuation line gives hexahedra of 6 nodes). Blocks of meshio's readers only: where
+    meshio is not loaded, our own readers made them, whole (and meshio stays unloaded)."""
+    common = sys.modules.get("meshio._common")
+    if common is None:
+        return
+    want = common.num_nodes_per_cell.get(name)
     got = np.shape(data)[1] if np.ndim(data) == 2 else None
     if want is not None and len(data) and got != want:
         raise MeshError(

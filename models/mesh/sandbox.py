@@ -216,6 +216,7 @@ def read_mesh_safe(
     timeout_s = _default_timeout() if timeout_s is None else timeout_s
     try:
         if in_process or not sandbox_enabled():
+            heap.keep()  # (as below: a second read in this process reuses the first one's pages)
             with deadline(timeout_s):
                 return read.read_mesh(path, **kwargs, **({} if native else {"native": False}))
         memory_bytes = read.default_memory() if memory_bytes is None else memory_bytes
