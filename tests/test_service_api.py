@@ -436,7 +436,7 @@ def test_every_422_has_one_shape(app, square):
         ({"k": 10_000}, "k"),
         ({"model": "nope", "k": 2}, "model"),
         ({"mode": "nref", "nref": 31}, "nref"),
-        ({"nref": 3, "k": 4}, None),
+        ({"nref": 3, "k": 4}, "nref"),  # (two sizes: the later of k, nref, target_size, mult_factor named)
         ({"mode": "kway", "nref": 3}, "nref"),
         ({"k": "many"}, "k"),
     ]
