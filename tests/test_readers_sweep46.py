@@ -162,3 +162,35 @@ def test_a_format_meshio_only_writes_gets_our_list_of_extensions(tmp_path):
     said = str(refused.value)
     assert "unknown mesh format '.svg'" in said and ".vtu, .vtk, .msh" in said and ".wkt" in said
     assert "neuroglancer" not in said
+
+
+def test_xdmf_attributes_whose_data_is_missing_leave_the_mesh_read_and_said(tmp_path):
+    """VTK's XDMF writer leaves files whose attributes point at HDF5 datasets it did not write
+    (integer arrays it stores as "Compound"): VTK reads the mesh and says "Failed to read attribute
+    data", and so does ParaView. The mesh is read; the lost arrays are said (groups may be among
+    them)."""
+    vtk = pytest.importorskip("vtk")
+    import vtk_corpus as vc
+    from vtkmodules.util.numpy_support import numpy_to_vtk
+    from vtkmodules.vtkIOXdmf2 import vtkXdmfWriter
+
+    p, h = vc.grid(3, 3, 3)
+    grid = vc.unstructured(np.asarray(p, float), [(vtk.VTK_HEXAHEDRON, h)])
+    tags = numpy_to_vtk(np.arange(27, dtype=np.int32) % 2 + 1, deep=1)
+    tags.SetName("gmsh:physical")
+    grid.GetCellData().AddArray(tags)
+    writer = vtkXdmfWriter()
+    writer.SetFileName(str(tmp_path / "b.xmf"))
+    writer.SetInputData(grid)
+    writer.Write()
+    text = (tmp_path / "b.xmf").read_text()
+    lost = (
+        '<Attribute Name="material" Active="1" AttributeType="None" Center="Cell">\n'
+        '<DataItem Dimensions="27" NumberType="Compound" Format="HDF">b.h5:/Block_0_t000000/Cell/material'
+        "</DataItem>\n</Attribute>\n"
+    )
+    (tmp_path / "b.xmf").write_text(text.replace("    </Grid>", lost + "    </Grid>"))
+    mesh = read_mesh(str(tmp_path / "b.xmf"))
+    ref = read_mesh(vc.write_xml(tmp_path / "b.vtu", grid))
+    assert mesh.n_cells == 27 and abs(_volume(mesh) - _volume(ref)) < 1e-12 * _volume(ref)
+    assert "could not be read" in mesh.meta["lost_data"]["message"]

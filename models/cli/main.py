@@ -331,6 +331,7 @@ def cmd_agglomerate(args) -> int:
         "fluent_faces",
         "trailing_bytes",
         "rounded_plane",
+        "lost_data",
     ):
         if mesh.meta.get(key):
             print(f"warning: {mesh.meta[key]['message']}")

@@ -150,6 +150,8 @@ def mesh_report(mesh: Mesh, graph=None) -> dict:
         issues.append(_issue("openfoam-order", "warning", 1, [], str(mesh.meta["openfoam_order"]["message"])))
     if mesh.meta.get("fluent_faces"):  # a Fluent face's node or cell ids out of range (VTK read on)
         issues.append(_issue("fluent-faces", "warning", 1, [], str(mesh.meta["fluent_faces"]["message"])))
+    if mesh.meta.get("lost_data"):  # data arrays the reader could not read (the mesh whole)
+        issues.append(_issue("lost-data", "warning", 1, [], str(mesh.meta["lost_data"]["message"])))
     if mesh.meta.get("rounded_plane"):  # a tilted plane's coordinates rounded in the file: projected
         issues.append(_issue("rounded-plane", "info", 1, [], str(mesh.meta["rounded_plane"]["message"])))
     if mesh.meta.get("trailing_bytes"):  # a legacy file going on after its mesh: ignored, as VTK does

@@ -340,7 +340,8 @@ class _Captured:
         vtkLogger.SetStderrVerbosity(self.verbosity)
         self.text = "\n".join([*self.errors, text])
         blocks = [*self.errors, *(b for b in re.split(r"(?=ERROR)", text) if b.startswith("ERROR"))]
-        self.failed = any(not _HARMLESS.search(b) for b in blocks)
+        self.lost_data = any(_DATA_ONLY.search(b) for b in blocks)
+        self.failed = any(not _HARMLESS.search(b) and not _DATA_ONLY.search(b) for b in blocks)
         return False
 
 
@@ -351,6 +352,10 @@ class _Captured:
 _HARMLESS = re.compile(
     r"Unable to read (?:QA|info(?:rmation)?) records|Error reading InformationKey element", re.IGNORECASE
 )
+# errors after which the mesh is whole but some of its data arrays are not read: an XDMF attribute
+# whose HDF5 dataset is missing (VTK's own XDMF writer leaves such files); said, never silent, since
+# physical groups may be among them
+_DATA_ONLY = re.compile(r"Failed to read attribute data", re.IGNORECASE)
 
 
 def _run(path: str, kind: str, fmt: str | None = None, notes: dict | None = None):
@@ -407,6 +412,13 @@ def _run(path: str, kind: str, fmt: str | None = None, notes: dict | None = None
         from models.mesh.legacy import legacy_tail
 
         tail = legacy_tail(path, cap.text, out)
+    if cap.lost_data and not cap.failed and notes is not None:
+        notes["lost_data"] = {
+            "count": 1,
+            "message": f"some of its cell or point data arrays could not be read (the {what} reader "
+            "found their data missing): the mesh is read without them, so physical groups held in them "
+            "are not seen",
+        }
     if tail:  # (only bytes after the mesh VTK's reader could not read: read as VTK reads it)
         if notes is not None:
             notes["trailing_bytes"] = {"count": 1, "message": tail}
