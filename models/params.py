@@ -381,6 +381,13 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
             raise ParameterError(f"k = {k} is larger than the number of cells to agglomerate ({n_work})")
         if nref is not None and 2**nref > n_work:
             raise ParameterError(f"nref = {nref} asks for 2^{nref} elements, more than the {n_work} cells")
+        if hierarchy and coarsest is not None and coarsest >= n_work:  # (as `magnet hierarchy` says it)
+            few = ParameterError(
+                f"the mesh has {n_work:,} cell{'s' if n_work != 1 else ''}: nothing to coarsen with "
+                f"options.coarsest = {coarsest}"
+            )
+            few.field = "options.coarsest"
+            raise few
         if mode == "segregated" and not mesh_info.get("physical_groups"):
             raise ParameterError("mode 'segregated' needs a mesh with physical groups")
 

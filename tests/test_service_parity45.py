@@ -86,3 +86,16 @@ def test_subset_ids_over_http_are_the_files(client, bad_first):
     assert r.status_code == 202, r.text  # (file ids 0..2 are the cells left out: 2 cells to agglomerate)
     r = client.post("/v1/jobs", json={"mesh_id": mesh_id, "k": 2, "subset": [515]}, headers=AUTH)
     assert r.status_code == 422 and "(the mesh has cells 0..514), e.g. 515" in r.json()["detail"]
+
+
+def test_a_coarsest_level_above_the_cells_is_refused_before_the_job(client, bad_first):
+    """options.coarsest at or above the mesh's cells: refused at submission (422, naming the option),
+    as `magnet hierarchy` refuses it, not accepted and then failed by the worker."""
+    mesh_id = _upload(client, bad_first)
+    body = {"mesh_id": mesh_id, "k": 8, "options": {"hierarchy": True, "finest": "cuts", "coarsest": 600}}
+    r = client.post("/v1/jobs", json=body, headers=AUTH)
+    assert r.status_code == 422, r.text
+    assert r.json()["detail"] == "the mesh has 512 cells: nothing to coarsen with options.coarsest = 600"
+    assert r.json()["field"] == "options.coarsest"
+    body["options"]["coarsest"] = 10
+    assert client.post("/v1/jobs", json=body, headers=AUTH).status_code in (201, 202)
