@@ -178,8 +178,10 @@ def _write_hierarchy_zip(
                 ratio=o["ratio"],
                 coarsest=o["coarsest"] or 10,
                 seed=o["seed"],
-                model_options={k: o[k] for k in ("finest", "boxfit") if o.get(k)} if own else None,
+                model_options=({k: o[k] for k in ("finest", "boxfit") if o.get(k)} if own else {})
+                | ({"rings": False} if o.get("keep_rings") else {}),
                 finest=None if own else res.agglomeration.labels,
+                groups=bool(o.get("groups")),
             )
             write_hierarchy(
                 tmp,

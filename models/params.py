@@ -149,6 +149,8 @@ OPTION_NAMES = (
     "coarsest",
     "finest",
     "boxfit",
+    "groups",
+    "keep_rings",
     "allow_extra",
     "keep_groups",
     "fill",
@@ -290,6 +292,13 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
     boxfit = _bool(opts, "boxfit")
     if (finest is not None or boxfit) and not hierarchy:
         raise ParameterError("options.finest and options.boxfit go with options.hierarchy = true")
+    groups = _bool(opts, "groups")
+    keep_rings = _bool(opts, "keep_rings")
+    if (groups or keep_rings) and not (hierarchy and (ratio is not None or finest is not None or boxfit)):
+        raise ParameterError(
+            "options.groups and options.keep_rings go with a hierarchy of its own (options.hierarchy = "
+            "true with options.ratio, options.finest or options.boxfit, like `magnet hierarchy`)"
+        )
     if finest not in (None, "cuts") and (model != "rtree" or ratio is not None):
         raise ParameterError(
             f"options.finest = {finest!r} (an aggregated finest level) needs model rtree and no "
@@ -388,6 +397,15 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
             )
             few.field = "options.coarsest"
             raise few
+        if keep_rings and mesh_info.get("dim") == 2:
+            raise ParameterError(
+                "options.keep_rings is for 3D meshes, whose elements may go around a tunnel; a 2D "
+                "element never encloses a hole"
+            )
+        if groups and not mesh_info.get("physical_groups"):
+            raise ParameterError(
+                "options.groups: levels that keep physical groups apart need a mesh with them"
+            )
         if mode == "segregated" and not mesh_info.get("physical_groups"):
             raise ParameterError("mode 'segregated' needs a mesh with physical groups")
 
@@ -415,6 +433,8 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
             "coarsest": coarsest,
             "finest": finest,
             "boxfit": boxfit,
+            "groups": groups,
+            "keep_rings": keep_rings,
             "allow_extra": allow_extra,
             "keep_groups": keep_groups,
             **(

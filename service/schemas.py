@@ -129,6 +129,16 @@ class JobOptions(BaseModel):
         description="with hierarchy: nested levels of their own from the cells, then boundary units moved "
         "towards tighter boxes (as `magnet hierarchy --boxfit`)",
     )
+    groups: bool | None = Field(
+        None,
+        description="with a hierarchy of its own (ratio, finest or boxfit): no element of any level crosses "
+        "a physical group (as `magnet hierarchy --groups`; rtree, metis, kmeans)",
+    )
+    keep_rings: bool | None = Field(
+        None,
+        description="with a hierarchy of its own, 3D: keep elements with a handle (rings around a tunnel) "
+        "instead of cutting them (as `magnet hierarchy --keep-rings`; faster)",
+    )
     allow_extra: bool | None = Field(
         None,
         description="with k: keep every connected fragment of a part as an element (more than k); "

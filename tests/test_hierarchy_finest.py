@@ -10,6 +10,7 @@ import os
 import subprocess
 import sys
 import zipfile
+from pathlib import Path
 
 import meshio
 import numpy as np
@@ -154,3 +155,42 @@ def test_service_job_with_finest(tmp_path, square):
         index = json.loads(zf.read("hierarchy.json"))
         assert index["finest"] == "cuts" and index["boxfit"] is True and index["nested"]
         assert index["levels"][-1]["elements"] > 4  # levels of their own, not above the job's 4 elements
+
+
+def test_service_hierarchy_with_groups_and_keep_rings(tmp_path):
+    """options.groups / options.keep_rings: `magnet hierarchy --groups --keep-rings` over HTTP; no
+    element of any level crosses a physical group, and a mesh without groups is refused at
+    submission."""
+    from service_fixtures import square_mesh
+    from test_service_api import auth, make, upload
+
+    from worker.tasks import execute_job
+
+    client, settings = make(tmp_path)
+    with client:
+        h = auth("alice")
+        plain = upload(client, square_mesh(tmp_path / "square.vtu", n=16))
+        base = {"model": "metis", "mode": "kway", "k": 8}
+        for bad, words in (
+            ({"hierarchy": True, "groups": True}, "go with a hierarchy of its own"),
+            ({"hierarchy": True, "ratio": 4, "groups": True}, "need a mesh with them"),
+            ({"hierarchy": True, "ratio": 4, "keep_rings": "yes"}, "options.keep_rings must be"),
+            ({"hierarchy": True, "ratio": 4, "keep_rings": True}, "options.keep_rings is for 3D meshes"),
+        ):
+            r = client.post("/v1/jobs", json={"mesh_id": plain["id"], **base, "options": bad}, headers=h)
+            assert r.status_code == 422 and words in r.json()["detail"], r.text
+        tagged = upload(client, Path(__file__).parent / "data" / "square_inclusion.msh")
+        body = {"mesh_id": tagged["id"], **base, "options": {"hierarchy": True, "finest": "cuts"}}
+        body["options"] |= {"groups": True, "keep_rings": False}
+        job = client.post("/v1/jobs", json=body, headers=h).json()
+        assert job["params"]["options"]["groups"] is True
+        assert execute_job(job["id"], settings) == "succeeded"
+        zf = zipfile.ZipFile(io.BytesIO(client.get(f"/v1/jobs/{job['id']}/hierarchy", headers=h).content))
+        index = json.loads(zf.read("hierarchy.json"))
+        from models.mesh.read import read_mesh
+
+        tags = read_mesh(str(Path(__file__).parent / "data" / "square_inclusion.msh")).tags
+        for level in index["levels"]:
+            labels = np.asarray(json.loads(zf.read(level["labels"])))
+            per = {int(e): set(tags[labels == e].tolist()) for e in np.unique(labels)}
+            assert all(len(g) == 1 for g in per.values()), level

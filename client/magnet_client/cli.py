@@ -81,6 +81,16 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="with --hierarchy: nested levels of their own, boundary units moved towards tighter boxes",
     )
+    p.add_argument(
+        "--groups",
+        action="store_true",
+        help="with --ratio, --finest or --boxfit: no element of any level crosses a physical group",
+    )
+    p.add_argument(
+        "--keep-rings",
+        action="store_true",
+        help="with --ratio, --finest or --boxfit, 3D: keep elements with a handle instead of cutting them",
+    )
     p.add_argument("-k", "--k", type=int, help="number of elements (kway)")
     p.add_argument(
         "--allow-extra",
@@ -230,6 +240,8 @@ def cmd_agglomerate(client: Client, args: argparse.Namespace) -> int:
         coarsest=args.coarsest,
         finest=args.finest,
         boxfit=True if args.boxfit else None,
+        groups=True if args.groups else None,
+        keep_rings=True if args.keep_rings else None,
         weld=args.weld,
         allow_extra=True if args.allow_extra else None,
         size_measure=args.size_measure,

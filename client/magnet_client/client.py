@@ -12,6 +12,8 @@ import httpx
 
 OPTION_NAMES = (
     "seed",
+    "groups",
+    "keep_rings",
     "allow_extra",
     "keep_groups",
     "fill",
