@@ -167,6 +167,8 @@ def _write_hierarchy_zip(
     try:
         own = o is not None and (o.get("finest") is not None or bool(o.get("boxfit")))
         if own or (o is not None and o.get("ratio") is not None):
+            import numpy as np
+
             from models.hierarchy.nested import build_hierarchy, write_hierarchy
 
             # options.finest / boxfit: levels of their own from the cells, as `magnet hierarchy
@@ -182,6 +184,7 @@ def _write_hierarchy_zip(
                 | ({"rings": False} if o.get("keep_rings") else {}),
                 finest=None if own else res.agglomeration.labels,
                 groups=bool(o.get("groups")),
+                kappa=None if o.get("kappa") is None else np.asarray(o["kappa"], dtype=np.float64),
             )
             write_hierarchy(
                 tmp,
@@ -201,6 +204,7 @@ def _write_hierarchy_zip(
                         "boxfit",
                         "ratio",
                         "coarsest",
+                        "kappa",
                         "method",
                         "build_time",
                         "report",

@@ -151,6 +151,7 @@ OPTION_NAMES = (
     "boxfit",
     "groups",
     "keep_rings",
+    "kappa",
     "allow_extra",
     "keep_groups",
     "fill",
@@ -294,10 +295,31 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
         raise ParameterError("options.finest and options.boxfit go with options.hierarchy = true")
     groups = _bool(opts, "groups")
     keep_rings = _bool(opts, "keep_rings")
-    if (groups or keep_rings) and not (hierarchy and (ratio is not None or finest is not None or boxfit)):
+    kappa = opts.get("kappa")
+    if kappa is not None and (
+        not isinstance(kappa, list | tuple)
+        or len(kappa) not in (2, 3)
+        or not all(
+            isinstance(v, int | float) and not isinstance(v, bool) and 0 < v < float("inf") for v in kappa
+        )
+    ):
+        raise ParameterError(
+            f"options.kappa must be 2 or 3 positive numbers [kx, ky(, kz)] (a diagonal diffusion tensor), "
+            f"got {shown(kappa)}"
+        )
+    own_levels = hierarchy and (ratio is not None or finest is not None or boxfit)
+    if (groups or keep_rings) and not own_levels:
         raise ParameterError(
             "options.groups and options.keep_rings go with a hierarchy of its own (options.hierarchy = "
             "true with options.ratio, options.finest or options.boxfit, like `magnet hierarchy`)"
+        )
+    if kappa is not None and not (
+        hierarchy and model == "rtree" and (finest == "cuts" or (finest is None and boxfit))
+    ):
+        raise ParameterError(
+            "options.kappa: levels cut for a diffusion tensor are rtree's levels of their own from the "
+            "cells (options.hierarchy = true with options.finest = 'cuts' or options.boxfit), as "
+            "`magnet hierarchy --kappa`"
         )
     if finest not in (None, "cuts") and (model != "rtree" or ratio is not None):
         raise ParameterError(
@@ -397,6 +419,10 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
             )
             few.field = "options.coarsest"
             raise few
+        if kappa is not None and mesh_info.get("dim") not in (None, len(kappa)):
+            raise ParameterError(
+                f"options.kappa has {len(kappa)} values but the mesh is {mesh_info['dim']}D: give one per axis"
+            )
         if keep_rings and mesh_info.get("dim") == 2:
             raise ParameterError(
                 "options.keep_rings is for 3D meshes, whose elements may go around a tunnel; a 2D "
@@ -435,6 +461,7 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
             "boxfit": boxfit,
             "groups": groups,
             "keep_rings": keep_rings,
+            "kappa": None if kappa is None else [float(v) for v in kappa],
             "allow_extra": allow_extra,
             "keep_groups": keep_groups,
             **(

@@ -139,6 +139,13 @@ class JobOptions(BaseModel):
         description="with a hierarchy of its own, 3D: keep elements with a handle (rings around a tunnel) "
         "instead of cutting them (as `magnet hierarchy --keep-rings`; faster)",
     )
+    kappa: list[Annotated[float, Field(gt=0, **Finite)]] | None = Field(
+        None,
+        min_length=2,
+        max_length=3,
+        description="with a hierarchy of its own: the diagonal diffusion tensor [kx, ky(, kz)] the levels are "
+        "cut for (as `magnet hierarchy --kappa`; rtree)",
+    )
     allow_extra: bool | None = Field(
         None,
         description="with k: keep every connected fragment of a part as an element (more than k); "

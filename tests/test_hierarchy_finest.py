@@ -176,9 +176,16 @@ def test_service_hierarchy_with_groups_and_keep_rings(tmp_path):
             ({"hierarchy": True, "ratio": 4, "groups": True}, "need a mesh with them"),
             ({"hierarchy": True, "ratio": 4, "keep_rings": "yes"}, "options.keep_rings must be"),
             ({"hierarchy": True, "ratio": 4, "keep_rings": True}, "options.keep_rings is for 3D meshes"),
+            ({"hierarchy": True, "finest": "cuts", "kappa": [1, 0]}, "options.kappa must be"),
+            ({"hierarchy": True, "ratio": 4, "kappa": [1, 2]}, "rtree's levels of their own from the cells"),
         ):
             r = client.post("/v1/jobs", json={"mesh_id": plain["id"], **base, "options": bad}, headers=h)
             assert r.status_code == 422 and words in r.json()["detail"], r.text
+        three = {"hierarchy": True, "finest": "cuts", "kappa": [1, 2, 3]}
+        r = client.post(
+            "/v1/jobs", json={"mesh_id": plain["id"], **base, "model": "rtree", "options": three}, headers=h
+        )
+        assert r.status_code == 422 and "give one per axis" in r.json()["detail"], r.text
         tagged = upload(client, Path(__file__).parent / "data" / "square_inclusion.msh")
         body = {"mesh_id": tagged["id"], **base, "options": {"hierarchy": True, "finest": "cuts"}}
         body["options"] |= {"groups": True, "keep_rings": False}
@@ -187,6 +194,20 @@ def test_service_hierarchy_with_groups_and_keep_rings(tmp_path):
         assert execute_job(job["id"], settings) == "succeeded"
         zf = zipfile.ZipFile(io.BytesIO(client.get(f"/v1/jobs/{job['id']}/hierarchy", headers=h).content))
         index = json.loads(zf.read("hierarchy.json"))
+        body = {
+            "mesh_id": plain["id"],
+            **base,
+            "model": "rtree",
+            "options": {"hierarchy": True, "finest": "cuts"},
+        }
+        body["options"]["kappa"] = [
+            10,
+            1,
+        ]  # (cut for a tensor 10x stronger along x: recorded with the levels)
+        aniso = client.post("/v1/jobs", json=body, headers=h).json()
+        assert execute_job(aniso["id"], settings) == "succeeded"
+        got = client.get(f"/v1/jobs/{aniso['id']}/hierarchy", headers=h).content
+        assert json.loads(zipfile.ZipFile(io.BytesIO(got)).read("hierarchy.json"))["kappa"] == [10.0, 1.0]
         from models.mesh.read import read_mesh
 
         tags = read_mesh(str(Path(__file__).parent / "data" / "square_inclusion.msh")).tags

@@ -87,6 +87,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="with --ratio, --finest or --boxfit: no element of any level crosses a physical group",
     )
     p.add_argument(
+        "--kappa",
+        metavar="KX,KY[,KZ]",
+        help="with --ratio, --finest or --boxfit: the diagonal diffusion tensor the levels are cut for",
+    )
+    p.add_argument(
         "--keep-rings",
         action="store_true",
         help="with --ratio, --finest or --boxfit, 3D: keep elements with a handle instead of cutting them",
@@ -242,6 +247,7 @@ def cmd_agglomerate(client: Client, args: argparse.Namespace) -> int:
         boxfit=True if args.boxfit else None,
         groups=True if args.groups else None,
         keep_rings=True if args.keep_rings else None,
+        kappa=None if args.kappa is None else [float(v) for v in args.kappa.split(",")],
         weld=args.weld,
         allow_extra=True if args.allow_extra else None,
         size_measure=args.size_measure,

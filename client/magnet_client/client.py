@@ -14,6 +14,7 @@ OPTION_NAMES = (
     "seed",
     "groups",
     "keep_rings",
+    "kappa",
     "allow_extra",
     "keep_groups",
     "fill",
