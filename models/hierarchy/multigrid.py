@@ -128,6 +128,19 @@ def pyamg_sa(A: sp.csr_matrix, b: np.ndarray, smooth: bool = True) -> dict:
     }
 
 
+def _one_blas_thread():
+    """The four solves with one BLAS thread: pyamg's work is sparse, OpenBLAS's threads only
+    contended for the cores (an outside sweep: 2-3x the wall time and 3.6x the CPU on 10^5 cells, and
+    setup or solve times that moved 10x between two runs), so the timings reported are the solvers'."""
+    import contextlib
+
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # (scikit-learn's dependency: there with it)
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")
+
+
 def mgcheck(mesh: Mesh, data: CellData, levels: list[np.ndarray], kappa: np.ndarray | None = None) -> dict:
     """Unsmoothed and smoothed aggregation on our levels (coarsest first, as written by
     models.hierarchy.nested) beside pyamg's smoothed aggregation, on the TPFA Poisson problem
@@ -144,10 +157,11 @@ def mgcheck(mesh: Mesh, data: CellData, levels: list[np.ndarray], kappa: np.ndar
         )
     A, b = tpfa_poisson(mesh, data, kappa)
     ops = list(reversed(aggregation_operators(levels, mesh.n_cells)))
-    base_un = pyamg_sa(A, b, smooth=False)
-    base = pyamg_sa(A, b)
-    un = with_levels(A, b, ops, smooth=False)
-    sm = with_levels(A, b, ops, smooth=True)
+    with _one_blas_thread():
+        base_un = pyamg_sa(A, b, smooth=False)
+        base = pyamg_sa(A, b)
+        un = with_levels(A, b, ops, smooth=False)
+        sm = with_levels(A, b, ops, smooth=True)
     for r in (base, base_un, un, sm):
         r.pop("x")
     ratio = {  # ours against pyamg's standard aggregation, unsmoothed against unsmoothed, smoothed against smoothed
