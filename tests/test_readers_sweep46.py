@@ -194,3 +194,36 @@ def test_xdmf_attributes_whose_data_is_missing_leave_the_mesh_read_and_said(tmp_
     ref = read_mesh(vc.write_xml(tmp_path / "b.vtu", grid))
     assert mesh.n_cells == 27 and abs(_volume(mesh) - _volume(ref)) < 1e-12 * _volume(ref)
     assert "could not be read" in mesh.meta["lost_data"]["message"]
+
+
+@pytest.mark.parametrize("compressed", [False, True])
+def test_mixed_runs_of_linear_cells_read_by_numpy_as_vtk_reads_them(tmp_path, compressed):
+    """A VTU of hexahedra then tetrahedra (and a boundary triangle after them) is read by our numpy
+    path (runs of one type: meshio's blocks), the same arrays as VTK's reader gives; types
+    interleaved cell by cell (more runs than _MAX_RUNS) go to VTK's reader, with the same result."""
+    pytest.importorskip("vtk")
+    import vtk_corpus as vc
+
+    from models.mesh.vtk_readers import read_vtk
+    from models.mesh.vtu import read_vtu_simple
+
+    p, h = vc.grid(5, 4, 4)
+    h = np.asarray(h)
+    five = np.array([[0, 1, 3, 4], [1, 2, 3, 6], [1, 4, 5, 6], [3, 4, 6, 7], [1, 3, 4, 6]])
+    hexes, tets = h[:40], h[40:][:, five].reshape(-1, 4)  # (the other half in 5 tetrahedra each)
+    cases = {
+        "runs": [(12, hexes), (10, tets), (5, np.array([[0, 1, 5]]))],
+        "interleaved": [
+            b for i in range(40) for b in ((12, hexes[i : i + 1]), (10, tets[5 * i : 5 * i + 5]))
+        ],
+    }
+    for name, blocks in cases.items():
+        grid = vc.unstructured(np.asarray(p, dtype=float), blocks)
+        path = vc.write_xml(tmp_path / f"{name}.vtu", grid, encode=compressed, compress=compressed)
+        ours, theirs = read_mesh(str(path)), read_vtk(str(path), "xml")
+        for key in ("points", "offsets", "connectivity", "cell_types"):
+            assert np.array_equal(getattr(ours, key), getattr(theirs, key)), (name, key)
+        simple = read_vtu_simple(str(path))  # (the common layout's path: one block per run)
+        assert (simple is None) == (name == "interleaved")
+        if simple is not None:
+            assert [b.type for b in simple.cells] == ["hexahedron", "tetra", "triangle"]

@@ -137,8 +137,8 @@ def read_vtu_mixed(path: str | os.PathLike):
 
 # The common VTU layout, read without meshio's XML tree (what meshio.read of a large file spends
 # beside decoding): one Piece, inline base64 "binary" DataArrays, zlib-compressed or not, cells of
-# one fixed-size type that meshio keeps in VTK's node order, no point or field data. Any other file
-# (or anything unexpected) gives None, and meshio reads it. The arrays are those meshio.read gives.
+# fixed-size types that meshio keeps in VTK's node order (in runs of one type: meshio's blocks), no
+# point or field data. Any other file (or anything unexpected) gives None, and meshio reads it. The arrays are those meshio.read gives.
 _SIMPLE_CELLS = {5: ("triangle", 3), 9: ("quad", 4), 10: ("tetra", 4), 12: ("hexahedron", 8)}
 _ATTR = re.compile(rb'([A-Za-z_][-\w.:]*)\s*=\s*"([^"<&]*)"')
 _SECTIONS = {b"Points", b"Cells", b"CellData", b"PointData"}
@@ -253,15 +253,23 @@ def _simple_vtu(data: bytes):
     offsets = array(*cells[b"offsets"])
     if types.shape != (n_cells,) or offsets.shape != (n_cells,) or n_cells == 0:
         return None
-    t = int(types[0])
-    if t not in _SIMPLE_CELLS or not np.all(types == t):
+    runs = _runs(types)  # (start, end, VTK type) of each run of one type, as meshio's blocks
+    if runs is None:
         return None
     p_attrs, p_text = sections[b"Points"][0]
     points = array(p_attrs, p_text).reshape(n_points, int(p_attrs[b"NumberOfComponents"]))
-    name, k = _SIMPLE_CELLS[t]
     conn = array(*cells[b"connectivity"])
-    if conn.shape != (k * n_cells,) or not np.array_equal(offsets, np.arange(k, k * n_cells + 1, k)):
-        return None
+    if len(runs) == 1:  # (one type: the offsets are a range, no sizes array)
+        k = _SIMPLE_CELLS[runs[0][2]][1]
+        if conn.shape != (k * n_cells,) or not np.array_equal(offsets, np.arange(k, k * n_cells + 1, k)):
+            return None
+    else:
+        widths = np.array([_SIMPLE_CELLS[t][1] for _, _, t in runs], dtype=np.int64)
+        ends = np.cumsum([(e - s) * w for (s, e, _), w in zip(runs, widths, strict=True)])
+        if conn.shape != (int(ends[-1]),) or not np.array_equal(
+            offsets, np.cumsum(np.repeat(widths, [e - s for s, e, _ in runs]))
+        ):
+            return None
     cell_data = {}
     if any(a.get(b"Name") == b"vtkGhostType" for a, _ in sections.get(b"CellData", ())):
         return None  # ghost cells (a parallel writer's piece): VTK's path leaves them out
@@ -269,22 +277,34 @@ def _simple_vtu(data: bytes):
         d = array(attrs, text)
         if d.shape[0] != n_cells:
             return None
-        cell_data[attrs[b"Name"].decode()] = [d[np.arange(n_cells)]]  # a copy, as meshio's d[start + items]
-    return SimpleNamespace(
-        points=owned(points),
-        # meshio adds the piece's point offset (a numpy int64 0): the same dtype promotion and values
-        # in a new array (inflated blocks already are one: kept as they are when int64)
-        cells=[
-            SimpleNamespace(
-                type=name,
-                data=(conn if compressor and conn.dtype == np.int64 else conn + np.cumsum([0])[0]).reshape(
-                    n_cells, k
-                ),
-            )
-        ],
-        cell_data=cell_data,
-        field_data={},
-    )
+        # a copy per block, as meshio's d[start + items]
+        cell_data[attrs[b"Name"].decode()] = [d[np.arange(s, e)] for s, e, _ in runs]
+    # meshio adds the piece's point offset (a numpy int64 0): the same dtype promotion and values
+    # in a new array (inflated blocks already are one: kept as they are when int64)
+    conn = conn if compressor and conn.dtype == np.int64 else conn + np.cumsum([0])[0]
+    blocks, at = [], 0
+    for s, e, t in runs:
+        name, k = _SIMPLE_CELLS[t]
+        blocks.append(SimpleNamespace(type=name, data=conn[at : at + (e - s) * k].reshape(e - s, k)))
+        at += (e - s) * k
+    return SimpleNamespace(points=owned(points), cells=blocks, cell_data=cell_data, field_data={})
+
+
+_MAX_RUNS = 64  # runs of one cell type read here (more: a file of interleaved types, VTK's CSR path)
+
+
+def _runs(types: np.ndarray) -> list[tuple[int, int, int]] | None:
+    """(start, end, VTK type) of each run of cells of one type (meshio's cell blocks), where every
+    type is one of _SIMPLE_CELLS and there are at most _MAX_RUNS runs; None otherwise."""
+    breaks = np.flatnonzero(types[1:] != types[:-1]) + 1
+    if breaks.size + 1 > _MAX_RUNS:
+        return None
+    starts = [0, *breaks.tolist()]
+    ends = [*breaks.tolist(), int(types.size)]
+    kinds = [int(types[s]) for s in starts]
+    if any(t not in _SIMPLE_CELLS for t in kinds):
+        return None
+    return list(zip(starts, ends, kinds, strict=True))
 
 
 def _appended(section, sections: dict) -> dict:
