@@ -147,11 +147,28 @@ def test_large_field_element_cards_and_short_rows_are_said(tmp_path):
     meshio.write(
         str(path), meshio.Mesh(pts, [("tetra", tets)]), point_format="fixed-large", cell_format="fixed-large"
     )
-    with pytest.raises(MeshError, match=r"large-field form \(such as CTETRA\*\)"):
+    with pytest.raises(MeshError, match=r"large-field form \(such as CTETRA\*\)"):  # (the card found)
         read_mesh(str(path))
     short = meshio.Mesh(pts, [("hexahedron", np.array([[0, 1, 2, 3, 4, 0]]))])  # a lost continuation
     with pytest.raises(MeshError, match="hexahedron cells list 6 nodes each, where a hexahedron has 8"):
         mesh_from_meshio(short)
+
+
+def test_a_tag_of_0_on_every_element_is_no_group(tmp_path):
+    """gmsh's SU2 export: su2:tag 0 on every volume cell, its markers on the boundary faces. The
+    elements are in no group (not one group 0 over the whole mesh: lymph's region id 0); the
+    markers stay boundary groups (the groups the reader makes of them, "group"). A tag array with
+    other values on the elements stays as it is."""
+    pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]], dtype=float)
+    tets = np.array([[0, 1, 2, 3], [1, 2, 3, 4]])
+    tri = np.array([[0, 1, 2], [1, 4, 2]])
+    for elem_tags, groups in ((np.zeros(2, int), None), (np.array([0, 5]), [0, 5])):
+        m = meshio.Mesh(
+            pts, [("tetra", tets), ("triangle", tri)], cell_data={"group": [elem_tags, np.array([3, 3])]}
+        )
+        mesh = mesh_from_meshio(m)
+        assert (mesh.tags is None) if groups is None else sorted(set(mesh.tags.tolist())) == groups
+        assert np.array_equal(np.unique(mesh.boundary_tags), [3])
 
 
 def test_a_format_meshio_only_writes_gets_our_list_of_extensions(tmp_path):

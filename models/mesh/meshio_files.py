@@ -96,9 +96,12 @@ def read_meshio(path: str, file_type: str):
             ) as f:
                 m = importlib.import_module(module).read_buffer(f)  # (a parse that no longer advances
                 # ends, never hangs)
-            if nastran and not any(len(c.data) for c in m.cells) and found(path, _LARGE_CARD):
+            card = (
+                first_match(path, _LARGE_CARD) if nastran and not any(len(c.data) for c in m.cells) else None
+            )
+            if card:
                 raise MeshError(
-                    "its element cards are in large-field form (such as CTETRA*), which the Nastran reader "
+                    f"its element cards are in large-field form (such as {card}), which the Nastran reader "
                     "(meshio's) skips: write the elements in small or free field (the points may stay large)"
                 )
             return m
@@ -320,6 +323,18 @@ def _open_guarded(path: str, mode: str, bulk: bool = False, nastran: bool = Fals
 
 _BEGIN_BULK = re.compile(rb"BEGIN BULK")
 _LARGE_CARD = re.compile(rb"(?m)^C[A-Z0-9]+\*")  # a Nastran element card in large field (CTETRA*)
+
+
+def first_match(path: str, pattern: re.Pattern) -> str | None:
+    """The pattern's first match in the file, as text (one pass over its mapping), or None."""
+    import mmap
+
+    with open(path, "rb") as fh:
+        if os.fstat(fh.fileno()).st_size == 0:
+            return None
+        with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+            hit = pattern.search(mm)
+            return None if hit is None else hit.group(0).decode("ascii", "replace")
 
 
 def found(path: str, pattern: re.Pattern) -> bool:

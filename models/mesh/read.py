@@ -595,13 +595,16 @@ def mesh_from_meshio(
     tag_key = _find_tag_key(m.cell_data, physical_tag)
     top = max((b[3] for b in blocks if len(b[4])), default=0)
     bnd_key = BOUNDARY_TAG_NAME if BOUNDARY_TAG_NAME in m.cell_data else tag_key
+    elem_key = tag_key
+    if tag_key is not None and physical_tag is None and _zero_on_elements(m.cell_data[tag_key], blocks, top):
+        elem_key = None  # (0 on every element: no groups, as gmsh's 0; the boundary's tags stay)
     cells = []
     for i, name, _vtk, tdim, data in blocks:
-        key = tag_key if tdim == top else bnd_key
+        key = elem_key if tdim == top else bnd_key
         tags = None if key is None else np.asarray(m.cell_data[key][i]).reshape(-1)
         cells.append((name, data, tags, tdim))
     mesh = mesh_from_blocks(
-        np.asarray(m.points, dtype=np.float64), cells, tag_name=tag_key, weld=weld, owned=owned
+        np.asarray(m.points, dtype=np.float64), cells, tag_name=elem_key, weld=weld, owned=owned
     )
     from models.mesh.boundary import group_names
 
@@ -625,6 +628,15 @@ def mesh_from_arrays(points, cells, tags=None) -> Mesh:
     return mesh_from_blocks(
         np.asarray(points, dtype=np.float64), blocks, tag_name=None if tags is None else "tags"
     )
+
+
+def _zero_on_elements(arrays: list, blocks: list, top: int) -> bool:
+    """The tag array is 0 on every element (cell of the top dimension) while the boundary's cells
+    carry others: a writer's "no group" for the elements (gmsh's SU2 export: su2:tag 0 on every
+    volume cell, its markers on the faces), not one group 0 over the whole mesh."""
+    elem = [np.asarray(arrays[i]) for i, _n, _v, tdim, data in blocks if tdim == top and len(data)]
+    lower = [np.asarray(arrays[i]) for i, _n, _v, tdim, data in blocks if tdim < top and len(data)]
+    return bool(elem) and not any(t.any() for t in elem) and any(t.any() for t in lower)
 
 
 def _find_tag_key(cell_data: dict, physical_tag: str | None) -> str | None:
