@@ -244,3 +244,48 @@ def test_mixed_runs_of_linear_cells_read_by_numpy_as_vtk_reads_them(tmp_path, co
         assert (simple is None) == (name == "interleaved")
         if simple is not None:
             assert [b.type for b in simple.cells] == ["hexahedron", "tetra", "triangle"]
+
+
+def _zone(name: str, x0: float, tag: int | None) -> str:
+    """A Tecplot FE zone of 2 x 2 quads at x0, with a cell-centred tag (or none)."""
+    pts = [(x0 + i * 0.5, j * 0.5) for j in range(3) for i in range(3)]
+    cells = [
+        (j * 3 + i + 1, j * 3 + i + 2, (j + 1) * 3 + i + 2, (j + 1) * 3 + i + 1)
+        for j in range(2)
+        for i in range(2)
+    ]
+    where = ", VARLOCATION=([3]=CELLCENTERED)" if tag is not None else ""
+    text = f'ZONE T="{name}", NODES=9, ELEMENTS=4, DATAPACKING=BLOCK, ZONETYPE=FEQUADRILATERAL{where}\n'
+    text += " ".join(str(p[0]) for p in pts) + "\n" + " ".join(str(p[1]) for p in pts) + "\n"
+    text += "" if tag is None else " ".join([str(tag)] * 4) + "\n"
+    return text + "".join(" ".join(map(str, c)) + "\n" for c in cells)
+
+
+@pytest.mark.parametrize(
+    "tags, named",
+    [
+        ((2, 1), {1: "solid", 2: "fluid"}),  # the zones' tags in the other order than the zones
+        ((7, 9), {7: "fluid", 9: "solid"}),  # tags that are not the zones' numbers
+        ((None, None), {1: "fluid", 2: "solid"}),  # no tags: the zones are the groups
+    ],
+)
+def test_zone_names_go_to_the_groups_their_cells_carry(tmp_path, tags, named):
+    """Tecplot zone names (and a .vtm's block names, the same code) name the group that their cells
+    carry where the file also has a tag array (gmsh:physical); they were matched by position: the
+    first zone's name on group 1 whatever its cells held, or dropped."""
+    pytest.importorskip("vtk")
+    head = 'TITLE="t"\nVARIABLES="X","Y"' + (',"gmsh:physical"' if tags[0] is not None else "") + "\n"
+    path = tmp_path / "zones.dat"
+    path.write_text(head + _zone("fluid", 0.0, tags[0]) + _zone("solid", 1.0, tags[1]))
+    mesh = read_mesh(str(path))
+    names = mesh.meta["group_names"]
+    assert {int(k): v for k, v in names.items()} == named
+    left = mesh.points[:, 0] < 1.0  # (the fluid zone's cells: x in 0..1)
+    centre = np.array(
+        [
+            mesh.points[mesh.connectivity[mesh.offsets[i] : mesh.offsets[i + 1]], 0].mean()
+            for i in range(mesh.n_cells)
+        ]
+    )
+    fluid_tag = next(k for k, v in named.items() if v == "fluid")
+    assert set(mesh.tags[centre < 1.0].tolist()) == {fluid_tag} and left.any()

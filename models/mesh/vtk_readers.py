@@ -181,9 +181,9 @@ def read_vtk(
         if kind == "exodus":
             field.update(_exodus_names(data))
         elif kind in ("ensight", "tecplot"):  # parts, zones: named blocks (their T="...")
-            field.update(_part_names(data))
+            field.update(_names_of_tags(_part_names(data), cell_data, physical_tag))
         elif kind == ".vtm" and "block" in cell_data and not repeats:  # its blocks' names
-            field.update(_part_names(data))
+            field.update(_names_of_tags(_part_names(data), cell_data, physical_tag))
     if kind == "cgns":  # its families (gmsh's physical groups), which VTK's reading does not show
         from models.mesh.cgns_groups import family_groups
 
@@ -285,6 +285,26 @@ def mesh_of_cells(pts, norm: Normalized, tag_key, weld, meta: dict, grid, field:
     )
     mesh.meta["group_names"], mesh.meta["boundary_names"] = group_names(field, mesh.dim)
     return mesh
+
+
+def _names_of_tags(names: dict, cell_data: dict, physical_tag: str | None) -> dict:
+    """Block names ({name: [block number, dim]}) as names of the groups the mesh will have: as they
+    are where the blocks are the groups ("block"); where another tag array is taken (a zone's cells
+    tagged gmsh:physical), each name goes to the one tag its block's cells carry, and a name whose
+    block holds several tags, or none, is left out (matched by position it named the wrong group)."""
+    key = physical_tag if physical_tag in cell_data else next((k for k in TAG_NAMES if k in cell_data), None)
+    if key in (None, "block"):
+        return names
+    block, tags = cell_data.get("block"), cell_data.get(key)
+    if block is None or tags is None or len(block) != len(tags):
+        return {}
+    block, tags = np.asarray(block).reshape(-1), np.asarray(tags).reshape(-1)
+    out = {}
+    for name, (b, dim) in names.items():  # (a loop over the named blocks: a few)
+        held = np.unique(tags[block == b])
+        if held.size == 1 and float(held[0]).is_integer():
+            out[name] = np.array([int(held[0]), int(dim)])
+    return out
 
 
 def _tag_key(cell_data: dict, physical_tag: str | None) -> str | None:
