@@ -69,6 +69,17 @@ def family_groups(path: str, conn: np.ndarray, n_cells: int, offsets: np.ndarray
     return _with_hdf5(path, lambda f: _groups(f, conn, n_cells, offsets))
 
 
+def meshio_layout(path: str) -> bool:
+    """An HDF5 .cgns file as meshio's writer makes it: groups Base/Zone1/GridCoordinates without
+    CGNS's labels (no CGNSBase_t), which VTK's reader refuses ("not enough bases") and meshio reads.
+    Run where the file is read (the sandbox's child): h5py parses it."""
+
+    def look(f) -> bool:
+        return "Base" in f and "Zone1" in f["Base"] and not any(_label(f[k]) == b"CGNSBase_t" for k in f)
+
+    return bool(_with_hdf5(path, look))
+
+
 def _with_hdf5(path: str, look):
     """look(the open h5py file) for an HDF5 file, None for any other, or where h5py is missing, or
     where the file's layout is not what look expects."""

@@ -179,6 +179,11 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
             raise MeshError(
                 f"cannot read {name} as Gambit neutral: no 'CONTROL INFO' section at the start of the file"
             )
+        if ext == ".cgns" and head[:4] == b"\x89HDF":
+            from models.mesh.cgns_groups import meshio_layout
+
+            if meshio_layout(path):  # (meshio's writer: plain HDF5 groups, which VTK's reader refuses)
+                return ("meshio", "cgns")
         return ("vtk", _VTK_OTHER[ext])
     if ext == ".msh":
         if text.startswith(b"$"):
