@@ -7,6 +7,7 @@ import contextlib
 import io
 import os
 import re
+import sys
 import warnings
 
 import numpy as np
@@ -371,3 +372,20 @@ def _why(exc: BaseException, meshio) -> str:
     if "reshape" in text or "size" in text:
         return "a section holds fewer or more numbers than its header announces" + at
     return "it is corrupted or not in this format" + at
+
+
+def whole_rows(name: str, data) -> None:
+    """A block of a fixed-size meshio type lists that many nodes per cell (a reader that lost a
+    card's continuation line gives hexahedra of 6 nodes). Blocks of meshio's readers only: where
+    meshio is not loaded, our own readers made them, whole (and meshio stays unloaded)."""
+    common = sys.modules.get("meshio._common")
+    if common is None:
+        return
+    want = common.num_nodes_per_cell.get(name)
+    got = np.shape(data)[1] if np.ndim(data) == 2 else None
+    if want is not None and len(data) and got != want:
+        raise MeshError(
+            f"its {name} cells list {got if got is not None else 'differing numbers of'} nodes each, where a "
+            f"{name} has {want}: the file is corrupted, or its element cards go on over lines in a way the "
+            "reader does not follow"
+        )

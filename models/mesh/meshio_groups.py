@@ -109,3 +109,12 @@ def _set_dims(groups: dict, tags: list, dims: list) -> dict:
         if dim is not None:
             out[name] = np.array([gid, dim])
     return out
+
+
+def zero_on_elements(arrays: list, blocks: list, top: int) -> bool:
+    """The tag array is 0 on every element (cell of the top dimension) while the boundary's cells
+    carry others: a writer's "no group" for the elements (gmsh's SU2 export: su2:tag 0 on every
+    volume cell, its markers on the faces), not one group 0 over the whole mesh."""
+    elem = [np.asarray(arrays[i]) for i, _n, _v, tdim, data in blocks if tdim == top and len(data)]
+    lower = [np.asarray(arrays[i]) for i, _n, _v, tdim, data in blocks if tdim < top and len(data)]
+    return bool(elem) and not any(t.any() for t in elem) and any(t.any() for t in lower)

@@ -41,6 +41,8 @@ from models.mesh.meshio_files import MESHIO_TYPES as _TYPES
 from models.mesh.meshio_files import found as _found
 from models.mesh.meshio_files import known_type as _known
 from models.mesh.meshio_files import read_meshio as _read_meshio
+from models.mesh.meshio_files import whole_rows
+from models.mesh.meshio_groups import zero_on_elements
 
 # extension -> the reader family that serves it (docs/formats.md); any other meshio extension: meshio
 _VTK_XML = (
@@ -562,23 +564,6 @@ def default_memory() -> int:
         return 16 << 30
 
 
-def _whole_rows(name: str, data) -> None:
-    """A block of a fixed-size meshio type lists that many nodes per cell (a reader that lost a
-    card's continuation line gives hexahedra of 6 nodes). Blocks of meshio's readers only: where
-    meshio is not loaded, our own readers made them, whole (and meshio stays unloaded)."""
-    common = sys.modules.get("meshio._common")
-    if common is None:
-        return
-    want = common.num_nodes_per_cell.get(name)
-    got = np.shape(data)[1] if np.ndim(data) == 2 else None
-    if want is not None and len(data) and got != want:
-        raise MeshError(
-            f"its {name} cells list {got if got is not None else 'differing numbers of'} nodes each, where a "
-            f"{name} has {want}: the file is corrupted, or its element cards go on over lines in a way the "
-            "reader does not follow"
-        )
-
-
 def mesh_from_meshio(
     m, physical_tag: str | None = None, weld: float | None = None, owned: bool = False
 ) -> Mesh:
@@ -595,13 +580,13 @@ def mesh_from_meshio(
                 f"it holds cells of a type that cannot be agglomerated ({name}, as meshio names it)"
             )
         vtk, tdim, _ = _TYPES[name]
-        _whole_rows(name, block.data)
+        whole_rows(name, block.data)
         blocks.append((i, name, vtk, tdim, block.data))
     tag_key = _find_tag_key(m.cell_data, physical_tag)
     top = max((b[3] for b in blocks if len(b[4])), default=0)
     bnd_key = BOUNDARY_TAG_NAME if BOUNDARY_TAG_NAME in m.cell_data else tag_key
     elem_key = tag_key
-    if tag_key is not None and physical_tag is None and _zero_on_elements(m.cell_data[tag_key], blocks, top):
+    if tag_key is not None and physical_tag is None and zero_on_elements(m.cell_data[tag_key], blocks, top):
         elem_key = None  # (0 on every element: no groups, as gmsh's 0; the boundary's tags stay)
     cells = []
     for i, name, _vtk, tdim, data in blocks:
@@ -633,15 +618,6 @@ def mesh_from_arrays(points, cells, tags=None) -> Mesh:
     return mesh_from_blocks(
         np.asarray(points, dtype=np.float64), blocks, tag_name=None if tags is None else "tags"
     )
-
-
-def _zero_on_elements(arrays: list, blocks: list, top: int) -> bool:
-    """The tag array is 0 on every element (cell of the top dimension) while the boundary's cells
-    carry others: a writer's "no group" for the elements (gmsh's SU2 export: su2:tag 0 on every
-    volume cell, its markers on the faces), not one group 0 over the whole mesh."""
-    elem = [np.asarray(arrays[i]) for i, _n, _v, tdim, data in blocks if tdim == top and len(data)]
-    lower = [np.asarray(arrays[i]) for i, _n, _v, tdim, data in blocks if tdim < top and len(data)]
-    return bool(elem) and not any(t.any() for t in elem) and any(t.any() for t in lower)
 
 
 def _find_tag_key(cell_data: dict, physical_tag: str | None) -> str | None:

@@ -28,6 +28,7 @@ from models.mesh.vtk_setup import (
     _exodus_names,
     _fluent_cell_zones_only,
     _foam_place,
+    _names_of_tags,
     _openfoam_mesh_only,
     _part_names,
     _plot3d_layout,
@@ -285,26 +286,6 @@ def mesh_of_cells(pts, norm: Normalized, tag_key, weld, meta: dict, grid, field:
     )
     mesh.meta["group_names"], mesh.meta["boundary_names"] = group_names(field, mesh.dim)
     return mesh
-
-
-def _names_of_tags(names: dict, cell_data: dict, physical_tag: str | None) -> dict:
-    """Block names ({name: [block number, dim]}) as names of the groups the mesh will have: as they
-    are where the blocks are the groups ("block"); where another tag array is taken (a zone's cells
-    tagged gmsh:physical), each name goes to the one tag its block's cells carry, and a name whose
-    block holds several tags, or none, is left out (matched by position it named the wrong group)."""
-    key = physical_tag if physical_tag in cell_data else next((k for k in TAG_NAMES if k in cell_data), None)
-    if key in (None, "block"):
-        return names
-    block, tags = cell_data.get("block"), cell_data.get(key)
-    if block is None or tags is None or len(block) != len(tags):
-        return {}
-    block, tags = np.asarray(block).reshape(-1), np.asarray(tags).reshape(-1)
-    out = {}
-    for name, (b, dim) in names.items():  # (a loop over the named blocks: a few)
-        held = np.unique(tags[block == b])
-        if held.size == 1 and float(held[0]).is_integer():
-            out[name] = np.array([int(held[0]), int(dim)])
-    return out
 
 
 def _tag_key(cell_data: dict, physical_tag: str | None) -> str | None:

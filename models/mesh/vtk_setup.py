@@ -1,13 +1,16 @@
 """How VTK's readers are set up for a format (models.mesh.vtk_readers runs them), and what their
 outputs and messages say beyond the arrays: PLOT3D's ASCII layout, an OpenFOAM case's mesh only,
 Fluent's cell zones only, Exodus blocks' and sets' and EnSight parts' names, an OpenFOAM file's
-place in VTK's error text. numpy and the standard library only (the reader objects come in)."""
+place in VTK's error text; block names given to the groups the cells carry. numpy, the standard library and
+models.mesh.cells' tag names only (the reader objects come in)."""
 
 from __future__ import annotations
 
 import re
 
 import numpy as np
+
+from models.mesh.cells import TAG_NAMES
 
 
 def _exodus_names(data) -> dict:
@@ -42,6 +45,26 @@ def _part_names(data) -> dict:
             if name:
                 out[str(name).strip()] = np.array([block, ds.GetCell(0).GetCellDimension()])
         it.GoToNextItem()
+    return out
+
+
+def _names_of_tags(names: dict, cell_data: dict, physical_tag: str | None) -> dict:
+    """Block names ({name: [block number, dim]}) as names of the groups the mesh will have: as they
+    are where the blocks are the groups ("block"); where another tag array is taken (a zone's cells
+    tagged gmsh:physical), each name goes to the one tag its block's cells carry, and a name whose
+    block holds several tags, or none, is left out (matched by position it named the wrong group)."""
+    key = physical_tag if physical_tag in cell_data else next((k for k in TAG_NAMES if k in cell_data), None)
+    if key in (None, "block"):
+        return names
+    block, tags = cell_data.get("block"), cell_data.get(key)
+    if block is None or tags is None or len(block) != len(tags):
+        return {}
+    block, tags = np.asarray(block).reshape(-1), np.asarray(tags).reshape(-1)
+    out = {}
+    for name, (b, dim) in names.items():  # (a loop over the named blocks: a few)
+        held = np.unique(tags[block == b])
+        if held.size == 1 and float(held[0]).is_integer():
+            out[name] = np.array([int(held[0]), int(dim)])
     return out
 
 
