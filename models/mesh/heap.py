@@ -10,8 +10,8 @@ one): 15-30% of a sandboxed read. `keep` tells malloc, once per process, to serv
 MMAP_THRESHOLD from its heap (glibc's own dynamic threshold stops at the same 32 MiB on 64-bit
 systems) and to keep TOP_PAD at the heap's top when it trims, so a read reuses the pages of the one
 before. The cost: up to TOP_PAD (64 MiB) of freed memory the process keeps instead of returning
-it. Applied by `sandbox.read_mesh_safe` (the service, the workers, the CLI); MAGNET_READ_HEAP=0
-leaves malloc as it is. Only glibc has `mallopt`: elsewhere nothing changes.
+it. Applied by `sandbox.read_mesh_safe` (the service, the workers, the CLI, the Python API), its
+in-process reads too; MAGNET_READ_HEAP=0 leaves malloc as it is. Only glibc has `mallopt`: elsewhere nothing changes.
 """
 
 from __future__ import annotations
