@@ -229,6 +229,15 @@ def _uncompressed(tmp: str, n: int, p, h, p2, tets) -> list[tuple[str, str, int]
     ]
 
 
+def _keep_heap() -> None:
+    """The process's heap kept between reads, as every read of ours keeps it (the CLI's and the
+    API's in-process reads, the sandbox's parent: models.mesh.heap); VTK's side shares the malloc
+    (MAGNET_READ_HEAP=0: both without)."""
+    from models.mesh import heap
+
+    heap.keep()
+
+
 def _cold_one(which: str, path: str, small: str) -> None:
     """(--one) In this fresh process: imports, a read of the tiny `small` file, then the timed first
     read of `path` by `which` (vtk or ours); prints its seconds."""
@@ -236,12 +245,8 @@ def _cold_one(which: str, path: str, small: str) -> None:
 
     import models.mesh.read  # noqa: F401
     import models.mesh.vtk_readers  # noqa: F401
-    from models.mesh import heap
 
-    # the process's heap kept between reads, as every read of ours keeps it (the CLI's and the
-    # API's in-process reads, the sandbox's parent: models.mesh.heap); VTK's side shares the malloc
-    # (MAGNET_READ_HEAP=0: both without)
-    heap.keep()
+    _keep_heap()
 
     os.environ["MAGNET_READ_SANDBOX"] = "0"
     side = vtk_side if which == "vtk" else ours
@@ -293,12 +298,8 @@ def main() -> None:
 
     import models.mesh.read  # noqa: F401
     import models.mesh.vtk_readers  # noqa: F401
-    from models.mesh import heap
 
-    # the process's heap kept between reads, as every read of ours keeps it (the CLI's and the
-    # API's in-process reads, the sandbox's parent: models.mesh.heap); VTK's side shares the malloc
-    # (MAGNET_READ_HEAP=0: both without)
-    heap.keep()
+    _keep_heap()
 
     with tempfile.TemporaryDirectory() as tmp:
         files = corpus(tmp, args.n, every=args.all)

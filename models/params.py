@@ -164,18 +164,21 @@ _FIELDS = (*SIZES, "model", "mode", "subset", "refiner", "options")
 _FIELD_RE = re.compile(r"^(options\.[a-z_]+|[a-z_]+)\b")
 
 
+def _two_sizes(given: list[str], why: str = "") -> ParameterError:
+    """The refusal of two size parameters, naming one of them as its field (the later in k, nref,
+    target_size, mult_factor)."""
+    two = ParameterError(f"give one size parameter, not {' and '.join(given)}{why}")
+    two.field = given[1]
+    return two
+
+
 def infer_mode(params: dict) -> str:
     """The mode of a job that names none: the one its size parameter implies (k: kway, nref: nref,
     target_size: target-size, mult_factor: mult-factor; with a subset: coarsen); kway when none is
     given. Two size parameters are refused (ParameterError)."""
     given = [s for s in SIZES if params.get(s) is not None]
     if len(given) > 1:
-        two = ParameterError(
-            f"give one size parameter, not {' and '.join(given)}: each one chooses the number of elements "
-            "its own way"
-        )
-        two.field = given[1]  # (one of them to name: the later in k, nref, target_size, mult_factor)
-        raise two
+        raise _two_sizes(given, ": each one chooses the number of elements its own way")
     if params.get("subset") is not None:
         return "coarsen"
     return _MODE_OF_SIZE[given[0]] if given else "kway"
@@ -250,9 +253,7 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
         takes = " or ".join(MODE_SIZES[mode])
         raise ParameterError(f"{wrong[0]} does not go with mode {mode!r}, which takes {takes}")
     if len(given) > 1:
-        two = ParameterError(f"give one size parameter, not {' and '.join(given)}")
-        two.field = given[1]  # (one of them to name: the later in k, nref, target_size, mult_factor)
-        raise two
+        raise _two_sizes(given)
     if mode == "multilevel" and all(v is None for v in (nref, target_size, mult_factor)):
         raise ParameterError("mode 'multilevel' needs one of nref, target_size, mult_factor")
     opts = params.get("options") or {}

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from models.errors import MeshError
+from models.errors import MeshError, ParameterError
 from models.mesh.container import (
     VTK_HEXAHEDRON,
     VTK_LINE,
@@ -49,6 +49,20 @@ TAG_NAMES = (
     "nastran:ref",  # Nastran's property id of each element (PSOLID / PSHELL: its material)
 )
 BOUNDARY_TAG_NAME = "boundary_tag"  # boundary groups of lower-dimensional cells, as models.vtu writes them
+
+
+def find_tag_key(cell_data: dict, physical_tag: str | None) -> str | None:
+    """The cell-data name holding the physical groups: physical_tag (ParameterError where the mesh
+    has none of that name), else the first of TAG_NAMES the mesh has, else None."""
+    if physical_tag is not None:
+        if physical_tag not in cell_data:
+            raise ParameterError(
+                f"physical tag {physical_tag!r} not found in the mesh cell data; available: {', '.join(sorted(cell_data)) or 'none'}"
+            )
+        return physical_tag
+    return next((k for k in TAG_NAMES if k in cell_data), None)
+
+
 VTK_POLY_VERTEX = 2
 VTK_POLY_LINE = 4
 VTK_TRIANGLE_STRIP = 6

@@ -340,13 +340,7 @@ def first_match(path: str, pattern: re.Pattern) -> str | None:
 
 def found(path: str, pattern: re.Pattern) -> bool:
     """The bytes pattern occurs in the file (one pass over its mapping; an empty file: no)."""
-    import mmap
-
-    with open(path, "rb") as fh:
-        if os.fstat(fh.fileno()).st_size == 0:
-            return False
-        with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as mm:
-            return pattern.search(mm) is not None
+    return first_match(path, pattern) is not None
 
 
 _LINE = re.compile(r"\bline\s+(\d+)", re.IGNORECASE)

@@ -17,10 +17,10 @@ from itertools import chain
 
 import numpy as np
 
-from models.errors import MeshError, ParameterError
+from models.errors import MeshError
 from models.mesh import case_files
 from models.mesh.build import MIRROR, _bounds, mesh_from_cells, weld_points  # noqa: F401 (MIRROR, weld_points: API)
-from models.mesh.cells import BOUNDARY_TAG_NAME, TAG_NAMES, distinct_nodes, higher_order_line
+from models.mesh.cells import BOUNDARY_TAG_NAME, distinct_nodes, find_tag_key, higher_order_line
 from models.mesh.container import (
     CELL_TYPE_NAMES,
     VTK_POLYGON,
@@ -582,11 +582,15 @@ def mesh_from_meshio(
         vtk, tdim, _ = _TYPES[name]
         whole_rows(name, block.data)
         blocks.append((i, name, vtk, tdim, block.data))
-    tag_key = _find_tag_key(m.cell_data, physical_tag)
+    groups_key = find_tag_key(m.cell_data, physical_tag)
     top = max((b[3] for b in blocks if len(b[4])), default=0)
-    bnd_key = BOUNDARY_TAG_NAME if BOUNDARY_TAG_NAME in m.cell_data else tag_key
-    elem_key = tag_key
-    if tag_key is not None and physical_tag is None and zero_on_elements(m.cell_data[tag_key], blocks, top):
+    bnd_key = BOUNDARY_TAG_NAME if BOUNDARY_TAG_NAME in m.cell_data else groups_key
+    elem_key = groups_key
+    if (
+        groups_key is not None
+        and physical_tag is None
+        and zero_on_elements(m.cell_data[groups_key], blocks, top)
+    ):
         elem_key = None  # (0 on every element: no groups, as gmsh's 0; the boundary's tags stay)
     cells = []
     for i, name, _vtk, tdim, data in blocks:
@@ -618,19 +622,6 @@ def mesh_from_arrays(points, cells, tags=None) -> Mesh:
     return mesh_from_blocks(
         np.asarray(points, dtype=np.float64), blocks, tag_name=None if tags is None else "tags"
     )
-
-
-def _find_tag_key(cell_data: dict, physical_tag: str | None) -> str | None:
-    if physical_tag is not None:
-        if physical_tag not in cell_data:
-            raise ParameterError(
-                f"physical tag {physical_tag!r} not found in the mesh cell data; available: {', '.join(sorted(cell_data)) or 'none'}"
-            )
-        return physical_tag
-    for key in TAG_NAMES:
-        if key in cell_data:
-            return key
-    return None
 
 
 def _csr_from_blocks(blocks, owned: bool = False):

@@ -20,8 +20,14 @@ import re
 
 import numpy as np
 
-from models.errors import MeshError, ParameterError
-from models.mesh.cells import BOUNDARY_TAG_NAME, TAG_NAMES, Normalized, normalize, with_boundary_faces
+from models.errors import MeshError
+from models.mesh.cells import (
+    BOUNDARY_TAG_NAME,
+    Normalized,
+    find_tag_key,
+    normalize,
+    with_boundary_faces,
+)
 from models.mesh.convex_sets import VTK_CONVEX_POINT_SET, as_polyhedra
 from models.mesh.vtk_arrays import _arrays, _cell_data, _field_data, _np, _openfoam, hidden_cells
 from models.mesh.vtk_setup import (
@@ -225,7 +231,7 @@ def read_vtk(
             f"cannot read {os.path.basename(path)} as {fmt}: it holds no cells "
             f"(is it truncated, or not {article(what)} file?)"
         )
-    tag_key = _tag_key(cell_data, physical_tag)
+    tag_key = find_tag_key(cell_data, physical_tag)
     tags = None if tag_key is None else _int_tags(cell_data[tag_key], len(types))
     btags = cell_data.get(BOUNDARY_TAG_NAME)
     btags = None if btags is None else _int_tags(btags, len(types))
@@ -286,16 +292,6 @@ def mesh_of_cells(pts, norm: Normalized, tag_key, weld, meta: dict, grid, field:
     )
     mesh.meta["group_names"], mesh.meta["boundary_names"] = group_names(field, mesh.dim)
     return mesh
-
-
-def _tag_key(cell_data: dict, physical_tag: str | None) -> str | None:
-    if physical_tag is not None:
-        if physical_tag not in cell_data:
-            raise ParameterError(
-                f"physical tag {physical_tag!r} not found in the mesh cell data; available: {', '.join(sorted(cell_data)) or 'none'}"
-            )
-        return physical_tag
-    return next((k for k in TAG_NAMES if k in cell_data), None)
 
 
 def _int_tags(a: np.ndarray, n: int) -> np.ndarray | None:
@@ -816,7 +812,7 @@ def _image_mesh(data, physical_tag, meta: dict, path: str | None = None):
         return None
     cell_data = _cell_data(data)
     n = (ext[1] - ext[0]) * (ext[3] - ext[2]) * (ext[5] - ext[4])
-    tag_key = _tag_key(cell_data, physical_tag)
+    tag_key = find_tag_key(cell_data, physical_tag)
     tags = None if tag_key is None else _int_tags(cell_data[tag_key], n)
     return mesh_of_image(data.GetOrigin(), data.GetSpacing(), ext, tags, tag_key, meta, _field_data(data))
 

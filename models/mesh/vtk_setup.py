@@ -1,8 +1,8 @@
 """How VTK's readers are set up for a format (models.mesh.vtk_readers runs them), and what their
 outputs and messages say beyond the arrays: PLOT3D's ASCII layout, an OpenFOAM case's mesh only,
 Fluent's cell zones only, Exodus blocks' and sets' and EnSight parts' names, an OpenFOAM file's
-place in VTK's error text; block names given to the groups the cells carry. numpy, the standard library and
-models.mesh.cells' tag names only (the reader objects come in)."""
+place in VTK's error text; block names given to the groups the cells carry. numpy, the standard
+library and models.mesh.cells only (the reader objects come in)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,8 @@ import re
 
 import numpy as np
 
-from models.mesh.cells import TAG_NAMES
+from models.errors import ParameterError
+from models.mesh.cells import find_tag_key
 
 
 def _exodus_names(data) -> dict:
@@ -49,11 +50,16 @@ def _part_names(data) -> dict:
 
 
 def _names_of_tags(names: dict, cell_data: dict, physical_tag: str | None) -> dict:
-    """Block names ({name: [block number, dim]}) as names of the groups the mesh will have: as they
-    are where the blocks are the groups ("block"); where another tag array is taken (a zone's cells
-    tagged gmsh:physical), each name goes to the one tag its block's cells carry, and a name whose
-    block holds several tags, or none, is left out (matched by position it named the wrong group)."""
-    key = physical_tag if physical_tag in cell_data else next((k for k in TAG_NAMES if k in cell_data), None)
+    """Block names ({name: [block number, dim]}) as names of the groups the mesh will have (its tag
+    array: models.mesh.cells.find_tag_key): as they are where the blocks are the groups ("block");
+    where another tag array is taken (a zone's cells tagged gmsh:physical), each name goes to the one
+    tag its block's cells carry, and a name whose block holds several tags, or none, is left out
+    (matched by position it named the wrong group). A physical_tag the mesh lacks: no names (the
+    reader refuses it where it takes the tags)."""
+    try:
+        key = find_tag_key(cell_data, physical_tag)
+    except ParameterError:
+        return {}
     if key in (None, "block"):
         return names
     block, tags = cell_data.get("block"), cell_data.get(key)

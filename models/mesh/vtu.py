@@ -138,7 +138,8 @@ def read_vtu_mixed(path: str | os.PathLike):
 # The common VTU layout, read without meshio's XML tree (what meshio.read of a large file spends
 # beside decoding): one Piece, inline base64 "binary" DataArrays, zlib-compressed or not, cells of
 # fixed-size types that meshio keeps in VTK's node order (in runs of one type: meshio's blocks), no
-# point or field data. Any other file (or anything unexpected) gives None, and meshio reads it. The arrays are those meshio.read gives.
+# point or field data. Any other file (or anything unexpected) gives None, and meshio reads it. The
+# arrays are those meshio.read gives.
 _SIMPLE_CELLS = {5: ("triangle", 3), 9: ("quad", 4), 10: ("tetra", 4), 12: ("hexahedron", 8)}
 _ATTR = re.compile(rb'([A-Za-z_][-\w.:]*)\s*=\s*"([^"<&]*)"')
 _SECTIONS = {b"Points", b"Cells", b"CellData", b"PointData"}
@@ -264,11 +265,8 @@ def _simple_vtu(data: bytes):
         if conn.shape != (k * n_cells,) or not np.array_equal(offsets, np.arange(k, k * n_cells + 1, k)):
             return None
     else:
-        widths = np.array([_SIMPLE_CELLS[t][1] for _, _, t in runs], dtype=np.int64)
-        ends = np.cumsum([(e - s) * w for (s, e, _), w in zip(runs, widths, strict=True)])
-        if conn.shape != (int(ends[-1]),) or not np.array_equal(
-            offsets, np.cumsum(np.repeat(widths, [e - s for s, e, _ in runs]))
-        ):
+        widths = np.repeat([_SIMPLE_CELLS[t][1] for _, _, t in runs], [e - s for s, e, _ in runs])
+        if conn.shape != (int(widths.sum()),) or not np.array_equal(offsets, np.cumsum(widths)):
             return None
     cell_data = {}
     if any(a.get(b"Name") == b"vtkGhostType" for a, _ in sections.get(b"CellData", ())):

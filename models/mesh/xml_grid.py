@@ -27,11 +27,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from models.errors import MeshError
+from models.mesh.cells import find_tag_key
 from models.mesh.container import Mesh
 from models.mesh.formats import extension
 from models.mesh.lattice import check_image_geometry, grid_points, image_axes, image_points, structured_cells
 from models.mesh.mapped import file_bytes, owned
-from models.mesh.vtk_readers import READERS, _int_tags, _lattice_cells, _tag_key, mesh_of_cells, mesh_of_image
+from models.mesh.vtk_readers import READERS, _int_tags, _lattice_cells, mesh_of_cells, mesh_of_image
 from models.mesh.vtu import (
     _NP_TYPES,
     _appended,
@@ -110,7 +111,7 @@ def _build(grid: _Grid, physical_tag, weld) -> Mesh | None:
     image = grid.kind == ".vti"
     if image and weld is None:  # _image_mesh: the header's origin and spacing are VTK's (plain numbers)
         check_image_geometry(grid.origin, grid.spacing, live)
-    tag_key = _tag_key(grid.cells, physical_tag)
+    tag_key = find_tag_key(grid.cells, physical_tag)
     tags = None
     if tag_key is not None:
         try:
