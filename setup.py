@@ -1,7 +1,7 @@
 """Build hook for the compiled modules (everything else is in pyproject.toml).
 
 models/quality/_fastmetrics.c holds compiled helpers of models/quality/ (the 3D inscribed-ball search,
-the 3D geometry, enclosing balls, partition statistics); models/graph/_fastgraph.c graph helpers of the
+and in the same module _fastcircle.c the 2D one; the 3D geometry, enclosing balls, partition statistics); models/graph/_fastgraph.c graph helpers of the
 rtree partitioner and the 2D merge (the halving steps of the cuts, connected pieces, coarse-graph
 edges, boundary loops); models/mesh/_fastmesh.c the read stage's validation (measures of fixed-size
 cells and polygons, the orientation check; in the same module, _fastfaces.c its face check, _fastascii.c
@@ -16,7 +16,7 @@ setup(
     ext_modules=[
         Extension(
             "models.quality._fastmetrics",
-            ["models/quality/_fastmetrics.c"],
+            ["models/quality/_fastmetrics.c", "models/quality/_fastcircle.c"],
             depends=["models/_buffers.h"],
             include_dirs=["models"],
             extra_compile_args=["-O3", "-fno-math-errno"],

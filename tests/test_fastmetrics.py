@@ -1,5 +1,6 @@
-"""The compiled 3D inscribed-ball search (models/quality/_fastmetrics.c) against closed forms, against the
-numpy search it replaces (both certified to rel_tol x diameter), and its fallbacks."""
+"""The compiled inscribed-ball searches (models/quality/_fastmetrics.c in 3D, _fastcircle.c in 2D)
+against closed forms, against the numpy search they replace (both certified to rel_tol x diameter),
+and their fallbacks."""
 
 from __future__ import annotations
 
@@ -7,7 +8,18 @@ import math
 
 import numpy as np
 import pytest
-from test_metrics import R_L, SQ2, cube, l_prism, point_tri_dist, poly3d, tetra
+from test_metrics import (
+    R_L,
+    SQ2,
+    cube,
+    inside_even_odd,
+    l_prism,
+    point_tri_dist,
+    poly2d,
+    poly3d,
+    seg_dist,
+    tetra,
+)
 
 import models.quality.inscribed as _inscribed_module
 from models.quality.distance import _inside_bruteforce
@@ -21,6 +33,7 @@ def test_the_compiled_search_is_built():
     assert _compiled() is not None, (
         "models/quality/_fastmetrics.c was not compiled: reinstall (pip install -e .)"
     )
+    assert hasattr(_compiled(), "inscribed2d"), "_fastmetrics was built without _fastcircle.c"
 
 
 @pytest.mark.parametrize("method", ["bnb", "bnb-numpy"])
@@ -116,11 +129,99 @@ def test_without_the_compiled_module(monkeypatch):
     assert np.all(np.abs(r - ref) <= 1e-3 * element_diameters(poly) + 1e-12)
 
 
+def _jagged_2d(n=40, seed=0, parts=25):
+    """Agglomerates of a triangulated square with four holes cut out of it (cells whose centroid
+    lies in a disc dropped): staircase (reflex) boundaries, and elements with a hole of their own
+    (each fine cell to its nearest seed under a wavy metric; no hole policy applied)."""
+    from meshes import triangles
+
+    from models.mesh.read import mesh_from_arrays
+    from models.pipeline import prepare
+    from models.polytope.merge import merge
+
+    p, t = triangles(n)
+    c = p[t].mean(axis=1)
+    holes = np.array([[0.3, 0.3], [0.7, 0.3], [0.3, 0.7], [0.7, 0.72]])
+    t = t[(((c[:, None, :] - holes[None]) ** 2).sum(-1) > 0.09**2).all(axis=1)]
+    m = mesh_from_arrays(p, [("triangle", t)])
+    g, d = prepare(m)
+    c = d.centroids[:, :2]
+    rng = np.random.default_rng(seed)
+    seeds = rng.random((parts, 2))
+    w = c + 0.05 * np.sin(11 * c[:, [1, 0]])
+    labels = np.argmin(((w[:, None, :] - seeds[None]) ** 2).sum(-1), axis=1)
+    labels = np.unique(labels, return_inverse=True)[1]
+    poly, _ = merge(m, g, labels, d.measures)
+    return poly
+
+
+def _certify_2d(poly, centres, radii):
+    """Each centre is inside its element (even-odd over all its loops, so not in a hole) and its
+    exact distance to the element's boundary segments is the radius."""
+    g = _prepare(poly)
+    for e in range(g.n):
+        s = g.prim[g.prim_ptr[e] : g.prim_ptr[e + 1]]
+        a, b = s[:, 0], s[:, 1]
+        x = centres[e][None]
+        assert np.isfinite(x).all()
+        assert seg_dist(x, a, b)[0] == pytest.approx(radii[e], rel=1e-9, abs=1e-15)
+        assert inside_even_odd(x, a, b)[0]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_2d_compiled_and_numpy_searches_agree_on_jagged_agglomerates(seed):
+    poly = _jagged_2d(seed=seed)
+    g = _prepare(poly)
+    assert (g.n_loops > 1).any()  # elements with a hole are searched too
+    eps = 1e-3 * element_diameters(poly)
+    c1, r1 = largest_inscribed_ball(poly, method="bnb")
+    c2, r2 = largest_inscribed_ball(poly, method="bnb-numpy")
+    assert np.all(r1 > 0)
+    assert np.all(np.abs(r1 - r2) <= eps + 1e-12)
+    _certify_2d(poly, c1, r1)
+    # against a fine grid of interior points: the true radius is at least the grid's best
+    for e in range(0, g.n, 5):
+        s = g.prim[g.prim_ptr[e] : g.prim_ptr[e + 1]]
+        lo, hi = g.bbox_lo[e], g.bbox_hi[e]
+        h = 2e-3
+        xs, ys = np.meshgrid(np.arange(lo[0], hi[0], h), np.arange(lo[1], hi[1], h))
+        x = np.column_stack([xs.ravel(), ys.ravel()])
+        x = x[inside_even_odd(x, s[:, 0], s[:, 1])]
+        grid = seg_dist(x, s[:, 0], s[:, 1]).max()
+        assert grid - eps[e] - 1e-12 <= r1[e] <= grid + h / SQ2 + 1e-12
+
+
+def test_2d_channel_between_parallel_walls_is_cheap():
+    """A 1 x 40 channel with a notch (so not convex): the pairs of walls bound the ridge, so the
+    search does not refine every cell along it (the Lipschitz bound alone keeps ~40 / eps of them)."""
+    a = 40.0
+    outline = np.array([[0, 0], [a, 0], [a, 1], [a / 2 + 0.1, 1], [a / 2, 0.9], [a / 2 - 0.1, 1], [0, 1]])
+    pm = poly2d([[outline]])
+    g = _prepare(pm)
+    c, r, ev = np.full((1, 2), np.nan), np.zeros(1), np.zeros(1, dtype=np.int64)
+    _compiled().inscribed2d(
+        g.prim, g.prim_ptr, np.array([0]), g.diameter, g.bbox_lo, g.bbox_hi, 1e-5, 10**6, c, r, ev
+    )
+    assert 0.5 - 1e-5 * g.diameter[0] <= r[0] <= 0.5
+    assert ev[0] < 5000
+
+
+def test_2d_cell_budget_hands_elements_to_the_numpy_search(monkeypatch):
+    poly = _jagged_2d(seed=3)
+    _, ref = largest_inscribed_ball(poly, method="bnb")
+    monkeypatch.setattr(_inscribed_module, "_EXT_MAX_CELLS", 1)
+    c, r = largest_inscribed_ball(poly, method="bnb")
+    assert np.all(np.abs(r - ref) <= 1e-3 * element_diameters(poly) + 1e-12)
+    _certify_2d(poly, c, r)
+
+
 def test_bad_buffers_are_refused():
     ext = _compiled()
     z = np.zeros(1)
     with pytest.raises(TypeError):
         ext.inscribed(*([np.zeros(3, dtype=np.int32)] * 8), 1e-3, 10, z, z, z)
+    with pytest.raises(TypeError):
+        ext.inscribed2d(*([np.zeros(3, dtype=np.int32)] * 6), 1e-3, 10, z, z, z)
 
 
 def _two_cubes(shift):

@@ -1,6 +1,7 @@
 /* Compiled helpers of models/quality/ (each has a numpy twin there: the fallback and the
  * reference in the tests; MAGNET_NO_COMPILED=1 switches them off):
- *   inscribed        the 3D largest-inscribed-ball search (below);
+ *   inscribed        the 3D largest-inscribed-ball search (below); inscribed2d the 2D one
+ *                    (_fastcircle.c, in this module);
  *   fan3d            _prepare's 3D geometry in one pass per element (triangles in Morton order,
  *                    neighbours across edges, distinct vertices, boxes, area, volume);
  *   farthest_pairs   diameters; locally_convex: convex elements without hulls; tri_table: the
@@ -1163,7 +1164,12 @@ static PyObject *py_partition_stats(PyObject *self, PyObject *args) {
     return Py_BuildValue("(LL)", (long long)(cut2 / 2), (long long)comps);
 }
 
+PyObject *py_inscribed2d(PyObject *self, PyObject *args); /* _fastcircle.c */
+
 static PyMethodDef methods[] = {
+    {"inscribed2d", py_inscribed2d, METH_VARARGS,
+     "inscribed2d(prim, prim_ptr, elems, diameter, bbox_lo, bbox_hi, rel_tol, max_cells, centres, radius, "
+     "evals): largest inscribed circles of the 2D elements `elems` (see _fastcircle.c)."},
     {"inscribed", py_inscribed, METH_VARARGS,
      "inscribed(table, tri_adj, prim_ptr, elems, diameter, bbox_lo, bbox_hi, orient, rel_tol, "
      "max_cells, centres, radius, evals): largest inscribed balls of the 3D elements `elems` "

@@ -1,5 +1,6 @@
 """The largest inscribed ball of every element: exact linear program for convex elements, branch and
-bound certified to `rel_tol * diameter` otherwise (compiled in models/quality/_fastmetrics.c, numpy here)."""
+bound certified to `rel_tol * diameter` otherwise (compiled in models/quality/_fastmetrics.c (3D) and
+_fastcircle.c (2D), numpy here)."""
 
 from __future__ import annotations
 
@@ -24,44 +25,37 @@ def _inscribed_lp(g: _Geometry, elems: np.ndarray):
     elems = np.asarray(elems, dtype=np.int64)
     if elems.size == 0:
         return centres, radius
-    rows, cols, vals, rhs = [], [], [], []
-    shift = np.empty((elems.size, d))
-    scale = np.empty(elems.size)
-    r0 = 0
-    for i, e in enumerate(elems):
-        eq = g.hull_eq[e]
-        m = g.hull_pts[e].mean(0)
-        s = g.diameter[e]
-        shift[i], scale[i] = m, s
-        nrm = eq[:, :d]
-        b = (eq[:, d] + nrm @ m) / s  # n.x' + b' <= 0 in the shifted/scaled frame
-        f = eq.shape[0]
-        rr = np.repeat(np.arange(r0, r0 + f), d + 1)
-        cc = np.tile(np.arange(i * (d + 1), (i + 1) * (d + 1)), f)
-        vv = np.column_stack([nrm, np.ones(f)]).ravel()
-        rows.append(rr)
-        cols.append(cc)
-        vals.append(vv)
-        rhs.append(-b)
-        r0 += f
+    eqs = [g.hull_eq[e] for e in elems]
+    pts = [g.hull_pts[e] for e in elems]
+    nf = np.fromiter((q.shape[0] for q in eqs), dtype=np.int64, count=elems.size)
+    npt = np.fromiter((p.shape[0] for p in pts), dtype=np.int64, count=elems.size)
+    eq = np.concatenate(eqs)
+    row = np.repeat(np.arange(elems.size), nf)  # the element (position in elems) of each facet
+    shift = np.add.reduceat(np.concatenate(pts), np.cumsum(npt) - npt, axis=0) / npt[:, None]
+    scale = g.diameter[elems]
+    nrm = eq[:, :d]
+    # n.x' + b' <= 0 in each element's shifted / scaled frame
+    b = (eq[:, d] + np.einsum("ij,ij->i", nrm, shift[row])) / scale[row]
+    f = eq.shape[0]
+    rr = np.repeat(np.arange(f), d + 1)
+    cc = (row[:, None] * (d + 1) + np.arange(d + 1)[None, :]).ravel()
+    vv = np.column_stack([nrm, np.ones(f)]).ravel()
     nv = elems.size * (d + 1)
-    A = sparse.csr_matrix(
-        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(r0, nv)
-    )
+    A = sparse.csr_matrix((vv, (rr, cc)), shape=(f, nv))
     c = np.zeros(nv)
     c[d :: d + 1] = -1.0
     bounds = [(None, None)] * d + [(0, None)]
     from scipy.optimize import linprog  # lazy: scipy.optimize takes most of a second to import
 
-    res = linprog(c, A_ub=A, b_ub=np.concatenate(rhs), bounds=bounds * elems.size, method="highs")
+    res = linprog(c, A_ub=A, b_ub=-b, bounds=bounds * elems.size, method="highs")
     if res.status != 0 or res.x is None:  # pragma: no cover - bounded and feasible by construction
         raise RuntimeError(f"Chebyshev-centre LP failed: {res.message}")
     x = res.x.reshape(elems.size, d + 1)
-    for i, e in enumerate(elems):  # radius = actual distance from the centre to the facet planes
-        cen = shift[i] + scale[i] * x[i, :d]
-        eq = g.hull_eq[e]
-        centres[e] = cen
-        radius[e] = max(0.0, float(-(eq[:, :d] @ cen + eq[:, d]).max()))
+    cen = shift + scale[:, None] * x[:, :d]
+    # radius = the actual distance from the centre to the facet planes
+    slack = -(np.einsum("ij,ij->i", nrm, cen[row]) + eq[:, d])
+    centres[elems] = cen
+    radius[elems] = np.maximum(0.0, np.minimum.reduceat(slack, np.cumsum(nf) - nf))
     return centres, radius
 
 
@@ -115,15 +109,43 @@ def _inscribed_compiled(ext, g: _Geometry, elems: np.ndarray, rel_tol: float):
         radius,
         evals,
     )
+    return _in_threads(ext.inscribed, args, elems, rest, centres, radius, evals)
+
+
+def _in_threads(fn, args, elems, rest, centres, radius, evals):
     nt = min(_threads(), max(1, elems.size // 16))
     if nt == 1:
-        ext.inscribed(*args, elems, *rest)
+        fn(*args, elems, *rest)
     else:  # interleaved shares (neighbouring elements cost alike); outputs are disjoint rows
         from concurrent.futures import ThreadPoolExecutor
 
         with ThreadPoolExecutor(nt) as pool:
-            list(pool.map(lambda k: ext.inscribed(*args, elems[k::nt].copy(), *rest), range(nt)))
+            list(pool.map(lambda k: fn(*args, elems[k::nt].copy(), *rest), range(nt)))
     return centres, radius, elems[evals[elems] < 0]
+
+
+def _inscribed_compiled_2d(ext, g: _Geometry, elems: np.ndarray, rel_tol: float):
+    """Compiled best-first search over the 2D `elems` (models/quality/_fastcircle.c), in threads as
+    in 3D. Returns centres, radii and the elements it gave up on (cell budget spent)."""
+    centres = np.full((g.n, 2), np.nan)
+    radius = np.zeros(g.n)
+    evals = np.zeros(g.n, dtype=np.int64)
+    elems = np.ascontiguousarray(elems, dtype=np.int64)
+    args = (
+        np.ascontiguousarray(g.prim, dtype=np.float64),
+        np.ascontiguousarray(g.prim_ptr, dtype=np.int64),
+    )
+    rest = (
+        np.ascontiguousarray(g.diameter, dtype=np.float64),
+        np.ascontiguousarray(g.bbox_lo, dtype=np.float64),
+        np.ascontiguousarray(g.bbox_hi, dtype=np.float64),
+        float(rel_tol),
+        _EXT_MAX_CELLS,
+        centres,
+        radius,
+        evals,
+    )
+    return _in_threads(ext.inscribed2d, args, elems, rest, centres, radius, evals)
 
 
 def _inscribed(g: _Geometry, rel_tol: float, method: str = "auto"):
@@ -134,10 +156,13 @@ def _inscribed(g: _Geometry, rel_tol: float, method: str = "auto"):
     # an element of zero measure (faces back to back) has no interior: radius 0, no centre
     flat = np.abs(g.signed_measure) <= 1e-12 * np.maximum(g.diameter, 1e-300) ** g.dim
     rest = np.flatnonzero(~convex & ~flat)
-    ext = _compiled() if g.dim == 3 and method != "bnb-numpy" else None
+    ext = _compiled() if method != "bnb-numpy" else None
+    if ext is not None and g.dim == 2 and not hasattr(ext, "inscribed2d"):
+        ext = None  # a module built before the 2D search
     if rest.size and ext is not None:
         done = rest
-        c2, r2, rest = _inscribed_compiled(ext, g, rest, rel_tol)
+        search = _inscribed_compiled if g.dim == 3 else _inscribed_compiled_2d
+        c2, r2, rest = search(ext, g, rest, rel_tol)
         centres[done], radius[done] = c2[done], r2[done]
     if rest.size:
         # elements in batches of about _BNB_BATCH_PRIMS boundary primitives: the search's per-level
@@ -162,9 +187,10 @@ def largest_inscribed_ball(
     from a linear program over the element's facet half-spaces (scipy linprog / HiGHS); the radius
     is re-measured from the returned centre, so it never exceeds the true one beyond rounding.
 
-    Other elements (or all, with method="bnb"): in 3D, the compiled best-first search of
-    models/quality/_fastmetrics.c (same certificate, octree cells, bounds from the closest triangles and
-    a small LP over each cell's corners; see that file); method="bnb-numpy", 2D, or where the
+    Other elements (or all, with method="bnb"): the compiled best-first search of
+    models/quality/_fastmetrics.c in 3D (same certificate, octree cells, bounds from the closest
+    triangles and a small LP over each cell's corners; see that file) and of _fastcircle.c in 2D
+    (quadtree cells, bounds from pairs of the closest segments); method="bnb-numpy", or where the
     module was not built (MAGNET_NO_COMPILED=1 switches it off): branch and bound on a quadtree
     (2D) / octree (3D) over the element's bounding cube, all elements at once, with exact point-to-segment /
     point-to-triangle distances (bounding-ball tree, candidate lists passed from parent to child
