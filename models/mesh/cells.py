@@ -313,8 +313,9 @@ def normalize(
     out.dim = dim
     if dim < 2:
         kinds = ", ".join(sorted({type_name(t) for t in np.unique(types)}))
+        what = "points alone" if dim == 0 else "1D meshes"  # (vertices only: no lines to speak of)
         raise MeshError(
-            f"the file holds only {types.size:,} {kinds} cells (no area or volume): 1D meshes are not "
+            f"the file holds only {types.size:,} {kinds} cells (no area or volume): {what} are not "
             "supported; give a planar (2D) or a volume (3D) mesh"
         )
     # every lower-dimensional cell is reported (not agglomerated; faces of the elements become boundary groups)

@@ -667,8 +667,10 @@ def mesh_from_blocks(
         raise MeshError("the mesh has no cells")
     dim = max(b[3] for b in nonempty)
     if dim < 2:
+        held = "line/vertex" if dim == 1 else "vertex"
         raise MeshError(
-            "1D meshes are not supported: the file holds only line/vertex cells, no 2D or 3D elements"
+            f"{'1D meshes' if dim == 1 else 'points alone'} are not supported: the file holds only {held} "
+            "cells, no 2D or 3D elements"
         )
 
     elem, bnd = [], []
