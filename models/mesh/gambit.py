@@ -46,7 +46,11 @@ REPEATED_END = re.compile(rb"(ENDOFSECTION[ \t\r]*\n)(?:[ \t\r]*ENDOFSECTION[ \t
 _SETS = re.compile(
     rb"^[ \t]*(?:ELEMENT GROUP|BOUNDARY CONDITIONS)[^\n]*\n.*?^[ \t]*ENDOFSECTION[ \t]*(?:\n|$)", re.M | re.S
 )
-_COUNTS = re.compile(rb"(NUMNP\s+NELEM\s+NGRPS\s+NBSETS[^\n]*\n\s*\d+\s+\d+\s+)\d+(\s+)\d+")
+# the header's count row: NUMNP NELEM NGRPS NBSETS NDFCD NDFVL, in any layout (meshpy writes a
+# left-aligned table, "125   384   1     0      3     3", which VTK's reader does not parse)
+_COUNTS = re.compile(
+    rb"(NUMNP\s+NELEM\s+NGRPS\s+NBSETS[^\n]*\n)[ \t]*(\d+)\s+(\d+)\s+\d+\s+\d+((?:[ \t]+\d+)*)[ \t]*\n"
+)
 _FIRST_ID = re.compile(rb"ELEMENTS/CELLS[^\n]*\n\s*(\d+)")
 
 # Gambit's face definitions per element (its node order, 0-based), by the element's VTK type as
@@ -69,7 +73,9 @@ def vtk_copy(path: str):
     what VTK reads of it, its nodes and elements: line ends and tabs as VTK's parser wants them
     (CRLF and tabs made it die), the element groups and boundary conditions left out (we read them
     from the file itself; a group or condition VTK's reader did not expect killed it: a count off
-    by one, an empty name, values after the faces) and the header's NGRPS and NBSETS set to 0,
+    by one, an empty name, values after the faces) and the header's count row rewritten in Gambit's
+    fixed columns (10 characters each: meshpy's left-aligned table made VTK's reader die) with
+    NGRPS and NBSETS 0,
     gmsh's repeated ENDOFSECTION lines made one. Yields (the copy's path, the file's own bytes):
     gambit_cells reads the groups from those, so the file is read once."""
     import shutil
@@ -82,12 +88,19 @@ def vtk_copy(path: str):
             raw = fh.read()
         data = raw.replace(b"\r\n", b"\n").replace(b"\t", b" ")
         data = _SETS.sub(b"", REPEATED_END.sub(b"ENDOFSECTION\n", data))
-        data = _COUNTS.sub(lambda m: m.group(1) + b"0" + m.group(2) + b"0", data, count=1)
+        data = _COUNTS.sub(_fixed_counts, data, count=1)
         with open(copy, "wb") as out:
             out.write(data)
         yield copy, raw
     finally:
         shutil.rmtree(folder, ignore_errors=True)
+
+
+def _fixed_counts(m) -> bytes:
+    """The count row in Gambit's own layout, each integer right-aligned in 10 characters (as VTK's
+    reader reads it), NGRPS and NBSETS 0 (vtk_copy leaves the groups and conditions out)."""
+    numbers = [m.group(2), m.group(3), b"0", b"0", *m.group(4).split()]
+    return m.group(1) + b"".join(b"%10d" % int(n) for n in numbers) + b"\n"
 
 
 def gambit_cells(data: bytes, pts, offsets, conn, types, cell_data: dict, field: dict, meta: dict):
@@ -192,7 +205,10 @@ def element_groups(data: bytes, n_cells: int, dim: int) -> tuple[np.ndarray | No
         found = True
         number, count, nflags = int(m.group(1)), int(m.group(2)), int(m.group(4))
         body = _section(data, m.end()).split()
-        ids = _ids(body[nflags:])
+        words = body[nflags:]
+        if not nflags and len(words) == count + 1 and words[0] == b"0" and first >= 0:
+            words = words[1:]  # meshpy writes Gambit's flag line ("0") under NFLAGS 0: no element id 0
+        ids = _ids(words)
         if ids is None or number < 1:
             return (
                 None,
