@@ -98,3 +98,59 @@ def test_meshpy_gambit_3d_reads(tmp_path):
     assert m.n_cells == 384
     assert np.isclose(np.abs(m.meta["measures"]).sum(), 1.0, rtol=1e-12)
     assert m.meta["group_names"] == {1: "epsilon: 1"}
+
+
+def _tetra_box(x0: float, n: int = 4):
+    import vtk
+
+    s = vtk.vtkImageData()
+    s.SetDimensions(n + 1, n + 1, n + 1)
+    s.SetSpacing(1.0 / n, 1.0 / n, 1.0 / n)
+    s.SetOrigin(x0, 0, 0)
+    t = vtk.vtkDataSetTriangleFilter()
+    t.SetInputData(s)
+    t.Update()
+    return t.GetOutput()
+
+
+def test_vtkhdf_multiblock_block_names_are_group_names(tmp_path):
+    """pyvista's MultiBlock({'steel': ..., 'rubber': ...}).save('x.vtkhdf') (vtkHDFWriter): the
+    block names were dropped (group_names {}), where the same blocks as .vtm named their groups."""
+    import vtk
+
+    mb = vtk.vtkMultiBlockDataSet()
+    for i, (name, x0) in enumerate([("steel", 0.0), ("rubber", 1.5)]):
+        mb.SetBlock(i, _tetra_box(x0))
+        mb.GetMetaData(i).Set(vtk.vtkCompositeDataSet.NAME(), name)
+    for ext, writer in ((".vtkhdf", vtk.vtkHDFWriter()), (".vtm", vtk.vtkXMLMultiBlockDataWriter())):
+        path = str(tmp_path / f"named{ext}")
+        writer.SetFileName(path)
+        writer.SetInputData(mb)
+        writer.Write()
+        m = read_mesh(path)
+        assert m.n_cells == 2 * 4**3 * 5 and np.isclose(np.abs(m.meta["measures"]).sum(), 2.0, rtol=1e-12)
+        assert {int(k): v for k, v in m.meta["group_names"].items()} == {1: "steel", 2: "rubber"}, ext
+        assert np.bincount(m.tags)[1:].tolist() == [320, 320]
+
+
+def test_vtkhdf_partitioned_collection_names_its_datasets(tmp_path):
+    """A partitioned dataset collection names its partitioned datasets; a dataset of two partitions
+    is two blocks, the second named "(2)"."""
+    import vtk
+
+    pdc = vtk.vtkPartitionedDataSetCollection()
+    for i, (name, boxes) in enumerate([("steel", [0.0]), ("rubber", [1.5, 3.0])]):
+        p = vtk.vtkPartitionedDataSet()
+        for j, x0 in enumerate(boxes):
+            p.SetPartition(j, _tetra_box(x0, 2))
+        pdc.SetPartitionedDataSet(i, p)
+        pdc.GetMetaData(i).Set(vtk.vtkCompositeDataSet.NAME(), name)
+    path = str(tmp_path / "pdc.vtkhdf")
+    w = vtk.vtkHDFWriter()
+    w.SetFileName(path)
+    w.SetInputData(pdc)
+    w.Write()
+    m = read_mesh(path)
+    assert m.n_cells == 3 * 40
+    names = {int(k): v for k, v in m.meta["group_names"].items()}
+    assert names == {1: "steel", 2: "rubber", 3: "rubber (2)"}

@@ -189,7 +189,7 @@ def read_vtk(
             field.update(_exodus_names(data))
         elif kind in ("ensight", "tecplot"):  # parts, zones: named blocks (their T="...")
             field.update(_names_of_tags(_part_names(data), cell_data, physical_tag))
-        elif kind == ".vtm" and "block" in cell_data and not repeats:  # its blocks' names
+        elif kind in (".vtm", "vtkhdf") and "block" in cell_data and not repeats:  # its blocks' names
             field.update(_names_of_tags(_part_names(data), cell_data, physical_tag))
     if kind == "cgns":  # its families (gmsh's physical groups), which VTK's reading does not show
         from models.mesh.cgns_groups import family_groups

@@ -31,8 +31,12 @@ def _exodus_names(data) -> dict:
 
 
 def _part_names(data) -> dict:
-    """An EnSight case's part descriptions as the names of its blocks (_composite numbers the
-    non-empty leaves 1, 2, ... in order): {name: [block, dim of its cells]}."""
+    """An EnSight case's part descriptions, a multiblock's block names, as the names of its blocks
+    (_composite numbers the non-empty leaves 1, 2, ... in order): {name: [block, dim of its cells]}.
+    A partitioned dataset collection (VTKHDF) names its partitioned datasets, not their partitions:
+    each partition is a block, named by its dataset ("steel", or "steel (2)" for a second one)."""
+    if data.IsA("vtkPartitionedDataSetCollection"):
+        return _collection_names(data)
     out = {}
     it = data.NewIterator()
     it.SkipEmptyNodesOn()
@@ -46,6 +50,24 @@ def _part_names(data) -> dict:
             if name:
                 out[str(name).strip()] = np.array([block, ds.GetCell(0).GetCellDimension()])
         it.GoToNextItem()
+    return out
+
+
+def _collection_names(data) -> dict:
+    """_part_names of a vtkPartitionedDataSetCollection (the names on its partitioned datasets)."""
+    out, block = {}, 0
+    for i in range(data.GetNumberOfPartitionedDataSets()):
+        pds = data.GetPartitionedDataSet(i)
+        meta = data.GetMetaData(i) if data.HasMetaData(i) else None
+        name = str(meta.Get(data.NAME())).strip() if meta is not None and meta.Has(data.NAME()) else ""
+        parts = [] if pds is None else [pds.GetPartition(j) for j in range(pds.GetNumberOfPartitions())]
+        parts = [ds for ds in parts if ds is not None and ds.IsA("vtkDataSet") and ds.GetNumberOfCells() > 0]
+        for k, ds in enumerate(parts):
+            block += 1
+            if name:
+                out[name if k == 0 else f"{name} ({k + 1})"] = np.array(
+                    [block, ds.GetCell(0).GetCellDimension()]
+                )
     return out
 
 
