@@ -20,3 +20,16 @@ class ParameterError(MagnetError):
 
 class ModelError(MagnetError):
     """An agglomeration model cannot be used (weights missing, wrong dimension, ...)."""
+
+
+def id_list(ids, limit: int = 5) -> str:
+    """Ids as a message says them: "3, 17, 40" (the first `limit`, then ", ..." where there are
+    more), never a Python list."""
+    ids = [int(i) for i in list(ids)[: limit + 1]]
+    more = len(ids) > limit
+    return ", ".join(str(i) for i in ids[:limit]) + (", ..." if more else "")
+
+
+def listed(items) -> str:
+    """Names as a message says them: "metis, kmeans, rtree" (no brackets, no quotes)."""
+    return ", ".join(str(x) for x in items)

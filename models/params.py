@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import re
 
-from models.errors import ParameterError
+from models.errors import ParameterError, listed
 
 MODEL_VERSION = "0.1.0"
 MODES = ("kway", "nref", "target-size", "mult-factor", "segregated", "coarsen", "multilevel")
@@ -261,7 +261,7 @@ def _validate(params: dict, mesh_info: dict | None) -> dict:
         raise ParameterError("options must be an object")
     known_opts = set(OPTION_NAMES)
     if set(opts) - known_opts:
-        raise ParameterError(f"unknown option(s): {sorted(set(opts) - known_opts)}")
+        raise ParameterError(f"unknown option(s): {listed(sorted(set(opts) - known_opts))}")
     seed = _int(opts, "seed", lo=0, hi=2**31 - 1) or 0
     absorb = opts.get("absorb_fraction", 0.0)
     if isinstance(absorb, bool) or not isinstance(absorb, int | float) or not (0 <= absorb < 1):

@@ -32,14 +32,14 @@ AREA = {  # exact total measure, where the construction fixes it
     "micro_scale": 36e-18,
 }
 REFUSED = {
-    "zero_area": ("degenerate (zero-area) cells", "cell ids [3]", "collinear, coplanar or crossing"),
-    "repeated_vertex_triangle": ("degenerate (zero-area) cells", "cell ids [3]", "remove them"),
+    "zero_area": ("degenerate (zero-area) cells", "cells 3", "collinear, coplanar or crossing"),
+    "repeated_vertex_triangle": ("degenerate (zero-area) cells", "cells 3", "remove them"),
     "nonplanar_surface": (
         "non-planar",
         "surface",
         "give a volume mesh, or fill a closed surface (.stl, .obj, .ply, .off)",
     ),
-    "nonmanifold_edge": ("not a manifold", "cells [0, 1, 2]", "remove the overlapping cells"),
+    "nonmanifold_edge": ("not a manifold", "cells 0, 1, 2", "remove the overlapping cells"),
 }
 
 

@@ -60,7 +60,7 @@ def assert_sentence(message: str, path: Path) -> None:
 # the text formats whose structure our own scan follows (models/mesh/locate.py): a refusal of one
 # names the place, a line and section of the file, or the cells / points a mesh check refused
 PLACED = ("ascii.vtk", "gmsh22.msh", "gmsh41.msh", "mesh.ucd")
-PLACE_RE = re.compile(r"\bline \d|\bsection [$A-Za-z]|\bbyte (?:offset )?\d|\bcell ids \[|\bpoint \d")
+PLACE_RE = re.compile(r"\bline \d|\bsection [$A-Za-z]|\bbyte (?:offset )?\d|\bcells \d|\bpoint \d")
 
 
 def assert_place(message: str, name: str) -> None:

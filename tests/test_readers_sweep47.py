@@ -26,3 +26,66 @@ def test_points_alone_and_lines_alone_are_said_as_such(tmp_path, fmt, ext):
         read_mesh(str(lines))
     msg = str(e.value)
     assert "1D meshes are not supported" in msg and "line" in msg
+
+
+def _su2_xz(path, n=12):
+    """A plate in the XZ plane as a 2D SU2 file keeps it (NDIME= 2: x and a y that is 0 everywhere,
+    as gmsh's SU2 export writes it), triangles."""
+    x, z = np.meshgrid(np.linspace(0, 3, n + 1), np.linspace(0, 1, n + 1), indexing="ij")
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    tri = np.r_[np.c_[a, b, c], np.c_[a, c, d]]
+    lines = ["NDIME= 2", f"NELEM= {len(tri)}"]
+    lines += [f"5 {t[0]} {t[1]} {t[2]} {i}" for i, t in enumerate(tri)]
+    lines += [f"NPOIN= {x.size}"] + [f"{xi!r} 0 {i}" for i, xi in enumerate(x.ravel().tolist())]
+    lines += ["NMARK= 0"]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_a_plane_whose_writer_dropped_a_coordinate_is_said_so(tmp_path):
+    f = tmp_path / "plate_xz.su2"
+    _su2_xz(f)
+    with pytest.raises(MeshError) as e:
+        read_mesh(str(f))
+    msg = str(e.value)
+    assert "288 of the mesh's 288 cells have zero area" in msg
+    assert "all of its points lie on one line" in msg and "y is 0 for every point" in msg
+    assert "write the plane in XY" in msg and "remove" not in msg
+
+
+def test_coordinates_rounded_far_from_the_origin_are_said_so(tmp_path):
+    """gmsh's small-field Nastran export of a tilted disk at (1e6, 2e6, 300): 8-character fields keep
+    y as 2.00E+06 for every point, so most cells are flat; the refusal says why, not "remove them"."""
+    gmsh = pytest.importorskip("gmsh")
+    f = tmp_path / "disk.bdf"
+    gmsh.initialize(readConfigFiles=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        occ = gmsh.model.occ
+        s = occ.addDisk(0, 0, 0, 1.0, 0.6)
+        occ.rotate([(2, s)], 0, 0, 0, 1, 1, 0, 0.7)
+        occ.translate([(2, s)], 1e6, 2e6, 300.0)
+        occ.synchronize()
+        gmsh.model.addPhysicalGroup(2, [s], name="disk")
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.1)
+        gmsh.model.mesh.generate(2)
+        gmsh.write(str(f))
+    finally:
+        gmsh.finalize()
+    with pytest.raises(MeshError) as e:
+        read_mesh(str(f))
+    msg = str(e.value)
+    assert "cells have zero area: its coordinates are rounded" in msg and "y is 2e+06 for every point" in msg
+    assert "too few digits" in msg and "remove them" not in msg
+
+
+def test_a_few_flat_cells_keep_the_old_words():
+    """flat_cause is for meshes that are mostly flat: a sound mesh has no cause to say."""
+    from meshes import triangles
+
+    from models.mesh.degenerate import flat_cause
+    from models.mesh.read import mesh_from_arrays
+
+    p, t = triangles(6)
+    assert flat_cause(mesh_from_arrays(p, [("triangle", t)])) is None
+    assert flat_cause(mesh_from_arrays(p + 1e7, [("triangle", t)])) is None

@@ -35,7 +35,7 @@ import warnings
 
 import numpy as np
 
-from models.errors import MeshError, ParameterError
+from models.errors import MeshError, ParameterError, id_list
 from models.export import atomic
 from models.mesh.boundary import edge_tags
 from models.mesh.container import PolyMesh
@@ -68,7 +68,7 @@ def _element_loops(poly: PolyMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if bad.size:
         raise ParameterError(
             "lymph export needs exactly one boundary loop per element; elements "
-            f"{bad[:10].tolist()} have {n_loops[bad[:10]].tolist()} loops (apply the hole policy)"
+            f"{id_list(bad, 10)} have {id_list(n_loops[bad], 10)} loops (apply the hole policy)"
         )
     lo = loop_offsets[elem_offsets[:-1]]
     counts = loop_offsets[elem_offsets[:-1] + 1] - lo
@@ -88,7 +88,7 @@ def _element_loops(poly: PolyMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         nodes = nodes[keep]
         starts = np.cumsum(counts) - counts
     if np.any(counts < 3):
-        raise MeshError(f"element(s) {np.flatnonzero(counts < 3)[:10].tolist()} have fewer than 3 vertices")
+        raise MeshError(f"element(s) {id_list(np.flatnonzero(counts < 3), 10)} have fewer than 3 vertices")
     if nodes.min() < 0 or nodes.max() >= poly.points.shape[0]:
         raise MeshError("loop node ids out of range of the points")
 
@@ -102,7 +102,7 @@ def _element_loops(poly: PolyMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         idx = np.where(np.repeat(flip, counts), rev, np.arange(nodes.shape[0]))
         nodes = nodes[idx]
     if np.any(signed == 0):
-        raise MeshError(f"element(s) {np.flatnonzero(signed == 0)[:10].tolist()} have zero area")
+        raise MeshError(f"element(s) {id_list(np.flatnonzero(signed == 0), 10)} have zero area")
     return nodes, starts, counts
 
 

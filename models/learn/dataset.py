@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from models.errors import ParameterError
+from models.errors import ParameterError, listed
 
 FORMAT_VERSION = 1
 
@@ -85,7 +85,7 @@ _HOMOGENEOUS_2D = ("square-quad", "square-tri", "delaunay", "voronoi")
 def get_recipe(name: str, **overrides) -> Recipe:
     """A named recipe, with fields replaced by the non-None overrides."""
     if name not in RECIPES:
-        raise ParameterError(f"unknown recipe {name!r}; choose one of {sorted(RECIPES)}")
+        raise ParameterError(f"unknown recipe {name!r}; choose one of {listed(sorted(RECIPES))}")
     base = RECIPES[name].to_dict()
     base.update({k: v for k, v in overrides.items() if v is not None})
     return Recipe(**base)

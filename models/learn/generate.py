@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from models.errors import MeshError, ParameterError
+from models.errors import MeshError, ParameterError, listed
 
 KINDS_2D = ("square-tri", "square-quad", "delaunay", "voronoi", "holes", "inclusions", "split")
 KINDS_3D = ("cube", "cube-portion", "cube-hetero", "stl")
@@ -413,7 +413,7 @@ def generate(
     bounding-box diagonal) or fill = {"size_abs", "remesh"} asks for re-meshing; fill may also hold
     "max_cells" and "progress" (see from_stl)."""
     if kind not in KINDS:
-        raise ParameterError(f"unknown mesh kind {kind!r}; choose one of {list(KINDS)}")
+        raise ParameterError(f"unknown mesh kind {kind!r}; choose one of {listed(KINDS)}")
     rng = np.random.default_rng([seed, 7])
     if size is not None and kind != "stl" and not 0 < size <= 1:
         raise ParameterError("size must be in (0, 1]")

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from models.errors import ParameterError
+from models.errors import ParameterError, listed
 
 try:  # torch is only needed to train; the argument parser must import without it
     import torch
@@ -59,7 +59,7 @@ class TrainConfig:
     def resolved(self) -> TrainConfig:
         """Fill the unset hyper-parameters from the paper's recipe."""
         if self.recipe not in PAPER:
-            raise ParameterError(f"unknown recipe {self.recipe!r}; choose one of {sorted(PAPER)}")
+            raise ParameterError(f"unknown recipe {self.recipe!r}; choose one of {listed(sorted(PAPER))}")
         cfg = TrainConfig(**asdict(self))
         for k, v in PAPER[self.recipe].items():
             if getattr(cfg, k) is None:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from models.errors import MeshError, ParameterError
+from models.errors import MeshError, ParameterError, id_list
 from models.mesh import deferred
 from models.mesh.container import (
     VTK_HEXAHEDRON,
@@ -317,7 +317,7 @@ def _attach_polyhedra(mesh: Mesh, poly_faces) -> None:
             "count": int(ids.size),
             "cells": ids[:20].tolist(),
             "message": f"{ids.size:,} polyhedra are not closed (an edge of their faces belongs to one "
-            f"face only: a face is missing from the file's lists), e.g. cells {ids[:6].tolist()}; "
+            f"face only: a face is missing from the file's lists), e.g. cells {id_list(ids, 6)}; "
             "they are kept, their measures are not exact",
         }
     if turned:  # a format storing each face once for both its cells (Exodus NFACED, Fluent)
@@ -548,7 +548,7 @@ def _drop_repeated(mesh: Mesh) -> bool:
     if not few_bad(n, mesh.n_cells):
         raise MeshError(
             f"{'a cell is' if n == 1 else f'{n:,} cells are'} written twice (the same nodes as an earlier cell), "
-            f"e.g. cell{'s' if n > 1 else ''} {ids[:6].tolist()}: remove the repeats"
+            f"e.g. cell{'s' if n > 1 else ''} {id_list(ids, 6)}: remove the repeats"
         )
     n_before = mesh.n_cells
     mesh.offsets, mesh.connectivity, mesh.cell_types, mesh.tags = _without_cells(
@@ -583,11 +583,17 @@ def refuse_degenerate(mesh: Mesh, vol: np.ndarray, bounds=None, degenerate=None)
     if degenerate.any():
         ids = np.flatnonzero(degenerate)
         kind = "area" if mesh.dim == 2 else "volume"
-        from models.mesh.degenerate import corners, far_point, welded_too_far
+        from models.mesh.degenerate import corners, far_point, flat_cause, welded_too_far
 
         far = far_point(mesh)
         if far is not None:  # one point far from the rest: its cells flat for their size
             raise MeshError(far)
+        if 2 * ids.size >= mesh.n_cells:  # most cells flat: the points may say why
+            cause = flat_cause(mesh)
+            if cause:
+                raise MeshError(
+                    f"{ids.size:,} of the mesh's {mesh.n_cells:,} cells have zero {kind}: {cause}"
+                )
         welded = welded_too_far(mesh, ids, kind)
         if welded:  # (the weld asked for made them)
             raise ParameterError(welded)
@@ -597,7 +603,7 @@ def refuse_degenerate(mesh: Mesh, vol: np.ndarray, bounds=None, degenerate=None)
             "distinct": "their corners are distinct but collinear, coplanar or crossing: remove or fix them and retry",
         }[corners(mesh, ids[:200])]
         raise MeshError(
-            f"the mesh has {ids.size} degenerate (zero-{kind}) cells, e.g. cell ids {ids[:5].tolist()}; {hint}"
+            f"the mesh has {ids.size} degenerate (zero-{kind}) cells, e.g. cells {id_list(ids)}; {hint}"
         )
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from models.errors import id_list
 from models.mesh.container import Mesh
 
 
@@ -69,6 +70,54 @@ def welded_too_far(mesh: Mesh, ids: np.ndarray, kind: str) -> str | None:
         return None
     return (
         f"merging points closer than the weld tolerance (--weld) left {ids.size:,} of the "
-        f"{mesh.n_cells:,} cells degenerate (zero-{kind}), e.g. cell ids {ids[:5].tolist()}: the "
+        f"{mesh.n_cells:,} cells degenerate (zero-{kind}), e.g. cells {id_list(ids)}: the "
         "tolerance is larger than these cells; give a smaller one"
     )
+
+
+_AXES = "xyz"
+
+
+def flat_cause(mesh: Mesh) -> str | None:
+    """Why most of a mesh's cells are flat, where the points say it (on a refusal's path), or None:
+    a coordinate the same for every point, or taking a few values only, far from the origin for the
+    mesh's size (rounded: 8-character Nastran fields keep 3 significant digits at 1e6), or all the
+    points on one line (a writer that kept two coordinates of a plane in XZ or YZ)."""
+    used = np.unique(mesh.connectivity)
+    if used.size < 8:
+        return None
+    p = mesh.points if mesh.dim == 3 or mesh.frame is None else mesh.points3d()
+    p = np.asarray(p[used], dtype=np.float64)
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    ext = hi - lo
+    size = float(ext.max())
+    if size == 0:
+        return None
+    far = np.maximum(np.abs(lo), np.abs(hi)) >= 1e3 * size  # coordinates far from the origin
+    same = ext <= 1e-9 * size
+    n_values = [np.unique(p[:, a]).size for a in range(p.shape[1])]
+    few = np.array([not same[a] and n_values[a] * 64 <= p.shape[0] for a in range(p.shape[1])])
+    facts = [
+        f"{_AXES[a]} is {0.0 if abs(lo[a]) <= 1e-9 * size else lo[a]:.6g} for every point"
+        for a in np.flatnonzero(same)
+    ] + [f"{_AXES[a]} takes only {n_values[a]} values" for a in np.flatnonzero(few & far)]
+    c = p - p.mean(axis=0)
+    sv = np.linalg.svd(c[:: max(1, c.shape[0] // 20000)], compute_uv=False)
+    line = sv.size > 1 and sv[1] <= 1e-9 * sv[0]
+    if ((same | few) & far).any():
+        advice = (
+            "the file keeps too few digits of coordinates this far from the origin (8-character fields "
+            "keep 3 significant digits at 1e6): move the mesh near the origin, or write it with more "
+            "digits (large-field Nastran, or another format)"
+        )
+    elif line and same.any():
+        advice = (
+            "the writer kept two coordinates of a plane that is not XY and dropped the third: write the "
+            "plane in XY, or in a format that keeps three coordinates"
+        )
+    elif line:
+        advice = "fix the file's coordinates and retry"
+    else:
+        return None
+    said = f" ({', '.join(facts)})" if facts else ""
+    return f"{'all of its points lie on one line' if line else 'its coordinates are rounded'}{said}: {advice}"

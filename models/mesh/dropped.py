@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from models.errors import id_list
 from models.mesh.container import Mesh
 
 
@@ -111,10 +112,7 @@ def dropped_sentence(meta: dict) -> str | None:
     d = meta.get("dropped_cells")
     if not d:
         return None
-    parts = [
-        f"{len(ids):,} {why} (cell ids {ids[:5]}{'...' if len(ids) > 5 else ''})"
-        for why, ids in d["reasons"].items()
-    ]
+    parts = [f"{len(ids):,} {why} (cells {id_list(ids)})" for why, ids in d["reasons"].items()]
     return (
         f"{len(d['ids_all']):,} of the file's {d['file_cells']:,} cells left out, the rest agglomerated: "
         + "; ".join(parts)

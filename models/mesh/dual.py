@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from models.errors import MeshError
+from models.errors import MeshError, id_list
 from models.mesh.container import Mesh
 from models.mesh.geometry import Faces, cell_faces, face_measures
 
@@ -199,7 +199,7 @@ def dual_graph(mesh: Mesh, faces: Faces | None = None, measures: bool = True) ->
             cells = sorted_unique(faces.cell[order[np.concatenate([j, j + 1, j + 2])]])
             raise MeshError(
                 f"the mesh is not a manifold: {j.size} edges/faces are shared by more than two cells, "
-                f"e.g. by cells {cells[:6].tolist()}; remove the overlapping cells or split the mesh there"
+                f"e.g. by cells {id_list(cells, 6)}; remove the overlapping cells or split the mesh there"
             )
         # temporaries are dropped as soon as they are used: at millions of cells the stage's peak
         # memory is what costs (fresh pages), more than the arithmetic
@@ -214,7 +214,7 @@ def dual_graph(mesh: Mesh, faces: Faces | None = None, measures: bool = True) ->
         bad = sorted_unique(faces.cell[fa[self_loop]])
         raise MeshError(
             f"{bad.size} cells have the same edge/face twice (duplicated nodes in a cell), e.g. cells "
-            f"{bad[:6].tolist()}; fix their connectivity"
+            f"{id_list(bad, 6)}; fix their connectivity"
         )
     del self_loop
     partner = np.full(faces.n, -1, dtype=np.int64)

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from models.errors import MeshError
+from models.errors import MeshError, id_list
 from models.mesh.geometry import Faces, cell_faces
 
 
@@ -276,6 +276,6 @@ def _propagate(n: int, ca: np.ndarray, cb: np.ndarray, parity: np.ndarray, dim: 
         )
         raise MeshError(
             f"the mesh {what}: {i.size} shared {'edges' if dim == 2 else 'faces'} contradict the others, "
-            f"e.g. between cells {cells[:6].tolist()}; check the connectivity of these cells"
+            f"e.g. between cells {id_list(cells, 6)}; check the connectivity of these cells"
         )
     return acc, piece, n_pieces

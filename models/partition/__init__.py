@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import importlib
 
-from models.errors import ParameterError
+from models.errors import ParameterError, listed
 from models.graph.batch import GraphBatch
 from models.partition.base import Partitioner
 
@@ -23,7 +23,7 @@ REGISTRY: dict[str, str] = {
 def get_partitioner(name: str, **options) -> Partitioner:
     """Instantiate the partitioner called `name` (ParameterError if unknown)."""
     if name not in REGISTRY:
-        raise ParameterError(f"unknown model {name!r}; choose one of {sorted(REGISTRY)}")
+        raise ParameterError(f"unknown model {name!r}; choose one of {listed(sorted(REGISTRY))}")
     module, factory = REGISTRY[name].split(":")
     return getattr(importlib.import_module(module), factory)(**options)
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from models.errors import ParameterError
+from models.errors import ParameterError, id_list, listed
 from models.graph.batch import GraphBatch
 from models.mesh.celldata import CellData, compact_labels  # here too: models.agglomerate.CellData
 from models.mesh.container import Mesh
@@ -397,7 +397,7 @@ def agglomerate(
     t0 = time.perf_counter()
     n = mesh.n_cells
     if mode not in MODES:
-        raise ParameterError(f"unknown mode {mode!r}; choose one of {list(MODES)}")
+        raise ParameterError(f"unknown mode {mode!r}; choose one of {listed(MODES)}")
     if size_measure not in SIZE_MEASURES:
         raise ParameterError(f"size_measure must be one of {', '.join(SIZE_MEASURES)}, got {size_measure!r}")
     part = (
@@ -443,7 +443,7 @@ def agglomerate(
         bad = subset[(subset < 0) | (subset >= n)]
         if bad.size:
             raise ParameterError(
-                f"subset has {bad.size} unknown cell ids (valid: 0..{n - 1}), e.g. {bad[:5].tolist()}"
+                f"subset has {bad.size} unknown cell ids (valid: 0..{n - 1}), e.g. {id_list(bad)}"
             )
         nodes = sorted_unique(subset).astype(np.int64)
     elif mode == "coarsen":

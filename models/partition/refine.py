@@ -31,7 +31,7 @@ import importlib
 import numpy as np
 import scipy.sparse as sp
 
-from models.errors import ParameterError
+from models.errors import ParameterError, listed
 from models.graph.batch import GraphBatch
 from models.partition.flow import part_components
 
@@ -64,7 +64,7 @@ class Refiner:
 def get_refiner(name: str, **options) -> Refiner:
     """Instantiate the refiner called `name` (ParameterError if unknown)."""
     if name not in REFINERS:
-        raise ParameterError(f"unknown refiner {name!r}; choose one of {sorted(REFINERS)}")
+        raise ParameterError(f"unknown refiner {name!r}; choose one of {listed(sorted(REFINERS))}")
     module, factory = REFINERS[name].split(":")
     return getattr(importlib.import_module(module), factory)(**options)
 
