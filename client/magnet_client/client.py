@@ -65,7 +65,7 @@ def job_params(params: dict) -> dict:
         body["options"] = options
     unknown = set(params) - set(PARAM_NAMES) - set(OPTION_NAMES) - {"options"}
     if unknown:
-        raise TypeError(f"unknown job parameter(s): {sorted(unknown)}")
+        raise TypeError(f"unknown job parameter(s): {', '.join(sorted(unknown))}")
     if "subset" in body:
         body["subset"] = [int(i) for i in body["subset"]]
     return body
