@@ -605,6 +605,10 @@ def test_a_binary_ucd_file_is_named_so_in_every_refusal(tmp_path):
     assert format_name(path) == "binary AVS UCD"
     text = tmp_path / "t.inp"
     text.write_text("*NODE\n1, 0, 0, 0\n")
+    assert format_name(text) == "Abaqus"  # (its keywords say so: sweep 47)
+    text.write_text("# a comment\n1 0 0 0 0\n1 0 0 0\n")
+    assert format_name(text) == "AVS UCD"
+    text.write_text("neither\n")
     assert format_name(text) == "Abaqus or AVS UCD"
 
 

@@ -171,7 +171,30 @@ def format_name(path: str | os.PathLike, file_format: str | None = None) -> str:
         return "Fluent case"
     if ext in (".inp", ".ucd", ".avs") and _first_byte(path) == b"\x07":  # AVS's binary magic byte
         return "binary AVS UCD"
+    if ext == ".inp":
+        return _inp_format(path)
     return FORMATS.get(ext) or COMPOUND.get(ext) or "mesh"
+
+
+def _inp_format(path) -> str:
+    """An ASCII .inp file's format by its first line that is not a '#' comment (pick_reader's
+    choice, read.py, by the same lines): Abaqus keywords start with '*', AVS UCD with its header's
+    five integers; "Abaqus or AVS UCD" where the file does not say (unreadable, empty, neither)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4096)
+    except OSError:
+        return FORMATS[".inp"]
+    for line in head.lstrip(b"\xef\xbb\xbf").splitlines()[:-1] or head.splitlines()[:1]:
+        words = line.split()
+        if not words or line.lstrip().startswith(b"#"):
+            continue
+        if line.lstrip().startswith(b"*"):
+            return "Abaqus"
+        if len(words) == 5 and all(w.lstrip(b"-").isdigit() for w in words):
+            return "AVS UCD"
+        break
+    return FORMATS[".inp"]
 
 
 def _first_byte(path) -> bytes:
