@@ -6,7 +6,9 @@ refusal names."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
+from models.errors import MeshError
 from models.mesh.read import read_mesh
 
 
@@ -154,3 +156,102 @@ def test_vtkhdf_partitioned_collection_names_its_datasets(tmp_path):
     assert m.n_cells == 3 * 40
     names = {int(k): v for k, v in m.meta["group_names"].items()}
     assert names == {1: "steel", 2: "rubber", 3: "rubber (2)"}
+
+
+def test_xyz_molecule_is_said_to_be_atoms_not_plot3d(tmp_path):
+    """ParaView opens .xyz with its XYZ molecule reader: such a file was refused as a truncated
+    PLOT3D grid."""
+    path = tmp_path / "water.xyz"
+    path.write_text("3\nwater molecule\nO 0.0 0.0 0.0\nH 0.757 0.586 0.0\nH -0.757 0.586 0.0\n")
+    with pytest.raises(MeshError) as e:
+        read_mesh(str(path))
+    msg = str(e.value)
+    assert msg.startswith("cannot read water.xyz as PLOT3D grid: it is not a PLOT3D grid")
+    assert "XYZ list of 3 atoms" in msg and "give a volume or planar mesh" in msg
+    assert "truncated" not in msg and msg.count("cannot read") == 1
+
+
+def test_movie_byu_g_file_is_said_to_be_one(tmp_path):
+    """ParaView reads .g as Movie.BYU too: the Exodus refusal says what the file may be."""
+    import vtk
+
+    src = vtk.vtkPlaneSource()
+    src.SetResolution(4, 4)
+    tri = vtk.vtkTriangleFilter()
+    tri.SetInputConnection(src.GetOutputPort())
+    path = str(tmp_path / "plate_byu.g")
+    w = vtk.vtkBYUWriter()
+    w.SetGeometryFileName(path)
+    w.SetInputConnection(tri.GetOutputPort())
+    w.Write()
+    with pytest.raises(MeshError) as e:
+        read_mesh(path)
+    msg = str(e.value)
+    assert msg.startswith("cannot read plate_byu.g as Exodus II: the file is neither netCDF nor HDF5")
+    assert "it looks like a Movie.BYU surface" in msg and "save this surface from ParaView as .stl" in msg
+    other = tmp_path / "junk.g"
+    other.write_text("hello\n")
+    with pytest.raises(MeshError, match="a .g file that is not Exodus II may be a Movie.BYU surface"):
+        read_mesh(str(other))
+
+
+@pytest.mark.parametrize("binary", [True, False])
+def test_ply_of_2d_points_reads_as_a_planar_mesh(tmp_path, binary):
+    """meshio writes 2D points to PLY as x and y only, which meshio's reader (and VTK's) refused
+    ("corrupted or not in this format"): read with z = 0."""
+    import meshio
+
+    pts, tris = _grid_triangles(6, 5, 3.0, 2.0)
+    path = tmp_path / "plate_2d.ply"
+    meshio.write(path, meshio.Mesh(pts, [("triangle", tris)]), binary=binary)
+    assert b"property double z" not in path.read_bytes()[:400]
+    m = read_mesh(str(path))
+    assert m.n_cells == 60 and m.dim == 2
+    assert np.isclose(np.abs(m.meta["measures"]).sum(), 6.0, rtol=1e-12)
+
+
+def test_ply_of_2d_points_with_extra_properties_big_endian(tmp_path):
+    pts, tris = _grid_triangles(3, 3, 1.0, 1.0)
+    vert = np.zeros(len(pts), [("x", ">f8"), ("y", ">f8"), ("t", ">f4")])
+    vert["x"], vert["y"], vert["t"] = pts[:, 0], pts[:, 1], 7.0
+    face = np.zeros(len(tris), [("n", "u1"), ("v", ">i4", 3)])
+    face["n"], face["v"] = 3, tris
+    head = (
+        f"ply\nformat binary_big_endian 1.0\ncomment 2D\nelement vertex {len(pts)}\nproperty double x\n"
+        f"property double y\nproperty float t\nelement face {len(tris)}\nproperty list uchar int vertex_indices\n"
+        "end_header\n"
+    )
+    path = tmp_path / "be.ply"
+    path.write_bytes(head.encode() + vert.tobytes() + face.tobytes())
+    m = read_mesh(str(path))
+    assert m.n_cells == 18 and np.isclose(np.abs(m.meta["measures"]).sum(), 1.0, rtol=1e-12)
+    # the vertices not the first element: said what is wrong
+    path.write_bytes(
+        head.replace("element vertex", "element junk 0\nelement vertex").encode()
+        + vert.tobytes()
+        + face.tobytes()
+    )
+    with pytest.raises(MeshError) as e:
+        read_mesh(str(path))
+    assert str(e.value).startswith(
+        "cannot read be.ply as PLY: its vertices have no z property (a PLY needs x, y and z)"
+    )
+
+
+def test_abaqus_refusal_names_abaqus_alone(tmp_path):
+    """A meshio-written Abaqus .inp with 3% degenerate cells was refused "as Abaqus or AVS UCD"
+    (the .inp extension's name): the file's keywords say Abaqus."""
+    import meshio
+
+    from models.mesh.check import check_file
+
+    pts, tets = _cube_tetrahedra(4)
+    flat = tets[:12].copy()  # 12 of 396 cells (3%, above the 1% left out) without a volume
+    flat[:, 3] = flat[:, 0]
+    path = tmp_path / "bad.inp"
+    meshio.write(path, meshio.Mesh(pts, [("tetra", np.r_[tets, flat])]))
+    with pytest.raises(MeshError) as e:
+        read_mesh(str(path))
+    assert str(e.value).startswith("cannot read bad.inp as Abaqus: ")
+    assert "AVS" not in str(e.value)
+    assert "AVS" not in str(check_file(str(path)))

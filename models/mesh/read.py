@@ -18,7 +18,7 @@ from itertools import chain
 import numpy as np
 
 from models.errors import MeshError
-from models.mesh import case_files
+from models.mesh import case_files, lookalikes
 from models.mesh.build import MIRROR, _bounds, mesh_from_cells, weld_points  # noqa: F401 (MIRROR, weld_points: API)
 from models.mesh.cells import BOUNDARY_TAG_NAME, distinct_nodes, find_tag_key, higher_order_line
 from models.mesh.container import (
@@ -152,7 +152,10 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
             if why:
                 raise MeshError(f"cannot read {name} as Exodus II: {why}")
             return ("vtk", "exodus")
-        raise MeshError(f"cannot read {name} as Exodus II: the file is neither netCDF nor HDF5 (byte 0)")
+        raise MeshError(
+            f"cannot read {name} as Exodus II: the file is neither netCDF nor HDF5 (byte 0)"
+            + (f"; {lookalikes.byu_surface(text)}" if ext == ".g" else "")
+        )
     if ext == ".cas.h5":
         return ("vtk", "fluent-h5")
     if ext == ".pvtk":  # vtkPDataSetWriter's list of legacy pieces
@@ -175,6 +178,8 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
             raise MeshError(f"cannot read {name} as VTKHDF: the file is not HDF5 (byte 0)")
         if ext == ".cas" and not text.startswith(b"("):
             raise MeshError(f"cannot read {name} as a Fluent case: a Fluent case starts with '(' (byte 0)")
+        if _VTK_OTHER[ext] == "plot3d" and lookalikes.xyz_molecule(text):
+            raise MeshError(f"cannot read {name} as PLOT3D grid: {lookalikes.xyz_molecule(text)}")
         if _VTK_OTHER[ext] == "tecplot":
             _tecplot_ascii(name, ext, head, text)
         if ext == ".neu" and b"CONTROL INFO" not in head.upper():
@@ -462,6 +467,13 @@ def _read_ply(path: str, physical_tag, weld, native: bool, fmt: str) -> Mesh:
     try:
         m = _read_meshio(path, "ply")
     except MeshError as refused:
+        from models.mesh.ply import planar_copy
+
+        with planar_copy(path) as copy:  # (x and y without z: meshio's writer given 2D points)
+            if copy:
+                return mesh_from_meshio(
+                    _read_meshio(copy, "ply"), physical_tag=physical_tag, weld=weld, owned=True
+                )
         if not native:
             raise NativeReaderNeeded(f"{os.path.basename(path)} needs VTK's PLY reader") from None
         from models.mesh.vtk_readers import read_vtk
