@@ -554,6 +554,7 @@ class Hierarchy:
         self.mesh, self.graph, self.data, self.levels = mesh, graph, data, levels
         self.merged = info.pop("merged")
         self.info = info
+        self.removed: list[str] = []  # (write: an earlier hierarchy's level files it removed)
 
     def __repr__(self) -> str:
         sizes = " > ".join(str(int(lv.max()) + 1) for lv in self.levels)
@@ -561,7 +562,9 @@ class Hierarchy:
 
     def write(self, folder: str | os.PathLike, metrics: bool = False, lymph: bool = False) -> dict:
         """level_L.vtu, .labels.json, .parent.json, .metrics.json, aggregation operators and
-        hierarchy.json into `folder`; returns the hierarchy.json index. In 3D the elements are
+        hierarchy.json into `folder`; returns the hierarchy.json index. Level files an earlier
+        hierarchy left there that this one does not write are removed (their names: `removed`;
+        nothing else in the folder is touched). In 3D the elements are
         written numbered by their vertex count (the order meshio reads back): `levels` takes that
         numbering too (the same partition)."""
         import numpy as np
@@ -608,6 +611,8 @@ class Hierarchy:
         # the levels take the numbering written (3D: elements by vertex count, as meshio reads them
         # back), so that levels[L] and level_L.vtu / .labels.json / the operators name the same elements
         self.levels, self.merged = written["levels"], written["merged"]
+        # the level files of an earlier, deeper hierarchy in the folder, removed (not nested with these)
+        self.removed = written.get("removed", [])
         return index
 
 

@@ -236,8 +236,9 @@ def test_each_piece_with_a_tunnel_is_planned_two_elements():
     _, least, why, _ = domain_plan(mesh, data)
     assert least == 5 and "3 separate pieces" in why, (least, why)
     levels, info = build_hierarchy(mesh, data, model="rtree", ratio=8, coarsest=2)
-    # 1 > 6 > 44 planned: 1 raised to 5 would coarsen the 6 below it 1.2x, so that level goes
-    assert info["requested"][:2] == [6, 44] and int(levels[0].max()) + 1 == 6, info["requested"]
+    # planned down to the 5 the domain allows, not to --coarsest 2 (1 > 6 > 44, whose 1 raised to 5
+    # would coarsen the 6 below it 1.2x, so that level went: 6 > 44, with no note; session 47)
+    assert info["requested"][:2] == [5, 39] and int(levels[0].max()) + 1 == 5, info["requested"]
     assert is_nested(levels)
 
 

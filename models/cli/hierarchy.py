@@ -176,6 +176,10 @@ def hierarchy_main(args) -> int:
     left_out = dropped_sentence(mesh.meta)
     if left_out:
         print(f"warning: {left_out} (labels: -1 for them)")
+    from models.hierarchy.stale import removed_sentence
+
+    if h.removed:
+        print(f"note: {removed_sentence(h.removed, out)}")
     print(
         f"{len(index['levels'])} nested levels ({sizes} elements) from {mesh.n_cells} cells with {args.model} "
         f"| read {t_read:.2f}s build {info['build_time']:.2f}s write {t_write:.2f}s | total {time.perf_counter() - t0:.2f}s"
@@ -185,23 +189,34 @@ def hierarchy_main(args) -> int:
 
 
 def format_levels(report: list[dict]) -> str:
-    """The per-level report: elements (requested), ratio to the finer level (requested), holed
+    """The per-level report: elements (planned: the count the plan gave the level, which the domain
+    may have raised), ratio to the finer level (planned, and asked: the --ratio or schedule step, "-"
+    for a finest level no ratio was asked of; off: achieved against asked, "!" past 25%), holed
     elements found, holes opened by moving a path to a neighbour (threaded), ring cuts, elements split
     into their children, pairs merged back, pairs merged with the holes between them threaded
     through every level (models.hierarchy.rethread), and in 3D the elements left that are not balls."""
+    from models.partition.rtree import RATIO_SLACK
+
     balls = any("not_balls" in r for r in report)  # (3D: elements whose cells' characteristic is not 1)
     lines = [
-        f"{'level':>5}{'elements':>10}{'requested':>10}{'ratio':>7}{'wanted':>8}{'holed':>7}{'threaded':>9}"
-        f"{'ring cuts':>10}{'splits':>8}{'merged':>8}{'merged+threads':>16}"
+        f"{'level':>5}{'elements':>10}{'planned':>9}{'ratio':>7}{'planned':>8}{'asked':>7}{'off':>6}"
+        f"{'holed':>7}{'threaded':>9}{'ring cuts':>10}{'splits':>8}{'merged':>8}{'merged+threads':>16}"
         + (f"{'not balls':>11}" if balls else "")
     ]
     for r in report:
         req = f"{r['requested']}" if "requested" in r else "-"
         want = _ratio(r["requested_ratio"]) if "requested_ratio" in r else "-"
+        asked = _ratio(r["asked_ratio"]) if "asked_ratio" in r else "-"
+        off = "-"
+        if "asked_ratio" in r:
+            raw = r["ratio"] / r["asked_ratio"] - 1.0
+            d = round(raw, 2) + 0.0  # (+ 0.0: no "-0%")
+            off = (f"{d:+.0%}" if d < 9.99 else ">999%") + ("!" if abs(raw) > RATIO_SLACK else "")
         lines.append(
-            f"{r['level']:>5}{r['elements']:>10}{req:>10}{_ratio(r['ratio']):>7}{want:>8}{r['holed_elements']:>7}"
-            f"{r.get('holes_threaded', 0):>9}{r['ring_cuts']:>10}{r['split_into_children']:>8}{r['merged_pairs']:>8}"
-            f"{r.get('threaded_merges', 0):>16}" + (f"{r.get('not_balls', 0):>11}" if balls else "")
+            f"{r['level']:>5}{r['elements']:>10}{req:>9}{_ratio(r['ratio']):>7}{want:>8}{asked:>7}{off:>6}"
+            f"{r['holed_elements']:>7}{r.get('holes_threaded', 0):>9}{r['ring_cuts']:>10}"
+            f"{r['split_into_children']:>8}{r['merged_pairs']:>8}{r.get('threaded_merges', 0):>16}"
+            + (f"{r.get('not_balls', 0):>11}" if balls else "")
         )
     return "\n".join(lines)
 

@@ -36,6 +36,8 @@ from models.hierarchy.plan import (
     domain_plan,
     group_pieces,
     said_off_plan,
+    with_asked,
+    with_requested,
     without_stalled_top,
 )
 from models.hierarchy.rethread import coarse_end
@@ -130,7 +132,9 @@ def write_hierarchy(
     gives the partition statistics and the box measures (box ratio, coverage) of each level.
     merged: the polytopes models.polytope.merge.merge already made of each level (build_hierarchy's), not
     merged again. written: a dict given is filled with the levels as written ("levels": 3D elements
-    are numbered by their vertex count, the order meshio reads back) and their polytopes ("merged")."""
+    are numbered by their vertex count, the order meshio reads back), their polytopes ("merged") and
+    the level files of an earlier hierarchy in the folder that were removed ("removed":
+    models.hierarchy.stale)."""
     from models.export.vtu import group_names_of, points_xml, write_vtu
     from models.mesh.boundary import output_cells
     from models.mesh.dropped import file_labels
@@ -234,6 +238,11 @@ def write_hierarchy(
         for entry, op in zip(index["levels"], write_operators(out_dir, levels, mesh.n_cells), strict=True):
             entry["aggregation"] = op
     _write_json(os.path.join(out_dir, "hierarchy.json"), index)
+    from models.hierarchy.stale import remove_stale, written_names
+
+    removed = remove_stale(out_dir, written_names(index["levels"]))  # (an earlier run's level files)
+    if written is not None:
+        written["removed"] = removed
     return index
 
 
@@ -461,6 +470,7 @@ def build_hierarchy(
         )
     if ratio is None:
         ratio = default_ratio(mesh.dim)
+    asked_ratio = ratio  # (the aggregated finest levels give back the ratios they made)
     if finest is not None:
         return _hierarchy_above(
             data, np.asarray(finest, dtype=np.int64), mesh, model, ratio, coarsest, seed, t0
@@ -503,10 +513,13 @@ def build_hierarchy(
     if groups:
         least, why = group_pieces(data, group_of, least, why, mesh)
     asked = counts[0] if len(counts) else 1
-    if least > 1 and model != "rtree":  # (rtree plans with it in its own paths below)
+    # planned down to the fewest elements the domain allows where --coarsest asks for fewer (3 rings
+    # apart, 6 at least, --coarsest 1: 6 > 8 > 51 planned, a step of 1.33x; planned to 6: 6 > 43 > 310)
+    floor = max(int(coarsest), int(least))
+    if least > 1 and (model != "rtree" or least > coarsest):  # (rtree's aggregated paths: below)
         # planned with the fewest coarsest elements the domain needs (a hole: 2), not raised to them
         # afterwards (METIS on a gear: 2 > 18 > 249 > 3391, a last step 44% off; planned: 10 > 184 > 3391)
-        counts = level_counts(n, ratio, coarsest, stretch=stretch, least=least) or counts
+        counts = level_counts(n, ratio, floor, stretch=stretch, least=least) or counts
     counts = at_least(counts, least)
     if kappa is not None:
         kappa = np.asarray(kappa, dtype=np.float64).ravel()
@@ -567,7 +580,7 @@ def build_hierarchy(
                 batch,
                 tags,
                 ratio[-1] if np.ndim(ratio) else ratio,
-                coarsest,
+                floor,
                 opts,
                 least=least,
                 stretch=stretch,
@@ -579,7 +592,7 @@ def build_hierarchy(
                 data,
                 tags,
                 ratio[-1] if np.ndim(ratio) else ratio,
-                coarsest,
+                floor,
                 opts,
                 finest_mode,
                 least=least,
@@ -650,7 +663,7 @@ def build_hierarchy(
     )
     levels, polys, report = coarse_end(mesh, data, levels, polys, report, hole_pairs, counts, group_of)
     levels, polys, report, counts = without_stalled_top(levels, polys, report, list(counts), notes)
-    report = _with_requested(report, counts, n)
+    report = with_asked(with_requested(report, counts, n), asked_ratio, not agg_mode, not agg_mode)
     step = ratio[-1] if np.ndim(ratio) else ratio
     said_off_plan(levels, report, coarsest, notes, (mesh, data.graph, rings), least, why, asked, step)
     info = {
@@ -681,7 +694,10 @@ def _hierarchy_above(data, finest, mesh, model, ratio, coarsest, seed, t0):
     hole_pairs, least, why, stretch = domain_plan(mesh, data)
     notes: list[str] = []
     counts = level_counts(int(finest.max()) + 1, ratio, coarsest, stretch=stretch)
-    asked, counts = (counts[0] if len(counts) else 1), at_least(counts, least)
+    asked = counts[0] if len(counts) else 1
+    if least > coarsest:  # (planned down to the fewest the domain allows, as build_hierarchy does)
+        counts = level_counts(int(finest.max()) + 1, ratio, least, stretch=stretch, least=least) or counts
+    counts = at_least(counts, least)
     part = get_partitioner(model, seed=seed, **count_weighted(model, None))
     if not part.supports_kway:
         part = get_partitioner("metis", seed=seed, **count_weighted("metis", None))
@@ -695,7 +711,7 @@ def _hierarchy_above(data, finest, mesh, model, ratio, coarsest, seed, t0):
     plan = [*counts, int(finest.max()) + 1]
     levels, polys, report = coarse_end(mesh, data, levels, polys, report, hole_pairs, plan, None)
     levels, polys, report, plan = without_stalled_top(levels, polys, report, plan, notes)
-    report = _with_requested(report, plan, finest.size)
+    report = with_asked(with_requested(report, plan, finest.size), ratio, finest=False)
     step = ratio[-1] if np.ndim(ratio) else ratio
     said_off_plan(levels, report, coarsest, notes, (mesh, data.graph, True), least, why, asked, step)
     info = {
@@ -712,22 +728,6 @@ def _hierarchy_above(data, finest, mesh, model, ratio, coarsest, seed, t0):
         "notes": notes,
     }
     return levels, info
-
-
-def _with_requested(report: list[dict], counts: list[int], n: int) -> list[dict]:
-    """fix_holes' per-level report with the requested count and step ratio of each level (where the
-    levels are the requested ones) and the achieved ratio against the requested one."""
-    out = []
-    same = len(counts) == len(report)
-    for L, r in enumerate(report):
-        r = {"level": L, **r}
-        if same:
-            below = n if L + 1 == len(counts) else counts[L + 1]
-            r["requested"] = int(counts[L])
-            r["requested_ratio"] = below / counts[L]
-            r["ratio_vs_requested"] = r["ratio"] / r["requested_ratio"]
-        out.append(r)
-    return out
 
 
 _TRIPLES = None  # (3000,) three-character codes: 0..999 blank-led ("  0" for 0), zero-padded, blank-led ("   " for 0)
