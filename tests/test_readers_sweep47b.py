@@ -255,3 +255,22 @@ def test_abaqus_refusal_names_abaqus_alone(tmp_path):
     assert str(e.value).startswith("cannot read bad.inp as Abaqus: ")
     assert "AVS" not in str(e.value)
     assert "AVS" not in str(check_file(str(path)))
+
+
+def test_vtkhdf_partitions_of_one_mesh_are_no_groups(tmp_path):
+    """A VTKHDF of one partitioned dataset holds one mesh cut into pieces (as a .pvtu): its
+    partitions were physical groups 1, 2 (segregated agglomeration kept to them); now no groups,
+    the pieces' shared points merged."""
+    import vtk
+
+    p = vtk.vtkPartitionedDataSet()
+    p.SetPartition(0, _tetra_box(0.0, 2))
+    p.SetPartition(1, _tetra_box(1.0, 2))
+    path = str(tmp_path / "pieces.vtkhdf")
+    w = vtk.vtkHDFWriter()
+    w.SetFileName(path)
+    w.SetInputData(p)
+    w.Write()
+    m = read_mesh(path)
+    assert m.n_cells == 80 and len(m.points) == 5 * 3 * 3
+    assert m.tags is None or np.unique(m.tags).size == 1

@@ -173,10 +173,9 @@ def read_vtk(
             data, path, what, fmt, kind == "openfoam-decomposed"
         )
     else:
-        repeats: list = []
-        pts, offsets, conn, types, cell_data, poly = _arrays(
-            data, path, what, fmt, kind not in PIECES, repeats
-        )
+        repeats: list = []  # (a VTKHDF of one partitioned dataset: one mesh's pieces, no groups)
+        groups = kind not in PIECES and data.GetClassName() != "vtkPartitionedDataSet"
+        pts, offsets, conn, types, cell_data, poly = _arrays(data, path, what, fmt, groups, repeats)
         if repeats and kind in PIECEWISE:  # (a time series' grids repeat
             blocks, cells = repeats[0]  # its mesh by design: said only of a parallel file's pieces)
             meta["repeated_pieces"] = {
