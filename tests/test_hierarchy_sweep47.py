@@ -198,3 +198,38 @@ def test_a_reused_folder_keeps_no_level_files_of_an_earlier_deeper_hierarchy(tmp
     again = build_hierarchy(path, ratio=8)
     again.write(out)
     assert again.removed == []
+
+
+def test_the_planes_judge_a_part_on_its_own_skeleton_with_the_same_characteristics():
+    """_planes' sides of a part judged on the part's skeleton alone (models.hierarchy.repair._within:
+    a Menger sponge's 10,800 hexahedra 1.72 -> 1.33 s, the same levels) give each side the Euler
+    characteristic the whole skeleton gives it, rings and cavities included."""
+    from meshes import hexes
+
+    from models import read_mesh
+    from models.hierarchy.repair import _within
+    from models.pipeline import prepare
+    from models.polytope.euler import UnitEuler
+
+    p, h = hexes(8)
+    mesh = read_mesh(points=p, cells=[("hexahedron", h)])
+    graph, data = prepare(mesh)
+    c = data.centroids
+    units = (np.floor(c[:, 0] * 4) + 4 * np.floor(c[:, 1] * 4) + 16 * np.floor(c[:, 2] * 4)).astype(np.int64)
+    ue = UnitEuler.of_cells(mesh, graph, units)
+    rng = np.random.default_rng(3)
+    ring = np.array([0, 1, 2, 6, 10, 9, 8, 4])  # (units around unit 5 in the bottom layer: a ring)
+    for part in (np.arange(64), np.arange(32), ring, rng.choice(64, 20, replace=False)):
+        sub = _within(ue, part)
+        for _ in range(5):
+            side = np.full(64, 2, dtype=np.int64)
+            side[part] = rng.integers(0, 2, part.size)
+            side[part[:2]] = [0, 1]
+            assert np.array_equal(ue(side)[:2], sub(side)[:2])
+    side = np.full(64, 2, dtype=np.int64)
+    side[ring] = 0
+    side[ring[1]] = 1  # (not a corner: the corner's two neighbours would touch along an edge)
+    assert _within(ue, ring)(side)[0] == ue(side)[0] == 1  # (7 of the ring's 8: a ball)
+    side[ring[1]] = 0
+    side[5] = 1
+    assert _within(ue, np.r_[ring, 5])(side)[0] == ue(side)[0] == 0  # (the whole ring: a handle)

@@ -432,6 +432,7 @@ def _planes(rep: Repair, units: np.ndarray, n: int, cen: np.ndarray, shifts=(1.0
             continue
         mine, w = units[part], rep.size[units[part]]
         side = np.full(rep.ku, 2, dtype=np.int64)  # (2: outside the part)
+        ue = _within(rep.ue, mine)  # (the part's skeleton: each side's chi at the part's cost)
         c = cen[mine] - np.average(cen[mine], axis=0, weights=w)
         m1, best = m // 2, None
         axes = np.linalg.eigh((c * w[:, None]).T @ c)[1].T
@@ -443,7 +444,7 @@ def _planes(rep: Repair, units: np.ndarray, n: int, cen: np.ndarray, shifts=(1.0
             for f in shifts:  # a loop over positions about the share (a cut through holes opens them)
                 cut = min(max(int(np.searchsorted(cw, cw[-1] * m1 / m * f)), 1), part.size - 1)
                 side[mine[o[:cut]]], side[mine[o[cut:]]] = 0, 1
-                chi = rep.ue(side)
+                chi = ue(side)
                 bad = sum(rep._exact(np.flatnonzero(side == j), chi[j]) for j in (0, 1))
                 cross = int(
                     np.count_nonzero((side[src] < 2) & (side[rep.qi] < 2) & (side[src] != side[rep.qi]))
@@ -452,6 +453,26 @@ def _planes(rep: Repair, units: np.ndarray, n: int, cen: np.ndarray, shifts=(1.0
                     best = ((bad, abs(f - 1), cross), part[o[:cut]], part[o[cut:]])
         todo += [(best[1], m1), (best[2], m - m1)]
     return lab
+
+
+def _within(ue, units: np.ndarray):
+    """ue (a UnitEuler) with the skeleton items of the given units alone: the same chi for every
+    element made of them (an item of other units too counts only those of its units inside one such
+    element), at their share's cost: _planes' sides of a part (a Menger sponge's 10,800 hexahedra,
+    8 coarsest elements from 110: 1,053 evaluations of the whole skeleton, 0.95 of 2.3 s)."""
+    inside = np.zeros(ue.chi.size, dtype=bool)
+    inside[units] = True
+
+    def kept(cls, unit, w):  # (the classes renumbered in order: still sorted, a span of the part's)
+        keep = inside[unit]
+        used = np.zeros(w.size, dtype=bool)
+        used[cls[keep]] = True
+        new = np.cumsum(used) - 1
+        return new[cls[keep]], unit[keep], w[used]
+
+    a, b, c = ue.f
+    kf = inside[a] & inside[b]
+    return type(ue)(ue.chi, kept(*ue.v), kept(*ue.e), (a[kf], b[kf], c[kf]), ue.dim)
 
 
 def _cavities(rep: Repair, units: np.ndarray, lab: np.ndarray) -> int:
