@@ -542,9 +542,11 @@ def write_hierarchy(
     extra: dict | None = None,
     lymph: bool = False,
     boundary_tag: int = 1,
+    written: dict | None = None,
 ) -> dict:
     """The nested hierarchy of a recursive run (pipeline.run(..., record_levels=True)) written to
-    out_dir (models.hierarchy.nested); returns the hierarchy.json index."""
+    out_dir (models.hierarchy.nested); returns the hierarchy.json index (written: filled as
+    models.hierarchy.nested.write_hierarchy fills it, e.g. the earlier level files it removed)."""
     from models.hierarchy.nested import nested_levels
     from models.hierarchy.nested import write_hierarchy as _write
 
@@ -565,4 +567,5 @@ def write_hierarchy(
         lymph=lymph,
         boundary=res.boundary,
         boundary_tag=boundary_tag,
+        written=written,
     )

@@ -233,3 +233,32 @@ def test_the_planes_judge_a_part_on_its_own_skeleton_with_the_same_characteristi
     side[ring[1]] = 0
     side[5] = 1
     assert _within(ue, np.r_[ring, 5])(side)[0] == ue(side)[0] == 0  # (the whole ring: a handle)
+
+
+def test_agglomerate_hierarchy_into_a_reused_folder_says_what_it_removed(tmp_path, capsys):
+    """`magnet agglomerate --hierarchy` shares the writer: an earlier, deeper run's level files are
+    removed there too, and said in one line."""
+    import meshio
+
+    from models.cli.main import main
+
+    p, q = quads(24)
+    path = str(tmp_path / "sq.vtu")
+    meshio.write(path, meshio.Mesh(np.c_[p, np.zeros(len(p))], [("quad", q)]))
+    out = tmp_path / "h"
+    assert (
+        main(["agglomerate", path, "--nref", "5", "-o", str(tmp_path / "a.vtu"), "--hierarchy", str(out)])
+        == 0
+    )
+    deep = len(json.load(open(out / "hierarchy.json"))["levels"])
+    capsys.readouterr()
+    assert (
+        main(["agglomerate", path, "--nref", "2", "-o", str(tmp_path / "a.vtu"), "--hierarchy", str(out)])
+        == 0
+    )
+    printed = capsys.readouterr().out
+    n = len(json.load(open(out / "hierarchy.json"))["levels"])
+    assert n < deep
+    assert not any(f.startswith(f"level_{n}.") for f in os.listdir(out))
+    said = [line for line in printed.splitlines() if "earlier hierarchy" in line]
+    assert len(said) == 1 and said[0].startswith("note: "), printed

@@ -259,11 +259,16 @@ def cmd_agglomerate(args) -> int:
         if args.fill:
             res.timings = {"fill": t_fill, **{k: v for k, v in res.timings.items() if k != "read"}}
         if args.hierarchy:
-            idx = pipeline.write_hierarchy(res, args.hierarchy)
+            written: dict = {}
+            idx = pipeline.write_hierarchy(res, args.hierarchy, written=written)
             print(
                 f"hierarchy: {len(idx['levels'])} levels in {args.hierarchy} "
                 f"({' > '.join(str(lv['elements']) for lv in idx['levels'])} elements)"
             )
+            if written.get("removed"):
+                from models.hierarchy.stale import removed_sentence
+
+                print(f"note: {removed_sentence(written['removed'], args.hierarchy)}")
         if args.lymph and mesh.dim != 2:
             raise ParameterError("--lymph is for 2D meshes only")
         if ucd:  # deal.II: the fine cells, material id = agglomerated element (UCD has no polytopes)
