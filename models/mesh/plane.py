@@ -1,7 +1,8 @@
 """A 2D mesh stored with 3D points (models.mesh.build): its plane found, its points in 2D
 coordinates of that plane and the frame kept; a surface that is not planar refused in one sentence
 (fill a closed one: FILL_HINT). Tolerances: a millionth of the mesh's width, the rounding of float32
-coordinates, or of decimals written with 5-8 significant digits (said: meta["rounded_plane"])."""
+coordinates, or of decimals written with 5-8 significant digits (said: meta["rounded_plane"]; refused
+where that rounding is above a hundredth of the small cells' size)."""
 
 from __future__ import annotations
 
@@ -49,6 +50,15 @@ def project_to_plane(mesh: Mesh) -> None:
         digits = written_digits(p)
         if digits is None or off > 4 * 10.0 ** (1 - digits) * float(np.abs(p).max()):
             digits = None
+    if digits is not None:  # rounded: projecting moves a cell's area by about (off / its size)^2
+        h = _small_edge(mesh)
+        if off > 1e-2 * h:
+            raise MeshError(
+                f"its points lie up to {off:.2g} off their plane, the rounding of coordinates written with "
+                f"{digits} significant digits this far from the origin (up to {float(np.abs(p).max()):.3g}): "
+                f"{off / h:.0%} of its small cells' size ({h:.2g}), too coarse to read their shapes; move the mesh "
+                "near the origin, or write it with more digits, and retry"
+            )
     if off > _plane_tolerance(p) and digits is None:
         from models.mesh.container import CELL_TYPE_NAMES
 
@@ -72,6 +82,15 @@ def project_to_plane(mesh: Mesh) -> None:
             "message": f"the points lie up to {off:.2g} off their plane, the rounding of coordinates written "
             f"with {digits} significant digits: projected onto it",
         }
+
+
+def _small_edge(mesh: Mesh) -> float:
+    """A small cell's size: the 1st percentile of the cells' first edges (node 0 to node 1)."""
+    first = mesh.offsets[:-1][np.diff(mesh.offsets) > 1]
+    if first.size == 0:
+        return float("inf")
+    a, b = mesh.points[mesh.connectivity[first]], mesh.points[mesh.connectivity[first + 1]]
+    return float(np.percentile(np.linalg.norm(a - b, axis=1), 1))
 
 
 def written_digits(p: np.ndarray, fewest: int = 5, most: int = 8) -> int | None:
