@@ -119,3 +119,40 @@ def test_a_tilted_plane_rounded_to_a_third_of_its_cells_is_refused_not_projected
     near = read_mesh(written(300.0, "near.vtk"))
     assert "rounded_plane" in near.meta
     assert abs(near.meta["measures"].sum() - 2.0) < 1e-3
+
+
+def test_a_bad_point_id_in_one_piece_of_a_vtkhdf_does_not_reach_into_another(tmp_path):
+    """A VTKHDF of one partitioned dataset (two pieces of 135 tetrahedra): a connectivity id of -1 in
+    the second piece named, once the pieces were joined, the last point of the first (volume 2.0123
+    against 2); it is a cell referring to a missing point, left out and said, as in a single grid."""
+    vtk = pytest.importorskip("vtk")
+    h5py = pytest.importorskip("h5py")
+
+    def box(x0, n=3):
+        s = vtk.vtkImageData()
+        s.SetDimensions(n + 1, n + 1, n + 1)
+        s.SetSpacing(1 / n, 1 / n, 1 / n)
+        s.SetOrigin(x0, 0, 0)
+        t = vtk.vtkDataSetTriangleFilter()
+        t.SetInputData(s)
+        t.Update()
+        return t.GetOutput()
+
+    p = vtk.vtkPartitionedDataSet()
+    p.SetPartition(0, box(0.0))
+    p.SetPartition(1, box(1.0))
+    path = str(tmp_path / "pieces.vtkhdf")
+    w = vtk.vtkHDFWriter()
+    w.SetFileName(path)
+    w.SetInputData(p)
+    w.Write()
+    good = read_mesh(path)
+    assert good.n_cells == 270 and abs(good.meta["measures"].sum() - 2.0) < 1e-12
+    with h5py.File(path, "r+") as h:
+        conn = h["VTKHDF/Connectivity"][()]
+        conn[540 + 7] = -1  # the second piece's cell 1 (its connectivity starts at 540)
+        h["VTKHDF/Connectivity"][...] = conn
+    mesh = read_mesh(path)
+    assert mesh.n_cells == 269
+    assert mesh.meta["dropped_cells"]["ids_all"] == [136]
+    assert abs(mesh.meta["measures"].sum() - (2.0 - 1.0 / 162)) < 1e-6  # (float32 points)

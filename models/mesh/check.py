@@ -19,7 +19,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from models.errors import MagnetError, MeshError
+from models.errors import MagnetError, MeshError, id_list
 from models.mesh.container import Mesh
 
 N_IDS = 10  # ids listed per finding
@@ -442,7 +442,8 @@ def format_report(rep: dict) -> str:
     else:
         lines.append(f"{rep.get('file', 'mesh')}: cannot be used")
     for i in rep["issues"]:
-        ids = f" (ids {i['ids']}{'...' if i['count'] > len(i['ids']) else ''})" if i["ids"] else ""
+        more = ", ..." if i["count"] > len(i["ids"]) else ""
+        ids = f" (ids {id_list(i['ids'], len(i['ids']))}{more})" if i["ids"] else ""
         lines.append(f"{i['severity']}: {i['message']}{ids}")
     lines.append(f"verdict: {rep['verdict']}")
     return "\n".join(lines)

@@ -112,7 +112,10 @@ def dropped_sentence(meta: dict) -> str | None:
     d = meta.get("dropped_cells")
     if not d:
         return None
-    parts = [f"{len(ids):,} {why} (cells {id_list(ids)})" for why, ids in d["reasons"].items()]
+    parts = [
+        f"{len(ids):,} {why} (cell{'s' if len(ids) > 1 else ''} {id_list(ids)})"
+        for why, ids in d["reasons"].items()
+    ]
     return (
         f"{len(d['ids_all']):,} of the file's {d['file_cells']:,} cells left out, the rest agglomerated: "
         + "; ".join(parts)

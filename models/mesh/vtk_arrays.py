@@ -265,11 +265,14 @@ def _composite(data, path, what, fmt, groups: bool = True, repeats: list | None 
     shared = all(len(p[0]) == len(parts[0][0]) for p in parts) and all(
         p[0] is parts[0][0] or np.array_equal(p[0], parts[0][0]) for p in parts[1:]
     )
-    offs, conns, types, polys = [np.zeros(1, np.int64)], [], [], []
+    offs, conns, types, polys, bad = [np.zeros(1, np.int64)], [], [], [], []
     base_c = base_p = 0
     for pts, off, conn, t, _, poly in parts:
         offs.append(np.asarray(off[1:], np.int64) + base_c)
-        conns.append(np.asarray(conn, np.int64) + (0 if shared else base_p))
+        conn = np.asarray(conn, np.int64)
+        # an id outside its own block's points must not name another block's point once joined
+        bad.append((conn < 0) | (conn >= len(pts)))
+        conns.append(conn + (0 if shared else base_p))
         types.append(t)
         polys.append(poly)
         base_c += int(off[-1])
@@ -286,15 +289,18 @@ def _composite(data, path, what, fmt, groups: bool = True, repeats: list | None 
         cd["block"] = np.repeat(np.arange(1, len(parts) + 1), [len(p[3]) for p in parts])
     poly = _join_polys(polys, [p[0] for p in parts], shared) if any(p is not None for p in polys) else None
     conn = np.concatenate(conns)
+    bad = np.concatenate(bad)
     if shared:
         pts = parts[0][0]
     else:
         pts = np.concatenate([np.asarray(p[0], np.float64) for p in parts])
         pts, inverse = np.unique(pts, axis=0, return_inverse=True)  # coincident points merged
         inverse = inverse.reshape(-1)
-        conn = inverse[conn]
+        conn = inverse[np.where(bad, 0, conn)]
         if poly is not None:
             poly = (poly[0], poly[1], inverse[poly[2]])
+    if bad.any():  # (out of range of the joined points: the cells read later leaves out or refuses)
+        conn[bad] = len(pts)
     return pts, np.concatenate(offs), conn, np.concatenate(types), cd, poly
 
 
