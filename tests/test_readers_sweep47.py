@@ -156,3 +156,21 @@ def test_a_bad_point_id_in_one_piece_of_a_vtkhdf_does_not_reach_into_another(tmp
     assert mesh.n_cells == 269
     assert mesh.meta["dropped_cells"]["ids_all"] == [136]
     assert abs(mesh.meta["measures"].sum() - (2.0 - 1.0 / 162)) < 1e-6  # (float32 points)
+
+
+def test_an_xyz_text_file_is_refused_the_same_way_every_time(tmp_path):
+    """An XYZ list of atoms named by words ("Oxygen") with CRLF line ends was not recognised, and
+    VTK's PLOT3D reader said "truncated?" or "corrupted" from one run to the next; other text that
+    is no PLOT3D grid is refused by its line."""
+    atoms = tmp_path / "water.xyz"
+    atoms.write_bytes(b"3\r\nwater molecule\r\nOxygen 0.0 0.0 0.0\r\nH 0.757 0.586 0.0\r\nH -0.757 0.586 0.0\r\n")
+    said = set()
+    for _ in range(3):
+        with pytest.raises(MeshError) as e:
+            read_mesh(str(atoms))
+        said.add(str(e.value))
+    assert len(said) == 1 and "XYZ list of 3 atoms" in said.pop()
+    other = tmp_path / "t.xyz"
+    other.write_text("3\nwater\nfoo bar baz\n")
+    with pytest.raises(MeshError, match=r"line 2 holds 'water' where the grid's point counts"):
+        read_mesh(str(other))

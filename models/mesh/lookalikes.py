@@ -9,7 +9,7 @@ import re
 
 # an XYZ molecule: a line with the atom count, a comment line, then "symbol x y z" rows
 _NUMBER = rb"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eEdD][-+]?\d+)?"
-_ATOM = re.compile(rb"^\s*[A-Za-z]{1,3}\s+" + rb"\s+".join([_NUMBER] * 3) + rb"(?:\s.*)?$")
+_ATOM = re.compile(rb"^\s*[A-Za-z][A-Za-z0-9_+-]{0,15}\s+" + rb"\s+".join([_NUMBER] * 3) + rb"(?:\s.*)?$")
 _COUNT = re.compile(rb"^\s*\d+\s*$")
 # Movie.BYU's first line: parts, points, polygons, connectivity entries (vtkBYUWriter, ParaView)
 _BYU_HEAD = re.compile(rb"^\s*\d+\s+\d+\s+\d+\s+\d+\s*\r?\n\s*\d+\s+\d+\s*\r?\n")
@@ -17,7 +17,7 @@ _BYU_HEAD = re.compile(rb"^\s*\d+\s+\d+\s+\d+\s+\d+\s*\r?\n\s*\d+\s+\d+\s*\r?\n"
 
 def xyz_molecule(head: bytes) -> str | None:
     """What to say of a .xyz file that is an XYZ list of atoms (a count line, a comment line, then
-    rows of an element symbol and three coordinates), or None where it is not one."""
+    rows of an element symbol or name and three coordinates), or None where it is not one."""
     lines = head.split(b"\n")
     if len(lines) < 3 or not _COUNT.match(lines[0]):
         return None

@@ -6,11 +6,12 @@ library and models.mesh.cells only (the reader objects come in)."""
 
 from __future__ import annotations
 
+import os
 import re
 
 import numpy as np
 
-from models.errors import ParameterError
+from models.errors import MeshError, ParameterError
 from models.mesh.cells import find_tag_key
 
 
@@ -120,8 +121,14 @@ def _plot3d_layout(reader, path: str) -> None:
     reader.SetTwoDimensionalGeometry(int(dim == 2))
     try:
         sizes = np.array([int(v) for v in dims_line[: dim * grids]], dtype=np.int64).reshape(grids, dim)
-    except ValueError:
-        return  # (VTK's reader says what is wrong)
+    except ValueError:  # (VTK's ASCII reading of such a file says different things run to run)
+        where = 2 if multi else 1
+        bad = next((v for v in dims_line if not v.isdigit()), b"")
+        raise MeshError(
+            f"cannot read {os.path.basename(path)} as PLOT3D grid: line {where} holds "
+            f"'{bad.decode('ascii', 'replace')[:20]}' where the grid's point counts (whole numbers) are "
+            "expected; it is text but not a PLOT3D grid"
+        ) from None
     points = int(sizes.prod(axis=1).sum())
     numbers = len(text.split()) - int(multi) - dim * grids
     reader.SetIBlanking(int(numbers == (dim + 1) * points))
