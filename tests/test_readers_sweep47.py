@@ -163,7 +163,9 @@ def test_an_xyz_text_file_is_refused_the_same_way_every_time(tmp_path):
     VTK's PLOT3D reader said "truncated?" or "corrupted" from one run to the next; other text that
     is no PLOT3D grid is refused by its line."""
     atoms = tmp_path / "water.xyz"
-    atoms.write_bytes(b"3\r\nwater molecule\r\nOxygen 0.0 0.0 0.0\r\nH 0.757 0.586 0.0\r\nH -0.757 0.586 0.0\r\n")
+    atoms.write_bytes(
+        b"3\r\nwater molecule\r\nOxygen 0.0 0.0 0.0\r\nH 0.757 0.586 0.0\r\nH -0.757 0.586 0.0\r\n"
+    )
     said = set()
     for _ in range(3):
         with pytest.raises(MeshError) as e:
