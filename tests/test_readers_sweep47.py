@@ -176,3 +176,45 @@ def test_an_xyz_text_file_is_refused_the_same_way_every_time(tmp_path):
     other.write_text("3\nwater\nfoo bar baz\n")
     with pytest.raises(MeshError, match=r"line 2 holds 'water' where the grid's point counts"):
         read_mesh(str(other))
+
+
+@pytest.mark.parametrize(
+    "row,coord,said",
+    [
+        (
+            "63    96    1     0      2     2     1",
+            "0.0",
+            "line 7 (section CONTROL INFO): 7 numbers where the row",
+        ),
+        ("63    96    1     0      2     2", "inf", "'inf' where a finite coordinate is expected"),
+        ("63.0  96    1     0      2     2", "0.0", "'63.0' where the number of nodes (NUMNP) is expected"),
+    ],
+)
+def test_a_damaged_gambit_header_is_said_by_its_line(tmp_path, row, coord, said):
+    """meshpy's layout with a seventh number in the count row, an 'inf' coordinate, a float count:
+    "its cells cannot be read", or "the reader crashed on this file: line 7 ..."; now the line and
+    what is wrong there, without "crashed" where the place says why."""
+    n = 6
+    x, y = np.meshgrid(np.linspace(0, 1, n + 1), np.linspace(0, 1, n + 1), indexing="ij")
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1) + 1
+    a, b, c = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    d = idx[:-1, 1:].ravel()
+    tri = np.r_[np.c_[a, b, c], np.c_[a, c, d]]
+    lines = ["CONTROL INFO 2.1.2", "** GAMBIT NEUTRAL FILE", "t", "PROGRAM: MeshPy VERSION: 1", "date"]
+    lines += ["NUMNP NELEM NGRPS NBSETS NDFCD NDFVL", row, "ENDOFSECTION", "NODAL COORDINATES 2.1.2"]
+    pts = [
+        f"{i + 1} {px!r} {py!r}"
+        for i, (px, py) in enumerate(zip(x.ravel().tolist(), y.ravel().tolist(), strict=True))
+    ]
+    pts[0] = f"1 {coord} 0.0"
+    lines += pts + ["ENDOFSECTION", "ELEMENTS/CELLS 2.1.2"]
+    lines += [f"{i + 1:>8d}{3:>3d}{3:>3d} " + "".join(f"{v:>8d}" for v in t) for i, t in enumerate(tri)]
+    lines += ["ENDOFSECTION"]
+    path = tmp_path / "m.neu"
+    path.write_text("\n".join(lines) + "\n")
+    from models.mesh.sandbox import read_mesh_safe
+
+    with pytest.raises(MeshError) as e:  # (in a child, as every way in reads: VTK's reader dies on some)
+        read_mesh_safe(str(path))
+    msg = str(e.value)
+    assert said in msg and "crashed" not in msg and "cannot be read" not in msg, msg

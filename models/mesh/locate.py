@@ -18,6 +18,7 @@ import re
 LIMIT = 64 << 20
 _INT = re.compile(rb"[-+]?\d+\Z")
 _FLOAT = re.compile(rb"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?\Z|[-+]?(nan|inf|infinity)\Z", re.IGNORECASE)
+_FINITE = re.compile(rb"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?\Z")
 
 
 class _Found(Exception):
@@ -384,6 +385,12 @@ def _gambit(lines: list[bytes]) -> None:
     t.int("the number of element groups", lo=0)
     t.int("the number of boundary sets", lo=0)
     dims = t.int("the number of coordinate directions (2 or 3)", lo=2, hi=3)
+    extra = t.rest_of_line()  # (NDFVL, which some writers leave out)
+    if len(extra) > 1:  # (VTK's reader takes the row in fixed columns: a seventh number shifts them)
+        raise _Found(
+            f"line {t.line:,} (section CONTROL INFO): {5 + len(extra)} numbers where the row "
+            "NUMNP NELEM NGRPS NBSETS NDFCD NDFVL has 6"
+        )
     first, end = _gambit_section(lines, head + 2, b"NODAL COORDINATES")
     t = _Tokens(lines, first, end)
     t.enter("NODAL COORDINATES", first)
@@ -392,6 +399,8 @@ def _gambit(lines: list[bytes]) -> None:
         t.int("a node id", lo=1)
         for _ in range(dims):
             t.number("a coordinate")
+            if not _FINITE.match(t.toks[t.k - 1]):
+                t.fail(t.toks[t.k - 1], "a finite coordinate")
     if end < len(lines) and t.i < end and any(ln.strip() for ln in lines[t.i : end]):
         raise _Found(
             f"line {t.i + 1:,} (section NODAL COORDINATES, from line {first}): more nodes than the "

@@ -440,7 +440,12 @@ def call_in_child(
         if status == "timeout" or (not answered and status == signal.SIGXCPU):
             raise MeshError(_with_place(timeout_sentence(path, timeout_s, file_format), path, file_format))
         if not answered:
-            said = _with_place(crash_sentence(path, file_format), path, file_format)
+            crash = crash_sentence(path, file_format)
+            said = _with_place(crash, path, file_format)
+            if said != crash:  # the place found says what is wrong: no "crashed" before it
+                said = said.replace(
+                    f"the {format_name(path, file_format)} reader crashed on this file: ", "", 1
+                )
             raise MeshError(said if fn is _hdf5_damage else _damage_place(said, path, memory_bytes))
         # a lent answer: its arrays copied from the child (alive until `release` closes), at most
         # what the child could hold
