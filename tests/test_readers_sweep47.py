@@ -218,3 +218,28 @@ def test_a_damaged_gambit_header_is_said_by_its_line(tmp_path, row, coord, said)
         read_mesh_safe(str(path))
     msg = str(e.value)
     assert said in msg and "crashed" not in msg and "cannot be read" not in msg, msg
+
+
+def test_a_gambit_title_with_a_tab_is_read(tmp_path):
+    """'CONTROL<tab>INFO': refused "no 'CONTROL INFO' section", though the copy VTK's reader gets
+    has its tabs made spaces."""
+    n = 3
+    g = np.stack(np.meshgrid(*[np.linspace(0, 1, n + 1)] * 2, indexing="ij"), -1).reshape(-1, 2)
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1) + 1
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    tri = np.r_[np.c_[a, b, c], np.c_[a, c, d]]
+    lines = ["CONTROL\tINFO 2.1.2", "** GAMBIT NEUTRAL FILE", "t", "PROGRAM: x VERSION: 1", "date"]
+    lines += ["     NUMNP     NELEM     NGRPS    NBSETS     NDFCD     NDFVL"]
+    lines += [f"{len(g):>10d}{len(tri):>10d}{0:>10d}{0:>10d}{2:>10d}{2:>10d}", "ENDOFSECTION"]
+    lines += ["   NODAL COORDINATES 2.1.2"] + [
+        f"{i + 1:>10d}{p[0]:20.11e}{p[1]:20.11e}" for i, p in enumerate(g)
+    ]
+    lines += ["ENDOFSECTION", "      ELEMENTS/CELLS 2.1.2"]
+    lines += [f"{i + 1:>8d}{3:>3d}{3:>3d} " + "".join(f"{v:>8d}" for v in t) for i, t in enumerate(tri)]
+    lines += ["ENDOFSECTION"]
+    path = tmp_path / "tab.neu"
+    path.write_text("\n".join(lines) + "\n")
+    from models.mesh.sandbox import read_mesh_safe
+
+    mesh = read_mesh_safe(str(path))
+    assert mesh.n_cells == 18 and abs(mesh.meta["measures"].sum() - 1.0) < 1e-12

@@ -373,7 +373,7 @@ def _gambit_count(
 
 
 def _gambit(lines: list[bytes]) -> None:
-    if not lines[0].strip().startswith(b"CONTROL INFO"):
+    if lines[0].split()[:2] != [b"CONTROL", b"INFO"]:
         raise _Found("line 1: the title 'CONTROL INFO' is expected")
     head = next((j for j, ln in enumerate(lines[:12]) if ln.split()[:2] == [b"NUMNP", b"NELEM"]), None)
     if head is None:

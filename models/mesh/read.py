@@ -182,7 +182,7 @@ def pick_reader(path: str, file_format: str | None = None) -> tuple[str, str]:
             raise MeshError(f"cannot read {name} as PLOT3D grid: {lookalikes.xyz_molecule(text)}")
         if _VTK_OTHER[ext] == "tecplot":
             _tecplot_ascii(name, ext, head, text)
-        if ext == ".neu" and b"CONTROL INFO" not in head.upper():
+        if ext == ".neu" and not re.search(rb"CONTROL[ \t]+INFO", head.upper()):  # (or a tab between)
             raise MeshError(
                 f"cannot read {name} as Gambit neutral: no 'CONTROL INFO' section at the start of the file"
             )
