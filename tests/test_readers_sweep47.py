@@ -243,3 +243,21 @@ def test_a_gambit_title_with_a_tab_is_read(tmp_path):
 
     mesh = read_mesh_safe(str(path))
     assert mesh.n_cells == 18 and abs(mesh.meta["measures"].sum() - 1.0) < 1e-12
+
+
+def test_meshio_cgns_missing_a_node_is_said_by_that_node(tmp_path):
+    """meshio's CGNS layout with CoordinateX's data deleted was "an element type or a keyword that
+    this reader does not know"; it is now the node that has no data."""
+    h5py = pytest.importorskip("h5py")
+    from meshes import tets
+
+    p, t = tets(3)
+    path = tmp_path / "m.cgns"
+    meshio.write(str(path), meshio.Mesh(p, [("tetra", t)]))
+    assert read_mesh(str(path)).n_cells == len(t)
+    with h5py.File(path, "r+") as f:
+        del f["Base/Zone1/GridCoordinates/CoordinateX/ data"]
+    with pytest.raises(MeshError) as e:
+        read_mesh(str(path))
+    msg = str(e.value)
+    assert "GridCoordinates/CoordinateX node has no data" in msg and "keyword" not in msg

@@ -80,6 +80,34 @@ def meshio_layout(path: str) -> bool:
     return bool(_with_hdf5(path, look))
 
 
+# what meshio's CGNS reader takes of its own layout, each a group holding a " data" dataset
+_MESHIO_NEEDS = tuple(
+    f"Base/Zone1/{p}"
+    for p in (
+        "GridCoordinates/CoordinateX",
+        "GridCoordinates/CoordinateY",
+        "GridCoordinates/CoordinateZ",
+        "GridElements/ElementRange",
+        "GridElements/ElementConnectivity",
+    )
+)
+
+
+def meshio_layout_fault(path: str) -> str | None:
+    """Where meshio's reader of its own CGNS layout failed: the first of the nodes it reads that the
+    file lacks, or holds no data ("Base/Zone1/GridCoordinates/CoordinateX has no data"), or None."""
+
+    def look(f):
+        for node in _MESHIO_NEEDS:
+            if node not in f:
+                return f"it has no {node} node, which meshio's CGNS layout holds"
+            if " data" not in f[node]:
+                return f"its {node} node has no data"
+        return None
+
+    return _with_hdf5(path, look)
+
+
 def _with_hdf5(path: str, look):
     """look(the open h5py file) for an HDF5 file, None for any other, or where h5py is missing, or
     where the file's layout is not what look expects."""

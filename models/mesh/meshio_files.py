@@ -119,6 +119,10 @@ def read_meshio(path: str, file_type: str):
             )
         from models.mesh.formats import format_name
 
+        if file_type == "cgns":  # (meshio's own layout: a node it reads missing, not an unknown type)
+            from models.mesh.cgns_groups import meshio_layout_fault
+
+            why = meshio_layout_fault(path) or why
         if file_type == "dolfin-xml":  # (its reader reads every <stem>_*.xml beside the file too)
             bad = _dolfin_sibling_at_fault(path)
             if bad:
