@@ -429,3 +429,27 @@ def test_odd_outputs_and_settings_are_said(tmp_path):
     assert r.returncode == 0, r.stderr
     assert "MAGNET_READ_TIMEOUT_S='abc' is ignored: it must be a number of seconds > 0" in r.stderr
     assert "MAGNET_READ_MEMORY_MB='lots' is ignored" in r.stderr
+
+
+def test_subset_ids_given_on_the_command_line(tmp_path):
+    """--subset 1,2,3 (ids, not a file) was "cannot read subset file 1,2,3: No such file or
+    directory": ids are taken as they are; a missing file is still said."""
+    from models.cli.main import _read_subset
+
+    assert _read_subset("1,2,3").tolist() == [1, 2, 3]
+    assert _read_subset("4 5  6").tolist() == [4, 5, 6]
+    (tmp_path / "7").write_text("8 9")  # (a file of that name is read, as before)
+    import os
+
+    cwd = os.getcwd()
+    os.chdir(tmp_path)
+    try:
+        assert _read_subset("7").tolist() == [8, 9]
+    finally:
+        os.chdir(cwd)
+    from models.errors import ParameterError
+
+    with pytest.raises(
+        ParameterError, match=r"cannot read subset file nofile.txt: no such file or directory"
+    ):
+        _read_subset("nofile.txt")

@@ -68,7 +68,7 @@ def _add_job_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mult-factor", type=float, help="target size = factor x mesh diameter (0 < f <= 1)")
     p.add_argument(
         "--subset",
-        help="file with the cell ids to agglomerate (JSON list or whitespace separated); the rest stays",
+        help="file with the cell ids to agglomerate (JSON list or whitespace separated), or the ids themselves (1,2,3); the rest stays",
     )
     p.add_argument(
         "--physical-tag",
@@ -121,7 +121,10 @@ def _read_subset(path: str | None):
     try:
         text = open(path, encoding="utf-8").read()
     except OSError as exc:
-        raise ParameterError(f"cannot read subset file {path}: {exc.strerror}") from None
+        if not os.path.exists(path) and re.fullmatch(r"\s*\d+(\s*[, ]\s*\d+)*\s*", path):
+            text = path  # (the ids themselves: --subset 1,2,3)
+        else:
+            raise ParameterError(f"cannot read subset file {path}: {exc.strerror.lower()}") from None
     try:
         data = json.loads(text)
         if isinstance(data, dict):
