@@ -14,9 +14,12 @@
  *     for each pair of the K_NEAR segments nearest to the centre (and each single one) is found
  *     exactly (the minimax of four lines in mu). Exact for channels between parallel walls, where
  *     the Lipschitz bound keeps every cell along the ridge.
- * A cell is dropped when U <= best + eps, eps = rel_tol * diameter; the search ends when the largest
- * U in the queue is below that, so
+ * A cell is dropped when U <= best + eps, eps = rel_tol * diameter / 4; the search ends when the
+ * largest U in the queue is below that, so
  *   r_true - eps <= r <= r_true
+ * (a quarter of the tolerance asked: best-first search stops as soon as the bound allows, where the
+ * numpy twin's level-by-level search lands nearer the optimum; at a quarter it is nearer than that,
+ * for 12% more time)
  * with r an exact distance from a certified interior point (0 and a NaN centre if none was found:
  * then r_true <= eps).
  */
@@ -300,7 +303,7 @@ PyObject *py_inscribed2d(PyObject *self, PyObject *args) {
     for (Py_ssize_t i = 0; i < n && !err; i++) {
         int64_t e = el[i];
         Segs G = {prim + 4 * ptr[e], ptr[e + 1] - ptr[e]};
-        State2 S = {0.0, {NAN, NAN}, rel_tol * diam[e], 0, max_cells};
+        State2 S = {0.0, {NAN, NAN}, 0.25 * rel_tol * diam[e], 0, max_cells};
         int rc = 0;
         if (G.m > 0 && diam[e] > 0) {
             double g[2];
