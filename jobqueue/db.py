@@ -6,6 +6,7 @@ Shared by the API and the workers; imports neither FastAPI nor Celery.
 
 from __future__ import annotations
 
+import hashlib
 import os
 import time
 import uuid
@@ -183,6 +184,20 @@ def for_process(url: str) -> Database:
         db.create_schema()
         _by_url[key] = db
     return _by_url[key]
+
+
+def lock_user(session: Session, user: str) -> None:
+    """Hold `user`'s submissions until this session's transaction ends (commit or rollback), across
+    threads, processes and hosts: a check of their jobs and the insert that follows it are then one
+    step (the queue limit cannot be passed by submitting in parallel). Call it first in the session.
+    PostgreSQL: an advisory transaction lock on the user; SQLite: the database's write lock taken now
+    (BEGIN IMMEDIATE; other writers wait on the busy timeout, readers go on under WAL)."""
+    dialect = session.get_bind().dialect.name
+    if dialect == "postgresql":
+        key = int.from_bytes(hashlib.sha256(f"magnet-user:{user}".encode()).digest()[:8], "big", signed=True)
+        session.execute(text("SELECT pg_advisory_xact_lock(:key)"), {"key": key})
+    elif dialect == "sqlite":
+        session.connection().exec_driver_sql("BEGIN IMMEDIATE")
 
 
 def update_job_and_followers(session: Session, job_id: str, values: dict, only_if: dict | None = None) -> int:

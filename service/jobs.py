@@ -30,6 +30,7 @@ from jobqueue.db import (
     JobRecord,
     MeshOwner,
     MeshRecord,
+    lock_user,
     new_id,
     utcnow,
 )
@@ -224,6 +225,7 @@ def submit_job(
     key = result_key(mesh.id, params, api.MODEL_VERSION)
     now = utcnow()
     with db.session() as s:
+        lock_user(s, user)  # (the count and the insert below: one step, whoever submits in parallel)
         active = s.scalar(
             select(func.count())
             .select_from(JobRecord)
