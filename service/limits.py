@@ -7,20 +7,28 @@ import json
 
 from starlette.exceptions import HTTPException
 
+from service.wording import said_bytes
+
+
+def too_large(file_limit: int) -> str:
+    return f"request body too large: a mesh file may be at most {said_bytes(file_limit)}"
+
 
 class BodyTooLarge(HTTPException):
     """Raised from receive(); an HTTPException so that body parsers pass it through as a 413."""
 
-    def __init__(self, limit: int):
-        super().__init__(413, f"request body too large: the limit is {limit} bytes")
+    def __init__(self, file_limit: int):
+        super().__init__(413, too_large(file_limit))
 
 
 class BodySizeLimit:
     """ASGI middleware: 413 for bodies over `max_bytes` (`form_max_bytes` for paths ending /form,
-    whose base64 payload is a third larger than the file)."""
+    whose base64 payload is a third larger than the file); the refusal says `file_limit`, the mesh
+    file's limit that these bodies are sized for (MAGNET_MAX_UPLOAD_BYTES)."""
 
-    def __init__(self, app, max_bytes: int, form_max_bytes: int):
+    def __init__(self, app, max_bytes: int, form_max_bytes: int, file_limit: int | None = None):
         self.app, self.max_bytes, self.form_max_bytes = app, max_bytes, form_max_bytes
+        self.file_limit = max_bytes if file_limit is None else file_limit
 
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
@@ -33,7 +41,7 @@ class BodySizeLimit:
                 except ValueError:
                     declared = 0
                 if declared > limit:
-                    return await _reject(send, limit)
+                    return await _reject(send, self.file_limit)
         received = 0
         started = False
 
@@ -43,7 +51,7 @@ class BodySizeLimit:
             if message["type"] == "http.request":
                 received += len(message.get("body", b""))
                 if received > limit:
-                    raise BodyTooLarge(limit)
+                    raise BodyTooLarge(self.file_limit)
             return message
 
         async def tracking_send(message):
@@ -56,11 +64,11 @@ class BodySizeLimit:
             await self.app(scope, counting_receive, tracking_send)
         except BodyTooLarge:
             if not started:
-                await _reject(send, limit)
+                await _reject(send, self.file_limit)
 
 
-async def _reject(send, limit: int) -> None:
-    body = json.dumps({"detail": f"request body too large: the limit is {limit} bytes"}).encode()
+async def _reject(send, file_limit: int) -> None:
+    body = json.dumps({"detail": too_large(file_limit)}).encode()
     await send(
         {
             "type": "http.response.start",

@@ -190,7 +190,7 @@ def check_xml(path: Path, max_cells: int) -> None:
                 pieces += 1
                 if cells > max_cells:
                     raise UploadRejected(
-                        413, f"{path.name} declares {cells} cells or more; the limit is {max_cells}"
+                        413, f"{path.name} declares {cells:,} cells or more; the limit is {max_cells:,}"
                     )
             elif tag == "AppendedData":
                 break  # raw binary follows: not XML, and no DTD can come after the root element
@@ -262,10 +262,22 @@ def draw_level(path: Path, archive: Path, level: int, out: Path) -> None:
 
 
 def _message(exc: Exception, path: Path, what: str) -> str:
-    """Our own message (read_mesh_safe's words), or a sentence: never a library's raw text."""
-    from models.errors import MagnetError
+    """Our own message (read_mesh_safe's words), or a sentence: never a library's raw text. A file
+    inside an archive is said after the archive, as the CLI says it ("cannot read case.zip: cannot
+    read big.xdmf as XDMF: ...")."""
+    from models.errors import HoleError, MagnetError, MeshError
 
-    return (str(exc) if isinstance(exc, MagnetError) else wording(what, path))[:2000]
+    if not isinstance(exc, MagnetError):
+        return wording(what, path)[:2000]
+    said = str(exc)
+    if (
+        isinstance(exc, MeshError)
+        and not isinstance(exc, HoleError)
+        and formats.extension(path.name) in formats.ARCHIVES
+        and path.name not in said
+    ):
+        said = wording(said, path)
+    return said[:2000]
 
 
 def _child_main(argv: list[str]) -> int:
@@ -301,7 +313,9 @@ def _child_main(argv: list[str]) -> int:
 
         info = api.inspect_mesh(str(path), physical_tag=physical_tag, check=physical_tag is None)
         if int(info["cells"]) > max_cells:
-            raise UploadRejected(413, f"the mesh has {info['cells']} cells; the limit is {max_cells}")
+            raise UploadRejected(
+                413, f"the mesh has {int(info['cells']):,} cells; the limit is {max_cells:,}"
+            )
         issues = info.get("check", {}).get("issues", [])  # no check report when re-read for a physical_tag
         errors = [i["message"] for i in issues if i["severity"] == "error"]
         if errors:  # read, but it cannot be agglomerated (e.g. not a manifold): say so now, not in a job

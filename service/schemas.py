@@ -34,7 +34,10 @@ class ValidationErrorOut(ErrorOut):
 
 
 class MeshOut(BaseModel):
-    id: str = Field(description="sha256 of the uploaded bytes")
+    id: str = Field(
+        description="sha256 of the format extension and the uploaded bytes: the same file under the same "
+        "extension is the same mesh"
+    )
     filename: str | None = None
     size: int
     cells: int

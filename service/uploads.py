@@ -13,20 +13,33 @@ from sqlalchemy.exc import IntegrityError
 from starlette.concurrency import run_in_threadpool
 
 from jobqueue.db import MeshOwner, MeshRecord, utcnow
-from models.mesh.formats import format_name
+from models.mesh.sandbox import wording
 from service.context import Context
 from service.jobs import check_quota
 from service.mesh_check import UploadRejected, extension_of, inspect_upload
 from service.schemas import MeshOut
+from service.wording import said_bytes
 
 CHUNK = 1 << 20
 _UGRID_KIND = re.compile(r"\.(b8l|b8|b4|lb8l|lb8|lb4|r8|r4|lr8|lr4)\.ugrid$")
 
 
+RAW_HINT = "send the mesh file as the request body"
+MULTIPART_HINT = "send the mesh file in multipart field 'file'"
+FORM_HINT = "send the mesh file base64-encoded in field file_b64"
+
+
+def mesh_key(ext: str):
+    """The hash that names an upload: its bytes and its format extension, which picks the reader
+    (the same bytes as .vtu and as .stl are two meshes, or one of them is no mesh at all)."""
+    return hashlib.sha256(f"magnet-mesh:{ext}\n".encode())
+
+
 async def receive_mesh(
-    ctx: Context, user: str, chunks: AsyncIterator[bytes], filename: str | None
+    ctx: Context, user: str, chunks: AsyncIterator[bytes], filename: str | None, hint: str = RAW_HINT
 ) -> MeshOut:
-    """Store one uploaded mesh for `user`; the same bytes always give the same id."""
+    """Store one uploaded mesh for `user`; the same bytes under the same format always give the same
+    id. `hint`: how this way in takes the file (said when it came empty)."""
     ext = extension_of(filename)
     base = os.path.basename((filename or "").replace("\\", "/"))
     kind = _UGRID_KIND.search(base.lower()) if ext == "ugrid" else None
@@ -36,23 +49,18 @@ async def receive_mesh(
     limit = ctx.settings.max_upload_bytes
     safe = re.sub(r"[^A-Za-z0-9._-]", "_", stem)[:100] or "mesh"
     tmp = ctx.storage.temp_file(f"{safe}.{ext}")
-    digest, size = hashlib.sha256(), 0
+    digest, size = mesh_key(ext), 0
     try:
         with open(tmp, "wb") as out:
             async for chunk in chunks:
                 size += len(chunk)
                 if size > limit:
-                    raise UploadRejected(413, f"mesh file too large: the limit is {limit} bytes")
+                    raise UploadRejected(413, f"mesh file too large: the limit is {said_bytes(limit)}")
                 digest.update(chunk)
                 out.write(chunk)
-        if size == 0:  # (the CLI's words for an empty file, and how to send one)
+        if size == 0:  # (the CLI's words for an empty file, and how this way in takes one)
             name = os.path.basename((filename or "").replace("\\", "/"))[:100] or "the upload"
-            fmt = format_name(name)
-            raise UploadRejected(
-                422,
-                f"cannot read {name}{'' if fmt == 'mesh' else ' as ' + fmt}: the file is empty (0 bytes); "
-                "send the mesh file as the request body or multipart field 'file'",
-            )
+            raise UploadRejected(422, f"{wording('the file is empty (0 bytes)', name)}; {hint}")
         mesh_id = digest.hexdigest()
         return await run_in_threadpool(_file_mesh, ctx, user, tmp, mesh_id, ext, size, filename)
     finally:
@@ -83,6 +91,9 @@ def _file_mesh(
     name = (filename or f"mesh.{ext}").replace("\\", "/").rsplit("/", 1)[-1][:300]
     with ctx.db.session() as s:
         owner = s.get(MeshOwner, (mesh_id, user))
+        if owner is not None and owner.filename != name:  # (the name this upload gave it)
+            owner.filename = name
+            s.commit()
         if owner is None:
             owner = MeshOwner(mesh_id=mesh_id, user=user, filename=name, created_at=utcnow())
             try:

@@ -10,7 +10,7 @@ from service.jobs import delete_mesh, visible_mesh
 from service.mesh_check import ALLOWED_EXTENSIONS, UploadRejected
 from service.openapi import errors
 from service.schemas import MeshOut
-from service.uploads import mesh_out, receive_mesh, stream_of
+from service.uploads import MULTIPART_HINT, mesh_out, receive_mesh, stream_of
 
 router = APIRouter(prefix="/v1", tags=["meshes"])
 
@@ -63,7 +63,7 @@ async def upload_mesh(
     """Store a mesh (the same bytes give the same id) and answer what it contains."""
     if request.headers.get("content-type", "").startswith("multipart/form-data"):
         _, upload = await multipart_file(request)
-        return await receive_mesh(ctx, user, stream_of(upload), upload.filename or filename)
+        return await receive_mesh(ctx, user, stream_of(upload), upload.filename or filename, MULTIPART_HINT)
     return await receive_mesh(ctx, user, request.stream(), filename)
 
 
