@@ -11,7 +11,7 @@ from jobqueue.db import Database
 from jobqueue.dispatch import BrokerUnavailable
 from jobqueue.settings import Settings
 from jobqueue.storage import Storage
-from models.errors import MagnetError
+from models.errors import MagnetError, ParameterError
 from service.auth import load_keys
 from service.context import Context
 from service.error_envelope import ErrorsInBody
@@ -20,6 +20,7 @@ from service.limits import BodySizeLimit
 from service.mesh_check import UploadRejected
 from service.openapi import install as install_openapi
 from service.routers import events, health, jobs, meshes, metrics, models, web
+from service.wording import json_value, json_values
 
 DESCRIPTION = """Mesh agglomeration as a service: upload a mesh, queue an agglomeration job (METIS,
 k-means, graph neural networks), poll it, download the agglomerated mesh, its quality metrics,
@@ -41,6 +42,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         BodySizeLimit,
         max_bytes=settings.max_upload_bytes + (1 << 20),
         form_max_bytes=settings.max_upload_bytes * 4 // 3 + (1 << 20),
+        file_limit=settings.max_upload_bytes,
     )
     app.add_middleware(ErrorsInBody)
     for router in (health.router, metrics.router, meshes.router, jobs.router, events.router, models.router):
@@ -67,11 +69,10 @@ def _error(status: int, detail: str, field: str | None = None, headers: dict | N
 
 
 def _said(name: str, error: dict) -> str:
-    """One wire-format (pydantic) error in the library's words ("k must be an integer, got '8'")."""
-    from models.params import shown as value_shown
-
+    """One wire-format (pydantic) error in the library's words ('k must be an integer, got "8"'; the
+    bound of a range from the error's ctx: "k must be >= 1, got 0")."""
     kind, got, ctx = str(error.get("type", "")), error.get("input"), error.get("ctx") or {}
-    shown = value_shown(got)
+    shown = json_value(got)  # (as the request wrote it: true, "8")
     if kind.startswith("int_"):
         return f"{name} must be an integer, got {shown}"
     if kind.startswith("float_") or kind == "finite_number":
@@ -111,7 +112,6 @@ def _library_sentence(request: Request, exc: RequestValidationError):
     if request.method != "POST" or not request.url.path.endswith("/jobs") or not isinstance(body, dict):
         return None
     from models import api
-    from models.errors import ParameterError
 
     try:
         api.validate_params({k: v for k, v in body.items() if k != "mesh_id"})
@@ -122,12 +122,24 @@ def _library_sentence(request: Request, exc: RequestValidationError):
     return None
 
 
+def _as_requested(text: str, field: str | None) -> str:
+    """A ParameterError's sentence as the request names things: the field by its path (Python's
+    keyword seed is options.seed here) and the values it echoes as JSON (true, "8")."""
+    text = json_values(text)
+    if field and "." in field and text.startswith(field.rsplit(".", 1)[1] + " "):
+        text = f"{field.rsplit('.', 1)[0]}.{text}"
+    return text
+
+
 def _error_handlers(app: FastAPI) -> None:
     """Each failure kind mapped once to its HTTP status."""
 
     @app.exception_handler(MagnetError)
     async def library_error(_: Request, exc: MagnetError):  # MeshError, ParameterError, ModelError
-        return _error(422, str(exc) or type(exc).__name__, getattr(exc, "field", None))
+        text, field = str(exc) or type(exc).__name__, getattr(exc, "field", None)
+        if isinstance(exc, ParameterError):
+            text = _as_requested(text, field)
+        return _error(422, text, field)
 
     @app.exception_handler(RequestValidationError)
     async def invalid_request(request: Request, exc: RequestValidationError):
@@ -135,10 +147,7 @@ def _error_handlers(app: FastAPI) -> None:
         if said is not None:  # a job's parameters: refused in the library's words, as the CLI and Python
             loc = [str(p) for p in (exc.errors() or [{}])[0].get("loc", ()) if isinstance(p, str)][1:]
             field = getattr(said, "field", None) or (".".join(loc) or None)
-            text = str(said)
-            if field and "." in field and text.startswith(field.rsplit(".", 1)[1] + " "):
-                text = f"{field.rsplit('.', 1)[0]}.{text}"  # (Python's keyword seed is options.seed here)
-            return _error(422, text, field)
+            return _error(422, _as_requested(str(said), field), field)
         # FastAPI's own handler echoes the input, which fails on NaN/Infinity (a 500): say where instead
         raw = list(exc.errors())
         errors = [

@@ -8,24 +8,27 @@ import binascii
 import json
 import re
 from pathlib import Path
+from typing import get_args, get_origin
 
 from fastapi import APIRouter, Depends, Query, Request, Response, Security
 from fastapi import Path as PathParam
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse
-from pydantic import ValidationError
+from pydantic import BaseModel, ValidationError
 from sqlalchemy import delete, func, select
 from starlette.concurrency import run_in_threadpool
 
 from jobqueue.db import SUCCEEDED, JobRecord
+from models.errors import ParameterError
+from models.params import OPTION_NAMES
 from service.auth import authenticate, bearer_scheme, current_user
 from service.context import Context, get_context
 from service.jobs import NotFinished, NotFound, cancel_job, submit_job, visible_job
 from service.mesh_check import UploadRejected
 from service.openapi import binary, errors
 from service.routers.meshes import ERRORS, multipart_file
-from service.schemas import JobCreate, JobList, JobOut, JobParams, JobResult, JobStatus
-from service.uploads import receive_mesh, stream_of
+from service.schemas import JobCreate, JobList, JobOptions, JobOut, JobParams, JobResult, JobStatus
+from service.uploads import FORM_HINT, MULTIPART_HINT, receive_mesh, stream_of
 
 router = APIRouter(prefix="/v1", tags=["jobs"])
 SUBMIT_ERRORS = errors(401, 413, 422, 429, 503)
@@ -81,6 +84,14 @@ def create_job(
 
 # --- one-call submission: mesh + job fields in one request --------------------------------------
 
+
+def _kind_of(model: type[BaseModel], name: str) -> str:
+    """The kind of value a wire field takes: int, float, bool, list or str."""
+    annotation = model.model_fields[name].annotation
+    kinds = [get_origin(a) or a for a in get_args(annotation) if a is not type(None)] or [annotation]
+    return next((k.__name__ for k in kinds if k in (int, float, bool, list)), "str")
+
+
 FORM_FIELDS = {
     "model": {"type": "string"},
     "mode": {"type": "string"},
@@ -119,57 +130,83 @@ FORM_FIELDS = {
         "description": "with hierarchy: levels of their own, boundary units moved towards tighter boxes",
     },
 }
-OPTION_FIELDS = (
-    "seed",
-    "absorb_fraction",
-    "hole_policy",
-    "physical_tag",
-    "method",
-    "boundary_tag",
-    "threshold",
-    "hierarchy",
-    "ratio",
-    "coarsest",
-    "finest",
-    "boxfit",
-)
+# every option of the library may come flat (seed=3) beside the JSON text of `options`
+OPTION_FIELDS = OPTION_NAMES
+JOB_FIELDS = ("model", "mode", "k", "nref", "target_size", "mult_factor", "subset", "refiner", "options")
+for _name in OPTION_FIELDS:  # (the flat options not described above: their type, for the OpenAPI form)
+    if _name not in FORM_FIELDS:
+        _kind = _kind_of(JobOptions, _name)
+        FORM_FIELDS[_name] = {
+            "type": {"int": "integer", "float": "number", "bool": "boolean"}.get(_kind, "string")
+        }
+del _name
 
 
-def params_from_form(form) -> dict:
-    """Job parameters from form fields (strings) -> library params; 422 naming the bad field."""
-    raw: dict = {}
-    for name in ("model", "mode", "k", "nref", "target_size", "mult_factor", "refiner"):
-        value = form.get(name)
-        if isinstance(value, str) and value.strip() != "":
-            raw[name] = value.strip()
-    subset = form.get("subset")
-    if isinstance(subset, str) and subset.strip():
-        text = subset.strip()
+def _typed(name: str, kind: str, text: str):
+    """A form field's text as the JSON value it stands for: "0" -> 0, "true" -> true; text that is
+    no such value stays text (the library then says what it expected, as for JSON)."""
+    if kind in ("int", "float"):
+        for number in (int, float):
+            try:
+                return number(text)
+            except ValueError:
+                pass
+        return text
+    if kind == "bool":
+        return {"true": True, "1": True, "yes": True, "on": True, "false": False, "0": False, "no": False,
+                "off": False}.get(text.lower(), text)  # fmt: skip
+    if kind == "list":
+        what = "cell ids" if name == "subset" else "numbers"
         try:
-            raw["subset"] = (
-                json.loads(text) if text.startswith("[") else [int(t) for t in re.split(r"[,\s]+", text) if t]
-            )
+            if text.startswith("["):
+                return json.loads(text)
+            items = [_typed(name, "float", t) for t in re.split(r"[,\s]+", text) if t]
+            return items[0] if len(items) == 1 and name != "subset" else items  # (kappa=50: got 50)
         except ValueError:
-            raise UploadRejected(422, "subset: expected a JSON list or comma-separated cell ids") from None
+            raise _refused(f"{name}: expected a JSON list or comma-separated {what}", name) from None
+    return text
+
+
+def _refused(message: str, field: str) -> ParameterError:
+    error = ParameterError(message)
+    error.field = field
+    return error
+
+
+def params_from_form(form, transport: tuple[str, ...] = ()) -> dict:
+    """Job parameters from form fields (text) -> library params; 422 naming the bad field, in the
+    library's words as for JSON (POST /v1/jobs) and the CLI. `transport`: the request's own fields
+    (the file, its name, the key); any other field the job does not know is refused."""
+    unknown = sorted({n for n in form.keys() if n not in (*JOB_FIELDS, *OPTION_FIELDS, *transport)})
+    if unknown:  # (a misspelt seeed=5 would run the job with the default seed)
+        raise _refused(f"unknown parameter(s): {', '.join(unknown)}", unknown[0])
+    raw: dict = {}
+    for name in JOB_FIELDS:
+        value = form.get(name)
+        if name != "options" and isinstance(value, str) and value.strip() != "":
+            raw[name] = _typed(name, _kind_of(JobParams, name), value.strip())
     options: dict = {}
     text = form.get("options")
     if isinstance(text, str) and text.strip():
         try:
             options = json.loads(text)
         except ValueError:
-            raise UploadRejected(422, "options: expected a JSON object") from None
+            raise _refused("options: expected a JSON object", "options") from None
         if not isinstance(options, dict):
-            raise UploadRejected(422, "options: expected a JSON object")
+            raise _refused("options: expected a JSON object", "options")
     for name in OPTION_FIELDS:
         value = form.get(name)
         if isinstance(value, str) and value.strip():
-            options[name] = value.strip()
+            options[name] = _typed(name, _kind_of(JobOptions, name), value.strip())
     if options:
         raw["options"] = options
+    from models import api
+
+    api.validate_params(raw)  # ParameterError: the library's sentence ("k must be >= 1, got 0")
     try:
-        return JobParams.model_validate(raw, strict=False).library_params()  # (form fields are text)
+        return JobParams.model_validate(raw, strict=False).library_params()  # (the wire's own limits)
     except ValidationError as exc:
-        raise RequestValidationError(exc.errors(include_url=False, include_context=False)) from None
+        raise RequestValidationError(exc.errors(include_url=False)) from None
 
 
 def form_body(file_field: dict, media: str, extra: dict | None = None) -> dict:
@@ -201,8 +238,10 @@ async def agglomerate(
     if not request.headers.get("content-type", "").startswith("multipart/form-data"):
         raise UploadRejected(422, "send multipart/form-data with the mesh in field 'file' and the job fields")
     form, upload = await multipart_file(request)
-    params = params_from_form(form)
-    mesh = await receive_mesh(ctx, user, stream_of(upload), upload.filename)
+    params = params_from_form(form, ("file", "filename"))
+    named = form.get("filename")  # (a client that cannot name the part)
+    filename = upload.filename or (named if isinstance(named, str) else None)
+    mesh = await receive_mesh(ctx, user, stream_of(upload), filename, MULTIPART_HINT)
     job = await run_in_threadpool(
         submit_job, ctx.db, ctx.storage, ctx.celery, ctx.settings, user, mesh.id, params
     )
@@ -244,13 +283,15 @@ async def agglomerate_form(
         content = base64.b64decode(re.sub(r"\s+", "", data), validate=True)
     except (binascii.Error, ValueError):
         raise UploadRejected(422, "file_b64: not valid base64") from None
-    params = params_from_form(form)
+    params = params_from_form(form, ("file_b64", "filename", "token"))
     filename = form.get("filename")
 
     async def one_chunk():
         yield content
 
-    mesh = await receive_mesh(ctx, user, one_chunk(), filename if isinstance(filename, str) else None)
+    mesh = await receive_mesh(
+        ctx, user, one_chunk(), filename if isinstance(filename, str) else None, FORM_HINT
+    )
     job = await run_in_threadpool(
         submit_job, ctx.db, ctx.storage, ctx.celery, ctx.settings, user, mesh.id, params
     )
