@@ -35,7 +35,9 @@ def test_cli_check_text_json_and_exit_codes(tmp_path):
     r = magnet("check", fb)
     assert r.returncode == 0, r.stderr
     assert (
-        "1 folded" in r.stdout and f"(ids {cell})" in r.stdout and r.stdout.strip().endswith("verdict: warnings")
+        "1 folded" in r.stdout
+        and f"(ids {cell})" in r.stdout
+        and r.stdout.strip().endswith("verdict: warnings")
     )
     r = magnet("check", fb, "--json")
     rep = json.loads(r.stdout)
