@@ -4,16 +4,28 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import time
 
-from magnet_client.client import Client, JobFailed, MagnetHTTPError
+from magnet_client.client import (
+    Client,
+    InputError,
+    JobFailed,
+    MagnetHTTPError,
+    check_input_file,
+    parse_kappa,
+)
 
 
 def read_subset(path: str) -> list[int]:
     """Cell ids from a file: a JSON list (or {"subset": [...]}) or whitespace/comma separated ints."""
-    text = open(path, encoding="utf-8").read()
+    check_input_file(path, "subset file")
+    try:
+        text = open(path, encoding="utf-8").read()
+    except UnicodeDecodeError:
+        raise InputError(f"subset file {path} must hold integer cell ids (it is not text)") from None
     try:
         data = json.loads(text)
         if isinstance(data, dict):
@@ -23,16 +35,33 @@ def read_subset(path: str) -> list[int]:
     try:
         ids = [int(i) for i in data]
     except (TypeError, ValueError):
-        raise SystemExit(f"magnet-client: error: subset file {path} must hold integer cell ids") from None
+        raise InputError(f"subset file {path} must hold integer cell ids") from None
     if not ids:
-        raise SystemExit(f"magnet-client: error: subset file {path} is empty")
+        raise InputError(f"subset file {path} is empty")
     return ids
 
 
+def finite(text: str) -> float:
+    """argparse type of the float flags: a NaN or an infinity cannot be sent to the server."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid number: '{text}'") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be finite, got {text}")
+    return value
+
+
+class Parser(argparse.ArgumentParser):
+    """A bad flag or value is one sentence (argparse's own words, which name the flag), not the
+    usage block, as `magnet` says it: `--help` shows that."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="magnet-client", description="Client of a MAGNET agglomeration server"
-    )
+    parser = Parser(prog="magnet-client", description="Client of a MAGNET agglomeration server")
     parser.add_argument(
         "--server",
         default=os.environ.get("MAGNET_SERVER", "http://127.0.0.1:8000"),
@@ -63,7 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--hierarchy", metavar="DIR", help="unpack every nested level of a recursive mode here")
     p.add_argument(
         "--ratio",
-        type=float,
+        type=finite,
         help="with --hierarchy: nested levels of their own, R times fewer elements "
         "per level, any model (as `magnet hierarchy`)",
     )
@@ -110,15 +139,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="refiner: cuts prefer physical-group interfaces (auto: on for sage-hetero)",
     )
     p.add_argument("--nref", type=int, help="number of refinements: 2^nref elements")
-    p.add_argument("--target-size", type=float, help="bisect until every element's diameter is below this")
-    p.add_argument("--mult-factor", type=float, help="target size = factor x mesh diameter (0 < f <= 1)")
+    p.add_argument("--target-size", type=finite, help="bisect until every element's diameter is below this")
+    p.add_argument("--mult-factor", type=finite, help="target size = factor x mesh diameter (0 < f <= 1)")
     p.add_argument(
         "--subset", help="file with the cell ids to agglomerate (JSON list or whitespace separated)"
     )
     p.add_argument("--physical-tag", help="cell-data name holding the physical groups")
     p.add_argument(
         "--absorb",
-        type=float,
+        type=finite,
         default=0.0,
         metavar="FRACTION",
         help="absorb parts smaller than FRACTION x mean part size into a neighbour",
@@ -126,7 +155,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", default="kway", choices=["kway", "recursive"], help="METIS k-way or recursive")
     p.add_argument("--hole-policy", default="split", choices=["split", "error"])
     p.add_argument(
-        "--weld", type=float, metavar="TOL", help="merge points closer than TOL first (duplicate points)"
+        "--weld", type=finite, metavar="TOL", help="merge points closer than TOL first (duplicate points)"
     )
     p.add_argument(
         "--size-measure",
@@ -145,13 +174,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--fill-size",
-        type=float,
+        type=finite,
         metavar="F",
         help="--fill: re-mesh the surface at F x its bounding-box diagonal, F in (0, 1] (e.g. 0.02)",
     )
     p.add_argument(
         "--fill-size-abs",
-        type=float,
+        type=finite,
         metavar="H",
         help="--fill: re-mesh the surface at the absolute size H, in the file's own length unit",
     )
@@ -217,6 +246,10 @@ def summary_line(job: dict, seconds: float) -> str:
 
 def cmd_agglomerate(client: Client, args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
+    check_input_file(args.mesh)  # before the flags' values: the file is what the user typed first
+    kappa = parse_kappa(args.kappa, "--kappa")
+    if args.lymph is not None and args.fill:
+        raise InputError("--lymph is for 2D meshes only and --fill makes a 3D mesh")
     job = client.agglomerate(
         args.mesh,
         args.output,
@@ -247,7 +280,7 @@ def cmd_agglomerate(client: Client, args: argparse.Namespace) -> int:
         boxfit=True if args.boxfit else None,
         groups=True if args.groups else None,
         keep_rings=True if args.keep_rings else None,
-        kappa=None if args.kappa is None else [float(v) for v in args.kappa.split(",")],
+        kappa=kappa,
         weld=args.weld,
         allow_extra=True if args.allow_extra else None,
         size_measure=args.size_measure,
@@ -262,16 +295,32 @@ def cmd_agglomerate(client: Client, args: argparse.Namespace) -> int:
     return 0
 
 
+def os_words(exc: OSError) -> str:
+    """An OSError in one sentence of ours: what could not be done to which file, and why."""
+    why = (exc.strerror or "failed").lower()
+    return f"{exc.filename}: {why}" if exc.filename else why
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    client = Client(args.server, args.token)
+    client = None
     try:
+        client = Client(args.server, args.token)
         return args.func(client, args)
-    except (MagnetHTTPError, JobFailed, ConnectionError, TimeoutError, OSError) as exc:
+    except (InputError, MagnetHTTPError, JobFailed, ConnectionError, TimeoutError) as exc:
         print(f"magnet-client: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:
+        print(f"magnet-client: error: {os_words(exc)}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(
+            "magnet-client: interrupted (a submitted job goes on: `magnet-client cancel ID`)", file=sys.stderr
+        )
+        return 130
     finally:
-        client.close()
+        if client is not None:
+            client.close()
 
 
 if __name__ == "__main__":

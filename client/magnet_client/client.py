@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import math
 import os
+import re
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -48,6 +50,101 @@ class MagnetHTTPError(Exception):
         self.status, self.detail, self.method, self.path = status, detail, method, path
 
 
+class InputError(ValueError):
+    """Bad input the client finds itself (a missing file, a folder that does not exist, a value
+    that cannot be sent), before the server is asked; the message is one sentence."""
+
+
+def check_input_file(path: str | os.PathLike, what: str = "") -> Path:
+    """The file at `path`, or InputError saying in one sentence why it cannot be read."""
+    name = f"{what} {os.fspath(path)}" if what else os.fspath(path)
+    p = Path(path)
+    if not p.exists():
+        link = " (a symbolic link that leads to no file)" if p.is_symlink() else ""
+        raise InputError(f"cannot read {name}: no such file{link}")
+    if p.is_dir():
+        hint = "" if what else " (send a case folder as a .zip)"
+        raise InputError(f"cannot read {name}: it is a folder, not a file{hint}")
+    if not os.access(p, os.R_OK):
+        raise InputError(f"cannot read {name}: permission denied")
+    return p
+
+
+def check_output_path(path: str | os.PathLike | None, what: str) -> None:
+    """Refuse, before any work, an output file that cannot be written (the local CLI's words)."""
+    if path is None:
+        return
+    path = os.fspath(path)
+    if os.path.isdir(path):
+        raise InputError(f"{what} '{path}' is a folder; give a file name")
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise InputError(f"cannot write {what} '{path}': folder '{folder}' does not exist")
+    if not os.access(folder, os.W_OK | os.X_OK) or (os.path.exists(path) and not os.access(path, os.W_OK)):
+        raise InputError(f"cannot write {what} '{path}': permission denied")
+
+
+def check_output_dir(path: str | os.PathLike | None, what: str) -> None:
+    """Refuse, before any work, a folder that cannot be made or written (made later if missing)."""
+    if path is None:
+        return
+    path = os.fspath(path)
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise InputError(f"cannot write {what} to '{path}': it is a file, not a folder")
+    existing = os.path.abspath(path)
+    while not os.path.exists(existing):
+        existing = os.path.dirname(existing)
+    if not os.path.isdir(existing):
+        raise InputError(f"cannot write {what} to '{path}': '{existing}' is a file, not a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise InputError(f"cannot write {what} to '{path}': permission denied")
+
+
+def parse_kappa(value, name: str = "kappa") -> list[float] | None:
+    """'kx,ky[,kz]' or a sequence -> the diagonal diffusion tensor as a list of positive numbers
+    (None stays None); InputError in the words of `magnet hierarchy --kappa`."""
+    if value is None:
+        return None
+    if isinstance(value, str):
+        text = value
+        parts = value.split(",")
+    else:
+        try:
+            parts = list(value)
+        except TypeError:
+            parts = [value]
+        text = ",".join(str(v) for v in parts)
+    try:
+        kappa = [float(v) for v in parts if not isinstance(v, bool)]
+    except (TypeError, ValueError):
+        kappa = None
+    if kappa is None or len(kappa) != len(parts):
+        raise InputError(f"{name} must be comma-separated numbers kx,ky[,kz], got '{text}'")
+    if len(kappa) not in (2, 3) or not all(math.isfinite(v) and v > 0 for v in kappa):
+        raise InputError(f"{name} must be two or three positive numbers kx,ky[,kz], got '{text}'")
+    return kappa
+
+
+def check_finite(body: dict, prefix: str = "") -> None:
+    """A NaN or infinity cannot be sent as JSON: refuse it in the library's words."""
+    for key, value in body.items():
+        if isinstance(value, dict):
+            check_finite(value, f"{prefix}{key}.")
+        elif isinstance(value, float) and not math.isfinite(value):
+            raise InputError(f"{prefix}{key} must be finite, got {value}")
+        elif isinstance(value, list | tuple) and any(
+            isinstance(v, float) and not math.isfinite(v) for v in value
+        ):
+            raise InputError(f"{prefix}{key} must hold finite numbers, got {list(value)}")
+
+
+def reason(exc: Exception) -> str:
+    """An exception's text without Python's '[Errno 111]' prefix ('connection refused')."""
+    text = re.sub(r"^\[Errno -?\d+\]\s*", "", str(exc)).strip().rstrip(".")
+    text = text or type(exc).__name__
+    return text[:1].lower() + text[1:]
+
+
 class JobFailed(Exception):
     """The job ended failed or cancelled; `job` is its last record."""
 
@@ -67,7 +164,13 @@ def job_params(params: dict) -> dict:
     if unknown:
         raise TypeError(f"unknown job parameter(s): {', '.join(sorted(unknown))}")
     if "subset" in body:
-        body["subset"] = [int(i) for i in body["subset"]]
+        try:
+            body["subset"] = [int(i) for i in body["subset"]]
+        except (TypeError, ValueError):
+            raise InputError("subset must be a list of integer cell ids") from None
+    if "kappa" in options:
+        options["kappa"] = parse_kappa(options["kappa"])
+    check_finite(body)
     return body
 
 
@@ -95,8 +198,19 @@ class Client:
         timeout: float = 120.0,
         retries: int = 5,
     ):
-        self.url = url.rstrip("/")
+        self.url = str(url).rstrip("/")
+        try:
+            parsed = httpx.URL(self.url)
+            ok = parsed.scheme in ("http", "https") and bool(parsed.host)
+        except (httpx.InvalidURL, TypeError, ValueError):
+            ok = False
+        if not ok:
+            raise InputError(
+                f"the server address '{url}' is not an http:// or https:// URL (e.g. http://127.0.0.1:8000)"
+            )
         token = token if token is not None else os.environ.get("MAGNET_TOKEN")
+        if token and not (token.isascii() and token.isprintable()):
+            raise InputError("the API key must be printable ASCII text, as `magnet keys add` prints it")
         headers = {"Authorization": f"Bearer {token}"} if token else {}
         self.http = httpx.Client(base_url=self.url, headers=headers, timeout=timeout)
         self.retries = retries
@@ -118,7 +232,9 @@ class Client:
                 response = self.http.request(method, path, **kwargs)
             except httpx.TransportError as exc:
                 if method != "GET" or attempt >= min(self.retries, 2):  # a blip, not an outage
-                    raise ConnectionError(f"cannot reach the MAGNET server at {self.url}: {exc}") from exc
+                    raise ConnectionError(
+                        f"cannot reach the MAGNET server at {self.url} ({reason(exc)})"
+                    ) from exc
                 time.sleep(2**attempt)
                 continue
             if response.status_code in (429, 503) and attempt < self.retries:
@@ -141,7 +257,7 @@ class Client:
 
     def upload(self, mesh_path: str | os.PathLike) -> dict:
         """Upload a mesh file; returns {id, cells, dim, ...}. The same bytes give the same id."""
-        mesh_path = Path(mesh_path)
+        mesh_path = check_input_file(mesh_path)
         with open(mesh_path, "rb") as fh:
             return self._request(
                 "POST",
@@ -280,7 +396,9 @@ class Client:
             with zipfile.ZipFile(z) as zf:
                 for name in zf.namelist():  # flat archive of plain file names: nothing escapes `directory`
                     if "/" in name or "\\" in name or name.startswith("."):
-                        raise MagnetHTTPError(0, f"unexpected entry {name!r} in the hierarchy archive")
+                        raise MagnetHTTPError(
+                            0, f"unexpected entry '{name}' in the hierarchy archive", "GET", z.name
+                        )
                 zf.extractall(directory)
         return directory
 
@@ -303,9 +421,29 @@ class Client:
         ratio=R (and coarsest=N), finest="aggregation" | "cuts" | "quality" | "nested" or boxfit=True
         the levels are a hierarchy of their own, as `magnet hierarchy` (aggregation operators
         level_L.agg.npz / .mtx included)."""
+        check_input_file(mesh_path)  # what can be known here is refused before the server is asked
+        check_output_path(output, "output mesh")
+        for value, what in ((metrics, "metrics file"), (labels, "labels file"), (lymph, "lymph file")):
+            check_output_path(value, what)
+        check_output_path(plot, "plot file")
+        check_output_dir(hierarchy, "the hierarchy")
         if hierarchy is not None:
             params["hierarchy"] = True
+        job_params(params)  # a bad value (NaN, a kappa that is no list of numbers) before the upload
         mesh = self.upload(mesh_path)
+        dim = mesh.get("dim")
+        name = Path(mesh_path).name
+        if lymph is not None and dim is not None and dim != 2:
+            shape = "a closed surface, filled to 3D" if mesh.get("surface") else f"{dim}D"
+            raise InputError(
+                f"lymph's region/neighbor structs are for 2D meshes only and {name} is {shape}: "
+                "leave out the lymph output (nothing was run)"
+            )
+        kappa = parse_kappa(params.get("kappa") or (params.get("options") or {}).get("kappa"))
+        if kappa is not None and dim is not None and len(kappa) != dim:
+            raise InputError(
+                f"kappa has {len(kappa)} values but the mesh {name} is {dim}D: give one per axis"
+            )
         job = self.submit(mesh["id"], **params)
         job = self.wait(job["id"], progress=progress, timeout=timeout)
         if output is not None:
