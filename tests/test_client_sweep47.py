@@ -197,3 +197,237 @@ def test_docs_hierarchy_client_example_runs(server, meshes, tmp_path):
     out = client_cli(server, *[subst.get(w, w) for w in words])
     assert out.returncode == 0, out.stderr
     assert (tmp_path / "levels" / "hierarchy.json").exists()
+
+
+# --- 3. the web page: ratios in 3 digits, the options its advice names are on the form -----------------
+
+CHROMIUM = "/usr/bin/chromium"
+
+
+@pytest.fixture(scope="module")
+def page_of(server, tmp_path_factory):
+    """A page of the live server in Debian's chromium (Playwright), with the API key entered."""
+    import os
+    import shutil
+
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed")
+    chromium = os.environ.get("MAGNET_TEST_CHROMIUM", CHROMIUM)
+    if not (os.path.exists(chromium) or shutil.which(chromium)):
+        pytest.skip(f"no chromium at {chromium} (apt-get install chromium; scripts/test.sh does)")
+    from test_web_page import ARGS
+
+    with sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=chromium, args=ARGS)
+
+        def open_page():
+            page = browser.new_page(viewport={"width": 1280, "height": 900})
+            errors: list[str] = []
+            page.on("pageerror", lambda exc: errors.append(str(exc)))
+            page.goto(server + "/")
+            page.fill("#token", TOKEN)
+            page.dispatch_event("#token", "change")
+            return page, errors
+
+        yield open_page
+        browser.close()
+
+
+def until(page, expression: str, timeout: float = 120):
+    from service_fixtures import wait_until
+
+    return wait_until(lambda: page.evaluate(expression), timeout, 0.1, expression)
+
+
+def upload(page, path):
+    page.set_input_files("#file", str(path))
+    page.wait_for_selector("#mesh-summary")
+    until(page, "!document.querySelector('#form').hidden")
+
+
+def finished(page) -> str:
+    until(
+        page,
+        "['succeeded', 'failed'].some((s) => document.querySelector('#progress-status').textContent.startsWith(s))",
+    )
+    return page.inner_text("#progress-status")
+
+
+def test_web_hierarchy_ratio_has_at_most_3_digits(page_of, tmp_path):
+    points, cells = tets(8)
+    box = tmp_path / "box8.vtu"
+    meshio.write(str(box), meshio.Mesh(np.asarray(points, float), [("tetra", np.asarray(cells))]))
+    page, errors = page_of()
+    upload(page, box)
+    page.select_option("select[name=model]", "rtree")
+    page.select_option("select[name=mode]", "kway")
+    page.fill("input[name=k]", "4")
+    page.check("input[name=hierarchy]")
+    page.select_option("select[name=finest]", "aggregation")  # a ratio per step: [5.9..., 16] on this box
+    page.click("button[type=submit]")
+    assert finished(page) == "succeeded"
+    until(page, "/ratio /.test(document.querySelector('#hierarchy-title').textContent)")
+    title = page.inner_text("#hierarchy-title")
+    ratio = re.search(r"ratio ([^·]+)·", title).group(1).strip()
+    values = ratio.split(", ")
+    assert len(values) >= 2, title
+    for v in values:
+        assert len(v.replace(".", "").lstrip("0")) <= 3, title
+    assert errors == []
+
+
+def test_web_form_has_the_options_a_failed_coarsen_job_names(page_of, meshes):
+    page, errors = page_of()
+    upload(page, meshes["square"])
+    page.select_option("select[name=model]", "metis")
+    page.select_option("select[name=mode]", "coarsen")
+    page.fill("textarea[name=subset]", "0 127")  # two cells far apart: two pieces
+    page.fill("input[name=k]", "1")
+    for name in ("nref", "target_size", "mult_factor"):
+        page.fill(f"input[name={name}]", "")
+    page.click("button[type=submit]")
+    status = finished(page)
+    assert status.startswith("failed"), status
+    # the advice names the form's own fields, which are there to tick and fill
+    assert "“Allow extra elements” under Options" in status and "options.allow_extra" not in status, status
+    assert "“Weld points closer than” under Options" in status, status
+    page.evaluate("document.querySelector('#form details').open = true")
+    page.check("input[name=allow_extra]")
+    page.fill("input[name=weld]", "1e-12")
+    page.click("button[type=submit]")
+    until(
+        page,
+        "document.querySelector('#progress-status').textContent === 'queued' || document.querySelector('#progress-status').textContent === 'running' || document.querySelector('#progress-status').textContent === 'succeeded'",
+    )
+    assert finished(page) == "succeeded"
+    jobs = httpx.get(f"{page.url}v1/jobs", headers={"Authorization": f"Bearer {TOKEN}"}).json()["items"]
+    options = jobs[0]["params"]["options"]
+    assert options.get("allow_extra") is True and options.get("weld") == 1e-12, options
+    assert errors == []
+
+
+def test_web_fill_checkbox_for_closed_surfaces(page_of, meshes, tmp_path):
+    from surfaces import surface_of
+
+    points, tris = surface_of(lambda occ: occ.addSphere(0, 0, 0, 1), 0.5)
+    ball = tmp_path / "ball.stl"
+    meshio.write(str(ball), meshio.Mesh(points, [("triangle", tris)]))
+    page, errors = page_of()
+    upload(page, meshes["square"])
+    assert page.is_hidden(".field[data-field=fill]")  # not a surface: no fill
+    upload(page, ball)
+    assert page.is_visible(".field[data-field=fill]") and page.is_checked("input[name=fill]")
+    page.select_option("select[name=model]", "metis")
+    page.select_option("select[name=mode]", "kway")
+    page.fill("input[name=k]", "8")
+    page.uncheck("input[name=fill]")  # without it the server refuses, naming the checkbox
+    page.click("button[type=submit]")
+    until(
+        page,
+        "document.querySelector('.field[data-field=fill]').classList.contains('invalid') || document.querySelector('#form-error').textContent",
+    )
+    said = page.inner_text(".field[data-field=fill] .error") or page.inner_text("#form-error")
+    assert "Fill the closed surface" in said, said
+    page.check("input[name=fill]")
+    page.click("button[type=submit]")
+    assert finished(page) == "succeeded"
+    assert errors == []
+
+
+# --- 2 and 3. the Matlab/Octave wrapper: refusals up front, Fill, connect errors, 429 retried ----------
+
+OCTAVE_TRY = r"""
+addpath('{matlab}');
+function r = tryit(f)
+  try
+    f();
+    r = struct('id', 'ok', 'msg', '');
+  catch err
+    r = struct('id', err.identifier, 'msg', err.message);
+  end
+end
+"""
+
+
+def octave(tmp_path, body: str, **fmt) -> dict:
+    from service_fixtures import run_octave
+
+    result = tmp_path / "result.json"
+    text = OCTAVE_TRY.format(matlab=ROOT / "client" / "matlab") + body.format(result=result, **fmt)
+    return run_octave(tmp_path / "run_sweep47.m", text, result)
+
+
+@pytest.mark.octave
+def test_octave_refuses_up_front_fills_and_names_the_server(server, meshes, tmp_path):
+    from service_fixtures import free_port, octave_cli
+    from surfaces import surface_of
+
+    octave_cli()
+    points, tris = surface_of(lambda occ: occ.addSphere(0, 0, 0, 1), 0.5)
+    ball = tmp_path / "ball.stl"
+    meshio.write(str(ball), meshio.Mesh(points, [("triangle", tris)]))
+    before = job_count(server)
+    body = r"""
+o = {{'Server', '{url}', 'Token', '{token}', 'Verbose', false, 'Poll', 0.2}};
+r.missing = tryit(@() magnet_agglomerate('{missing}', 'K', 8, o{{:}}));
+r.box = tryit(@() magnet_agglomerate('{box}', 'K', 4, o{{:}}));
+r.fill_no_output = tryit(@() magnet_agglomerate('{ball}', 'K', 4, 'Fill', true, o{{:}}));
+r.surface = tryit(@() magnet_agglomerate('{ball}', 'K', 4, o{{:}}));
+r.down = tryit(@() magnet_agglomerate('{square}', 'K', 4, 'Server', '{down}', 'Verbose', false));
+[region, neighbor, job] = magnet_agglomerate('{ball}', 'K', 4, 'Fill', true, 'Output', '{out}', o{{:}});
+r.filled = struct('region', isempty(region), 'elements', job.result.elements, 'fill', job.params.options.fill);
+fid = fopen('{result}', 'w'); fprintf(fid, '%s', jsonencode(r)); fclose(fid);
+"""
+    down = f"http://127.0.0.1:{free_port()}"
+    r = octave(
+        tmp_path, body, url=server, token=TOKEN, missing=tmp_path / "nope.vtu", box=meshes["box"],
+        ball=ball, square=meshes["square"], down=down, out=tmp_path / "ball4.vtu",
+    )  # fmt: skip
+    assert r["missing"] == {"id": "magnet:file", "msg": f"cannot read {tmp_path / 'nope.vtu'}: no such file"}
+    assert r["box"]["id"] == "magnet:dim" and "2D meshes only and box.vtu is 3D" in r["box"]["msg"], r["box"]
+    assert r["fill_no_output"]["id"] == "magnet:dim", r["fill_no_output"]
+    # the server's advice, in the wrapper's own option names
+    said = r["surface"]["msg"]
+    assert "'Fill', true" in said and "set options.fill" not in said, said
+    assert (
+        r["down"]["id"] == "magnet:connect"
+        and f"cannot reach the MAGNET server at {down}" in r["down"]["msg"]
+    )
+    assert r["filled"] == {"region": True, "elements": 4, "fill": True}
+    assert meshio.read(tmp_path / "ball4.vtu").cells
+    assert job_count(server) == before + 1  # the 3D job was taken back; the filled one ran
+
+
+@pytest.mark.octave
+def test_octave_retries_a_full_queue(tmp_path):
+    from service_fixtures import octave_cli, service_env, start_api
+
+    octave_cli()
+    mesh = square_mesh(tmp_path / "sq.vtu", 6)
+    env = service_env(tmp_path / "data", api_keys=f"o:{TOKEN}", max_queued_jobs_per_user=1)
+    proc, url = start_api(env, tmp_path)  # no worker: a job stays queued and fills the queue
+    try:
+        auth = {"Authorization": f"Bearer {TOKEN}"}
+        mesh_id = httpx.post(
+            f"{url}/v1/meshes", params={"filename": "sq.vtu"}, content=mesh.read_bytes(), headers=auth
+        ).json()["id"]
+        first = httpx.post(f"{url}/v1/jobs", json={"mesh_id": mesh_id, "k": 4}, headers=auth).json()
+        body = r"""
+r = tryit(@() magnet_agglomerate('{mesh}', 'K', 4, 'Server', '{url}', 'Token', '{token}', 'Verbose', false, ...
+          'Timeout', 2, 'Poll', 0.2));
+fid = fopen('{result}', 'w'); fprintf(fid, '%s', jsonencode(r)); fclose(fid);
+"""
+        import threading
+        import time
+
+        def free_the_queue():
+            time.sleep(4)  # Octave got its 429 and waits
+            httpx.delete(f"{url}/v1/jobs/{first['id']}", params={"purge": "true"}, headers=auth)
+
+        threading.Thread(target=free_the_queue, daemon=True).start()
+        t0 = time.monotonic()
+        r = octave(tmp_path, body, mesh=mesh, url=url, token=TOKEN)
+        # submitted after the retry: the job then waits in the queue (no worker) until the Timeout
+        assert r["id"] == "magnet:timeout", r
+        assert time.monotonic() - t0 > 4
+    finally:
+        proc.stop()

@@ -7,8 +7,9 @@
 const $ = (sel, root = document) => root.querySelector(sel);
 const FINAL = ["succeeded", "failed", "cancelled"];
 const NUMBER_FIELDS = ["k", "nref", "target_size", "mult_factor"];
-const OPTION_FIELDS = ["seed", "absorb_fraction", "hole_policy", "method", "physical_tag", "boundary_tag"];
-const NUMBER_OPTIONS = ["seed", "absorb_fraction", "boundary_tag"];
+const OPTION_FIELDS = ["seed", "absorb_fraction", "hole_policy", "method", "physical_tag", "boundary_tag", "weld", "allow_extra", "fill"];
+const NUMBER_OPTIONS = ["seed", "absorb_fraction", "boundary_tag", "weld"];
+const CHECK_OPTIONS = ["allow_extra", "fill"]; // checkboxes: sent as true when ticked, left out otherwise
 const HIERARCHY_FIELDS = ["ratio", "coarsest", "finest", "boxfit"];
 const SCHEDULED = ["aggregation", "quality", "nested"]; // finest levels that take the default schedule (no ratio)
 const FIELDS = ["model", "mode", ...NUMBER_FIELDS, "subset", "refiner", "hierarchy", ...HIERARCHY_FIELDS, ...OPTION_FIELDS];
@@ -66,6 +67,15 @@ function esc(value) {
 }
 
 const fmt = (v) => (typeof v === "number" && !Number.isInteger(v) ? v.toPrecision(4) : String(v));
+// the server's advice names job options: on this page they are form fields, said by their labels
+const OPTION_WORDS = [
+  [/(?:set )?options\.fill(?: = true)?/g, "tick “Fill the closed surface with tetrahedra”"],
+  [/options\.allow_extra/g, "“Allow extra elements” under Options"],
+  [/options\.weld/g, "“Weld points closer than” under Options"],
+];
+const pageWords = (text) => OPTION_WORDS.reduce((t, [re, words]) => t.replace(re, words), String(text ?? ""));
+// a hierarchy's ratio (one number, or one per level): at most 3 significant digits each
+const fmtRatio = (r) => [].concat(r).map((v) => (typeof v === "number" ? String(+v.toPrecision(3)) : String(v))).join(", ");
 
 // --- upload and mesh summary -------------------------------------------------------------------
 
@@ -144,6 +154,11 @@ function buildForm() {
   if (!input("nref").value) input("nref").value = Math.min(6, Math.floor(Math.log2(cells)));
   if (!input("mult_factor").value) input("mult_factor").value = 0.1;
   input("target_size").value = +(extent / 10).toPrecision(3);
+  // a closed surface (STL, OBJ, PLY, OFF): its job fills it with tetrahedra first (options.fill)
+  const surface = Boolean(state.mesh.surface);
+  field("fill").hidden = !surface;
+  input("fill").checked = surface;
+  $("#fill-hint").hidden = !surface;
   onModel();
   form().hidden = false;
 }
@@ -204,8 +219,9 @@ function showErrors(error) {
   } else {
     items.push([null, error.message]);
   }
-  for (const [name, text] of items) {
+  for (const [name, said] of items) {
     const box = name && field(name);
+    const text = pageWords(said);
     if (box && !box.hidden) {
       box.querySelector(".error").textContent = text;
       box.classList.add("invalid");
@@ -229,8 +245,13 @@ function jobBody() {
   if (!field("refiner").hidden && input("refiner").value !== "none") body.refiner = input("refiner").value;
   const options = {};
   for (const name of OPTION_FIELDS) {
+    if (field(name).hidden) continue;
+    if (CHECK_OPTIONS.includes(name)) {
+      if (input(name).checked) options[name] = true;
+      continue;
+    }
     const raw = input(name).value.trim();
-    if (raw === "" || field(name).hidden) continue;
+    if (raw === "") continue;
     options[name] = NUMBER_OPTIONS.includes(name) ? Number(raw) : raw;
   }
   if (input("hierarchy").checked) {
@@ -279,7 +300,7 @@ function showProgress(job) {
   $("#bar-fill").className = job.status;
   $("#progress-pct").textContent = `${pct}%`;
   $("#progress-stage").textContent = job.stage || job.status;
-  $("#progress-status").textContent = job.status + (job.error ? `: ${job.error}` : "");
+  $("#progress-status").textContent = job.status + (job.error ? `: ${pageWords(job.error)}` : "");
 }
 
 async function* jobEvents(id, signal) {
@@ -334,7 +355,7 @@ function paramText(params) {
   const value = { kway: `k=${p.k}`, nref: p.nref, "target-size": p.target_size, "mult-factor": p.mult_factor,
     segregated: `f=${p.mult_factor}`, coarsen: `of ${(p.subset || []).length} cells` }[p.mode];
   const o = p.options || {};
-  const levels = o.hierarchy ? ` · hierarchy${o.ratio ? ` ratio ${o.ratio}` : ""}${o.finest ? ` · finest ${o.finest}` : ""}` : "";
+  const levels = o.hierarchy ? ` · hierarchy${o.ratio ? ` ratio ${fmtRatio(o.ratio)}` : ""}${o.finest ? ` · finest ${o.finest}` : ""}` : "";
   return `${p.mode || ""} ${value ?? ""}`.trim() + levels;
 }
 
@@ -405,7 +426,7 @@ async function showHierarchy(job) {
   section.dataset.job = job.id;
   const info = await getJSON(`v1/jobs/${job.id}/hierarchy/levels`);
   const n = info.levels.length;
-  $("#hierarchy-title").textContent = `${info.model || job.params.model}${info.ratio ? ` · ratio ${info.ratio}` : ""}`
+  $("#hierarchy-title").textContent = `${info.model || job.params.model}${info.ratio ? ` · ratio ${fmtRatio(info.ratio)}` : ""}`
     + ` · ${n} levels · ${info.nested ? "nested" : "not nested"} · ${info.cells} cells`;
   $("#hierarchy-download").innerHTML = `<a href="v1/jobs/${job.id}/hierarchy" data-download="${job.id}-hierarchy.zip">hierarchy.zip</a>`;
   const host = $("#levels");
@@ -643,7 +664,7 @@ async function refreshJobs() {
     ].join("");
     return `<tr data-job="${job.id}" class="${job.status}">`
       + `<td><input type="checkbox" ${state.selected.has(job.id) ? "checked" : ""} ${job.status === "succeeded" ? "" : "disabled"}></td>`
-      + `<td>${esc(new Date(job.created_at).toLocaleString())}</td><td class="status" title="${esc(job.error || "")}">${job.status}${active ? ` ${Math.round(100 * job.progress)}%` : ""}</td>`
+      + `<td>${esc(new Date(job.created_at).toLocaleString())}</td><td class="status" title="${esc(pageWords(job.error || ""))}">${job.status}${active ? ` ${Math.round(100 * job.progress)}%` : ""}</td>`
       + `<td>${esc(job.params.model)}</td><td>${esc(paramText(job.params))}</td>`
       + `<td>${esc(mesh.filename || "")}${mesh.cells ? ` <small>(${mesh.cells} cells)</small>` : ""}</td>`
       + `<td>${job.result && job.result.elements != null ? job.result.elements : ""}</td><td>${seconds(job)}</td><td>${actions}</td></tr>`;
