@@ -28,6 +28,13 @@ function [region, neighbor, job, levels] = magnet_agglomerate(mesh_file, varargi
 %     Subset      cell ids (0-based, as in the mesh file) to agglomerate, mode 'coarsen'
 %     Seed, PhysicalTag, Absorb, Method, HolePolicy, BoundaryTag   as in `magnet agglomerate`
 %                 (BoundaryTag: bc_tag of boundary edges that have no boundary group, default 1)
+%     Fill        true: the mesh is a closed surface (.stl, .obj, .ply, .off), filled with tetrahedra
+%                 first (options.fill); that makes a 3D mesh, so give Output (see below)
+%     AllowExtra  true: keep every connected fragment as an element (more than K where a part is
+%                 disconnected); Weld: merge points closer than this distance first
+%     Output      also save the agglomerated mesh (.vtu) here. A 3D mesh has no lymph structs (they
+%                 are 2D only): with Output its job runs and region, neighbor are empty; without it
+%                 the wrapper refuses it before the job runs (error magnet:dim)
 %     SaveAs      also save region and neighbor to this .mat file
 %     Timeout     seconds to wait for the job (default 3600)
 %     Poll        seconds between status checks (default 1)
@@ -44,13 +51,16 @@ function [region, neighbor, job, levels] = magnet_agglomerate(mesh_file, varargi
 %   operator into level L (sparse, a single 1 per row; rows: the elements of level L+1, or the fine
 %   cells for the last level), what an algebraic multigrid takes as its aggregates.
 %
-%   Errors of the server (bad mesh, bad parameter, full queue, failed job) are raised as
-%   MATLAB/Octave errors with the server's message.
+%   Errors of the server (bad mesh, bad parameter, failed job) are raised as MATLAB/Octave errors
+%   with the server's message (identifier magnet:http, magnet:job); a full queue (429) or a job
+%   queue that is down (503) is retried a few times first; a server that cannot be reached is
+%   magnet:connect, a mesh file that cannot be read magnet:file.
 
   p = struct('Server', getenv('MAGNET_SERVER'), 'Token', getenv('MAGNET_TOKEN'), 'Model', 'metis', ...
              'Mode', 'kway', 'K', [], 'Nref', [], 'TargetSize', [], 'MultFactor', [], 'Subset', [], ...
              'Seed', [], 'PhysicalTag', '', 'Absorb', [], 'Method', '', 'HolePolicy', '', 'BoundaryTag', [], ...
              'Refiner', '', 'Threshold', [], 'Hierarchy', false, 'Ratio', [], 'Coarsest', [], ...
+             'Fill', false, 'AllowExtra', false, 'Weld', [], 'Output', '', ...
              'SaveAs', '', 'Timeout', 3600, 'Poll', 1, 'Verbose', true);
   if mod(numel(varargin), 2) ~= 0
     error('magnet:args', 'options must be name-value pairs');
@@ -68,10 +78,40 @@ function [region, neighbor, job, levels] = magnet_agglomerate(mesh_file, varargi
   end
   server = regexprep(p.Server, '/+$', '');
 
+  % what can be known here is refused before the server is asked
+  if ~ischar(mesh_file) || isempty(mesh_file)
+    error('magnet:file', 'the mesh file must be given as a file name');
+  end
+  if exist(mesh_file, 'dir')
+    error('magnet:file', 'cannot read %s: it is a folder, not a file (send a case folder as a .zip)', mesh_file);
+  end
+  if ~exist(mesh_file, 'file')
+    error('magnet:file', 'cannot read %s: no such file', mesh_file);
+  end
+  for out = {p.Output, p.SaveAs}
+    target = out{1};
+    if ~isempty(target)
+      folder = fileparts(target);
+      if exist(target, 'dir')
+        error('magnet:file', 'cannot write %s: it is a folder; give a file name', target);
+      end
+      if ~isempty(folder) && ~exist(folder, 'dir')
+        error('magnet:file', 'cannot write %s: folder %s does not exist', target, folder);
+      end
+    end
+  end
+  if p.Fill && isempty(p.Output)
+    error('magnet:dim', ['lymph''s region/neighbor structs are for 2D meshes only and Fill makes a 3D ' ...
+          'mesh: give ''Output'', ''file.vtu'' to get the agglomerated mesh']);
+  end
+  if p.Fill && p.Hierarchy
+    error('magnet:dim', 'the levels of a hierarchy come as lymph structs, 2D only: Fill makes a 3D mesh');
+  end
+
   % upload + submit in one form-urlencoded request (all Octave's webwrite can send)
   fid = fopen(mesh_file, 'r');
   if fid < 0
-    error('magnet:file', 'cannot open mesh file %s', mesh_file);
+    error('magnet:file', 'cannot read %s: permission denied', mesh_file);
   end
   bytes = fread(fid, Inf, '*uint8');
   fclose(fid);
@@ -93,14 +133,48 @@ function [region, neighbor, job, levels] = magnet_agglomerate(mesh_file, varargi
   if p.Hierarchy
     fields = [fields, {'hierarchy', 'true'}];
   end
+  if p.Fill
+    fields = [fields, {'fill', 'true'}];
+  end
+  if p.AllowExtra
+    fields = [fields, {'allow_extra', 'true'}];
+  end
+  fields = add_field(fields, 'weld', p.Weld);
   fields = add_field(fields, 'ratio', p.Ratio);
   fields = add_field(fields, 'coarsest', p.Coarsest);
   if ~isempty(p.Subset)
     fields = [fields, {'subset', sprintf('%d,', p.Subset(:))}];
   end
-  job = magnet_request('post', [server '/v1/agglomerate/form'], p.Token, 120, fields{:});
+  try
+    job = magnet_request('post', [server '/v1/agglomerate/form'], p.Token, 120, fields{:});
+  catch err
+    % the server's advice names job options: said as this function's options
+    msg = strrep(err.message, 'set options.fill = true', ...
+                 'give ''Fill'', true (with ''Output'', ''file.vtu'')');
+    msg = strrep(msg, 'options.allow_extra', '''AllowExtra'', true');
+    msg = strrep(msg, 'options.weld', '''Weld''');
+    error(err.identifier, '%s', msg);
+  end
   if p.Verbose
     fprintf('magnet: job %s %s\n', job.id, job.status);
+  end
+
+  % the uploaded mesh's summary (cells, dimension, physical and boundary groups with their names)
+  mesh = magnet_request('get', [server '/v1/meshes/' job.mesh_id], p.Token, 60);
+  three_d = p.Fill || (isfield(mesh, 'dim') && mesh.dim ~= 2);
+  if three_d && (isempty(p.Output) || p.Hierarchy)
+    % no lymph structs for it: take the job back before it runs (or while it starts)
+    try
+      magnet_request('delete', [server '/v1/jobs/' job.id '?purge=true'], p.Token, 60);
+    catch
+    end
+    [~, base, ext] = fileparts(mesh_file);
+    if p.Hierarchy
+      error('magnet:dim', ['the levels of a hierarchy come as lymph structs, 2D only, and %s is 3D ' ...
+            '(its job was cancelled)'], [base ext]);
+    end
+    error('magnet:dim', ['lymph''s region/neighbor structs are for 2D meshes only and %s is 3D ' ...
+          '(its job was cancelled): give ''Output'', ''file.vtu'' to get the agglomerated mesh'], [base ext]);
   end
 
   % poll until the job ends
@@ -130,8 +204,19 @@ function [region, neighbor, job, levels] = magnet_agglomerate(mesh_file, varargi
     error('magnet:job', 'job %s %s: %s', job.id, job.status, msg);
   end
 
-  % the uploaded mesh's summary (cells, physical groups, boundary groups with their names)
-  job.mesh = magnet_request('get', [server '/v1/meshes/' job.mesh_id], p.Token, 60);
+  job.mesh = mesh;
+  if ~isempty(p.Output)
+    magnet_download([server '/v1/jobs/' job.id '/mesh'], p.Output, p.Token, 600);
+  end
+  if three_d
+    region = [];
+    neighbor = [];
+    levels = {};
+    if p.Verbose
+      fprintf('magnet: %d elements (3D: no lymph structs) -> %s\n', job.result.elements, p.Output);
+    end
+    return
+  end
 
   % the lymph structs, as the .mat file the server wrote
   matfile = [tempname() '.mat'];

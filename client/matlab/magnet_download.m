@@ -12,7 +12,11 @@ function magnet_download(url, file, token, timeout)
   if exist('OCTAVE_VERSION', 'builtin')
     % Octave has no websave; webread with ContentType 'text' hands back the raw bytes as char
     opts = weboptions('HeaderFields', headers, 'Timeout', timeout, 'ContentType', 'text');
-    data = webread(url, opts);
+    try
+      data = webread(url, opts);
+    catch err
+      magnet_connect_error(url, err);
+    end
     if numel(data) > 0 && data(1) == '{'
       magnet_raise(data);
     end
@@ -21,7 +25,11 @@ function magnet_download(url, file, token, timeout)
     fclose(fid);
   else
     opts = weboptions('HeaderFields', headers, 'Timeout', timeout);
-    websave(file, url, opts);
+    try
+      websave(file, url, opts);
+    catch err
+      magnet_connect_error(url, err);
+    end
     fid = fopen(file, 'r');
     first = fread(fid, 1, '*char');
     fclose(fid);
