@@ -17,7 +17,7 @@ setup(
         Extension(
             "models.quality._fastmetrics",
             ["models/quality/_fastmetrics.c", "models/quality/_fastcircle.c"],
-            depends=["models/_buffers.h"],
+            depends=["models/_buffers.h", "models/quality/_fastheap.h"],
             include_dirs=["models"],
             extra_compile_args=["-O3", "-fno-math-errno"],
             optional=True,

@@ -26,6 +26,7 @@
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include "_buffers.h"
+#include "_fastheap.h"
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
@@ -38,45 +39,7 @@ typedef struct {
     int nn;
 } Cell2;
 
-typedef struct {
-    Cell2 *a;
-    int64_t n, cap;
-} Heap2;
-
-static int heap2_push(Heap2 *H, const Cell2 *c) {
-    if (H->n >= H->cap) {
-        int64_t cap = H->cap ? 2 * H->cap : 256;
-        Cell2 *na = (Cell2 *)realloc(H->a, (size_t)cap * sizeof(Cell2));
-        if (!na) return -1;
-        H->a = na;
-        H->cap = cap;
-    }
-    int64_t i = H->n++;
-    while (i > 0) {
-        int64_t p = (i - 1) / 2;
-        if (H->a[p].U >= c->U) break;
-        H->a[i] = H->a[p];
-        i = p;
-    }
-    H->a[i] = *c;
-    return 0;
-}
-
-static void heap2_pop(Heap2 *H, Cell2 *top) {
-    *top = H->a[0];
-    Cell2 last = H->a[--H->n];
-    int64_t i = 0;
-    for (;;) {
-        int64_t l = 2 * i + 1, r = l + 1, b = i;
-        double bu = last.U;
-        if (l < H->n && H->a[l].U > bu) { b = l; bu = H->a[l].U; }
-        if (r < H->n && H->a[r].U > bu) b = r;
-        if (b == i) break;
-        H->a[i] = H->a[b];
-        i = b;
-    }
-    if (H->n) H->a[i] = last;
-}
+MAX_HEAP(Heap2, Cell2, heap2)
 
 /* one element's segments: a (x, y), b (x, y) rows of prim (S, 2, 2) from p0, m of them */
 typedef struct {
@@ -242,17 +205,16 @@ static int search2(const Segs *G, State2 *S, const double *lo, const double *hi,
     double w = hi[0] - lo[0], h = hi[1] - lo[1];
     double half = 0.5 * (w > h ? w : h) * (1 + 1e-9);
     if (make_cell(G, S, &c, 0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), half))
-        if (heap2_push(H, &c) < 0) return -1;
+        if (heap2_push(H, c) < 0) return -1;
     while (H->n) {
-        Cell2 top;
-        heap2_pop(H, &top);
+        Cell2 top = heap2_pop(H);
         if (top.U <= S->best + S->eps) break; /* every other cell bounds below it */
         if (S->evals >= S->max_cells) return 1;
         double q = 0.5 * top.half;
         for (int k = 0; k < 4; k++) {
             double x = top.c[0] + ((k & 1) ? q : -q), y = top.c[1] + ((k & 2) ? q : -q);
             if (make_cell(G, S, &c, x, y, q))
-                if (heap2_push(H, &c) < 0) return -1;
+                if (heap2_push(H, c) < 0) return -1;
         }
     }
     return 0;

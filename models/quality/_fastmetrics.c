@@ -35,6 +35,7 @@
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include "_buffers.h"
+#include "_fastheap.h"
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
@@ -431,46 +432,7 @@ static double game_bound(const double *A, int nc, int k, double *lam) {
 /* ---------------------------------------------------------------------------------------------- */
 /* best-first branch and bound for one element */
 
-typedef struct {
-    Cell *a;
-    int64_t n, cap;
-} Heap;
-
-static int heap_push(Heap *H, Cell c) {
-    if (H->n >= H->cap) {
-        int64_t cap = H->cap ? 2 * H->cap : 256;
-        Cell *na = (Cell *)realloc(H->a, (size_t)cap * sizeof(Cell));
-        if (!na) return -1;
-        H->a = na;
-        H->cap = cap;
-    }
-    int64_t i = H->n++;
-    while (i > 0) {
-        int64_t p = (i - 1) / 2;
-        if (H->a[p].U >= c.U) break;
-        H->a[i] = H->a[p];
-        i = p;
-    }
-    H->a[i] = c;
-    return 0;
-}
-
-static Cell heap_pop(Heap *H) {
-    Cell top = H->a[0];
-    Cell last = H->a[--H->n];
-    int64_t i = 0;
-    for (;;) {
-        int64_t l = 2 * i + 1, r = l + 1, b = i;
-        double bu = last.U;
-        if (l < H->n && H->a[l].U > bu) { b = l; bu = H->a[l].U; }
-        if (r < H->n && H->a[r].U > bu) b = r;
-        if (b == i) break;
-        H->a[i] = H->a[b];
-        i = b;
-    }
-    if (H->n) H->a[i] = last;
-    return top;
-}
+MAX_HEAP(Heap, Cell, heap)
 
 typedef struct {
     double best, best_pt[3], eps, diam;

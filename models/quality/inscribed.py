@@ -85,34 +85,23 @@ def _threads() -> int:
 
 
 def _inscribed_compiled(ext, g: _Geometry, elems: np.ndarray, rel_tol: float):
-    """Compiled best-first search over `elems` (3D), in threads (the module releases the GIL;
-    each element is searched by one thread, so the result does not depend on their number).
-    Returns centres, radii and the elements it gave up on (cell budget spent; none on any mesh
-    measured)."""
-    centres = np.full((g.n, 3), np.nan)
+    """Compiled best-first search over `elems` (3D: _fastmetrics.c's inscribed; 2D: _fastcircle.c's
+    inscribed2d), in threads (the module releases the GIL; each element is searched by one thread,
+    so the result does not depend on their number). Returns centres, radii and the elements it gave
+    up on (cell budget spent; none on any mesh measured)."""
+    centres = np.full((g.n, g.dim), np.nan)
     radius = np.zeros(g.n)
     evals = np.zeros(g.n, dtype=np.int64)
     elems = np.ascontiguousarray(elems, dtype=np.int64)
-    args = (
-        np.ascontiguousarray(g.prim, dtype=np.float64),
-        np.ascontiguousarray(g.tri_adj, dtype=np.int64),
-        np.ascontiguousarray(g.prim_ptr, dtype=np.int64),
-    )
-    rest = (
-        np.ascontiguousarray(g.diameter, dtype=np.float64),
-        np.ascontiguousarray(g.bbox_lo, dtype=np.float64),
-        np.ascontiguousarray(g.bbox_hi, dtype=np.float64),
-        (g.signed_measure >= 0).astype(np.uint8),
-        float(rel_tol),
-        _EXT_MAX_CELLS,
-        centres,
-        radius,
-        evals,
-    )
-    return _in_threads(ext.inscribed, args, elems, rest, centres, radius, evals)
-
-
-def _in_threads(fn, args, elems, rest, centres, radius, evals):
+    prim = np.ascontiguousarray(g.prim, dtype=np.float64)
+    ptr = np.ascontiguousarray(g.prim_ptr, dtype=np.int64)
+    boxes = tuple(np.ascontiguousarray(a, dtype=np.float64) for a in (g.diameter, g.bbox_lo, g.bbox_hi))
+    if g.dim == 3:
+        fn, args = ext.inscribed, (prim, np.ascontiguousarray(g.tri_adj, dtype=np.int64), ptr)
+        orient = ((g.signed_measure >= 0).astype(np.uint8),)
+    else:
+        fn, args, orient = ext.inscribed2d, (prim, ptr), ()
+    rest = (*boxes, *orient, float(rel_tol), _EXT_MAX_CELLS, centres, radius, evals)
     nt = min(_threads(), max(1, elems.size // 16))
     if nt == 1:
         fn(*args, elems, *rest)
@@ -122,30 +111,6 @@ def _in_threads(fn, args, elems, rest, centres, radius, evals):
         with ThreadPoolExecutor(nt) as pool:
             list(pool.map(lambda k: fn(*args, elems[k::nt].copy(), *rest), range(nt)))
     return centres, radius, elems[evals[elems] < 0]
-
-
-def _inscribed_compiled_2d(ext, g: _Geometry, elems: np.ndarray, rel_tol: float):
-    """Compiled best-first search over the 2D `elems` (models/quality/_fastcircle.c), in threads as
-    in 3D. Returns centres, radii and the elements it gave up on (cell budget spent)."""
-    centres = np.full((g.n, 2), np.nan)
-    radius = np.zeros(g.n)
-    evals = np.zeros(g.n, dtype=np.int64)
-    elems = np.ascontiguousarray(elems, dtype=np.int64)
-    args = (
-        np.ascontiguousarray(g.prim, dtype=np.float64),
-        np.ascontiguousarray(g.prim_ptr, dtype=np.int64),
-    )
-    rest = (
-        np.ascontiguousarray(g.diameter, dtype=np.float64),
-        np.ascontiguousarray(g.bbox_lo, dtype=np.float64),
-        np.ascontiguousarray(g.bbox_hi, dtype=np.float64),
-        float(rel_tol),
-        _EXT_MAX_CELLS,
-        centres,
-        radius,
-        evals,
-    )
-    return _in_threads(ext.inscribed2d, args, elems, rest, centres, radius, evals)
 
 
 def _inscribed(g: _Geometry, rel_tol: float, method: str = "auto"):
@@ -161,8 +126,7 @@ def _inscribed(g: _Geometry, rel_tol: float, method: str = "auto"):
         ext = None  # a module built before the 2D search
     if rest.size and ext is not None:
         done = rest
-        search = _inscribed_compiled if g.dim == 3 else _inscribed_compiled_2d
-        c2, r2, rest = search(ext, g, rest, rel_tol)
+        c2, r2, rest = _inscribed_compiled(ext, g, rest, rel_tol)
         centres[done], radius[done] = c2[done], r2[done]
     if rest.size:
         # elements in batches of about _BNB_BATCH_PRIMS boundary primitives: the search's per-level
