@@ -27,6 +27,7 @@ DATA = ROOT / "tests" / "data"
 BRAIN = DATA / "BrainCoronalNoHoles.vtu"
 PY = sys.executable
 SHARED_REDIS = "redis://127.0.0.1:6379/0"
+PG_ADMIN = "postgresql://postgres@127.0.0.1:5432/test"
 
 
 def square_mesh(path: Path, n: int = 20) -> Path:
@@ -334,3 +335,40 @@ def upload_raw(client, name: str, data: bytes, token: str):
         content=data,
         headers={"Content-Type": "application/octet-stream", "Authorization": f"Bearer {token}"},
     )
+
+
+@contextlib.contextmanager
+def store_url(store: str):
+    """The job store's database URL: None for "sqlite" (the default store), or for "postgresql" a
+    fresh database, dropped afterwards (the test skipped when PostgreSQL is down)."""
+    if store != "postgresql":
+        yield None
+        return
+    import pytest
+
+    psycopg = pytest.importorskip("psycopg")
+    try:
+        admin = psycopg.connect(PG_ADMIN, autocommit=True, connect_timeout=5)
+    except psycopg.OperationalError as exc:
+        pytest.skip(f"PostgreSQL is not reachable at 127.0.0.1:5432: {exc}")
+    name = f"magnet_test_{uuid.uuid4().hex[:12]}"
+    admin.execute(f'CREATE DATABASE "{name}"')
+    try:
+        yield f"postgresql://postgres@127.0.0.1:5432/{name}"
+    finally:
+        admin.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+        admin.close()
+
+
+@contextlib.contextmanager
+def app_on_store(tmp: Path, store: str, **settings):
+    """The app in a TestClient on the job store `store` (store_url), with these Settings."""
+    from fastapi.testclient import TestClient
+
+    from jobqueue.settings import Settings
+    from service.app import create_app
+
+    with store_url(store) as url:
+        with TestClient(create_app(Settings(data_dir=tmp / "data", database_url=url, **settings))) as client:
+            yield client
+            client.app.state.ctx.db.engine.dispose()

@@ -4,30 +4,18 @@ API and worker share it; jobs run, dedup works, a restart of the API loses nothi
 from __future__ import annotations
 
 import signal
-import uuid
 
 import pytest
-from service_fixtures import SHARED_REDIS, Api, service_env, square_mesh, start_api, start_worker
+from service_fixtures import SHARED_REDIS, Api, service_env, square_mesh, start_api, start_worker, store_url
 from test_queue_redis import redis_up
 
 pytestmark = [pytest.mark.postgres, pytest.mark.redis, pytest.mark.slow]
-ADMIN_URL = "postgresql://postgres@127.0.0.1:5432/test"
 
 
 @pytest.fixture
 def pg_database():
-    psycopg = pytest.importorskip("psycopg")
-    name = f"magnet_test_{uuid.uuid4().hex[:12]}"
-    try:
-        admin = psycopg.connect(ADMIN_URL, autocommit=True, connect_timeout=5)
-    except psycopg.OperationalError as exc:
-        pytest.skip(f"PostgreSQL is not reachable at 127.0.0.1:5432: {exc}")
-    admin.execute(f'CREATE DATABASE "{name}"')
-    try:
-        yield f"postgresql://postgres@127.0.0.1:5432/{name}"
-    finally:
-        admin.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
-        admin.close()
+    with store_url("postgresql") as url:
+        yield url
 
 
 def test_postgres_job_store(tmp_path, pg_database):

@@ -5,13 +5,12 @@ with the worker's own execute_job)."""
 from __future__ import annotations
 
 import json
-import uuid
 
 import meshio
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
-from service_fixtures import square_mesh
+from service_fixtures import app_on_store, square_mesh
 
 from jobqueue.settings import Settings
 from models.errors import MeshError
@@ -20,7 +19,6 @@ from service.app import create_app
 from worker.tasks import execute_job
 
 KEYS = "alice:alice-token,bob:bob-token"
-PG_ADMIN = "postgresql://postgres@127.0.0.1:5432/test"
 
 
 def auth(user: str) -> dict:
@@ -78,25 +76,8 @@ def test_non_finite_numbers_are_422_naming_the_field(app, square):
 @pytest.fixture(params=["sqlite", "postgresql"])
 def any_store(request, tmp_path):
     """The app on SQLite, then on a fresh PostgreSQL database (skipped when PostgreSQL is down)."""
-    url = None
-    if request.param == "postgresql":
-        psycopg = pytest.importorskip("psycopg")
-        try:
-            admin = psycopg.connect(PG_ADMIN, autocommit=True, connect_timeout=5)
-        except psycopg.OperationalError as exc:
-            pytest.skip(f"PostgreSQL is not reachable: {exc}")
-        name = f"magnet_test_{uuid.uuid4().hex[:12]}"
-        admin.execute(f'CREATE DATABASE "{name}"')
-        url = f"postgresql://postgres@127.0.0.1:5432/{name}"
-    try:
-        settings = Settings(data_dir=tmp_path / "data", api_keys=KEYS, database_url=url)
-        with TestClient(create_app(settings)) as client:
-            yield client
-            client.app.state.ctx.db.engine.dispose()
-    finally:
-        if url:
-            admin.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
-            admin.close()
+    with app_on_store(tmp_path, request.param, api_keys=KEYS) as client:
+        yield client
 
 
 def test_nul_bytes_are_404_or_422_on_every_store(any_store, square):

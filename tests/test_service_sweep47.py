@@ -11,20 +11,18 @@ import base64
 import re
 import subprocess
 import sys
-import uuid
 import zipfile
 from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 from fastapi.testclient import TestClient
-from service_fixtures import ROOT, square_mesh
+from service_fixtures import ROOT, app_on_store, square_mesh
 
 from jobqueue.settings import Settings
 from service.app import create_app
 
 KEYS = "alice:alice-token"
 AUTH = {"Authorization": "Bearer alice-token"}
-PG_ADMIN = "postgresql://postgres@127.0.0.1:5432/test"
 
 
 @pytest.fixture(scope="module")
@@ -166,27 +164,8 @@ def test_the_same_bytes_under_another_extension_are_another_upload(client, squar
 def limited(request, tmp_path):
     """The app with a queue limit of 5, on SQLite, then on a fresh PostgreSQL database (skipped when
     PostgreSQL is down)."""
-    url = None
-    if request.param == "postgresql":
-        psycopg = pytest.importorskip("psycopg")
-        try:
-            admin = psycopg.connect(PG_ADMIN, autocommit=True, connect_timeout=5)
-        except psycopg.OperationalError as exc:
-            pytest.skip(f"PostgreSQL is not reachable: {exc}")
-        name = f"magnet_test_{uuid.uuid4().hex[:12]}"
-        admin.execute(f'CREATE DATABASE "{name}"')
-        url = f"postgresql://postgres@127.0.0.1:5432/{name}"
-    try:
-        settings = Settings(
-            data_dir=tmp_path / "data", api_keys=KEYS, database_url=url, max_queued_jobs_per_user=5
-        )
-        with TestClient(create_app(settings)) as client:
-            yield client
-            client.app.state.ctx.db.engine.dispose()
-    finally:
-        if url:
-            admin.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
-            admin.close()
+    with app_on_store(tmp_path, request.param, api_keys=KEYS, max_queued_jobs_per_user=5) as client:
+        yield client
 
 
 def test_the_queue_limit_holds_under_parallel_submission(limited, square):
