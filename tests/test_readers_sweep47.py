@@ -127,25 +127,12 @@ def test_a_bad_point_id_in_one_piece_of_a_vtkhdf_does_not_reach_into_another(tmp
     against 2); it is a cell referring to a missing point, left out and said, as in a single grid."""
     vtk = pytest.importorskip("vtk")
     h5py = pytest.importorskip("h5py")
-
-    def box(x0, n=3):
-        s = vtk.vtkImageData()
-        s.SetDimensions(n + 1, n + 1, n + 1)
-        s.SetSpacing(1 / n, 1 / n, 1 / n)
-        s.SetOrigin(x0, 0, 0)
-        t = vtk.vtkDataSetTriangleFilter()
-        t.SetInputData(s)
-        t.Update()
-        return t.GetOutput()
+    from test_readers_sweep47b import _tetra_box, _vtkhdf
 
     p = vtk.vtkPartitionedDataSet()
-    p.SetPartition(0, box(0.0))
-    p.SetPartition(1, box(1.0))
-    path = str(tmp_path / "pieces.vtkhdf")
-    w = vtk.vtkHDFWriter()
-    w.SetFileName(path)
-    w.SetInputData(p)
-    w.Write()
+    p.SetPartition(0, _tetra_box(0.0, 3))
+    p.SetPartition(1, _tetra_box(1.0, 3))
+    path = _vtkhdf(p, tmp_path / "pieces.vtkhdf")
     good = read_mesh(path)
     assert good.n_cells == 270 and abs(good.meta["measures"].sum() - 2.0) < 1e-12
     with h5py.File(path, "r+") as h:

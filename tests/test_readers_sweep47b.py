@@ -115,6 +115,17 @@ def _tetra_box(x0: float, n: int = 4):
     return t.GetOutput()
 
 
+def _vtkhdf(data, path) -> str:
+    """`data` written by VTK's vtkHDFWriter to `path`; the path as a string."""
+    import vtk
+
+    w = vtk.vtkHDFWriter()
+    w.SetFileName(str(path))
+    w.SetInputData(data)
+    w.Write()
+    return str(path)
+
+
 def test_vtkhdf_multiblock_block_names_are_group_names(tmp_path):
     """pyvista's MultiBlock({'steel': ..., 'rubber': ...}).save('x.vtkhdf') (vtkHDFWriter): the
     block names were dropped (group_names {}), where the same blocks as .vtm named their groups."""
@@ -147,12 +158,7 @@ def test_vtkhdf_partitioned_collection_names_its_datasets(tmp_path):
             p.SetPartition(j, _tetra_box(x0, 2))
         pdc.SetPartitionedDataSet(i, p)
         pdc.GetMetaData(i).Set(vtk.vtkCompositeDataSet.NAME(), name)
-    path = str(tmp_path / "pdc.vtkhdf")
-    w = vtk.vtkHDFWriter()
-    w.SetFileName(path)
-    w.SetInputData(pdc)
-    w.Write()
-    m = read_mesh(path)
+    m = read_mesh(_vtkhdf(pdc, tmp_path / "pdc.vtkhdf"))
     assert m.n_cells == 3 * 40
     names = {int(k): v for k, v in m.meta["group_names"].items()}
     assert names == {1: "steel", 2: "rubber", 3: "rubber (2)"}
@@ -266,11 +272,6 @@ def test_vtkhdf_partitions_of_one_mesh_are_no_groups(tmp_path):
     p = vtk.vtkPartitionedDataSet()
     p.SetPartition(0, _tetra_box(0.0, 2))
     p.SetPartition(1, _tetra_box(1.0, 2))
-    path = str(tmp_path / "pieces.vtkhdf")
-    w = vtk.vtkHDFWriter()
-    w.SetFileName(path)
-    w.SetInputData(p)
-    w.Write()
-    m = read_mesh(path)
+    m = read_mesh(_vtkhdf(p, tmp_path / "pieces.vtkhdf"))
     assert m.n_cells == 80 and len(m.points) == 5 * 3 * 3
     assert m.tags is None or np.unique(m.tags).size == 1
